@@ -1,0 +1,22 @@
+"""geofeat: geodesic-aware local features (GeoBit, GeoPatch) on RGB-D images."""
+
+from .depth import DepthConfig
+from .frame import RGBDFrame
+from .geodesic.mesh import GridMesh, build_mesh
+from .geodesic.polar import PolarPatches, polar_patches
+from .io import read_frame, read_sequence, read_demo_frame, Sequence
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "DepthConfig",
+    "GridMesh",
+    "PolarPatches",
+    "RGBDFrame",
+    "Sequence",
+    "build_mesh",
+    "polar_patches",
+    "read_demo_frame",
+    "read_frame",
+    "read_sequence",
+]

@@ -1,0 +1,191 @@
+"""Depth preprocessing: hole filling, masked smoothing pyramid, back-projection.
+
+All depths are in metres, 0 = missing. Image coordinates follow OpenCV (the centre of the top-left
+pixel is (0, 0)).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+from .constants import HOLE_MAX_PERIMETER_PX, IDW_POWER, MESH_SCALE, SMOOTH_LEVELS, SMOOTH_WINDOW_PX
+
+FILL_METHODS = ("idw", "simple", "none")
+
+
+@dataclass(frozen=True)
+class DepthConfig:
+    """How depth becomes the surface that rays walk on (defaults = the paper's real-data setting).
+
+    Attributes:
+        fill: hole filling, "idw" (inverse-distance weighting), "simple" (mean of the hole's
+            border) or "none".
+        smooth_levels: rounds of masked box smoothing + 2x downscale ("depth two" = 2); 0 = raw.
+        mesh_scale: mesh resolution relative to the frame (0.5: a 640x480 frame gives a 320x240 mesh).
+        constant: replace the depth by its median everywhere (ablation: a fronto-parallel plane).
+        max_perimeter: holes whose border has at least this many pixels stay holes.
+    """
+
+    fill: str = "idw"
+    smooth_levels: int = SMOOTH_LEVELS
+    mesh_scale: float = MESH_SCALE
+    constant: bool = False
+    max_perimeter: int = HOLE_MAX_PERIMETER_PX
+
+    def __post_init__(self) -> None:
+        if self.fill not in FILL_METHODS:
+            raise ValueError(f"fill: expected one of {FILL_METHODS}, got {self.fill!r}")
+        if self.smooth_levels < 0:
+            raise ValueError(f"smooth_levels: must be >= 0, got {self.smooth_levels}")
+        if not 0 < self.mesh_scale <= 1:
+            raise ValueError(f"mesh_scale: must be in (0, 1], got {self.mesh_scale}")
+
+
+#: Ablation settings: raw depth, constant depth, simple fill, IDW fill (the default).
+DEPTH_MODES = {
+    "default": DepthConfig(),
+    "raw": DepthConfig(fill="none", smooth_levels=0),
+    "constant": DepthConfig(constant=True),
+    "simple-fill": DepthConfig(fill="simple"),
+}
+
+
+def fill_holes(
+    depth: np.ndarray,
+    max_perimeter: int = HOLE_MAX_PERIMETER_PX,
+    method: str = "idw",
+    power: float = IDW_POWER,
+) -> np.ndarray:
+    """Fill small holes of an (H, W) depth map (metres, 0 = missing).
+
+    A hole is a 4-connected region of zeros that does not touch the image border. Holes whose
+    border (the valid pixels 8-adjacent to them) has fewer than `max_perimeter` pixels are filled:
+    "idw" gives each hole pixel sum(w z) / sum(w) over the border pixels with w = 1 / d**power
+    (d = pixel distance); "simple" gives the mean border depth. Larger holes stay 0.
+
+    Returns a new (H, W) float32 array.
+    """
+    if method not in FILL_METHODS:
+        raise ValueError(f"method: expected one of {FILL_METHODS}, got {method!r}")
+    out = np.array(depth, dtype=np.float32, copy=True)
+    if method == "none":
+        return out
+    missing = out <= 0
+    labels, n = ndimage.label(missing)
+    if n == 0:
+        return out
+    H, W = out.shape
+    eight = np.ones((3, 3), bool)
+    for index, sl in enumerate(ndimage.find_objects(labels), start=1):
+        if sl is None:
+            continue
+        y0, y1, x0, x1 = sl[0].start, sl[0].stop, sl[1].start, sl[1].stop
+        if y0 == 0 or x0 == 0 or y1 == H or x1 == W:
+            continue  # touches the border: not an enclosed hole
+        ys, xs = slice(y0 - 1, y1 + 1), slice(x0 - 1, x1 + 1)
+        hole = labels[ys, xs] == index
+        border = ndimage.binary_dilation(hole, eight) & ~missing[ys, xs]
+        if border.sum() >= max_perimeter:
+            continue
+        by, bx = np.nonzero(border)
+        bz = out[ys, xs][by, bx].astype(np.float64)
+        hy, hx = np.nonzero(hole)
+        if method == "simple":
+            values = np.full(hy.shape, bz.mean())
+        else:
+            d2 = (hy[:, None] - by[None, :]) ** 2 + (hx[:, None] - bx[None, :]) ** 2
+            w = d2.astype(np.float64) ** (-power / 2.0)
+            values = (w @ bz) / w.sum(axis=1)
+        region = out[ys, xs]
+        region[hy, hx] = values.astype(np.float32)
+    return out
+
+
+def _masked_box_mean(depth: np.ndarray, window: int) -> np.ndarray:
+    """Mean over the valid pixels of a centred window, written at valid pixels only."""
+    valid = (depth > 0).astype(np.float32)
+    num = cv2.boxFilter(depth * valid, -1, (window, window), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    den = cv2.boxFilter(valid, -1, (window, window), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    out = np.where(valid > 0, num / np.maximum(den, 1e-12), 0.0)
+    return out.astype(np.float32)
+
+
+def _halve(depth: np.ndarray) -> np.ndarray:
+    """2x downscale by 2x2 block averaging; a block with any missing pixel is missing."""
+    H, W = depth.shape
+    d = depth[: H // 2 * 2, : W // 2 * 2].reshape(H // 2, 2, W // 2, 2)
+    complete = (d > 0).all(axis=(1, 3))
+    return np.where(complete, d.mean(axis=(1, 3)), 0.0).astype(np.float32)
+
+
+def _masked_resize(depth: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Bilinear resize to size = (W, H); an output pixel that touches a missing pixel is missing."""
+    if depth.shape[::-1] == tuple(size):
+        return depth.astype(np.float32)
+    valid = (depth > 0).astype(np.float32)
+    num = cv2.resize(depth * valid, size, interpolation=cv2.INTER_LINEAR)
+    den = cv2.resize(valid, size, interpolation=cv2.INTER_LINEAR)
+    return np.where(den > 0.999, num / np.maximum(den, 1e-12), 0.0).astype(np.float32)
+
+
+def smooth(
+    depth: np.ndarray,
+    levels: int = SMOOTH_LEVELS,
+    out_scale: float = MESH_SCALE,
+    window: int = SMOOTH_WINDOW_PX,
+) -> np.ndarray:
+    """Masked smoothing pyramid: `levels` rounds of (masked `window` box mean, 2x downscale),
+    then a masked bilinear resize to `out_scale` times the input size.
+
+    Args:
+        depth: (H, W) metres, 0 = missing.
+    Returns:
+        (round(H * out_scale), round(W * out_scale)) float32 metres, 0 = missing.
+    """
+    H, W = depth.shape
+    size = (max(2, int(round(W * out_scale))), max(2, int(round(H * out_scale))))
+    d = np.asarray(depth, dtype=np.float32)
+    for _ in range(levels):
+        if min(d.shape) < 2 * window:
+            break
+        d = _halve(_masked_box_mean(d, window))
+    return _masked_resize(d, size)
+
+
+def scale_intrinsics(K: np.ndarray, sx: float, sy: float) -> np.ndarray:
+    """Intrinsics of an image resized by (sx, sy), pixel centres kept consistent:
+    x' = (x + 0.5) * sx - 0.5."""
+    Ks = np.array(K, dtype=np.float64, copy=True)
+    Ks[0, 0] *= sx
+    Ks[0, 1] *= sx
+    Ks[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
+    Ks[1, 1] *= sy
+    Ks[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
+    return Ks
+
+
+def backproject(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Back-project an (H, W) depth map (metres) with intrinsics K to (H, W, 3) camera-frame points
+    in metres; missing pixels give NaN."""
+    H, W = depth.shape
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    z = np.where(depth > 0, depth.astype(np.float64), np.nan)
+    x = (u - K[0, 2]) / K[0, 0] * z
+    y = (v - K[1, 2]) / K[1, 1] * z
+    return np.stack([x, y, z], axis=-1)
+
+
+def preprocess_depth(depth: np.ndarray, config: DepthConfig = DepthConfig()) -> np.ndarray:
+    """Full depth preprocessing of an (H, W) metre depth map into the mesh-resolution depth map
+    (see `DepthConfig`). Returns (Hm, Wm) float32 metres, 0 = missing."""
+    depth = np.asarray(depth, dtype=np.float32)
+    if config.constant:
+        valid = depth > 0
+        depth = np.full_like(depth, np.median(depth[valid]) if valid.any() else 0.0)
+    else:
+        depth = fill_holes(depth, config.max_perimeter, config.fill)
+    return smooth(depth, config.smooth_levels, config.mesh_scale)

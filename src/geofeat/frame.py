@@ -1,0 +1,144 @@
+"""RGBDFrame: one registered colour + depth image with its pinhole intrinsics."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from .constants import MAX_PLAUSIBLE_DEPTH_M
+
+
+def to_gray(image: np.ndarray) -> np.ndarray:
+    """Convert an (H, W) or (H, W, 3) BGR image (uint8 or float in [0, 1]) to float32 gray in [0, 1]."""
+    image = np.asarray(image)
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    if image.ndim == 3 and image.shape[2] == 3:
+        if image.dtype == np.uint8:
+            gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY).astype(np.float32) / 255.0
+        else:
+            gray = cv2.cvtColor(image.astype(np.float32), cv2.COLOR_BGR2GRAY)
+    elif image.ndim == 2:
+        gray = image.astype(np.float32)
+        if image.dtype == np.uint8:
+            gray /= 255.0
+        elif image.dtype == np.uint16:
+            gray /= 65535.0
+    else:
+        raise ValueError(f"image: expected shape (H, W) or (H, W, 3), got {image.shape}")
+    if not np.isfinite(gray).all():
+        raise ValueError("image: contains NaN or infinite values")
+    if image.dtype != np.uint8 and image.dtype != np.uint16 and (gray.min() < 0 or gray.max() > 1.0 + 1e-6):
+        raise ValueError(
+            f"image: float images must lie in [0, 1], got range [{gray.min():.3g}, {gray.max():.3g}]"
+        )
+    return np.ascontiguousarray(gray, dtype=np.float32)
+
+
+def check_intrinsics(K: np.ndarray) -> np.ndarray:
+    """Validate a 3x3 pinhole camera matrix and return it as float64."""
+    K = np.asarray(K, dtype=np.float64)
+    if K.shape != (3, 3):
+        raise ValueError(f"K: expected a (3, 3) camera matrix, got shape {K.shape}")
+    if not np.isfinite(K).all():
+        raise ValueError("K: contains NaN or infinite values")
+    if K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise ValueError(f"K: focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}")
+    if abs(K[2, 2] - 1.0) > 1e-9 or abs(K[2, 0]) > 1e-9 or abs(K[2, 1]) > 1e-9:
+        raise ValueError(f"K: last row must be [0, 0, 1], got {K[2].tolist()}")
+    return K
+
+
+def check_depth(depth: np.ndarray, shape: tuple[int, int] | None = None) -> np.ndarray:
+    """Validate an (H, W) depth map in metres (0 = missing) and return it as float32."""
+    depth = np.asarray(depth)
+    if depth.ndim != 2:
+        raise ValueError(f"depth: expected shape (H, W), got {depth.shape}")
+    if shape is not None and depth.shape != shape:
+        raise ValueError(f"depth: shape {depth.shape} differs from the image shape {shape}")
+    if depth.dtype.kind not in "fiu":
+        raise TypeError(f"depth: expected a numeric array in metres, got dtype {depth.dtype}")
+    depth = depth.astype(np.float32)
+    if np.isnan(depth).any() or np.isinf(depth).any():
+        raise ValueError("depth: contains NaN or infinite values; use 0 for missing depth")
+    if (depth < 0).any():
+        raise ValueError(f"depth: negative values (min {depth.min():.3g} m); use 0 for missing depth")
+    valid = depth > 0
+    if not valid.any():
+        raise ValueError("depth: every pixel is 0 (missing); nothing to build a surface from")
+    median = float(np.median(depth[valid]))
+    if median > MAX_PLAUSIBLE_DEPTH_M:
+        raise ValueError(
+            f"depth: median {median:.1f} looks like millimetres; depth must be in metres "
+            "(divide by 1000, or read it with read_frame(..., depth_scale=0.001))"
+        )
+    return np.ascontiguousarray(depth)
+
+
+@dataclass(frozen=True)
+class RGBDFrame:
+    """A registered RGB-D frame.
+
+    Attributes:
+        image: (H, W) float32 gray image in [0, 1].
+        depth: (H, W) float32 depth in metres, 0 where missing.
+        K: (3, 3) float64 pinhole intrinsics in pixels (OpenCV convention: the centre of the
+            top-left pixel is (0, 0)).
+        color: optional (H, W, 3) uint8 BGR image, kept for display.
+    """
+
+    image: np.ndarray
+    depth: np.ndarray
+    K: np.ndarray
+    color: np.ndarray | None = field(default=None, repr=False, compare=False)
+
+    def __init__(self, image: np.ndarray, depth: np.ndarray, K: np.ndarray) -> None:
+        image = np.asarray(image)
+        if image.ndim not in (2, 3):
+            raise ValueError(f"image: expected shape (H, W) or (H, W, 3), got {image.shape}")
+        gray = to_gray(image)
+        color = image if (image.ndim == 3 and image.dtype == np.uint8) else None
+        object.__setattr__(self, "image", gray)
+        object.__setattr__(self, "depth", check_depth(depth, gray.shape))
+        object.__setattr__(self, "K", check_intrinsics(K))
+        object.__setattr__(self, "color", color)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W) in pixels."""
+        return self.image.shape  # type: ignore[return-value]
+
+    def rotated90(self, k: int = 1) -> "RGBDFrame":
+        """The same frame seen by a camera rolled by k * 90 degrees (image rotated counter-clockwise
+        as displayed), with intrinsics changed consistently. Used to test rotation invariance."""
+        k %= 4
+        H, W = self.shape
+        K = self.K.copy()
+        image = self.color if self.color is not None else self.image
+        fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+        if k == 0:
+            return RGBDFrame(image, self.depth, K)
+        if k == 1:  # new (x', y') = (y, W - 1 - x)
+            Kn = np.array([[fy, 0, cy], [0, fx, W - 1 - cx], [0, 0, 1.0]])
+        elif k == 2:  # new (x', y') = (W - 1 - x, H - 1 - y)
+            Kn = np.array([[fx, 0, W - 1 - cx], [0, fy, H - 1 - cy], [0, 0, 1.0]])
+        else:  # new (x', y') = (H - 1 - y, x)
+            Kn = np.array([[fy, 0, H - 1 - cy], [0, fx, cx], [0, 0, 1.0]])
+        return RGBDFrame(np.ascontiguousarray(np.rot90(image, k)), np.ascontiguousarray(np.rot90(self.depth, k)), Kn)
+
+
+def rotate_points90(points: np.ndarray, shape: tuple[int, int], k: int = 1) -> np.ndarray:
+    """Map (N, 2) pixel coordinates of an (H, W) image into the image rotated by `np.rot90(., k)`."""
+    k %= 4
+    H, W = shape
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    x, y = p[:, 0], p[:, 1]
+    if k == 0:
+        return p.copy()
+    if k == 1:
+        return np.stack([y, W - 1 - x], axis=1)
+    if k == 2:
+        return np.stack([W - 1 - x, H - 1 - y], axis=1)
+    return np.stack([H - 1 - y, x], axis=1)

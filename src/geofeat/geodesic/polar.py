@@ -1,0 +1,159 @@
+"""Geodesic polar patches: the mapping f(.) of the paper.
+
+For every keypoint, `n_angles` straightest geodesics leave the keypoint on the depth surface and are
+sampled every radius / n_rings of arc length; the samples are projected into the image and the gray
+image is read there (bilinear). Row i of a patch is the ring at geodesic distance
+(i + 1) * radius / n_rings; column k is the direction at angle 2 pi k / n_angles, counter-clockwise as
+displayed, from the image +x axis projected onto the surface's tangent plane at the keypoint.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..constants import DEFAULT_RADIUS_M, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX
+from ..depth import DepthConfig
+from ..frame import RGBDFrame
+from .mesh import GridMesh, build_mesh
+from .walk import MAX_CROSSINGS, walk_polar
+
+
+@dataclass
+class PolarPatches:
+    """Polar patches of N keypoints.
+
+    Attributes:
+        keypoints: (N, 2) float64 image pixel coordinates (x, y).
+        values: (N, R, A) float32 gray intensities in [0, 1]; 0 for invalid keypoints.
+        coords: (N, R, A, 2) float32 image pixel coordinates (x, y) of every sample; NaN for invalid
+            keypoints.
+        valid: (N,) bool. False when the keypoint has no surface under it (missing depth, mesh border,
+            depth discontinuity) or when some direction cannot reach the first ring.
+        rings_reached: (N, A) int32, rings of each direction that lie on the surface. A ray that
+            leaves the surface early (hole, border, discontinuity) repeats the last surface point it
+            reached in its remaining rings, so every sample lies on the mesh.
+        points: (N, R, A, 3) float32 camera-frame 3D positions of the samples, metres.
+        radius: geodesic radius of the outer ring, metres.
+    """
+
+    keypoints: np.ndarray
+    values: np.ndarray
+    coords: np.ndarray
+    valid: np.ndarray
+    rings_reached: np.ndarray
+    points: np.ndarray
+    radius: float
+
+    def __len__(self) -> int:
+        return len(self.keypoints)
+
+
+def as_keypoint_array(keypoints, shape: tuple[int, int] | None = None) -> np.ndarray:
+    """Accept an (N, 2) array of (x, y) pixels or a list of cv2.KeyPoint; check they lie on the image."""
+    if isinstance(keypoints, (list, tuple)) and keypoints and isinstance(keypoints[0], cv2.KeyPoint):
+        keypoints = np.array([k.pt for k in keypoints], dtype=np.float64)
+    kp = np.asarray(keypoints, dtype=np.float64)
+    if kp.size == 0:
+        return np.zeros((0, 2))
+    if kp.ndim != 2 or kp.shape[1] != 2:
+        raise ValueError(f"keypoints: expected shape (N, 2) of (x, y) pixels, got {kp.shape}")
+    if not np.isfinite(kp).all():
+        raise ValueError("keypoints: contain NaN or infinite coordinates")
+    if shape is not None:
+        H, W = shape
+        off = (kp[:, 0] < -0.5) | (kp[:, 0] > W - 0.5) | (kp[:, 1] < -0.5) | (kp[:, 1] > H - 0.5)
+        if off.any():
+            i = int(np.argmax(off))
+            raise ValueError(
+                f"keypoints: {int(off.sum())} keypoint(s) off the {W}x{H} image, e.g. #{i} at "
+                f"({kp[i, 0]:.1f}, {kp[i, 1]:.1f})"
+            )
+    return kp
+
+
+def sampling_image(frame: RGBDFrame, blur_px: float = SAMPLING_BLUR_PX) -> np.ndarray:
+    """The gray image that patches are read from: (H, W) float32, lightly blurred against aliasing."""
+    if blur_px <= 0:
+        return frame.image
+    return cv2.GaussianBlur(frame.image, (0, 0), blur_px)
+
+
+def sample_bilinear(image: np.ndarray, coords: np.ndarray) -> np.ndarray:
+    """Bilinear intensities of an (H, W) float32 image at (..., 2) pixel coordinates (x, y);
+    coordinates off the image take the nearest border value."""
+    shape = coords.shape[:-1]
+    flat = coords.reshape(-1, 2).astype(np.float32)
+    if flat.shape[0] == 0:
+        return np.zeros(shape, np.float32)
+    # cv2.remap needs maps under 32767 rows and columns: lay the points out 1024 per row
+    width = 1024
+    rows = -(-flat.shape[0] // width)
+    padded = np.zeros((rows * width, 2), np.float32)
+    padded[: flat.shape[0]] = flat
+    maps = padded.reshape(rows, width, 2)
+    out = cv2.remap(image, maps, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    out = out.reshape(-1)[: flat.shape[0]]
+    return out.reshape(shape)
+
+
+def project(points: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Project (..., 3) camera-frame points (metres) to (..., 2) pixel coordinates with K."""
+    z = points[..., 2]
+    x = K[0, 0] * points[..., 0] / z + K[0, 1] * points[..., 1] / z + K[0, 2]
+    y = K[1, 1] * points[..., 1] / z + K[1, 2]
+    return np.stack([x, y], axis=-1)
+
+
+def polar_patches(
+    frame: RGBDFrame,
+    keypoints,
+    radius: float = DEFAULT_RADIUS_M,
+    n_angles: int = N_ANGLES,
+    n_rings: int = N_RINGS,
+    depth_config: DepthConfig = DepthConfig(),
+    mesh: GridMesh | None = None,
+    blur_px: float = SAMPLING_BLUR_PX,
+) -> PolarPatches:
+    """Geodesic polar patches of `keypoints` on `frame` (see module docstring).
+
+    Args:
+        frame: the RGB-D frame.
+        keypoints: (N, 2) pixel coordinates (x, y) or a list of cv2.KeyPoint.
+        radius: geodesic radius of the outer ring, metres.
+        n_angles, n_rings: patch size (columns, rows).
+        depth_config: depth preprocessing (ignored when `mesh` is given).
+        mesh: a prebuilt `build_mesh(frame, ...)` to reuse across calls.
+        blur_px: Gaussian blur of the gray image before sampling, pixels.
+    """
+    if not isinstance(frame, RGBDFrame):
+        raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
+    if not (np.isfinite(radius) and radius > 0):
+        raise ValueError(f"radius: must be a positive number of metres, got {radius}")
+    if radius > 10:
+        raise ValueError(f"radius: {radius} m is implausible; the radius is in metres (e.g. 0.075)")
+    if n_angles < 1 or n_rings < 1:
+        raise ValueError(f"n_angles, n_rings: must be positive, got {n_angles}, {n_rings}")
+    kp = as_keypoint_array(keypoints, frame.shape)
+    if mesh is None:
+        mesh = build_mesh(frame, depth_config)
+    starts = mesh.image_to_mesh(kp) + np.array([1.3e-6, 0.7e-6])  # keeps starts off vertices/edges
+    samples, reached, _ = walk_polar(
+        mesh.points, mesh.face_ok, mesh.normals, starts, float(radius), int(n_angles), int(n_rings), MAX_CROSSINGS
+    )
+    valid = reached.min(axis=1) >= 1 if len(kp) else np.zeros(0, bool)
+    coords = project(samples, frame.K).astype(np.float32)
+    coords[~valid] = np.nan
+    values = sample_bilinear(sampling_image(frame, blur_px), np.nan_to_num(coords, nan=-1.0))
+    values[~valid] = 0.0
+    return PolarPatches(
+        keypoints=kp,
+        values=values.astype(np.float32),
+        coords=coords,
+        valid=valid,
+        rings_reached=reached,
+        points=samples.astype(np.float32),
+        radius=float(radius),
+    )

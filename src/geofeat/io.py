@@ -1,0 +1,205 @@
+"""Readers for the public RGB-D dataset layout.
+
+A sequence folder holds, per frame `<name>`:
+    `<name>-rgb.png`    8-bit colour,
+    `<name>-depth.png`  16-bit depth (default unit: millimetres, 0 = missing),
+    `<name>.csv`        optional landmarks: a header line, then `id, x, y, valid` (pixels),
+and one `intrinsics.xml` (OpenCV FileStorage, node `intrinsics`, 3x3 matrix).
+The reference frame is the one whose name contains `master` or `ref`.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .constants import DEPTH_SCALE_M
+from .frame import RGBDFrame
+
+RGB_SUFFIX = "-rgb.png"
+DEPTH_SUFFIX = "-depth.png"
+
+
+def _existing(path: str | Path, what: str) -> Path:
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{what}: file not found: {path}")
+    return path
+
+
+def read_intrinsics(path: str | Path) -> np.ndarray:
+    """Read the (3, 3) camera matrix from an OpenCV FileStorage `intrinsics.xml` (node `intrinsics`)."""
+    path = _existing(path, "intrinsics_path")
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    try:
+        if not fs.isOpened():
+            raise ValueError(f"intrinsics_path: cannot parse {path} as OpenCV FileStorage")
+        node = fs.getNode("intrinsics")
+        K = None if node.empty() else node.mat()
+    finally:
+        fs.release()
+    if K is None or np.asarray(K).shape != (3, 3):
+        raise ValueError(f"intrinsics_path: {path} has no 3x3 matrix under the node 'intrinsics'")
+    return np.asarray(K, dtype=np.float64)
+
+
+def write_intrinsics(path: str | Path, K: np.ndarray) -> None:
+    """Write a (3, 3) camera matrix as OpenCV FileStorage XML under the node `intrinsics`."""
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    fs.write("intrinsics", np.asarray(K, dtype=np.float64))
+    fs.release()
+
+
+def read_image(path: str | Path, what: str = "rgb_path") -> np.ndarray:
+    """Read an 8-bit colour image as (H, W, 3) uint8 BGR."""
+    path = _existing(path, what)
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise ValueError(f"{what}: cannot decode image {path}")
+    return image
+
+
+def read_depth(path: str | Path, depth_scale: float = DEPTH_SCALE_M) -> np.ndarray:
+    """Read a 16-bit depth PNG as (H, W) float32 metres (value * depth_scale; 0 = missing)."""
+    path = _existing(path, "depth_path")
+    raw = cv2.imread(str(path), cv2.IMREAD_ANYDEPTH)
+    if raw is None:
+        raise ValueError(f"depth_path: cannot decode image {path}")
+    if raw.ndim != 2:
+        raise ValueError(f"depth_path: expected a single-channel depth image, got shape {raw.shape}")
+    if raw.dtype == np.uint8:
+        raise ValueError(f"depth_path: {path} is 8-bit; depth must be a 16-bit PNG")
+    if depth_scale <= 0:
+        raise ValueError(f"depth_scale: must be positive metres per unit, got {depth_scale}")
+    return raw.astype(np.float32) * np.float32(depth_scale)
+
+
+def read_frame(
+    rgb_path: str | Path,
+    depth_path: str | Path,
+    intrinsics_path: str | Path,
+    depth_scale: float = DEPTH_SCALE_M,
+) -> RGBDFrame:
+    """Read one frame of the public layout. `depth_scale` is metres per depth-PNG unit."""
+    return RGBDFrame(read_image(rgb_path), read_depth(depth_path, depth_scale), read_intrinsics(intrinsics_path))
+
+
+def read_landmarks(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Read a landmark csv (`id, x, y, valid` after one header line).
+
+    Returns:
+        ids (N,) int64, xy (N, 2) float64 pixels, visible (N,) bool (valid flag set and x, y >= 0).
+    """
+    path = _existing(path, "landmarks")
+    rows = []
+    for line in Path(path).read_text().splitlines()[1:]:
+        tokens = [t for t in re.split(r"[,\s]+", line.strip()) if t]
+        if not tokens:
+            continue
+        if len(tokens) < 4:
+            raise ValueError(f"landmarks: {path}: expected 'id, x, y, valid', got {line!r}")
+        rows.append([float(t) for t in tokens[:4]])
+    data = np.asarray(rows, dtype=np.float64).reshape(-1, 4)
+    ids = data[:, 0].astype(np.int64)
+    xy = data[:, 1:3]
+    visible = (data[:, 3] > 0) & (xy[:, 0] >= 0) & (xy[:, 1] >= 0)
+    return ids, xy, visible
+
+
+def write_landmarks(path: str | Path, ids: np.ndarray, xy: np.ndarray, visible: np.ndarray) -> None:
+    """Write landmarks in the public csv layout (`id,x,y,valid`, coordinates with 2 decimals)."""
+    lines = ["id,x,y,valid"]
+    for i, (x, y), v in zip(np.asarray(ids), np.asarray(xy), np.asarray(visible)):
+        lines.append(f"{int(i)},{x:.2f},{y:.2f},{int(bool(v))}")
+    Path(path).write_text("\n".join(lines) + "\n")
+
+
+@dataclass
+class Sequence:
+    """A folder of frames in the public layout.
+
+    Attributes:
+        folder: the sequence folder.
+        names: frame names, sorted, reference first.
+        K: (3, 3) intrinsics shared by all frames.
+        depth_scale: metres per depth-PNG unit.
+    """
+
+    folder: Path
+    names: list[str]
+    K: np.ndarray
+    depth_scale: float = DEPTH_SCALE_M
+
+    @property
+    def name(self) -> str:
+        return self.folder.name
+
+    @property
+    def reference(self) -> str:
+        """Name of the reference frame (contains `master` or `ref`)."""
+        return self.names[0]
+
+    @property
+    def targets(self) -> list[str]:
+        return self.names[1:]
+
+    def frame(self, name: str | int) -> RGBDFrame:
+        name = self.names[name] if isinstance(name, int) else name
+        return RGBDFrame(
+            read_image(self.folder / f"{name}{RGB_SUFFIX}"),
+            read_depth(self.folder / f"{name}{DEPTH_SUFFIX}", self.depth_scale),
+            self.K,
+        )
+
+    def landmarks(self, name: str | int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(ids, xy, visible) of the frame's csv, see `read_landmarks`."""
+        name = self.names[name] if isinstance(name, int) else name
+        return read_landmarks(self.folder / f"{name}.csv")
+
+    def has_landmarks(self) -> bool:
+        return all((self.folder / f"{n}.csv").is_file() for n in self.names)
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+
+def read_sequence(folder: str | Path, depth_scale: float | None = None) -> Sequence:
+    """Open a sequence folder of the public layout (see module docstring).
+
+    `depth_scale` (metres per depth unit) defaults to the folder's optional `geofeat.json`
+    (`{"depth_scale": ...}`) and otherwise to 0.001 (millimetres).
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ValueError(f"folder: not a directory: {folder}")
+    names = sorted(p.name[: -len(RGB_SUFFIX)] for p in folder.glob(f"*{RGB_SUFFIX}"))
+    if not names:
+        raise ValueError(f"folder: no '*{RGB_SUFFIX}' frames in {folder}")
+    missing = [n for n in names if not (folder / f"{n}{DEPTH_SUFFIX}").is_file()]
+    if missing:
+        raise ValueError(f"folder: frames without '{DEPTH_SUFFIX}' in {folder}: {missing[:5]}")
+    refs = [n for n in names if "master" in n.lower() or "ref" in n.lower()]
+    reference = refs[0] if refs else names[0]
+    names = [reference] + [n for n in names if n != reference]
+    config_path = folder / "geofeat.json"
+    config = json.loads(config_path.read_text()) if config_path.is_file() else {}
+    if depth_scale is None:
+        depth_scale = float(config.get("depth_scale", DEPTH_SCALE_M))
+    K = read_intrinsics(folder / "intrinsics.xml")
+    return Sequence(folder=folder, names=names, K=K, depth_scale=depth_scale)
+
+
+def demo_data_dir() -> Path:
+    """Folder of the real Kinect v1 frame shipped with geofeat (`cloud_1`, 51 landmarks)."""
+    return Path(__file__).parent / "data" / "kinect_example"
+
+
+def read_demo_frame() -> RGBDFrame:
+    """The shipped real Kinect v1 frame (640x480, depth in mm on disk)."""
+    d = demo_data_dir()
+    return read_frame(d / "cloud_1-rgb.png", d / "cloud_1-depth.png", d / "intrinsics.xml")
