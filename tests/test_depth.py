@@ -1,0 +1,98 @@
+"""Depth preprocessing: hole filling, smoothing pyramid, intrinsics scaling, back-projection."""
+
+import numpy as np
+import pytest
+
+import geofeat
+from geofeat.depth import DepthConfig, backproject, fill_holes, preprocess_depth, scale_intrinsics, smooth
+
+
+def ramp(shape=(200, 300)):
+    v, u = np.mgrid[0:shape[0], 0:shape[1]]
+    return (1.0 + 0.001 * u + 0.0005 * v).astype(np.float32)
+
+
+def test_idw_fills_small_enclosed_holes_close_to_the_surface():
+    truth = ramp()
+    depth = truth.copy()
+    depth[50:60, 80:95] = 0  # small hole: border ~54 px
+    filled = fill_holes(depth)
+    assert (filled[50:60, 80:95] > 0).all()
+    np.testing.assert_allclose(filled[50:60, 80:95], truth[50:60, 80:95], atol=0.004)
+    np.testing.assert_array_equal(filled[depth > 0], depth[depth > 0])
+
+
+def test_large_and_border_holes_stay_holes():
+    depth = ramp()
+    depth[20:170, 20:170] = 0  # border of ~600 px >= 400
+    depth[:, -10:] = 0  # touches the image border
+    filled = fill_holes(depth)
+    assert (filled[20:170, 20:170] == 0).all()
+    assert (filled[:, -10:] == 0).all()
+
+
+def test_simple_fill_and_none():
+    depth = ramp()
+    depth[50:55, 50:55] = 0
+    simple = fill_holes(depth, method="simple")
+    assert np.ptp(simple[50:55, 50:55]) == 0 and simple[52, 52] > 0
+    assert (fill_holes(depth, method="none")[50:55, 50:55] == 0).all()
+    with pytest.raises(ValueError, match="method"):
+        fill_holes(depth, method="cubic")
+
+
+def test_kinect_frame_hole_filling_reduces_missing_pixels():
+    frame = geofeat.read_demo_frame()
+    missing_before = (frame.depth == 0).mean()
+    missing_after = (fill_holes(frame.depth) == 0).mean()
+    assert 0.10 < missing_before < 0.20  # about 14 % of the Kinect frame is missing
+    assert missing_after < missing_before
+
+
+def test_smoothing_keeps_a_plane_and_halves_resolution():
+    depth = ramp((240, 320))
+    out = smooth(depth, levels=2, out_scale=0.5)
+    assert out.shape == (120, 160)
+    K = np.array([[500.0, 0, 160], [0, 500.0, 120], [0, 0, 1]])
+    # the smoothed map samples the same linear ramp at the half-resolution pixel centres
+    v, u = np.mgrid[0:120, 0:160]
+    expected = 1.0 + 0.001 * (2 * u + 0.5) + 0.0005 * (2 * v + 0.5)
+    interior = (slice(10, -10), slice(10, -10))
+    np.testing.assert_allclose(out[interior], expected[interior], atol=1e-5)
+    assert K is not None
+
+
+def test_smoothing_does_not_leak_into_missing_pixels():
+    depth = ramp((240, 320))
+    depth[:, :100] = 0
+    out = smooth(depth, levels=2, out_scale=0.5)
+    assert (out[:, :45] == 0).all()
+    assert (out[:, 60:] > 0).all()
+
+
+def test_scaled_intrinsics_project_consistently():
+    K = np.array([[525.0, 0, 319.5], [0, 525.0, 239.5], [0, 0, 1]])
+    Ks = scale_intrinsics(K, 0.5, 0.5)
+    P = np.array([0.1, -0.05, 0.9])
+    x, y = K[0, 0] * P[0] / P[2] + K[0, 2], K[1, 1] * P[1] / P[2] + K[1, 2]
+    xs, ys = Ks[0, 0] * P[0] / P[2] + Ks[0, 2], Ks[1, 1] * P[1] / P[2] + Ks[1, 2]
+    np.testing.assert_allclose([xs, ys], [(x + 0.5) * 0.5 - 0.5, (y + 0.5) * 0.5 - 0.5])
+
+
+def test_backproject_inverts_projection():
+    K = np.array([[525.0, 0, 319.5], [0, 525.0, 239.5], [0, 0, 1]])
+    depth = np.zeros((480, 640), np.float32)
+    depth[100, 200] = 2.0
+    P = backproject(depth, K)
+    np.testing.assert_allclose(P[100, 200], [(200 - 319.5) / 525 * 2, (100 - 239.5) / 525 * 2, 2.0])
+    assert np.isnan(P[0, 0]).all()
+
+
+def test_constant_mode_and_config_checks():
+    depth = ramp()
+    out = preprocess_depth(depth, DepthConfig(constant=True))
+    assert np.ptp(out[out > 0]) < 1e-6
+    with pytest.raises(ValueError, match="fill"):
+        DepthConfig(fill="magic")
+    with pytest.raises(ValueError, match="mesh_scale"):
+        DepthConfig(mesh_scale=2.0)

@@ -1,0 +1,250 @@
+"""Geodesic polar patches: geometry on analytic surfaces, isometric invariance, real data, robustness."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st, HealthCheck
+
+import geofeat
+from geofeat.depth import DepthConfig
+from geofeat.io import demo_data_dir, read_landmarks
+from surfaces import K_VGA, corresponding_points, plane_frame, sheet_pair
+
+CLEAN = DepthConfig(fill="none", smooth_levels=0)  # noise-free synthetic depth needs no smoothing
+
+
+def ncc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    a = a.reshape(len(a), -1).astype(np.float64)
+    b = b.reshape(len(b), -1).astype(np.float64)
+    a = (a - a.mean(1, keepdims=True)) / a.std(1, keepdims=True)
+    b = (b - b.mean(1, keepdims=True)) / b.std(1, keepdims=True)
+    return (a * b).mean(1)
+
+
+@pytest.mark.parametrize("mesh_scale", [1.0, 0.5])
+def test_flat_plane_rings_and_angles(mesh_scale):
+    frame = plane_frame()
+    kps = np.array([[320.0, 240.0], [200.3, 150.7], [451.0, 333.2]])
+    P = geofeat.polar_patches(frame, kps, depth_config=DepthConfig(mesh_scale=mesh_scale))
+    assert P.valid.all()
+    centre = np.stack([(kps[:, 0] - 319.5) / 525, (kps[:, 1] - 239.5) / 525, np.ones(3)], axis=1)
+    offsets = P.points.astype(np.float64) - centre[:, None, None, :]
+    dist = np.linalg.norm(offsets, axis=-1)  # (N, R, A)
+    expected = (np.arange(1, 33) * 0.075 / 32)[None, :, None]
+    np.testing.assert_allclose(dist, np.broadcast_to(expected, dist.shape), rtol=0.01)
+    # angles: counter-clockwise as displayed (image y points down), column 0 along +x
+    angles = np.degrees(np.arctan2(-offsets[..., 1], offsets[..., 0]))
+    target = np.arange(32) * 360 / 32
+    err = (angles - target[None, None, :] + 180) % 360 - 180
+    assert np.abs(err).max() < 1.0
+    # the projected sample coordinates agree with the 3D samples
+    np.testing.assert_allclose(P.coords[0, 31, 0], [320 + 0.075 * 525, 240], atol=0.05)
+    np.testing.assert_allclose(P.coords[0, 31, 8], [320, 240 - 0.075 * 525], atol=0.05)
+
+
+@pytest.mark.parametrize("depth_config", [CLEAN, DepthConfig()], ids=["clean", "default"])
+def test_isometric_bend_keeps_polar_patches(depth_config):
+    flat_frame, bent_frame, flat, bent = sheet_pair(bend_radius=0.15)
+    xy_flat, xy_bent = corresponding_points(flat, bent, n=100)
+    A = geofeat.polar_patches(flat_frame, xy_flat, depth_config=depth_config)
+    B = geofeat.polar_patches(bent_frame, xy_bent, depth_config=depth_config)
+    assert A.valid.all() and B.valid.all()
+    polar = ncc(A.values, B.values)
+    assert np.median(polar) >= 0.95
+    assert (polar >= 0.9).mean() >= 0.9
+
+    def square(frame, xy, r=20):
+        return np.stack([frame.image[int(round(y)) - r:int(round(y)) + r + 1, int(round(x)) - r:int(round(x)) + r + 1]
+                         for x, y in xy])
+
+    plain = ncc(square(flat_frame, xy_flat), square(bent_frame, xy_bent))
+    assert np.median(plain) < np.median(polar) - 0.15
+
+
+def _face_ids(mesh):
+    ok = mesh.face_ok
+    ids0 = np.cumsum(ok[:, :, 0].ravel()).reshape(ok.shape[:2]) - 1
+    ids1 = ok[:, :, 0].sum() + np.cumsum(ok[:, :, 1].ravel()).reshape(ok.shape[:2]) - 1
+    return ids0, ids1
+
+
+def test_walk_agrees_with_potpourri3d_tracer():
+    pp3d = pytest.importorskip("potpourri3d")
+    H, W = 240, 320
+    K = np.array([[262.5, 0, 159.5], [0, 262.5, 119.5], [0, 0, 1.0]])
+    v, u = np.mgrid[0:H, 0:W]
+    depth = (0.9 + 0.05 * np.sin(u / 25.0) * np.cos(v / 30.0) + 0.03 * np.sin(v / 17.0)).astype(np.float32)
+    frame = geofeat.RGBDFrame(np.full((H, W), 0.5, np.float32), depth, K)
+    cfg = DepthConfig(fill="none", smooth_levels=0, mesh_scale=1.0)
+    mesh = geofeat.build_mesh(frame, cfg)
+    V, F, _ = mesh.vertices_faces()
+    tracer = pp3d.GeodesicTracer(V, F)
+    ids0, _ = _face_ids(mesh)
+    rng = np.random.default_rng(3)
+    n_rings = 320  # fine rings: the first sample lies inside the start face and gives the start direction
+    errors = []
+    for _ in range(6):
+        cx, cy = rng.integers(80, W - 80), rng.integers(80, H - 80)
+        fx, fy = 0.3, 0.2  # inside face 0 of the cell
+        P = geofeat.polar_patches(frame, np.array([[cx + fx, cy + fy]]), n_angles=8, n_rings=n_rings, mesh=mesh)
+        assert P.valid[0]
+        a, b, c = mesh.points[cy, cx], mesh.points[cy, cx + 1], mesh.points[cy + 1, cx]
+        centre = a + fx * (b - a) + fy * (c - a)
+        for k in range(8):
+            first = P.points[0, 0, k].astype(np.float64)
+            direction = (first - centre) / np.linalg.norm(first - centre) * 0.075
+            # vertices_faces orders face 0 as (a, c, b)
+            path = tracer.trace_geodesic_from_face(int(ids0[cy, cx]), np.array([1 - fx - fy, fy, fx]), direction)
+            errors.append(np.linalg.norm(path[-1] - P.points[0, -1, k]))
+    assert max(errors) < 1e-3, f"end points differ by up to {max(errors) * 1000:.2f} mm"
+
+
+def test_kinect_frame_landmarks_valid_and_deterministic():
+    frame = geofeat.read_demo_frame()
+    _, xy, _ = read_landmarks(demo_data_dir() / "cloud_1.csv")
+    assert len(xy) == 51
+    A = geofeat.polar_patches(frame, xy)
+    B = geofeat.polar_patches(frame, xy)
+    assert A.valid.mean() >= 0.9
+    np.testing.assert_array_equal(A.values, B.values)
+    np.testing.assert_array_equal(A.coords, B.coords)
+    # on the real frame the 75 mm radius is ~40 px at ~0.95 m
+    radius_px = np.linalg.norm(A.coords[A.valid, -1] - A.keypoints[A.valid, None, :], axis=-1)
+    assert 30 < np.median(radius_px) < 55
+
+
+def test_invalid_keypoints_are_flagged_not_garbage():
+    depth = np.full((120, 160), 1.0, np.float32)
+    depth[:, :20] = 0  # missing band along the border
+    K = np.array([[131.0, 0, 79.5], [0, 131.0, 59.5], [0, 0, 1.0]])
+    frame = geofeat.RGBDFrame(np.random.default_rng(0).random((120, 160)).astype(np.float32), depth, K)
+    P = geofeat.polar_patches(frame, np.array([[5.0, 60.0], [0.0, 0.0], [159.0, 119.0], [120.0, 60.0]]),
+                              radius=0.02, depth_config=DepthConfig(fill="none", smooth_levels=0, mesh_scale=1.0))
+    np.testing.assert_array_equal(P.valid, [False, False, False, True])
+    assert np.isnan(P.coords[~P.valid]).all()
+    assert (P.values[~P.valid] == 0).all()
+
+
+def test_rays_stop_at_depth_discontinuities():
+    """A step from the object (0.8 m) to the background (1.2 m): rays stay on the object."""
+    depth = np.full((240, 320), 1.2, np.float32)
+    depth[:, :160] = 0.8
+    K = np.array([[262.5, 0, 159.5], [0, 262.5, 119.5], [0, 0, 1.0]])
+    frame = geofeat.RGBDFrame(np.full((240, 320), 0.5, np.float32), depth, K)
+    P = geofeat.polar_patches(frame, np.array([[150.0, 120.0]]), depth_config=DepthConfig(mesh_scale=1.0, smooth_levels=0))
+    assert P.valid[0]
+    assert np.nanmax(P.points[0, ..., 2]) < 0.81
+    assert P.rings_reached[0].min() < 32  # the rays towards +x ended at the step
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(depth=np.ones((10, 10))), "depth"),
+        (dict(depth=np.full((480, 640), np.nan)), "NaN"),
+        (dict(depth=-np.ones((480, 640))), "negative"),
+        (dict(depth=np.zeros((480, 640))), "every pixel"),
+        (dict(depth=np.full((480, 640), 950.0)), "millimetres"),
+        (dict(K=np.eye(2)), "K"),
+        (dict(K=np.diag([-1.0, 525, 1])), "focal"),
+        (dict(image=np.zeros((480, 640, 4))), "image"),
+    ],
+)
+def test_bad_frames_raise_clear_errors(kwargs, match):
+    args = dict(image=np.zeros((480, 640), np.float32), depth=np.ones((480, 640), np.float32), K=K_VGA)
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=match):
+        geofeat.RGBDFrame(**args)
+
+
+def test_bad_keypoints_and_radius():
+    frame = plane_frame((120, 160))
+    with pytest.raises(ValueError, match="keypoints.*off"):
+        geofeat.polar_patches(frame, np.array([[10.0, 10.0], [200.0, 10.0]]))
+    with pytest.raises(ValueError, match="keypoints"):
+        geofeat.polar_patches(frame, np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="keypoints"):
+        geofeat.polar_patches(frame, np.array([[np.nan, 1.0]]))
+    with pytest.raises(ValueError, match="radius"):
+        geofeat.polar_patches(frame, np.array([[10.0, 10.0]]), radius=75.0)
+    empty = geofeat.polar_patches(frame, np.zeros((0, 2)))
+    assert empty.values.shape == (0, 32, 32) and empty.valid.shape == (0,)
+
+
+def _distance_to_mesh(mesh, points):
+    """Distance (metres) of each (N, 3) point to the nearest existing face around its grid position
+    (barycentric tolerance 1e-4: the points are stored as float32)."""
+    K = mesh.K
+    xm = K[0, 0] * points[:, 0] / points[:, 2] + K[0, 2]
+    ym = K[1, 1] * points[:, 1] / points[:, 2] + K[1, 2]
+    best = np.full(len(points), np.inf)
+    Hc, Wc = mesh.face_ok.shape[:2]
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            x = np.clip(np.floor(xm).astype(int) + dx, 0, Wc - 1)
+            y = np.clip(np.floor(ym).astype(int) + dy, 0, Hc - 1)
+            P = mesh.points
+            for t, corners in ((0, (P[y, x], P[y, x + 1], P[y + 1, x])), (1, (P[y + 1, x + 1], P[y, x + 1], P[y + 1, x]))):
+                a, b, c = corners
+                n = np.cross(b - a, c - a)
+                n /= np.linalg.norm(n, axis=1, keepdims=True)
+                off = np.einsum("ij,ij->i", points - a, n)
+                q = points - off[:, None] * n
+                # barycentric coordinates of q
+                v0, v1, v2 = b - a, c - a, q - a
+                d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)
+                d20, d21 = (v2 * v0).sum(1), (v2 * v1).sum(1)
+                den = d00 * d11 - d01 * d01
+                bv = (d11 * d20 - d01 * d21) / den
+                bw = (d00 * d21 - d01 * d20) / den
+                inside = (bv >= -1e-4) & (bw >= -1e-4) & (bv + bw <= 1 + 1e-4) & mesh.face_ok[y, x, t]
+                best = np.where(inside, np.minimum(best, np.abs(off)), best)
+    return best
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31 - 1), n_holes=st.integers(0, 6), bumps=st.floats(0.0, 0.2))
+def test_random_surfaces_never_crash_and_samples_lie_on_mesh(seed, n_holes, bumps):
+    rng = np.random.default_rng(seed)
+    H, W = 60, 80
+    v, u = np.mgrid[0:H, 0:W]
+    depth = 1.0 + bumps * np.sin(u / rng.uniform(3, 20) + rng.uniform(0, 6)) * np.cos(v / rng.uniform(3, 20))
+    depth += rng.normal(0, 0.002, depth.shape)
+    for _ in range(n_holes):
+        y0, x0 = rng.integers(0, H), rng.integers(0, W)
+        depth[y0:y0 + rng.integers(1, 25), x0:x0 + rng.integers(1, 25)] = 0
+    if not (depth > 0).any():
+        depth[0, 0] = 1.0
+    K = np.array([[50.0, 0, 39.5], [0, 50.0, 29.5], [0, 0, 1.0]])
+    frame = geofeat.RGBDFrame(rng.random((H, W)).astype(np.float32), depth.astype(np.float32), K)
+    kps = rng.uniform([-0.5, -0.5], [W - 0.5, H - 0.5], size=(40, 2))
+    cfg = DepthConfig(mesh_scale=rng.choice([0.5, 1.0]), smooth_levels=int(rng.integers(0, 2)))
+    mesh = geofeat.build_mesh(frame, cfg)
+    P = geofeat.polar_patches(frame, kps, radius=0.3, n_angles=16, n_rings=8, mesh=mesh)
+    assert P.values.shape == (40, 8, 16) and np.isfinite(P.values).all()
+    if P.valid.any():
+        pts = P.points[P.valid].reshape(-1, 3).astype(np.float64)
+        assert (_distance_to_mesh(mesh, pts) < 1e-5).all()
+        assert (P.rings_reached[P.valid] >= 1).all()
+    assert np.isnan(P.coords[~P.valid]).all()
+
+
+def test_full_hd_frame_2048_keypoints_under_2gb():
+    code = """
+import resource, numpy as np, geofeat
+H, W = 1080, 1920
+K = np.array([[1050.0, 0, 959.5], [0, 1050.0, 539.5], [0, 0, 1.0]])
+v, u = np.mgrid[0:H, 0:W]
+depth = (1.0 + 0.05 * np.sin(u / 80.0)).astype(np.float32)
+frame = geofeat.RGBDFrame(np.random.default_rng(0).random((H, W)).astype(np.float32), depth, K)
+kps = np.random.default_rng(1).uniform([100, 100], [W - 100, H - 100], size=(2048, 2))
+P = geofeat.polar_patches(frame, kps)
+assert P.valid.mean() > 0.99
+print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    peak_kb = int(out.stdout.strip().splitlines()[-1])
+    assert peak_kb < 2 * 1024 * 1024, f"peak RSS {peak_kb / 1024:.0f} MB"
