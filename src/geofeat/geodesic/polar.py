@@ -140,11 +140,11 @@ def polar_patches(
     if mesh is None:
         mesh = build_mesh(frame, depth_config)
     starts = mesh.image_to_mesh(kp) + np.array([1.3e-6, 0.7e-6])  # keeps starts off vertices/edges
-    samples, reached, _ = walk_polar(
-        mesh.points, mesh.face_ok, mesh.normals, starts, float(radius), int(n_angles), int(n_rings), MAX_CROSSINGS
+    samples, coords, reached, _ = walk_polar(
+        mesh.points, mesh.face_ok, mesh.normals, starts, frame.K, float(radius), int(n_angles), int(n_rings),
+        MAX_CROSSINGS,
     )
     valid = reached.min(axis=1) >= 1 if len(kp) else np.zeros(0, bool)
-    coords = project(samples, frame.K).astype(np.float32)
     coords[~valid] = np.nan
     values = sample_bilinear(sampling_image(frame, blur_px), np.nan_to_num(coords, nan=-1.0))
     values[~valid] = 0.0
@@ -154,6 +154,6 @@ def polar_patches(
         coords=coords,
         valid=valid,
         rings_reached=reached,
-        points=samples.astype(np.float32),
+        points=samples,
         radius=float(radius),
     )

@@ -24,8 +24,8 @@ def _cross(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
-@njit(cache=True)
-def _corner(points, x, y, t, i):
+@njit(cache=True, inline="always")
+def _corner(x, y, t, i):
     """Grid (column, row) of local vertex i of face (x, y, t)."""
     if i == 0:
         if t == 0:
@@ -50,39 +50,41 @@ def _neighbour(x, y, t, e):
     return x + 1, y, 0, 1  # right edge d-b -> left edge a-c of the cell on the right
 
 
-@njit(cache=True)
-def _edge_hit(points, x, y, t, e, p, u, n):
-    """Intersection of the ray p + s u with local edge e of face (x, y, t), in the face plane.
-
-    Returns (distance along the ray, edge parameter in [0, 1] from the lower local vertex).
-    Distance is -1 when the ray is parallel to the edge."""
+@njit(cache=True, inline="always")
+def _edge_ends(x, y, t, e):
+    """Grid positions (x0, y0, x1, y1) of the two ends of local edge e of face (x, y, t)."""
     i0 = 1 if e == 0 else 0
     i1 = 1 if e == 2 else 2
-    x0, y0 = _corner(points, x, y, t, i0)
-    x1, y1 = _corner(points, x, y, t, i1)
-    P0 = points[y0, x0]
-    ex = points[y1, x1, 0] - P0[0]
-    ey = points[y1, x1, 1] - P0[1]
-    ez = points[y1, x1, 2] - P0[2]
-    c0, c1, c2 = _cross(u[0], u[1], u[2], ex, ey, ez)
-    denom = c0 * n[0] + c1 * n[1] + c2 * n[2]
-    if abs(denom) < 1e-18:
-        return -1.0, 0.0
-    wx, wy, wz = P0[0] - p[0], P0[1] - p[1], P0[2] - p[2]
-    a0, a1, a2 = _cross(wx, wy, wz, ex, ey, ez)
-    b0, b1, b2 = _cross(wx, wy, wz, u[0], u[1], u[2])
-    dist = (a0 * n[0] + a1 * n[1] + a2 * n[2]) / denom
-    s = (b0 * n[0] + b1 * n[1] + b2 * n[2]) / denom
-    return dist, s
+    x0, y0 = _corner(x, y, t, i0)
+    x1, y1 = _corner(x, y, t, i1)
+    return x0, y0, x1, y1
 
 
 @njit(cache=True)
-def _side(points, x, y, t, i, p, u, n):
+def _edge_hit(points, x, y, t, e, px, py, pz, ux, uy, uz, nx, ny, nz):
+    """Intersection of the ray p + d u with local edge e of face (x, y, t), in the face plane.
+
+    Returns (d, s): the distance along the ray and the edge parameter (0 at the first end, 1 at the
+    second). d is -1 when the ray is parallel to the edge."""
+    x0, y0, x1, y1 = _edge_ends(x, y, t, e)
+    ax, ay, az = points[y0, x0, 0], points[y0, x0, 1], points[y0, x0, 2]
+    ex, ey, ez = points[y1, x1, 0] - ax, points[y1, x1, 1] - ay, points[y1, x1, 2] - az
+    c0, c1, c2 = _cross(ux, uy, uz, ex, ey, ez)
+    denom = c0 * nx + c1 * ny + c2 * nz
+    if abs(denom) < 1e-18:
+        return -1.0, 0.0
+    wx, wy, wz = ax - px, ay - py, az - pz
+    a0, a1, a2 = _cross(wx, wy, wz, ex, ey, ez)
+    b0, b1, b2 = _cross(wx, wy, wz, ux, uy, uz)
+    return (a0 * nx + a1 * ny + a2 * nz) / denom, (b0 * nx + b1 * ny + b2 * nz) / denom
+
+
+@njit(cache=True, inline="always")
+def _side(points, x, y, t, i, px, py, pz, ux, uy, uz, nx, ny, nz):
     """Signed side of local vertex i relative to the ray (positive = left of u about n)."""
-    vx, vy = _corner(points, x, y, t, i)
-    q = points[vy, vx]
-    c0, c1, c2 = _cross(u[0], u[1], u[2], q[0] - p[0], q[1] - p[1], q[2] - p[2])
-    return c0 * n[0] + c1 * n[1] + c2 * n[2]
+    vx, vy = _corner(x, y, t, i)
+    c0, c1, c2 = _cross(ux, uy, uz, points[vy, vx, 0] - px, points[vy, vx, 1] - py, points[vy, vx, 2] - pz)
+    return c0 * nx + c1 * ny + c2 * nz
 
 
 @njit(cache=True)
@@ -91,98 +93,93 @@ def _walk_one(points, face_ok, normals, x, y, t, p0, u0, ring_step, n_rings, out
 
     Writes the 3D points at arc lengths (i + 1) * ring_step, i < n_rings, into out (n_rings, 3);
     rings beyond the end of the mesh repeat the last point reached. Returns the number of rings
-    reached on the mesh."""
+    reached on the mesh. Scalar arithmetic only: no allocation inside the loop."""
     Hc, Wc = face_ok.shape[0], face_ok.shape[1]
-    p = p0.copy()
-    u = u0.copy()
-    n = normals[y, x, t].copy()
+    px, py, pz = p0[0], p0[1], p0[2]
+    ux, uy, uz = u0[0], u0[1], u0[2]
+    nx, ny, nz = normals[y, x, t, 0], normals[y, x, t, 1], normals[y, x, t, 2]
     length = 0.0
     ring = 0
     entry = -1
     for _ in range(max_crossings):
         # choose the exit edge
         if entry < 0:
-            best = -1
-            best_d = np.inf
-            best_s = 0.0
+            exit_edge = -1
+            d = np.inf
+            s = 0.0
             for e in range(3):
-                d, s = _edge_hit(points, x, y, t, e, p, u, n)
-                if d > 1e-15 and -1e-9 <= s <= 1.0 + 1e-9 and d < best_d:
-                    best, best_d, best_s = e, d, s
-            if best < 0:
+                de, se = _edge_hit(points, x, y, t, e, px, py, pz, ux, uy, uz, nx, ny, nz)
+                if de > 1e-15 and -1e-9 <= se <= 1.0 + 1e-9 and de < d:
+                    exit_edge, d, s = e, de, se
+            if exit_edge < 0:
                 break
-            exit_edge, d, s = best, best_d, best_s
         else:
             # the exit is one of the two edges through the vertex opposite the entry edge
             i1 = 1 if entry == 0 else 0
             i2 = 1 if entry == 2 else 2
-            side_r = _side(points, x, y, t, entry, p, u, n)
-            side_1 = _side(points, x, y, t, i1, p, u, n)
+            side_r = _side(points, x, y, t, entry, px, py, pz, ux, uy, uz, nx, ny, nz)
+            side_1 = _side(points, x, y, t, i1, px, py, pz, ux, uy, uz, nx, ny, nz)
             exit_edge = i2 if side_r * side_1 <= 0.0 else i1
-            d, s = _edge_hit(points, x, y, t, exit_edge, p, u, n)
+            d, s = _edge_hit(points, x, y, t, exit_edge, px, py, pz, ux, uy, uz, nx, ny, nz)
             if d < 0.0:
                 d = 0.0
         # emit the rings that lie on this segment
         while ring < n_rings and length + d >= (ring + 1) * ring_step:
             r = (ring + 1) * ring_step - length
-            for k in range(3):
-                out[ring, k] = p[k] + r * u[k]
+            out[ring, 0] = px + r * ux
+            out[ring, 1] = py + r * uy
+            out[ring, 2] = pz + r * uz
             ring += 1
         if ring == n_rings:
             return ring
         # move to the edge point (clamped onto the edge for robustness)
-        if s < 0.0:
-            s = 0.0
-        elif s > 1.0:
-            s = 1.0
-        i0 = 1 if exit_edge == 0 else 0
-        i1 = 1 if exit_edge == 2 else 2
-        x0, y0 = _corner(points, x, y, t, i0)
-        x1, y1 = _corner(points, x, y, t, i1)
-        q = points[y0, x0] + s * (points[y1, x1] - points[y0, x0])
-        step = np.sqrt(((q - p) ** 2).sum())
-        length += step
-        p = q
+        s = min(max(s, 0.0), 1.0)
+        x0, y0, x1, y1 = _edge_ends(x, y, t, exit_edge)
+        ax, ay, az = points[y0, x0, 0], points[y0, x0, 1], points[y0, x0, 2]
+        ex, ey, ez = points[y1, x1, 0] - ax, points[y1, x1, 1] - ay, points[y1, x1, 2] - az
+        qx, qy, qz = ax + s * ex, ay + s * ey, az + s * ez
+        length += np.sqrt((qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2)
+        px, py, pz = qx, qy, qz
         # cross into the neighbouring face
         xn, yn, tn, entry_n = _neighbour(x, y, t, exit_edge)
         if xn < 0 or yn < 0 or xn >= Wc or yn >= Hc or not face_ok[yn, xn, tn]:
             break
-        e = points[y1, x1] - points[y0, x0]
-        e /= np.sqrt((e ** 2).sum())
-        n2 = normals[yn, xn, tn]
-        m1x, m1y, m1z = _cross(e[0], e[1], e[2], n[0], n[1], n[2])
-        m2x, m2y, m2z = _cross(e[0], e[1], e[2], n2[0], n2[1], n2[2])
-        along = u[0] * e[0] + u[1] * e[1] + u[2] * e[2]
-        across = u[0] * m1x + u[1] * m1y + u[2] * m1z
-        u[0] = along * e[0] + across * m2x
-        u[1] = along * e[1] + across * m2y
-        u[2] = along * e[2] + across * m2z
-        u /= np.sqrt((u ** 2).sum())
-        n = n2.copy()
+        # unfold: keep the component along the edge, carry the across-edge component into the
+        # new face plane (rotation about the edge taking n to n2)
+        el = np.sqrt(ex * ex + ey * ey + ez * ez)
+        ex, ey, ez = ex / el, ey / el, ez / el
+        mx, my, mz = normals[yn, xn, tn, 0], normals[yn, xn, tn, 1], normals[yn, xn, tn, 2]
+        m1x, m1y, m1z = _cross(ex, ey, ez, nx, ny, nz)
+        m2x, m2y, m2z = _cross(ex, ey, ez, mx, my, mz)
+        along = ux * ex + uy * ey + uz * ez
+        across = ux * m1x + uy * m1y + uz * m1z
+        ux = along * ex + across * m2x
+        uy = along * ey + across * m2y
+        uz = along * ez + across * m2z
+        ul = np.sqrt(ux * ux + uy * uy + uz * uz)
+        ux, uy, uz = ux / ul, uy / ul, uz / ul
+        nx, ny, nz = mx, my, mz
         x, y, t, entry = xn, yn, tn, entry_n
     # the ray left the mesh: later rings repeat the last point reached
     for r in range(ring, n_rings):
-        for k in range(3):
-            out[r, k] = p[k]
+        out[r, 0] = px
+        out[r, 1] = py
+        out[r, 2] = pz
     return ring
 
 
-@njit(cache=True)
-def _rotate_onto(v, n_from, n_to):
-    """Rotate v by the smallest rotation that takes unit n_from to unit n_to (Rodrigues)."""
-    kx, ky, kz = _cross(n_from[0], n_from[1], n_from[2], n_to[0], n_to[1], n_to[2])
+@njit(cache=True, inline="always")
+def _rotate_onto(vx, vy, vz, ax, ay, az, bx, by, bz):
+    """Rotate v by the smallest rotation that takes unit a to unit b (Rodrigues)."""
+    kx, ky, kz = _cross(ax, ay, az, bx, by, bz)
     sin_a = np.sqrt(kx * kx + ky * ky + kz * kz)
-    cos_a = n_from[0] * n_to[0] + n_from[1] * n_to[1] + n_from[2] * n_to[2]
+    cos_a = ax * bx + ay * by + az * bz
     if sin_a < 1e-12:
-        return v.copy()
+        return vx, vy, vz
     kx, ky, kz = kx / sin_a, ky / sin_a, kz / sin_a
-    cx, cy, cz = _cross(kx, ky, kz, v[0], v[1], v[2])
-    kv = kx * v[0] + ky * v[1] + kz * v[2]
-    out = np.empty(3)
-    out[0] = v[0] * cos_a + cx * sin_a + kx * kv * (1 - cos_a)
-    out[1] = v[1] * cos_a + cy * sin_a + ky * kv * (1 - cos_a)
-    out[2] = v[2] * cos_a + cz * sin_a + kz * kv * (1 - cos_a)
-    return out
+    cx, cy, cz = _cross(kx, ky, kz, vx, vy, vz)
+    kv = (kx * vx + ky * vy + kz * vz) * (1 - cos_a)
+    return vx * cos_a + cx * sin_a + kx * kv, vy * cos_a + cy * sin_a + ky * kv, vz * cos_a + cz * sin_a + kz * kv
 
 
 @njit(cache=True)
@@ -202,20 +199,23 @@ def _locate(face_ok, xm, ym):
 
 
 @njit(cache=True, parallel=True)
-def walk_polar(points, face_ok, normals, starts, radius, n_angles, n_rings, max_crossings):
+def walk_polar(points, face_ok, normals, starts, K, radius, n_angles, n_rings, max_crossings):
     """Geodesic polar samples around many start points.
 
     Args:
         points: (Hm, Wm, 3) float64 mesh vertices, metres.
         face_ok, normals: see `GridMesh`.
         starts: (N, 2) float64 mesh pixel coordinates of the keypoints.
+        K: (3, 3) intrinsics of the image that samples are projected into.
         radius: geodesic radius of the outer ring, metres.
     Returns:
-        samples (N, n_rings, n_angles, 3) float64 metres, reached (N, n_angles) int32 rings reached
-        per direction, centre (N, 3) float64 start point (NaN when the start has no face).
+        samples (N, n_rings, n_angles, 3) float32 metres, coords (N, n_rings, n_angles, 2) float32
+        image pixels (x, y) of the samples projected with K, reached (N, n_angles) int32 rings
+        reached per direction, centre (N, 3) float64 start point (NaN when the start has no face).
     """
     N = starts.shape[0]
-    samples = np.full((N, n_rings, n_angles, 3), np.nan)
+    samples = np.full((N, n_rings, n_angles, 3), np.nan, dtype=np.float32)
+    coords = np.full((N, n_rings, n_angles, 2), np.nan, dtype=np.float32)
     reached = np.zeros((N, n_angles), dtype=np.int32)
     centre = np.full((N, 3), np.nan)
     frames = np.zeros((N, 3, 3))  # per keypoint: e0, e1, normal of the start face
@@ -225,7 +225,7 @@ def walk_polar(points, face_ok, normals, starts, radius, n_angles, n_rings, max_
         x, y, t, w0, w1, w2 = _locate(face_ok, starts[k, 0], starts[k, 1])
         if x < 0 or not face_ok[y, x, t]:
             continue
-        xa, ya = _corner(points, x, y, t, 0)
+        xa, ya = _corner(x, y, t, 0)
         p = w0 * points[ya, xa] + w1 * points[y, x + 1] + w2 * points[y + 1, x]
         # tangent plane normal: area-weighted mean of the face normals around the start cell
         nrm = np.zeros(3)
@@ -260,14 +260,21 @@ def walk_polar(points, face_ok, normals, starts, radius, n_angles, n_rings, max_
             continue
         x, y, t = faces[k, 0], faces[k, 1], faces[k, 2]
         theta = 2.0 * np.pi * a / n_angles
-        d = np.cos(theta) * frames[k, 0] + np.sin(theta) * frames[k, 1]
-        nf = normals[y, x, t]
-        u = _rotate_onto(d, frames[k, 2], nf)
-        u -= (u * nf).sum() * nf
-        u /= np.sqrt((u ** 2).sum())
-        out = np.empty((n_rings, 3))
+        c, sn = np.cos(theta), np.sin(theta)
+        dx = c * frames[k, 0, 0] + sn * frames[k, 1, 0]
+        dy = c * frames[k, 0, 1] + sn * frames[k, 1, 1]
+        dz = c * frames[k, 0, 2] + sn * frames[k, 1, 2]
+        fnx, fny, fnz = normals[y, x, t, 0], normals[y, x, t, 1], normals[y, x, t, 2]
+        ux, uy, uz = _rotate_onto(dx, dy, dz, frames[k, 2, 0], frames[k, 2, 1], frames[k, 2, 2], fnx, fny, fnz)
+        un = ux * fnx + uy * fny + uz * fnz
+        ux, uy, uz = ux - un * fnx, uy - un * fny, uz - un * fnz
+        ul = np.sqrt(ux * ux + uy * uy + uz * uz)
+        u = np.empty(3)
+        u[0], u[1], u[2] = ux / ul, uy / ul, uz / ul
+        out = samples[k, :, a, :]
         reached[k, a] = _walk_one(points, face_ok, normals, x, y, t, centre[k], u, ring_step, n_rings, out, max_crossings)
         for r in range(n_rings):
-            for c in range(3):
-                samples[k, r, a, c] = out[r, c]
-    return samples, reached, centre
+            X, Y, Z = float(out[r, 0]), float(out[r, 1]), float(out[r, 2])
+            coords[k, r, a, 0] = K[0, 0] * X / Z + K[0, 1] * Y / Z + K[0, 2]
+            coords[k, r, a, 1] = K[1, 1] * Y / Z + K[1, 2]
+    return samples, coords, reached, centre
