@@ -1,0 +1,107 @@
+"""OpenCV baselines behind the same interface as GeoBit / GeoPatch: `compute(frame, keypoints)`.
+
+Every baseline describes the given keypoints (usually SIFT's) with SIFT's orientation, and with a
+support size derived from SIFT's size where the descriptor uses one. Factors (measured by
+`benchmarks/bench_baseline_scaling.py` on a rotated and a scaled image pair, see BENCHMARKS.md):
+
+- ORB: ignores the size (fixed 31 px patch at pyramid level 0); uses the given angle.
+- BRISK, FREAK: scale their sampling pattern with the keypoint size. Under a 0.6x scale change
+  their correct-match rate is 0.19/0.24 at 1x SIFT's size, 0.74/0.77 at 4x and 0.88/0.89 from 6x on
+  (plateau up to 12x), so they get 6x. Both estimate their own orientation from the pattern (the
+  given angle changes nothing).
+- DAISY: fixed radius (15 px), no size; uses the given angle when `use_orientation=True`.
+- SIFT: uses size and angle as detected.
+
+OpenCV drops keypoints it cannot describe (too close to the border); those come back with
+`valid = False` and zero descriptors, in the input order.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from ..features import Features
+from ..frame import RGBDFrame
+from ..keypoints import Keypoints, to_uint8
+
+#: SIFT diameter -> descriptor size factors (see module docstring).
+SIZE_FACTORS = {"orb": 1.0, "brisk": 6.0, "freak": 6.0, "daisy": 1.0, "sift": 1.0}
+#: Keypoint size used when the caller gives none (pixels).
+DEFAULT_SIZE_PX = 8.0
+
+
+def _make_extractor(name: str):
+    if name == "orb":
+        return cv2.ORB_create(edgeThreshold=31, patchSize=31)
+    if name == "brisk":  # in cv2 up to OpenCV 4, in xfeatures2d (contrib) from OpenCV 5
+        return (getattr(cv2, "BRISK_create", None) or cv2.xfeatures2d.BRISK_create)()
+    if name == "freak":
+        return cv2.xfeatures2d.FREAK_create()
+    if name == "daisy":
+        return cv2.xfeatures2d.DAISY_create(use_orientation=True)
+    if name == "sift":
+        return cv2.SIFT_create()
+    raise ValueError(f"descriptor: unknown OpenCV baseline {name!r}; expected one of {sorted(SIZE_FACTORS)}")
+
+
+def as_keypoints(keypoints, angles=None, sizes=None) -> Keypoints:
+    """Accept `Keypoints`, a list of cv2.KeyPoint, or an (N, 2) array (+ optional angles in degrees,
+    sizes in pixels)."""
+    if isinstance(keypoints, Keypoints):
+        return keypoints
+    if isinstance(keypoints, (list, tuple)) and keypoints and isinstance(keypoints[0], cv2.KeyPoint):
+        return Keypoints.from_cv(list(keypoints))
+    xy = np.asarray(keypoints, dtype=np.float64).reshape(-1, 2)
+    n = len(xy)
+    angles = np.zeros(n) if angles is None else np.asarray(angles, dtype=np.float64).reshape(n)
+    sizes = np.full(n, DEFAULT_SIZE_PX) if sizes is None else np.asarray(sizes, dtype=np.float64).reshape(n)
+    return Keypoints(xy, angles, sizes, np.zeros(n))
+
+
+@dataclass
+class OpenCVDescriptor:
+    """An OpenCV descriptor on given keypoints.
+
+    Attributes:
+        name: "orb", "brisk", "freak", "daisy" or "sift".
+        use_angle: pass the keypoints' orientation (False: angle 0 for every keypoint).
+        size_factor: multiplies the keypoints' size (default: `SIZE_FACTORS[name]`).
+    """
+
+    name: str
+    use_angle: bool = True
+    size_factor: float | None = None
+    _extractor: object = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self.name = self.name.lower()
+        self._extractor = _make_extractor(self.name)
+        if self.size_factor is None:
+            self.size_factor = SIZE_FACTORS[self.name]
+
+    def compute(self, frame: RGBDFrame, keypoints, angles=None, sizes=None) -> Features:
+        """Describe `keypoints` on `frame.image`; returns Features with (N, D) descriptors (uint8 for
+        the binary ones, float32 for SIFT and DAISY)."""
+        kps = as_keypoints(keypoints, angles, sizes)
+        n = len(kps)
+        cv_kps = [
+            cv2.KeyPoint(float(x), float(y), float(max(s * self.size_factor, 1.0)),
+                         float(a) if self.use_angle else 0.0, 0.0, 0, i)
+            for i, ((x, y), s, a) in enumerate(zip(kps.xy, kps.sizes, kps.angles))
+        ]
+        kept, desc = self._extractor.compute(to_uint8(frame.image), cv_kps)
+        dim = self._extractor.descriptorSize()
+        dtype = np.uint8 if self._extractor.descriptorType() == cv2.CV_8U else np.float32
+        out = np.zeros((n, dim), dtype)
+        valid = np.zeros(n, bool)
+        if desc is not None and len(kept):
+            index = np.array([k.class_id for k in kept], dtype=np.int64)
+            out[index] = desc.astype(dtype)
+            valid[index] = True
+        return Features(kps.xy, out, valid, angles=kps.angles, sizes=kps.sizes)
+
+
+BASELINES = tuple(SIZE_FACTORS)

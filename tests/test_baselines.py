@@ -1,0 +1,77 @@
+"""OpenCV baselines on given keypoints: shapes, dropped keypoints, and that SIFT's angle helps."""
+
+import cv2
+import numpy as np
+import pytest
+
+import geofeat
+from geofeat.descriptors.baselines import BASELINES, OpenCVDescriptor
+from geofeat.keypoints import Keypoints, detect
+from geofeat.matching import match
+
+
+def rotated_pair(angle_deg: float = 45.0):
+    """The Kinect frame's gray image and a copy rotated about the image centre (depth constant:
+    the baselines read only the image). Returns frames and the 2x3 affine map of the rotation."""
+    frame = geofeat.read_demo_frame()
+    H, W = frame.shape
+    A = cv2.getRotationMatrix2D(((W - 1) / 2, (H - 1) / 2), angle_deg, 1.0)
+    img = cv2.warpAffine(frame.image, A, (W, H), flags=cv2.INTER_LINEAR)
+    depth = np.ones((H, W), np.float32)
+    return geofeat.RGBDFrame(frame.image, depth, frame.K), geofeat.RGBDFrame(img, depth, frame.K), A
+
+
+@pytest.fixture(scope="module")
+def pair():
+    f0, f1, A = rotated_pair(45.0)
+    k0 = detect(f0, 400, require_depth=False, border_px=40)
+    # the same physical points in the rotated image, with SIFT's angle rotated consistently
+    xy1 = k0.xy @ A[:, :2].T + A[:, 2]
+    inside = (xy1[:, 0] > 40) & (xy1[:, 0] < 600) & (xy1[:, 1] > 40) & (xy1[:, 1] < 440)
+    k0 = k0[inside]
+    # OpenCV angles are clockwise on screen; a counter-clockwise image rotation by 45 deg subtracts 45
+    k1 = Keypoints(xy1[inside], (k0.angles - 45.0) % 360, k0.sizes, k0.responses)
+    return f0, f1, k0, k1
+
+
+@pytest.mark.parametrize("name", BASELINES)
+def test_baseline_shapes_and_validity(name, pair):
+    f0, _, k0, _ = pair
+    F = OpenCVDescriptor(name).compute(f0, k0)
+    assert F.descriptors.shape[0] == len(k0) and F.valid.mean() > 0.7
+    assert (F.descriptors[~F.valid] == 0).all()
+    np.testing.assert_array_equal(F.keypoints, k0.xy)
+
+
+def test_dropped_keypoints_are_invalid():
+    frame = geofeat.read_demo_frame()
+    F = OpenCVDescriptor("orb").compute(frame, np.array([[2.0, 2.0], [320.0, 240.0]]))
+    assert F.valid.tolist() == [False, True]
+
+
+@pytest.mark.parametrize("name", ["orb", "daisy", "sift"])
+def test_sift_angle_helps_under_rotation(name, pair):
+    """Descriptors that take the given angle match a 45 deg rotated copy better with it than without.
+    (BRISK and FREAK estimate their own orientation, so the given angle does not change them.)"""
+    f0, f1, k0, k1 = pair
+
+    def correct(use_angle):
+        d = OpenCVDescriptor(name, use_angle=use_angle)
+        m = match(d.compute(f0, k0), d.compute(f1, k1))
+        return (m.matches0 == np.arange(len(k0))).mean()
+
+    with_angle, without = correct(True), correct(False)
+    assert with_angle > without + 0.2, (with_angle, without)
+
+
+@pytest.mark.parametrize("name", ["brisk", "freak"])
+def test_own_orientation_baselines_are_rotation_invariant(name, pair):
+    f0, f1, k0, k1 = pair
+    d = OpenCVDescriptor(name)
+    m = match(d.compute(f0, k0), d.compute(f1, k1))
+    assert (m.matches0 == np.arange(len(k0))).mean() > 0.5
+
+
+def test_unknown_baseline():
+    with pytest.raises(ValueError, match="unknown"):
+        OpenCVDescriptor("surf3000")
