@@ -2,6 +2,7 @@
 
 from .depth import DepthConfig
 from .frame import RGBDFrame
+from .geodesic.heat import HeatGeodesics, heat_polar_patches
 from .geodesic.mesh import GridMesh, build_mesh
 from .geodesic.polar import PolarPatches, polar_patches
 from .io import read_frame, read_sequence, read_demo_frame, Sequence
@@ -11,10 +12,12 @@ __version__ = "0.1.0"
 __all__ = [
     "DepthConfig",
     "GridMesh",
+    "HeatGeodesics",
     "PolarPatches",
     "RGBDFrame",
     "Sequence",
     "build_mesh",
+    "heat_polar_patches",
     "polar_patches",
     "read_demo_frame",
     "read_frame",
