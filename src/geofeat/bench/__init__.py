@@ -1,0 +1,1 @@
+"""The matching-score benchmark: protocols, runner, report."""
