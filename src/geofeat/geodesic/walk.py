@@ -19,12 +19,12 @@ from numba import njit, prange
 MAX_CROSSINGS = 100_000
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _cross(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _corner(x, y, t, i):
     """Grid (column, row) of local vertex i of face (x, y, t)."""
     if i == 0:
@@ -36,7 +36,7 @@ def _corner(x, y, t, i):
     return x, y + 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _neighbour(x, y, t, e):
     """Face across local edge e of face (x, y, t), and the local index of that edge there."""
     if e == 0:
@@ -50,7 +50,7 @@ def _neighbour(x, y, t, e):
     return x + 1, y, 0, 1  # right edge d-b -> left edge a-c of the cell on the right
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _edge_ends(x, y, t, e):
     """Grid positions (x0, y0, x1, y1) of the two ends of local edge e of face (x, y, t)."""
     i0 = 1 if e == 0 else 0
@@ -60,115 +60,149 @@ def _edge_ends(x, y, t, e):
     return x0, y0, x1, y1
 
 
-@njit(cache=True)
-def _edge_hit(points, x, y, t, e, px, py, pz, ux, uy, uz, nx, ny, nz):
-    """Intersection of the ray p + d u with local edge e of face (x, y, t), in the face plane.
+@njit(cache=True, parallel=True, error_model="numpy")
+def face_frames(points, face_ok, normals):
+    """Intrinsic 2D coordinates of every face: local vertex 0 at the origin, vertex 1 on the +x
+    axis, y = normal x (+x). Returns (Hm - 1, Wm - 1, 2, 3) float64 [|v1 - v0|, v2.x, v2.y]."""
+    Hc, Wc = face_ok.shape[0], face_ok.shape[1]
+    out = np.zeros((Hc, Wc, 2, 3))
+    for row in prange(Hc):
+        y = np.int64(row)
+        for x in range(Wc):
+            for t in range(2):
+                if not face_ok[y, x, t]:
+                    continue
+                x0, y0 = _corner(x, y, t, 0)
+                ax, ay, az = points[y0, x0, 0], points[y0, x0, 1], points[y0, x0, 2]
+                ex, ey, ez = points[y, x + 1, 0] - ax, points[y, x + 1, 1] - ay, points[y, x + 1, 2] - az
+                length = np.sqrt(ex * ex + ey * ey + ez * ez)
+                ex, ey, ez = ex / length, ey / length, ez / length
+                fx, fy, fz = _cross(normals[y, x, t, 0], normals[y, x, t, 1], normals[y, x, t, 2], ex, ey, ez)
+                wx, wy, wz = points[y + 1, x, 0] - ax, points[y + 1, x, 1] - ay, points[y + 1, x, 2] - az
+                out[y, x, t, 0] = length
+                out[y, x, t, 1] = wx * ex + wy * ey + wz * ez
+                out[y, x, t, 2] = wx * fx + wy * fy + wz * fz
+    return out
 
-    Returns (d, s): the distance along the ray and the edge parameter (0 at the first end, 1 at the
-    second). d is -1 when the ray is parallel to the edge."""
-    x0, y0, x1, y1 = _edge_ends(x, y, t, e)
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _local(frames, x, y, t, i):
+    """2D coordinates of local vertex i of face (x, y, t) in the face's intrinsic frame."""
+    if i == 0:
+        return 0.0, 0.0
+    if i == 1:
+        return frames[y, x, t, 0], 0.0
+    return frames[y, x, t, 1], frames[y, x, t, 2]
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _to_3d(points, normals, x, y, t, qx, qy):
+    """3D point of intrinsic coordinates (qx, qy) on face (x, y, t)."""
+    x0, y0 = _corner(x, y, t, 0)
     ax, ay, az = points[y0, x0, 0], points[y0, x0, 1], points[y0, x0, 2]
-    ex, ey, ez = points[y1, x1, 0] - ax, points[y1, x1, 1] - ay, points[y1, x1, 2] - az
-    c0, c1, c2 = _cross(ux, uy, uz, ex, ey, ez)
-    denom = c0 * nx + c1 * ny + c2 * nz
-    if abs(denom) < 1e-18:
-        return -1.0, 0.0
-    wx, wy, wz = ax - px, ay - py, az - pz
-    a0, a1, a2 = _cross(wx, wy, wz, ex, ey, ez)
-    b0, b1, b2 = _cross(wx, wy, wz, ux, uy, uz)
-    return (a0 * nx + a1 * ny + a2 * nz) / denom, (b0 * nx + b1 * ny + b2 * nz) / denom
+    ex, ey, ez = points[y, x + 1, 0] - ax, points[y, x + 1, 1] - ay, points[y, x + 1, 2] - az
+    length = np.sqrt(ex * ex + ey * ey + ez * ez)
+    ex, ey, ez = ex / length, ey / length, ez / length
+    fx, fy, fz = _cross(normals[y, x, t, 0], normals[y, x, t, 1], normals[y, x, t, 2], ex, ey, ez)
+    return ax + qx * ex + qy * fx, ay + qx * ey + qy * fy, az + qx * ez + qy * fz
 
 
-@njit(cache=True, inline="always")
-def _side(points, x, y, t, i, px, py, pz, ux, uy, uz, nx, ny, nz):
-    """Signed side of local vertex i relative to the ray (positive = left of u about n)."""
-    vx, vy = _corner(x, y, t, i)
-    c0, c1, c2 = _cross(ux, uy, uz, points[vy, vx, 0] - px, points[vy, vx, 1] - py, points[vy, vx, 2] - pz)
-    return c0 * nx + c1 * ny + c2 * nz
+@njit(cache=True, error_model="numpy")
+def _walk_one(points, normals, face_ok, frames, x, y, t, px, py, dx, dy, ring_step, n_rings, out, max_crossings):
+    """Walk one ray on the mesh in intrinsic 2D coordinates.
 
-
-@njit(cache=True)
-def _walk_one(points, face_ok, normals, x, y, t, p0, u0, ring_step, n_rings, out, max_crossings):
-    """Walk one ray from point p0 (on face (x, y, t)) in direction u0 (unit, in that face's plane).
-
+    The ray starts at (px, py) in the intrinsic frame of face (x, y, t) (see `face_frames`), with
+    unit direction (dx, dy) in that frame. Inside a face it is a straight 2D segment; crossing an
+    edge, the position and direction are re-expressed in the neighbour's frame by the 2D rotation
+    that maps the shared edge onto itself (this is the unfolding of the two triangles).
     Writes the 3D points at arc lengths (i + 1) * ring_step, i < n_rings, into out (n_rings, 3);
     rings beyond the end of the mesh repeat the last point reached. Returns the number of rings
-    reached on the mesh. Scalar arithmetic only: no allocation inside the loop."""
+    reached on the mesh."""
     Hc, Wc = face_ok.shape[0], face_ok.shape[1]
-    px, py, pz = p0[0], p0[1], p0[2]
-    ux, uy, uz = u0[0], u0[1], u0[2]
-    nx, ny, nz = normals[y, x, t, 0], normals[y, x, t, 1], normals[y, x, t, 2]
     length = 0.0
     ring = 0
     entry = -1
     for _ in range(max_crossings):
-        # choose the exit edge
+        # exit edge and distance to it
+        exit_edge = -1
+        d = np.inf
+        s = 0.0
         if entry < 0:
-            exit_edge = -1
-            d = np.inf
-            s = 0.0
-            for e in range(3):
-                de, se = _edge_hit(points, x, y, t, e, px, py, pz, ux, uy, uz, nx, ny, nz)
+            candidates = 3
+        else:
+            candidates = 2
+        for c in range(candidates):
+            if entry < 0:
+                e = c
+            else:
+                e = (entry + 1 + c) % 3
+            i0 = 1 if e == 0 else 0
+            i1 = 1 if e == 2 else 2
+            ax, ay = _local(frames, x, y, t, i0)
+            bx, by = _local(frames, x, y, t, i1)
+            ex, ey = bx - ax, by - ay
+            denom = dx * ey - dy * ex
+            if abs(denom) < 1e-300:
+                continue
+            wx, wy = ax - px, ay - py
+            de = (wx * ey - wy * ex) / denom
+            se = (wx * dy - wy * dx) / denom
+            if entry < 0:
                 if de > 1e-15 and -1e-9 <= se <= 1.0 + 1e-9 and de < d:
                     exit_edge, d, s = e, de, se
-            if exit_edge < 0:
-                break
-        else:
-            # the exit is one of the two edges through the vertex opposite the entry edge
-            i1 = 1 if entry == 0 else 0
-            i2 = 1 if entry == 2 else 2
-            side_r = _side(points, x, y, t, entry, px, py, pz, ux, uy, uz, nx, ny, nz)
-            side_1 = _side(points, x, y, t, i1, px, py, pz, ux, uy, uz, nx, ny, nz)
-            exit_edge = i2 if side_r * side_1 <= 0.0 else i1
-            d, s = _edge_hit(points, x, y, t, exit_edge, px, py, pz, ux, uy, uz, nx, ny, nz)
-            if d < 0.0:
-                d = 0.0
+            else:
+                # of the two candidate edges the ray leaves through the one it meets inside
+                inside = -1e-12 <= se <= 1.0 + 1e-12
+                if exit_edge < 0 or (inside and not (-1e-12 <= s <= 1.0 + 1e-12)):
+                    exit_edge, d, s = e, de, se
+        if exit_edge < 0:
+            break
+        if d < 0.0:
+            d = 0.0
         # emit the rings that lie on this segment
         while ring < n_rings and length + d >= (ring + 1) * ring_step:
             r = (ring + 1) * ring_step - length
-            out[ring, 0] = px + r * ux
-            out[ring, 1] = py + r * uy
-            out[ring, 2] = pz + r * uz
+            X, Y, Z = _to_3d(points, normals, x, y, t, px + r * dx, py + r * dy)
+            out[ring, 0], out[ring, 1], out[ring, 2] = X, Y, Z
             ring += 1
         if ring == n_rings:
             return ring
-        # move to the edge point (clamped onto the edge for robustness)
         s = min(max(s, 0.0), 1.0)
-        x0, y0, x1, y1 = _edge_ends(x, y, t, exit_edge)
-        ax, ay, az = points[y0, x0, 0], points[y0, x0, 1], points[y0, x0, 2]
-        ex, ey, ez = points[y1, x1, 0] - ax, points[y1, x1, 1] - ay, points[y1, x1, 2] - az
-        qx, qy, qz = ax + s * ex, ay + s * ey, az + s * ez
-        length += np.sqrt((qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2)
-        px, py, pz = qx, qy, qz
-        # cross into the neighbouring face
+        i0 = 1 if exit_edge == 0 else 0
+        i1 = 1 if exit_edge == 2 else 2
+        ax, ay = _local(frames, x, y, t, i0)
+        bx, by = _local(frames, x, y, t, i1)
+        ex, ey = bx - ax, by - ay
+        qx, qy = ax + s * ex, ay + s * ey
+        length += np.sqrt((qx - px) ** 2 + (qy - py) ** 2)
+        px, py = qx, qy
         xn, yn, tn, entry_n = _neighbour(x, y, t, exit_edge)
         if xn < 0 or yn < 0 or xn >= Wc or yn >= Hc or not face_ok[yn, xn, tn]:
             break
-        # unfold: keep the component along the edge, carry the across-edge component into the
-        # new face plane (rotation about the edge taking n to n2)
-        el = np.sqrt(ex * ex + ey * ey + ez * ez)
-        ex, ey, ez = ex / el, ey / el, ez / el
-        mx, my, mz = normals[yn, xn, tn, 0], normals[yn, xn, tn, 1], normals[yn, xn, tn, 2]
-        m1x, m1y, m1z = _cross(ex, ey, ez, nx, ny, nz)
-        m2x, m2y, m2z = _cross(ex, ey, ez, mx, my, mz)
-        along = ux * ex + uy * ey + uz * ez
-        across = ux * m1x + uy * m1y + uz * m1z
-        ux = along * ex + across * m2x
-        uy = along * ey + across * m2y
-        uz = along * ez + across * m2z
-        ul = np.sqrt(ux * ux + uy * uy + uz * uz)
-        ux, uy, uz = ux / ul, uy / ul, uz / ul
-        nx, ny, nz = mx, my, mz
+        # the shared edge in the neighbour's frame, oriented like ours (same grid end first)
+        g0x, g0y = _corner(x, y, t, i0)
+        j0 = 1 if entry_n == 0 else 0
+        j1 = 1 if entry_n == 2 else 2
+        h0x, h0y = _corner(xn, yn, tn, j0)
+        a2x, a2y = _local(frames, xn, yn, tn, j0)
+        b2x, b2y = _local(frames, xn, yn, tn, j1)
+        if h0x != g0x or h0y != g0y:
+            a2x, a2y, b2x, b2y = b2x, b2y, a2x, a2y
+        fx, fy = b2x - a2x, b2y - a2y
+        norm = np.sqrt((ex * ex + ey * ey) * (fx * fx + fy * fy))
+        cos_a = (ex * fx + ey * fy) / norm
+        sin_a = (ex * fy - ey * fx) / norm
+        dx, dy = cos_a * dx - sin_a * dy, sin_a * dx + cos_a * dy
+        px, py = a2x + s * fx, a2y + s * fy
         x, y, t, entry = xn, yn, tn, entry_n
     # the ray left the mesh: later rings repeat the last point reached
+    X, Y, Z = _to_3d(points, normals, x, y, t, px, py)
     for r in range(ring, n_rings):
-        out[r, 0] = px
-        out[r, 1] = py
-        out[r, 2] = pz
+        out[r, 0], out[r, 1], out[r, 2] = X, Y, Z
     return ring
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _rotate_onto(vx, vy, vz, ax, ay, az, bx, by, bz):
     """Rotate v by the smallest rotation that takes unit a to unit b (Rodrigues)."""
     kx, ky, kz = _cross(ax, ay, az, bx, by, bz)
@@ -182,7 +216,7 @@ def _rotate_onto(vx, vy, vz, ax, ay, az, bx, by, bz):
     return vx * cos_a + cx * sin_a + kx * kv, vy * cos_a + cy * sin_a + ky * kv, vz * cos_a + cz * sin_a + kz * kv
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _locate(face_ok, xm, ym):
     """Face (x, y, t) containing mesh pixel coordinates (xm, ym), and its barycentric weights
     (w_first, w_b, w_c) for local vertices (a or d, b, c). x = -1 when outside the grid."""
@@ -198,7 +232,7 @@ def _locate(face_ok, xm, ym):
     return x, y, 1, fx + fy - 1.0, 1.0 - fy, 1.0 - fx
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, error_model="numpy")
 def walk_polar(points, face_ok, normals, starts, K, radius, n_angles, n_rings, max_crossings):
     """Geodesic polar samples around many start points.
 
@@ -253,6 +287,7 @@ def walk_polar(points, face_ok, normals, starts, K, radius, n_angles, n_rings, m
         frames[k, 2] = nrm
         faces[k, 0], faces[k, 1], faces[k, 2] = x, y, t
     ring_step = radius / n_rings
+    local = face_frames(points, face_ok, normals)
     for job in prange(N * n_angles):
         k = job // n_angles
         a = job % n_angles
@@ -266,13 +301,20 @@ def walk_polar(points, face_ok, normals, starts, K, radius, n_angles, n_rings, m
         dz = c * frames[k, 0, 2] + sn * frames[k, 1, 2]
         fnx, fny, fnz = normals[y, x, t, 0], normals[y, x, t, 1], normals[y, x, t, 2]
         ux, uy, uz = _rotate_onto(dx, dy, dz, frames[k, 2, 0], frames[k, 2, 1], frames[k, 2, 2], fnx, fny, fnz)
-        un = ux * fnx + uy * fny + uz * fnz
-        ux, uy, uz = ux - un * fnx, uy - un * fny, uz - un * fnz
-        ul = np.sqrt(ux * ux + uy * uy + uz * uz)
-        u = np.empty(3)
-        u[0], u[1], u[2] = ux / ul, uy / ul, uz / ul
+        # start point and direction in the start face's intrinsic frame
+        x0, y0 = _corner(x, y, t, 0)
+        ax, ay, az = points[y0, x0, 0], points[y0, x0, 1], points[y0, x0, 2]
+        ex, ey, ez = points[y, x + 1, 0] - ax, points[y, x + 1, 1] - ay, points[y, x + 1, 2] - az
+        el = np.sqrt(ex * ex + ey * ey + ez * ez)
+        ex, ey, ez = ex / el, ey / el, ez / el
+        fx, fy, fz = _cross(fnx, fny, fnz, ex, ey, ez)
+        cx, cy, cz = centre[k, 0] - ax, centre[k, 1] - ay, centre[k, 2] - az
+        dxx, dyy = ux * ex + uy * ey + uz * ez, ux * fx + uy * fy + uz * fz
+        dl = np.sqrt(dxx * dxx + dyy * dyy)
         out = samples[k, :, a, :]
-        reached[k, a] = _walk_one(points, face_ok, normals, x, y, t, centre[k], u, ring_step, n_rings, out, max_crossings)
+        reached[k, a] = _walk_one(points, normals, face_ok, local, x, y, t, cx * ex + cy * ey + cz * ez,
+                                  cx * fx + cy * fy + cz * fz, dxx / dl, dyy / dl, ring_step, n_rings, out,
+                                  max_crossings)
         for r in range(n_rings):
             X, Y, Z = float(out[r, 0]), float(out[r, 1]), float(out[r, 2])
             coords[k, r, a, 0] = K[0, 0] * X / Z + K[0, 1] * Y / Z + K[0, 2]
