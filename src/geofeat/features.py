@@ -1,0 +1,245 @@
+"""Feature records (keypoints + descriptors) and matches, with .npz / .h5 storage.
+
+The .h5 layout follows hloc's ``features.h5`` / ``matches.h5``: one group per image (or per image
+pair) holding plain datasets, so files written here can be read by hloc-style tools and back:
+
+- features: ``/<image name>/keypoints`` (N, 2) float32 pixels (x, y), ``descriptors`` (N, ...),
+  ``valid`` (N,) bool, and optionally ``angles`` (N,) and ``sizes`` (N,).
+- matches: ``/<pair name>/matches0`` (N0,) int64 (-1 = no match), ``distances`` (N0,) float32.
+
+Image names may contain ``/`` (nested groups, as in hloc). The .npz layout stores the same arrays
+at the top level of one archive per image (or pair).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "Features",
+    "Matches",
+    "save_features",
+    "load_features",
+    "save_matches",
+    "load_matches",
+]
+
+
+@dataclass
+class Features:
+    """Local features of one image.
+
+    Attributes:
+        keypoints: (N, 2) float64 image pixel coordinates (x, y), OpenCV convention.
+        descriptors: (N, ...) array, e.g. (N, 16, 64) uint8 for GeoBit, (N, 128) float32 for GeoPatch.
+        valid: (N,) bool; False where no descriptor could be computed (such keypoints never match).
+        angles: optional (N,) detector orientation, degrees as OpenCV reports it.
+        sizes: optional (N,) detector keypoint diameter, pixels.
+    """
+
+    keypoints: np.ndarray
+    descriptors: np.ndarray
+    valid: np.ndarray
+    angles: np.ndarray | None = None
+    sizes: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        kp = np.asarray(self.keypoints, dtype=np.float64)
+        if kp.size == 0:
+            kp = kp.reshape(0, 2)
+        if kp.ndim != 2 or kp.shape[1] != 2:
+            raise ValueError(f"keypoints: expected shape (N, 2), got {kp.shape}")
+        n = kp.shape[0]
+        desc = np.asarray(self.descriptors)
+        if desc.ndim < 1 or desc.shape[0] != n:
+            raise ValueError(f"descriptors: expected first axis N={n}, got shape {desc.shape}")
+        valid = np.ones(n, bool) if self.valid is None else np.asarray(self.valid, dtype=bool).reshape(-1)
+        if valid.shape != (n,):
+            raise ValueError(f"valid: expected shape ({n},), got {valid.shape}")
+        self.keypoints, self.descriptors, self.valid = kp, desc, valid
+        for name in ("angles", "sizes"):
+            value = getattr(self, name)
+            if value is not None:
+                value = np.asarray(value, dtype=np.float64).reshape(-1)
+                if value.shape != (n,):
+                    raise ValueError(f"{name}: expected shape ({n},), got {value.shape}")
+                setattr(self, name, value)
+
+    def __len__(self) -> int:
+        return int(self.keypoints.shape[0])
+
+    def subset(self, index) -> "Features":
+        """The features selected by a boolean mask or an integer index array."""
+        return Features(
+            self.keypoints[index],
+            self.descriptors[index],
+            self.valid[index],
+            None if self.angles is None else self.angles[index],
+            None if self.sizes is None else self.sizes[index],
+        )
+
+
+@dataclass
+class Matches:
+    """Nearest-neighbour matches from the keypoints of image 0 to those of image 1.
+
+    Attributes:
+        matches0: (N0,) int64 index into image 1, -1 where keypoint i of image 0 has no match.
+        distances0: (N0,) float64 descriptor distance of each match (Hamming bits or L2), inf where
+            matches0 is -1.
+    """
+
+    matches0: np.ndarray
+    distances0: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.matches0 = np.asarray(self.matches0, dtype=np.int64).reshape(-1)
+        self.distances0 = np.asarray(self.distances0, dtype=np.float64).reshape(-1)
+        if self.matches0.shape != self.distances0.shape:
+            raise ValueError(
+                f"distances0: expected shape {self.matches0.shape} like matches0, got {self.distances0.shape}"
+            )
+
+    def __len__(self) -> int:
+        return int(self.matches0.shape[0])
+
+    @property
+    def pairs(self) -> np.ndarray:
+        """(M, 2) int64 index pairs (i0, i1) of the accepted matches."""
+        i0 = np.flatnonzero(self.matches0 >= 0)
+        return np.stack([i0, self.matches0[i0]], axis=1)
+
+
+def _suffix(path: str | Path) -> str:
+    suffix = Path(path).suffix.lower()
+    if suffix in (".h5", ".hdf5"):
+        return ".h5"
+    if suffix == ".npz":
+        return ".npz"
+    raise ValueError(f"path: expected a .npz or .h5 file name, got {str(path)!r}")
+
+
+def _require_name(name: str | None, path: str | Path) -> str:
+    if not name:
+        raise ValueError(f"name: an image (or pair) name is required to store into the .h5 file {str(path)!r}")
+    return str(name)
+
+
+def _h5_write_group(path: str | Path, name: str, arrays: dict[str, np.ndarray]) -> None:
+    import h5py
+
+    with h5py.File(str(path), "a") as fd:
+        if name in fd:
+            del fd[name]
+        grp = fd.create_group(name)
+        for key, value in arrays.items():
+            grp.create_dataset(key, data=value)
+
+
+def _h5_read_group(path: str | Path, name: str | None) -> dict[str, np.ndarray]:
+    import h5py
+
+    if not Path(path).exists():
+        raise FileNotFoundError(f"path: {str(path)!r} does not exist")
+    with h5py.File(str(path), "r") as fd:
+        if name is None:
+            names = _h5_leaf_groups(fd)
+            if len(names) != 1:
+                raise ValueError(
+                    f"name: {str(path)!r} holds {len(names)} groups; pass one of them, e.g. {names[:3]}"
+                )
+            name = names[0]
+        if name not in fd:
+            raise KeyError(f"name: no group {name!r} in {str(path)!r}")
+        return {key: np.asarray(ds[()]) for key, ds in fd[name].items()}
+
+
+def _h5_leaf_groups(fd) -> list[str]:
+    import h5py
+
+    out: list[str] = []
+
+    def visit(name, obj):
+        if isinstance(obj, h5py.Group) and any(isinstance(v, h5py.Dataset) for v in obj.values()):
+            out.append(name)
+
+    fd.visititems(visit)
+    return out
+
+
+def list_names(path: str | Path) -> list[str]:
+    """Image (or pair) names stored in an .h5 features / matches file."""
+    import h5py
+
+    with h5py.File(str(path), "r") as fd:
+        return _h5_leaf_groups(fd)
+
+
+def save_features(path: str | Path, features: Features, name: str | None = None) -> None:
+    """Write `features` to an .npz file (one image per file) or into group `name` of an .h5 file
+    (hloc features.h5 layout; other groups of the file are kept, an existing `name` is replaced)."""
+    if not isinstance(features, Features):
+        raise TypeError(f"features: expected a Features record, got {type(features).__name__}")
+    arrays = {
+        "keypoints": features.keypoints.astype(np.float32 if _suffix(path) == ".h5" else np.float64),
+        "descriptors": features.descriptors,
+        "valid": features.valid,
+    }
+    if features.angles is not None:
+        arrays["angles"] = features.angles
+    if features.sizes is not None:
+        arrays["sizes"] = features.sizes
+    if _suffix(path) == ".npz":
+        np.savez(str(path), **arrays)
+    else:
+        _h5_write_group(path, _require_name(name, path), arrays)
+
+
+def _features_from(arrays: dict[str, np.ndarray]) -> Features:
+    kp = np.asarray(arrays["keypoints"], dtype=np.float64)
+    valid = arrays.get("valid")
+    return Features(
+        keypoints=kp,
+        descriptors=arrays["descriptors"],
+        valid=np.ones(len(kp), bool) if valid is None else valid,
+        angles=arrays.get("angles"),
+        sizes=arrays.get("sizes"),
+    )
+
+
+def load_features(path: str | Path, name: str | None = None) -> Features:
+    """Read features written by `save_features` (or an hloc features.h5 group: a missing `valid`
+    means every keypoint is valid). For .h5, `name` may be omitted when the file holds one image."""
+    if _suffix(path) == ".npz":
+        with np.load(str(path)) as data:
+            return _features_from({k: data[k] for k in data.files})
+    return _features_from(_h5_read_group(path, name))
+
+
+def save_matches(path: str | Path, matches: Matches, name: str | None = None) -> None:
+    """Write `matches` (matches0, distances) to an .npz file or into group `name` (e.g.
+    "img0.png/img1.png" as hloc's names_to_pair would make) of an .h5 file."""
+    if not isinstance(matches, Matches):
+        raise TypeError(f"matches: expected a Matches record, got {type(matches).__name__}")
+    arrays = {"matches0": matches.matches0.astype(np.int64), "distances": matches.distances0}
+    if _suffix(path) == ".npz":
+        np.savez(str(path), **arrays)
+    else:
+        _h5_write_group(path, _require_name(name, path), arrays)
+
+
+def load_matches(path: str | Path, name: str | None = None) -> Matches:
+    """Read matches written by `save_matches` (a missing `distances` dataset reads as NaN)."""
+    if _suffix(path) == ".npz":
+        with np.load(str(path)) as data:
+            arrays = {k: data[k] for k in data.files}
+    else:
+        arrays = _h5_read_group(path, name)
+    m0 = arrays["matches0"]
+    dist = arrays.get("distances", arrays.get("distances0"))
+    if dist is None:
+        dist = np.full(len(m0), np.nan)
+    return Matches(m0, dist)

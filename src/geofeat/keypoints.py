@@ -1,0 +1,114 @@
+"""Keypoint detection: OpenCV SIFT on the frame's gray image, strongest first."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .constants import N_KEYPOINTS
+from .frame import RGBDFrame
+
+__all__ = ["Keypoints", "detect"]
+
+#: SIFT contrast threshold used by `detect` (OpenCV's default is 0.04; lower finds more keypoints).
+DEFAULT_CONTRAST_THRESHOLD = 0.004
+
+
+@dataclass
+class Keypoints:
+    """Detected keypoints.
+
+    Attributes:
+        xy: (N, 2) float64 pixel coordinates (x, y), OpenCV convention.
+        angles: (N,) float64 SIFT orientation, degrees as OpenCV reports it (clockwise on screen,
+            in [0, 360)).
+        sizes: (N,) float64 keypoint diameter, pixels.
+        responses: (N,) float64 detector response, non-increasing.
+    """
+
+    xy: np.ndarray
+    angles: np.ndarray
+    sizes: np.ndarray
+    responses: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.xy.shape[0])
+
+    def __getitem__(self, index) -> "Keypoints":
+        return Keypoints(self.xy[index], self.angles[index], self.sizes[index], self.responses[index])
+
+    def to_cv(self) -> list[cv2.KeyPoint]:
+        """The keypoints as a list of cv2.KeyPoint (pt, size, angle, response)."""
+        return [
+            cv2.KeyPoint(float(x), float(y), float(s), float(a), float(r))
+            for (x, y), s, a, r in zip(self.xy, self.sizes, self.angles, self.responses)
+        ]
+
+    @classmethod
+    def from_cv(cls, keypoints: list[cv2.KeyPoint]) -> "Keypoints":
+        """Build from a list of cv2.KeyPoint (order kept)."""
+        n = len(keypoints)
+        xy = np.array([k.pt for k in keypoints], dtype=np.float64).reshape(n, 2)
+        return cls(
+            xy,
+            np.array([k.angle for k in keypoints], dtype=np.float64),
+            np.array([k.size for k in keypoints], dtype=np.float64),
+            np.array([k.response for k in keypoints], dtype=np.float64),
+        )
+
+
+def to_uint8(image: np.ndarray) -> np.ndarray:
+    """(H, W) float image in [0, 1] -> uint8 (rounded, clipped)."""
+    return np.clip(np.rint(np.asarray(image, dtype=np.float32) * 255.0), 0, 255).astype(np.uint8)
+
+
+def detect(
+    frame: RGBDFrame,
+    n: int = N_KEYPOINTS,
+    contrast_threshold: float = DEFAULT_CONTRAST_THRESHOLD,
+    require_depth: bool = True,
+    border_px: int = 3,
+    mask: np.ndarray | None = None,
+) -> Keypoints:
+    """Detect SIFT keypoints on `frame.image`, strongest `n` first.
+
+    Args:
+        frame: the RGB-D frame (its gray image is converted to uint8 for OpenCV).
+        n: maximum number of keypoints kept (by decreasing response, after filtering); 0 = all.
+        contrast_threshold: SIFT contrast threshold (OpenCV `contrastThreshold`).
+        require_depth: drop keypoints whose rounded pixel has no depth (`frame.depth == 0`).
+        border_px: drop keypoints closer than this to the image border, pixels.
+        mask: optional (H, W) uint8/bool detection mask (nonzero = allowed).
+
+    Returns:
+        `Keypoints` sorted by decreasing response (ties keep OpenCV's order).
+    """
+    if not isinstance(frame, RGBDFrame):
+        raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
+    if n < 0:
+        raise ValueError(f"n: expected a non-negative number of keypoints, got {n}")
+    if contrast_threshold < 0:
+        raise ValueError(f"contrast_threshold: expected >= 0, got {contrast_threshold}")
+    H, W = frame.shape
+    if mask is not None:
+        mask = np.asarray(mask)
+        if mask.shape != (H, W):
+            raise ValueError(f"mask: expected shape {(H, W)}, got {mask.shape}")
+        mask = (mask != 0).astype(np.uint8)
+    sift = cv2.SIFT_create(contrastThreshold=float(contrast_threshold))
+    kps = Keypoints.from_cv(list(sift.detect(to_uint8(frame.image), mask)))
+    if len(kps) == 0:
+        return kps
+    x, y = kps.xy[:, 0], kps.xy[:, 1]
+    keep = (x >= border_px) & (x <= W - 1 - border_px) & (y >= border_px) & (y <= H - 1 - border_px)
+    if require_depth:
+        xi = np.clip(np.rint(x).astype(np.int64), 0, W - 1)
+        yi = np.clip(np.rint(y).astype(np.int64), 0, H - 1)
+        keep &= frame.depth[yi, xi] > 0
+    kps = kps[keep]
+    order = np.argsort(-kps.responses, kind="stable")
+    if n:
+        order = order[:n]
+    return kps[order]

@@ -1,0 +1,322 @@
+"""Nearest-neighbour descriptor matching: L2, Hamming, and min-over-rotations Hamming (GeoBit).
+
+Metrics (chosen from the descriptor type when ``metric=None``):
+
+- ``"l2"``: float descriptors (N, D); Euclidean distance via a matrix product (numpy, float64 for
+  float64 input, float32 otherwise), computed in blocks of queries.
+- ``"hamming"``: uint8 descriptors (N, B) of B bytes = 8 B bits; distance in bits.
+- ``"hamming-rot"``: uint8 descriptors (N, R, B), R rotated copies of each descriptor (GeoBit:
+  R = 16, B = 64). d(i, j) = min over k of Hamming(query i rotation 0, target j rotation k).
+  Note that this distance is not symmetric.
+
+The Hamming kernels are numba functions, parallel over queries: descriptors are viewed as uint64
+words (bytes padded with zeros to a multiple of 8), XORed, and bit-counted with a branch-free
+SWAR routine, which LLVM turns into the hardware popcount / vectorised nibble-lookup. Descriptors of
+up to 512 bits (GeoBit, ORB, BRIEF) use a kernel unrolled over 8 words with the query in registers;
+longer ones a generic kernel with targets laid out (N1, words, R), vectorised over rotations.
+
+Rules: keypoints with ``valid == False`` on either side never match; among equal distances the
+lowest target index wins; ``matches0 == -1`` means no match and its distance is inf.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+from .features import Features, Matches
+
+__all__ = ["match", "METRICS"]
+
+METRICS = ("l2", "hamming", "hamming-rot")
+
+_M1 = np.uint64(0x5555555555555555)
+_M2 = np.uint64(0x3333333333333333)
+_M4 = np.uint64(0x0F0F0F0F0F0F0F0F)
+_H01 = np.uint64(0x0101010101010101)
+_S1 = np.uint64(1)
+_S2 = np.uint64(2)
+_S4 = np.uint64(4)
+_S56 = np.uint64(56)
+_BIG = np.uint64(1 << 62)
+
+
+@njit(inline="always", cache=True)
+def _popcount64(x):
+    """Number of set bits of a uint64 (SWAR bit count)."""
+    x = x - ((x >> _S1) & _M1)
+    x = (x & _M2) + ((x >> _S2) & _M2)
+    x = (x + (x >> _S4)) & _M4
+    return (x * _H01) >> _S56
+
+
+@njit(parallel=True, cache=True)
+def _hamming_nn(q, t, valid0, valid1, n_chunks, want_cols, best_d, best_j, second_d, col_d, col_i):
+    """Nearest neighbours under min-over-rotations Hamming distance.
+
+    q: (N0, W) uint64 query words (rotation 0). t: (N1, W, R) uint64 target words, rotations last.
+    valid0 (N0,), valid1 (N1,) bool. Outputs: best_d, second_d (N0,) uint64 (second = best distance
+    over the other targets), best_j (N0,) int64 (-1 if none); with want_cols, col_d / col_i
+    (n_chunks, N1) hold the per-chunk best query of every target (for the mutual check).
+    """
+    n0, W = q.shape
+    n1 = t.shape[0]
+    R = t.shape[2]
+    for c in prange(n_chunks):
+        i_start = (c * n0) // n_chunks
+        i_stop = ((c + 1) * n0) // n_chunks
+        d = np.empty(R, np.uint64)
+        for i in range(i_start, i_stop):
+            best = _BIG
+            second = _BIG
+            bj = -1
+            if valid0[i]:
+                for j in range(n1):
+                    if not valid1[j]:
+                        continue
+                    for k in range(R):
+                        d[k] = 0
+                    for w in range(W):
+                        qw = q[i, w]
+                        for k in range(R):
+                            d[k] += _popcount64(qw ^ t[j, w, k])
+                    m = d[0]
+                    for k in range(1, R):
+                        if d[k] < m:
+                            m = d[k]
+                    if m < best:
+                        second = best
+                        best = m
+                        bj = j
+                    elif m < second:
+                        second = m
+                    if want_cols and m < col_d[c, j]:
+                        col_d[c, j] = m
+                        col_i[c, j] = i
+            best_d[i] = best
+            second_d[i] = second
+            best_j[i] = bj
+
+
+@njit(parallel=True, cache=True)
+def _hamming_nn8(q, t, valid0, valid1, n_chunks, want_cols, best_d, best_j, second_d, col_d, col_i):
+    """`_hamming_nn` for descriptors of exactly 8 words (512 bits; shorter ones are zero padded):
+    the query words live in registers and each (target, rotation) distance is one unrolled sum.
+    q: (N0, 8) uint64; t: (N1, R, 8) uint64 (rotations first). Other arguments as `_hamming_nn`."""
+    n0 = q.shape[0]
+    n1, R, _ = t.shape
+    for c in prange(n_chunks):
+        i_start = (c * n0) // n_chunks
+        i_stop = ((c + 1) * n0) // n_chunks
+        for i in range(i_start, i_stop):
+            best = _BIG
+            second = _BIG
+            bj = -1
+            if valid0[i]:
+                q0, q1, q2, q3 = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
+                q4, q5, q6, q7 = q[i, 4], q[i, 5], q[i, 6], q[i, 7]
+                for j in range(n1):
+                    if not valid1[j]:
+                        continue
+                    m = _BIG
+                    for k in range(R):
+                        dk = (
+                            _popcount64(q0 ^ t[j, k, 0])
+                            + _popcount64(q1 ^ t[j, k, 1])
+                            + _popcount64(q2 ^ t[j, k, 2])
+                            + _popcount64(q3 ^ t[j, k, 3])
+                            + _popcount64(q4 ^ t[j, k, 4])
+                            + _popcount64(q5 ^ t[j, k, 5])
+                            + _popcount64(q6 ^ t[j, k, 6])
+                            + _popcount64(q7 ^ t[j, k, 7])
+                        )
+                        m = min(m, dk)
+                    if m < best:
+                        second = best
+                        best = m
+                        bj = j
+                    elif m < second:
+                        second = m
+                    if want_cols and m < col_d[c, j]:
+                        col_d[c, j] = m
+                        col_i[c, j] = i
+            best_d[i] = best
+            second_d[i] = second
+            best_j[i] = bj
+
+
+def _as_words(desc: np.ndarray) -> np.ndarray:
+    """(N, ..., B) uint8 -> (N, ..., ceil(B / 8)) uint64 (zero padded; bit counts are unchanged)."""
+    B = desc.shape[-1]
+    pad = (-B) % 8
+    if pad:
+        desc = np.concatenate([desc, np.zeros(desc.shape[:-1] + (pad,), np.uint8)], axis=-1)
+    return np.ascontiguousarray(desc).view(np.uint64)
+
+
+def _hamming_search(d0, d1, valid0, valid1, want_cols):
+    """d0, d1: (N, R, B) uint8. Returns best_d, best_j, second_d (N0,), col_j (N1,) or None."""
+    words = _as_words(d1)  # (N1, R, W)
+    n0, n1, W = d0.shape[0], d1.shape[0], words.shape[2]
+    q = np.ascontiguousarray(_as_words(d0[:, 0, :]))  # (N0, W)
+    if W <= 8:  # pad to 8 words for the unrolled kernel (zero words add nothing)
+        q = np.concatenate([q, np.zeros((n0, 8 - W), np.uint64)], axis=1)
+        t = np.concatenate([words, np.zeros((n1, words.shape[1], 8 - W), np.uint64)], axis=2)
+        kernel = _hamming_nn8
+    else:
+        t = np.ascontiguousarray(words.transpose(0, 2, 1))  # (N1, W, R)
+        kernel = _hamming_nn
+    n_chunks = max(1, min(numba.get_num_threads() * 4, n0))
+    best_d = np.empty(n0, np.uint64)
+    second_d = np.empty(n0, np.uint64)
+    best_j = np.empty(n0, np.int64)
+    shape = (n_chunks, n1) if want_cols else (1, 1)
+    col_d = np.full(shape, _BIG, np.uint64)
+    col_i = np.full(shape, -1, np.int64)
+    kernel(q, t, valid0, valid1, n_chunks, bool(want_cols), best_d, best_j, second_d, col_d, col_i)
+    bd = best_d.astype(np.float64)
+    sd = second_d.astype(np.float64)
+    bd[best_d == _BIG] = np.inf
+    sd[second_d == _BIG] = np.inf
+    col_j = None
+    if want_cols:
+        # chunks cover ascending query ranges: the first chunk holding the minimum has the lowest i
+        c = np.argmin(col_d, axis=0)
+        col_j = col_i[c, np.arange(n1)]
+    return bd, best_j, sd, col_j
+
+
+def _l2_search(d0, d1, valid0, valid1, want_cols, block: int = 1024):
+    """d0 (N0, D), d1 (N1, D) float. Returns best_d, best_j, second_d (N0,), col_j (N1,) or None."""
+    dtype = np.float64 if (d0.dtype == np.float64 or d1.dtype == np.float64) else np.float32
+    a = np.ascontiguousarray(d0, dtype=dtype)
+    b = np.ascontiguousarray(d1, dtype=dtype)
+    n0, n1 = len(a), len(b)
+    bb = np.einsum("ij,ij->i", b, b)
+    best_d = np.full(n0, np.inf)
+    second_d = np.full(n0, np.inf)
+    best_j = np.full(n0, -1, np.int64)
+    col_best = np.full(n1, np.inf)
+    col_j = np.full(n1, -1, np.int64)
+    for s in range(0, n0, block):
+        ab = a[s : s + block]
+        dist2 = np.einsum("ij,ij->i", ab, ab)[:, None] + bb[None, :] - 2.0 * (ab @ b.T)
+        dist = np.sqrt(np.maximum(dist2, 0.0)).astype(np.float64)
+        dist[:, ~valid1] = np.inf
+        dist[~valid0[s : s + block]] = np.inf
+        j = np.argmin(dist, axis=1)
+        rows = np.arange(len(ab))
+        bd = dist[rows, j]
+        best_d[s : s + block] = bd
+        best_j[s : s + block] = np.where(np.isfinite(bd), j, -1)
+        if n1 > 1:
+            dist[rows, j] = np.inf
+            second_d[s : s + block] = dist.min(axis=1)
+            dist[rows, j] = bd
+        if want_cols:
+            ci = np.argmin(dist, axis=0)
+            cd = dist[ci, np.arange(n1)]
+            better = cd < col_best  # strict: an earlier block keeps ties
+            col_best[better] = cd[better]
+            col_j[better] = ci[better] + s
+    return best_d, best_j, second_d, (col_j if want_cols else None)
+
+
+def _unpack(x, which: str) -> tuple[np.ndarray, np.ndarray]:
+    if isinstance(x, Features):
+        return np.asarray(x.descriptors), np.asarray(x.valid, dtype=bool)
+    if isinstance(x, np.ndarray):
+        return x, np.ones(x.shape[0] if x.ndim else 0, bool)
+    raise TypeError(f"{which}: expected a Features record or a descriptor array, got {type(x).__name__}")
+
+
+def _default_metric(desc: np.ndarray) -> str:
+    if desc.dtype.kind == "f":
+        return "l2"
+    if desc.dtype == np.uint8 and desc.ndim == 2:
+        return "hamming"
+    if desc.dtype == np.uint8 and desc.ndim == 3:
+        return "hamming-rot"
+    raise ValueError(
+        f"descriptors: cannot choose a metric for dtype {desc.dtype} and shape {desc.shape}; expected "
+        "float (N, D) for 'l2', uint8 (N, B) for 'hamming' or uint8 (N, R, B) for 'hamming-rot'"
+    )
+
+
+def match(
+    features0: Features | np.ndarray,
+    features1: Features | np.ndarray,
+    metric: str | None = None,
+    mutual: bool = False,
+    ratio: float | None = None,
+) -> Matches:
+    """Match every keypoint of image 0 to its nearest neighbour in image 1.
+
+    Args:
+        features0, features1: `Features` records (or bare descriptor arrays, all valid) with
+            descriptors of the same trailing shape: float (N, D), uint8 (N, B) or uint8 (N, R, B).
+        metric: "l2", "hamming" or "hamming-rot"; None chooses from the descriptor dtype and rank.
+        mutual: keep i -> j only if i is also the nearest neighbour of j among image 0's keypoints
+            (under the same distance d(i, j)).
+        ratio: Lowe's ratio test: keep i -> j only if d(i, j) < ratio * d(i, second nearest).
+            A match with no second candidate passes.
+
+    Returns:
+        `Matches` with matches0 (N0,) int64 (-1 = no match) and distances0 (N0,) float64 (bits for
+        Hamming metrics, Euclidean units for L2; inf where no match).
+    """
+    d0, valid0 = _unpack(features0, "features0")
+    d1, valid1 = _unpack(features1, "features1")
+    if d0.ndim < 2 or d1.ndim < 2:
+        raise ValueError(
+            f"descriptors: expected at least 2 dimensions (N, ...), got shapes {d0.shape} and {d1.shape}"
+        )
+    if d0.shape[1:] != d1.shape[1:]:
+        raise ValueError(
+            f"descriptors: trailing shapes differ: features0 {d0.shape} vs features1 {d1.shape}"
+        )
+    if metric is None:
+        metric = _default_metric(d0)
+    if metric not in METRICS:
+        raise ValueError(f"metric: expected one of {METRICS} or None, got {metric!r}")
+    if ratio is not None and not (0 < ratio <= 1):
+        raise ValueError(f"ratio: expected a number in (0, 1], got {ratio}")
+    n0, n1 = d0.shape[0], d1.shape[0]
+    if metric == "l2":
+        if d0.ndim != 2:
+            raise ValueError(f"descriptors: metric 'l2' expects (N, D) arrays, got shape {d0.shape}")
+        if d0.dtype.kind not in "fiu" or d1.dtype.kind not in "fiu":
+            raise TypeError(f"descriptors: metric 'l2' expects numeric arrays, got {d0.dtype} and {d1.dtype}")
+    else:
+        if d0.dtype != np.uint8 or d1.dtype != np.uint8:
+            raise TypeError(
+                f"descriptors: metric {metric!r} expects uint8 arrays of packed bits, got {d0.dtype} and {d1.dtype}"
+            )
+        want = 2 if metric == "hamming" else 3
+        if d0.ndim != want:
+            raise ValueError(
+                f"descriptors: metric {metric!r} expects shape "
+                f"{'(N, B)' if want == 2 else '(N, R, B)'}, got {d0.shape}"
+            )
+    if n0 == 0 or n1 == 0:
+        return Matches(np.full(n0, -1, np.int64), np.full(n0, np.inf))
+
+    if metric == "l2":
+        best_d, best_j, second_d, col_j = _l2_search(d0, d1, valid0, valid1, mutual)
+    else:
+        if metric == "hamming":
+            d0, d1 = d0[:, None, :], d1[:, None, :]
+        best_d, best_j, second_d, col_j = _hamming_search(d0, d1, valid0, valid1, mutual)
+
+    keep = best_j >= 0
+    if ratio is not None:
+        keep &= ~(best_d >= ratio * second_d)  # second = inf (single candidate) passes
+    if mutual:
+        ok = np.zeros(n0, bool)
+        idx = np.flatnonzero(keep)
+        ok[idx] = col_j[best_j[idx]] == idx
+        keep &= ok
+    matches0 = np.where(keep, best_j, -1).astype(np.int64)
+    distances0 = np.where(keep, best_d, np.inf)
+    return Matches(matches0, distances0)

@@ -1,0 +1,85 @@
+"""Features / Matches records and their .npz / .h5 round trips."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+
+from geofeat.features import Features, Matches, list_names, load_features, load_matches, save_features, save_matches
+
+
+def make_features(n=7, seed=0, with_extras=True):
+    rng = np.random.default_rng(seed)
+    return Features(
+        keypoints=rng.random((n, 2)) * 100,
+        descriptors=rng.integers(0, 256, (n, 16, 64), dtype=np.uint8),
+        valid=rng.random(n) < 0.7,
+        angles=rng.random(n) * 360 if with_extras else None,
+        sizes=rng.random(n) * 10 if with_extras else None,
+    )
+
+
+def assert_same(a: Features, b: Features, kp_tol=0.0):
+    assert np.allclose(a.keypoints, b.keypoints, atol=kp_tol, rtol=0)
+    assert a.descriptors.dtype == b.descriptors.dtype and np.array_equal(a.descriptors, b.descriptors)
+    assert np.array_equal(a.valid, b.valid)
+    for name in ("angles", "sizes"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert (x is None and y is None) or np.array_equal(x, y)
+
+
+@pytest.mark.parametrize("extras", [True, False])
+def test_features_npz_round_trip(tmp_path, extras):
+    f = make_features(with_extras=extras)
+    save_features(tmp_path / "a.npz", f)
+    assert_same(f, load_features(tmp_path / "a.npz"))
+
+
+def test_features_h5_round_trip_hloc_layout(tmp_path):
+    path = tmp_path / "features.h5"
+    fa, fb = make_features(5, 1), make_features(0, 2, with_extras=False)
+    fb_float = Features(np.zeros((3, 2)), np.ones((3, 128), np.float32), np.ones(3, bool))
+    save_features(path, fa, name="seq/a.png")
+    save_features(path, fb, name="b.png")
+    save_features(path, fb_float, name="c.png")
+    assert sorted(list_names(path)) == ["b.png", "c.png", "seq/a.png"]
+    with h5py.File(path, "r") as fd:  # hloc layout: group per image, plain datasets
+        assert set(fd["seq/a.png"].keys()) >= {"keypoints", "descriptors", "valid"}
+        assert fd["seq/a.png/descriptors"].shape == (5, 16, 64)
+    assert_same(fa, load_features(path, "seq/a.png"), kp_tol=1e-4)  # float32 keypoints as in hloc
+    assert_same(fb, load_features(path, "b.png"))
+    assert_same(fb_float, load_features(path, "c.png"))
+    # overwrite replaces, and a single-image file needs no name
+    save_features(path, fb_float, name="seq/a.png")
+    assert_same(fb_float, load_features(path, "seq/a.png"))
+    single = tmp_path / "single.h5"
+    save_features(single, fa, name="x")
+    assert_same(fa, load_features(single), kp_tol=1e-4)
+    with pytest.raises(ValueError, match="name"):
+        load_features(path)
+    with pytest.raises(KeyError):
+        load_features(path, "missing.png")
+    with pytest.raises(ValueError, match="name"):
+        save_features(path, fa)
+
+
+def test_matches_round_trips(tmp_path):
+    m = Matches(np.array([3, -1, 0, 2]), np.array([10.0, np.inf, 0.0, 7.5]))
+    save_matches(tmp_path / "m.npz", m)
+    save_matches(tmp_path / "m.h5", m, name="a.png/b.png")
+    for got in (load_matches(tmp_path / "m.npz"), load_matches(tmp_path / "m.h5", "a.png/b.png")):
+        assert got.matches0.dtype == np.int64 and np.array_equal(got.matches0, m.matches0)
+        assert np.array_equal(got.distances0, m.distances0)
+    assert m.pairs.tolist() == [[0, 3], [2, 0], [3, 2]]
+
+
+def test_bad_inputs():
+    with pytest.raises(ValueError, match="descriptors"):
+        Features(np.zeros((3, 2)), np.zeros((4, 8), np.uint8), np.ones(3, bool))
+    with pytest.raises(ValueError, match="keypoints"):
+        Features(np.zeros((3, 3)), np.zeros((3, 8), np.uint8), np.ones(3, bool))
+    with pytest.raises(ValueError, match="valid"):
+        Features(np.zeros((3, 2)), np.zeros((3, 8), np.uint8), np.ones(2, bool))
+    with pytest.raises(ValueError, match=".npz or .h5"):
+        save_features("x.txt", make_features())

@@ -1,0 +1,142 @@
+"""match(): nearest neighbours against a brute-force numpy reference, for every metric."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from geofeat.features import Features
+from geofeat.matching import match
+
+
+def popcount_bytes(x: np.ndarray) -> np.ndarray:
+    return np.unpackbits(x, axis=-1).sum(axis=-1)
+
+
+def reference_distances(d0: np.ndarray, d1: np.ndarray, metric: str) -> np.ndarray:
+    """(N0, N1) distance matrix, brute force."""
+    if metric == "l2":
+        return np.sqrt(((d0[:, None, :].astype(np.float64) - d1[None, :, :]) ** 2).sum(-1))
+    if metric == "hamming":
+        return popcount_bytes(d0[:, None, :] ^ d1[None, :, :]).astype(np.float64)
+    # hamming-rot: query rotation 0 against every rotation of the target
+    return popcount_bytes(d0[:, None, None, 0, :] ^ d1[None, :, :, :]).min(axis=2).astype(np.float64)
+
+
+def reference_match(f0: Features, f1: Features, metric: str, mutual=False, ratio=None):
+    D = reference_distances(f0.descriptors, f1.descriptors, metric)
+    D[~f0.valid] = np.inf
+    D[:, ~f1.valid] = np.inf
+    n0 = len(f0)
+    m = np.full(n0, -1)
+    dist = np.full(n0, np.inf)
+    for i in range(n0):
+        if not np.isfinite(D[i]).any():
+            continue
+        j = int(np.argmin(D[i]))  # first minimum = lowest index
+        others = np.delete(D[i], j)
+        second = others.min() if len(others) else np.inf
+        if ratio is not None and not (D[i, j] < ratio * second):
+            continue
+        if mutual and int(np.argmin(D[:, j])) != i:
+            continue
+        m[i], dist[i] = j, D[i, j]
+    return m, dist
+
+
+def random_features(rng, n, metric, valid_frac=0.8, n_bytes=8, n_rot=4, dim=6):
+    if metric == "l2":
+        desc = rng.standard_normal((n, dim))
+    elif metric == "hamming":
+        # few distinct values: plenty of exact ties, so the tie rule is exercised
+        desc = rng.integers(0, 4, size=(n, n_bytes), dtype=np.uint8)
+    else:
+        desc = rng.integers(0, 256, size=(n, n_rot, n_bytes), dtype=np.uint8)
+    return Features(rng.random((n, 2)) * 100, desc, rng.random(n) < valid_frac)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    metric=st.sampled_from(["l2", "hamming", "hamming-rot"]),
+    n0=st.integers(0, 12),
+    n1=st.integers(0, 12),
+    n_bytes=st.sampled_from([1, 3, 8, 13, 64, 100]),  # 100 bytes: the generic (> 8 words) kernel
+    mutual=st.booleans(),
+    ratio=st.sampled_from([None, 0.8, 1.0]),
+    seed=st.integers(0, 2**31 - 1),
+)
+def test_match_equals_brute_force(metric, n0, n1, n_bytes, mutual, ratio, seed):
+    rng = np.random.default_rng(seed)
+    f0 = random_features(rng, n0, metric, n_bytes=n_bytes)
+    f1 = random_features(rng, n1, metric, n_bytes=n_bytes)
+    got = match(f0, f1, mutual=mutual, ratio=ratio)
+    assert got.matches0.dtype == np.int64 and got.matches0.shape == (n0,)
+    m, dist = reference_match(f0, f1, metric, mutual=mutual, ratio=ratio)
+    assert np.array_equal(got.matches0, m)
+    assert np.array_equal(np.isinf(got.distances0), np.isinf(dist))
+    assert np.allclose(got.distances0[np.isfinite(dist)], dist[np.isfinite(dist)], rtol=1e-9, atol=1e-9)
+    # invalid keypoints never match, on either side
+    assert (got.matches0[~f0.valid] == -1).all()
+    assert not np.isin(got.matches0, np.flatnonzero(~f1.valid)).any()
+
+
+def test_hamming_rot_on_geobit_sized_descriptors():
+    rng = np.random.default_rng(1)
+    f0 = random_features(rng, 40, "hamming-rot", n_bytes=64, n_rot=16)
+    f1 = random_features(rng, 50, "hamming-rot", n_bytes=64, n_rot=16)
+    got = match(f0, f1)
+    m, dist = reference_match(f0, f1, "hamming-rot")
+    assert np.array_equal(got.matches0, m) and np.allclose(got.distances0[m >= 0], dist[m >= 0])
+
+
+def test_hamming_rot_finds_a_rotated_copy():
+    rng = np.random.default_rng(2)
+    d1 = rng.integers(0, 256, size=(30, 16, 64), dtype=np.uint8)
+    # query i = target i seen at rotation (i mod 16): its rotation 0 equals target rotation k
+    d0 = np.stack([d1[i, i % 16] for i in range(30)])[:, None, :].repeat(16, axis=1)
+    got = match(d0, d1)
+    assert np.array_equal(got.matches0, np.arange(30)) and (got.distances0 == 0).all()
+    # plain Hamming on rotation 0 only does not find most of them
+    plain = match(np.ascontiguousarray(d0[:, 0]), np.ascontiguousarray(d1[:, 0]))
+    assert (plain.matches0 == np.arange(30)).mean() < 0.2
+
+
+def test_ties_go_to_lowest_index_and_metric_override():
+    d1 = np.zeros((5, 4), np.uint8)
+    got = match(np.zeros((2, 4), np.uint8), d1)
+    assert got.matches0.tolist() == [0, 0]
+    f1 = Features(np.zeros((5, 2)), d1, np.array([False, False, True, True, True]))
+    assert match(np.zeros((1, 4), np.uint8), f1).matches0.tolist() == [2]
+    # uint8 with explicit l2
+    got = match(np.array([[0, 9]], np.uint8), np.array([[0, 0], [0, 10]], np.uint8), metric="l2")
+    assert got.matches0.tolist() == [1] and got.distances0[0] == pytest.approx(1.0)
+
+
+def test_empty_and_all_invalid_inputs():
+    for metric_shape in [(0, 8), (0, 16, 64), (0, 5)]:
+        dtype = np.float32 if len(metric_shape) == 2 and metric_shape[1] == 5 else np.uint8
+        e = np.zeros(metric_shape, dtype)
+        full = np.ones((3,) + metric_shape[1:], dtype)
+        assert match(e, full).matches0.shape == (0,)
+        r = match(full, e)
+        assert r.matches0.tolist() == [-1, -1, -1] and np.isinf(r.distances0).all()
+        assert match(e, e).matches0.shape == (0,)
+    f = Features(np.zeros((3, 2)), np.ones((3, 16, 64), np.uint8), np.zeros(3, bool))
+    assert match(f, f).matches0.tolist() == [-1, -1, -1]
+
+
+def test_mismatched_descriptors_raise():
+    with pytest.raises(ValueError, match="trailing shapes"):
+        match(np.zeros((2, 16, 64), np.uint8), np.zeros((2, 16, 32), np.uint8))
+    with pytest.raises(ValueError, match="trailing shapes"):
+        match(np.zeros((2, 8), np.uint8), np.zeros((2, 16, 8), np.uint8))
+    with pytest.raises(TypeError, match="uint8"):
+        match(np.zeros((2, 8), np.float32), np.zeros((2, 8), np.float32), metric="hamming")
+    with pytest.raises(ValueError, match="metric"):
+        match(np.zeros((2, 8), np.uint8), np.zeros((2, 8), np.uint8), metric="cosine")
+    with pytest.raises(ValueError, match="hamming-rot"):
+        match(np.zeros((2, 8), np.uint8), np.zeros((2, 8), np.uint8), metric="hamming-rot")
+    with pytest.raises(ValueError, match="ratio"):
+        match(np.zeros((2, 8), np.uint8), np.zeros((2, 8), np.uint8), ratio=1.5)
