@@ -129,6 +129,22 @@ class RGBDFrame:
         return RGBDFrame(np.ascontiguousarray(np.rot90(image, k)), np.ascontiguousarray(np.rot90(self.depth, k)), Kn)
 
 
+def roll_camera(frame: RGBDFrame, angle_deg: float) -> tuple[RGBDFrame, np.ndarray]:
+    """The frame seen by the same camera rolled about its optical axis by `angle_deg` (the image
+    turns counter-clockwise as displayed for positive angles). Rotating the image about the principal
+    point is exact for a roll when fx = fy and there is no skew; depth (Z) does not change, K stays.
+    Pixels with no source get depth 0. Returns the new frame and the (2, 3) affine map of pixels."""
+    K = frame.K
+    if abs(K[0, 0] - K[1, 1]) > 1e-6 * K[0, 0] or abs(K[0, 1]) > 1e-9:
+        raise ValueError("K: roll_camera needs square pixels (fx = fy) and no skew")
+    H, W = frame.shape
+    A = cv2.getRotationMatrix2D((float(K[0, 2]), float(K[1, 2])), float(angle_deg), 1.0)
+    image = frame.color if frame.color is not None else frame.image
+    warped = cv2.warpAffine(image, A, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    depth = cv2.warpAffine(frame.depth, A, (W, H), flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
+    return RGBDFrame(warped, depth, K), A
+
+
 def rotate_points90(points: np.ndarray, shape: tuple[int, int], k: int = 1) -> np.ndarray:
     """Map (N, 2) pixel coordinates of an (H, W) image into the image rotated by `np.rot90(., k)`."""
     k %= 4

@@ -89,6 +89,19 @@ def read_frame(
     return RGBDFrame(read_image(rgb_path), read_depth(depth_path, depth_scale), read_intrinsics(intrinsics_path))
 
 
+def write_frame(folder: str | Path, name: str, color: np.ndarray, depth: np.ndarray,
+                depth_scale: float = DEPTH_SCALE_M) -> None:
+    """Write one frame in the public layout: `<name>-rgb.png` (8-bit, (H, W, 3) BGR or (H, W)) and
+    `<name>-depth.png` (16-bit, depth in metres / depth_scale, rounded; 0 = missing)."""
+    folder = Path(folder)
+    units = np.rint(np.asarray(depth, np.float64) / depth_scale)
+    if units.max(initial=0) > 65535:
+        raise ValueError(f"depth: {units.max() * depth_scale:.1f} m does not fit a 16-bit PNG at {depth_scale} m per unit")
+    for path, image in ((folder / f"{name}{RGB_SUFFIX}", color), (folder / f"{name}{DEPTH_SUFFIX}", units.astype(np.uint16))):
+        if not cv2.imwrite(str(path), image):
+            raise ValueError(f"folder: cannot write {path}")
+
+
 def read_landmarks(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Read a landmark csv (`id, x, y, valid` after one header line).
 

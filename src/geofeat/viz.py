@@ -69,3 +69,35 @@ def side_by_side(left: np.ndarray, right: np.ndarray, gap: int = 8) -> np.ndarra
     out[: left.shape[0], : left.shape[1]] = left
     out[: right.shape[0], left.shape[1] + gap:] = right
     return out
+
+
+def draw_matches(
+    frame0: RGBDFrame,
+    frame1: RGBDFrame,
+    keypoints0: np.ndarray,
+    keypoints1: np.ndarray,
+    matches0: np.ndarray,
+    correct: np.ndarray | None = None,
+    max_lines: int = 400,
+    title: str = "",
+) -> np.ndarray:
+    """Two frames side by side with a line per match: green correct, red wrong, blue unknown
+    (correct is None). keypoints (N, 2) pixels; matches0 (N0,) int, -1 = none. Returns uint8 BGR."""
+    left, right = to_bgr(frame0), to_bgr(frame1)
+    canvas = side_by_side(left, right, gap=0)
+    offset = left.shape[1]
+    i0 = np.flatnonzero(np.asarray(matches0) >= 0)
+    if len(i0) > max_lines:
+        i0 = i0[np.linspace(0, len(i0) - 1, max_lines).astype(int)]
+    for i in i0:
+        j = matches0[i]
+        colour = (255, 120, 0) if correct is None else ((0, 200, 0) if correct[i] else (0, 0, 255))
+        p = (int(round(keypoints0[i][0])), int(round(keypoints0[i][1])))
+        q = (int(round(keypoints1[j][0])) + offset, int(round(keypoints1[j][1])))
+        cv2.line(canvas, p, q, colour, 1, cv2.LINE_AA)
+        cv2.circle(canvas, p, 2, colour, -1)
+        cv2.circle(canvas, q, 2, colour, -1)
+    if title:
+        cv2.putText(canvas, title, (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 3, cv2.LINE_AA)
+        cv2.putText(canvas, title, (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
+    return canvas

@@ -1,0 +1,55 @@
+"""The command line: demo, extract, match, and clear errors."""
+
+import re
+
+import numpy as np
+import pytest
+
+import geofeat
+from geofeat.cli import main
+from geofeat.frame import roll_camera
+from geofeat.io import demo_data_dir, read_landmarks, write_frame, write_intrinsics, write_landmarks
+
+
+@pytest.fixture(scope="module")
+def rolled_sequence(tmp_path_factory):
+    """The Kinect frame (reference) and the camera rolled by 30 deg, with landmarks, in the public layout."""
+    folder = tmp_path_factory.mktemp("rolled")
+    frame = geofeat.read_demo_frame()
+    ids, xy, visible = read_landmarks(demo_data_dir() / "cloud_1.csv")
+    write_intrinsics(folder / "intrinsics.xml", frame.K)
+    write_frame(folder, "cloud_ref", frame.color, frame.depth)
+    write_landmarks(folder / "cloud_ref.csv", ids, xy, visible)
+    rolled, A = roll_camera(frame, 30.0)
+    write_frame(folder, "cloud_roll30", rolled.color, rolled.depth)
+    write_landmarks(folder / "cloud_roll30.csv", ids, xy @ A[:, :2].T + A[:, 2], visible)
+    return folder
+
+
+def test_demo_writes_pictures_and_reports(tmp_path, capsys):
+    assert main(["demo", "--out", str(tmp_path), "--keypoints", "300"]) == 0
+    out = capsys.readouterr().out
+    assert "51 valid" in out and "geobit" in out and "orb" in out
+    assert (tmp_path / "polar_patches.png").stat().st_size > 10_000
+    assert (tmp_path / "rolled_pair_matches.png").stat().st_size > 10_000
+
+
+def test_extract_and_match_on_a_sequence(rolled_sequence, tmp_path, capsys):
+    features = tmp_path / "f.h5"
+    assert main(["extract", str(rolled_sequence), "--out", str(features), "--keypoints", "300"]) == 0
+    f = geofeat.load_features(features, name="cloud_roll30")
+    assert f.descriptors.shape[1:] == (16, 64) and len(f) <= 300
+    assert main(["match", str(rolled_sequence), "--out", str(tmp_path / "m"), "--keypoints", "300"]) == 0
+    m = geofeat.load_matches(tmp_path / "m" / "matches-geobit.h5", name="cloud_ref/cloud_roll30")
+    assert (m.matches0 >= 0).sum() > 100
+    total = re.search(r"total: (\d+) matches, (\d+) correct", capsys.readouterr().out)
+    assert total and int(total.group(2)) > 50  # ground truth from a thin-plate spline on the csv landmarks
+    assert (tmp_path / "m" / "cloud_ref__cloud_roll30__geobit.png").exists()
+
+
+def test_errors_are_one_line_and_exit_2(tmp_path, capsys):
+    assert main(["extract", str(tmp_path / "missing"), "--out", str(tmp_path / "f.h5")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not a directory" in err[0]
+    with pytest.raises(SystemExit):
+        main(["extract", str(tmp_path), "--descriptor", "nope", "--out", "x"])
