@@ -174,6 +174,21 @@ class Sequence:
         name = self.names[name] if isinstance(name, int) else name
         return read_landmarks(self.folder / f"{name}.csv")
 
+    def correspondences(self, i: str | int, j: str | int, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Exact ground truth of a simulated sequence: map (N, 2) pixels of frame i to frame j.
+
+        Returns mapped (N, 2) pixels of frame j and visible (N,) bool (on the surface in frame i and
+        seen, unoccluded, in frame j). Raises ValueError for sequences without simulator ground truth."""
+        from .sim.groundtruth import correspondences
+
+        return correspondences(self, i, j, points)
+
+    def has_ground_truth(self) -> bool:
+        """True when the sequence carries the simulator's dense ground truth."""
+        from .sim.groundtruth import has_ground_truth
+
+        return has_ground_truth(self)
+
     def has_landmarks(self) -> bool:
         return all((self.folder / f"{n}.csv").is_file() for n in self.names)
 
@@ -216,3 +231,20 @@ def read_demo_frame() -> RGBDFrame:
     """The shipped real Kinect v1 frame (640x480, depth in mm on disk)."""
     d = demo_data_dir()
     return read_frame(d / "cloud_1-rgb.png", d / "cloud_1-depth.png", d / "intrinsics.xml")
+
+
+def find_sequences(paths) -> list[Path]:
+    """Sequence folders under the given paths: a path that holds `*-rgb.png` frames is a sequence,
+    otherwise its sub-folders that do are (one level down), sorted by name."""
+    found: list[Path] = []
+    for p in [Path(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]:
+        if not p.is_dir():
+            raise ValueError(f"dataset: not a directory: {p}")
+        if any(p.glob(f"*{RGB_SUFFIX}")):
+            found.append(p)
+            continue
+        subs = sorted(d for d in p.iterdir() if d.is_dir() and any(d.glob(f"*{RGB_SUFFIX}")))
+        if not subs:
+            raise ValueError(f"dataset: no sequence (folder of '*{RGB_SUFFIX}' frames) in {p}")
+        found.extend(subs)
+    return found

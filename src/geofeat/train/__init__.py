@@ -1,0 +1,1 @@
+"""Training GeoPatch on simulated sequences: patch dataset and training loop."""

@@ -1,0 +1,198 @@
+"""Training loop of GeoPatch: triplet margin loss with anchor swap (paper, "Convolutional Network
+Training"), SGD, a validation matching score per epoch, checkpoints to resume from, and a plot."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from tqdm import tqdm
+
+from ..bench.protocol import score_detect
+from ..descriptors.geopatch import GeoPatchConfig, GeoPatchNet, save_checkpoint
+from ..matching import match
+from .dataset import PatchSet, ValidationPair
+
+
+@dataclass
+class TrainConfig:
+    """Training settings (paper values where it gives them: SGD, lr 0.1, weight decay 1e-4, batch 1000).
+
+    mining: "random" (the paper: one random negative per triplet, anchor swap picks the harder of
+    the two negative distances) or "hardest" (the hardest negative among the batch, as HardNet).
+    augment_shift: roll every training patch by a random number of angle columns.
+    """
+
+    epochs: int = 10
+    steps_per_epoch: int = 200
+    batch_size: int = 1000
+    lr: float = 0.1
+    momentum: float = 0.9
+    weight_decay: float = 1e-4
+    margin: float = 1.0
+    mining: str = "random"
+    augment_shift: bool = False
+    seed: int = 0
+    net: GeoPatchConfig = field(default_factory=GeoPatchConfig)
+
+
+def triplet_loss(a: torch.Tensor, p: torch.Tensor, n: torch.Tensor | None, margin: float, mining: str) -> torch.Tensor:
+    """Margin ranking loss with anchor swap on unit descriptors (B, D).
+
+    random: delta* = min(|a - n|, |p - n|) for the given negatives.
+    hardest: delta* = min over the batch of |a_i - p_j| and |p_i - a_j| (j != i)."""
+    d_pos = (a - p).norm(dim=1)
+    if mining == "random":
+        d_neg = torch.minimum((a - n).norm(dim=1), (p - n).norm(dim=1))
+    elif mining == "hardest":
+        dist = torch.cdist(a, p)
+        dist = dist + torch.eye(len(a), device=a.device) * 10.0
+        d_neg = torch.minimum(dist.min(dim=1).values, dist.min(dim=0).values)
+    else:
+        raise ValueError(f"mining: expected 'random' or 'hardest', got {mining!r}")
+    return F.relu(margin + d_pos - d_neg).mean()
+
+
+class TripletSampler:
+    """Draws (anchor, positive, negative) patch indices: anchor and positive share an id."""
+
+    def __init__(self, ids: np.ndarray, rng: np.random.Generator) -> None:
+        order = np.argsort(ids, kind="stable")
+        sorted_ids = ids[order]
+        starts = np.flatnonzero(np.r_[True, sorted_ids[1:] != sorted_ids[:-1]])
+        counts = np.diff(np.r_[starts, len(ids)])
+        keep = counts >= 2
+        self.order, self.starts, self.counts = order, starts[keep], counts[keep]
+        if len(self.starts) < 2:
+            raise ValueError("data: need at least 2 surface points seen in 2 frames to form triplets")
+        self.ids = ids
+        self.rng = rng
+
+    def sample(self, batch: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        rng = self.rng
+        groups = rng.choice(len(self.starts), size=batch, replace=len(self.starts) < batch)
+        first = rng.integers(0, self.counts[groups])
+        second = (first + rng.integers(1, self.counts[groups])) % self.counts[groups]
+        a = self.order[self.starts[groups] + first]
+        p = self.order[self.starts[groups] + second]
+        n = rng.integers(0, len(self.ids), size=batch)
+        clash = self.ids[n] == self.ids[a]
+        while clash.any():
+            n[clash] = rng.integers(0, len(self.ids), size=int(clash.sum()))
+            clash = self.ids[n] == self.ids[a]
+        return a, p, n
+
+
+@torch.no_grad()
+def validation_score(net: GeoPatchNet, pairs: list[ValidationPair], device) -> float:
+    """Mean matching score (protocol "detect", MS) of the network over validation pairs."""
+    net.eval()
+    scores = []
+    for pair in pairs:
+        def describe(values, valid):
+            out = np.zeros((len(values), net.config.dim), np.float32)
+            if valid.any():
+                x = torch.from_numpy(np.asarray(values[valid], np.float32)).unsqueeze(1).to(device)
+                out[valid] = torch.cat([net(c) for c in x.split(512)]).cpu().numpy()
+            return out
+        from ..features import Features
+
+        f0 = Features(np.zeros((len(pair.ref_valid), 2)), describe(pair.ref_patches, pair.ref_valid), pair.ref_valid)
+        f1 = Features(np.zeros((len(pair.tgt_valid), 2)), describe(pair.tgt_patches, pair.tgt_valid), pair.tgt_valid)
+        m = match(f0, f1)
+        scores.append(score_detect(m.matches0, pair.gt_pairs, len(pair.ref_valid), len(pair.tgt_valid)).ms)
+    net.train()
+    return float(np.mean(scores)) if scores else float("nan")
+
+
+def _batch(patches: np.ndarray, index: np.ndarray, rng: np.random.Generator, shift: bool) -> torch.Tensor:
+    x = patches[index].astype(np.float32) / 255.0
+    if shift:
+        k = rng.integers(0, x.shape[2], size=len(x))
+        cols = (np.arange(x.shape[2])[None, :] + k[:, None]) % x.shape[2]
+        x = np.take_along_axis(x, cols[:, None, :].repeat(x.shape[1], axis=1), axis=2)
+    return torch.from_numpy(x).unsqueeze(1)
+
+
+def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
+          validation: list[ValidationPair] | None = None, resume: bool = False,
+          device: str | None = None, progress: bool = True) -> dict:
+    """Train GeoPatchNet; writes `out` (final weights), `out`.ckpt (resumable state after every
+    epoch), `out`.json (history) and `out`.png (loss / validation plot). Returns the history."""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    ckpt_path = out.with_suffix(out.suffix + ".ckpt")
+    device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    torch.manual_seed(config.seed)
+    rng = np.random.default_rng(config.seed)
+    net = GeoPatchNet(config.net).to(device)
+    opt = torch.optim.SGD(net.parameters(), lr=config.lr, momentum=config.momentum, weight_decay=config.weight_decay)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=config.epochs * config.steps_per_epoch)
+    history = {"epoch": [], "loss": [], "val_ms": [], "config": asdict(config)}
+    start_epoch = 0
+    if resume and ckpt_path.is_file():
+        state = torch.load(str(ckpt_path), map_location=device, weights_only=False)
+        net.load_state_dict(state["state_dict"])
+        opt.load_state_dict(state["optimizer"])
+        sched.load_state_dict(state["scheduler"])
+        rng.bit_generator.state = state["rng"]
+        torch.set_rng_state(state["torch_rng"])
+        history = state["history"]
+        start_epoch = state["epoch"] + 1
+    sampler = TripletSampler(data.ids, rng)
+    net.train()
+    for epoch in range(start_epoch, config.epochs):
+        losses = []
+        bar = tqdm(range(config.steps_per_epoch), desc=f"epoch {epoch + 1}/{config.epochs}", disable=not progress)
+        for _ in bar:
+            a, p, n = sampler.sample(config.batch_size)
+            xa = _batch(data.patches, a, rng, config.augment_shift).to(device)
+            xp = _batch(data.patches, p, rng, config.augment_shift).to(device)
+            if config.mining == "random":
+                xn = _batch(data.patches, n, rng, config.augment_shift).to(device)
+                da, dp, dn = net(torch.cat([xa, xp, xn])).split(len(a))
+            else:
+                (da, dp), dn = net(torch.cat([xa, xp])).split(len(a)), None
+            loss = triplet_loss(da, dp, dn, config.margin, config.mining)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            sched.step()
+            losses.append(loss.item())
+            bar.set_postfix(loss=f"{np.mean(losses[-20:]):.3f}")
+        val = validation_score(net, validation, device) if validation else float("nan")
+        history["epoch"].append(epoch + 1)
+        history["loss"].append(float(np.mean(losses)))
+        history["val_ms"].append(val)
+        if progress:
+            tqdm.write(f"epoch {epoch + 1}: loss {history['loss'][-1]:.4f}, validation MS {val:.3f}")
+        torch.save({"state_dict": net.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
+                    "rng": rng.bit_generator.state, "torch_rng": torch.get_rng_state(), "history": history,
+                    "epoch": epoch}, str(ckpt_path))
+    net.eval()
+    save_checkpoint(out, net.cpu(), history=history)
+    Path(str(out) + ".json").write_text(json.dumps(history, indent=1))
+    _plot(history, Path(str(out) + ".png"))
+    return history
+
+
+def _plot(history: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.plot(history["epoch"], history["loss"], "o-", color="tab:blue", label="training loss")
+    ax.set_xlabel("epoch")
+    ax.set_ylabel("triplet loss", color="tab:blue")
+    ax2 = ax.twinx()
+    ax2.plot(history["epoch"], history["val_ms"], "s-", color="tab:green", label="validation MS")
+    ax2.set_ylabel("validation matching score", color="tab:green")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

@@ -1,0 +1,88 @@
+"""GeoPatch: rotation invariance, shipped weights, checkpoints, and a tiny training run."""
+
+import numpy as np
+import pytest
+import torch
+
+import geofeat
+from geofeat.descriptors.geopatch import GeoPatch, GeoPatchConfig, GeoPatchNet, default_weights_path, load_network, save_checkpoint
+from geofeat.train.dataset import PatchSet
+from geofeat.train.loop import TrainConfig, TripletSampler, train, triplet_loss
+from surfaces import corresponding_points, sheet_pair
+
+
+@pytest.fixture(scope="module")
+def sheet_patches():
+    """Polar patches of 60 points of a flat and a bent sheet (two views of each surface point)."""
+    flat_frame, bent_frame, flat, bent = sheet_pair(bend_radius=0.15)
+    xy_flat, xy_bent = corresponding_points(flat, bent, n=60)
+    a = geofeat.polar_patches(flat_frame, xy_flat)
+    b = geofeat.polar_patches(bent_frame, xy_bent)
+    return a.values, b.values
+
+
+def test_angle_max_pool_makes_descriptors_invariant_to_column_shifts():
+    torch.manual_seed(0)
+    net = GeoPatchNet().eval()
+    x = torch.rand(8, 1, 32, 32)
+    with torch.no_grad():
+        d = net(x)
+        for shift in (4, 8, 12):  # multiples of the two 2x pooling strides: exact invariance
+            torch.testing.assert_close(net(torch.roll(x, shift, dims=3)), d, atol=1e-5, rtol=0)
+    assert torch.allclose(d.norm(dim=1), torch.ones(8))
+
+
+def test_shipped_weights_load_offline_and_are_rotation_robust(sheet_patches):
+    path = default_weights_path()
+    if not path.is_file():
+        pytest.fail(f"shipped GeoPatch weights missing: {path}")
+    g = GeoPatch(device="cpu")
+    values, _ = sheet_patches
+    d = g.describe(values)
+    assert d.shape == (60, 128) and np.allclose(np.linalg.norm(d, axis=1), 1, atol=1e-5)
+    between = np.linalg.norm(d[:, None] - d[None], axis=-1)[~np.eye(60, dtype=bool)].mean()
+    for shift in (1, 2, 3, 5, 16):
+        rolled = g.describe(np.roll(values, shift, axis=2))
+        change = np.linalg.norm(rolled - d, axis=1).mean()
+        assert change < 0.25 * between, (shift, change, between)
+
+
+def test_checkpoint_round_trip(tmp_path):
+    torch.manual_seed(1)
+    net = GeoPatchNet(GeoPatchConfig(channels=(4, 8, 8), dim=16)).eval()
+    save_checkpoint(tmp_path / "w.pt", net, note="test")
+    loaded, ckpt = load_network(tmp_path / "w.pt")
+    x = torch.rand(3, 1, 32, 32)
+    with torch.no_grad():
+        torch.testing.assert_close(loaded(x), net(x))
+    assert ckpt["note"] == "test"
+    with pytest.raises(ValueError, match="weights"):
+        load_network(tmp_path / "missing.pt")
+
+
+def test_anchor_swap_loss():
+    a = torch.tensor([[1.0, 0.0]])
+    p = torch.tensor([[0.0, 1.0]])
+    n = torch.tensor([[0.0, 1.0]])  # as close to p as p itself -> swap makes the negative distance 0
+    loss = triplet_loss(a, p, n, margin=1.0, mining="random")
+    assert loss.item() == pytest.approx(1.0 + np.sqrt(2))
+
+
+def test_sampler_positives_share_ids_negatives_do_not():
+    ids = np.repeat(np.arange(50), 3)
+    a, p, n = TripletSampler(ids, np.random.default_rng(0)).sample(500)
+    assert (ids[a] == ids[p]).all() and (a != p).all() and (ids[n] != ids[a]).all()
+
+
+def test_tiny_training_lowers_the_loss(sheet_patches, tmp_path):
+    flat, bent = sheet_patches
+    data = PatchSet(np.clip(np.rint(np.concatenate([flat, bent]) * 255), 0, 255).astype(np.uint8),
+                    np.concatenate([np.arange(60), np.arange(60)]))
+    config = TrainConfig(epochs=3, steps_per_epoch=15, batch_size=64, lr=0.05, seed=0,
+                         net=GeoPatchConfig(channels=(8, 16, 16), dim=32))
+    history = train(data, tmp_path / "tiny.pt", config, progress=False, device="cpu")
+    assert history["loss"][-1] < history["loss"][0]
+    assert (tmp_path / "tiny.pt.png").exists() and (tmp_path / "tiny.pt.ckpt").exists()
+    # resuming a finished run changes nothing and reloads the same history
+    again = train(data, tmp_path / "tiny.pt", config, resume=True, progress=False, device="cpu")
+    assert again["loss"] == history["loss"]
