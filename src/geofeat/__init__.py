@@ -10,6 +10,7 @@ from .geodesic.polar import PolarPatches, polar_patches
 from .io import read_frame, read_sequence, read_demo_frame, Sequence
 from .keypoints import Keypoints, detect
 from .matching import match
+from .sim import simulate_sequence
 
 __version__ = "0.1.0"
 
@@ -26,6 +27,7 @@ __all__ = [
     "match",
     "save_features",
     "save_matches",
+    "simulate_sequence",
     "GridMesh",
     "HeatGeodesics",
     "PolarPatches",

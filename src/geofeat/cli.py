@@ -206,6 +206,10 @@ def build_parser() -> argparse.ArgumentParser:
     frames_options(match)
     match.add_argument("--out", required=True, help="output folder (matches .h5 + pictures)")
     match.set_defaults(func=_match)
+
+    from .sim import command as sim_command
+
+    sim_command.add_parser(sub).set_defaults(func=sim_command.run)
     return parser
 
 

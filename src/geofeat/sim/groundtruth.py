@@ -1,0 +1,230 @@
+"""Exact dense ground truth of simulated sequences: pixel correspondences between any two frames.
+
+Per frame the simulator stores `<name>-gt.npz`:
+    uv        (H, W, 2) float32 surface coordinate (u, v) of the cloth seen at each pixel centre,
+              metres on the flat rest cloth; -1 on background,
+    vertices  (rows, cols, 3) float64 particle positions in that frame's camera coordinates, metres,
+    R, t      (3, 3), (3,) the world-to-camera pose (world = the reference camera),
+and one `groundtruth.json` per sequence (grid shape, particle spacing, frame names).
+
+Pixels are in the OpenCV convention: the centre of the top-left pixel is (0, 0).
+Because the cloth is isometric (up to the constraint tolerance), the geodesic distance between
+two surface points is the Euclidean distance of their (u, v).
+
+Mapping a point p of frame i to frame j:
+ 1. the (u, v) of p: the triangle seen at the nearest pixel centre is intersected with the ray
+    through p (exact sub-pixel surface coordinate); p is off-surface if that pixel is background;
+ 2. (u, v) -> 3D point on the same triangle of the piecewise-linear surface in frame j -> pinhole
+    projection;
+ 3. visible in j if the projection lands in the image, in front of the camera, and the surface
+    seen at the nearest pixel centre there is the same point: |uv_j(pixel) - (u, v)| below
+    `tol_px` pixel footprints (divided by the cosine of the viewing angle). Points hidden by a
+    fold (another part of the cloth, far away in (u, v)) or off the image are not visible.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+GT_JSON = "groundtruth.json"
+GT_SUFFIX = "-gt.npz"
+#: Visibility tolerance in pixel footprints (see the module docstring).
+VISIBILITY_TOL_PX = 2.0
+
+
+@dataclass
+class FrameTruth:
+    """Ground truth of one frame: uv (H, W, 2) float32 metres (-1 = background) and
+    vertices (rows, cols, 3) float64 camera coordinates, metres."""
+
+    uv: np.ndarray
+    vertices: np.ndarray
+
+
+def _triangles_of(uv: np.ndarray, rows: int, cols: int, spacing: float):
+    """Grid triangle of surface coordinates uv (N, 2) metres: cell (r, c), fractional (fu, fv) and
+    `upper` (fu >= fv: triangle (r,c),(r,c+1),(r+1,c+1); else (r,c),(r+1,c+1),(r+1,c))."""
+    cu = uv[:, 0] / spacing
+    cv = uv[:, 1] / spacing
+    c = np.clip(np.floor(cu), 0, cols - 2).astype(np.int64)
+    r = np.clip(np.floor(cv), 0, rows - 2).astype(np.int64)
+    fu = cu - c
+    fv = cv - r
+    return r, c, fu, fv, fu >= fv
+
+
+def _triangle_vertices(vertices: np.ndarray, r, c, upper):
+    """(N, 3) x 3 vertex positions A, B, C of the triangles, ordered so that the point with
+    fractional cell position (fu, fv) is A + s (B - A) + q (C - B), (s, q) = (fu, fv) if upper else (fv, fu)."""
+    v00 = vertices[r, c]
+    v11 = vertices[r + 1, c + 1]
+    other = np.where(upper[:, None], vertices[r, c + 1], vertices[r + 1, c])
+    return v00, other, v11
+
+
+def surface_to_points(uv: np.ndarray, vertices: np.ndarray, spacing: float) -> np.ndarray:
+    """3D positions (N, 3) metres of surface coordinates uv (N, 2) metres on the piecewise-linear
+    cloth with grid `vertices` (rows, cols, 3)."""
+    rows, cols = vertices.shape[:2]
+    r, c, fu, fv, upper = _triangles_of(uv, rows, cols, spacing)
+    a, b, cc = _triangle_vertices(vertices, r, c, upper)
+    s = np.where(upper, fu, fv)[:, None]
+    q = np.where(upper, fv, fu)[:, None]
+    return a + s * (b - a) + q * (cc - b)
+
+
+def _pixel_lookup(uv_map: np.ndarray, points: np.ndarray):
+    H, W = uv_map.shape[:2]
+    px = np.rint(points[:, 0]).astype(np.int64)
+    py = np.rint(points[:, 1]).astype(np.int64)
+    inside = (px >= 0) & (px < W) & (py >= 0) & (py < H) & np.isfinite(points).all(axis=1)
+    uv = np.full((len(points), 2), -1.0)
+    uv[inside] = uv_map[py[inside], px[inside]]
+    return uv, inside & (uv[:, 0] >= 0)
+
+
+def surface_coordinates(truth: FrameTruth, K: np.ndarray, spacing: float, points: np.ndarray):
+    """Exact (u, v) in metres of sub-pixel points (N, 2) of a frame.
+
+    Returns:
+        uv (N, 2) float64 metres (-1 where off-surface), on_surface (N,) bool.
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    uv, ok = _pixel_lookup(truth.uv, points)
+    if not ok.any():
+        return uv, ok
+    rows, cols = truth.vertices.shape[:2]
+    r, c, fu, fv, upper = _triangles_of(uv[ok], rows, cols, spacing)
+    a, b, cc = _triangle_vertices(truth.vertices, r, c, upper)
+    ray = np.stack([(points[ok, 0] - K[0, 2]) / K[0, 0], (points[ok, 1] - K[1, 2]) / K[1, 1], np.ones(ok.sum())], axis=1)
+    e1, e2 = b - a, cc - b
+    n = np.cross(e1, e2)
+    denom = np.einsum("ij,ij->i", n, ray)
+    good = np.abs(denom) > 1e-12 * np.linalg.norm(n, axis=1)
+    lam = np.einsum("ij,ij->i", n, a) / np.where(good, denom, 1.0)
+    p = ray * lam[:, None] - a
+    # solve p = s e1 + q e2 in the least-squares sense (p lies in the plane)
+    g11 = np.einsum("ij,ij->i", e1, e1)
+    g12 = np.einsum("ij,ij->i", e1, e2)
+    g22 = np.einsum("ij,ij->i", e2, e2)
+    h1 = np.einsum("ij,ij->i", e1, p)
+    h2 = np.einsum("ij,ij->i", e2, p)
+    det = g11 * g22 - g12 * g12
+    good &= det > 1e-30
+    det = np.where(good, det, 1.0)
+    s = (g22 * h1 - g12 * h2) / det
+    q = (g11 * h2 - g12 * h1) / det
+    fu_new = np.where(upper, s, q)
+    fv_new = np.where(upper, q, s)
+    refined = np.stack([(c + fu_new) * spacing, (r + fv_new) * spacing], axis=1)
+    # keep the pixel-centre value where the ray is degenerate or the refinement jumps (silhouettes)
+    jump = np.linalg.norm(refined - uv[ok], axis=1) > 2 * spacing
+    keep = ~good | jump
+    refined[keep] = uv[ok][keep]
+    uv[ok] = refined
+    return uv, ok
+
+
+def map_points(
+    truth_i: FrameTruth,
+    truth_j: FrameTruth,
+    K: np.ndarray,
+    spacing: float,
+    points: np.ndarray,
+    tol_px: float = VISIBILITY_TOL_PX,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Map sub-pixel points (N, 2) of frame i to frame j (see the module docstring).
+
+    Returns:
+        mapped (N, 2) float64 pixels of frame j (NaN where the point is off the surface in frame i;
+        the projection, possibly outside the image, where it is on the surface but hidden),
+        visible (N,) bool.
+    """
+    K = np.asarray(K, dtype=np.float64)
+    uv, on = surface_coordinates(truth_i, K, spacing, points)
+    mapped = np.full((len(uv), 2), np.nan)
+    visible = np.zeros(len(uv), dtype=bool)
+    if not on.any():
+        return mapped, visible
+    P = surface_to_points(uv[on], truth_j.vertices, spacing)
+    Z = P[:, 2]
+    front = Z > 1e-6
+    Zs = np.where(front, Z, 1.0)
+    proj = np.stack([K[0, 0] * P[:, 0] / Zs + K[0, 2], K[1, 1] * P[:, 1] / Zs + K[1, 2]], axis=1)
+    proj[~front] = np.nan
+    mapped[on] = proj
+    uv_j, ok_j = _pixel_lookup(truth_j.uv, np.where(front[:, None], proj, -1e9))
+    # pixel footprint (metres) divided by the cosine between normal and viewing ray
+    rows, cols = truth_j.vertices.shape[:2]
+    r, c, _, _, upper = _triangles_of(uv[on], rows, cols, spacing)
+    a, b, cc = _triangle_vertices(truth_j.vertices, r, c, upper)
+    n = np.cross(b - a, cc - b)
+    cos = np.abs(np.einsum("ij,ij->i", n, P)) / (np.linalg.norm(n, axis=1) * np.linalg.norm(P, axis=1) + 1e-30)
+    tol = tol_px * Zs / min(K[0, 0], K[1, 1]) / np.maximum(cos, 0.2)
+    same = np.linalg.norm(uv_j - uv[on], axis=1) <= tol
+    visible[on] = front & ok_j & same
+    return mapped, visible
+
+
+# --------------------------------------------------------------------------- on-disk sequences
+
+
+def has_ground_truth(seq) -> bool:
+    """True if the `geofeat.io.Sequence` was written by the simulator with its dense ground truth."""
+    folder = Path(seq.folder)
+    if not (folder / GT_JSON).is_file():
+        return False
+    return all((folder / f"{n}{GT_SUFFIX}").is_file() for n in seq.names)
+
+
+def read_metadata(folder: str | Path) -> dict:
+    """The sequence's `groundtruth.json` as a dict."""
+    return json.loads((Path(folder) / GT_JSON).read_text())
+
+
+def read_frame_truth(folder: str | Path, name: str | int) -> FrameTruth:
+    """Load `<name>-gt.npz` of a simulated sequence (name, or index into its frame list)."""
+    if isinstance(name, (int, np.integer)):
+        name = read_metadata(folder)["frames"][int(name)]
+    with np.load(Path(folder) / f"{name}{GT_SUFFIX}") as data:
+        return FrameTruth(uv=data["uv"], vertices=data["vertices"])
+
+
+def _name(seq, key) -> str:
+    if isinstance(key, (int, np.integer)):
+        if not -len(seq.names) <= int(key) < len(seq.names):
+            raise ValueError(f"frame index {key} out of range for a sequence of {len(seq.names)} frames")
+        return seq.names[int(key)]
+    if key not in seq.names:
+        raise ValueError(f"frame {key!r} is not in the sequence {seq.folder} (frames: {seq.names[:5]}...)")
+    return str(key)
+
+
+def correspondences(seq, i, j, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Map pixels of frame i to frame j of a simulated `geofeat.io.Sequence`.
+
+    Args:
+        seq: the sequence (from `geofeat.read_sequence`).
+        i, j: frame names or indices into `seq.names`.
+        points: (N, 2) pixel coordinates (x, y) of frame i, OpenCV convention.
+
+    Returns:
+        mapped (N, 2) float64 pixels of frame j (NaN where the point is off the cloth in frame i),
+        visible (N,) bool: on the cloth in frame i and seen, not occluded, inside frame j.
+    """
+    if not has_ground_truth(seq):
+        raise ValueError(
+            f"sequence {seq.folder} has no simulator ground truth ({GT_JSON} and <name>{GT_SUFFIX} files); "
+            "only sequences written by `geofeat simulate` have dense correspondences"
+        )
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 2:
+        raise ValueError(f"points: expected shape (N, 2) pixels, got {points.shape}")
+    meta = read_metadata(seq.folder)
+    ti = read_frame_truth(seq.folder, _name(seq, i))
+    tj = read_frame_truth(seq.folder, _name(seq, j))
+    return map_points(ti, tj, seq.K, float(meta["spacing_m"]), points)

@@ -1,0 +1,253 @@
+"""Random scenarios: a cloth hanging from a few moving pins in changing wind, seen by a camera
+that stays put (`deform`), rolls about its optical axis from 0 to 180 degrees (`rotate`) or moves
+back to twice the distance, i.e. half the scale (`scale`). Lights, noise and all simulation
+parameters are drawn from one seed.
+
+World coordinates are the reference camera's: x right, y down (gravity), z forward, metres.
+The reference frame (frame 0) shows the flat cloth before any simulation step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Iterator
+
+import numpy as np
+
+from .cloth import Cloth, ClothConfig
+from .noise import finish_image, kinect_depth_noise
+from .render import RenderOutput, render
+from .textures import prepare_texture
+
+SCENARIOS = ("deform", "rotate", "scale")
+
+
+def default_intrinsics(width: int = 640, height: int = 480) -> np.ndarray:
+    """Kinect-like (3, 3) intrinsics: f = 525 px at 640 x 480 (scaled with the width), centred."""
+    f = 525.0 * width / 640.0
+    return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+
+
+def _rot(axis: str, angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    if axis == "x":
+        return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+    if axis == "y":
+        return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+
+@dataclass
+class SceneParams:
+    """Everything random about one sequence (drawn by `SceneParams.draw`). Lengths in metres,
+    accelerations in m / time unit^2, angles in radians, angular rates in rad / step."""
+
+    cloth_width: float
+    distance: float
+    tilt: np.ndarray  # (2,) rotation of the rest cloth about x and y
+    gravity: float
+    wind_dir: np.ndarray  # (3,) unit mean direction
+    wind_strength: float
+    wind_wobble: np.ndarray  # (4, 2) (rate, phase) of the x, y, z direction and strength changes
+    wave: np.ndarray  # (4,) kx, ky (rad / m), phase rate, amplitude of the spatial modulation
+    pin_cols: np.ndarray  # (P,) columns of the top row that are pinned
+    pin_amp: np.ndarray  # (P, 3) amplitude of the pin motion
+    pin_rate: np.ndarray  # (P, 3) angular rate of the pin motion
+    pin_phase: np.ndarray  # (P, 3)
+    lights: np.ndarray  # (L, 3) world positions
+    light_power: np.ndarray  # (L,)
+    light_drift: np.ndarray  # (L, 4) amplitude (m), rate, phase, power modulation
+    ambient: float
+    image_sigma: float
+    background: np.ndarray  # (3,) BGR in [0, 1]
+    steps_per_frame: int
+    extras: dict = field(default_factory=dict)
+
+    @classmethod
+    def draw(cls, rng: np.random.Generator, steps_per_frame: int = 6) -> "SceneParams":
+        n_pins = int(rng.integers(2, 5))
+        n_lights = int(rng.integers(1, 4))
+        wind_dir = np.array([rng.normal(0, 0.5), rng.normal(0, 0.3), rng.choice([-1.0, 1.0])])
+        lights = np.stack([rng.uniform(-0.8, 0.8, n_lights), rng.uniform(-0.8, 0.5, n_lights),
+                           rng.uniform(-0.3, 0.5, n_lights)], axis=1)
+        return cls(
+            cloth_width=float(rng.uniform(0.5, 0.7)),
+            distance=float(rng.uniform(0.85, 1.05)),
+            tilt=rng.uniform(-0.15, 0.15, 2),
+            gravity=float(rng.uniform(0.00015, 0.0004)),
+            wind_dir=wind_dir / np.linalg.norm(wind_dir),
+            wind_strength=float(rng.uniform(0.00015, 0.0005)),
+            wind_wobble=np.stack([rng.uniform(0.005, 0.025, 4), rng.uniform(0, 2 * np.pi, 4)], axis=1),
+            wave=np.array([rng.uniform(-25, 25), rng.uniform(-25, 25), rng.uniform(0.02, 0.1), rng.uniform(0.3, 1.0)]),
+            pin_cols=np.array([0]) if n_pins < 2 else np.linspace(0, 1, n_pins),
+            pin_amp=rng.uniform(0.0, 1.0, (n_pins, 3)) * np.array([0.06, 0.03, 0.08]),
+            pin_rate=rng.uniform(0.005, 0.0125, (n_pins, 3)),
+            pin_phase=rng.uniform(0, 2 * np.pi, (n_pins, 3)),
+            lights=lights,
+            light_power=rng.uniform(0.4, 0.9, n_lights) / np.sqrt(n_lights),
+            light_drift=np.stack([rng.uniform(0.05, 0.3, n_lights), rng.uniform(0.01, 0.04, n_lights),
+                                  rng.uniform(0, 2 * np.pi, n_lights), rng.uniform(0.05, 0.25, n_lights)], axis=1),
+            ambient=float(rng.uniform(0.15, 0.4)),
+            image_sigma=float(rng.uniform(1.0, 4.0)),
+            background=rng.uniform(0.0, 0.25, 3),
+            steps_per_frame=int(steps_per_frame),
+        )
+
+
+@dataclass
+class SimFrame:
+    """One generated frame.
+
+    Attributes:
+        index: frame number (0 = reference).
+        image: (H, W, 3) uint8 BGR with lighting and pixel noise.
+        depth: (H, W) float32 metres, 0 = background / hole (Kinect-like noise if enabled).
+        render: the noise-free RenderOutput (exact depth and the (u, v) map).
+        vertices: (rows, cols, 3) float64 particles in this frame's camera coordinates, metres.
+        R, t: world-to-camera rotation (3, 3) and translation (3,) metres.
+    """
+
+    index: int
+    image: np.ndarray
+    depth: np.ndarray
+    render: RenderOutput
+    vertices: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+
+
+class ClothScene:
+    """A seeded random scenario; iterate `frames()` to simulate and render it.
+
+    Args:
+        scenario: one of SCENARIOS.
+        n_frames: number of frames including the reference (>= 1).
+        rng: random generator (all randomness of the scene comes from it).
+        texture: (Ht, Wt, 3) uint8 BGR texture image.
+        size: (H, W) image size, pixels.
+        K: (3, 3) intrinsics (default: `default_intrinsics(W, H)`).
+        kinect_noise: degrade the written depth with `kinect_depth_noise`.
+        cloth_config: grid and solver settings (the width is overridden by the drawn one).
+        steps_per_frame: simulation steps between two frames.
+    """
+
+    def __init__(
+        self,
+        scenario: str,
+        n_frames: int,
+        rng: np.random.Generator,
+        texture: np.ndarray,
+        size: tuple[int, int] = (480, 640),
+        K: np.ndarray | None = None,
+        kinect_noise: bool = False,
+        cloth_config: ClothConfig = ClothConfig(),
+        steps_per_frame: int = 6,
+    ) -> None:
+        if scenario not in SCENARIOS:
+            raise ValueError(f"scenario: expected one of {', '.join(SCENARIOS)}, got {scenario!r}")
+        self.scenario = scenario
+        self.n_frames = int(n_frames)
+        self.rng = rng
+        self.size = (int(size[0]), int(size[1]))
+        self.K = default_intrinsics(self.size[1], self.size[0]) if K is None else np.asarray(K, dtype=np.float64)
+        self.kinect_noise = kinect_noise
+        self.params = p = SceneParams.draw(rng, steps_per_frame)
+        cfg = ClothConfig(**{**cloth_config.__dict__, "width_m": p.cloth_width})
+        self.config = cfg
+        R0 = _rot("y", p.tilt[1]) @ _rot("x", p.tilt[0])
+        centre = np.array([cfg.width_m / 2, cfg.height_m / 2, 0.0])
+        origin = np.array([0.0, 0.0, p.distance]) - R0 @ centre
+        self.cloth = Cloth(cfg, origin=origin, R=R0)
+        top = np.round(p.pin_cols * (cfg.cols - 1)).astype(np.int64)
+        self.pin_idx = top  # top row: index = c
+        self.pin_rest = self.cloth.pos[self.pin_idx].copy()
+        self.cloth.pin(self.pin_idx)
+        # texture at about 1.5 texels per pixel of the closest view
+        px_width = self.K[0, 0] * cfg.width_m / p.distance
+        self.texture = prepare_texture(texture, cfg.width_m / cfg.height_m, int(min(1024, 1.5 * px_width + 16)))
+        self.step_count = 0
+
+    # ------------------------------------------------------------------ time-varying inputs
+    def _wind(self, k: int) -> np.ndarray:
+        p = self.params
+        wob = np.sin(p.wind_wobble[:, 0] * k + p.wind_wobble[:, 1])
+        d = p.wind_dir + 0.6 * wob[:3]
+        return p.wind_strength * (0.55 + 0.45 * wob[3]) * d / np.linalg.norm(d)
+
+    def _pins(self, k: int) -> np.ndarray:
+        p = self.params
+        ramp = min(1.0, k / 150.0)  # start from rest smoothly
+        offset = p.pin_amp * (np.sin(p.pin_rate * k + p.pin_phase) - np.sin(p.pin_phase)) * ramp
+        pins = self.pin_rest + offset
+        # keep the pin set feasible with some slack: no two pins farther apart than 90 % of their
+        # rest distance (a taut cloth cannot be held isometric by a few constraint sweeps)
+        centre = pins.mean(axis=0)
+        d = np.linalg.norm(pins[:, None] - pins[None], axis=2)
+        rest = np.linalg.norm(self.pin_rest[:, None] - self.pin_rest[None], axis=2)
+        off = ~np.eye(len(pins), dtype=bool)
+        slack = 1.0 - 0.1 * ramp
+        scale = min(1.0, float(np.min(slack * rest[off] / np.maximum(d[off], 1e-12))))
+        return centre + (pins - centre) * scale
+
+    def _camera(self, f: int) -> tuple[np.ndarray, np.ndarray]:
+        a = f / (self.n_frames - 1) if self.n_frames > 1 else 0.0
+        if self.scenario == "rotate":
+            # roll about the ray through the cloth centre (on the optical axis)
+            return _rot("z", np.pi * a), np.zeros(3)
+        if self.scenario == "scale":
+            return np.eye(3), np.array([0.0, 0.0, self.params.distance * a])
+        return np.eye(3), np.zeros(3)
+
+    def _lights(self, f: int) -> tuple[np.ndarray, np.ndarray]:
+        p = self.params
+        d = p.light_drift
+        phase = d[:, 1] * self.step_count + d[:, 2]
+        pos = p.lights + d[:, :1] * np.stack([np.sin(phase), np.cos(1.3 * phase), np.sin(0.7 * phase)], axis=1)
+        power = p.light_power * (1 + d[:, 3] * np.sin(1.7 * phase))
+        return pos, power
+
+    # ------------------------------------------------------------------ simulation
+    def _perturb(self) -> None:
+        """Bend the flat cloth out of its plane by a smooth random bump (<= 3 mm) so that
+        in-plane compression by the pins buckles it instead of straining it."""
+        cfg, p = self.config, self.params
+        uv = self.cloth.uv / np.array([cfg.width_m, cfg.height_m])
+        k = self.rng.uniform(1.0, 3.0, 2) * np.pi
+        phase = self.rng.uniform(0, 2 * np.pi, 2)
+        bump = 0.003 * np.sin(k[0] * uv[:, 0] + phase[0]) * np.sin(k[1] * uv[:, 1] + phase[1])
+        free = ~self.cloth.pinned
+        self.cloth.pos[free] += bump[free, None] * self.cloth.normals()[free]
+        self.cloth.prev[:] = self.cloth.pos
+
+    def advance(self, steps: int) -> None:
+        """Run `steps` simulation steps."""
+        p = self.params
+        if self.step_count == 0 and steps > 0:
+            self._perturb()
+        gravity = np.array([0.0, p.gravity, 0.0])
+        for _ in range(steps):
+            k = self.step_count
+            self.cloth.pin_pos[self.pin_idx] = self._pins(k)
+            wave_k = p.wave[:2]
+            self.cloth.step(gravity, self._wind(k), wave_k, p.wave[2] * k, p.wave[3])
+            self.step_count += 1
+
+    def render_frame(self, f: int) -> SimFrame:
+        """Render the current cloth state as frame `f` (camera and lights of frame f)."""
+        R, t = self._camera(f)
+        verts = self.cloth.pos @ R.T + t
+        normals = self.cloth.normals() @ R.T
+        lights, power = self._lights(f)
+        out = render(verts, normals, self.cloth.uv, self.cloth.triangles, self.K, self.size, self.texture,
+                     (self.config.width_m, self.config.height_m), lights @ R.T + t, power, self.params.ambient)
+        image = finish_image(out.color, out.mask, self.params.background, self.params.image_sigma, self.rng)
+        depth = kinect_depth_noise(out.depth, out.cos_view, self.rng) if self.kinect_noise else out.depth
+        cfg = self.config
+        return SimFrame(f, image, depth, out, verts.reshape(cfg.rows, cfg.cols, 3), R, t)
+
+    def frames(self) -> Iterator[SimFrame]:
+        """Yield the n_frames frames; the reference (0) is the flat rest cloth."""
+        for f in range(self.n_frames):
+            if f > 0:
+                self.advance(self.params.steps_per_frame)
+            yield self.render_frame(f)

@@ -1,0 +1,192 @@
+"""Write simulated sequences in the public dataset layout, plus exact dense ground truth.
+
+A sequence folder gets, per frame `<name>` (`frame-000-master` is the reference, then
+`frame-001`, ...):
+    `<name>-rgb.png`    8-bit BGR,
+    `<name>-depth.png`  16-bit depth in millimetres (camera Z), 0 = background / hole,
+    `<name>.csv`        the 100 best Harris corners of the reference tracked into this frame
+                        (`id,x,y,valid`; pixels, OpenCV convention: the centre of the top-left
+                        pixel is (0, 0); valid = 0 where occluded, off the cloth or off the image),
+    `<name>-gt.npz`     dense ground truth (see `geofeat.sim.groundtruth`),
+and `intrinsics.xml`, `groundtruth.json`.
+
+The folder is written under a temporary name next to OUT_DIR and renamed at the end, so an error
+never leaves a half-written sequence behind.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import shutil
+import zipfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..io import write_intrinsics, write_landmarks
+from .groundtruth import GT_JSON, GT_SUFFIX, FrameTruth, map_points
+from .scenes import SCENARIOS, ClothScene, SimFrame
+from .textures import choose_texture
+
+REFERENCE_NAME = "frame-000-master"
+N_LANDMARKS = 100
+FORMAT_VERSION = 1
+
+
+def frame_name(index: int) -> str:
+    """File stem of frame `index` (0 = reference)."""
+    return REFERENCE_NAME if index == 0 else f"frame-{index:03d}"
+
+
+def save_npz(path: str | Path, **arrays: np.ndarray) -> None:
+    """`np.savez_compressed` with fixed zip timestamps, so that equal arrays give equal bytes."""
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
+        for key, value in arrays.items():
+            buf = io.BytesIO()
+            np.lib.format.write_array(buf, np.asanyarray(value), allow_pickle=False)
+            info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            zf.writestr(info, buf.getvalue(), compresslevel=1)
+
+
+def harris_landmarks(image: np.ndarray, mask: np.ndarray, n: int = N_LANDMARKS) -> np.ndarray:
+    """(M, 2) float64 pixel positions (M <= n) of the strongest Harris corners of a uint8 BGR
+    image inside `mask` (H, W) bool, at least 5 px from the cloth border and 8 px apart."""
+    gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    inner = cv2.erode(mask.astype(np.uint8), np.ones((11, 11), np.uint8))
+    corners = cv2.goodFeaturesToTrack(gray, maxCorners=n, qualityLevel=1e-6, minDistance=8, mask=inner,
+                                      blockSize=5, useHarrisDetector=True, k=0.04)
+    if corners is None:
+        return np.zeros((0, 2))
+    return corners.reshape(-1, 2).astype(np.float64)
+
+
+def encode_depth_mm(depth: np.ndarray) -> np.ndarray:
+    """(H, W) float metres -> uint16 millimetres (0 stays 0; clipped at 65.535 m)."""
+    return np.clip(np.rint(depth * 1000.0), 0, 65535).astype(np.uint16)
+
+
+def _check_args(scenario: str, n_frames: int, width: int, height: int) -> None:
+    if scenario not in SCENARIOS:
+        raise ValueError(f"scenario: expected one of {', '.join(SCENARIOS)}, got {scenario!r}")
+    if isinstance(n_frames, bool) or not isinstance(n_frames, (int, np.integer)) or n_frames < 1:
+        raise ValueError(f"n_frames: expected an integer >= 1 (the reference included), got {n_frames!r}")
+    if width < 32 or height < 32:
+        raise ValueError(f"width, height: expected at least 32 x 32 pixels, got {width} x {height}")
+
+
+def simulate_sequence(
+    out_dir: str | Path,
+    scenario: str = "deform",
+    n_frames: int = 10,
+    seed: int = 0,
+    texture: str | Path | np.ndarray | None = None,
+    width: int = 640,
+    height: int = 480,
+    kinect_noise: bool = False,
+    progress: bool = True,
+    texture_dir: str | Path | None = None,
+    steps_per_frame: int = 6,
+    overwrite: bool = False,
+) -> Path:
+    """Simulate, render and write one sequence; returns the sequence folder.
+
+    Args:
+        out_dir: sequence folder to create (must not exist or be empty, unless `overwrite`).
+        scenario: `deform` (fixed camera), `rotate` (camera roll 0..180 degrees) or `scale`
+            (camera moving back to twice the distance).
+        n_frames: number of frames, the reference included (>= 1).
+        seed: everything random (texture choice, cloth, wind, pins, lights, noise) follows it.
+        texture: image file, `"procedural"`, an (H, W, 3) uint8 BGR array, or None (a packaged
+            training photograph or a procedural texture, drawn from the seed).
+        width, height: image size in pixels; intrinsics f = 525 * width / 640, centred.
+        kinect_noise: write Kinect-like noisy depth with holes (ground truth stays exact).
+        progress: show a tqdm progress bar.
+        texture_dir: draw the texture from this folder instead.
+        steps_per_frame: simulation steps between frames.
+        overwrite: replace an existing non-empty out_dir.
+    """
+    _check_args(scenario, n_frames, width, height)
+    out_dir = Path(out_dir)
+    if out_dir.exists() and (not out_dir.is_dir() or (any(out_dir.iterdir()) and not overwrite)):
+        raise ValueError(f"out_dir: {out_dir} exists and is not an empty folder (pass overwrite=True / --overwrite)")
+    rng = np.random.default_rng(seed)
+    tex_image, tex_name = choose_texture(rng, texture, texture_dir)
+    scene = ClothScene(scenario, int(n_frames), rng, tex_image, (height, width), steps_per_frame=steps_per_frame)
+
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out_dir.parent / f".{out_dir.name}.partial-{os.getpid()}"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir()
+    try:
+        _write(tmp, scene, progress, meta={
+            "generator": "geofeat.sim", "format_version": FORMAT_VERSION, "scenario": scenario, "seed": int(seed),
+            "texture": tex_name, "kinect_noise": bool(kinect_noise),
+        })
+    except BaseException as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(exc, Exception):
+            raise type(exc)(f"{exc} (nothing was written to {out_dir})") from exc
+        raise
+    if out_dir.exists():
+        shutil.rmtree(out_dir)
+    tmp.rename(out_dir)
+    return out_dir
+
+
+def _write(folder: Path, scene: ClothScene, progress: bool, meta: dict) -> None:
+    scene.kinect_noise = bool(meta["kinect_noise"])
+    cfg = scene.config
+    write_intrinsics(folder / "intrinsics.xml", scene.K)
+    names = [frame_name(i) for i in range(scene.n_frames)]
+    frames = scene.frames()
+    if progress:
+        from tqdm import tqdm
+
+        frames = tqdm(frames, total=scene.n_frames, desc=f"simulate {meta['scenario']}", unit="frame")
+    ref_truth: FrameTruth | None = None
+    landmarks = np.zeros((0, 2))
+    for frame in frames:
+        name = names[frame.index]
+        truth = write_frame(folder, name, frame)
+        if frame.index == 0:
+            ref_truth = truth
+            landmarks = harris_landmarks(frame.image, frame.render.mask)
+        assert ref_truth is not None
+        xy, visible = map_points(ref_truth, truth, scene.K, cfg.spacing_m, landmarks)
+        xy = np.where(np.isfinite(xy), xy, -1.0)
+        write_landmarks(folder / f"{name}.csv", np.arange(len(landmarks)), xy, visible)
+    meta = {
+        **meta,
+        "n_frames": scene.n_frames,
+        "image_size": [scene.size[1], scene.size[0]],
+        "grid": [cfg.rows, cfg.cols],
+        "spacing_m": cfg.spacing_m,
+        "cloth_size_m": [cfg.width_m, cfg.height_m],
+        "solver": {"iterations": cfg.iterations, "damping": cfg.damping, "dt2": cfg.dt2,
+                   "steps_per_frame": scene.params.steps_per_frame, "bending_stiffness": cfg.bending_stiffness},
+        "image_noise_sigma": scene.params.image_sigma,
+        "frames": names,
+        "conventions": {
+            "pixels": "OpenCV: the centre of the top-left pixel is (0, 0); x = fx X / Z + cx",
+            "depth_png": "uint16 millimetres of camera Z, 0 = background or hole",
+            "uv": "metres on the flat rest cloth (geodesic distance = |uv1 - uv2|), -1 = background",
+            "vertices": "(rows, cols, 3) particle positions in the frame's camera coordinates, metres",
+            "pose": "R, t map reference-camera (world) coordinates to this frame's camera",
+        },
+    }
+    (folder / GT_JSON).write_text(json.dumps(meta, indent=1))
+
+
+def write_frame(folder: Path, name: str, frame: SimFrame) -> FrameTruth:
+    """Write the PNGs and `<name>-gt.npz` of one frame; return its ground truth."""
+    if not cv2.imwrite(str(folder / f"{name}-rgb.png"), frame.image):
+        raise ValueError(f"out_dir: cannot write {folder / f'{name}-rgb.png'}")
+    cv2.imwrite(str(folder / f"{name}-depth.png"), encode_depth_mm(frame.depth))
+    truth = FrameTruth(uv=frame.render.uv, vertices=frame.vertices)
+    save_npz(folder / f"{name}{GT_SUFFIX}", uv=truth.uv, vertices=truth.vertices, R=frame.R, t=frame.t)
+    return truth

@@ -1,0 +1,251 @@
+"""Tests of the cloth simulator: isometry, exact ground truth, determinism, bad input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from geofeat.io import read_sequence
+from geofeat.sim import ClothScene, correspondences, has_ground_truth, simulate_sequence
+from geofeat.sim import writer as writer_mod
+from geofeat.sim.command import add_parser, main
+from geofeat.sim.groundtruth import read_frame_truth, read_metadata, surface_coordinates, surface_to_points
+from geofeat.sim.textures import packaged_texture_dir, procedural_texture, read_texture
+
+TEXTURE = packaged_texture_dir() / "kodak_kodim23.jpg"
+
+
+@pytest.fixture(scope="module")
+def seq(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sim") / "deform"
+    simulate_sequence(out, "deform", n_frames=8, seed=1, texture=TEXTURE, width=320, height=240, progress=False)
+    return read_sequence(out)
+
+
+def _bilinear(img: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bilinear samples of (H, W) img at (N, 2) xy; ok where all four neighbours are non-zero."""
+    H, W = img.shape
+    x0 = np.clip(np.floor(xy[:, 0]).astype(int), 0, W - 2)
+    y0 = np.clip(np.floor(xy[:, 1]).astype(int), 0, H - 2)
+    fx, fy = xy[:, 0] - x0, xy[:, 1] - y0
+    n = [img[y0, x0], img[y0, x0 + 1], img[y0 + 1, x0], img[y0 + 1, x0 + 1]]
+    val = n[0] * (1 - fx) * (1 - fy) + n[1] * fx * (1 - fy) + n[2] * (1 - fx) * fy + n[3] * fx * fy
+    return val, np.all([v > 0 for v in n], axis=0)
+
+
+def _backproject(xy: np.ndarray, z: np.ndarray, K: np.ndarray) -> np.ndarray:
+    return np.stack([(xy[:, 0] - K[0, 2]) / K[0, 0] * z, (xy[:, 1] - K[1, 2]) / K[1, 1] * z, z], axis=1)
+
+
+def test_isometry_neighbour_distances():
+    rng = np.random.default_rng(5)
+    scene = ClothScene("deform", 2, rng, procedural_texture(rng), size=(120, 160))
+    worst = []
+    for _ in range(20):
+        scene.advance(6)
+        worst.append(np.percentile(scene.cloth.strain(0), 99))
+        assert scene.cloth.strain(0).max() < 0.06
+        assert np.percentile(scene.cloth.strain(1), 99) < 0.02  # the rigid triangle diagonals
+    assert max(worst) < 0.02, f"99th percentile of structural strain {max(worst):.3%}"
+    # the cloth really moved: not a trivially rigid result
+    assert np.abs(scene.cloth.pos - scene.cloth.prev).sum() > 0
+    assert np.ptp(scene.cloth.pos[:, 2]) > 0.01
+
+
+def test_sequence_layout(seq):
+    assert len(seq) == 8 and seq.reference == "frame-000-master"
+    assert has_ground_truth(seq)
+    f = seq.frame(0)
+    assert f.shape == (240, 320)
+    assert np.allclose(seq.K, [[262.5, 0, 159.5], [0, 262.5, 119.5], [0, 0, 1]])
+    valid = f.depth > 0
+    assert 0.15 < valid.mean() < 0.9  # cloth fills a good part of the frame, background = 0
+    assert 0.75 < np.median(f.depth[valid]) < 1.2
+    ids, xy, vis = seq.landmarks(0)
+    assert len(ids) == 100 and vis.all()
+    meta = read_metadata(seq.folder)
+    assert meta["grid"] == [60, 80] and meta["frames"] == seq.names
+
+
+def test_depth_and_K_agree_with_the_particle_surface(seq):
+    meta = read_metadata(seq.folder)
+    for name in (seq.names[0], seq.names[-1]):
+        truth = read_frame_truth(seq.folder, name)
+        depth = seq.frame(name).depth
+        ys, xs = np.nonzero(depth > 0)
+        xy = np.stack([xs, ys], axis=1).astype(np.float64)
+        P = _backproject(xy, depth[ys, xs].astype(np.float64), seq.K)
+        Q = surface_to_points(truth.uv[ys, xs].astype(np.float64), truth.vertices, meta["spacing_m"])
+        err = np.linalg.norm(P - Q, axis=1)
+        assert np.median(err) < 0.0005 and err.max() < 0.003, (np.median(err), err.max())
+
+
+def test_ground_truth_preserves_distances(seq):
+    rng = np.random.default_rng(0)
+    meta = read_metadata(seq.folder)
+    d0 = seq.frame(0).depth.astype(np.float64)
+    ys, xs = np.nonzero(d0 > 0)
+    pick = rng.choice(len(xs), 3000, replace=False)
+    pts = np.stack([xs[pick], ys[pick]], axis=1) + rng.uniform(-0.5, 0.5, (3000, 2))
+    uv, _ = surface_coordinates(read_frame_truth(seq.folder, 0), seq.K, meta["spacing_m"], pts)
+    for j in (3, 7):
+        mapped, visible = correspondences(seq, 0, j, pts)
+        assert visible.mean() > 0.7
+        dj = seq.frame(j).depth.astype(np.float64)
+        z0, ok0 = _bilinear(d0, pts)
+        zj, okj = _bilinear(dj, np.where(visible[:, None], mapped, 0))
+        ok = visible & ok0 & okj
+        P0, Pj, uvk = _backproject(pts[ok], z0[ok], seq.K), _backproject(mapped[ok], zj[ok], seq.K), uv[ok]
+        a, b = np.triu_indices(len(P0), 1)
+        geo = np.linalg.norm(uvk[a] - uvk[b], axis=1)
+        short = (geo > 0.015) & (geo < 0.03)
+        a, b, geo = a[short], b[short], geo[short]
+        assert len(a) > 200
+        e0 = np.linalg.norm(P0[a] - P0[b], axis=1)
+        ej = np.linalg.norm(Pj[a] - Pj[b], axis=1)
+        rel = np.abs(ej - e0) / geo
+        assert np.median(rel) < 0.015 and np.percentile(rel, 90) < 0.03, (np.median(rel), np.percentile(rel, 90))
+        # Euclidean vs geodesic (uv) distance in frame j
+        assert np.median(np.abs(ej - geo) / geo) < 0.03
+
+
+def test_colour_agrees_at_corresponding_pixels(seq):
+    rng = np.random.default_rng(1)
+    g0 = cv2.cvtColor(seq.frame(0).color, cv2.COLOR_BGR2GRAY).astype(np.float64)
+    gj = cv2.cvtColor(seq.frame(5).color, cv2.COLOR_BGR2GRAY).astype(np.float64)
+    ys, xs = np.nonzero(seq.frame(0).depth > 0)
+    pick = rng.choice(len(xs), 2000, replace=False)
+    pts = np.stack([xs[pick], ys[pick]], axis=1).astype(np.float64)
+    mapped, visible = correspondences(seq, 0, 5, pts)
+    a = g0[ys[pick], xs[pick]][visible]
+    b, _ = _bilinear(gj, mapped[visible])
+    shifted, _ = _bilinear(gj, mapped[visible] + [6.0, 0.0])
+    corr = np.corrcoef(a, b)[0, 1]
+    assert corr > 0.85, corr
+    assert corr > np.corrcoef(a, shifted)[0, 1] + 0.1
+
+
+def test_landmarks_follow_ground_truth(seq):
+    _, xy0, _ = seq.landmarks(0)
+    for j in (2, 7):
+        _, xyj, visj = seq.landmarks(j)
+        mapped, visible = correspondences(seq, 0, j, xy0)
+        assert np.array_equal(visible, visj)
+        assert np.abs(mapped[visible] - xyj[visible]).max() < 0.006
+
+
+def test_self_mapping_is_identity_and_background_is_not_visible(seq):
+    pts = np.array([[160.3, 120.7], [0.0, 0.0], [-5.0, 3.0]])
+    mapped, visible = correspondences(seq, 0, 0, pts)
+    assert visible.tolist() == [True, False, False]
+    assert np.allclose(mapped[0], pts[0], atol=1e-6)
+    assert np.isnan(mapped[1:]).all()
+
+
+def test_scale_and_rotate_scenarios(tmp_path):
+    s = read_sequence(simulate_sequence(tmp_path / "s", "scale", 3, seed=2, width=160, height=120, progress=False))
+    z0, z2 = (np.median(s.frame(i).depth[s.frame(i).depth > 0]) for i in (0, 2))
+    assert 1.8 < z2 / z0 < 2.2
+    r = read_sequence(simulate_sequence(tmp_path / "r", "rotate", 3, seed=2, width=160, height=120, progress=False))
+    meta = read_metadata(r.folder)
+    R = np.load(r.folder / "frame-002-gt.npz")["R"]
+    assert np.isclose(np.degrees(np.arctan2(R[1, 0], R[0, 0])), 180.0, atol=1e-6) or np.isclose(
+        abs(np.degrees(np.arctan2(R[1, 0], R[0, 0]))), 180.0)
+    assert meta["scenario"] == "rotate"
+
+
+def _files(folder: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+def test_same_seed_same_bytes_different_seed_differs(tmp_path):
+    kw = dict(n_frames=3, width=160, height=120, progress=False)
+    a = _files(simulate_sequence(tmp_path / "a", "deform", seed=7, **kw))
+    b = _files(simulate_sequence(tmp_path / "b", "deform", seed=7, **kw))
+    c = _files(simulate_sequence(tmp_path / "c", "deform", seed=8, **kw))
+    assert a == b
+    assert a.keys() == c.keys()
+    assert a["frame-002-rgb.png"] != c["frame-002-rgb.png"]
+
+
+def test_kinect_noise_makes_holes_but_keeps_ground_truth(tmp_path):
+    s = read_sequence(simulate_sequence(tmp_path / "k", "deform", 2, seed=3, width=320, height=240,
+                                        kinect_noise=True, progress=False))
+    truth = read_frame_truth(s.folder, 1)
+    on_cloth = truth.uv[:, :, 0] >= 0
+    depth = s.frame(1).depth
+    holes = on_cloth & (depth == 0)
+    assert 0.005 < holes.sum() / on_cloth.sum() < 0.5
+    assert not (depth[~on_cloth] > 0).any()
+
+
+def test_bad_input_gives_clear_errors_and_writes_nothing(tmp_path):
+    bad = tmp_path / "bad.png"
+    bad.write_bytes(b"not an image")
+    with pytest.raises(ValueError, match="texture"):
+        simulate_sequence(tmp_path / "o1", texture=bad, n_frames=2, width=64, height=48, progress=False)
+    with pytest.raises(ValueError, match="texture"):
+        simulate_sequence(tmp_path / "o1", texture=tmp_path / "missing.jpg", n_frames=2, progress=False)
+    with pytest.raises(ValueError, match="n_frames"):
+        simulate_sequence(tmp_path / "o2", n_frames=0, progress=False)
+    with pytest.raises(ValueError, match="scenario"):
+        simulate_sequence(tmp_path / "o3", scenario="twist", n_frames=2, progress=False)
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "x.txt").write_text("keep")
+    with pytest.raises(ValueError, match="exists"):
+        simulate_sequence(tmp_path / "full", n_frames=2, width=64, height=48, progress=False)
+    assert (tmp_path / "full" / "x.txt").read_text() == "keep"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.png", "full"]
+
+
+def test_failure_midway_leaves_nothing_behind(tmp_path, monkeypatch):
+    original = writer_mod.write_frame
+
+    def failing(folder, name, frame):
+        if frame.index == 2:
+            raise OSError("disk full (simulated)")
+        return original(folder, name, frame)
+
+    monkeypatch.setattr(writer_mod, "write_frame", failing)
+    with pytest.raises(OSError, match="nothing was written"):
+        simulate_sequence(tmp_path / "out", n_frames=4, width=64, height=48, progress=False)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_no_ground_truth_on_real_data():
+    from geofeat.io import demo_data_dir
+
+    s = read_sequence(demo_data_dir())
+    assert not has_ground_truth(s)
+    with pytest.raises(ValueError, match="ground truth"):
+        correspondences(s, 0, 0, np.zeros((1, 2)))
+
+
+def test_command(tmp_path, capsys):
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    add_parser(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["simulate", str(tmp_path / "c"), "--frames", "2", "--width", "64", "--height", "48",
+                              "--texture", "procedural", "--no-progress", "--contact-sheet", str(tmp_path / "sheet.png")])
+    assert args.command == "simulate"
+    assert main(["simulate", str(tmp_path / "c"), "--frames", "2", "--width", "64", "--height", "48",
+                 "--texture", "procedural", "--no-progress", "--contact-sheet", str(tmp_path / "sheet.png")]) == 0
+    assert has_ground_truth(read_sequence(tmp_path / "c"))
+    assert cv2.imread(str(tmp_path / "sheet.png")) is not None
+    assert main(["simulate", str(tmp_path / "d"), "--frames", "0", "--no-progress"]) == 2
+    assert "n_frames" in capsys.readouterr().err
+    assert not (tmp_path / "d").exists()
+    assert main(["simulate", str(tmp_path / "e"), "--texture-dir", str(packaged_texture_dir()), "--frames", "1",
+                 "--width", "64", "--height", "48", "--no-progress"]) == 0
+    assert read_metadata(tmp_path / "e")["texture"].endswith(".jpg")
+
+
+def test_texture_loading():
+    img = read_texture(TEXTURE)
+    assert img.ndim == 3 and img.dtype == np.uint8
+    proc = procedural_texture(np.random.default_rng(0), 64, 48)
+    assert proc.shape == (48, 64, 3) and proc.std() > 10
