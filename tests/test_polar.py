@@ -227,7 +227,8 @@ def test_random_surfaces_never_crash_and_samples_lie_on_mesh(seed, n_holes, bump
     if P.valid.any():
         pts = P.points[P.valid].reshape(-1, 3).astype(np.float64)
         assert (_distance_to_mesh(mesh, pts) < 1e-5).all()
-        assert (P.rings_reached[P.valid] >= 1).all()
+    # valid exactly when at least half of the directions reach the first ring
+    np.testing.assert_array_equal(P.valid, (P.rings_reached >= 1).mean(axis=1) >= 0.5)
     assert np.isnan(P.coords[~P.valid]).all()
 
 

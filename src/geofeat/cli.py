@@ -150,6 +150,60 @@ def _match(args: argparse.Namespace) -> int:
     return 0
 
 
+def _train(args: argparse.Namespace) -> int:
+    from .descriptors.geopatch import GeoPatchConfig
+    from .train.dataset import PatchSet, build_patch_set, validation_pairs
+    from .train.loop import TrainConfig, train
+
+    cache = Path(str(args.out) + ".patches.npz")
+    if args.resume and cache.is_file():
+        data = PatchSet.load(cache)
+        print(f"training patches: {len(data)} from {cache}")
+    else:
+        data = build_patch_set(args.data, n_keypoints=args.keypoints)
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        data.save(cache)
+        print(f"training patches: {len(data)} of {len(np.unique(data.ids))} surface points (cached in {cache})")
+    validation = validation_pairs(args.val) if args.val else None
+    config = TrainConfig(
+        epochs=args.epochs, steps_per_epoch=args.steps, batch_size=args.batch_size, lr=args.lr,
+        mining=args.mining, augment_shift=args.augment_shift, seed=args.seed,
+        net=GeoPatchConfig(angle_pool=not args.no_angle_pool),
+    )
+    history = train(data, args.out, config, validation=validation, resume=args.resume, device=args.device)
+    print(f"wrote {args.out} (final loss {history['loss'][-1]:.4f}, validation MS {history['val_ms'][-1]:.3f}), "
+          f"{args.out}.png and {args.out}.json")
+    return 0
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from .bench.report import markdown_table, plot_curves, read_results, timing_table
+    from .bench.runner import BenchConfig, run_benchmark
+    from .io import find_sequences, read_sequence
+
+    config = BenchConfig(descriptors=tuple(d for d in args.descriptors.split(",") if d), protocol=args.protocol,
+                         radius=args.radius, depth_scale=args.depth_scale, n_keypoints=args.keypoints,
+                         tps_dir=args.tps_dir)
+    out = Path(args.out)
+    csv_path, failed = run_benchmark(args.datasets, out, config, workers=args.workers, scheduler=args.scheduler)
+    rows = read_results(csv_path)
+    if not rows:
+        raise ValueError(f"datasets: no sequence could be evaluated ({len(failed)} failed)")
+    table = markdown_table(rows)
+    (out / "table.md").write_text(table)
+    print(table)
+    for path in plot_curves(rows, out):
+        print(f"wrote {path}")
+    if args.timing:
+        seq = read_sequence(find_sequences(args.datasets)[0], depth_scale=args.depth_scale)
+        timing = timing_table(seq.frame(seq.reference), config.descriptors, args.radius or DEFAULT_RADIUS_M)
+        (out / "timing.md").write_text(timing)
+        print(timing)
+    print(f"wrote {csv_path} ({len(rows)} rows) and {out / 'table.md'}"
+          + (f"; FAILED sequences: {', '.join(failed)}" if failed else ""))
+    return 1 if failed else 0
+
+
 def _correct_matches(seq, target, ref_xy, tgt_xy, matches0, tps_class) -> np.ndarray | None:
     """Per reference keypoint: is its match within 3 px of the ground truth (None when unknown)?
     Ground truth: the simulator's exact correspondences, else a TPS on the csv landmarks."""
@@ -206,6 +260,39 @@ def build_parser() -> argparse.ArgumentParser:
     frames_options(match)
     match.add_argument("--out", required=True, help="output folder (matches .h5 + pictures)")
     match.set_defaults(func=_match)
+
+    bench = sub.add_parser("bench", help="matching score of descriptors on datasets in the public layout")
+    bench.add_argument("datasets", nargs="+", help="sequence folders, or folders of sequences")
+    bench.add_argument("--descriptors", default="geobit,geopatch,orb,sift",
+                       help=f"comma-separated, from {','.join(available_descriptors())} (default geobit,geopatch,orb,sift)")
+    bench.add_argument("--protocol", choices=("detect", "landmarks"), default="detect")
+    bench.add_argument("--out", required=True, help="output folder: results.csv, table.md, plots, timing.md")
+    bench.add_argument("--radius", type=float, default=None, help="geodesic radius, metres (default: geofeat.json or 0.075)")
+    bench.add_argument("--depth-scale", type=float, default=None, help="metres per depth-PNG unit (default: geofeat.json or 0.001)")
+    bench.add_argument("--keypoints", type=int, default=N_KEYPOINTS, help="SIFT keypoints per frame (default 2048)")
+    bench.add_argument("--tps-dir", default=None, help="the authors' published TPS ground truth, one folder per sequence")
+    bench.add_argument("--workers", type=int, default=1, help="local worker processes (sequences in parallel)")
+    bench.add_argument("--scheduler", default=None, help="Dask scheduler address (e.g. tcp://host:8786); needs geofeat[dask]")
+    bench.add_argument("--timing", action="store_true", help="also time f(.), extraction and matching for 250 and 2048 keypoints")
+    bench.set_defaults(func=_bench)
+
+    tr = sub.add_parser("train", help="train GeoPatch on simulated sequences (see `geofeat simulate`)")
+    tr.add_argument("--data", nargs="+", required=True, help="simulated sequence folders, or folders of them")
+    tr.add_argument("--val", nargs="*", default=None, help="held-out simulated sequences for the per-epoch matching score")
+    tr.add_argument("--out", required=True, help="weights file to write (e.g. geopatch.pt)")
+    tr.add_argument("--epochs", type=int, default=10)
+    tr.add_argument("--steps", type=int, default=200, help="batches per epoch (default 200)")
+    tr.add_argument("--batch-size", type=int, default=1000, help="triplets per batch (default 1000, the paper's)")
+    tr.add_argument("--lr", type=float, default=0.1, help="SGD learning rate (default 0.1, the paper's)")
+    tr.add_argument("--mining", choices=("random", "hardest"), default="random",
+                    help="negatives: random with anchor swap (the paper) or the hardest in the batch")
+    tr.add_argument("--augment-shift", action="store_true", help="random circular shifts along the angle axis")
+    tr.add_argument("--no-angle-pool", action="store_true", help="flatten instead of max-pooling over angle (ablation)")
+    tr.add_argument("--keypoints", type=int, default=512, help="SIFT keypoints per reference frame (default 512)")
+    tr.add_argument("--seed", type=int, default=0)
+    tr.add_argument("--resume", action="store_true", help="continue from OUT.ckpt")
+    tr.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
+    tr.set_defaults(func=_train)
 
     from .sim import command as sim_command
 

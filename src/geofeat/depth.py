@@ -115,21 +115,24 @@ def _masked_box_mean(depth: np.ndarray, window: int) -> np.ndarray:
 
 
 def _halve(depth: np.ndarray) -> np.ndarray:
-    """2x downscale by 2x2 block averaging; a block with any missing pixel is missing."""
+    """2x downscale by 2x2 block averaging of the valid pixels; a block with fewer than 2 valid
+    pixels is missing (so the surface's outline moves by at most one pixel per level)."""
     H, W = depth.shape
     d = depth[: H // 2 * 2, : W // 2 * 2].reshape(H // 2, 2, W // 2, 2)
-    complete = (d > 0).all(axis=(1, 3))
-    return np.where(complete, d.mean(axis=(1, 3)), 0.0).astype(np.float32)
+    count = (d > 0).sum(axis=(1, 3))
+    total = d.sum(axis=(1, 3))
+    return np.where(count >= 2, total / np.maximum(count, 1), 0.0).astype(np.float32)
 
 
 def _masked_resize(depth: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """Bilinear resize to size = (W, H); an output pixel that touches a missing pixel is missing."""
+    """Bilinear resize to size = (W, H) of the valid pixels; an output pixel is missing when less
+    than half of its interpolation weight falls on valid pixels."""
     if depth.shape[::-1] == tuple(size):
         return depth.astype(np.float32)
     valid = (depth > 0).astype(np.float32)
     num = cv2.resize(depth * valid, size, interpolation=cv2.INTER_LINEAR)
     den = cv2.resize(valid, size, interpolation=cv2.INTER_LINEAR)
-    return np.where(den > 0.999, num / np.maximum(den, 1e-12), 0.0).astype(np.float32)
+    return np.where(den >= 0.5, num / np.maximum(den, 1e-12), 0.0).astype(np.float32)
 
 
 def smooth(

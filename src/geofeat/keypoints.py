@@ -71,6 +71,7 @@ def detect(
     require_depth: bool = True,
     border_px: int = 3,
     mask: np.ndarray | None = None,
+    unique: bool = True,
 ) -> Keypoints:
     """Detect SIFT keypoints on `frame.image`, strongest `n` first.
 
@@ -81,6 +82,8 @@ def detect(
         require_depth: drop keypoints whose rounded pixel has no depth (`frame.depth == 0`).
         border_px: drop keypoints closer than this to the image border, pixels.
         mask: optional (H, W) uint8/bool detection mask (nonzero = allowed).
+        unique: keep only the strongest of keypoints at the same position (SIFT repeats a position
+            once per dominant orientation; position-only descriptors would describe it twice).
 
     Returns:
         `Keypoints` sorted by decreasing response (ties keep OpenCV's order).
@@ -109,6 +112,9 @@ def detect(
         keep &= frame.depth[yi, xi] > 0
     kps = kps[keep]
     order = np.argsort(-kps.responses, kind="stable")
+    if unique and len(order):
+        _, first = np.unique(np.round(kps.xy[order], 2), axis=0, return_index=True)
+        order = order[np.sort(first)]
     if n:
         order = order[:n]
     return kps[order]

@@ -9,7 +9,7 @@ from __future__ import annotations
 from .baselines import BASELINES, OpenCVDescriptor
 from .geobit import GeoBit, generate_pattern, load_pattern
 
-GEODESIC_DESCRIPTORS = ("geobit",)
+GEODESIC_DESCRIPTORS = ("geobit", "geopatch")
 
 
 def available_descriptors() -> tuple[str, ...]:
@@ -18,7 +18,7 @@ def available_descriptors() -> tuple[str, ...]:
 
 
 def make_descriptor(name: str, radius: float | None = None, depth_config=None):
-    """A descriptor by name ("geobit", "orb", "brisk", "freak", "daisy", "sift").
+    """A descriptor by name ("geobit", "geopatch", "orb", "brisk", "freak", "daisy", "sift").
 
     `radius` (metres) and `depth_config` apply to the geodesic descriptors only."""
     key = name.strip().lower()
@@ -29,6 +29,15 @@ def make_descriptor(name: str, radius: float | None = None, depth_config=None):
         if depth_config is not None:
             kwargs["depth_config"] = depth_config
         return GeoBit(**kwargs)
+    if key == "geopatch":
+        from .geopatch import GeoPatch  # imports torch: only when asked for
+
+        kwargs = {}
+        if radius is not None:
+            kwargs["radius"] = radius
+        if depth_config is not None:
+            kwargs["depth_config"] = depth_config
+        return GeoPatch(**kwargs)
     if key in BASELINES:
         return OpenCVDescriptor(key)
     raise ValueError(f"descriptor: unknown name {name!r}; expected one of {', '.join(available_descriptors())}")

@@ -33,7 +33,7 @@ from ..constants import DEFAULT_RADIUS_M, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX
 from ..depth import DepthConfig
 from ..frame import RGBDFrame
 from .mesh import GridMesh, build_mesh
-from .polar import PolarPatches, as_keypoint_array, sample_bilinear, sampling_image
+from .polar import PolarPatches, as_keypoint_array, patch_validity, sample_bilinear, sampling_image
 
 #: Distance sampling step along an isocurve search line, mesh pixels (GeoBit: 0.05 full-res px).
 HEAT_STEP_PX = 0.1
@@ -477,7 +477,7 @@ def heat_polar_patches(
                 fields, mesh.face_ok, starts[idx], dirs[idx], float(radius) / n_rings, int(n_rings),
                 float(step_px), max_steps,
             )
-    valid = on & (reached.min(axis=1) >= 1) if N else np.zeros(0, bool)
+    valid = on & patch_validity(reached)
     sx, sy = mesh.scale
     coords = np.stack([(xy[..., 0] + 0.5) / sx - 0.5, (xy[..., 1] + 0.5) / sy - 0.5], axis=-1).astype(np.float32)
     coords[~valid] = np.nan

@@ -31,7 +31,8 @@ class PolarPatches:
         coords: (N, R, A, 2) float32 image pixel coordinates (x, y) of every sample; NaN for invalid
             keypoints.
         valid: (N,) bool. False when the keypoint has no surface under it (missing depth, mesh border,
-            depth discontinuity) or when some direction cannot reach the first ring.
+            depth discontinuity) or when fewer than half of the directions reach the first ring (see
+            `patch_validity`).
         rings_reached: (N, A) int32, rings of each direction that lie on the surface. A ray that
             leaves the surface early (hole, border, discontinuity) repeats the last surface point it
             reached in its remaining rings, so every sample lies on the mesh.
@@ -72,6 +73,16 @@ def as_keypoint_array(keypoints, shape: tuple[int, int] | None = None) -> np.nda
                 f"({kp[i, 0]:.1f}, {kp[i, 1]:.1f})"
             )
     return kp
+
+
+def patch_validity(rings_reached: np.ndarray) -> np.ndarray:
+    """(N, A) rings reached per direction -> (N,) bool: at least half of the directions reach the
+    first ring. A keypoint at the edge of the surface (a silhouette, a hole) keeps the half of its
+    patch that lies on the surface, with the rays that leave it repeating their last surface point;
+    one with surface in fewer than half of its directions is not described."""
+    if rings_reached.shape[0] == 0:
+        return np.zeros(0, bool)
+    return (rings_reached >= 1).mean(axis=1) >= 0.5
 
 
 def sampling_image(frame: RGBDFrame, blur_px: float = SAMPLING_BLUR_PX) -> np.ndarray:
@@ -144,7 +155,7 @@ def polar_patches(
         mesh.points, mesh.face_ok, mesh.normals, starts, frame.K, float(radius), int(n_angles), int(n_rings),
         MAX_CROSSINGS,
     )
-    valid = reached.min(axis=1) >= 1 if len(kp) else np.zeros(0, bool)
+    valid = patch_validity(reached)
     coords[~valid] = np.nan
     values = sample_bilinear(sampling_image(frame, blur_px), np.nan_to_num(coords, nan=-1.0))
     values[~valid] = 0.0

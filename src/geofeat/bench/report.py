@@ -1,0 +1,133 @@
+"""Tables and plots from `results.csv` of `geofeat bench`."""
+
+from __future__ import annotations
+
+import csv
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def read_results(path: str | Path) -> list[dict]:
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    for r in rows:
+        for key in ("ms", "mma", "seconds_extract", "seconds_match", "angle_deg", "scale"):
+            r[key] = float(r[key])
+    return rows
+
+
+def summary(rows: list[dict]) -> dict[str, dict[str, float]]:
+    """Per descriptor: mean over sequences of the per-sequence mean MS and MMA (the paper's rule)."""
+    out: dict[str, dict[str, float]] = {}
+    for name in dict.fromkeys(r["descriptor"] for r in rows):
+        per_seq = {}
+        for r in rows:
+            if r["descriptor"] == name:
+                per_seq.setdefault(r["sequence"], []).append((r["ms"], r["mma"]))
+        means = np.array([np.mean(v, axis=0) for v in per_seq.values()])
+        out[name] = {"ms": float(means[:, 0].mean()), "mma": float(means[:, 1].mean()), "sequences": len(per_seq)}
+    return out
+
+
+def markdown_table(rows: list[dict], group_of=lambda seq: seq.split("-")[-1] if "-" in seq else "all") -> str:
+    """Table 1 style: matching score per descriptor (columns) for each group of sequences (rows, e.g.
+    the scenario suffix of simulated sequence names) and overall; best of each row in bold."""
+    groups = {}
+    for r in rows:
+        groups.setdefault(group_of(r["sequence"]), []).append(r)
+    groups["all"] = rows
+    names = list(dict.fromkeys(r["descriptor"] for r in rows))
+    lines = ["| sequences | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+    for group, grows in groups.items():
+        s = summary(grows)
+        best = max(s[n]["ms"] for n in names if n in s)
+        cells = []
+        for n in names:
+            if n not in s:
+                cells.append("-")
+                continue
+            text = f"{s[n]['ms']:.3f}"
+            cells.append(f"**{text}**" if s[n]["ms"] == best else text)
+        n_seq = len({r["sequence"] for r in grows})
+        lines.append(f"| {group} ({n_seq}) | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n\nMatching score (MS, mean over sequences of the per-sequence mean over pairs).\n"
+
+
+def plot_curves(rows: list[dict], path: str | Path) -> list[Path]:
+    """MS against camera roll (rotate sequences) and against scale (scale sequences): PNG files."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    written = []
+    for key, kind, label, bins in (("angle_deg", "rotate", "camera roll (degrees)", np.arange(0, 200, 20)),
+                                   ("scale", "scale", "scale (reference depth / target depth)", np.linspace(0.4, 1.05, 8))):
+        sel = [r for r in rows if kind in r["sequence"] and np.isfinite(r[key])]
+        if not sel:
+            continue
+        fig, ax = plt.subplots(figsize=(6, 4))
+        for name in dict.fromkeys(r["descriptor"] for r in sel):
+            x = np.array([r[key] for r in sel if r["descriptor"] == name])
+            y = np.array([r["ms"] for r in sel if r["descriptor"] == name])
+            idx = np.digitize(x, bins)
+            centres, means = [], []
+            for b in np.unique(idx):
+                centres.append(x[idx == b].mean())
+                means.append(y[idx == b].mean())
+            order = np.argsort(centres)
+            ax.plot(np.array(centres)[order], np.array(means)[order], "o-", label=name)
+        ax.set_xlabel(label)
+        ax.set_ylabel("matching score")
+        ax.set_ylim(0, 1)
+        ax.grid(alpha=0.3)
+        ax.legend()
+        fig.tight_layout()
+        out = Path(path) / f"ms_vs_{kind}.png"
+        fig.savefig(out, dpi=100)
+        plt.close(fig)
+        written.append(out)
+    return written
+
+
+def timing_table(frame, descriptors: tuple[str, ...], radius: float, counts=(250, 2048), repeat: int = 3) -> str:
+    """Markdown timing table on one frame: map f(.) (polar patches), extraction and matching per
+    descriptor for each keypoint count (best of `repeat`)."""
+    from ..descriptors import make_descriptor
+    from ..geodesic.mesh import build_mesh
+    from ..geodesic.polar import polar_patches
+    from ..keypoints import detect
+    from ..matching import match
+
+    def best(fn):
+        times = []
+        for _ in range(repeat):
+            t = time.perf_counter()
+            result = fn()
+            times.append(time.perf_counter() - t)
+        return min(times), result
+
+    kps_all = detect(frame, max(counts))
+    lines = ["| step | " + " | ".join(f"{n} kps (s)" for n in counts) + " |", "|---|" + "---|" * len(counts)]
+    cells: dict[str, list[str]] = {}
+    for n in counts:
+        kps = kps_all[:n]
+        mesh = build_mesh(frame)
+        t_map, patches = best(lambda: polar_patches(frame, kps.xy, radius=radius, mesh=mesh))
+        cells.setdefault("map f(.) (polar patches)", []).append(f"{t_map:.3f}")
+        for name in descriptors:
+            d = make_descriptor(name, radius=radius)
+            if name in ("geobit", "geopatch"):
+                t_ext, f = best(lambda: d.compute(frame, kps, patches=patches))
+            else:
+                t_ext, f = best(lambda: d.compute(frame, kps))
+            t_match, _ = best(lambda: match(f, f))
+            cells.setdefault(f"{name} extraction", []).append(f"{t_ext:.3f}")
+            cells.setdefault(f"{name} matching (N x N)", []).append(f"{t_match:.3f}")
+    for step, values in cells.items():
+        if len(values) < len(counts):
+            values = values + ["-"] * (len(counts) - len(values))
+        lines.append(f"| {step} | " + " | ".join(values) + " |")
+    return "\n".join(lines) + "\n"

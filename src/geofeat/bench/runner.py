@@ -1,0 +1,259 @@
+"""`geofeat bench`: matching score of several descriptors on datasets in the public layout.
+
+Work unit = one sequence (independent of the others): a local process pool (`workers`) or a Dask
+cluster (`scheduler` address) runs them; every finished sequence appends its rows to
+`results.csv` at once, so an interrupted run keeps what it finished, and a failed sequence is
+reported by name while the others go on.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import multiprocessing
+import time
+import traceback
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from ..constants import DEFAULT_RADIUS_M, N_KEYPOINTS
+from ..descriptors import make_descriptor
+from ..frame import RGBDFrame
+from ..geodesic.mesh import build_mesh
+from ..geodesic.polar import polar_patches
+from ..io import Sequence, find_sequences, read_sequence
+from ..keypoints import Keypoints, detect
+from ..matching import match
+from .protocol import LandmarkTPS, authors_tps_warp, ground_truth_pairs, score_detect, score_landmarks
+
+COLUMNS = ["sequence", "reference", "target", "descriptor", "protocol", "ms", "mma", "hits", "n_ref", "n_tgt",
+           "seconds_extract", "seconds_match", "angle_deg", "scale"]
+GEODESIC = ("geobit", "geopatch")
+
+
+@dataclass
+class BenchConfig:
+    """What to run. radius in metres; depth_scale in metres per depth-PNG unit (None: the dataset's
+    geofeat.json or 0.001)."""
+
+    descriptors: tuple[str, ...] = ("geobit", "orb", "sift")
+    protocol: str = "detect"
+    radius: float | None = None
+    depth_scale: float | None = None
+    n_keypoints: int = N_KEYPOINTS
+    tps_dir: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.protocol not in ("detect", "landmarks"):
+            raise ValueError(f"protocol: expected 'detect' or 'landmarks', got {self.protocol!r}")
+        self.descriptors = tuple(d.strip().lower() for d in self.descriptors)
+        for name in self.descriptors:
+            make_descriptor(name)  # fails early on unknown names
+
+
+def _radius(seq: Sequence, config: BenchConfig) -> float:
+    if config.radius is not None:
+        return config.radius
+    path = seq.folder / "geofeat.json"
+    if path.is_file():
+        return float(json.loads(path.read_text()).get("radius", DEFAULT_RADIUS_M))
+    return DEFAULT_RADIUS_M
+
+
+class Describer:
+    """Describes keypoints of a frame with every descriptor; geodesic descriptors share one mesh and
+    one set of polar patches."""
+
+    def __init__(self, names: tuple[str, ...], radius: float) -> None:
+        self.radius = radius
+        self.descriptors = {n: make_descriptor(n, radius=radius) for n in names}
+
+    def __call__(self, frame: RGBDFrame, kps: Keypoints) -> dict[str, tuple]:
+        out = {}
+        patches, t_patches = None, 0.0
+        if any(n in GEODESIC for n in self.descriptors):
+            t = time.perf_counter()
+            patches = polar_patches(frame, kps.xy, radius=self.radius, mesh=build_mesh(frame))
+            t_patches = time.perf_counter() - t
+        for name, d in self.descriptors.items():
+            t = time.perf_counter()
+            f = d.compute(frame, kps, patches=patches) if name in GEODESIC else d.compute(frame, kps)
+            out[name] = (f, time.perf_counter() - t + (t_patches if name in GEODESIC else 0.0))
+        return out
+
+
+def _pose_change(seq: Sequence, target: str) -> tuple[float, float]:
+    """Camera roll (degrees) and scale (reference depth / target depth) of a simulated pair; NaN if unknown."""
+    try:
+        with np.load(seq.folder / f"{seq.reference}-gt.npz") as a, np.load(seq.folder / f"{target}-gt.npz") as b:
+            R = b["R"] @ a["R"].T
+            angle = abs(float(np.degrees(np.arctan2(R[1, 0], R[0, 0]))))
+            scale = float(np.median(a["vertices"][..., 2]) / np.median(b["vertices"][..., 2]))
+        return angle, scale
+    except (OSError, KeyError):
+        return float("nan"), float("nan")
+
+
+def _tps_folder(tps_dir: str, name: str) -> Path | None:
+    root = Path(tps_dir)
+    for candidate in [root / name, *root.glob(f"*/{name}")]:
+        if candidate.is_dir():
+            return candidate
+    return None
+
+
+def _on_mask(mask: np.ndarray | None, xy: np.ndarray) -> np.ndarray:
+    if mask is None:
+        return np.ones(len(xy), bool)
+    x = np.clip(xy[:, 0].astype(int), 0, mask.shape[1] - 1)
+    y = np.clip(xy[:, 1].astype(int), 0, mask.shape[0] - 1)
+    return mask[y, x] > 0
+
+
+class GroundTruth:
+    """Target -> reference mapping of a pair, from (in this order) the authors' TPS files, the
+    simulator's exact correspondences, or a thin-plate spline on the csv landmarks."""
+
+    def __init__(self, seq: Sequence, tps_dir: str | None) -> None:
+        self.seq = seq
+        self.tps = _tps_folder(tps_dir, seq.name) if tps_dir else None
+        self.exact = self.tps is None and seq.has_ground_truth()
+        if self.tps is None and not self.exact and not seq.has_landmarks():
+            raise ValueError(f"sequence {seq.name}: no ground truth (no simulator files, no csv landmarks, no TPS files)")
+
+    def _mask(self, frame: str) -> np.ndarray | None:
+        if self.tps is None:
+            return None
+        m = cv2.imread(str(self.tps / f"{frame}_objmask.png"), cv2.IMREAD_GRAYSCALE)
+        if m is None:
+            raise ValueError(f"tps-dir: missing {self.tps / f'{frame}_objmask.png'}")
+        return m
+
+    def reference_keep(self, xy: np.ndarray) -> np.ndarray:
+        """Reference keypoints on the object (and inside the landmarks' hull for landmark TPS)."""
+        keep = _on_mask(self._mask(self.seq.reference), xy)
+        if self.tps is None and not self.exact:
+            ids, lm, vis = self.seq.landmarks(self.seq.reference)
+            keep &= np.isfinite(LandmarkTPS(lm[vis], lm[vis])(xy)).all(axis=1)
+        return keep
+
+    def target_to_reference(self, target: str, xy: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+        """(N, 2) target pixels -> reference pixels, NaN where the ground truth is unreliable."""
+        if self.tps is not None:
+            theta = np.load(self.tps / f"{target}_theta.npy")
+            ctrl = np.load(self.tps / f"{target}_ctrlpts.npy")
+            out = authors_tps_warp(xy, theta, ctrl, (shape[1], shape[0]))
+            ssim = cv2.imread(str(self.tps / f"{target}_SSIM.png"), cv2.IMREAD_GRAYSCALE)
+            ok = _on_mask(self._mask(target), xy)
+            if ssim is not None:
+                ok &= _on_mask((ssim.astype(np.float32) / 255.0 > 0.25).astype(np.uint8), xy)
+            out[~ok] = np.nan
+            return out
+        if self.exact:
+            mapped, visible = self.seq.correspondences(target, self.seq.reference, xy)
+            return np.where(visible[:, None], mapped, np.nan)
+        ids_r, xy_r, vis_r = self.seq.landmarks(self.seq.reference)
+        ids_t, xy_t, vis_t = self.seq.landmarks(target)
+        common, ir, it = np.intersect1d(ids_r[vis_r], ids_t[vis_t], return_indices=True)
+        return LandmarkTPS(xy_t[vis_t][it], xy_r[vis_r][ir])(xy)
+
+
+def evaluate_sequence(folder: str | Path, config: BenchConfig) -> list[dict]:
+    """All (reference, target) pairs of one sequence, every descriptor: result rows (see COLUMNS)."""
+    seq = read_sequence(folder, depth_scale=config.depth_scale)
+    if len(seq) < 2:
+        raise ValueError(f"sequence {seq.name}: needs a reference and at least one target frame")
+    describe = Describer(config.descriptors, _radius(seq, config))
+    ref = seq.frame(seq.reference)
+    rows = []
+    if config.protocol == "landmarks":
+        ids_r, xy_r, vis_r = seq.landmarks(seq.reference)
+        k_ref = Keypoints(xy_r[vis_r], np.zeros(vis_r.sum()), np.full(vis_r.sum(), 8.0), np.zeros(vis_r.sum()))
+    else:
+        truth = GroundTruth(seq, config.tps_dir)
+        k_ref = detect(ref, config.n_keypoints)
+        k_ref = k_ref[truth.reference_keep(k_ref.xy)]
+    f_ref = describe(ref, k_ref)
+    for target in seq.targets:
+        frame = seq.frame(target)
+        angle, scale = _pose_change(seq, target)
+        if config.protocol == "landmarks":
+            ids_t, xy_t, vis_t = seq.landmarks(target)
+            k_tgt = Keypoints(xy_t[vis_t], np.zeros(vis_t.sum()), np.full(vis_t.sum(), 8.0), np.zeros(vis_t.sum()))
+        else:
+            k_tgt = detect(frame, config.n_keypoints)
+            mapped = truth.target_to_reference(target, k_tgt.xy, frame.shape)
+            known = np.isfinite(mapped).all(axis=1)
+            k_tgt, mapped = k_tgt[known], mapped[known]
+            gt = ground_truth_pairs(k_ref.xy, mapped)
+        f_tgt = describe(frame, k_tgt)
+        for name in config.descriptors:
+            (fr, tr), (ft, tt) = f_ref[name], f_tgt[name]
+            t = time.perf_counter()
+            m = match(fr, ft)
+            t_match = time.perf_counter() - t
+            if config.protocol == "landmarks":
+                s = score_landmarks(m.matches0, ids_r[vis_r], ids_t[vis_t])
+            else:
+                s = score_detect(m.matches0, gt, len(k_ref), len(k_tgt))
+            rows.append(dict(sequence=seq.name, reference=seq.reference, target=target, descriptor=name,
+                             protocol=config.protocol, ms=s.ms, mma=s.mma, hits=s.hits, n_ref=s.n_ref,
+                             n_tgt=s.n_tgt, seconds_extract=tr + tt, seconds_match=t_match,
+                             angle_deg=angle, scale=scale))
+    return rows
+
+
+def _run_one(folder: str, config: BenchConfig) -> tuple[str, list[dict] | None, str | None]:
+    try:
+        return folder, evaluate_sequence(folder, config), None
+    except Exception as error:  # reported by name; the other sequences go on
+        return folder, None, f"{type(error).__name__}: {error}\n{traceback.format_exc(limit=3)}"
+
+
+def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int = 1,
+                  scheduler: str | None = None, progress: bool = True) -> tuple[Path, list[str]]:
+    """Evaluate every sequence under `datasets`; write OUT/results.csv incrementally.
+
+    Returns the csv path and the names of failed sequences (with reasons printed)."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    folders = [str(f) for f in find_sequences(datasets)]
+    csv_path = out / "results.csv"
+    (out / "config.json").write_text(json.dumps(asdict(config), indent=1))
+    with open(csv_path, "w", newline="") as fh:
+        csv.DictWriter(fh, COLUMNS).writeheader()
+    failed = []
+
+    def record(folder, rows, error, bar):
+        if error is not None:
+            failed.append(Path(folder).name)
+            tqdm.write(f"FAILED {Path(folder).name}: {error.splitlines()[0]}")
+        else:
+            with open(csv_path, "a", newline="") as fh:
+                csv.DictWriter(fh, COLUMNS).writerows(rows)
+        bar.update(1)
+
+    bar = tqdm(total=len(folders), desc="bench", unit="seq", disable=not progress)
+    if scheduler:
+        from dask.distributed import Client, as_completed as dask_completed
+
+        with Client(scheduler) as client:
+            futures = [client.submit(_run_one, f, config, pure=False) for f in folders]
+            for fut in dask_completed(futures):
+                record(*fut.result(), bar)
+    elif workers > 1:
+        # spawn, not fork: the numba/OpenMP thread pool of this process must not be forked
+        with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+            futures = [pool.submit(_run_one, f, config) for f in folders]
+            for fut in as_completed(futures):
+                record(*fut.result(), bar)
+    else:
+        for f in folders:
+            record(*_run_one(f, config), bar)
+    bar.close()
+    return csv_path, failed
