@@ -119,7 +119,7 @@ def timing_table(frame, descriptors: tuple[str, ...], radius: float, counts=(250
         cells.setdefault("map f(.) (polar patches)", []).append(f"{t_map:.3f}")
         for name in descriptors:
             d = make_descriptor(name, radius=radius)
-            if name in ("geobit", "geopatch"):
+            if name == "geobit" or name.startswith("geopatch"):
                 t_ext, f = best(lambda: d.compute(frame, kps, patches=patches))
             else:
                 t_ext, f = best(lambda: d.compute(frame, kps))

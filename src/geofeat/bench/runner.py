@@ -33,7 +33,9 @@ from .protocol import LandmarkTPS, authors_tps_warp, ground_truth_pairs, score_d
 
 COLUMNS = ["sequence", "reference", "target", "descriptor", "protocol", "ms", "mma", "hits", "n_ref", "n_tgt",
            "seconds_extract", "seconds_match", "angle_deg", "scale"]
-GEODESIC = ("geobit", "geopatch")
+def is_geodesic(name: str) -> bool:
+    """Descriptors computed on the shared geodesic polar patches."""
+    return name == "geobit" or name.startswith("geopatch")
 
 
 @dataclass
@@ -51,7 +53,7 @@ class BenchConfig:
     def __post_init__(self) -> None:
         if self.protocol not in ("detect", "landmarks"):
             raise ValueError(f"protocol: expected 'detect' or 'landmarks', got {self.protocol!r}")
-        self.descriptors = tuple(d.strip().lower() for d in self.descriptors)
+        self.descriptors = tuple(d.strip() if "=" in d else d.strip().lower() for d in self.descriptors)
         for name in self.descriptors:
             make_descriptor(name)  # fails early on unknown names
 
@@ -76,14 +78,14 @@ class Describer:
     def __call__(self, frame: RGBDFrame, kps: Keypoints) -> dict[str, tuple]:
         out = {}
         patches, t_patches = None, 0.0
-        if any(n in GEODESIC for n in self.descriptors):
+        if any(is_geodesic(n) for n in self.descriptors):
             t = time.perf_counter()
             patches = polar_patches(frame, kps.xy, radius=self.radius, mesh=build_mesh(frame))
             t_patches = time.perf_counter() - t
         for name, d in self.descriptors.items():
             t = time.perf_counter()
-            f = d.compute(frame, kps, patches=patches) if name in GEODESIC else d.compute(frame, kps)
-            out[name] = (f, time.perf_counter() - t + (t_patches if name in GEODESIC else 0.0))
+            f = d.compute(frame, kps, patches=patches) if is_geodesic(name) else d.compute(frame, kps)
+            out[name] = (f, time.perf_counter() - t + (t_patches if is_geodesic(name) else 0.0))
         return out
 
 

@@ -20,6 +20,7 @@ def available_descriptors() -> tuple[str, ...]:
 def make_descriptor(name: str, radius: float | None = None, depth_config=None):
     """A descriptor by name ("geobit", "geopatch", "orb", "brisk", "freak", "daisy", "sift").
 
+    "geopatch=PATH" uses the GeoPatch weights at PATH instead of the shipped ones.
     `radius` (metres) and `depth_config` apply to the geodesic descriptors only."""
     key = name.strip().lower()
     if key == "geobit":
@@ -29,10 +30,10 @@ def make_descriptor(name: str, radius: float | None = None, depth_config=None):
         if depth_config is not None:
             kwargs["depth_config"] = depth_config
         return GeoBit(**kwargs)
-    if key == "geopatch":
+    if key == "geopatch" or key.startswith("geopatch="):
         from .geopatch import GeoPatch  # imports torch: only when asked for
 
-        kwargs = {}
+        kwargs = {"weights": name.split("=", 1)[1]} if "=" in name else {}
         if radius is not None:
             kwargs["radius"] = radius
         if depth_config is not None:

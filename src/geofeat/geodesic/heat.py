@@ -33,7 +33,7 @@ from ..constants import DEFAULT_RADIUS_M, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX
 from ..depth import DepthConfig
 from ..frame import RGBDFrame
 from .mesh import GridMesh, build_mesh
-from .polar import PolarPatches, as_keypoint_array, patch_validity, sample_bilinear, sampling_image
+from .polar import PolarPatches, check_patch_request, patch_validity, sample_bilinear, sampling_image
 
 #: Distance sampling step along an isocurve search line, mesh pixels (GeoBit: 0.05 full-res px).
 HEAT_STEP_PX = 0.1
@@ -441,17 +441,9 @@ def heat_polar_patches(
         angles: "tangent" (default, the walk's convention) or "image" (GeoBit's image angles).
         step_px: sampling step along a line, mesh pixels.
     """
-    if not isinstance(frame, RGBDFrame):
-        raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
-    if not (np.isfinite(radius) and radius > 0):
-        raise ValueError(f"radius: must be a positive number of metres, got {radius}")
-    if radius > 10:
-        raise ValueError(f"radius: {radius} m is implausible; the radius is in metres (e.g. 0.075)")
-    if n_angles < 1 or n_rings < 1:
-        raise ValueError(f"n_angles, n_rings: must be positive, got {n_angles}, {n_rings}")
+    kp = check_patch_request(frame, keypoints, radius, n_angles, n_rings)
     if not (np.isfinite(step_px) and step_px > 0):
         raise ValueError(f"step_px: must be a positive number of mesh pixels, got {step_px}")
-    kp = as_keypoint_array(keypoints, frame.shape)
     if solver is not None:
         mesh = solver.mesh
     elif mesh is None:

@@ -75,6 +75,19 @@ def as_keypoint_array(keypoints, shape: tuple[int, int] | None = None) -> np.nda
     return kp
 
 
+def check_patch_request(frame: RGBDFrame, keypoints, radius: float, n_angles: int, n_rings: int) -> np.ndarray:
+    """Validate the arguments shared by the polar patch builders; returns the (N, 2) keypoints."""
+    if not isinstance(frame, RGBDFrame):
+        raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
+    if not (np.isfinite(radius) and radius > 0):
+        raise ValueError(f"radius: must be a positive number of metres, got {radius}")
+    if radius > 10:
+        raise ValueError(f"radius: {radius} m is implausible; the radius is in metres (e.g. 0.075)")
+    if n_angles < 1 or n_rings < 1:
+        raise ValueError(f"n_angles, n_rings: must be positive, got {n_angles}, {n_rings}")
+    return as_keypoint_array(keypoints, frame.shape)
+
+
 def patch_validity(rings_reached: np.ndarray) -> np.ndarray:
     """(N, A) rings reached per direction -> (N,) bool: at least half of the directions reach the
     first ring. A keypoint at the edge of the surface (a silhouette, a hole) keeps the half of its
@@ -139,15 +152,7 @@ def polar_patches(
         mesh: a prebuilt `build_mesh(frame, ...)` to reuse across calls.
         blur_px: Gaussian blur of the gray image before sampling, pixels.
     """
-    if not isinstance(frame, RGBDFrame):
-        raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
-    if not (np.isfinite(radius) and radius > 0):
-        raise ValueError(f"radius: must be a positive number of metres, got {radius}")
-    if radius > 10:
-        raise ValueError(f"radius: {radius} m is implausible; the radius is in metres (e.g. 0.075)")
-    if n_angles < 1 or n_rings < 1:
-        raise ValueError(f"n_angles, n_rings: must be positive, got {n_angles}, {n_rings}")
-    kp = as_keypoint_array(keypoints, frame.shape)
+    kp = check_patch_request(frame, keypoints, radius, n_angles, n_rings)
     if mesh is None:
         mesh = build_mesh(frame, depth_config)
     starts = mesh.image_to_mesh(kp) + np.array([1.3e-6, 0.7e-6])  # keeps starts off vertices/edges

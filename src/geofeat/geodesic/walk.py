@@ -60,6 +60,19 @@ def _edge_ends(x, y, t, e):
     return x0, y0, x1, y1
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _face_axes(points, normals, x, y, t):
+    """Intrinsic frame of face (x, y, t): origin (local vertex 0), unit x axis (towards local vertex
+    1), unit y axis (normal x x axis), and the length of the edge from vertex 0 to vertex 1."""
+    x0, y0 = _corner(x, y, t, 0)
+    ax, ay, az = points[y0, x0, 0], points[y0, x0, 1], points[y0, x0, 2]
+    ex, ey, ez = points[y, x + 1, 0] - ax, points[y, x + 1, 1] - ay, points[y, x + 1, 2] - az
+    length = np.sqrt(ex * ex + ey * ey + ez * ez)
+    ex, ey, ez = ex / length, ey / length, ez / length
+    fx, fy, fz = _cross(normals[y, x, t, 0], normals[y, x, t, 1], normals[y, x, t, 2], ex, ey, ez)
+    return ax, ay, az, ex, ey, ez, fx, fy, fz, length
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
 def face_frames(points, face_ok, normals):
     """Intrinsic 2D coordinates of every face: local vertex 0 at the origin, vertex 1 on the +x
@@ -72,12 +85,7 @@ def face_frames(points, face_ok, normals):
             for t in range(2):
                 if not face_ok[y, x, t]:
                     continue
-                x0, y0 = _corner(x, y, t, 0)
-                ax, ay, az = points[y0, x0, 0], points[y0, x0, 1], points[y0, x0, 2]
-                ex, ey, ez = points[y, x + 1, 0] - ax, points[y, x + 1, 1] - ay, points[y, x + 1, 2] - az
-                length = np.sqrt(ex * ex + ey * ey + ez * ez)
-                ex, ey, ez = ex / length, ey / length, ez / length
-                fx, fy, fz = _cross(normals[y, x, t, 0], normals[y, x, t, 1], normals[y, x, t, 2], ex, ey, ez)
+                ax, ay, az, ex, ey, ez, fx, fy, fz, length = _face_axes(points, normals, x, y, t)
                 wx, wy, wz = points[y + 1, x, 0] - ax, points[y + 1, x, 1] - ay, points[y + 1, x, 2] - az
                 out[y, x, t, 0] = length
                 out[y, x, t, 1] = wx * ex + wy * ey + wz * ez
@@ -98,12 +106,7 @@ def _local(frames, x, y, t, i):
 @njit(cache=True, inline="always", error_model="numpy")
 def _to_3d(points, normals, x, y, t, qx, qy):
     """3D point of intrinsic coordinates (qx, qy) on face (x, y, t)."""
-    x0, y0 = _corner(x, y, t, 0)
-    ax, ay, az = points[y0, x0, 0], points[y0, x0, 1], points[y0, x0, 2]
-    ex, ey, ez = points[y, x + 1, 0] - ax, points[y, x + 1, 1] - ay, points[y, x + 1, 2] - az
-    length = np.sqrt(ex * ex + ey * ey + ez * ez)
-    ex, ey, ez = ex / length, ey / length, ez / length
-    fx, fy, fz = _cross(normals[y, x, t, 0], normals[y, x, t, 1], normals[y, x, t, 2], ex, ey, ez)
+    ax, ay, az, ex, ey, ez, fx, fy, fz, _ = _face_axes(points, normals, x, y, t)
     return ax + qx * ex + qy * fx, ay + qx * ey + qy * fy, az + qx * ez + qy * fz
 
 
@@ -302,12 +305,7 @@ def walk_polar(points, face_ok, normals, starts, K, radius, n_angles, n_rings, m
         fnx, fny, fnz = normals[y, x, t, 0], normals[y, x, t, 1], normals[y, x, t, 2]
         ux, uy, uz = _rotate_onto(dx, dy, dz, frames[k, 2, 0], frames[k, 2, 1], frames[k, 2, 2], fnx, fny, fnz)
         # start point and direction in the start face's intrinsic frame
-        x0, y0 = _corner(x, y, t, 0)
-        ax, ay, az = points[y0, x0, 0], points[y0, x0, 1], points[y0, x0, 2]
-        ex, ey, ez = points[y, x + 1, 0] - ax, points[y, x + 1, 1] - ay, points[y, x + 1, 2] - az
-        el = np.sqrt(ex * ex + ey * ey + ez * ez)
-        ex, ey, ez = ex / el, ey / el, ez / el
-        fx, fy, fz = _cross(fnx, fny, fnz, ex, ey, ez)
+        ax, ay, az, ex, ey, ez, fx, fy, fz, _ = _face_axes(points, normals, x, y, t)
         cx, cy, cz = centre[k, 0] - ax, centre[k, 1] - ay, centre[k, 2] - az
         dxx, dyy = ux * ex + uy * ey + uz * ez, ux * fx + uy * fy + uz * fz
         dl = np.sqrt(dxx * dxx + dyy * dyy)
