@@ -86,3 +86,16 @@ def test_tiny_training_lowers_the_loss(sheet_patches, tmp_path):
     # resuming a finished run changes nothing and reloads the same history
     again = train(data, tmp_path / "tiny.pt", config, resume=True, progress=False, device="cpu")
     assert again["loss"] == history["loss"]
+
+
+def test_fast_pooling_and_batchnorm_folding_keep_the_outputs():
+    from geofeat.descriptors.geopatch import MaxPool2x2, fuse_batchnorm
+
+    x = torch.rand(4, 3, 12, 16)
+    torch.testing.assert_close(MaxPool2x2()(x), torch.nn.functional.max_pool2d(x, 2))
+    net, _ = load_network()
+    fused = fuse_batchnorm(net)
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in fused.modules())
+    patches = torch.rand(16, 1, 32, 32)
+    with torch.no_grad():
+        torch.testing.assert_close(fused(patches), net(patches), atol=1e-5, rtol=0)

@@ -65,6 +65,15 @@ class CircularConv(nn.Module):
         return self.conv(F.pad(x, (self.pad, self.pad, 0, 0), mode="circular"))
 
 
+class MaxPool2x2(nn.Module):
+    """2x2 max pooling, stride 2 (even sizes), as the maximum of four strided views. On CPU this is
+    faster than nn.MaxPool2d, which here falls back to a kernel that also computes argmax indices."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        top = torch.maximum(x[:, :, 0::2, 0::2], x[:, :, 0::2, 1::2])
+        return torch.maximum(top, torch.maximum(x[:, :, 1::2, 0::2], x[:, :, 1::2, 1::2]))
+
+
 class GeoPatchNet(nn.Module):
     """(B, 1, R, A) polar patches (any intensity scale) -> (B, dim) unit-length descriptors."""
 
@@ -73,8 +82,8 @@ class GeoPatchNet(nn.Module):
         self.config = config
         c1, c2, c3 = config.channels
         self.features = nn.Sequential(
-            CircularConv(1, c1, 5), nn.BatchNorm2d(c1), nn.ReLU(inplace=True), nn.MaxPool2d(2),
-            CircularConv(c1, c2, 3), nn.BatchNorm2d(c2), nn.ReLU(inplace=True), nn.MaxPool2d(2),
+            CircularConv(1, c1, 5), nn.BatchNorm2d(c1), nn.ReLU(inplace=True), MaxPool2x2(),
+            CircularConv(c1, c2, 3), nn.BatchNorm2d(c2), nn.ReLU(inplace=True), MaxPool2x2(),
             CircularConv(c2, c3, 3), nn.BatchNorm2d(c3), nn.ReLU(inplace=True),
         )
         with torch.no_grad():
@@ -92,6 +101,27 @@ class GeoPatchNet(nn.Module):
         y = self.features(self.normalise(x))
         y = y.amax(dim=3) if self.config.angle_pool else y
         return F.normalize(self.head(y.flatten(1)), dim=1)
+
+
+def fuse_batchnorm(net: GeoPatchNet) -> GeoPatchNet:
+    """An inference copy of `net` with every BatchNorm folded into the convolution before it
+    (same outputs up to float rounding, one pass less over the activations)."""
+    import copy
+
+    fused = copy.deepcopy(net).eval()
+    layers = list(fused.features)
+    kept = []
+    for layer in layers:
+        if isinstance(layer, nn.BatchNorm2d) and kept and isinstance(kept[-1], CircularConv):
+            conv = kept[-1].conv
+            scale = layer.weight / torch.sqrt(layer.running_var + layer.eps)
+            with torch.no_grad():
+                conv.weight.mul_(scale.reshape(-1, 1, 1, 1))
+                conv.bias.copy_((conv.bias - layer.running_mean) * scale + layer.bias)
+            continue
+        kept.append(layer)
+    fused.features = nn.Sequential(*kept)
+    return fused
 
 
 def default_weights_path() -> Path:
@@ -131,9 +161,10 @@ class GeoPatch:
 
     def __init__(self, weights: str | Path | None = None, device: str | None = None,
                  radius: float = DEFAULT_RADIUS_M, depth_config: DepthConfig = DepthConfig(),
-                 blur_px: float = SAMPLING_BLUR_PX, batch_size: int = 256) -> None:
+                 blur_px: float = SAMPLING_BLUR_PX, batch_size: int = 128) -> None:
         self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
-        self.net, self.checkpoint = load_network(weights, self.device)
+        net, self.checkpoint = load_network(weights)
+        self.net = fuse_batchnorm(net).to(self.device)
         self.radius = float(radius)
         self.depth_config = depth_config
         self.blur_px = blur_px
@@ -155,7 +186,7 @@ class GeoPatch:
         index = np.flatnonzero(valid)
         x = torch.from_numpy(v[index]).unsqueeze(1)
         for start in range(0, len(index), self.batch_size):
-            batch = x[start:start + self.batch_size].to(self.device).contiguous(memory_format=torch.channels_last)
+            batch = x[start:start + self.batch_size].to(self.device)
             out[index[start:start + self.batch_size]] = self.net(batch).float().cpu().numpy()
         return out
 
