@@ -5,23 +5,17 @@ Run: .venv/bin/python benchmarks/bench_geopatch.py
 
 from __future__ import annotations
 
-import time
 
 import cv2
 import torch
+
+from common import best_of
 
 import geofeat
 from geofeat.descriptors.geopatch import GeoPatch
 from geofeat.keypoints import detect, to_uint8
 
 
-def best_of(fn, repeat=5):
-    times = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return min(times)
 
 
 def main() -> None:

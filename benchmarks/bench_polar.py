@@ -9,22 +9,16 @@ from __future__ import annotations
 
 import os
 import platform
-import time
 
 import cv2
 import numpy as np
+
+from common import best_of
 
 import geofeat
 from geofeat.geodesic.mesh import build_mesh
 
 
-def best_of(fn, repeat: int = 7) -> float:
-    times = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return min(times)
 
 
 def main() -> None:

@@ -36,13 +36,41 @@ def _demo_patches(out: Path, radius: float) -> None:
     print(f"wrote {out / 'polar_patches.png'} (geodesic rings at 18/37/75 mm, and the 32x32 polar patches)")
 
 
-def _demo_rolled_pair(out: Path, angle: float, n: int) -> None:
+def _demo_match_pair(out: Path, picture_name: str, frame0, frame1, k0, k1, truth: np.ndarray,
+                     names: list[str]) -> None:
+    """Match frame0 -> frame1 with each descriptor on the same keypoints, print how many matches
+    land within 3 px of `truth` (the true positions in frame 1 of k0, NaN = not visible), and save
+    the correct matches of the first two descriptors, one above the other."""
     from .descriptors import make_descriptor
+    from .matching import match
+    from .viz import draw_matches
+
+    visible = np.isfinite(truth).all(axis=1)
+    pictures = []
+    for name in names:
+        descriptor = make_descriptor(name)
+        t = time.perf_counter()
+        m = match(descriptor.compute(frame0, k0), descriptor.compute(frame1, k1))
+        elapsed = time.perf_counter() - t
+        has = (m.matches0 >= 0) & visible
+        error = np.full(len(k0), np.inf)
+        error[has] = np.linalg.norm(k1.xy[m.matches0[has]] - truth[has], axis=1)
+        correct = error < 3.0
+        print(f"  {name:8s} {correct.sum():5d} correct matches (< 3 px) of {visible.sum()} keypoints with a true "
+              f"position ({correct.sum() / max(visible.sum(), 1):.1%}), {elapsed:.2f} s")
+        if len(pictures) < 2:
+            pictures.append(draw_matches(frame0, frame1, k0.xy, k1.xy, np.where(correct, m.matches0, -1),
+                                         np.ones(len(k0), bool), max_lines=200,
+                                         title=f"{name}: {correct.sum()} correct"))
+    path = out / picture_name
+    cv2.imwrite(str(path), np.concatenate(pictures, axis=0))
+    print(f"wrote {path} (correct matches of {names[0]}, top, and {names[1]}, bottom)")
+
+
+def _demo_rolled_pair(out: Path, angle: float, n: int) -> None:
     from .frame import roll_camera
     from .io import read_demo_frame
     from .keypoints import detect
-    from .matching import match
-    from .viz import draw_matches
 
     frame0 = read_demo_frame()
     frame1, A = roll_camera(frame0, angle)
@@ -50,35 +78,13 @@ def _demo_rolled_pair(out: Path, angle: float, n: int) -> None:
     truth = k0.xy @ A[:, :2].T + A[:, 2]  # where each reference keypoint really is in frame 1
     print(f"\nrolled pair: the Kinect frame vs the camera rolled by {angle:g} deg; SIFT keypoints "
           f"detected independently: {len(k0)} and {len(k1)}")
-    pictures = []
-    for name in ("geobit", "orb"):
-        descriptor = make_descriptor(name)
-        t = time.perf_counter()
-        f0, f1 = descriptor.compute(frame0, k0), descriptor.compute(frame1, k1)
-        m = match(f0, f1)
-        elapsed = time.perf_counter() - t
-        has = m.matches0 >= 0
-        error = np.full(len(k0), np.inf)
-        error[has] = np.linalg.norm(k1.xy[m.matches0[has]] - truth[has], axis=1)
-        correct = error < 3.0
-        print(f"  {name:7s} {has.sum():5d} matches, {correct.sum():5d} correct (< 3 px), "
-              f"{correct.sum() / max(has.sum(), 1):.1%} precision, {elapsed:.2f} s")
-        pictures.append(draw_matches(frame0, frame1, k0.xy, k1.xy, np.where(correct, m.matches0, -1),
-                                     np.ones(len(k0), bool), max_lines=200,
-                                     title=f"{name}: {correct.sum()} correct of {has.sum()}"))
-    path = out / "rolled_pair_matches.png"
-    cv2.imwrite(str(path), np.concatenate(pictures, axis=0))
-    print(f"wrote {path} (correct matches of GeoBit, top, and ORB with SIFT's angle, bottom)")
+    _demo_match_pair(out, "rolled_pair_matches.png", frame0, frame1, k0, k1, truth, ["geobit", "orb"])
 
 
 def _demo_deformed_pair(out: Path, n: int) -> None:
-    from .descriptors import make_descriptor
-    from .descriptors.geopatch import default_weights_path
     from .io import read_sequence
     from .keypoints import detect
-    from .matching import match
     from .sim import simulate_sequence
-    from .viz import draw_matches
 
     folder = simulate_sequence(out / "simulated_cloth", scenario="rotate", n_frames=5, seed=7, progress=False,
                                overwrite=True)
@@ -88,27 +94,9 @@ def _demo_deformed_pair(out: Path, n: int) -> None:
     k0, k1 = detect(frame0, n), detect(frame1, n)
     truth, visible = seq.correspondences(seq.reference, target, k0.xy)
     print(f"\nsimulated cloth: {folder} ({len(seq)} frames, wind-blown cloth and a rolling camera); "
-          f"{seq.reference} vs {target}, SIFT keypoints {len(k0)} and {len(k1)}, "
-          f"{visible.sum()} reference keypoints visible in the target")
-    names = ["geobit"] + (["geopatch"] if default_weights_path().is_file() else []) + ["orb", "sift"]
-    pictures = []
-    for name in names:
-        descriptor = make_descriptor(name)
-        f0, f1 = descriptor.compute(frame0, k0), descriptor.compute(frame1, k1)
-        m = match(f0, f1)
-        has = (m.matches0 >= 0) & visible
-        error = np.full(len(k0), np.inf)
-        error[has] = np.linalg.norm(k1.xy[m.matches0[has]] - truth[has], axis=1)
-        correct = error < 3.0
-        print(f"  {name:8s} {correct.sum():5d} correct matches (< 3 px from the exact ground truth) "
-              f"of {visible.sum()} visible keypoints ({correct.sum() / max(visible.sum(), 1):.1%})")
-        if name in ("geobit", "orb"):
-            pictures.append(draw_matches(frame0, frame1, k0.xy, k1.xy, np.where(correct, m.matches0, -1),
-                                         np.ones(len(k0), bool), max_lines=200,
-                                         title=f"{name}: {correct.sum()} correct"))
-    path = out / "simulated_pair_matches.png"
-    cv2.imwrite(str(path), np.concatenate(pictures, axis=0))
-    print(f"wrote {path} (correct matches of GeoBit, top, and ORB with SIFT's angle, bottom)")
+          f"{seq.reference} vs {target}, SIFT keypoints {len(k0)} and {len(k1)}")
+    _demo_match_pair(out, "simulated_pair_matches.png", frame0, frame1, k0, k1,
+                     np.where(visible[:, None], truth, np.nan), ["geopatch", "geobit", "orb", "sift"])
 
 
 def _demo(args: argparse.Namespace) -> int:
