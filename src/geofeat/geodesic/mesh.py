@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit, prange
 
 from ..constants import MAX_EDGE_STRETCH
 from ..depth import DepthConfig, backproject, preprocess_depth, scale_intrinsics
@@ -68,9 +69,42 @@ class GridMesh:
         return V, index[faces], index.reshape(Hm, Wm)
 
 
-def face_vertices(points: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Corner points of both faces of every cell: returns (a, b, c, d), each (Hm-1, Wm-1, 3)."""
-    return points[:-1, :-1], points[:-1, 1:], points[1:, :-1], points[1:, 1:]
+@njit(cache=True, parallel=True, error_model="numpy")
+def _faces(points, fx, max_edge_stretch):
+    """face_ok (Hm-1, Wm-1, 2) and unit normals (Hm-1, Wm-1, 2, 3) towards the camera, see GridMesh."""
+    Hm, Wm = points.shape[0], points.shape[1]
+    ok = np.zeros((Hm - 1, Wm - 1, 2), np.bool_)
+    normals = np.zeros((Hm - 1, Wm - 1, 2, 3))
+    for row in prange(Hm - 1):
+        y = np.int64(row)
+        for x in range(Wm - 1):
+            for t in range(2):
+                # corners: face 0 = (a, b, c), face 1 = (d, b, c); a=(x,y) b=(x+1,y) c=(x,y+1) d=(x+1,y+1)
+                p = points[y, x] if t == 0 else points[y + 1, x + 1]
+                q = points[y, x + 1]
+                r = points[y + 1, x]
+                if not (np.isfinite(p[2]) and np.isfinite(q[2]) and np.isfinite(r[2])):
+                    continue
+                ux, uy, uz = q[0] - p[0], q[1] - p[1], q[2] - p[2]
+                vx, vy, vz = r[0] - p[0], r[1] - p[1], r[2] - p[2]
+                wx, wy, wz = r[0] - q[0], r[1] - q[1], r[2] - q[2]
+                nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+                length = np.sqrt(nx * nx + ny * ny + nz * nz)
+                if not length > 0:
+                    continue
+                cz = (p[2] + q[2] + r[2]) / 3.0
+                longest = max(ux * ux + uy * uy + uz * uz, vx * vx + vy * vy + vz * vz, wx * wx + wy * wy + wz * wz)
+                footprint = cz / fx  # lateral size of one mesh pixel, metres
+                if longest > (max_edge_stretch * footprint) ** 2:
+                    continue  # a depth discontinuity, not surface
+                cx, cy = (p[0] + q[0] + r[0]) / 3.0, (p[1] + q[1] + r[1]) / 3.0
+                if nx * cx + ny * cy + nz * cz > 0:
+                    length = -length
+                ok[y, x, t] = True
+                normals[y, x, t, 0] = nx / length
+                normals[y, x, t, 1] = ny / length
+                normals[y, x, t, 2] = nz / length
+    return ok, normals
 
 
 def mesh_from_points(
@@ -78,36 +112,9 @@ def mesh_from_points(
     max_edge_stretch: float = MAX_EDGE_STRETCH,
 ) -> GridMesh:
     """Build the GridMesh of an (Hm, Wm, 3) grid of camera-frame points (NaN = missing)."""
-    a, b, c, d = face_vertices(points)
-    fx = 0.5 * (K[0, 0] + K[1, 1])
-    with np.errstate(invalid="ignore"):
-        n0 = np.cross(b - a, c - a)
-        n1 = np.cross(c - d, b - d)
-        faces = []
-        normals = []
-        for n, corners in ((n0, (a, b, c)), (n1, (d, b, c))):
-            p, q, r = corners
-            centroid = (p + q + r) / 3.0
-            length = np.linalg.norm(n, axis=-1)
-            ok = np.isfinite(length) & (length > 0)
-            n = n / np.where(ok, length, 1.0)[..., None]
-            flip = np.einsum("...i,...i->...", n, centroid) > 0
-            n = np.where(flip[..., None], -n, n)
-            footprint = centroid[..., 2] / fx  # lateral size of one mesh pixel, metres
-            longest = np.maximum.reduce([
-                np.linalg.norm(q - p, axis=-1), np.linalg.norm(r - q, axis=-1), np.linalg.norm(p - r, axis=-1)
-            ])
-            ok &= longest <= max_edge_stretch * footprint
-            faces.append(ok)
-            normals.append(np.where(ok[..., None], n, 0.0))
-    return GridMesh(
-        points=points,
-        face_ok=np.stack(faces, axis=-1),
-        normals=np.ascontiguousarray(np.stack(normals, axis=-2)),
-        K=K,
-        scale=scale,
-        image_shape=image_shape,
-    )
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    face_ok, normals = _faces(points, 0.5 * (K[0, 0] + K[1, 1]), float(max_edge_stretch))
+    return GridMesh(points=points, face_ok=face_ok, normals=normals, K=K, scale=scale, image_shape=image_shape)
 
 
 def build_mesh(frame: RGBDFrame, config: DepthConfig = DepthConfig(), max_edge_stretch: float = MAX_EDGE_STRETCH) -> GridMesh:
