@@ -129,9 +129,12 @@ def _extract(args: argparse.Namespace) -> int:
     for name in tqdm(seq.names, desc=f"extract {args.descriptor}", unit="frame"):
         frame = seq.frame(name)
         features = descriptor.compute(frame, detect(frame, args.keypoints))
-        save_features(path, features, name=name) if path.suffix == ".h5" else \
+        if path.suffix == ".h5":
+            save_features(path, features, name=name)
+        else:
             save_features(path.with_name(f"{path.stem}-{name}.npz"), features)
-    print(f"wrote {args.descriptor} features of {len(seq)} frames of {seq.folder} to {path}")
+    where = path if path.suffix == ".h5" else path.with_name(f"{path.stem}-<frame>.npz")
+    print(f"wrote {args.descriptor} features of {len(seq)} frames of {seq.folder} to {where}")
     return 0
 
 
@@ -237,13 +240,10 @@ def _correct_matches(seq, target, ref_xy, tgt_xy, matches0, tps_class) -> np.nda
     """Per reference keypoint: is its match within 3 px of the ground truth (None when unknown)?
     Ground truth: the simulator's exact correspondences, else a TPS on the csv landmarks."""
     mapped = None
-    if hasattr(seq, "correspondences"):
-        try:
-            mapped, visible = seq.correspondences(seq.reference, target, ref_xy)
-            mapped = np.where(visible[:, None], mapped, np.nan)
-        except ValueError:
-            mapped = None
-    if mapped is None and seq.has_landmarks():
+    if seq.has_ground_truth():
+        mapped, visible = seq.correspondences(seq.reference, target, ref_xy)
+        mapped = np.where(visible[:, None], mapped, np.nan)
+    elif seq.has_landmarks():
         ids_r, xy_r, vis_r = seq.landmarks(seq.reference)
         ids_t, xy_t, vis_t = seq.landmarks(target)
         common = np.intersect1d(ids_r[vis_r], ids_t[vis_t])
