@@ -104,3 +104,11 @@ def test_bench_command_writes_table_and_plots(datasets, tmp_path, capsys):
     assert "| all (2) |" in (tmp_path / "table.md").read_text()
     assert (tmp_path / "ms_vs_rotate.png").exists()
     assert main(["bench", str(datasets / "seqs"), "--descriptors", "nope", "--out", str(tmp_path)]) == 2
+
+
+def test_landmarks_protocol(datasets, tmp_path):
+    config = BenchConfig(descriptors=("geobit", "orb"), protocol="landmarks")
+    rows = read_rows(run_benchmark(datasets / "seqs", tmp_path, config, progress=False)[0])
+    assert {r["protocol"] for r in rows} == {"landmarks"} and len(rows) == 2 * 2 * 2
+    geobit = [float(r["ms"]) for r in rows if r["descriptor"] == "geobit"]
+    assert min(geobit) > 0.8  # 100 Harris corners tracked exactly through mild deformation

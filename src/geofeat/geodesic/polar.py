@@ -155,6 +155,8 @@ def polar_patches(
     kp = check_patch_request(frame, keypoints, radius, n_angles, n_rings)
     if mesh is None:
         mesh = build_mesh(frame, depth_config)
+    elif tuple(mesh.image_shape) != tuple(frame.shape):
+        raise ValueError(f"mesh: built for a {mesh.image_shape} frame, not this {frame.shape} one")
     starts = mesh.image_to_mesh(kp) + np.array([1.3e-6, 0.7e-6])  # keeps starts off vertices/edges
     samples, coords, reached, _ = walk_polar(
         mesh.points, mesh.face_ok, mesh.normals, starts, frame.K, float(radius), int(n_angles), int(n_rings),
