@@ -99,3 +99,18 @@ def test_fast_pooling_and_batchnorm_folding_keep_the_outputs():
     patches = torch.rand(16, 1, 32, 32)
     with torch.no_grad():
         torch.testing.assert_close(fused(patches), net(patches), atol=1e-5, rtol=0)
+
+
+def test_training_is_deterministic_with_a_seed(sheet_patches, tmp_path):
+    flat, bent = sheet_patches
+    data = PatchSet(np.clip(np.rint(np.concatenate([flat, bent]) * 255), 0, 255).astype(np.uint8),
+                    np.concatenate([np.arange(60), np.arange(60)]))
+    config = TrainConfig(epochs=1, steps_per_epoch=4, batch_size=32, seed=3,
+                         net=GeoPatchConfig(channels=(4, 8, 8), dim=16))
+    a = train(data, tmp_path / "a.pt", config, progress=False, device="cpu")
+    b = train(data, tmp_path / "b.pt", config, progress=False, device="cpu")
+    assert a["loss"] == b["loss"]
+    wa, _ = load_network(tmp_path / "a.pt")
+    wb, _ = load_network(tmp_path / "b.pt")
+    for (name, pa), (_, pb) in zip(wa.state_dict().items(), wb.state_dict().items()):
+        torch.testing.assert_close(pa, pb, rtol=0, atol=0, msg=name)
