@@ -112,3 +112,13 @@ def test_landmarks_protocol(datasets, tmp_path):
     assert {r["protocol"] for r in rows} == {"landmarks"} and len(rows) == 2 * 2 * 2
     geobit = [float(r["ms"]) for r in rows if r["descriptor"] == "geobit"]
     assert min(geobit) > 0.8  # 100 Harris corners tracked exactly through mild deformation
+
+
+def test_timing_table_names_the_counts_it_used(datasets):
+    from geofeat.bench.report import timing_table
+
+    seq = geofeat.read_sequence(datasets / "seqs" / "a-deform")
+    table = timing_table(seq.frame(0), ("geobit", "orb"), 0.075, counts=(50, 100000), repeat=1)
+    header = table.splitlines()[0]
+    assert "| 50 kps (s) |" in header and "100000" not in header
+    assert "geobit matching (N x N)" in table and "map f(.)" in table

@@ -94,7 +94,8 @@ def plot_curves(rows: list[dict], path: str | Path) -> list[Path]:
 
 def timing_table(frame, descriptors: tuple[str, ...], radius: float, counts=(250, 2048), repeat: int = 3) -> str:
     """Markdown timing table on one frame: map f(.) (polar patches), extraction and matching per
-    descriptor for each keypoint count (best of `repeat`)."""
+    descriptor for each keypoint count (best of `repeat`; counts above the number of keypoints the
+    frame has are lowered to it, and the header says the count used)."""
     from ..descriptors import make_descriptor
     from ..geodesic.mesh import build_mesh
     from ..geodesic.polar import polar_patches
@@ -110,6 +111,7 @@ def timing_table(frame, descriptors: tuple[str, ...], radius: float, counts=(250
         return min(times), result
 
     kps_all = detect(frame, max(counts))
+    counts = sorted({min(n, len(kps_all)) for n in counts})  # a frame may have fewer keypoints
     lines = ["| step | " + " | ".join(f"{n} kps (s)" for n in counts) + " |", "|---|" + "---|" * len(counts)]
     cells: dict[str, list[str]] = {}
     for n in counts:
