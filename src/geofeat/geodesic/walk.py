@@ -5,6 +5,12 @@ continues into the neighbouring face with its direction unfolded across the shar
 about the edge by the dihedral angle, so that the two faces laid flat show a straight line). The
 accumulated 3D arc length gives exact geodesic sample positions along the ray.
 
+The walk runs in intrinsic 2D coordinates: each face has its own planar frame (`face_frames`), a ray
+is a 2D point and direction in the current face, and crossing an edge re-expresses both in the
+neighbour's frame by the 2D rotation that maps the shared edge onto itself, which is the same as
+rotating the 3D direction about the edge by the dihedral angle. 3D points are rebuilt only where
+samples are emitted.
+
 Face addressing follows `geofeat.geodesic.mesh`: face (x, y, t) is triangle t of grid cell (x, y).
 Local vertex order: face 0 = (a, b, c), face 1 = (d, b, c) with a = (x, y), b = (x + 1, y),
 c = (x, y + 1), d = (x + 1, y + 1). Local edge e is the edge opposite local vertex e.
