@@ -164,8 +164,8 @@ def polar_patches(
     )
     valid = patch_validity(reached)
     coords[~valid] = np.nan
-    values = sample_bilinear(sampling_image(frame, blur_px), np.nan_to_num(coords, nan=-1.0))
-    values[~valid] = 0.0
+    values = np.zeros(coords.shape[:-1], np.float32)
+    values[valid] = sample_bilinear(sampling_image(frame, blur_px), coords[valid])
     return PolarPatches(
         keypoints=kp,
         values=values.astype(np.float32),

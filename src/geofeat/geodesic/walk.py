@@ -257,8 +257,8 @@ def walk_polar(points, face_ok, normals, starts, K, radius, n_angles, n_rings, m
         reached per direction, centre (N, 3) float64 start point (NaN when the start has no face).
     """
     N = starts.shape[0]
-    samples = np.full((N, n_rings, n_angles, 3), np.nan, dtype=np.float32)
-    coords = np.full((N, n_rings, n_angles, 2), np.nan, dtype=np.float32)
+    samples = np.empty((N, n_rings, n_angles, 3), dtype=np.float32)  # every entry is written below
+    coords = np.empty((N, n_rings, n_angles, 2), dtype=np.float32)
     reached = np.zeros((N, n_angles), dtype=np.int32)
     centre = np.full((N, 3), np.nan)
     frames = np.zeros((N, 3, 3))  # per keypoint: e0, e1, normal of the start face
@@ -300,7 +300,9 @@ def walk_polar(points, face_ok, normals, starts, K, radius, n_angles, n_rings, m
     for job in prange(N * n_angles):
         k = job // n_angles
         a = job % n_angles
-        if faces[k, 0] < 0:
+        if faces[k, 0] < 0:  # no surface under the keypoint
+            samples[k, :, a, :] = np.nan
+            coords[k, :, a, :] = np.nan
             continue
         x, y, t = faces[k, 0], faces[k, 1], faces[k, 2]
         theta = 2.0 * np.pi * a / n_angles
