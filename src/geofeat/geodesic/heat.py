@@ -34,6 +34,7 @@ from ..depth import DepthConfig
 from ..frame import RGBDFrame
 from .mesh import GridMesh, build_mesh
 from .polar import PolarPatches, check_patch_request, patch_validity, sample_bilinear, sampling_image
+from .walk import tangent_frames
 
 #: Distance sampling step along an isocurve search line, mesh pixels (GeoBit: 0.05 full-res px).
 HEAT_STEP_PX = 0.1
@@ -371,30 +372,12 @@ def line_directions(mesh: GridMesh, starts: np.ndarray, n_angles: int, angles: s
         return np.broadcast_to(d, (N, n_angles, 2)).copy()
     if angles != "tangent":
         raise ValueError(f"angles: expected 'tangent' or 'image', got {angles!r}")
-    x, y, t, w, corners, ok = _locate(starts, mesh.face_ok)
-    Hm, Wm = mesh.points.shape[:2]
-    Hc, Wc = Hm - 1, Wm - 1
-    cxs, cys = np.clip(corners[..., 0], 0, Wm - 1), np.clip(corners[..., 1], 0, Hm - 1)
-    p = (mesh.points[cys, cxs] * w[..., None]).sum(axis=1)  # (N, 3) start point
-    # tangent plane normal: sum of the face normals of the 3x3 cells around the start cell
-    nrm = np.zeros((N, 3))
-    for oy in (-1, 0, 1):
-        for ox in (-1, 0, 1):
-            xx, yy = x + ox, y + oy
-            inside = (xx >= 0) & (yy >= 0) & (xx < Wc) & (yy < Hc)
-            xc, yc = np.clip(xx, 0, Wc - 1), np.clip(yy, 0, Hc - 1)
-            for tt in range(2):
-                nrm += np.where((inside & mesh.face_ok[yc, xc, tt])[:, None], mesh.normals[yc, xc, tt], 0.0)
+    faces, p, frames = tangent_frames(mesh.points, mesh.face_ok, mesh.normals,
+                                      np.ascontiguousarray(starts, dtype=np.float64))
+    ok = faces[:, 0] >= 0
+    e0, e1 = frames[:, 0], frames[:, 1]  # the walk's tangent frame: column 0 along image +x
     with np.errstate(invalid="ignore", divide="ignore"):
-        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
         X, Y, Z = p[:, 0], p[:, 1], p[:, 2]
-        # e0: tangent direction along which the image y coordinate does not change, towards +x
-        gv = np.stack([np.zeros(N), np.ones(N), -Y / Z], axis=1)
-        e0 = np.cross(nrm, gv)
-        e0 /= np.linalg.norm(e0, axis=1, keepdims=True)
-        e0 *= np.where(e0[:, 0] - e0[:, 2] * X / Z >= 0, 1.0, -1.0)[:, None]
-        e1 = np.cross(nrm, e0)
-        e1 *= np.where(e1[:, 1] - e1[:, 2] * Y / Z > 0, -1.0, 1.0)[:, None]  # up as displayed
 
         def image_of(e: np.ndarray) -> np.ndarray:  # Jacobian of the mesh projection at p
             K = mesh.K

@@ -242,24 +242,19 @@ def _locate(face_ok, xm, ym):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def walk_polar(points, face_ok, normals, starts, K, radius, n_angles, n_rings, max_crossings):
-    """Geodesic polar samples around many start points.
+def tangent_frames(points, face_ok, normals, starts):
+    """Start face, start point and tangent frame of every keypoint.
 
     Args:
-        points: (Hm, Wm, 3) float64 mesh vertices, metres.
-        face_ok, normals: see `GridMesh`.
-        starts: (N, 2) float64 mesh pixel coordinates of the keypoints.
-        K: (3, 3) intrinsics of the image that samples are projected into.
-        radius: geodesic radius of the outer ring, metres.
+        points, face_ok, normals: see `GridMesh`.
+        starts: (N, 2) float64 mesh pixel coordinates.
     Returns:
-        samples (N, n_rings, n_angles, 3) float32 metres, coords (N, n_rings, n_angles, 2) float32
-        image pixels (x, y) of the samples projected with K, reached (N, n_angles) int32 rings
-        reached per direction, centre (N, 3) float64 start point (NaN when the start has no face).
+        faces (N, 3) int64 (x, y, t) of the start face, -1 where the start has no surface;
+        centre (N, 3) float64 start point, metres (NaN without surface);
+        frames (N, 3, 3) float64 rows e0, e1, n: e0 is image +x projected onto the tangent plane,
+        e1 turns counter-clockwise as displayed, n the area-weighted normal around the start cell.
     """
     N = starts.shape[0]
-    samples = np.empty((N, n_rings, n_angles, 3), dtype=np.float32)  # every entry is written below
-    coords = np.empty((N, n_rings, n_angles, 2), dtype=np.float32)
-    reached = np.zeros((N, n_angles), dtype=np.int32)
     centre = np.full((N, 3), np.nan)
     frames = np.zeros((N, 3, 3))  # per keypoint: e0, e1, normal of the start face
     faces = np.full((N, 3), -1, dtype=np.int64)
@@ -295,6 +290,29 @@ def walk_polar(points, face_ok, normals, starts, K, radius, n_angles, n_rings, m
         centre[k] = p
         frames[k, 2] = nrm
         faces[k, 0], faces[k, 1], faces[k, 2] = x, y, t
+    return faces, centre, frames
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def walk_polar(points, face_ok, normals, starts, K, radius, n_angles, n_rings, max_crossings):
+    """Geodesic polar samples around many start points.
+
+    Args:
+        points: (Hm, Wm, 3) float64 mesh vertices, metres.
+        face_ok, normals: see `GridMesh`.
+        starts: (N, 2) float64 mesh pixel coordinates of the keypoints.
+        K: (3, 3) intrinsics of the image that samples are projected into.
+        radius: geodesic radius of the outer ring, metres.
+    Returns:
+        samples (N, n_rings, n_angles, 3) float32 metres, coords (N, n_rings, n_angles, 2) float32
+        image pixels (x, y) of the samples projected with K, reached (N, n_angles) int32 rings
+        reached per direction, centre (N, 3) float64 start point (NaN when the start has no face).
+    """
+    N = starts.shape[0]
+    samples = np.empty((N, n_rings, n_angles, 3), dtype=np.float32)  # every entry is written below
+    coords = np.empty((N, n_rings, n_angles, 2), dtype=np.float32)
+    reached = np.zeros((N, n_angles), dtype=np.int32)
+    faces, centre, frames = tangent_frames(points, face_ok, normals, starts)
     ring_step = radius / n_rings
     local = face_frames(points, face_ok, normals)
     for job in prange(N * n_angles):
