@@ -123,14 +123,6 @@ def sample_bilinear(image: np.ndarray, coords: np.ndarray) -> np.ndarray:
     return out.reshape(shape)
 
 
-def project(points: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Project (..., 3) camera-frame points (metres) to (..., 2) pixel coordinates with K."""
-    z = points[..., 2]
-    x = K[0, 0] * points[..., 0] / z + K[0, 1] * points[..., 1] / z + K[0, 2]
-    y = K[1, 1] * points[..., 1] / z + K[1, 2]
-    return np.stack([x, y], axis=-1)
-
-
 def polar_patches(
     frame: RGBDFrame,
     keypoints,

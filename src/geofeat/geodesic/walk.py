@@ -57,13 +57,9 @@ def _neighbour(x, y, t, e):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _edge_ends(x, y, t, e):
-    """Grid positions (x0, y0, x1, y1) of the two ends of local edge e of face (x, y, t)."""
-    i0 = 1 if e == 0 else 0
-    i1 = 1 if e == 2 else 2
-    x0, y0 = _corner(x, y, t, i0)
-    x1, y1 = _corner(x, y, t, i1)
-    return x0, y0, x1, y1
+def _edge_vertices(e):
+    """Local vertices (i0, i1) at the ends of local edge e (the edge opposite vertex e)."""
+    return (1 if e == 0 else 0), (1 if e == 2 else 2)
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -145,8 +141,7 @@ def _walk_one(points, normals, face_ok, frames, x, y, t, px, py, dx, dy, ring_st
                 e = c
             else:
                 e = (entry + 1 + c) % 3
-            i0 = 1 if e == 0 else 0
-            i1 = 1 if e == 2 else 2
+            i0, i1 = _edge_vertices(e)
             ax, ay = _local(frames, x, y, t, i0)
             bx, by = _local(frames, x, y, t, i1)
             ex, ey = bx - ax, by - ay
@@ -177,8 +172,7 @@ def _walk_one(points, normals, face_ok, frames, x, y, t, px, py, dx, dy, ring_st
         if ring == n_rings:
             return ring
         s = min(max(s, 0.0), 1.0)
-        i0 = 1 if exit_edge == 0 else 0
-        i1 = 1 if exit_edge == 2 else 2
+        i0, i1 = _edge_vertices(exit_edge)
         ax, ay = _local(frames, x, y, t, i0)
         bx, by = _local(frames, x, y, t, i1)
         ex, ey = bx - ax, by - ay
@@ -190,8 +184,7 @@ def _walk_one(points, normals, face_ok, frames, x, y, t, px, py, dx, dy, ring_st
             break
         # the shared edge in the neighbour's frame, oriented like ours (same grid end first)
         g0x, g0y = _corner(x, y, t, i0)
-        j0 = 1 if entry_n == 0 else 0
-        j1 = 1 if entry_n == 2 else 2
+        j0, j1 = _edge_vertices(entry_n)
         h0x, h0y = _corner(xn, yn, tn, j0)
         a2x, a2y = _local(frames, xn, yn, tn, j0)
         b2x, b2y = _local(frames, xn, yn, tn, j1)
