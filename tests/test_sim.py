@@ -12,6 +12,8 @@ from geofeat.io import read_sequence
 from geofeat.sim import ClothScene, correspondences, has_ground_truth, simulate_sequence
 from geofeat.sim import writer as writer_mod
 from geofeat.sim.command import add_parser, main
+from geofeat.sim.cloth import Cloth, ClothConfig
+from geofeat.sim.noise import finish_image
 from geofeat.sim.groundtruth import read_frame_truth, read_metadata, surface_coordinates, surface_to_points
 from geofeat.sim.textures import packaged_texture_dir, procedural_texture, read_texture
 
@@ -43,16 +45,46 @@ def _backproject(xy: np.ndarray, z: np.ndarray, K: np.ndarray) -> np.ndarray:
 def test_isometry_neighbour_distances():
     rng = np.random.default_rng(5)
     scene = ClothScene("deform", 2, rng, procedural_texture(rng), size=(120, 160))
-    worst = []
     for _ in range(20):
         scene.advance(6)
-        worst.append(np.percentile(scene.cloth.strain(0), 99))
-        assert scene.cloth.strain(0).max() < 0.06
-        assert np.percentile(scene.cloth.strain(1), 99) < 0.02  # the rigid triangle diagonals
-    assert max(worst) < 0.02, f"99th percentile of structural strain {max(worst):.3%}"
+        structural, diagonal = scene.cloth.strain(0), scene.cloth.strain(1)
+        # all but a handful of the 9460 edges within 2 % (the rest sit at crease tips, see cloth.py)
+        assert np.percentile(structural, 99.9) < 0.02
+        assert np.percentile(structural, 99) < 0.01
+        assert structural.max() < 0.03
+        assert np.percentile(diagonal, 99.9) < 0.02  # the rigid triangle diagonals
     # the cloth really moved: not a trivially rigid result
     assert np.abs(scene.cloth.pos - scene.cloth.prev).sum() > 0
     assert np.ptp(scene.cloth.pos[:, 2]) > 0.01
+
+
+def test_block_parallel_sweep_matches_serial_order():
+    """The parallel sweep is a Gauss-Seidel sweep in a fixed order: the same for any thread count,
+    and every constraint of a block is owned by one block (blocks of equal parity share no particle)."""
+    cfg = ClothConfig(rows=30, cols=20)
+    cloth = Cloth(cfg)
+    block_rows = [set() for _ in range(len(cloth._block_start) - 1)]
+    for b in range(len(block_rows)):
+        sel = cloth.pairs[cloth._block_start[b]:cloth._block_start[b + 1]]
+        block_rows[b] = set((sel // cfg.cols).ravel().tolist())
+        assert np.all(cloth.kind[cloth._block_start[b]:cloth._soft_start[b]] < 2)
+        assert np.all(cloth.kind[cloth._soft_start[b]:cloth._block_start[b + 1]] >= 2)
+    for b in range(len(block_rows) - 2):
+        assert not block_rows[b] & block_rows[b + 2]
+    assert cloth._block_start[-1] == len(cloth.rest)
+
+
+def test_pixel_noise_is_gaussian_with_the_requested_sigma():
+    grey = np.full((240, 320, 3), 0.5, np.float32)
+    img = finish_image(grey, np.ones((240, 320), bool), np.zeros(3), 3.0, np.random.default_rng(0))
+    noise = img.astype(np.float64) - 127.5
+    # rounding to integers adds 1/12 to the variance
+    assert abs(noise.std() - np.sqrt(9 + 1 / 12)) < 0.03
+    assert abs(noise.mean()) < 0.02
+    assert abs(np.corrcoef(noise[..., 0].ravel(), noise[..., 1].ravel())[0, 1]) < 0.01
+    assert abs(np.corrcoef(noise[:, 1:, 0].ravel(), noise[:, :-1, 0].ravel())[0, 1]) < 0.01
+    again = finish_image(grey, np.ones((240, 320), bool), np.zeros(3), 3.0, np.random.default_rng(0))
+    assert np.array_equal(img, again)
 
 
 def test_sequence_layout(seq):

@@ -5,7 +5,7 @@ Particle (r, c) has the surface coordinate (u, v) = (c * s, r * s) metres on the
 so on an isometric deformation the geodesic distance between two surface points equals the
 Euclidean distance of their (u, v) coordinates (the rest cloth is a convex rectangle).
 
-Constraints (all hard distance constraints, solved by Gauss-Seidel projection as in the paper):
+Constraints (distance constraints, solved by Gauss-Seidel projection as in the paper):
   * structural: (r, c)-(r, c+1) and (r, c)-(r+1, c). The paper's connectivity.
   * shear: the diagonal (r, c)-(r+1, c+1) of every cell, i.e. the third edge of the rendered
     triangles. Without it a cell can collapse into a rhombus, which keeps edge lengths but
@@ -19,7 +19,19 @@ Constraints (all hard distance constraints, solved by Gauss-Seidel projection as
     the particle scale, which keeps the surface and its shading smooth.
 
 Pinned particles also get long-range attachments ("tethers", a free particle is kept within its
-rest (u, v) distance of every pin), so that 25 sweeps suffice to keep the strain below 2 %.
+rest (u, v) distance of every pin).
+
+Solver ("small steps", Macklin et al. 2019): each time step of the paper is split into `substeps`
+Verlet sub-steps of dt / substeps, each followed by one symmetric Gauss-Seidel pass (a forward sweep
+over all constraints and a backward sweep over the hard ones). With the default 12 sub-steps that
+is 24 sweeps per step, the paper's budget of 25, but the constraint error each sub-step has to
+remove is substeps^2 times smaller: the worst structural strain of the test scenes drops from about
+6.6 % (25 sweeps after one full step) to under 2 %.
+
+The sweeps run in parallel without changing their result with the thread count: the grid rows are
+cut into blocks of at least 3 rows, a constraint belongs to the block of its upper particle, and
+blocks of equal parity touch disjoint particles (a constraint reaches 2 rows down), so the even
+blocks are swept in parallel, then the odd ones, each block serially in constraint order.
 
 Time is dimensionless (paper: damping 0.01, dt^2 = 0.175); accelerations are in metres per
 time unit squared, so `a * dt2` is a displacement in metres per step.
@@ -30,7 +42,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 
 @dataclass(frozen=True)
@@ -42,8 +54,11 @@ class ClothConfig:
         width_m: rest width (u extent) in metres; the height is width * (rows - 1) / (cols - 1).
         damping: Verlet velocity damping per step (paper: 0.01).
         dt2: squared time step (paper: 0.175).
-        iterations: constraint-projection sweeps per step (paper: 25).
+        substeps: Verlet sub-steps per time step, each with a forward and a backward constraint
+            sweep (2 * substeps sweeps per step; the paper has 25 sweeps after one full step).
         shear, bending: add shear / bending constraints (see the module docstring).
+        bending_stiffness: fraction of the correction of the soft constraints applied per sweep.
+        solver_blocks: row blocks of the parallel sweep (at most rows // 3 are used).
     """
 
     rows: int = 60
@@ -51,10 +66,11 @@ class ClothConfig:
     width_m: float = 0.6
     damping: float = 0.01
     dt2: float = 0.175
-    iterations: int = 25
+    substeps: int = 12
     shear: bool = True
     bending: bool = True
     bending_stiffness: float = 0.1
+    solver_blocks: int = 8
 
     @property
     def spacing_m(self) -> float:
@@ -113,8 +129,31 @@ def grid_triangles(rows: int, cols: int) -> np.ndarray:
     return np.ascontiguousarray(np.stack([t0, t1], axis=1).reshape(-1, 3))
 
 
+def solver_blocks(pairs: np.ndarray, kind: np.ndarray, rows: int, cols: int, n_blocks: int):
+    """Order the constraints for the block-parallel sweep (see the module docstring).
+
+    Within a block the hard constraints (kind 0, 1) come first, then the soft ones, each in the
+    order of `grid_constraints` (row by row: a forward sweep carries a correction down the whole
+    block; a red-black order inside the block was tried and converged clearly slower).
+
+    Returns:
+        order (C,) int64: the constraints in sweep order,
+        block_start (B + 1,) int64: block b holds order[block_start[b]:block_start[b + 1]],
+        soft_start (B,) int64: where the soft constraints of block b start.
+    """
+    n_blocks = max(1, min(int(n_blocks), rows // 3))
+    row_block = np.repeat(np.arange(n_blocks), [len(r) for r in np.array_split(np.arange(rows), n_blocks)])
+    block = row_block[np.minimum(pairs[:, 0], pairs[:, 1]) // cols]
+    soft = (kind >= 2).astype(np.int64)
+    order = np.lexsort((np.arange(len(kind)), soft, block))
+    block_start = np.searchsorted(block[order], np.arange(n_blocks + 1))
+    soft_start = np.array([block_start[b] + np.count_nonzero((block == b) & (soft == 0)) for b in range(n_blocks)])
+    return order, block_start.astype(np.int64), soft_start.astype(np.int64)
+
+
 @njit(cache=True)
 def _integrate(pos, prev, acc, pinned, pin_pos, damping, dt2):
+    """One Verlet step in place; pinned particles are put at pin_pos (N, 3) with zero velocity."""
     n = pos.shape[0]
     keep = 1.0 - damping
     for i in range(n):
@@ -129,45 +168,56 @@ def _integrate(pos, prev, acc, pinned, pin_pos, damping, dt2):
                 prev[i, k] = p
 
 
-@njit(cache=True)
-def _sweep(pos, pairs, rest, wj, wk, backward):
-    """One Gauss-Seidel sweep over the distance constraints, in place.
+@njit(cache=True, inline="always", error_model="numpy", fastmath=True)
+def _project(pos, j, k, rest, fj0, fk0):
+    """Move particles j and k along their difference by fj0 / fk0 times the length error."""
+    dx = pos[k, 0] - pos[j, 0]
+    dy = pos[k, 1] - pos[j, 1]
+    dz = pos[k, 2] - pos[j, 2]
+    length = np.sqrt(dx * dx + dy * dy + dz * dz)
+    if length < 1e-12:
+        return
+    f = 1.0 - rest / length
+    fj = fj0 * f
+    fk = fk0 * f
+    pos[j, 0] += fj * dx
+    pos[j, 1] += fj * dy
+    pos[j, 2] += fj * dz
+    pos[k, 0] -= fk * dx
+    pos[k, 1] -= fk * dy
+    pos[k, 2] -= fk * dz
+
+
+@njit(cache=True, parallel=True, error_model="numpy", fastmath=True)
+def _sweep(pos, pairs, rest, wj, wk, block_start, soft_start, phase, backward):
+    """Gauss-Seidel sweep, in place, over the blocks of one parity `phase` (in parallel).
 
     Constraint c moves particle j towards k by wj[c] times the length error and k towards j by
     wk[c] (wj = wk = stiffness / 2 between free particles, 0 / stiffness next to a pinned one).
+    A forward sweep visits a block's hard then soft constraints; a backward sweep only the hard
+    ones, in reverse order.
     """
-    n_c = pairs.shape[0]
-    for i in range(n_c):
-        c = n_c - 1 - i if backward else i
-        j = pairs[c, 0]
-        k = pairs[c, 1]
-        dx = pos[k, 0] - pos[j, 0]
-        dy = pos[k, 1] - pos[j, 1]
-        dz = pos[k, 2] - pos[j, 2]
-        length = np.sqrt(dx * dx + dy * dy + dz * dz)
-        if length < 1e-12:
-            continue
-        f = 1.0 - rest[c] / length
-        fj = wj[c] * f
-        fk = wk[c] * f
-        pos[j, 0] += fj * dx
-        pos[j, 1] += fj * dy
-        pos[j, 2] += fj * dz
-        pos[k, 0] -= fk * dx
-        pos[k, 1] -= fk * dy
-        pos[k, 2] -= fk * dz
+    n_blocks = block_start.shape[0] - 1
+    for m in prange((n_blocks - phase + 1) // 2):
+        b = phase + 2 * m
+        if backward:
+            for c in range(soft_start[b] - 1, block_start[b] - 1, -1):
+                _project(pos, pairs[c, 0], pairs[c, 1], rest[c], wj[c], wk[c])
+        else:
+            for c in range(block_start[b], block_start[b + 1]):
+                _project(pos, pairs[c, 0], pairs[c, 1], rest[c], wj[c], wk[c])
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _tethers(pos, pinned, pin_idx, uv):
     """Long-range attachments: a free particle may be no farther from a pinned particle than their
     rest (u, v) distance, which bounds the stretching that a few Gauss-Seidel sweeps leave."""
     n = pos.shape[0]
-    for m in range(pin_idx.shape[0]):
-        q = pin_idx[m]
-        for i in range(n):
-            if pinned[i]:
-                continue
+    for i in prange(n):
+        if pinned[i]:
+            continue
+        for m in range(pin_idx.shape[0]):
+            q = pin_idx[m]
             du = uv[i, 0] - uv[q, 0]
             dv = uv[i, 1] - uv[q, 1]
             rest = np.sqrt(du * du + dv * dv)
@@ -183,13 +233,27 @@ def _tethers(pos, pinned, pin_idx, uv):
 
 
 @njit(cache=True)
-def _solve(pos, pinned, pairs, rest, wj, wk, iterations, pin_idx, uv):
-    """`iterations` constraint sweeps, tethers before every fifth; sweeps alternate forward and
-    backward (symmetric Gauss-Seidel carries corrections across the grid in both directions)."""
-    for it in range(iterations):
-        if it % 5 == 0:
+def _substeps(pos, prev, acc, pinned, pin_from, pin_to, damping, dt2, substeps,
+              pairs, rest, wj, wk, block_start, soft_start, pin_idx, uv):
+    """One time step as `substeps` Verlet sub-steps (dt / substeps, damping spread evenly, pins moved
+    linearly from pin_from to pin_to), each followed by a forward and a backward sweep; tethers are
+    enforced before the sweeps of every other sub-step."""
+    sub_dt2 = dt2 / (substeps * substeps)
+    sub_damping = 1.0 - (1.0 - damping) ** (1.0 / substeps)
+    pin_pos = pin_from.copy()
+    for s in range(substeps):
+        a = (s + 1) / substeps
+        for i in pin_idx:
+            for k in range(3):
+                pin_pos[i, k] = pin_from[i, k] + (pin_to[i, k] - pin_from[i, k]) * a
+        _integrate(pos, prev, acc, pinned, pin_pos, sub_damping, sub_dt2)
+        if s % 2 == 0:
             _tethers(pos, pinned, pin_idx, uv)
-        _sweep(pos, pairs, rest, wj, wk, it % 2 == 1)
+        first = s % 2  # alternate which parity goes first, so that no block seam is always last
+        _sweep(pos, pairs, rest, wj, wk, block_start, soft_start, first, False)
+        _sweep(pos, pairs, rest, wj, wk, block_start, soft_start, 1 - first, False)
+        _sweep(pos, pairs, rest, wj, wk, block_start, soft_start, 1 - first, True)
+        _sweep(pos, pairs, rest, wj, wk, block_start, soft_start, first, True)
 
 
 @njit(cache=True)
@@ -273,10 +337,15 @@ class Cloth:
         self.prev = self.pos.copy()
         self.pinned = np.zeros(rows * cols, dtype=np.bool_)
         self.pin_pos = self.pos.copy()
-        self.pairs, self.rest, self.kind = grid_constraints(rows, cols, s, config.shear, config.bending)
+        pairs, rest, kind = grid_constraints(rows, cols, s, config.shear, config.bending)
+        order, self._block_start, self._soft_start = solver_blocks(pairs, kind, rows, cols, config.solver_blocks)
+        self.pairs = np.ascontiguousarray(pairs[order])
+        self.rest, self.kind = rest[order], kind[order]
         self.triangles = grid_triangles(rows, cols)
         #: (C,) fraction of each constraint's correction applied per sweep (bending is soft)
         self.stiffness = np.where(self.kind >= 2, config.bending_stiffness, 1.0)
+        self._pin_last = self.pin_pos.copy()  # pin targets at the end of the last step
+        self._weights: tuple[np.ndarray, np.ndarray] | None = None
 
     def index(self, r: int, c: int) -> int:
         return r * self.config.cols + c
@@ -286,6 +355,18 @@ class Cloth:
         indices = np.asarray(indices, dtype=np.int64)
         self.pinned[indices] = True
         self.pin_pos[indices] = self.pos[indices] if positions is None else positions
+        self._pin_last[indices] = self.pin_pos[indices]
+        self._weights = None
+
+    def _constraint_weights(self) -> tuple[np.ndarray, np.ndarray]:
+        """(C,) wj, wk: the share of a constraint's correction that moves its first / second particle."""
+        if self._weights is None:
+            pj = self.pinned[self.pairs[:, 0]]
+            pk = self.pinned[self.pairs[:, 1]]
+            wj = np.where(pj, 0.0, np.where(pk, 1.0, 0.5)) * self.stiffness
+            wk = np.where(pk, 0.0, np.where(pj, 1.0, 0.5)) * self.stiffness
+            self._weights = (wj, wk)
+        return self._weights
 
     def normals(self) -> np.ndarray:
         """(N, 3) unit vertex normals."""
@@ -299,7 +380,8 @@ class Cloth:
         wave_phase: float = 0.0,
         wave_amp: float = 0.0,
     ) -> None:
-        """One time step: forces, Verlet integration, `config.iterations` constraint sweeps.
+        """One time step: forces, then `config.substeps` Verlet sub-steps with constraint sweeps.
+        Pinned particles move linearly from their targets at the last step to `pin_pos`.
 
         gravity, wind: (3,) accelerations in m / time unit^2. Wind acts along the normal with
         strength (n . wind), modulated over the cloth by 1 + wave_amp * sin(wave_k . (u, v) + phase)
@@ -311,13 +393,11 @@ class Cloth:
             np.asarray(gravity, dtype=np.float64), np.asarray(wind, dtype=np.float64),
             np.asarray(wave_k, dtype=np.float64), float(wave_phase), float(wave_amp),
         )
-        _integrate(self.pos, self.prev, acc, self.pinned, self.pin_pos, cfg.damping, cfg.dt2)
-        pin_idx = np.flatnonzero(self.pinned)
-        pj = self.pinned[self.pairs[:, 0]]
-        pk = self.pinned[self.pairs[:, 1]]
-        wj = np.where(pj, 0.0, np.where(pk, 1.0, 0.5)) * self.stiffness
-        wk = np.where(pk, 0.0, np.where(pj, 1.0, 0.5)) * self.stiffness
-        _solve(self.pos, self.pinned, self.pairs, self.rest, wj, wk, cfg.iterations, pin_idx, self.uv)
+        wj, wk = self._constraint_weights()
+        _substeps(self.pos, self.prev, acc, self.pinned, self._pin_last, self.pin_pos, cfg.damping, cfg.dt2,
+                  cfg.substeps, self.pairs, self.rest, wj, wk, self._block_start, self._soft_start,
+                  np.flatnonzero(self.pinned), self.uv)
+        self._pin_last = self.pin_pos.copy()
 
     def strain(self, kind: int | None = 0) -> np.ndarray:
         """(C,) relative length error |d - rest| / rest of the constraints of one kind (None = all)."""

@@ -12,6 +12,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 from numba import njit, prange
+from scipy.special import ndtri
 
 
 @njit(cache=True, inline="always")
@@ -22,33 +23,26 @@ def _mix64(x):
     return x ^ (x >> np.uint64(31))
 
 
+#: 2^16 quantiles of the standard normal, N^-1((i + 0.5) / 2^16): a pixel's hash picks three of them.
+#: The table reproduces the normal's mean and variance to 1e-4 and its tails to 4.3 sigma.
+_NORMAL_TABLE = ndtri((np.arange(1 << 16) + 0.5) / (1 << 16)).astype(np.float32)
+
+
 @njit(cache=True, parallel=True)
-def _finish(color, mask, background, sigma, key):
-    """uint8 image = clip(round(255 * (mask ? color : background) + N(0, sigma^2))), the Gaussian
-    drawn by Box-Muller from a counter-based hash of (key, pixel, channel): deterministic and
-    independent of the number of threads."""
+def _finish(color, mask, background, sigma, key, table):
+    """uint8 image = clip(round(255 * (mask ? color : background) + sigma * g)), g a standard normal
+    from `table` indexed by three 16-bit fields of a counter-based hash of (key, pixel): deterministic
+    and independent of the number of threads."""
     H, W = mask.shape
     out = np.empty((H, W, 3), dtype=np.uint8)
-    scale = 1.0 / 9007199254740992.0  # 2^-53
+    k0 = np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)
     for y in prange(H):
         for x in range(W):
-            base = np.uint64(key) * np.uint64(0x9E3779B97F4A7C15) + np.uint64((y * W + x) * 2)
-            h1 = _mix64(base)
-            h2 = _mix64(base + np.uint64(1))
-            u1 = ((h1 >> np.uint64(11)) + np.uint64(1)) * scale
-            u2 = (h2 >> np.uint64(11)) * scale
-            r = np.sqrt(-2.0 * np.log(u1))
-            h3 = _mix64(h1 ^ h2)
-            u3 = ((h3 >> np.uint64(11)) + np.uint64(1)) * scale
-            u4 = (_mix64(h3) >> np.uint64(11)) * scale
-            r2 = np.sqrt(-2.0 * np.log(u3))
-            n0 = r * np.cos(2.0 * np.pi * u2)
-            n1 = r * np.sin(2.0 * np.pi * u2)
-            n2 = r2 * np.cos(2.0 * np.pi * u4)
+            h = _mix64(k0 + np.uint64(y * W + x))
             for k in range(3):
+                g = table[(h >> np.uint64(16 * k)) & np.uint64(0xFFFF)]
                 c = color[y, x, k] if mask[y, x] else background[k]
-                n = n0 if k == 0 else (n1 if k == 1 else n2)
-                v = np.floor(c * 255.0 + sigma * n + 0.5)
+                v = np.floor(c * 255.0 + sigma * g + 0.5)
                 out[y, x, k] = np.uint8(min(max(v, 0.0), 255.0))
     return out
 
@@ -59,7 +53,7 @@ def finish_image(color: np.ndarray, mask: np.ndarray, background: np.ndarray, si
     Gaussian pixel noise of `sigma` grey levels -> (H, W, 3) uint8 (seeded by rng)."""
     key = int(rng.integers(0, 2**62))
     return _finish(np.ascontiguousarray(color, dtype=np.float32), np.ascontiguousarray(mask),
-                   np.asarray(background, dtype=np.float64), float(sigma), key)
+                   np.asarray(background, dtype=np.float64), float(sigma), key, _NORMAL_TABLE)
 
 
 def add_image_noise(color: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
