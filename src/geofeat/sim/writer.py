@@ -167,7 +167,7 @@ def _write(folder: Path, scene: ClothScene, progress: bool, meta: dict) -> None:
         "grid": [cfg.rows, cfg.cols],
         "spacing_m": cfg.spacing_m,
         "cloth_size_m": [cfg.width_m, cfg.height_m],
-        "solver": {"substeps": cfg.substeps, "damping": cfg.damping, "dt2": cfg.dt2,
+        "solver": {"substeps": cfg.substeps, "passes": cfg.passes, "damping": cfg.damping, "dt2": cfg.dt2,
                    "steps_per_frame": scene.params.steps_per_frame, "bending_stiffness": cfg.bending_stiffness},
         "image_noise_sigma": scene.params.image_sigma,
         "frames": names,
