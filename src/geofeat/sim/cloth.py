@@ -327,10 +327,10 @@ class Cloth:
         config: the ClothConfig.
         pos: (N, 3) float64 particle positions, metres (N = rows * cols, index r * cols + c).
         prev: (N, 3) float64 positions one step earlier.
-        pinned: (N,) bool particles held at `pin_pos`.
+        pinned: (N,) bool particles held at `pin_pos` (change it with `pin`, which updates the solver).
         pin_pos: (N, 3) float64 target positions of pinned particles, metres.
         uv: (N, 2) float64 rest surface coordinates (u, v) = (c, r) * spacing, metres.
-        pairs, rest, kind: the constraints (see `grid_constraints`).
+        pairs, rest, kind: the constraints (see `grid_constraints`), in sweep order (`solver_blocks`).
         triangles: (T, 3) int32 (see `grid_triangles`).
     """
 

@@ -9,6 +9,8 @@ random blobs. Ground truth ((u, v) maps) is never affected.
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 from numba import njit, prange
@@ -23,9 +25,11 @@ def _mix64(x):
     return x ^ (x >> np.uint64(31))
 
 
-#: 2^16 quantiles of the standard normal, N^-1((i + 0.5) / 2^16): a pixel's hash picks three of them.
-#: The table reproduces the normal's mean and variance to 1e-4 and its tails to 4.3 sigma.
-_NORMAL_TABLE = ndtri((np.arange(1 << 16) + 0.5) / (1 << 16)).astype(np.float32)
+@functools.cache
+def normal_table() -> np.ndarray:
+    """(2^16,) float32 quantiles of the standard normal, N^-1((i + 0.5) / 2^16): a pixel's hash picks
+    three of them. The table reproduces the normal's mean and variance to 1e-4, tails to 4.3 sigma."""
+    return ndtri((np.arange(1 << 16) + 0.5) / (1 << 16)).astype(np.float32)
 
 
 @njit(cache=True, parallel=True)
@@ -53,7 +57,7 @@ def finish_image(color: np.ndarray, mask: np.ndarray, background: np.ndarray, si
     Gaussian pixel noise of `sigma` grey levels -> (H, W, 3) uint8 (seeded by rng)."""
     key = int(rng.integers(0, 2**62))
     return _finish(np.ascontiguousarray(color, dtype=np.float32), np.ascontiguousarray(mask),
-                   np.asarray(background, dtype=np.float64), float(sigma), key, _NORMAL_TABLE)
+                   np.asarray(background, dtype=np.float64), float(sigma), key, normal_table())
 
 
 def add_image_noise(color: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
