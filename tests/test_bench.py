@@ -48,10 +48,23 @@ def test_runner_rows_and_columns(datasets, tmp_path):
 
 
 def test_identical_frames_score_one(datasets, tmp_path):
-    config = BenchConfig(descriptors=("geobit", "orb", "sift"), n_keypoints=300)
-    csv_path, _ = run_benchmark(datasets / "same", tmp_path, config, progress=False)
+    """One keypoint per position: a frame against itself scores 1. With the protocol's keypoints a
+    position SIFT found with two orientations is two keypoints, only one of which can have a
+    ground-truth partner, so the score stays below 1 by the share of such duplicates."""
+    config = BenchConfig(descriptors=("geobit", "orb", "sift"), n_keypoints=300, keypoint_set="unique")
+    csv_path, _ = run_benchmark(datasets / "same", tmp_path / "unique", config, progress=False)
     for r in read_rows(csv_path):
         assert float(r["ms"]) == pytest.approx(1.0, abs=0.02), r
+        assert r["keypoint_set"] == "unique" and r["depth_profile"] in ("kinect", "clean")
+    config = BenchConfig(descriptors=("sift",), n_keypoints=300)
+    rows = read_rows(run_benchmark(datasets / "same", tmp_path / "protocol", config, progress=False)[0])
+    seq = geofeat.read_sequence(next((datasets / "same").iterdir()))
+    kps = geofeat.detect(seq.frame(seq.reference), 300, keypoint_set="protocol")
+    duplicates = len(kps) - len(np.unique(np.round(kps.xy, 2), axis=0))
+    assert duplicates > 0
+    for r in rows:
+        assert r["keypoint_set"] == "protocol"
+        assert int(r["hits"]) == pytest.approx(int(r["n_ref"]) - duplicates, abs=0.02 * int(r["n_ref"])), r
 
 
 def test_landmark_tps_reproduces_the_exact_ground_truth(datasets):
@@ -115,10 +128,64 @@ def test_landmarks_protocol(datasets, tmp_path):
 
 
 def test_timing_table_names_the_counts_it_used(datasets):
-    from geofeat.bench.report import timing_table
+    from geofeat.bench.timing import timing_table
 
     seq = geofeat.read_sequence(datasets / "seqs" / "a-deform")
     table = timing_table(seq.frame(0), ("geobit", "orb"), 0.075, counts=(50, 100000), repeat=1)
     header = table.splitlines()[0]
     assert "| 50 kps (s) |" in header and "100000" not in header
     assert "geobit matching (N x N)" in table and "map f(.)" in table
+
+
+def test_rerun_skips_finished_results_and_refuses_other_settings(datasets, tmp_path, monkeypatch):
+    from geofeat.bench import runner
+
+    calls = []
+    real = runner.evaluate_sequence
+    monkeypatch.setattr(runner, "evaluate_sequence", lambda f, c, d=None: calls.append((f, d)) or real(f, c, d))
+    config = BenchConfig(descriptors=("orb",), n_keypoints=200)
+    csv_path, _ = run_benchmark(datasets / "seqs", tmp_path, config, progress=False)
+    first = read_rows(csv_path)
+    assert len(calls) == 2 and len(first) == 4
+    run_benchmark(datasets / "seqs", tmp_path, config, progress=False)
+    assert len(calls) == 2 and read_rows(csv_path) == first  # nothing redone, nothing lost
+    # a new descriptor: only it is computed, the finished ones are kept
+    config = BenchConfig(descriptors=("orb", "sift"), n_keypoints=200)
+    run_benchmark(datasets / "seqs", tmp_path, config, progress=False)
+    assert [d for _, d in calls[2:]] == [("sift",), ("sift",)]
+    assert len(read_rows(csv_path)) == 8
+    with pytest.raises(ValueError, match="other settings"):
+        run_benchmark(datasets / "seqs", tmp_path, BenchConfig(descriptors=("orb",), n_keypoints=100), progress=False)
+    run_benchmark(datasets / "seqs", tmp_path, BenchConfig(descriptors=("orb",), n_keypoints=100), progress=False,
+                  overwrite=True)
+    assert len(read_rows(csv_path)) == 4
+
+
+def test_match_command_counts_the_bench_hits(datasets, tmp_path, capsys):
+    """`geofeat match` judges matches with the bench's ground truth: on the same keypoints and
+    matches it counts exactly the benchmark's hits."""
+    from geofeat.bench.runner import GroundTruth, correct_matches
+    from geofeat.scoring import ground_truth_pairs, score_detect
+
+    seq = geofeat.read_sequence(datasets / "seqs" / "a-deform")
+    ref, target = seq.frame(seq.reference), seq.targets[-1]
+    tgt = seq.frame(target)
+    d = geofeat.make_descriptor("orb")
+    k_ref, k_tgt = geofeat.detect(ref, 300), geofeat.detect(tgt, 300)
+    m = geofeat.match(d.compute(ref, k_ref), d.compute(tgt, k_tgt))
+    truth = GroundTruth(seq, None)
+    correct = correct_matches(truth, target, k_ref.xy, k_tgt.xy, m.matches0, tgt.shape)
+    mapped = truth.target_to_reference(target, k_tgt.xy, tgt.shape)
+    hits = score_detect(m.matches0, ground_truth_pairs(k_ref.xy, mapped), len(k_ref), len(k_tgt)).hits
+    assert correct.sum() == hits > 20
+    assert main(["match", str(seq.folder), "--descriptor", "orb", "--keypoints", "300", "--out", str(tmp_path)]) == 0
+    assert f"-> {target}: {(m.matches0 >= 0).sum()} matches, {hits} correct" in capsys.readouterr().out
+
+
+def test_bad_descriptor_names_fail_before_anything_is_built(tmp_path):
+    with pytest.raises(ValueError, match="unknown name 'surf'"):
+        BenchConfig(descriptors=("orb", "surf"))
+    with pytest.raises(ValueError, match="no GeoPatch weights file"):
+        BenchConfig(descriptors=(f"geopatch={tmp_path / 'missing.pt'}",))
+    with pytest.raises(ValueError, match="keypoint_set"):
+        BenchConfig(keypoint_set="all")

@@ -4,7 +4,6 @@ Frames are 320x240 with f = 525 px (a 1 m plane spans 0.61 x 0.46 m) and the def
 scale, so one mesh pixel is 3.8 mm at 1 m and the 75 mm patch radius is about 20 mesh pixels.
 """
 
-import time
 
 import numpy as np
 import potpourri3d as pp3d
@@ -185,26 +184,19 @@ def test_factorisation_is_reused(texture, monkeypatch):
     calls = []
     real = heat.splu
     monkeypatch.setattr(heat, "splu", lambda *a, **k: calls.append(1) or real(*a, **k))
-    t0 = time.perf_counter()
     H = HeatGeodesics(mesh)
-    build = time.perf_counter() - t0
     assert len(calls) == 3  # Neumann heat, Dirichlet heat, Poisson
-    per_source = []
     for src in [(80.3, 60.6), (60.2, 50.1), (100.7, 70.4)]:
-        t0 = time.perf_counter()
         H.distance(src)
-        per_source.append(time.perf_counter() - t0)
     kps = np.random.default_rng(0).uniform([60, 60], [260, 180], (20, 2))
     heat_polar_patches(frame, kps, solver=H)
-    assert len(calls) == 3  # no new factorisation for 3 + 20 sources
-    # measured: build about 0.25 s, one more source about 0.013 s
-    assert min(per_source) < build / 3
+    assert len(calls) == 3  # no new factorisation for 3 + 20 sources (timing: benchmarks/bench_heat.py)
 
 
 def test_arguments(texture):
     _, frame, mesh = sheet(texture)
-    empty = heat_polar_patches(frame, np.zeros((0, 2)), mesh=mesh)
-    assert len(empty) == 0 and empty.values.shape == (0, 32, 32)
+    with pytest.raises(ValueError, match="empty"):
+        heat_polar_patches(frame, np.zeros((0, 2)), mesh=mesh)
     with pytest.raises(ValueError, match="radius"):
         heat_polar_patches(frame, [[100.0, 100.0]], radius=75.0, mesh=mesh)
     with pytest.raises(ValueError, match="angles"):

@@ -39,7 +39,7 @@ def test_depth_filter_removes_keypoints_on_holes(frame):
 def test_to_cv_round_trip_and_compute(frame):
     kp = detect(frame, n=50)
     cvk = kp.to_cv()
-    assert all(isinstance(k, cv2.KeyPoint) for k in cvk)
+    assert len(cvk) == 50
     back = Keypoints.from_cv(cvk)
     assert np.allclose(back.xy, kp.xy, atol=1e-4) and np.allclose(back.angles, kp.angles, atol=1e-3)
     # GeoBit keeps angles and sizes of Keypoints
@@ -56,3 +56,66 @@ def test_bad_arguments(frame):
         detect(np.zeros((10, 10)))
     with pytest.raises(ValueError, match="mask"):
         detect(frame, mask=np.ones((3, 3), np.uint8))
+
+
+def test_protocol_set_keeps_opencv_duplicates_and_unique_drops_them(frame):
+    proto = detect(frame, n=2048, keypoint_set="protocol")
+    assert len(proto) == 2048 and (np.diff(proto.responses) <= 0).all()
+    positions = np.unique(np.round(proto.xy, 2), axis=0)
+    assert len(positions) < len(proto)  # SIFT returns a position once per dominant orientation
+    unique = detect(frame, n=2048)
+    assert len(np.unique(np.round(unique.xy, 2), axis=0)) == len(unique)
+    # the protocol set is what OpenCV returns for nfeatures=2048, in decreasing response
+    raw = cv2.SIFT_create(nfeatures=2048, contrastThreshold=0.004).detect(
+        np.clip(np.rint(frame.image * 255), 0, 255).astype(np.uint8), None)
+    assert sorted(k.response for k in raw) == sorted(proto.responses.tolist())
+    with pytest.raises(ValueError, match="keypoint_set"):
+        detect(frame, keypoint_set="all")
+
+
+@pytest.mark.parametrize("form", ["array", "list", "cv2", "Keypoints"])
+def test_every_stage_takes_every_keypoint_form(frame, form):
+    """One normaliser: polar patches, GeoBit, the OpenCV baselines and the heat path give the same
+    result for an (N, 2) array, a list of pairs, cv2.KeyPoints and a Keypoints object."""
+    from geofeat.descriptors import make_descriptor
+    from geofeat.keypoints import as_keypoints
+
+    kps = detect(frame, n=40)
+    given = {"array": kps.xy, "list": kps.xy.tolist(), "cv2": kps.to_cv(), "Keypoints": kps}[form]
+    assert np.allclose(as_keypoints(given).xy, kps.xy, atol=1e-4)
+    reference = geofeat.polar_patches(frame, kps.xy)
+    patches = geofeat.polar_patches(frame, given)
+    assert len(patches) == 40 and np.allclose(patches.values, reference.values, atol=1e-4)
+    f = make_descriptor("geobit").compute(frame, given)
+    assert len(f) == 40 and f.valid.sum() == reference.valid.sum()
+    orb = make_descriptor("orb").compute(frame, given)
+    assert len(orb) == 40 and orb.valid.any()
+    small = geofeat.RGBDFrame(frame.image[200:280, 280:380], frame.depth[200:280, 280:380], frame.K)
+    xy = np.array([[40.2, 30.7], [55.1, 41.3]])
+    forms = {"array": xy, "list": xy.tolist(), "cv2": [cv2.KeyPoint(x, y, 8.0) for x, y in xy],
+             "Keypoints": geofeat.Keypoints(xy, np.zeros(2), np.full(2, 8.0), np.zeros(2))}
+    heat = geofeat.heat_polar_patches(small, forms[form], radius=0.02)
+    assert len(heat) == 2 and np.allclose(heat.keypoints, xy)
+
+
+def test_keypoint_errors_name_the_argument(frame):
+    from geofeat.keypoints import as_keypoints
+
+    with pytest.raises(ValueError, match="keypoints: the keypoint set is empty"):
+        geofeat.GeoBit().compute(frame, np.zeros((0, 2)))
+    with pytest.raises(ValueError, match=r"keypoints: expected shape \(N, 2\)"):
+        geofeat.polar_patches(frame, np.zeros((5, 3)))
+    with pytest.raises(ValueError, match=r"keypoints: expected shape \(N, 2\)"):
+        as_keypoints([1.0, 2.0, 3.0])
+    with pytest.raises(TypeError, match="keypoints"):
+        as_keypoints("12,3")
+    with pytest.raises(ValueError, match="off the 640x480 image"):
+        geofeat.make_descriptor("sift").compute(frame, [[700.0, 10.0]])
+
+
+def test_geopatch_is_a_lazy_top_level_name():
+    import subprocess
+    import sys
+
+    code = "import sys, geofeat; assert 'torch' not in sys.modules; g = geofeat.GeoPatch; assert 'torch' in sys.modules"
+    subprocess.run([sys.executable, "-c", code], check=True)

@@ -172,8 +172,8 @@ def test_bad_keypoints_and_radius():
         geofeat.polar_patches(frame, np.array([[10.0, 10.0]]), radius=75.0)
     with pytest.raises(ValueError, match="mesh"):
         geofeat.polar_patches(frame, np.array([[10.0, 10.0]]), mesh=geofeat.build_mesh(plane_frame((60, 80))))
-    empty = geofeat.polar_patches(frame, np.zeros((0, 2)))
-    assert empty.values.shape == (0, 32, 32) and empty.valid.shape == (0,)
+    with pytest.raises(ValueError, match="keypoints: the keypoint set is empty"):
+        geofeat.polar_patches(frame, np.zeros((0, 2)))
 
 
 def _distance_to_mesh(mesh, points):

@@ -71,16 +71,6 @@ class Features:
     def __len__(self) -> int:
         return int(self.keypoints.shape[0])
 
-    def subset(self, index) -> "Features":
-        """The features selected by a boolean mask or an integer index array."""
-        return Features(
-            self.keypoints[index],
-            self.descriptors[index],
-            self.valid[index],
-            None if self.angles is None else self.angles[index],
-            None if self.sizes is None else self.sizes[index],
-        )
-
 
 @dataclass
 class Matches:

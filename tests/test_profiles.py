@@ -1,0 +1,82 @@
+"""Depth profiles: the noise statistic, the automatic choice, and where a profile can be named."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import geofeat
+from geofeat.depth import PROFILES, check_profile, depth_noise, depth_profile, resolve_depth_config
+from geofeat.io import read_sequence, write_frame, write_intrinsics
+from geofeat.sim.noise import kinect_depth_noise
+from surfaces import K_VGA, sheet_pair
+
+
+def _sphere_cap(z0: float = 0.9, radius: float = 0.12, shape=(240, 320)) -> np.ndarray:
+    """Depth (metres) of a sphere of `radius` bulging towards a camera with K_VGA/2, on a plane at z0."""
+    H, W = shape
+    fx, cx, cy = K_VGA[0, 0] / 2, W / 2, H / 2
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    x, y = (u - cx) / fx, (v - cy) / fx
+    # ray (x, y, 1) t hits the sphere centred at (0, 0, z0) when |t r - c|^2 = radius^2
+    a = x**2 + y**2 + 1
+    disc = z0**2 - a * (z0**2 - radius**2)
+    t = np.where(disc > 0, (z0 - np.sqrt(np.maximum(disc, 0))) / a, z0)
+    return t.astype(np.float64), np.array([[fx, 0, cx], [0, fx, cy], [0, 0, 1.0]])
+
+
+def test_noise_statistic_ignores_curvature_and_measures_noise():
+    depth, K = _sphere_cap()
+    clean = depth_noise(depth, K)
+    assert clean.slope_noise < 0.02 and clean.windows > 50_000  # a smooth curved surface is not noise
+    rng = np.random.default_rng(0)
+    for sigma in (0.0005, 0.002):
+        noisy = depth + rng.normal(0, sigma, depth.shape)
+        footprint = np.median(depth) / K[0, 0]
+        measured = depth_noise(noisy, K).slope_noise
+        assert measured == pytest.approx(sigma / footprint, rel=0.2), (sigma, measured)
+        assert depth_noise(noisy, K).relative_noise == pytest.approx(sigma / np.median(depth), rel=0.2)
+
+
+def test_auto_picks_kinect_on_the_real_frame_and_clean_on_clean_depth():
+    kinect = geofeat.read_demo_frame()
+    assert depth_profile(kinect) == "kinect"
+    flat, bent, *_ = sheet_pair(bend_radius=0.1)
+    assert depth_profile(bent) == "clean"
+    # the same bent sheet with the simulator's Kinect noise model
+    cos_view = np.ones_like(bent.depth)
+    noisy = kinect_depth_noise(bent.depth, cos_view, np.random.default_rng(0), n_blobs=0)
+    assert depth_profile(geofeat.RGBDFrame(bent.image, noisy, bent.K)) == "kinect"
+    # millimetre-quantised clean depth (16-bit PNGs) still counts as clean at 1 m
+    quantised = np.round(bent.depth * 1000) / 1000
+    assert depth_profile(geofeat.RGBDFrame(bent.image, quantised.astype(np.float32), bent.K)) == "clean"
+
+
+def test_auto_default_equals_the_profile_it_picks():
+    _, bent, _, sheet = sheet_pair(bend_radius=0.1)
+    xy = np.array([[300.0, 240.0], [340.5, 250.2]])
+    auto = geofeat.polar_patches(bent, xy)
+    clean = geofeat.polar_patches(bent, xy, depth_config="clean")
+    kinect = geofeat.polar_patches(bent, xy, depth_config="kinect")
+    assert np.array_equal(auto.values, clean.values)
+    assert not np.allclose(kinect.values, clean.values)  # the profiles really differ
+    assert resolve_depth_config("kinect") == PROFILES["kinect"] and PROFILES["clean"].mesh_scale == 1.0
+
+
+def test_unknown_profiles_are_clear_errors(tmp_path):
+    with pytest.raises(ValueError, match="depth_profile: expected one of auto, kinect, clean"):
+        check_profile("smooth")
+    with pytest.raises(ValueError, match="depth_config"):
+        geofeat.GeoBit(depth_config="kinnect")
+    with pytest.raises(ValueError, match="depth_config.*auto.*frame"):
+        resolve_depth_config("auto")
+    frame = geofeat.read_demo_frame()
+    write_intrinsics(tmp_path / "intrinsics.xml", frame.K)
+    write_frame(tmp_path, "a-ref", frame.color, frame.depth)
+    (tmp_path / "geofeat.json").write_text(json.dumps({"depth_profile": "noisy"}))
+    with pytest.raises(ValueError, match="geofeat.json: depth_profile"):
+        read_sequence(tmp_path)
+    (tmp_path / "geofeat.json").write_text(json.dumps({"depth_profile": "clean"}))
+    assert read_sequence(tmp_path).depth_profile == "clean"
