@@ -5,7 +5,7 @@
 """
 
 from .cloth import Cloth, ClothConfig
-from .groundtruth import correspondences, has_ground_truth, map_points
+from ..truth import correspondences, has_ground_truth, map_points
 from .render import RenderOutput, render
 from .scenes import SCENARIOS, ClothScene, default_intrinsics
 from .textures import packaged_texture_dir, procedural_texture

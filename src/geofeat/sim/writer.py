@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 from ..io import write_intrinsics, write_landmarks
-from .groundtruth import GT_JSON, GT_SUFFIX, FrameTruth, map_points
+from ..truth import GT_JSON, GT_SUFFIX, FrameTruth, map_points
 from .scenes import SCENARIOS, ClothScene, SimFrame
 from .textures import choose_texture
 

@@ -1,4 +1,5 @@
-"""Exact dense ground truth of simulated sequences: pixel correspondences between any two frames.
+"""Exact dense ground truth of simulated sequences (written by `geofeat.sim`, read by `geofeat.io`):
+pixel correspondences between any two frames.
 
 Per frame the simulator stores `<name>-gt.npz`:
     uv        (H, W, 2) float32 surface coordinate (u, v) of the cloth seen at each pixel centre,
