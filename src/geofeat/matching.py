@@ -40,6 +40,8 @@ _S2 = np.uint64(2)
 _S4 = np.uint64(4)
 _S56 = np.uint64(56)
 _BIG = np.uint64(1 << 62)
+#: Rotations per vector in the min-over-rotations kernel (GeoBit has 16).
+_LANES = 16
 
 
 @njit(inline="always", cache=True)
@@ -146,6 +148,84 @@ def _hamming_nn8(q, t, valid0, valid1, n_chunks, want_cols, best_d, best_j, seco
             best_j[i] = bj
 
 
+@njit(inline="always", cache=True)
+def _pc4(q0, q1, q2, q3, t, j, w, k):
+    """Bits set in (q0, .., q3) XOR words w, .., w + 3 of target j at rotation k; t is (N1, 8, R)."""
+    return (_popcount64(q0 ^ t[j, w, k]) + _popcount64(q1 ^ t[j, w + 1, k])
+            + _popcount64(q2 ^ t[j, w + 2, k]) + _popcount64(q3 ^ t[j, w + 3, k]))
+
+
+@njit(parallel=True, cache=True)
+def _rot_nn8(q, t, valid0, valid1, n_chunks, block, need_second, want_cols, best_d, best_j, second_d,
+             col_d, col_i):
+    """Nearest neighbours under min-over-rotations Hamming distance of 512-bit descriptors (8 words,
+    shorter ones zero padded), with exact pruning.
+
+    q: (N0, 8) uint64 query words (rotation 0), kept in registers; t: (N1, 8, 16) uint64 target
+    words, rotations last (16 = `_LANES`; fewer are padded by repeating the last one, which leaves
+    the minimum unchanged), so that the distances of a pair to the 16 rotations are one vector of
+    popcounts per word (AVX-512 VPOPCNTQ where the CPU has it). Queries are split into `n_chunks`
+    contiguous chunks (one thread each); a chunk walks the targets in blocks of `block`, which stay in cache while every
+    query of the chunk visits them.
+
+    Pruning (early abandon): partial sums over the first 4 words only grow, so once every
+    rotation's partial sum reaches the bound of the pair, its minimum cannot change anything and the
+    pair is dropped. The bound is the query's best distance so far (its second best with
+    `need_second`, for the ratio test) and, with `want_cols`, at least the target's best distance
+    from this chunk's queries so far. Updates use strict '<', so skipping pairs at the bound leaves
+    every output identical to brute force, ties included (lowest index wins on both sides).
+
+    Outputs as `_hamming_nn`; second_d is exact only with need_second.
+    """
+    n0 = q.shape[0]
+    n1, _, R = t.shape
+    for c in prange(n_chunks):
+        i_start = (c * n0) // n_chunks
+        i_stop = ((c + 1) * n0) // n_chunks
+        for i in range(i_start, i_stop):
+            best_d[i] = _BIG
+            second_d[i] = _BIG
+            best_j[i] = -1
+        for j_start in range(0, n1, block):
+            j_stop = min(n1, j_start + block)
+            for i in range(i_start, i_stop):
+                if not valid0[i]:
+                    continue
+                q0, q1, q2, q3 = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
+                q4, q5, q6, q7 = q[i, 4], q[i, 5], q[i, 6], q[i, 7]
+                best = best_d[i]
+                second = second_d[i]
+                bj = best_j[i]
+                for j in range(j_start, j_stop):
+                    if not valid1[j]:
+                        continue
+                    bound = second if need_second else best
+                    if want_cols and col_d[c, j] > bound:
+                        bound = col_d[c, j]
+                    m = _BIG
+                    for k in range(R):  # over rotations: one vector per word
+                        m = min(m, _pc4(q0, q1, q2, q3, t, j, 0, k))
+                    if m >= bound:
+                        continue  # the exact distance is >= m >= bound: changes nothing
+                    m = _BIG
+                    for k in range(R):
+                        m = min(m, _pc4(q0, q1, q2, q3, t, j, 0, k) + _pc4(q4, q5, q6, q7, t, j, 4, k))
+                    if m >= bound:
+                        continue
+                    if m < best:
+                        second = best
+                        best = m
+                        bj = j
+                    elif m < second:
+                        second = m
+                    if want_cols and m < col_d[c, j]:
+                        col_d[c, j] = m
+                        col_i[c, j] = i
+                best_d[i] = best
+                second_d[i] = second
+                best_j[i] = bj
+
+
 def _as_words(desc: np.ndarray) -> np.ndarray:
     """(N, ..., B) uint8 -> (N, ..., ceil(B / 8)) uint64 (zero padded; bit counts are unchanged)."""
     B = desc.shape[-1]
@@ -155,14 +235,22 @@ def _as_words(desc: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(desc).view(np.uint64)
 
 
-def _hamming_search(d0, d1, valid0, valid1, want_cols):
-    """d0, d1: (N, R, B) uint8. Returns best_d, best_j, second_d (N0,), col_j (N1,) or None."""
+def _hamming_search(d0, d1, valid0, valid1, want_cols, need_second=True):
+    """d0, d1: (N, R, B) uint8. Returns best_d, best_j, second_d (N0,), col_j (N1,) or None;
+    second_d is exact only with need_second (R > 1 prunes against the best distance otherwise)."""
     words = _as_words(d1)  # (N1, R, W)
-    n0, n1, W = d0.shape[0], d1.shape[0], words.shape[2]
+    n0, n1, R, W = d0.shape[0], d1.shape[0], words.shape[1], words.shape[2]
     q = np.ascontiguousarray(_as_words(d0[:, 0, :]))  # (N0, W)
-    if W <= 8:  # pad to 8 words for the unrolled kernel (zero words add nothing)
+    rotations = 1 < R <= _LANES and W <= 8
+    if W <= 8:  # pad to 8 words for the unrolled kernels (zero words add nothing)
         q = np.concatenate([q, np.zeros((n0, 8 - W), np.uint64)], axis=1)
-        t = np.concatenate([words, np.zeros((n1, words.shape[1], 8 - W), np.uint64)], axis=2)
+        words = np.concatenate([words, np.zeros((n1, R, 8 - W), np.uint64)], axis=2)
+    if rotations:
+        pad = (-R) % _LANES  # repeat the last rotation: the minimum over rotations is unchanged
+        t = np.concatenate([words, np.repeat(words[:, -1:], pad, axis=1)], axis=1) if pad else words
+        t = np.ascontiguousarray(t.transpose(0, 2, 1))  # (N1, 8, 16)
+    elif W <= 8:
+        t = words  # (N1, 1, 8)
         kernel = _hamming_nn8
     else:
         t = np.ascontiguousarray(words.transpose(0, 2, 1))  # (N1, W, R)
@@ -174,7 +262,13 @@ def _hamming_search(d0, d1, valid0, valid1, want_cols):
     shape = (n_chunks, n1) if want_cols else (1, 1)
     col_d = np.full(shape, _BIG, np.uint64)
     col_i = np.full(shape, -1, np.int64)
-    kernel(q, t, valid0, valid1, n_chunks, bool(want_cols), best_d, best_j, second_d, col_d, col_i)
+    if rotations:
+        # a block of targets stays in the L2 cache: about 128 KiB of words
+        block = max(16, (128 * 1024) // t[0].nbytes)
+        _rot_nn8(q, t, valid0, valid1, n_chunks, block, bool(need_second), bool(want_cols), best_d, best_j,
+                second_d, col_d, col_i)
+    else:
+        kernel(q, t, valid0, valid1, n_chunks, bool(want_cols), best_d, best_j, second_d, col_d, col_i)
     bd = best_d.astype(np.float64)
     sd = second_d.astype(np.float64)
     bd[best_d == _BIG] = np.inf
@@ -307,7 +401,7 @@ def match(
     else:
         if metric == "hamming":
             d0, d1 = d0[:, None, :], d1[:, None, :]
-        best_d, best_j, second_d, col_j = _hamming_search(d0, d1, valid0, valid1, mutual)
+        best_d, best_j, second_d, col_j = _hamming_search(d0, d1, valid0, valid1, mutual, ratio is not None)
 
     keep = best_j >= 0
     if ratio is not None:
