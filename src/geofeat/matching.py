@@ -155,25 +155,38 @@ def _pc4(q0, q1, q2, q3, t, j, w, k):
             + _popcount64(q2 ^ t[j, w + 2, k]) + _popcount64(q3 ^ t[j, w + 3, k]))
 
 
+@njit(inline="always", cache=True)
+def _futile(lb, j, best, second, bj, need_second, want_cols, col):
+    """True when a pair (query, target j) whose distance is at least `lb` cannot change any output:
+    not the query's nearest neighbour under the order (distance, target index), not below its second
+    best distance (when `need_second`), and not below `col`, the target's best distance so far
+    (when `want_cols`; queries arrive in ascending order, so a tie never wins there)."""
+    bound = second if need_second else best
+    if lb < bound or (lb == bound and lb == best and j < bj):
+        return False
+    return (not want_cols) or lb >= col
+
+
 @njit(parallel=True, cache=True)
 def _rot_nn8(q, t, valid0, valid1, n_chunks, block, need_second, want_cols, best_d, best_j, second_d,
              col_d, col_i):
     """Nearest neighbours under min-over-rotations Hamming distance of 512-bit descriptors (8 words,
-    shorter ones zero padded), with exact pruning.
+    shorter ones zero padded), exact, with pruning.
 
-    q: (N0, 8) uint64 query words (rotation 0), kept in registers; t: (N1, 8, 16) uint64 target
-    words, rotations last (16 = `_LANES`; fewer are padded by repeating the last one, which leaves
-    the minimum unchanged), so that the distances of a pair to the 16 rotations are one vector of
+    q: (N0, 8) uint64 query words (rotation 0), kept in registers; t: (N1, 8, R) uint64 target
+    words, rotations last, so that the distances of a pair to its R rotations are one vector of
     popcounts per word (AVX-512 VPOPCNTQ where the CPU has it). Queries are split into `n_chunks`
-    contiguous chunks (one thread each); a chunk walks the targets in blocks of `block`, which stay in cache while every
-    query of the chunk visits them.
+    contiguous chunks (one thread each); a chunk walks the targets in blocks of `block`, which stay
+    in cache while every query of the chunk visits them.
 
-    Pruning (early abandon): partial sums over the first 4 words only grow, so once every
-    rotation's partial sum reaches the bound of the pair, its minimum cannot change anything and the
-    pair is dropped. The bound is the query's best distance so far (its second best with
-    `need_second`, for the ratio test) and, with `want_cols`, at least the target's best distance
-    from this chunk's queries so far. Updates use strict '<', so skipping pairs at the bound leaves
-    every output identical to brute force, ties included (lowest index wins on both sides).
+    Pruning: distances over the first words only grow with more words, so they bound the exact
+    distance from below. For every query and block: (1) the 2-word bounds (128 bits) of the whole
+    block; (2) the exact distance to the target with the smallest bound first (usually the true
+    match: a tight bound early); (3) the other targets in order, each dropped as soon as its 2-word,
+    then 4-word bound shows that it cannot change any output (`_futile`). The query's nearest
+    neighbour is kept under the order (distance, target index), so the visiting order does not
+    matter and every output is identical to brute force, ties included (lowest index wins on both
+    sides).
 
     Outputs as `_hamming_nn`; second_d is exact only with need_second.
     """
@@ -182,6 +195,7 @@ def _rot_nn8(q, t, valid0, valid1, n_chunks, block, need_second, want_cols, best
     for c in prange(n_chunks):
         i_start = (c * n0) // n_chunks
         i_stop = ((c + 1) * n0) // n_chunks
+        lb = np.empty(block, np.uint64)
         for i in range(i_start, i_stop):
             best_d[i] = _BIG
             second_d[i] = _BIG
@@ -196,29 +210,45 @@ def _rot_nn8(q, t, valid0, valid1, n_chunks, block, need_second, want_cols, best
                 best = best_d[i]
                 second = second_d[i]
                 bj = best_j[i]
+                # (1) 2-word lower bounds of the block and the target with the smallest one
+                seed = -1
+                low = _BIG
                 for j in range(j_start, j_stop):
-                    if not valid1[j]:
-                        continue
-                    bound = second if need_second else best
-                    if want_cols and col_d[c, j] > bound:
-                        bound = col_d[c, j]
                     m = _BIG
                     for k in range(R):  # over rotations: one vector per word
+                        m = min(m, _popcount64(q0 ^ t[j, 0, k]) + _popcount64(q1 ^ t[j, 1, k]))
+                    lb[j - j_start] = m
+                    if valid1[j] and m < low:
+                        low = m
+                        seed = j
+                # (2) the seed, then (3) the others in order
+                for step in range(-1, j_stop - j_start):
+                    if step < 0:
+                        j = seed
+                        if j < 0:
+                            continue
+                    else:
+                        j = j_start + step
+                        if j == seed or not valid1[j]:
+                            continue
+                    col = col_d[c, j] if want_cols else _BIG
+                    if _futile(lb[j - j_start], j, best, second, bj, need_second, want_cols, col):
+                        continue
+                    m = _BIG
+                    for k in range(R):
                         m = min(m, _pc4(q0, q1, q2, q3, t, j, 0, k))
-                    if m >= bound:
-                        continue  # the exact distance is >= m >= bound: changes nothing
+                    if _futile(m, j, best, second, bj, need_second, want_cols, col):
+                        continue
                     m = _BIG
                     for k in range(R):
                         m = min(m, _pc4(q0, q1, q2, q3, t, j, 0, k) + _pc4(q4, q5, q6, q7, t, j, 4, k))
-                    if m >= bound:
-                        continue
-                    if m < best:
+                    if m < best or (m == best and j < bj):
                         second = best
                         best = m
                         bj = j
                     elif m < second:
                         second = m
-                    if want_cols and m < col_d[c, j]:
+                    if want_cols and m < col:
                         col_d[c, j] = m
                         col_i[c, j] = i
                 best_d[i] = best
