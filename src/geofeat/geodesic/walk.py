@@ -166,6 +166,22 @@ def _emit(points, frames, x, y, t, qx, qy, K, samples, coords, k, r, a):
     coords[k, r, a, 1] = K[1, 1] * Y / Z + K[1, 2]
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _edge_hit(frames, x, y, t, e, px, py, dx, dy):
+    """Where the line (px, py) + u (dx, dy) meets local edge e of face (x, y, t): (u, s, ex, ey, ax, ay)
+    with s the position along the edge from its first end (a) to its second (a + (ex, ey));
+    u = s = NaN when parallel."""
+    i0, i1 = _edge_vertices(e)
+    ax, ay = _local(frames, x, y, t, i0)
+    bx, by = _local(frames, x, y, t, i1)
+    ex, ey = bx - ax, by - ay
+    denom = dx * ey - dy * ex
+    if abs(denom) < 1e-300:
+        return np.nan, np.nan, ex, ey, ax, ay
+    wx, wy = ax - px, ay - py
+    return (wx * ey - wy * ex) / denom, (wx * dy - wy * dx) / denom, ex, ey, ax, ay
+
+
 @njit(cache=True, error_model="numpy")
 def _walk_one(points, face_ok, frames, edges, x, y, t, px, py, dx, dy, ring_step, n_rings, max_crossings,
               K, samples, coords, k, a):
@@ -184,39 +200,30 @@ def _walk_one(points, face_ok, frames, edges, x, y, t, px, py, dx, dy, ring_step
     ring = 0
     entry = -1
     for _ in range(max_crossings):
-        # exit edge and distance to it
-        exit_edge = -1
-        d = np.inf
-        s = 0.0
-        if entry < 0:
-            candidates = 3
-        else:
-            candidates = 2
-        for c in range(candidates):
-            if entry < 0:
-                e = c
-            else:
-                e = (entry + 1 + c) % 3
-            i0, i1 = _edge_vertices(e)
-            ax, ay = _local(frames, x, y, t, i0)
-            bx, by = _local(frames, x, y, t, i1)
-            ex, ey = bx - ax, by - ay
-            denom = dx * ey - dy * ex
-            if abs(denom) < 1e-300:
-                continue
-            wx, wy = ax - px, ay - py
-            de = (wx * ey - wy * ex) / denom
-            se = (wx * dy - wy * dx) / denom
-            if entry < 0:
+        # exit edge, distance d to it and position s along it
+        if entry < 0:  # start face: the nearest edge ahead of the ray
+            exit_edge = -1
+            d = np.inf
+            s = 0.0
+            for e in range(3):
+                de, se, ex, ey, ax, ay = _edge_hit(frames, x, y, t, e, px, py, dx, dy)
                 if de > 1e-15 and -1e-9 <= se <= 1.0 + 1e-9 and de < d:
                     exit_edge, d, s = e, de, se
-            else:
-                # of the two candidate edges the ray leaves through the one it meets inside
-                inside = -1e-12 <= se <= 1.0 + 1e-12
-                if exit_edge < 0 or (inside and not (-1e-12 <= s <= 1.0 + 1e-12)):
-                    exit_edge, d, s = e, de, se
-        if exit_edge < 0:
-            break
+                    fx, fy, gx, gy = ex, ey, ax, ay
+            if exit_edge < 0:
+                break
+        else:
+            # of the two other edges the ray leaves through the one it meets inside (the first
+            # when both or neither are met inside); the second is only looked at when needed
+            exit_edge = (entry + 1) % 3
+            d, s, fx, fy, gx, gy = _edge_hit(frames, x, y, t, exit_edge, px, py, dx, dy)
+            if not (-1e-12 <= s <= 1.0 + 1e-12):  # also when parallel (NaN)
+                e = (entry + 2) % 3
+                de, se, ex, ey, ax, ay = _edge_hit(frames, x, y, t, e, px, py, dx, dy)
+                if -1e-12 <= se <= 1.0 + 1e-12 or np.isnan(s):
+                    exit_edge, d, s, fx, fy, gx, gy = e, de, se, ex, ey, ax, ay
+                if np.isnan(s):  # parallel to both edges
+                    break
         if d < 0.0:
             d = 0.0
         # emit the rings that lie on this segment
@@ -227,10 +234,7 @@ def _walk_one(points, face_ok, frames, edges, x, y, t, px, py, dx, dy, ring_step
         if ring == n_rings:
             return ring
         s = min(max(s, 0.0), 1.0)
-        i0, i1 = _edge_vertices(exit_edge)
-        ax, ay = _local(frames, x, y, t, i0)
-        bx, by = _local(frames, x, y, t, i1)
-        qx, qy = ax + s * (bx - ax), ay + s * (by - ay)
+        qx, qy = gx + s * fx, gy + s * fy
         length += np.sqrt((qx - px) ** 2 + (qy - py) ** 2)
         px, py = qx, qy
         xn, yn, tn, entry_n = _neighbour(x, y, t, exit_edge)
