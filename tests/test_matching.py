@@ -187,3 +187,23 @@ def real_geobit():
     rolled = frame.rotated90(1)
     gb = GeoBit()
     return gb.compute(frame, detect(frame, 300)), gb.compute(rolled, detect(rolled, 300))
+
+
+@pytest.mark.parametrize("mutual", [False, True])
+@pytest.mark.parametrize("ratio", [None, 0.9])
+@pytest.mark.parametrize("metric,n_rot", [("hamming-rot", 16), ("hamming-rot", 3), ("hamming", 1)])
+def test_matrix_product_path_equals_brute_force(metric, n_rot, mutual, ratio):
+    """The torch matrix-product path (meant for CUDA; run here on the CPU) matches brute force,
+    ties and invalid keypoints included, across several query blocks."""
+    pytest.importorskip("torch")
+    rng = np.random.default_rng(n_rot + 2 * mutual)
+    shape = (n_rot, 64) if metric == "hamming-rot" else (64,)
+    base = rng.integers(0, 256, size=(4, *shape), dtype=np.uint8)
+    f = [Features(rng.random((n, 2)), base[rng.integers(0, 4, n)] ^ (rng.random((n, *shape)) < 0.02).astype(np.uint8),
+                  rng.random(n) < 0.9) for n in (300, 170)]
+    got = match(f[0], f[1], metric=metric, mutual=mutual, ratio=ratio, device="cpu")
+    m, dist = reference_match(f[0], f[1], metric, mutual=mutual, ratio=ratio)
+    assert np.array_equal(got.matches0, m)
+    assert np.array_equal(got.distances0[m >= 0], dist[m >= 0])
+    cpu = match(f[0], f[1], metric=metric, mutual=mutual, ratio=ratio)
+    assert np.array_equal(cpu.matches0, m)

@@ -307,6 +307,66 @@ def _hamming_search(d0, d1, valid0, valid1, want_cols, need_second=True):
     return bd, best_j, sd, col_j
 
 
+def _hamming_search_torch(d0, d1, valid0, valid1, want_cols, device, block: int | None = None):
+    """`_hamming_search` as matrix products on a torch device (meant for CUDA; exact).
+
+    Bits become {0, 1} numbers (float16 on CUDA, float32 elsewhere) and, per query block,
+    Hamming(a, b) = |a| + |b| - 2 a.b for every target rotation at once; dot products of at most
+    B * 8 <= 2048 bits are integers held exactly in float16. Then the minimum over rotations, the
+    nearest and second nearest targets (first index among ties, as `torch.argmin`) and, with
+    want_cols, the nearest query of every target. d0, d1: (N, R, B) uint8.
+    """
+    import torch
+
+    dev = torch.device(device)
+    dtype = torch.float16 if dev.type == "cuda" else torch.float32
+    shifts = torch.arange(7, -1, -1, device=dev, dtype=torch.uint8)
+
+    def bits(d):  # (..., B) uint8 -> (..., 8 B) {0, 1}, unpacked on the device
+        t = torch.from_numpy(np.ascontiguousarray(d)).to(dev)
+        return ((t.unsqueeze(-1) >> shifts) & 1).flatten(-2)
+
+    n0, n1, R = d0.shape[0], d1.shape[0], d1.shape[1]
+    b0 = bits(d0[:, 0])  # (N0, L)
+    b1 = bits(d1).reshape(n1 * R, -1)  # (N1 R, L)
+    c0 = b0.sum(1, dtype=torch.int32)
+    c1 = b1.sum(1, dtype=torch.int32)
+    f1 = b1.to(dtype)
+    big = int(_BIG)
+    v0 = torch.from_numpy(np.asarray(valid0)).to(dev)
+    v1 = torch.from_numpy(np.asarray(valid1)).to(dev)
+    block = block or (1024 if dev.type == "cuda" else 128)
+    best_d = torch.empty(n0, dtype=torch.int64, device=dev)
+    best_j = torch.empty(n0, dtype=torch.int64, device=dev)
+    second_d = torch.empty(n0, dtype=torch.int64, device=dev)
+    col_d = torch.full((n1,), big, dtype=torch.int64, device=dev)
+    col_i = torch.full((n1,), -1, dtype=torch.int64, device=dev)
+    for s in range(0, n0, block):
+        dot = (b0[s:s + block].to(dtype) @ f1.T).round().to(torch.int32)  # (n, N1 R)
+        dist = (c0[s:s + block, None] + c1[None, :] - 2 * dot).reshape(-1, n1, R).amin(2).to(torch.int64)
+        dist.masked_fill_(~v1[None, :], big)
+        dist.masked_fill_(~v0[s:s + block, None], big)
+        j = dist.argmin(1)
+        rows = torch.arange(len(j), device=dev)
+        bd = dist[rows, j]
+        best_d[s:s + block] = bd
+        best_j[s:s + block] = torch.where(bd < big, j, -1)
+        if want_cols:  # strict: an earlier block keeps ties (lowest query index)
+            i = dist.argmin(0)
+            cd = dist[i, torch.arange(n1, device=dev)]
+            better = cd < col_d
+            col_d = torch.where(better, cd, col_d)
+            col_i = torch.where(better, i + s, col_i)
+        dist[rows, j] = big
+        second_d[s:s + block] = dist.amin(1) if n1 > 1 else big
+    bd = best_d.cpu().numpy().astype(np.float64)
+    sd = second_d.cpu().numpy().astype(np.float64)
+    bd[bd >= big] = np.inf
+    sd[sd >= big] = np.inf
+    col_j = col_i.cpu().numpy() if want_cols else None
+    return bd, best_j.cpu().numpy(), sd, col_j
+
+
 def _l2_search(d0, d1, valid0, valid1, want_cols, block: int = 1024):
     """d0 (N0, D), d1 (N1, D) float. Returns best_d, best_j, second_d (N0,), col_j (N1,) or None."""
     dtype = np.float64 if (d0.dtype == np.float64 or d1.dtype == np.float64) else np.float32
@@ -370,6 +430,7 @@ def match(
     metric: str | None = None,
     mutual: bool = False,
     ratio: float | None = None,
+    device: str | None = None,
 ) -> Matches:
     """Match every keypoint of image 0 to its nearest neighbour in image 1.
 
@@ -381,6 +442,8 @@ def match(
             (under the same distance d(i, j)).
         ratio: Lowe's ratio test: keep i -> j only if d(i, j) < ratio * d(i, second nearest).
             A match with no second candidate passes.
+        device: None: the numba kernels on the CPU. A torch device ("cuda", "cuda:1", "cpu"):
+            Hamming metrics as matrix products there (`_hamming_search_torch`; same results).
 
     Returns:
         `Matches` with matches0 (N0,) int64 (-1 = no match) and distances0 (N0,) float64 (bits for
@@ -427,7 +490,10 @@ def match(
     else:
         if metric == "hamming":
             d0, d1 = d0[:, None, :], d1[:, None, :]
-        best_d, best_j, second_d, col_j = _hamming_search(d0, d1, valid0, valid1, mutual, ratio is not None)
+        if device is not None:
+            best_d, best_j, second_d, col_j = _hamming_search_torch(d0, d1, valid0, valid1, mutual, device)
+        else:
+            best_d, best_j, second_d, col_j = _hamming_search(d0, d1, valid0, valid1, mutual, ratio is not None)
 
     keep = best_j >= 0
     if ratio is not None:

@@ -156,7 +156,8 @@ class GeoPatch:
         weights: checkpoint path; None = the weights shipped with geofeat.
         device: "cpu", "cuda", ... (default: CUDA when available).
         radius, depth_config, blur_px: polar patch settings (`geofeat.polar_patches`).
-        batch_size: patches per forward pass (small batches keep activations in cache on CPU).
+        batch_size: patches per forward pass on CPU (small batches keep activations in cache; on
+            CUDA at least 4096 patches go in one pass).
     """
 
     def __init__(self, weights: str | Path | None = None, device: str | None = None,
@@ -184,10 +185,14 @@ class GeoPatch:
         valid = np.ones(n, bool) if valid is None else np.asarray(valid, bool).reshape(n)
         out = np.zeros((n, cfg.dim), np.float32)
         index = np.flatnonzero(valid)
-        x = torch.from_numpy(v[index]).unsqueeze(1)
-        for start in range(0, len(index), self.batch_size):
-            batch = x[start:start + self.batch_size].to(self.device)
-            out[index[start:start + self.batch_size]] = self.net(batch).float().cpu().numpy()
+        if len(index) == 0:
+            return out
+        # one transfer each way: the patches to the device, the descriptors back (on CUDA the
+        # per-batch copies and synchronisations would cost more than the network)
+        x = torch.from_numpy(np.ascontiguousarray(v[index])).to(self.device).unsqueeze(1)
+        batch = self.batch_size if self.device.type == "cpu" else max(self.batch_size, 4096)
+        y = torch.cat([self.net(x[start:start + batch]) for start in range(0, len(index), batch)])
+        out[index] = y.float().cpu().numpy()
         return out
 
     def compute(self, frame: RGBDFrame, keypoints, patches: PolarPatches | None = None,
