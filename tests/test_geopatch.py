@@ -114,3 +114,19 @@ def test_training_is_deterministic_with_a_seed(sheet_patches, tmp_path):
     wb, _ = load_network(tmp_path / "b.pt")
     for (name, pa), (_, pb) in zip(wa.state_dict().items(), wb.state_dict().items()):
         torch.testing.assert_close(pa, pb, rtol=0, atol=0, msg=name)
+
+
+def test_threads_and_batch_size_do_not_change_descriptors():
+    import torch
+
+    rng = np.random.default_rng(3)
+    patches = rng.random((300, 32, 32)).astype(np.float32)
+    valid = rng.random(300) < 0.8
+    before = torch.get_num_threads()
+    ref = GeoPatch(device="cpu").describe(patches, valid)
+    got = GeoPatch(device="cpu", threads=1, batch_size=64).describe(patches, valid)
+    assert torch.get_num_threads() == before  # restored after the call
+    np.testing.assert_allclose(got, ref, atol=1e-5)
+    assert (got[~valid] == 0).all() and np.allclose(np.linalg.norm(got[valid], axis=1), 1, atol=1e-5)
+    with pytest.raises(ValueError, match="threads"):
+        GeoPatch(device="cpu", threads=0)

@@ -158,11 +158,14 @@ class GeoPatch:
         radius, depth_config, blur_px: polar patch settings (`geofeat.polar_patches`).
         batch_size: patches per forward pass on CPU (small batches keep activations in cache; on
             CUDA at least 4096 patches go in one pass).
+        threads: torch CPU threads for `describe` (set for the call, then restored); None keeps
+            torch's setting. On a machine shared with other busy processes 1 thread can be several
+            times faster than 2 (torch's OpenMP threads wait on each other; see BENCHMARKS.md).
     """
 
     def __init__(self, weights: str | Path | None = None, device: str | None = None,
                  radius: float = DEFAULT_RADIUS_M, depth_config: DepthConfig = DepthConfig(),
-                 blur_px: float = SAMPLING_BLUR_PX, batch_size: int = 128) -> None:
+                 blur_px: float = SAMPLING_BLUR_PX, batch_size: int = 128, threads: int | None = None) -> None:
         self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
         net, self.checkpoint = load_network(weights)
         self.net = fuse_batchnorm(net).to(self.device)
@@ -170,6 +173,9 @@ class GeoPatch:
         self.depth_config = depth_config
         self.blur_px = blur_px
         self.batch_size = int(batch_size)
+        if threads is not None and int(threads) < 1:
+            raise ValueError(f"threads: expected a positive number of CPU threads or None, got {threads}")
+        self.threads = None if threads is None else int(threads)
 
     def __repr__(self) -> str:
         return f"GeoPatch(config={self.net.config}, device={self.device}, radius={self.radius})"
@@ -191,7 +197,13 @@ class GeoPatch:
         # per-batch copies and synchronisations would cost more than the network)
         x = torch.from_numpy(np.ascontiguousarray(v[index])).to(self.device).unsqueeze(1)
         batch = self.batch_size if self.device.type == "cpu" else max(self.batch_size, 4096)
-        y = torch.cat([self.net(x[start:start + batch]) for start in range(0, len(index), batch)])
+        before = torch.get_num_threads()
+        if self.threads is not None:
+            torch.set_num_threads(self.threads)
+        try:
+            y = torch.cat([self.net(x[start:start + batch]) for start in range(0, len(index), batch)])
+        finally:
+            torch.set_num_threads(before)
         out[index] = y.float().cpu().numpy()
         return out
 
