@@ -1,6 +1,6 @@
 """GeoBit extraction and matching speed against OpenCV's brute-force Hamming matcher.
 
-Run: python benchmarks/bench_matching.py [--repeats 7]
+Run: python benchmarks/bench_matching.py [--repeats 7] [--threads N]
 
 Prints, in one run (median of the repeats, after a warm-up call that compiles the numba kernels):
 - GeoBit `describe` time for 2048 keypoints given their polar patches (16 rotations x 512 tests);
@@ -53,7 +53,12 @@ def keypoints(frame, rng) -> np.ndarray:
 def main() -> None:
     parser = argparse.ArgumentParser(description="GeoBit / matching speed")
     parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--threads", type=int, default=None,
+                        help="numba and OpenCV threads (default: their own defaults)")
     args = parser.parse_args()
+    if args.threads:
+        numba.set_num_threads(args.threads)
+        cv2.setNumThreads(args.threads)
     rng = np.random.default_rng(0)
     cpu = platform.processor() or platform.machine()
     try:

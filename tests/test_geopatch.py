@@ -143,3 +143,19 @@ def test_bent_and_rolled_sheet_matches_with_shipped_weights_not_random_ones():
         random = GeoPatch(device="cpu")
         random.net = fuse_batchnorm(GeoPatchNet(shipped.net.config).eval())
         assert _nn_accuracy(random, a.values[ok], rolled) < 0.8
+
+
+def test_threads_and_batch_size_do_not_change_descriptors():
+    import torch
+
+    rng = np.random.default_rng(3)
+    patches = rng.random((300, 32, 32)).astype(np.float32)
+    valid = rng.random(300) < 0.8
+    before = torch.get_num_threads()
+    ref = GeoPatch(device="cpu").describe(patches, valid)
+    got = GeoPatch(device="cpu", threads=1, batch_size=64).describe(patches, valid)
+    assert torch.get_num_threads() == before  # restored after the call
+    np.testing.assert_allclose(got, ref, atol=1e-5)
+    assert (got[~valid] == 0).all() and np.allclose(np.linalg.norm(got[valid], axis=1), 1, atol=1e-5)
+    with pytest.raises(ValueError, match="threads"):
+        GeoPatch(device="cpu", threads=0)

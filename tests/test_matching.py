@@ -140,3 +140,70 @@ def test_mismatched_descriptors_raise():
         match(np.zeros((2, 8), np.uint8), np.zeros((2, 8), np.uint8), metric="hamming-rot")
     with pytest.raises(ValueError, match="ratio"):
         match(np.zeros((2, 8), np.uint8), np.zeros((2, 8), np.uint8), ratio=1.5)
+
+
+@pytest.mark.parametrize("mutual", [False, True])
+@pytest.mark.parametrize("ratio", [None, 0.9])
+@pytest.mark.parametrize("n_rot", [3, 16])
+def test_pruned_rotation_kernel_equals_brute_force(mutual, ratio, n_rot):
+    """Several target blocks, many exact ties (descriptors from a few patterns with a few bits
+    flipped), invalid keypoints: the pruned kernel gives exactly the brute-force matches."""
+    rng = np.random.default_rng(n_rot + 10 * mutual)
+    base = rng.integers(0, 256, size=(5, n_rot, 64), dtype=np.uint8)
+
+    def make(n):
+        desc = base[rng.integers(0, 5, n)].copy()
+        flips = rng.integers(0, 64, size=(n, 3))
+        for b in range(3):
+            desc[np.arange(n), rng.integers(0, n_rot, n), flips[:, b]] ^= np.uint8(1 << b)
+        return Features(rng.random((n, 2)), desc, rng.random(n) < 0.9)
+
+    f0, f1 = make(150), make(400)  # 400 targets: more than one cache block of 16-rotation targets
+    got = match(f0, f1, mutual=mutual, ratio=ratio)
+    m, dist = reference_match(f0, f1, "hamming-rot", mutual=mutual, ratio=ratio)
+    assert np.array_equal(got.matches0, m)
+    assert np.array_equal(got.distances0[m >= 0], dist[m >= 0])
+
+
+@pytest.mark.parametrize("mutual", [False, True])
+@pytest.mark.parametrize("ratio", [None, 0.8])
+def test_rotation_matching_equals_brute_force_on_real_geobit(real_geobit, mutual, ratio):
+    f0, f1 = real_geobit
+    got = match(f0, f1, mutual=mutual, ratio=ratio)
+    m, dist = reference_match(f0, f1, "hamming-rot", mutual=mutual, ratio=ratio)
+    assert (m >= 0).sum() > 0.3 * len(m)  # a real matching problem, not all rejected
+    assert np.array_equal(got.matches0, m)
+    assert np.array_equal(got.distances0[m >= 0], dist[m >= 0])
+
+
+@pytest.fixture(scope="module")
+def real_geobit():
+    """GeoBit features of 300 SIFT keypoints of the Kinect frame and of its 90-degree roll."""
+    import geofeat
+    from geofeat.descriptors.geobit import GeoBit
+    from geofeat.keypoints import detect
+
+    frame = geofeat.read_demo_frame()
+    rolled = frame.rotated90(1)
+    gb = GeoBit()
+    return gb.compute(frame, detect(frame, 300)), gb.compute(rolled, detect(rolled, 300))
+
+
+@pytest.mark.parametrize("mutual", [False, True])
+@pytest.mark.parametrize("ratio", [None, 0.9])
+@pytest.mark.parametrize("metric,n_rot", [("hamming-rot", 16), ("hamming-rot", 3), ("hamming", 1)])
+def test_matrix_product_path_equals_brute_force(metric, n_rot, mutual, ratio):
+    """The torch matrix-product path (meant for CUDA; run here on the CPU) matches brute force,
+    ties and invalid keypoints included, across several query blocks."""
+    pytest.importorskip("torch")
+    rng = np.random.default_rng(n_rot + 2 * mutual)
+    shape = (n_rot, 64) if metric == "hamming-rot" else (64,)
+    base = rng.integers(0, 256, size=(4, *shape), dtype=np.uint8)
+    f = [Features(rng.random((n, 2)), base[rng.integers(0, 4, n)] ^ (rng.random((n, *shape)) < 0.02).astype(np.uint8),
+                  rng.random(n) < 0.9) for n in (300, 170)]
+    got = match(f[0], f[1], metric=metric, mutual=mutual, ratio=ratio, device="cpu")
+    m, dist = reference_match(f[0], f[1], metric, mutual=mutual, ratio=ratio)
+    assert np.array_equal(got.matches0, m)
+    assert np.array_equal(got.distances0[m >= 0], dist[m >= 0])
+    cpu = match(f[0], f[1], metric=metric, mutual=mutual, ratio=ratio)
+    assert np.array_equal(cpu.matches0, m)

@@ -252,3 +252,37 @@ print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
     assert out.returncode == 0, out.stderr
     peak_kb = int(out.stdout.strip().splitlines()[-1])
     assert peak_kb < 2 * 1024 * 1024, f"peak RSS {peak_kb / 1024:.0f} MB"
+
+
+def test_mesh_cached_on_frame_per_depth_config():
+    from geofeat.geodesic.mesh import build_mesh, frame_mesh
+
+    frame = geofeat.read_demo_frame()
+    _, kps, visible = read_landmarks(demo_data_dir() / "cloud_1.csv")
+    kps = kps[visible]
+    first = frame_mesh(frame)
+    assert frame_mesh(frame) is first  # a second call on the same frame reuses the mesh
+    P = geofeat.polar_patches(frame, kps)
+    assert frame_mesh(frame) is first
+    # the cached mesh gives exactly the patches of a freshly built one
+    Q = geofeat.polar_patches(frame, kps, mesh=build_mesh(frame))
+    np.testing.assert_array_equal(P.values, Q.values)
+    np.testing.assert_array_equal(P.coords, Q.coords)
+    # another depth config has its own mesh; the first one stays cached
+    clean = DepthConfig(smooth_levels=0, mesh_scale=1.0)
+    other = frame_mesh(frame, clean)
+    assert other is not first and other.points.shape[0] == 2 * first.points.shape[0]
+    assert frame_mesh(frame) is first and frame_mesh(frame, clean) is other
+    # editing the depth in place invalidates the cache
+    frame.depth[200:260, 300:360] *= 1.1
+    edited = frame_mesh(frame)
+    assert edited is not first
+    assert not np.allclose(edited.points, first.points, equal_nan=True)
+    # a different frame object never sees another frame's mesh
+    assert frame_mesh(geofeat.read_demo_frame()) is not edited
+
+
+def test_edge_swap_table_matches_grid_layout():
+    from geofeat.geodesic import walk
+
+    np.testing.assert_array_equal(walk._SWAP, walk._swap_table())

@@ -158,12 +158,16 @@ class GeoPatch:
         weights: checkpoint path; None = the weights shipped with geofeat.
         device: "cpu", "cuda", ... (default: CUDA when available).
         radius, depth_config, blur_px: polar patch settings (`geofeat.polar_patches`).
-        batch_size: patches per forward pass (small batches keep activations in cache on CPU).
+        batch_size: patches per forward pass on CPU (small batches keep activations in cache; on
+            CUDA at least 4096 patches go in one pass).
+        threads: torch CPU threads for `describe` (set for the call, then restored); None keeps
+            torch's setting. On a machine shared with other busy processes 1 thread can be several
+            times faster than 2 (torch's OpenMP threads wait on each other; see BENCHMARKS.md).
     """
 
     def __init__(self, weights: str | Path | None = None, device: str | None = None,
                  radius: float = DEFAULT_RADIUS_M, depth_config: DepthConfig | str = "auto",
-                 blur_px: float = SAMPLING_BLUR_PX, batch_size: int = 128) -> None:
+                 blur_px: float = SAMPLING_BLUR_PX, batch_size: int = 128, threads: int | None = None) -> None:
         self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
         net, self.checkpoint = load_network(weights)
         self.net = fuse_batchnorm(net).to(self.device)
@@ -174,6 +178,9 @@ class GeoPatch:
             depth_config, "depth_config")
         self.blur_px = blur_px
         self.batch_size = int(batch_size)
+        if threads is not None and int(threads) < 1:
+            raise ValueError(f"threads: expected a positive number of CPU threads or None, got {threads}")
+        self.threads = None if threads is None else int(threads)
 
     def __repr__(self) -> str:
         return f"GeoPatch(config={self.net.config}, device={self.device}, radius={self.radius})"
@@ -189,10 +196,20 @@ class GeoPatch:
         valid = np.ones(n, bool) if valid is None else np.asarray(valid, bool).reshape(n)
         out = np.zeros((n, cfg.dim), np.float32)
         index = np.flatnonzero(valid)
-        x = torch.from_numpy(v[index]).unsqueeze(1)
-        for start in range(0, len(index), self.batch_size):
-            batch = x[start:start + self.batch_size].to(self.device)
-            out[index[start:start + self.batch_size]] = self.net(batch).float().cpu().numpy()
+        if len(index) == 0:
+            return out
+        # one transfer each way: the patches to the device, the descriptors back (on CUDA the
+        # per-batch copies and synchronisations would cost more than the network)
+        x = torch.from_numpy(np.ascontiguousarray(v[index])).to(self.device).unsqueeze(1)
+        batch = self.batch_size if self.device.type == "cpu" else max(self.batch_size, 4096)
+        before = torch.get_num_threads()
+        if self.threads is not None:
+            torch.set_num_threads(self.threads)
+        try:
+            y = torch.cat([self.net(x[start:start + batch]) for start in range(0, len(index), batch)])
+        finally:
+            torch.set_num_threads(before)
+        out[index] = y.float().cpu().numpy()
         return out
 
     def compute(self, frame: RGBDFrame, keypoints, patches: PolarPatches | None = None,

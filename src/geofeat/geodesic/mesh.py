@@ -13,7 +13,9 @@ Normals point towards the camera.
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numba import njit, prange
@@ -42,6 +44,16 @@ class GridMesh:
     K: np.ndarray
     scale: tuple[float, float]
     image_shape: tuple[int, int]
+
+    @cached_property
+    def walk_tables(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per-face data of the geodesic walk, built on first use and kept with the mesh:
+        (Hm - 1, Wm - 1, 2, 3) intrinsic corner coordinates (`walk.face_frames`) and
+        (Hm - 1, Wm - 1, 2, 3, 2) unit edge directions (`walk.edge_directions`)."""
+        from .walk import edge_directions, face_frames
+
+        local = face_frames(self.points, self.face_ok, self.normals)
+        return local, edge_directions(local, self.face_ok)
 
     def image_to_mesh(self, xy: np.ndarray) -> np.ndarray:
         """(N, 2) image pixel coordinates -> (N, 2) mesh pixel coordinates."""
@@ -127,3 +139,39 @@ def build_mesh(frame: RGBDFrame, config: DepthConfig | str = "auto",
     scale = (Wm / W, Hm / H)
     K = scale_intrinsics(frame.K, *scale)
     return mesh_from_points(backproject(depth, K), K, scale, (H, W), max_edge_stretch)
+
+
+#: Attribute of an RGBDFrame under which `frame_mesh` keeps its meshes.
+_CACHE_ATTR = "_geofeat_meshes"
+
+
+def _depth_fingerprint(frame: RGBDFrame) -> tuple:
+    """What the mesh depends on besides the depth config: the depth values (CRC-32 of the bytes,
+    so that an in-place edit of frame.depth is noticed) and the intrinsics."""
+    depth = np.ascontiguousarray(frame.depth)
+    return depth.shape, zlib.crc32(depth), frame.K.tobytes()
+
+
+def frame_mesh(frame: RGBDFrame, config: DepthConfig | str = "auto",
+               max_edge_stretch: float = MAX_EDGE_STRETCH) -> GridMesh:
+    """`build_mesh(frame, config, max_edge_stretch)`, cached on the frame: a second call with the
+    same depth config (e.g. a second `polar_patches` on the same frame) reuses the mesh and its walk
+    tables; a changed depth (checked by checksum), intrinsics or config builds a new one. A profile
+    name is resolved first ("auto" measures the frame), so "auto" and the profile it picks share."""
+    cache = frame.__dict__.setdefault(_CACHE_ATTR, {})
+    fingerprint = _depth_fingerprint(frame)
+    if isinstance(config, str):  # the profile "auto" picks is cached with the mesh
+        hit = cache.get(("profile", config))
+        if hit is not None and hit[0] == fingerprint:
+            config = hit[1]
+        else:
+            resolved = resolve_depth_config(config, frame)
+            cache[("profile", config)] = (fingerprint, resolved)
+            config = resolved
+    key = (config, float(max_edge_stretch))
+    hit = cache.get(key)
+    if hit is not None and hit[0] == fingerprint:
+        return hit[1]
+    mesh = build_mesh(frame, config, max_edge_stretch)
+    cache[key] = (fingerprint, mesh)
+    return mesh

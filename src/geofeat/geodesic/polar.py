@@ -18,7 +18,7 @@ from ..constants import DEFAULT_RADIUS_M, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX
 from ..depth import DepthConfig
 from ..frame import RGBDFrame
 from ..keypoints import as_keypoints
-from .mesh import GridMesh, build_mesh
+from .mesh import GridMesh, frame_mesh
 from .walk import MAX_CROSSINGS, walk_polar
 
 
@@ -126,18 +126,20 @@ def polar_patches(
         n_angles, n_rings: patch size (columns, rows).
         depth_config: depth preprocessing, a `DepthConfig` or a profile name ("auto": chosen from
             the frame's measured depth noise, see `geofeat.depth_profile`); ignored when `mesh` is given.
-        mesh: a prebuilt `build_mesh(frame, ...)` to reuse across calls.
+        mesh: a prebuilt `build_mesh(frame, ...)`; by default the frame's mesh for `depth_config`,
+            built on the first call and cached on the frame (`geofeat.geodesic.mesh.frame_mesh`).
         blur_px: Gaussian blur of the gray image before sampling, pixels.
     """
     kp = check_patch_request(frame, keypoints, radius, n_angles, n_rings)
     if mesh is None:
-        mesh = build_mesh(frame, depth_config)
+        mesh = frame_mesh(frame, depth_config)
     elif tuple(mesh.image_shape) != tuple(frame.shape):
         raise ValueError(f"mesh: built for a {mesh.image_shape} frame, not this {frame.shape} one")
     starts = mesh.image_to_mesh(kp) + np.array([1.3e-6, 0.7e-6])  # keeps starts off vertices/edges
+    local, edges = mesh.walk_tables
     samples, coords, reached, _ = walk_polar(
-        mesh.points, mesh.face_ok, mesh.normals, starts, frame.K, float(radius), int(n_angles), int(n_rings),
-        MAX_CROSSINGS,
+        mesh.points, mesh.face_ok, mesh.normals, local, edges, starts, frame.K, float(radius), int(n_angles),
+        int(n_rings), MAX_CROSSINGS,
     )
     valid = patch_validity(reached)
     coords[~valid] = np.nan

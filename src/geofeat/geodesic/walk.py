@@ -62,6 +62,22 @@ def _edge_vertices(e):
     return (1 if e == 0 else 0), (1 if e == 2 else 2)
 
 
+def _swap_table() -> np.ndarray:
+    """(2, 3) bool: whether the edge shared with the neighbour across local edge e of a face of type
+    t runs the other way in the neighbour's `_edge_vertices` order (fixed by the grid layout)."""
+    table = np.zeros((2, 3), np.bool_)
+    for t in range(2):
+        for e in range(3):
+            xn, yn, tn, en = _neighbour(5, 5, t, e)
+            g0 = _corner(5, 5, t, _edge_vertices(e)[0])
+            table[t, e] = _corner(xn, yn, tn, _edge_vertices(en)[0]) != g0
+    return table
+
+
+#: `_swap_table()`, written out (a test checks it against the grid layout).
+_SWAP = np.array([[False, True, True], [False, True, True]])
+
+
 @njit(cache=True, inline="always", error_model="numpy")
 def _face_axes(points, normals, x, y, t):
     """Intrinsic frame of face (x, y, t): origin (local vertex 0), unit x axis (towards local vertex
@@ -95,6 +111,31 @@ def face_frames(points, face_ok, normals):
     return out
 
 
+@njit(cache=True, parallel=True, error_model="numpy")
+def edge_directions(frames, face_ok):
+    """Unit direction of every local edge in its face's intrinsic frame (see `face_frames`), from
+    its first end to its second (`_edge_vertices` order). Returns (Hm - 1, Wm - 1, 2, 3, 2) float64.
+    Crossing an edge, the walk's 2D rotation into the neighbour's frame is the rotation between the
+    edge's direction on both sides, two products with these tables (edge unfolding precomputed)."""
+    Hc, Wc = face_ok.shape[0], face_ok.shape[1]
+    out = np.zeros((Hc, Wc, 2, 3, 2))
+    for row in prange(Hc):
+        y = np.int64(row)
+        for x in range(Wc):
+            for t in range(2):
+                if not face_ok[y, x, t]:
+                    continue
+                for e in range(3):
+                    i0, i1 = _edge_vertices(e)
+                    ax, ay = _local(frames, x, y, t, i0)
+                    bx, by = _local(frames, x, y, t, i1)
+                    ex, ey = bx - ax, by - ay
+                    norm = np.sqrt(ex * ex + ey * ey)
+                    out[y, x, t, e, 0] = ex / norm
+                    out[y, x, t, e, 1] = ey / norm
+    return out
+
+
 @njit(cache=True, inline="always", error_model="numpy")
 def _local(frames, x, y, t, i):
     """2D coordinates of local vertex i of face (x, y, t) in the face's intrinsic frame."""
@@ -106,101 +147,116 @@ def _local(frames, x, y, t, i):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _to_3d(points, normals, x, y, t, qx, qy):
-    """3D point of intrinsic coordinates (qx, qy) on face (x, y, t)."""
-    ax, ay, az, ex, ey, ez, fx, fy, fz, _ = _face_axes(points, normals, x, y, t)
-    return ax + qx * ex + qy * fx, ay + qx * ey + qy * fy, az + qx * ez + qy * fz
+def _emit(points, frames, x, y, t, qx, qy, K, samples, coords, k, r, a):
+    """Write the sample at intrinsic coordinates (qx, qy) of face (x, y, t): its 3D point (the
+    barycentric combination of the face's corners) into samples[k, r, a] and its projection with K
+    into coords[k, r, a]."""
+    length, vx, vy = frames[y, x, t, 0], frames[y, x, t, 1], frames[y, x, t, 2]
+    w2 = qy / vy
+    w1 = (qx - w2 * vx) / length
+    x0, y0 = _corner(x, y, t, 0)
+    ax, ay, az = points[y0, x0, 0], points[y0, x0, 1], points[y0, x0, 2]
+    X = ax + w1 * (points[y, x + 1, 0] - ax) + w2 * (points[y + 1, x, 0] - ax)
+    Y = ay + w1 * (points[y, x + 1, 1] - ay) + w2 * (points[y + 1, x, 1] - ay)
+    Z = az + w1 * (points[y, x + 1, 2] - az) + w2 * (points[y + 1, x, 2] - az)
+    samples[k, r, a, 0], samples[k, r, a, 1], samples[k, r, a, 2] = X, Y, Z
+    # project the stored (float32) point, so that coords are those of samples exactly
+    X, Y, Z = float(samples[k, r, a, 0]), float(samples[k, r, a, 1]), float(samples[k, r, a, 2])
+    coords[k, r, a, 0] = K[0, 0] * X / Z + K[0, 1] * Y / Z + K[0, 2]
+    coords[k, r, a, 1] = K[1, 1] * Y / Z + K[1, 2]
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _edge_hit(frames, x, y, t, e, px, py, dx, dy):
+    """Where the line (px, py) + u (dx, dy) meets local edge e of face (x, y, t): (u, s, ex, ey, ax, ay)
+    with s the position along the edge from its first end (a) to its second (a + (ex, ey));
+    u = s = NaN when parallel."""
+    i0, i1 = _edge_vertices(e)
+    ax, ay = _local(frames, x, y, t, i0)
+    bx, by = _local(frames, x, y, t, i1)
+    ex, ey = bx - ax, by - ay
+    denom = dx * ey - dy * ex
+    if abs(denom) < 1e-300:
+        return np.nan, np.nan, ex, ey, ax, ay
+    wx, wy = ax - px, ay - py
+    return (wx * ey - wy * ex) / denom, (wx * dy - wy * dx) / denom, ex, ey, ax, ay
 
 
 @njit(cache=True, error_model="numpy")
-def _walk_one(points, normals, face_ok, frames, x, y, t, px, py, dx, dy, ring_step, n_rings, out, max_crossings):
+def _walk_one(points, face_ok, frames, edges, x, y, t, px, py, dx, dy, ring_step, n_rings, max_crossings,
+              K, samples, coords, k, a):
     """Walk one ray on the mesh in intrinsic 2D coordinates.
 
     The ray starts at (px, py) in the intrinsic frame of face (x, y, t) (see `face_frames`), with
     unit direction (dx, dy) in that frame. Inside a face it is a straight 2D segment; crossing an
     edge, the position and direction are re-expressed in the neighbour's frame by the 2D rotation
-    that maps the shared edge onto itself (this is the unfolding of the two triangles).
-    Writes the 3D points at arc lengths (i + 1) * ring_step, i < n_rings, into out (n_rings, 3);
-    rings beyond the end of the mesh repeat the last point reached. Returns the number of rings
-    reached on the mesh."""
+    that maps the shared edge onto itself (this is the unfolding of the two triangles), read from
+    the per-edge unit directions `edges` (see `edge_directions`).
+    Writes the samples at arc lengths (i + 1) * ring_step, i < n_rings, into samples[k, :, a] (3D)
+    and coords[k, :, a] (projected with K); rings beyond the end of the mesh repeat the last point
+    reached. Returns the number of rings reached on the mesh."""
     Hc, Wc = face_ok.shape[0], face_ok.shape[1]
     length = 0.0
     ring = 0
     entry = -1
     for _ in range(max_crossings):
-        # exit edge and distance to it
-        exit_edge = -1
-        d = np.inf
-        s = 0.0
-        if entry < 0:
-            candidates = 3
-        else:
-            candidates = 2
-        for c in range(candidates):
-            if entry < 0:
-                e = c
-            else:
-                e = (entry + 1 + c) % 3
-            i0, i1 = _edge_vertices(e)
-            ax, ay = _local(frames, x, y, t, i0)
-            bx, by = _local(frames, x, y, t, i1)
-            ex, ey = bx - ax, by - ay
-            denom = dx * ey - dy * ex
-            if abs(denom) < 1e-300:
-                continue
-            wx, wy = ax - px, ay - py
-            de = (wx * ey - wy * ex) / denom
-            se = (wx * dy - wy * dx) / denom
-            if entry < 0:
+        # exit edge, distance d to it and position s along it
+        if entry < 0:  # start face: the nearest edge ahead of the ray
+            exit_edge = -1
+            d = np.inf
+            s = 0.0
+            for e in range(3):
+                de, se, ex, ey, ax, ay = _edge_hit(frames, x, y, t, e, px, py, dx, dy)
                 if de > 1e-15 and -1e-9 <= se <= 1.0 + 1e-9 and de < d:
                     exit_edge, d, s = e, de, se
-            else:
-                # of the two candidate edges the ray leaves through the one it meets inside
-                inside = -1e-12 <= se <= 1.0 + 1e-12
-                if exit_edge < 0 or (inside and not (-1e-12 <= s <= 1.0 + 1e-12)):
-                    exit_edge, d, s = e, de, se
-        if exit_edge < 0:
-            break
+                    fx, fy, gx, gy = ex, ey, ax, ay
+            if exit_edge < 0:
+                break
+        else:
+            # of the two other edges the ray leaves through the one it meets inside (the first
+            # when both or neither are met inside); the second is only looked at when needed
+            exit_edge = (entry + 1) % 3
+            d, s, fx, fy, gx, gy = _edge_hit(frames, x, y, t, exit_edge, px, py, dx, dy)
+            if not (-1e-12 <= s <= 1.0 + 1e-12):  # also when parallel (NaN)
+                e = (entry + 2) % 3
+                de, se, ex, ey, ax, ay = _edge_hit(frames, x, y, t, e, px, py, dx, dy)
+                if -1e-12 <= se <= 1.0 + 1e-12 or np.isnan(s):
+                    exit_edge, d, s, fx, fy, gx, gy = e, de, se, ex, ey, ax, ay
+                if np.isnan(s):  # parallel to both edges
+                    break
         if d < 0.0:
             d = 0.0
         # emit the rings that lie on this segment
         while ring < n_rings and length + d >= (ring + 1) * ring_step:
             r = (ring + 1) * ring_step - length
-            X, Y, Z = _to_3d(points, normals, x, y, t, px + r * dx, py + r * dy)
-            out[ring, 0], out[ring, 1], out[ring, 2] = X, Y, Z
+            _emit(points, frames, x, y, t, px + r * dx, py + r * dy, K, samples, coords, k, ring, a)
             ring += 1
         if ring == n_rings:
             return ring
         s = min(max(s, 0.0), 1.0)
-        i0, i1 = _edge_vertices(exit_edge)
-        ax, ay = _local(frames, x, y, t, i0)
-        bx, by = _local(frames, x, y, t, i1)
-        ex, ey = bx - ax, by - ay
-        qx, qy = ax + s * ex, ay + s * ey
+        qx, qy = gx + s * fx, gy + s * fy
         length += np.sqrt((qx - px) ** 2 + (qy - py) ** 2)
         px, py = qx, qy
         xn, yn, tn, entry_n = _neighbour(x, y, t, exit_edge)
         if xn < 0 or yn < 0 or xn >= Wc or yn >= Hc or not face_ok[yn, xn, tn]:
             break
         # the shared edge in the neighbour's frame, oriented like ours (same grid end first)
-        g0x, g0y = _corner(x, y, t, i0)
         j0, j1 = _edge_vertices(entry_n)
-        h0x, h0y = _corner(xn, yn, tn, j0)
+        ux, uy = edges[y, x, t, exit_edge, 0], edges[y, x, t, exit_edge, 1]
+        vx, vy = edges[yn, xn, tn, entry_n, 0], edges[yn, xn, tn, entry_n, 1]
+        if _SWAP[t, exit_edge]:
+            j0, j1 = j1, j0
+            vx, vy = -vx, -vy
+        cos_a = ux * vx + uy * vy
+        sin_a = ux * vy - uy * vx
+        dx, dy = cos_a * dx - sin_a * dy, sin_a * dx + cos_a * dy
         a2x, a2y = _local(frames, xn, yn, tn, j0)
         b2x, b2y = _local(frames, xn, yn, tn, j1)
-        if h0x != g0x or h0y != g0y:
-            a2x, a2y, b2x, b2y = b2x, b2y, a2x, a2y
-        fx, fy = b2x - a2x, b2y - a2y
-        norm = np.sqrt((ex * ex + ey * ey) * (fx * fx + fy * fy))
-        cos_a = (ex * fx + ey * fy) / norm
-        sin_a = (ex * fy - ey * fx) / norm
-        dx, dy = cos_a * dx - sin_a * dy, sin_a * dx + cos_a * dy
-        px, py = a2x + s * fx, a2y + s * fy
+        px, py = a2x + s * (b2x - a2x), a2y + s * (b2y - a2y)
         x, y, t, entry = xn, yn, tn, entry_n
     # the ray left the mesh: later rings repeat the last point reached
-    X, Y, Z = _to_3d(points, normals, x, y, t, px, py)
     for r in range(ring, n_rings):
-        out[r, 0], out[r, 1], out[r, 2] = X, Y, Z
+        _emit(points, frames, x, y, t, px, py, K, samples, coords, k, r, a)
     return ring
 
 
@@ -257,42 +313,50 @@ def tangent_frames(points, face_ok, normals, starts):
         if x < 0 or not face_ok[y, x, t]:
             continue
         xa, ya = _corner(x, y, t, 0)
-        p = w0 * points[ya, xa] + w1 * points[y, x + 1] + w2 * points[y + 1, x]
+        p0 = w0 * points[ya, xa, 0] + w1 * points[y, x + 1, 0] + w2 * points[y + 1, x, 0]
+        p1 = w0 * points[ya, xa, 1] + w1 * points[y, x + 1, 1] + w2 * points[y + 1, x, 1]
+        p2 = w0 * points[ya, xa, 2] + w1 * points[y, x + 1, 2] + w2 * points[y + 1, x, 2]
         # tangent plane normal: area-weighted mean of the face normals around the start cell
-        nrm = np.zeros(3)
+        n0 = n1 = n2 = 0.0
         for yy in range(max(0, y - 1), min(Hc, y + 2)):
             for xx in range(max(0, x - 1), min(Wc, x + 2)):
                 for tt in range(2):
                     if face_ok[yy, xx, tt]:
-                        nrm += normals[yy, xx, tt]
-        nrm /= np.sqrt((nrm ** 2).sum())
+                        n0 += normals[yy, xx, tt, 0]
+                        n1 += normals[yy, xx, tt, 1]
+                        n2 += normals[yy, xx, tt, 2]
+        nl = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        n0, n1, n2 = n0 / nl, n1 / nl, n2 / nl
         # column 0: the direction in the tangent plane that moves along image +x, i.e. that is
         # orthogonal to the gradient of the image y coordinate, gv = (0, 1, -Y/Z) up to scale
-        gvz = -p[1] / p[2]
-        guz = -p[0] / p[2]
-        e0x, e0y, e0z = _cross(nrm[0], nrm[1], nrm[2], 0.0, 1.0, gvz)
+        gvz = -p1 / p2
+        guz = -p0 / p2
+        e0x, e0y, e0z = _cross(n0, n1, n2, 0.0, 1.0, gvz)
         l0 = np.sqrt(e0x * e0x + e0y * e0y + e0z * e0z)
         if l0 < 1e-12:
             continue  # surface seen exactly edge-on
         sign = 1.0 if e0x + e0z * guz >= 0 else -1.0
         e0x, e0y, e0z = sign * e0x / l0, sign * e0y / l0, sign * e0z / l0
-        e1x, e1y, e1z = _cross(nrm[0], nrm[1], nrm[2], e0x, e0y, e0z)
+        e1x, e1y, e1z = _cross(n0, n1, n2, e0x, e0y, e0z)
         sign = -1.0 if e1y + e1z * gvz > 0 else 1.0  # counter-clockwise as displayed: image up is -y
         frames[k, 0, 0], frames[k, 0, 1], frames[k, 0, 2] = e0x, e0y, e0z
         frames[k, 1, 0], frames[k, 1, 1], frames[k, 1, 2] = sign * e1x, sign * e1y, sign * e1z
-        centre[k] = p
-        frames[k, 2] = nrm
+        centre[k, 0], centre[k, 1], centre[k, 2] = p0, p1, p2
+        frames[k, 2, 0], frames[k, 2, 1], frames[k, 2, 2] = n0, n1, n2
         faces[k, 0], faces[k, 1], faces[k, 2] = x, y, t
     return faces, centre, frames
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def walk_polar(points, face_ok, normals, starts, K, radius, n_angles, n_rings, max_crossings):
-    """Geodesic polar samples around many start points.
+def walk_polar(points, face_ok, normals, local, edges, starts, K, radius, n_angles, n_rings, max_crossings):
+    """Geodesic polar samples around many start points, one ray per (keypoint, direction) in
+    parallel.
 
     Args:
         points: (Hm, Wm, 3) float64 mesh vertices, metres.
         face_ok, normals: see `GridMesh`.
+        local, edges: `face_frames(points, face_ok, normals)` and `edge_directions(local, face_ok)`
+            (per-face data of the walk, built once per mesh: `GridMesh.walk_tables`).
         starts: (N, 2) float64 mesh pixel coordinates of the keypoints.
         K: (3, 3) intrinsics of the image that samples are projected into.
         radius: geodesic radius of the outer ring, metres.
@@ -307,7 +371,6 @@ def walk_polar(points, face_ok, normals, starts, K, radius, n_angles, n_rings, m
     reached = np.zeros((N, n_angles), dtype=np.int32)
     faces, centre, frames = tangent_frames(points, face_ok, normals, starts)
     ring_step = radius / n_rings
-    local = face_frames(points, face_ok, normals)
     for job in prange(N * n_angles):
         k = job // n_angles
         a = job % n_angles
@@ -328,12 +391,7 @@ def walk_polar(points, face_ok, normals, starts, K, radius, n_angles, n_rings, m
         cx, cy, cz = centre[k, 0] - ax, centre[k, 1] - ay, centre[k, 2] - az
         dxx, dyy = ux * ex + uy * ey + uz * ez, ux * fx + uy * fy + uz * fz
         dl = np.sqrt(dxx * dxx + dyy * dyy)
-        out = samples[k, :, a, :]
-        reached[k, a] = _walk_one(points, normals, face_ok, local, x, y, t, cx * ex + cy * ey + cz * ez,
-                                  cx * fx + cy * fy + cz * fz, dxx / dl, dyy / dl, ring_step, n_rings, out,
-                                  max_crossings)
-        for r in range(n_rings):
-            X, Y, Z = float(out[r, 0]), float(out[r, 1]), float(out[r, 2])
-            coords[k, r, a, 0] = K[0, 0] * X / Z + K[0, 1] * Y / Z + K[0, 2]
-            coords[k, r, a, 1] = K[1, 1] * Y / Z + K[1, 2]
+        reached[k, a] = _walk_one(points, face_ok, local, edges, x, y, t, cx * ex + cy * ey + cz * ez,
+                                  cx * fx + cy * fy + cz * fz, dxx / dl, dyy / dl, ring_step, n_rings,
+                                  max_crossings, K, samples, coords, k, a)
     return samples, coords, reached, centre
