@@ -138,3 +138,15 @@ def test_retrieval_bad_input(three_objects, tmp_path):
     classes.write_text("blobs,a\n")
     with pytest.raises(ValueError, match="no class"):
         run_retrieval([three_objects], tmp_path, ("sift",), classes_file=str(classes), progress=False)
+
+
+def test_retrieval_command(three_objects, tmp_path, capsys):
+    from geofeat.cli import main
+
+    args = ["retrieval", str(three_objects), "--descriptors", "sift", "--keypoints", "300", "--samples", "1000",
+            "--out", str(tmp_path)]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "Acc@1" in out and "object masks" in out
+    assert main(args[:-2] + ["--words", "100000", "--out", str(tmp_path)]) == 2
+    assert "too few" in capsys.readouterr().err

@@ -134,3 +134,14 @@ def test_track_bad_input(sequence, tmp_path):
             (single / f.name).write_bytes(f.read_bytes())
     with pytest.raises(ValueError, match="reference frame and at least one other"):
         track_sequence(single, ("sift",), progress=False)
+
+
+def test_track_command(sequence, tmp_path, capsys):
+    from geofeat.cli import main
+
+    assert main(["track", str(sequence), "--descriptors", "sift", "--keypoints", "400", "--out", str(tmp_path)]) == 0
+    assert "| sift |" in capsys.readouterr().out
+    assert (tmp_path / "track.csv").is_file() and (tmp_path / "cloth" / "sift" / "track.gif").is_file()
+    assert main(["track", str(sequence), "--descriptors", "sift", "--roi", "1,2,3", "--out", str(tmp_path)]) == 2
+    assert "--roi" in capsys.readouterr().err
+    assert main(["track", str(sequence), "--descriptors", "bogus", "--out", str(tmp_path)]) == 2

@@ -143,8 +143,11 @@ def warp_points(warp: TPSWarp, xy: np.ndarray) -> np.ndarray:
     xy = np.asarray(xy, np.float64).reshape(-1, 2)
     p = _apply(warp.src_transform, xy)
     out = np.concatenate([np.ones((len(p), 1)), p], axis=1) @ warp.affine
-    for s in range(0, len(p), 65536):  # blocks keep the (M, C) kernel small
-        out[s : s + 65536] += _kernel(_sq_dist(p[s : s + 65536], warp.centres)) @ warp.weights
+    c2 = (warp.centres**2).sum(1)
+    for s in range(0, len(p), 4096):  # blocks keep the (M, C) kernel small
+        q = p[s : s + 4096]
+        d2 = np.maximum((q**2).sum(1)[:, None] + c2[None, :] - 2.0 * (q @ warp.centres.T), 0.0)
+        out[s : s + 4096] += _kernel(d2) @ warp.weights
     return _apply(np.linalg.inv(warp.dst_transform), out)
 
 
@@ -301,8 +304,13 @@ def warp_back(image: np.ndarray, warp: TPSWarp, roi: tuple[int, int, int, int]) 
     """Frame `image` (H, W) sampled at the warped template ROI pixels: returns the (h, w) float32
     image in template ROI coordinates and the (h, w) bool mask of pixels landing inside the frame."""
     x0, y0, x1, y1 = roi
-    gx, gy = np.meshgrid(np.arange(x0, x1 + 1, dtype=np.float64), np.arange(y0, y1 + 1, dtype=np.float64))
-    p = warp_points(warp, np.stack([gx.ravel(), gy.ravel()], axis=1)).reshape(gx.shape + (2,)).astype(np.float32)
+    h, w = y1 - y0 + 1, x1 - x0 + 1
+    # the warp is smooth: evaluate it every `step` pixels and interpolate bilinearly in between
+    step = 4
+    gx, gy = np.meshgrid(x0 + step * np.arange((w - 1) // step + 2.0), y0 + step * np.arange((h - 1) // step + 2.0))
+    coarse = warp_points(warp, np.stack([gx.ravel(), gy.ravel()], axis=1)).reshape(gx.shape + (2,)).astype(np.float32)
+    fx, fy = np.meshgrid(np.arange(w, dtype=np.float32) / step, np.arange(h, dtype=np.float32) / step)
+    p = cv2.remap(coarse, fx, fy, cv2.INTER_LINEAR)  # (h, w, 2) frame pixels of the template ROI pixels
     H, W = image.shape
     inside = (p[..., 0] >= 0) & (p[..., 0] <= W - 1) & (p[..., 1] >= 0) & (p[..., 1] <= H - 1)
     out = cv2.remap(np.float32(image), p[..., 0], p[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
