@@ -45,6 +45,8 @@ RANSAC_SAMPLE_SIZE = 4
 RANSAC_ITERATIONS = 1000
 #: TPS smoothing of the refined warp, in normalised coordinates (0 = interpolate the inliers).
 TPS_REGULARISATION = 1e-3
+#: Most control points of the refined TPS (spread over the template).
+MAX_CENTRES = 256
 #: Fewest RANSAC inliers for a frame's fit to count as a success.
 MIN_INLIERS = 10
 #: Fewest template keypoints inside the ROI.
@@ -175,6 +177,20 @@ def _check_pairs(src, dst, minimum: int) -> tuple[np.ndarray, np.ndarray]:
     return src, dst
 
 
+def _spread(points: np.ndarray, keep: np.ndarray, max_points: int) -> np.ndarray:
+    """Indices of at most ~`max_points` of the `keep` (N,) bool points (N, 2), one per cell of a
+    square grid over their bounding box (the first in index order), so that they cover it evenly."""
+    idx = np.flatnonzero(keep)
+    if len(idx) <= max_points:
+        return idx
+    p = points[idx]
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    side = int(np.sqrt(max_points))
+    cell = np.minimum(((p - lo) / np.maximum(hi - lo, 1e-12) * side).astype(np.int64), side - 1)
+    _, first = np.unique(cell[:, 1] * side + cell[:, 0], return_index=True)
+    return idx[np.sort(first)]
+
+
 def fit_tps_ransac(
     src: np.ndarray,
     dst: np.ndarray,
@@ -183,7 +199,8 @@ def fit_tps_ransac(
     iterations: int = RANSAC_ITERATIONS,
     regularisation: float = TPS_REGULARISATION,
     min_inliers: int = MIN_INLIERS,
-    refinements: int = 10,
+    refinements: int = 5,
+    max_centres: int = MAX_CENTRES,
     seed: int | np.random.Generator = 0,
 ) -> RansacResult:
     """Robust TPS fit: RANSAC on small samples, then refinement on the inliers.
@@ -191,7 +208,8 @@ def fit_tps_ransac(
     Both point sets are normalised (`normalise_points`, as in Tran et al. ECCV 2012). Each of the
     `iterations` hypotheses is the TPS through `sample_size` random correspondences (fitted and
     scored in one batch, vectorised); the one with most inliers (destination residual below
-    `threshold_px` pixels) is refitted to its inliers with smoothing `regularisation`, and inliers
+    `threshold_px` pixels) is refitted to its inliers with smoothing `regularisation` (through at
+    most `max_centres` of them, spread over the template: one per cell of a grid), and inliers
     recomputed, up to `refinements` times or until they stop changing.
 
     Args:
@@ -229,10 +247,11 @@ def fit_tps_ransac(
         return failed
     warp = None
     for _ in range(refinements):
-        w, a, ok = _solve_tps(sn[best][None], dn[best][None], regularisation)
+        use = _spread(sn, best, max_centres)
+        w, a, ok = _solve_tps(sn[use][None], dn[use][None], regularisation)
         if not ok[0]:
             return failed
-        warp = TPSWarp(sn[best], w[0], a[0], Ts, Td)
+        warp = TPSWarp(sn[use], w[0], a[0], Ts, Td)
         inliers = np.linalg.norm(warp_points(warp, src) - dst, axis=1) < threshold_px
         if (inliers == best).all() or inliers.sum() < max(min_inliers, 3):
             break
