@@ -5,7 +5,8 @@ scale), then prints:
 - tracking (`geofeat track`): per descriptor the inlier rate, matching score of the kept matches,
   SSIM / NCC inside the ROI, and the median error of the tracked 10 x 10 grid against the
   simulator's exact ground truth (pixels), averaged over sequences; per scenario too;
-- retrieval (`geofeat retrieval`): Acc@K of every descriptor, every sequence its own class.
+- retrieval (`geofeat retrieval`): Acc@K of every descriptor; sequences simulated with the same
+  texture are one object class.
 
     PYTHONPATH=src python benchmarks/applications.py --data /tmp/apps_data --out /tmp/apps_out \
         --texture-dir /work/shared/data/textures [--docs docs]
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import shutil
 import time
 from pathlib import Path
@@ -56,6 +58,9 @@ def main() -> None:
                    help="existing sequences to track (instead of simulating --scenarios x --seeds)")
     p.add_argument("--retrieval-sequences", nargs="*", type=Path, default=None,
                    help="sequences for retrieval (default: the tracked ones)")
+    p.add_argument("--classes", default=None,
+                   help="CSV sequence,class for retrieval (default: by simulator texture when known, else folder name)")
+    p.add_argument("--threshold", type=float, default=5.0, help="RANSAC inlier threshold, pixels (default 5)")
     p.add_argument("--skip-retrieval", action="store_true")
     p.add_argument("--skip-tracking", action="store_true")
     p.add_argument("--docs", type=Path, default=None, help="copy acc_at_k.png and a tracking frame PNG here")
@@ -78,10 +83,11 @@ def main() -> None:
 
 def track(folders, names, args) -> None:
     t = time.perf_counter()
-    csv_path, table = write_tracking(folders, args.out / "track", names, n_keypoints=args.keypoints)
+    csv_path, table = write_tracking(folders, args.out / "track", names, n_keypoints=args.keypoints,
+                                      threshold_px=args.threshold)
     t_track = time.perf_counter() - t
     rows = list(csv.DictReader(open(csv_path)))
-    print("\n## Tracking (all sequences)\n")
+    print(f"\n## Tracking (all sequences, RANSAC threshold {args.threshold:g} px)\n")
     print(table)
     for scenario in args.scenarios.split(","):
         sel = [r for r in rows if r["sequence"].startswith(scenario)]
@@ -100,7 +106,18 @@ def track(folders, names, args) -> None:
 def retrieval(folders, names, args) -> None:
     print(f"retrieval sequences: {', '.join(Path(f).name for f in folders)}")
     t = time.perf_counter()
-    acc, db = run_retrieval(folders, args.out / "retrieval", names, n_keypoints=args.keypoints)
+    classes = args.classes
+    if classes is None:  # sequences simulated with the same texture show the same object
+        classes = args.out / "classes.csv"
+        args.out.mkdir(parents=True, exist_ok=True)
+        lines = ["sequence,class"]
+        for f in folders:
+            meta = Path(f) / "groundtruth.json"
+            texture = json.loads(meta.read_text()).get("texture") if meta.is_file() else None
+            lines.append(f"{Path(f).name},{texture or Path(f).name}")
+        classes.write_text("\n".join(lines) + "\n")
+    acc, db = run_retrieval(folders, args.out / "retrieval", names, n_keypoints=args.keypoints,
+                            classes_file=str(classes))
     t_ret = time.perf_counter() - t
     print("\n## Retrieval\n")
     print((args.out / "retrieval" / "retrieval.md").read_text())
@@ -111,17 +128,26 @@ def retrieval(folders, names, args) -> None:
 
 
 def docs(folders, names, args) -> None:
-    import imageio.v2 as imageio
+    """Copy the Acc@K plot; draw the reference and last frame of the first rotate sequence with the
+    grid tracked by the first descriptor, side by side at full resolution."""
+    from geofeat.io import read_sequence
+    from geofeat.tracking import TrackResult, grid_frames
 
     args.docs.mkdir(parents=True, exist_ok=True)
     if (args.out / "retrieval" / "acc_at_k.png").is_file():
         shutil.copy(args.out / "retrieval" / "acc_at_k.png", args.docs / "retrieval_acc_at_k.png")
+    if not (args.out / "track").is_dir():
+        return
     hard = [f for f in folders if f.name.startswith("rotate")] or folders
-    gif = args.out / "track" / hard[0].name / names[0] / "track.gif"
-    frames = imageio.mimread(gif)
-    imageio.imwrite(args.docs / "tracking_frame.png", frames[-1][..., :3])
-    print(f"wrote {args.docs / 'tracking_frame.png'} (last frame of {gif})")
+    with np.load(args.out / "track" / hard[0].name / names[0] / "grid.npz") as g:
+        result = TrackResult(hard[0].name, names[0], tuple(g["roi"]), [str(f) for f in g["frames"]],
+                             g["reference_points"], g["points"])
+    result.frames, result.points = [result.frames[0], result.frames[-1]], result.points[[0, -1]]
+    pictures = grid_frames(read_sequence(hard[0]), result, scale=1.0)
+    from PIL import Image  # a 128-colour palette keeps the README picture small
 
+    Image.fromarray(np.concatenate(pictures, axis=1)).quantize(128).save(args.docs / "tracking_frame.png", optimize=True)
+    print(f"wrote {args.docs / 'tracking_frame.png'} ({hard[0].name}, {names[0]}: reference and last frame)")
 
 if __name__ == "__main__":
     main()
