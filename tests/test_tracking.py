@@ -118,6 +118,10 @@ def test_track_simulated_sequence_outputs(sequence, tmp_path):
     assert all(r["failed"] == "False" for r in rows)
     assert max(float(r["grid_error_px"]) for r in rows) < 5.0
     assert min(float(r["ssim"]) for r in rows) > 0.3
+    # the kept matches are mostly correct under the bench's ground truth; MS counts them over the keypoints
+    assert min(float(r["precision"]) for r in rows) > 0.8
+    assert all(0 < float(r["ms"]) <= float(r["inliers"]) / min(int(r["n_template"]), int(r["n_frame"])) + 1e-9
+               for r in rows)
 
 
 def test_track_bad_input(sequence, tmp_path):

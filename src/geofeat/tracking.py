@@ -10,8 +10,9 @@ A template region of interest (ROI) of the reference frame is followed in every 
    registration" (ECCV 2012), both point sets are normalised first (centroid at the origin, mean
    distance sqrt(2)), hypotheses are TPS warps fitted to small random samples, and the best is refined
    on its inliers;
-3. per frame: matches, RANSAC inliers, inlier rate, the matching score of the kept matches (fraction
-   of the inliers that the bench's ground truth calls correct, when there is one), and the photometric
+3. per frame: matches, RANSAC inliers, inlier rate, the matching score of the kept matches (inliers
+   that the bench's ground truth calls correct, over min(template, frame) keypoints as the bench's
+   MS; and their precision, correct over inliers), and the photometric
    similarity (SSIM, NCC) inside the ROI of the template and frame k warped back onto the template;
    a 10 x 10 grid over the ROI is carried into every frame by the fitted warp.
 
@@ -377,8 +378,13 @@ class TrackResult:
     mask_source: str = ""
 
 
-TRACK_COLUMNS = ["sequence", "descriptor", "frame", "n_template", "matches", "inliers", "inlier_rate", "ms",
-                 "ssim", "ncc", "grid_error_px", "failed"]
+#: Columns of track.csv. n_template / n_frame: keypoints in the template ROI / in the frame; matches:
+#: template keypoints with a nearest neighbour; inliers: RANSAC inliers among them; ms: correct
+#: inliers / min(n_template, n_frame) (the bench's matching score applied to the kept matches);
+#: precision: correct inliers / inliers (correct: the bench's ground truth within 3 px);
+#: grid_error_px: median over the grid of |ground truth(tracked point) - grid point|, reference pixels.
+TRACK_COLUMNS = ["sequence", "descriptor", "frame", "n_template", "n_frame", "matches", "inliers", "inlier_rate",
+                 "ms", "precision", "ssim", "ncc", "grid_error_px", "failed"]
 
 
 def _radius(seq: Sequence, radius: float | None) -> float:
@@ -462,9 +468,10 @@ def track_sequence(
             i0 = np.flatnonzero(m.matches0 >= 0)
             i1 = m.matches0[i0]
             fit = fit_tps_ransac(k_ref.xy[i0], k_tgt.xy[i1], threshold_px=threshold_px, seed=seed)
-            row = dict(sequence=seq.name, descriptor=name, frame=target, n_template=len(k_ref), matches=len(i0),
-                       inliers=int(fit.inliers.sum()), inlier_rate=fit.inliers.sum() / len(i0) if len(i0) else 0.0,
-                       ms=float("nan"), ssim=float("nan"), ncc=float("nan"), grid_error_px=float("nan"),
+            row = dict(sequence=seq.name, descriptor=name, frame=target, n_template=len(k_ref), n_frame=len(k_tgt),
+                       matches=len(i0), inliers=int(fit.inliers.sum()),
+                       inlier_rate=fit.inliers.sum() / len(i0) if len(i0) else 0.0, ms=float("nan"),
+                       precision=float("nan"), ssim=float("nan"), ncc=float("nan"), grid_error_px=float("nan"),
                        failed=not fit.ok)
             if fit.ok:
                 pts = warp_points(fit.warp, grid)
@@ -473,7 +480,9 @@ def track_sequence(
                 if to_ref is not None:
                     kept = fit.inliers
                     err = np.linalg.norm(to_ref[i1[kept]] - k_ref.xy[i0[kept]], axis=1)
-                    row["ms"] = float(np.mean(err < GT_THRESHOLD_PX)) if kept.any() else 0.0  # NaN err: not correct
+                    correct = int((err < GT_THRESHOLD_PX).sum())  # NaN (no ground truth): not correct
+                    row["ms"] = correct / max(min(len(k_ref), len(k_tgt)), 1)
+                    row["precision"] = correct / kept.sum() if kept.any() else 0.0
                     back = truth.target_to_reference(target, pts, frame.shape)
                     g = np.linalg.norm(back - grid, axis=1)
                     row["grid_error_px"] = float(np.nanmedian(g)) if np.isfinite(g).any() else float("nan")
@@ -519,22 +528,22 @@ def tracking_table(rows: list[dict]) -> str:
     (over its target frames; failed frames count 0 inliers and no SSIM), then over sequences."""
     names = list(dict.fromkeys(r["descriptor"] for r in rows))
     seqs = list(dict.fromkeys(r["sequence"] for r in rows))
-    lines = ["| descriptor | inlier rate | matching score | SSIM | NCC | grid error (px, median) | failed frames |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| descriptor | inlier rate | matching score | precision | SSIM | NCC | grid error (px, median) | failed frames |",
+             "|---|---|---|---|---|---|---|---|"]
     for name in names:
-        per = {key: [] for key in ("inlier_rate", "ms", "ssim", "ncc", "grid_error_px")}
+        per = {key: [] for key in ("inlier_rate", "ms", "precision", "ssim", "ncc", "grid_error_px")}
         failed = total = 0
         for s in seqs:
             sel = [r for r in rows if r["descriptor"] == name and r["sequence"] == s]
             if not sel:
                 continue
-            for key in ("inlier_rate", "ms", "ssim", "ncc"):
+            for key in ("inlier_rate", "ms", "precision", "ssim", "ncc"):
                 per[key].append(_mean(float(r[key]) for r in sel))
             per["grid_error_px"].append(_median(float(r["grid_error_px"]) for r in sel))
             failed += sum(str(r["failed"]) in ("True", "1") for r in sel)
             total += len(sel)
         fmt = lambda v, d=2: "–" if not np.isfinite(v) else f"{v:.{d}f}"  # noqa: E731
-        lines.append(f"| {name} | {fmt(_mean(per['inlier_rate']))} | {fmt(_mean(per['ms']))} | "
+        lines.append(f"| {name} | {fmt(_mean(per['inlier_rate']))} | {fmt(_mean(per['ms']))} | {fmt(_mean(per['precision']))} | "
                      f"{fmt(_mean(per['ssim']))} | {fmt(_mean(per['ncc']))} | {fmt(_mean(per['grid_error_px']), 1)} | "
                      f"{failed}/{total} |")
     return "\n".join(lines) + "\n"
