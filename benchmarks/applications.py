@@ -60,7 +60,7 @@ def main() -> None:
                    help="sequences for retrieval (default: the tracked ones)")
     p.add_argument("--classes", default=None,
                    help="CSV sequence,class for retrieval (default: by simulator texture when known, else folder name)")
-    p.add_argument("--threshold", type=float, default=5.0, help="RANSAC inlier threshold, pixels (default 5)")
+    p.add_argument("--threshold", type=float, default=3.0, help="RANSAC inlier threshold, pixels (default 3)")
     p.add_argument("--skip-retrieval", action="store_true")
     p.add_argument("--skip-tracking", action="store_true")
     p.add_argument("--docs", type=Path, default=None, help="copy acc_at_k.png and a tracking frame PNG here")

@@ -379,7 +379,7 @@ def build_parser() -> argparse.ArgumentParser:
     trk.add_argument("sequences", nargs="+", help="sequence folders, or folders of sequences")
     app_options(trk)
     trk.add_argument("--roi", default=None, help="x0,y0,x1,y1 in reference pixels (default: object mask box shrunk by 10%%)")
-    trk.add_argument("--threshold", type=float, default=5.0, help="RANSAC inlier threshold, pixels (default 5)")
+    trk.add_argument("--threshold", type=float, default=3.0, help="RANSAC inlier threshold, pixels (default 3)")
     trk.add_argument("--lpips", action="store_true", help="LPIPS (needs local pretrained weights; not supported here)")
     trk.set_defaults(func=_track)
 

@@ -38,8 +38,8 @@ __all__ = [
     "default_roi", "roi_grid", "similarity", "ncc", "ssim", "track_sequence", "write_tracking",
 ]
 
-#: RANSAC inlier threshold, pixels in the frame.
-RANSAC_THRESHOLD_PX = 5.0
+#: RANSAC inlier threshold, pixels in the frame (the bench's 3 px correctness radius).
+RANSAC_THRESHOLD_PX = 3.0
 #: Correspondences per RANSAC hypothesis (a TPS through them; 3 would be a plain affine map).
 RANSAC_SAMPLE_SIZE = 4
 #: RANSAC hypotheses.
@@ -200,7 +200,7 @@ def fit_tps_ransac(
     iterations: int = RANSAC_ITERATIONS,
     regularisation: float = TPS_REGULARISATION,
     min_inliers: int = MIN_INLIERS,
-    refinements: int = 5,
+    refinements: int = 20,
     max_centres: int = MAX_CENTRES,
     seed: int | np.random.Generator = 0,
 ) -> RansacResult:
