@@ -150,3 +150,25 @@ def test_retrieval_command(three_objects, tmp_path, capsys):
     assert "Acc@1" in out and "object masks" in out
     assert main(args[:-2] + ["--words", "100000", "--out", str(tmp_path)]) == 2
     assert "too few" in capsys.readouterr().err
+
+
+def test_object_mask_sources(three_objects, tmp_path):
+    from geofeat.io import read_sequence
+    from geofeat.objectmask import foreground_from_depth, object_mask
+
+    depth = np.full((60, 80), 2.5, np.float32)  # a wall 2.5 m away
+    depth[10:40, 20:60] = 1.0 + np.linspace(0, 0.1, 40)[None, :]  # a slanted object at 1 m
+    depth[0, 0] = 0  # a hole
+    expected = np.zeros(depth.shape, bool)
+    expected[10:40, 20:60] = True
+    np.testing.assert_array_equal(foreground_from_depth(depth), expected)
+    # no ground-truth files: the depth foreground, which on the simulator's frames is the cloth
+    seq_dir = tmp_path / "plain"
+    seq_dir.mkdir()
+    for f in (three_objects / "blobs").iterdir():
+        if not f.name.endswith("-gt.npz"):
+            (seq_dir / f.name).write_bytes(f.read_bytes())
+    mask, source = object_mask(read_sequence(seq_dir), "frame-000-master")
+    truth, truth_source = object_mask(read_sequence(three_objects / "blobs"), "frame-000-master")
+    assert source == "depth" and truth_source == "simulator"
+    assert (mask & truth).sum() / (mask | truth).sum() > 0.95
