@@ -260,8 +260,10 @@ def _plot(acc: dict[str, np.ndarray], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(5.5, 4))
-    for name, a in acc.items():
-        ax.plot(np.arange(1, len(a) + 1), a, marker="o", label=name)
+    styles = [("o", "-", 9), ("s", "--", 7), ("^", ":", 6), ("D", "-.", 4), ("v", "-", 4), ("x", "--", 6)]
+    for i, (name, a) in enumerate(acc.items()):  # distinct markers and sizes keep equal curves visible
+        marker, line, size = styles[i % len(styles)]
+        ax.plot(np.arange(1, len(a) + 1), a, marker=marker, linestyle=line, markersize=size, label=name)
     ax.set_xlabel("K (top results)")
     ax.set_ylabel("Acc@K")
     ax.set_ylim(0, 1.02)
