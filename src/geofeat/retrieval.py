@@ -175,12 +175,13 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
                       radius: float | None = None, depth_scale: float | None = None,
                       progress: bool = True) -> RetrievalDatabase:
     """Detect keypoints inside the object mask of every frame of every sequence and describe them."""
-    from .bench.runner import Describer
+    from types import SimpleNamespace
+
+    from .bench.runner import Describer, _radius
     from .descriptors import make_descriptor
     from .io import find_sequences, read_sequence
     from .keypoints import detect
     from .objectmask import object_mask
-    from .tracking import _radius
 
     names = tuple(d.strip() if "=" in d else d.strip().lower() for d in descriptors if d.strip())
     if not names:
@@ -198,7 +199,7 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
     total = sum(len(s) for s in seqs)
     bar = tqdm(total=total, desc="retrieval: describe", unit="frame", disable=not progress)
     for seq in seqs:
-        describe = Describer(names, _radius(seq, radius))
+        describe = Describer(names, _radius(seq, SimpleNamespace(radius=radius)))  # the bench's rule
         sources = set()
         for name in seq.names:
             frame = seq.frame(name)

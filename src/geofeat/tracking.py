@@ -22,7 +22,6 @@ Pixels follow the OpenCV convention (the centre of the top-left pixel is (0, 0))
 from __future__ import annotations
 
 import csv
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,7 +29,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from .constants import DEFAULT_RADIUS_M, N_KEYPOINTS
+from .constants import N_KEYPOINTS
 from .io import Sequence, read_sequence
 
 __all__ = [
@@ -387,11 +386,13 @@ TRACK_COLUMNS = ["sequence", "descriptor", "frame", "n_template", "n_frame", "ma
                  "ms", "precision", "ssim", "ncc", "grid_error_px", "failed"]
 
 
-def _radius(seq: Sequence, radius: float | None) -> float:
-    if radius is not None:
-        return radius
-    path = seq.folder / "geofeat.json"
-    return float(json.loads(path.read_text()).get("radius", DEFAULT_RADIUS_M)) if path.is_file() else DEFAULT_RADIUS_M
+def sequence_radius(seq: Sequence, radius: float | None) -> float:
+    """Geodesic radius in metres: `radius`, else the sequence's geofeat.json, else 0.075 (the bench's rule)."""
+    from types import SimpleNamespace
+
+    from .bench.runner import _radius
+
+    return _radius(seq, SimpleNamespace(radius=radius))
 
 
 def track_sequence(
@@ -447,7 +448,7 @@ def track_sequence(
         truth = GroundTruth(seq, tps_dir)
     except ValueError:
         truth = None
-    describe = Describer(names, _radius(seq, radius))
+    describe = Describer(names, sequence_radius(seq, radius))
     f_ref = describe(ref, k_ref)
     grid = roi_grid(roi)
     results = {
