@@ -272,6 +272,40 @@ def _bench(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
+def _retrieval(args: argparse.Namespace) -> int:
+    from .retrieval import run_retrieval
+
+    acc, db = run_retrieval(args.datasets, args.out, tuple(d for d in args.descriptors.split(",") if d),
+                            words=args.words, n_samples=args.samples, seed=args.seed, classes_file=args.classes,
+                            n_keypoints=args.keypoints, tps_dir=args.tps_dir, radius=args.radius,
+                            depth_scale=args.depth_scale)
+    out = Path(args.out)
+    print((out / "retrieval.md").read_text())
+    print(f"wrote {out / 'retrieval.csv'}, {out / 'acc_at_k.png'}, {out / 'top6.png'}")
+    return 0
+
+
+def _track(args: argparse.Namespace) -> int:
+    from .io import find_sequences
+    from .tracking import write_tracking
+
+    roi = None
+    if args.roi is not None:
+        roi = [v for v in args.roi.split(",") if v.strip()]
+        if len(roi) != 4:
+            raise ValueError(f"--roi: expected x0,y0,x1,y1 (four numbers, pixels), got {args.roi!r}")
+    if args.lpips:
+        raise ValueError("--lpips: LPIPS needs pretrained backbone weights that geofeat never downloads; "
+                         "not supported in this build (SSIM and NCC are reported instead)")
+    csv_path, table = write_tracking(find_sequences(args.sequences), args.out,
+                                     tuple(d for d in args.descriptors.split(",") if d), roi=roi,
+                                     n_keypoints=args.keypoints, tps_dir=args.tps_dir, radius=args.radius,
+                                     depth_scale=args.depth_scale, threshold_px=args.threshold)
+    print((Path(args.out) / "tracking.md").read_text())
+    print(f"wrote {csv_path}, {Path(args.out) / 'tracking.md'} and per sequence/descriptor grid.npz + track.gif")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .descriptors import available_descriptors, check_descriptor_name
 
@@ -358,6 +392,32 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
     depth_profile_option(tr, "auto")
     tr.set_defaults(func=_train)
+
+    def app_options(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--descriptors", default="geopatch,geobit,sift",
+                       help=f"comma-separated, from {','.join(available_descriptors())} (default geopatch,geobit,sift)")
+        p.add_argument("--out", required=True, help="output folder")
+        p.add_argument("--keypoints", type=int, default=N_KEYPOINTS, help="SIFT keypoints per frame (default 2048)")
+        p.add_argument("--tps-dir", default=None, help="the authors' TPS ground truth (objmask, warps), one folder per sequence")
+        p.add_argument("--radius", type=float, default=None, help="geodesic radius, metres (default: geofeat.json or 0.075)")
+        p.add_argument("--depth-scale", type=float, default=None, help="metres per depth-PNG unit (default: geofeat.json or 0.001)")
+
+    ret = sub.add_parser("retrieval", help="object retrieval with a bag of visual words (Acc@K)")
+    ret.add_argument("datasets", nargs="+", help="sequence folders, or folders of sequences")
+    app_options(ret)
+    ret.add_argument("--words", type=int, default=10, help="visual words K (default 10, the paper's)")
+    ret.add_argument("--samples", type=int, default=10000, help="descriptors sampled for the vocabulary (default 10000)")
+    ret.add_argument("--classes", default=None, help="CSV 'sequence,class' (default: class = sequence folder name)")
+    ret.add_argument("--seed", type=int, default=0)
+    ret.set_defaults(func=_retrieval)
+
+    trk = sub.add_parser("track", help="track a template ROI through sequences (TPS + RANSAC)")
+    trk.add_argument("sequences", nargs="+", help="sequence folders, or folders of sequences")
+    app_options(trk)
+    trk.add_argument("--roi", default=None, help="x0,y0,x1,y1 in reference pixels (default: object mask box shrunk by 10%%)")
+    trk.add_argument("--threshold", type=float, default=3.0, help="RANSAC inlier threshold, pixels (default 3)")
+    trk.add_argument("--lpips", action="store_true", help="LPIPS (needs local pretrained weights; not supported here)")
+    trk.set_defaults(func=_track)
 
     from .sim import command as sim_command
 

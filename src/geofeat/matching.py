@@ -27,7 +27,7 @@ from numba import njit, prange
 
 from .features import Features, Matches
 
-__all__ = ["match", "METRICS"]
+__all__ = ["match", "distance_matrix", "METRICS"]
 
 METRICS = ("l2", "hamming", "hamming-rot")
 
@@ -510,3 +510,86 @@ def match(
     matches0 = np.where(keep, best_j, -1).astype(np.int64)
     distances0 = np.where(keep, best_d, np.inf)
     return Matches(matches0, distances0)
+
+
+@njit(parallel=True, cache=True)
+def _hamming_matrix8(q, t, out):
+    """All (query, target) min-over-rotations Hamming distances for 512-bit descriptors.
+    q: (N0, 8) uint64 (rotation 0); t: (N1, R, 8) uint64; out: (N0, N1) float32."""
+    n0 = q.shape[0]
+    n1, R, _ = t.shape
+    for i in prange(n0):
+        q0, q1, q2, q3 = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
+        q4, q5, q6, q7 = q[i, 4], q[i, 5], q[i, 6], q[i, 7]
+        for j in range(n1):
+            m = _BIG
+            for k in range(R):
+                dk = (
+                    _popcount64(q0 ^ t[j, k, 0])
+                    + _popcount64(q1 ^ t[j, k, 1])
+                    + _popcount64(q2 ^ t[j, k, 2])
+                    + _popcount64(q3 ^ t[j, k, 3])
+                    + _popcount64(q4 ^ t[j, k, 4])
+                    + _popcount64(q5 ^ t[j, k, 5])
+                    + _popcount64(q6 ^ t[j, k, 6])
+                    + _popcount64(q7 ^ t[j, k, 7])
+                )
+                m = min(m, dk)
+            out[i, j] = np.float32(m)
+
+
+@njit(parallel=True, cache=True)
+def _hamming_matrix(q, t, out):
+    """`_hamming_matrix8` for any number of words. q: (N0, W); t: (N1, R, W) uint64."""
+    n0, W = q.shape
+    n1, R, _ = t.shape
+    for i in prange(n0):
+        for j in range(n1):
+            m = _BIG
+            for k in range(R):
+                dk = np.uint64(0)
+                for w in range(W):
+                    dk += _popcount64(q[i, w] ^ t[j, k, w])
+                m = min(m, dk)
+            out[i, j] = np.float32(m)
+
+
+def distance_matrix(descriptors0: np.ndarray, descriptors1: np.ndarray, metric: str | None = None) -> np.ndarray:
+    """All pairwise descriptor distances, with the same metrics as `match`.
+
+    Args:
+        descriptors0: (N0, D) float, (N0, B) uint8 or (N0, R, B) uint8 descriptors.
+        descriptors1: (N1, ...) descriptors of the same trailing shape.
+        metric: "l2", "hamming" or "hamming-rot" (GeoBit: d(i, j) = min over rotations k of
+            Hamming(descriptors0[i, 0], descriptors1[j, k])); None chooses from dtype and rank.
+
+    Returns:
+        (N0, N1) float32 distances (bits for the Hamming metrics, Euclidean units for L2).
+    """
+    d0, d1 = np.asarray(descriptors0), np.asarray(descriptors1)
+    if d0.ndim < 2 or d1.ndim < 2 or d0.shape[1:] != d1.shape[1:]:
+        raise ValueError(f"descriptors: expected (N, ...) arrays of the same trailing shape, got {d0.shape} and {d1.shape}")
+    metric = _default_metric(d0) if metric is None else metric
+    if metric not in METRICS:
+        raise ValueError(f"metric: expected one of {METRICS} or None, got {metric!r}")
+    if metric == "l2":
+        a, b = d0.astype(np.float64), d1.astype(np.float64)
+        dist2 = np.einsum("ij,ij->i", a, a)[:, None] + np.einsum("ij,ij->i", b, b)[None, :] - 2.0 * (a @ b.T)
+        return np.sqrt(np.maximum(dist2, 0.0)).astype(np.float32)
+    if d0.dtype != np.uint8 or d1.dtype != np.uint8 or d0.ndim != (2 if metric == "hamming" else 3):
+        raise ValueError(f"descriptors: metric {metric!r} expects uint8 {'(N, B)' if metric == 'hamming' else '(N, R, B)'}"
+                         f" arrays, got {d0.dtype} {d0.shape}")
+    if metric == "hamming":
+        d0, d1 = d0[:, None, :], d1[:, None, :]
+    q = np.ascontiguousarray(_as_words(d0[:, 0, :]))  # (N0, W)
+    t = np.ascontiguousarray(_as_words(d1))  # (N1, R, W)
+    out = np.empty((len(q), len(t)), np.float32)
+    if len(q) and len(t):
+        W = q.shape[1]
+        if W <= 8:
+            q = np.concatenate([q, np.zeros((len(q), 8 - W), np.uint64)], axis=1)
+            t = np.concatenate([t, np.zeros(t.shape[:2] + (8 - W,), np.uint64)], axis=2)
+            _hamming_matrix8(q, t, out)
+        else:
+            _hamming_matrix(q, t, out)
+    return out

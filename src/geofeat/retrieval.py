@@ -1,0 +1,321 @@
+"""Object retrieval with a bag of visual words (the paper's first application, its retrieval figure).
+
+1. SIFT keypoints (the 2048 strongest) are detected inside the object mask of every frame of every
+   sequence (`geofeat.objectmask.object_mask`) and described;
+2. `vocabulary`: K visual words (paper: 10) are the K-medoids (FasterPAM, `kmedoids` package) of
+   10,000 descriptors sampled at random from all frames, under each descriptor's own distance
+   (L2; Hamming; GeoBit: the minimum Hamming distance over its 16 rotations), the distance matrix
+   symmetrised as (D + D^T) / 2;
+3. `histogram`: each frame becomes the L1-normalised histogram of its descriptors' nearest words;
+4. `search`: k-nearest neighbours of a query histogram among the database histograms (L2);
+5. `accuracy_at_k`: queries are the reference frames, the database every frame of every sequence
+   (the query itself excluded); Acc@K is the fraction of the top K results of the query's class,
+   averaged over queries.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from .constants import N_KEYPOINTS
+from .features import Features
+
+__all__ = [
+    "Vocabulary", "vocabulary", "sample_descriptors", "histogram", "search", "accuracy_at_k", "read_classes",
+    "RetrievalDatabase", "describe_datasets", "run_retrieval",
+]
+
+#: Visual words (the paper's K).
+N_WORDS = 10
+#: Descriptors sampled for the vocabulary (the paper's).
+N_VOCABULARY_SAMPLES = 10_000
+#: Largest K of Acc@K.
+MAX_K = 10
+
+
+@dataclass
+class Vocabulary:
+    """K visual words: medoids (K, ...) descriptors (a subset of the sample) and the metric of
+    `geofeat.match` ("l2", "hamming", "hamming-rot") that compares descriptors to them."""
+
+    medoids: np.ndarray
+    metric: str
+
+    def __len__(self) -> int:
+        return int(self.medoids.shape[0])
+
+
+def _metric_of(descriptors: np.ndarray) -> str:
+    from .matching import _default_metric
+
+    return _default_metric(descriptors)
+
+
+def sample_descriptors(features: list[Features], n: int = N_VOCABULARY_SAMPLES, seed: int | np.random.Generator = 0
+                       ) -> np.ndarray:
+    """(min(n, total), ...) valid descriptors drawn at random, without replacement, from all records."""
+    valid = [np.asarray(f.descriptors)[f.valid] for f in features]
+    if not valid:
+        raise ValueError("features: expected at least one Features record")
+    pool = np.concatenate(valid, axis=0)
+    rng = np.random.default_rng(seed)
+    if len(pool) <= n:
+        return pool
+    return pool[np.sort(rng.choice(len(pool), n, replace=False))]
+
+
+def vocabulary(descriptors: np.ndarray, words: int = N_WORDS, metric: str | None = None,
+               seed: int = 0) -> Vocabulary:
+    """K-medoids visual words of (N, ...) descriptors (FasterPAM on the full distance matrix).
+
+    Args:
+        descriptors: (N, D) float, (N, B) uint8 or (N, R, B) uint8 descriptors (N > words).
+        words: K, the number of visual words.
+        metric: see `geofeat.matching.distance_matrix`; None chooses from dtype and rank.
+        seed: FasterPAM's random initialisation and processing order.
+    """
+    import kmedoids
+
+    from .matching import distance_matrix
+
+    descriptors = np.asarray(descriptors)
+    if isinstance(words, bool) or not isinstance(words, (int, np.integer)) or words < 2:
+        raise ValueError(f"words: expected an integer >= 2, got {words!r}")
+    if descriptors.ndim < 2 or len(descriptors) <= words:
+        raise ValueError(f"descriptors: too few for {words} visual words: got {len(descriptors)} "
+                         f"(shape {descriptors.shape}), expected more than {words}")
+    metric = _metric_of(descriptors) if metric is None else metric
+    D = distance_matrix(descriptors, descriptors, metric)
+    D = (D + D.T) * np.float32(0.5)
+    result = kmedoids.fasterpam(D, int(words), init="random", random_state=int(seed), n_cpu=1)
+    medoids = np.sort(np.asarray(result.medoids, np.int64))
+    return Vocabulary(descriptors[medoids].copy(), metric)
+
+
+def histogram(features: Features | np.ndarray, vocab: Vocabulary) -> np.ndarray:
+    """(K,) float64 L1-normalised histogram of the nearest visual word of each valid descriptor
+    (all zeros when there is none)."""
+    from .matching import match
+
+    m = match(features, vocab.medoids, metric=vocab.metric)
+    words = m.matches0[m.matches0 >= 0]
+    h = np.bincount(words, minlength=len(vocab)).astype(np.float64)
+    return h / h.sum() if h.sum() > 0 else h
+
+
+def search(queries: np.ndarray, database: np.ndarray, k: int = MAX_K, exclude: np.ndarray | None = None
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """k-nearest neighbours (L2) of (Q, K) query histograms among (N, K) database histograms.
+
+    Args:
+        exclude: optional (Q,) database index per query never returned (the query itself); -1 = none.
+    Returns:
+        indices (Q, k) int64 and distances (Q, k) float64, nearest first (ties: lowest index first).
+    """
+    queries = np.atleast_2d(np.asarray(queries, np.float64))
+    database = np.atleast_2d(np.asarray(database, np.float64))
+    if queries.shape[1] != database.shape[1]:
+        raise ValueError(f"queries, database: histograms of different lengths {queries.shape} and {database.shape}")
+    d = np.sqrt(np.maximum(((queries[:, None, :] - database[None, :, :]) ** 2).sum(-1), 0.0))
+    if exclude is not None:
+        exclude = np.asarray(exclude, np.int64).reshape(-1)
+        rows = np.flatnonzero(exclude >= 0)
+        d[rows, exclude[rows]] = np.inf
+    k = min(k, database.shape[0] - (0 if exclude is None else 1))
+    idx = np.argsort(d, axis=1, kind="stable")[:, :k]
+    return idx, np.take_along_axis(d, idx, axis=1)
+
+
+def accuracy_at_k(neighbours: np.ndarray, database_classes, query_classes) -> np.ndarray:
+    """(k,) Acc@K for K = 1..k: fraction of the top K results (neighbours (Q, k) database indices)
+    of the query's class, averaged over the Q queries."""
+    db = np.asarray(database_classes)
+    correct = db[np.asarray(neighbours)] == np.asarray(query_classes)[:, None]  # (Q, k)
+    return (np.cumsum(correct, axis=1) / np.arange(1, correct.shape[1] + 1)).mean(axis=0)
+
+
+def read_classes(path: str | Path) -> dict[str, str]:
+    """A CSV of `sequence,class` lines (an optional header `sequence,class`) -> {sequence: class}."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"classes: file not found: {path}")
+    out = {}
+    with open(path, newline="") as fh:
+        for i, row in enumerate(csv.reader(fh)):
+            row = [c.strip() for c in row]
+            if not row or not any(row) or (i == 0 and row[:2] == ["sequence", "class"]):
+                continue
+            if len(row) < 2 or not row[0] or not row[1]:
+                raise ValueError(f"classes: {path} line {i + 1}: expected 'sequence,class', got {','.join(row)!r}")
+            out[row[0]] = row[1]
+    return out
+
+
+@dataclass
+class RetrievalDatabase:
+    """Described frames: per frame (sequence, frame name, class, is reference), the masks' sources
+    per sequence, and per descriptor the list of Features (one per frame, same order)."""
+
+    sequences: list[str]
+    frames: list[str]
+    classes: list[str]
+    is_query: np.ndarray
+    folders: list[Path]
+    mask_sources: dict[str, str]
+    features: dict[str, list[Features]]
+
+
+def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int = N_KEYPOINTS,
+                      classes: dict[str, str] | None = None, tps_dir: str | None = None,
+                      radius: float | None = None, depth_scale: float | None = None,
+                      progress: bool = True) -> RetrievalDatabase:
+    """Detect keypoints inside the object mask of every frame of every sequence and describe them."""
+    from types import SimpleNamespace
+
+    from .bench.runner import Describer, _radius
+    from .depth import sequence_depth_profile
+    from .descriptors import check_descriptor_name
+    from .io import find_sequences, read_sequence
+    from .keypoints import detect
+    from .objectmask import object_mask
+
+    names = tuple(check_descriptor_name(d) for d in descriptors if d.strip())  # nothing built yet
+    if not names:
+        raise ValueError("descriptors: expected at least one descriptor name")
+    folders = find_sequences(datasets)
+    db = RetrievalDatabase([], [], [], np.zeros(0, bool), [], {}, {n: [] for n in names})
+    is_query = []
+    seqs = [read_sequence(f, depth_scale=depth_scale) for f in folders]
+    if classes is not None:
+        missing = [s.name for s in seqs if s.name not in classes]
+        if missing:
+            raise ValueError(f"classes: no class for sequence(s) {', '.join(missing[:5])}")
+    total = sum(len(s) for s in seqs)
+    bar = tqdm(total=total, desc="retrieval: describe", unit="frame", disable=not progress)
+    for seq in seqs:
+        # the bench's rules for the radius and the depth profile
+        describe = Describer(names, _radius(seq, SimpleNamespace(radius=radius)), sequence_depth_profile(seq))
+        sources = set()
+        for name in seq.names:
+            frame = seq.frame(name)
+            mask, source = object_mask(seq, name, tps_dir)
+            sources.add(source)
+            kps = detect(frame, n_keypoints, mask=mask)
+            for d, (f, _) in describe(frame, kps).items():
+                db.features[d].append(f)
+            db.sequences.append(seq.name)
+            db.frames.append(name)
+            db.classes.append(classes[seq.name] if classes is not None else seq.name)
+            db.folders.append(seq.folder)
+            is_query.append(name == seq.reference)
+            bar.update(1)
+        db.mask_sources[seq.name] = ",".join(sorted(sources))
+    bar.close()
+    db.is_query = np.asarray(is_query, bool)
+    return db
+
+
+def _thumbnail(folder: Path, name: str, size: tuple[int, int], colour) -> np.ndarray:
+    import cv2
+
+    from .io import RGB_SUFFIX, read_image
+
+    img = cv2.resize(read_image(folder / f"{name}{RGB_SUFFIX}"), size, interpolation=cv2.INTER_AREA)
+    if colour is not None:
+        cv2.rectangle(img, (0, 0), (size[0] - 1, size[1] - 1), colour, 6)
+    return img
+
+
+def _top6_picture(db: RetrievalDatabase, results: dict[str, np.ndarray], path: Path, queries_per: int = 2) -> None:
+    """Rows: descriptor x query; query thumbnail (blue frame), then its top 6 (green = same class)."""
+    import cv2
+
+    size = (160, 120)
+    rows = []
+    q_idx = np.flatnonzero(db.is_query)
+    chosen = q_idx[np.linspace(0, len(q_idx) - 1, min(queries_per, len(q_idx))).round().astype(int)]
+    for name, neighbours in results.items():
+        for qi in chosen:
+            row_q = int(np.flatnonzero(q_idx == qi)[0])
+            tiles = [_thumbnail(db.folders[qi], db.frames[qi], size, (255, 128, 0))]
+            for j in neighbours[row_q, :6]:
+                ok = db.classes[j] == db.classes[qi]
+                tiles.append(_thumbnail(db.folders[j], db.frames[j], size, (0, 200, 0) if ok else (0, 0, 255)))
+            while len(tiles) < 7:
+                tiles.append(np.zeros((size[1], size[0], 3), np.uint8))
+            label = np.full((size[1], 110, 3), 255, np.uint8)
+            cv2.putText(label, name[:12], (4, size[1] // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+            rows.append(np.concatenate([label] + tiles, axis=1))
+    cv2.imwrite(str(path), np.concatenate(rows, axis=0))
+
+
+def _plot(acc: dict[str, np.ndarray], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    styles = [("o", "-", 9), ("s", "--", 7), ("^", ":", 6), ("D", "-.", 4), ("v", "-", 4), ("x", "--", 6)]
+    for i, (name, a) in enumerate(acc.items()):  # distinct markers and sizes keep equal curves visible
+        marker, line, size = styles[i % len(styles)]
+        ax.plot(np.arange(1, len(a) + 1), a, marker=marker, linestyle=line, markersize=size, label=name)
+    ax.set_xlabel("K (top results)")
+    ax.set_ylabel("Acc@K")
+    ax.set_ylim(0, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    ax.set_title("Object retrieval, bag of visual words")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("geopatch", "geobit", "sift"),
+                  words: int = N_WORDS, n_samples: int = N_VOCABULARY_SAMPLES, seed: int = 0,
+                  classes_file: str | None = None, n_keypoints: int = N_KEYPOINTS, tps_dir: str | None = None,
+                  radius: float | None = None, depth_scale: float | None = None, max_k: int = MAX_K,
+                  progress: bool = True) -> tuple[dict[str, np.ndarray], RetrievalDatabase]:
+    """The whole retrieval experiment; writes into `out`: `retrieval.csv` (descriptor, k, accuracy),
+    `acc_at_k.png`, `top6.png` (two queries per descriptor) and `retrieval.md` (table + mask sources).
+
+    Returns ({descriptor: (max_k,) Acc@K}, the described database)."""
+    out = Path(out)
+    classes = read_classes(classes_file) if classes_file else None
+    db = describe_datasets(datasets, descriptors, n_keypoints, classes, tps_dir, radius, depth_scale, progress)
+    if db.is_query.sum() == 0:
+        raise ValueError("datasets: no reference frame to query")
+    out.mkdir(parents=True, exist_ok=True)
+    q_idx = np.flatnonzero(db.is_query)
+    acc, results = {}, {}
+    for name, feats in db.features.items():
+        sample = sample_descriptors(feats, n_samples, seed)
+        if len(sample) <= words:
+            raise ValueError(f"descriptors: {name} gave {len(sample)} valid descriptors in all, too few for "
+                             f"{words} visual words")
+        vocab = vocabulary(sample, words, seed=seed)
+        hist = np.stack([histogram(f, vocab) for f in feats])
+        neighbours, _ = search(hist[q_idx], hist, max_k, exclude=q_idx)
+        results[name] = neighbours
+        acc[name] = accuracy_at_k(neighbours, db.classes, np.asarray(db.classes)[q_idx])
+    with open(out / "retrieval.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["descriptor", "k", "accuracy"])
+        for name, a in acc.items():
+            w.writerows([name, k + 1, f"{v:.4f}"] for k, v in enumerate(a))
+    _plot(acc, out / "acc_at_k.png")
+    _top6_picture(db, results, out / "top6.png")
+    ks = [k for k in (1, 3, 5, 10) if k <= max(len(a) for a in acc.values())]
+    lines = ["| descriptor | " + " | ".join(f"Acc@{k}" for k in ks) + " |", "|---" * (len(ks) + 1) + "|"]
+    lines += [f"| {n} | " + " | ".join(f"{a[k - 1]:.3f}" for k in ks) + " |" for n, a in acc.items()]
+    n_cls = len(set(db.classes))
+    notes = [f"- {len(db.frames)} frames of {len(set(db.sequences))} sequences, {n_cls} classes, "
+             f"{len(q_idx)} queries; {words} words from {min(n_samples, sum(int(f.valid.sum()) for f in next(iter(db.features.values()))))} descriptors",
+             "- object masks: " + ", ".join(f"{s}: {src}" for s, src in db.mask_sources.items())]
+    (out / "retrieval.md").write_text("\n".join(lines) + "\n\n" + "\n".join(notes) + "\n")
+    return acc, db

@@ -1,0 +1,593 @@
+"""Deformable-surface tracking (the paper's second application, Table IV).
+
+A template region of interest (ROI) of the reference frame is followed in every frame of a sequence:
+
+1. SIFT keypoints (the 2048 strongest) in the reference frame, kept inside the ROI, are matched to the
+   keypoints of frame k by smallest descriptor distance (`geofeat.match`);
+2. a deformable-affine thin-plate spline (TPS) from template pixels to frame-k pixels is fitted with
+   RANSAC outlier rejection (`fit_tps_ransac`), the template registered to frame k directly (no drift
+   through frames). As in Tran et al., "In defence of RANSAC for outlier rejection in deformable
+   registration" (ECCV 2012), both point sets are normalised first (centroid at the origin, mean
+   distance sqrt(2)), hypotheses are TPS warps fitted to small random samples, and the best is refined
+   on its inliers;
+3. per frame: matches, RANSAC inliers, inlier rate, the matching score of the kept matches (inliers
+   that the bench's ground truth calls correct, over min(template, frame) keypoints as the bench's
+   MS; and their precision, correct over inliers), and the photometric
+   similarity (SSIM, NCC) inside the ROI of the template and frame k warped back onto the template;
+   a 10 x 10 grid over the ROI is carried into every frame by the fitted warp.
+
+Pixels follow the OpenCV convention (the centre of the top-left pixel is (0, 0)).
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from .constants import N_KEYPOINTS
+from .io import Sequence, read_sequence
+
+__all__ = [
+    "TPSWarp", "RansacResult", "TrackResult", "normalise_points", "fit_tps", "fit_tps_ransac", "warp_points",
+    "default_roi", "roi_grid", "similarity", "ncc", "ssim", "track_sequence", "write_tracking",
+]
+
+#: RANSAC inlier threshold, pixels in the frame (the bench's 3 px correctness radius).
+RANSAC_THRESHOLD_PX = 3.0
+#: Correspondences per RANSAC hypothesis (a TPS through them; 3 would be a plain affine map).
+RANSAC_SAMPLE_SIZE = 4
+#: RANSAC hypotheses.
+RANSAC_ITERATIONS = 1000
+#: TPS smoothing of the refined warp, in normalised coordinates (0 = interpolate the inliers).
+TPS_REGULARISATION = 1e-3
+#: Most control points of the refined TPS (spread over the template).
+MAX_CENTRES = 256
+#: Fewest RANSAC inliers for a frame's fit to count as a success.
+MIN_INLIERS = 10
+#: Fewest template keypoints inside the ROI.
+MIN_ROI_KEYPOINTS = 10
+#: Grid side over the ROI (G = GRID_SIDE ** 2 points).
+GRID_SIDE = 10
+
+
+# ----------------------------------------------------------------------------------------------
+# Thin-plate spline
+
+
+@dataclass
+class TPSWarp:
+    """A deformable-affine thin-plate spline from source pixels to destination pixels.
+
+    In normalised coordinates (p_n = T_src p, see `normalise_points`) the warp is
+    f(p_n) = [1, x, y] @ affine + sum_i weights[i] * U(|p_n - centres[i]|), U(r) = r^2 log r^2,
+    and destination pixels are T_dst^-1 f(p_n).
+
+    Attributes:
+        centres: (C, 2) normalised source control points.
+        weights: (C, 2) kernel weights.
+        affine: (3, 2) affine part.
+        src_transform, dst_transform: (3, 3) pixel -> normalised similarity transforms.
+    """
+
+    centres: np.ndarray
+    weights: np.ndarray
+    affine: np.ndarray
+    src_transform: np.ndarray
+    dst_transform: np.ndarray
+
+
+def normalise_points(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Hartley normalisation of (N, 2) pixels: centroid to the origin, mean distance sqrt(2).
+
+    Returns the (3, 3) similarity transform T and the (N, 2) normalised points (T applied)."""
+    xy = np.asarray(xy, np.float64).reshape(-1, 2)
+    centre = xy.mean(axis=0)
+    spread = np.linalg.norm(xy - centre, axis=1).mean()
+    s = np.sqrt(2.0) / spread if spread > 1e-12 else 1.0
+    T = np.array([[s, 0, -s * centre[0]], [0, s, -s * centre[1]], [0, 0, 1.0]])
+    return T, (xy - centre) * s
+
+
+def _apply(T: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    return xy @ T[:2, :2].T + T[:2, 2]
+
+
+def _kernel(d2: np.ndarray) -> np.ndarray:
+    """TPS kernel U = r^2 log r^2 of squared distances (0 at r = 0)."""
+    return np.where(d2 > 0, d2 * np.log(np.maximum(d2, 1e-300)), 0.0)
+
+
+def _sq_dist(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(..., N, 2), (..., M, 2) -> (..., N, M) squared distances."""
+    return ((a[..., :, None, :] - b[..., None, :, :]) ** 2).sum(-1)
+
+
+def _solve_tps(src: np.ndarray, dst: np.ndarray, regularisation: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Batched TPS fit in normalised coordinates. src, dst: (B, n, 2).
+
+    Returns weights (B, n, 2), affine (B, 3, 2), ok (B,) (False for degenerate, e.g. collinear, samples)."""
+    B, n, _ = src.shape
+    P = np.concatenate([np.ones((B, n, 1)), src], axis=2)  # (B, n, 3)
+    L = np.zeros((B, n + 3, n + 3))
+    L[:, :n, :n] = _kernel(_sq_dist(src, src)) + regularisation * n * np.eye(n)
+    L[:, :n, n:] = P
+    L[:, n:, :n] = P.transpose(0, 2, 1)
+    rhs = np.zeros((B, n + 3, 2))
+    rhs[:, :n] = dst
+    # collinear (or repeated) points: the affine part is not determined
+    centred = src - src.mean(axis=1, keepdims=True)
+    ok = np.linalg.det(np.einsum("bni,bnj->bij", centred, centred)) > 1e-6 * n**2
+    L[~ok] = np.eye(n + 3)
+    sol = np.linalg.solve(L, rhs)
+    return sol[:, :n], sol[:, n:], ok
+
+
+def fit_tps(src: np.ndarray, dst: np.ndarray, regularisation: float = TPS_REGULARISATION) -> TPSWarp:
+    """Fit a TPS to all (N, 2) source -> (N, 2) destination pixel pairs (N >= 3, not collinear).
+
+    `regularisation` is the TPS smoothing in normalised coordinates (0 interpolates exactly)."""
+    src, dst = _check_pairs(src, dst, 3)
+    Ts, sn = normalise_points(src)
+    Td, dn = normalise_points(dst)
+    w, a, ok = _solve_tps(sn[None], dn[None], regularisation)
+    if not ok[0]:
+        raise ValueError("src: the points are collinear; a TPS needs points spanning the plane")
+    return TPSWarp(sn, w[0], a[0], Ts, Td)
+
+
+def warp_points(warp: TPSWarp, xy: np.ndarray) -> np.ndarray:
+    """Map (M, 2) source pixels through `warp`; returns (M, 2) destination pixels."""
+    xy = np.asarray(xy, np.float64).reshape(-1, 2)
+    p = _apply(warp.src_transform, xy)
+    out = np.concatenate([np.ones((len(p), 1)), p], axis=1) @ warp.affine
+    c2 = (warp.centres**2).sum(1)
+    for s in range(0, len(p), 4096):  # blocks keep the (M, C) kernel small
+        q = p[s : s + 4096]
+        d2 = np.maximum((q**2).sum(1)[:, None] + c2[None, :] - 2.0 * (q @ warp.centres.T), 0.0)
+        out[s : s + 4096] += _kernel(d2) @ warp.weights
+    return _apply(np.linalg.inv(warp.dst_transform), out)
+
+
+@dataclass
+class RansacResult:
+    """Outcome of `fit_tps_ransac`: warp (None when the fit failed) and inliers (N,) bool."""
+
+    warp: TPSWarp | None
+    inliers: np.ndarray
+
+    @property
+    def ok(self) -> bool:
+        return self.warp is not None
+
+
+def _check_pairs(src, dst, minimum: int) -> tuple[np.ndarray, np.ndarray]:
+    src = np.asarray(src, np.float64)
+    dst = np.asarray(dst, np.float64)
+    if src.ndim != 2 or src.shape[1] != 2 or dst.shape != src.shape:
+        raise ValueError(f"src, dst: expected two (N, 2) arrays of pixels, got shapes {src.shape} and {dst.shape}")
+    if not (np.isfinite(src).all() and np.isfinite(dst).all()):
+        raise ValueError("src, dst: pixel coordinates must be finite")
+    if len(src) < minimum:
+        raise ValueError(f"src, dst: expected at least {minimum} correspondences, got {len(src)}")
+    return src, dst
+
+
+def _spread(points: np.ndarray, keep: np.ndarray, max_points: int) -> np.ndarray:
+    """Indices of at most ~`max_points` of the `keep` (N,) bool points (N, 2), one per cell of a
+    square grid over their bounding box (the first in index order), so that they cover it evenly."""
+    idx = np.flatnonzero(keep)
+    if len(idx) <= max_points:
+        return idx
+    p = points[idx]
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    side = int(np.sqrt(max_points))
+    cell = np.minimum(((p - lo) / np.maximum(hi - lo, 1e-12) * side).astype(np.int64), side - 1)
+    _, first = np.unique(cell[:, 1] * side + cell[:, 0], return_index=True)
+    return idx[np.sort(first)]
+
+
+def fit_tps_ransac(
+    src: np.ndarray,
+    dst: np.ndarray,
+    threshold_px: float = RANSAC_THRESHOLD_PX,
+    sample_size: int = RANSAC_SAMPLE_SIZE,
+    iterations: int = RANSAC_ITERATIONS,
+    regularisation: float = TPS_REGULARISATION,
+    min_inliers: int = MIN_INLIERS,
+    refinements: int = 20,
+    max_centres: int = MAX_CENTRES,
+    seed: int | np.random.Generator = 0,
+) -> RansacResult:
+    """Robust TPS fit: RANSAC on small samples, then refinement on the inliers.
+
+    Both point sets are normalised (`normalise_points`, as in Tran et al. ECCV 2012). Each of the
+    `iterations` hypotheses is the TPS through `sample_size` random correspondences (fitted and
+    scored in one batch, vectorised); the one with most inliers (destination residual below
+    `threshold_px` pixels) is refitted to its inliers with smoothing `regularisation` (through at
+    most `max_centres` of them, spread over the template: one per cell of a grid), and inliers
+    recomputed, up to `refinements` times or until they stop changing.
+
+    Args:
+        src, dst: (N, 2) matched pixels, template and frame.
+    Returns:
+        `RansacResult`; warp is None (fit failed) when fewer than `min_inliers` inliers remain or
+        N < max(sample_size, min_inliers).
+    """
+    src, dst = _check_pairs(src, dst, 0)
+    if sample_size < 3:
+        raise ValueError(f"sample_size: expected >= 3 correspondences per hypothesis, got {sample_size}")
+    if threshold_px <= 0:
+        raise ValueError(f"threshold_px: expected a positive number of pixels, got {threshold_px}")
+    n = len(src)
+    failed = RansacResult(None, np.zeros(n, bool))
+    if n < max(sample_size, min_inliers, 3):
+        return failed
+    rng = np.random.default_rng(seed)
+    Ts, sn = normalise_points(src)
+    Td, dn = normalise_points(dst)
+    thr = threshold_px * Td[0, 0]  # the threshold in normalised destination units
+    best = np.zeros(n, bool)
+    for start in range(0, iterations, 250):  # batches bound the (B, N, s) memory
+        b = min(250, iterations - start)
+        idx = np.argsort(rng.random((b, n)), axis=1)[:, :sample_size]  # (B, s) without replacement
+        s_src, s_dst = sn[idx], dn[idx]
+        w, a, ok = _solve_tps(s_src, s_dst, 1e-9)
+        pred = np.einsum("ni,bij->bnj", np.concatenate([np.ones((n, 1)), sn], axis=1), a)
+        pred += np.einsum("bns,bsj->bnj", _kernel(_sq_dist(sn[None], s_src)), w)
+        inl = (((pred - dn[None]) ** 2).sum(-1) < thr**2) & ok[:, None]
+        counts = inl.sum(axis=1)
+        if counts.max() > best.sum():
+            best = inl[np.argmax(counts)]
+    if best.sum() < max(min_inliers, 3):
+        return failed
+    warp = None
+    for _ in range(refinements):
+        use = _spread(sn, best, max_centres)
+        w, a, ok = _solve_tps(sn[use][None], dn[use][None], regularisation)
+        if not ok[0]:
+            return failed
+        warp = TPSWarp(sn[use], w[0], a[0], Ts, Td)
+        inliers = np.linalg.norm(warp_points(warp, src) - dst, axis=1) < threshold_px
+        if (inliers == best).all() or inliers.sum() < max(min_inliers, 3):
+            break
+        best = inliers
+    if warp is None or best.sum() < min_inliers:
+        return failed
+    return RansacResult(warp, np.linalg.norm(warp_points(warp, src) - dst, axis=1) < threshold_px)
+
+
+# ----------------------------------------------------------------------------------------------
+# ROI, grid, similarity
+
+
+def default_roi(mask: np.ndarray, shrink: float = 0.10) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1) pixels: the bounding box of the (H, W) bool object mask shrunk by `shrink`
+    of its width and height (half on each side)."""
+    ys, xs = np.nonzero(mask)
+    if len(xs) == 0:
+        raise ValueError("mask: the object mask is empty; pass --roi x0,y0,x1,y1")
+    x0, x1, y0, y1 = xs.min(), xs.max(), ys.min(), ys.max()
+    dx, dy = shrink * (x1 - x0) / 2, shrink * (y1 - y0) / 2
+    return int(round(x0 + dx)), int(round(y0 + dy)), int(round(x1 - dx)), int(round(y1 - dy))
+
+
+def check_roi(roi, shape: tuple[int, int]) -> tuple[int, int, int, int]:
+    """Validate an (x0, y0, x1, y1) ROI against an image of shape (H, W)."""
+    try:
+        x0, y0, x1, y1 = (int(round(float(v))) for v in roi)
+    except (TypeError, ValueError):
+        raise ValueError(f"roi: expected four numbers x0,y0,x1,y1 (pixels), got {roi!r}") from None
+    H, W = shape
+    if not (0 <= x0 < x1 <= W - 1 and 0 <= y0 < y1 <= H - 1):
+        raise ValueError(f"roi: ({x0}, {y0}, {x1}, {y1}) is not a box inside the {W} x {H} image "
+                         "(expected 0 <= x0 < x1 <= W-1 and 0 <= y0 < y1 <= H-1)")
+    return x0, y0, x1, y1
+
+
+def roi_grid(roi: tuple[int, int, int, int], side: int = GRID_SIDE) -> np.ndarray:
+    """(side * side, 2) regular grid of pixels over the ROI, row-major (x fastest)."""
+    x0, y0, x1, y1 = roi
+    gx, gy = np.meshgrid(np.linspace(x0, x1, side), np.linspace(y0, y1, side))
+    return np.stack([gx.ravel(), gy.ravel()], axis=1)
+
+
+def ncc(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:
+    """Zero-mean normalised cross-correlation of two images of the same shape over `mask` (bool)."""
+    a = np.asarray(a, np.float64)
+    b = np.asarray(b, np.float64)
+    m = np.ones(a.shape, bool) if mask is None else mask
+    if m.sum() < 2:
+        return float("nan")
+    x, y = a[m] - a[m].mean(), b[m] - b[m].mean()
+    denom = np.sqrt((x * x).sum() * (y * y).sum())
+    return float((x * y).sum() / denom) if denom > 0 else float("nan")
+
+
+def ssim(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:
+    """Mean SSIM of two gray images in [0, 1] over `mask` (OpenCV's quality.QualitySSIM map:
+    Gaussian 11 x 11 window, sigma 1.5)."""
+    _, qmap = cv2.quality.QualitySSIM_compute(np.float32(a) * 255.0, np.float32(b) * 255.0)
+    qmap = np.asarray(qmap[0] if isinstance(qmap, (tuple, list)) else qmap)
+    if qmap.ndim == 3:
+        qmap = qmap[..., 0]
+    m = np.ones(qmap.shape, bool) if mask is None else mask
+    return float(qmap[m].mean()) if m.any() else float("nan")
+
+
+def warp_back(image: np.ndarray, warp: TPSWarp, roi: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Frame `image` (H, W) sampled at the warped template ROI pixels: returns the (h, w) float32
+    image in template ROI coordinates and the (h, w) bool mask of pixels landing inside the frame."""
+    x0, y0, x1, y1 = roi
+    h, w = y1 - y0 + 1, x1 - x0 + 1
+    # the warp is smooth: evaluate it every `step` pixels and interpolate bilinearly in between
+    step = 4
+    gx, gy = np.meshgrid(x0 + step * np.arange((w - 1) // step + 2.0), y0 + step * np.arange((h - 1) // step + 2.0))
+    coarse = warp_points(warp, np.stack([gx.ravel(), gy.ravel()], axis=1)).reshape(gx.shape + (2,)).astype(np.float32)
+    fx, fy = np.meshgrid(np.arange(w, dtype=np.float32) / step, np.arange(h, dtype=np.float32) / step)
+    p = cv2.remap(coarse, fx, fy, cv2.INTER_LINEAR)  # (h, w, 2) frame pixels of the template ROI pixels
+    H, W = image.shape
+    inside = (p[..., 0] >= 0) & (p[..., 0] <= W - 1) & (p[..., 1] >= 0) & (p[..., 1] <= H - 1)
+    out = cv2.remap(np.float32(image), p[..., 0], p[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    return out, inside
+
+
+def similarity(template: np.ndarray, image: np.ndarray, warp: TPSWarp | None,
+               roi: tuple[int, int, int, int]) -> tuple[float, float]:
+    """(SSIM, NCC) inside the ROI of the template (H, W) gray image and `image` warped back onto it;
+    NaN when there is no warp."""
+    if warp is None:
+        return float("nan"), float("nan")
+    x0, y0, x1, y1 = roi
+    back, inside = warp_back(image, warp, roi)
+    crop = np.float32(template[y0 : y1 + 1, x0 : x1 + 1])
+    return ssim(crop, back, inside), ncc(crop, back, inside)
+
+
+# ----------------------------------------------------------------------------------------------
+# Sequences
+
+
+@dataclass
+class TrackResult:
+    """Tracking of one sequence with one descriptor.
+
+    Attributes:
+        sequence, descriptor: names.
+        roi: (x0, y0, x1, y1) template ROI, reference pixels.
+        frames: the F frame names, reference first.
+        reference_points: (G, 2) grid over the ROI, reference pixels.
+        points: (F, G, 2) where the fitted warps put the grid in each frame (frame 0 = the grid
+            itself), NaN where the fit failed.
+        rows: one dict per target frame (see `TRACK_COLUMNS`).
+        mask_source: where the object mask came from ("simulator", "objmask", "depth").
+    """
+
+    sequence: str
+    descriptor: str
+    roi: tuple[int, int, int, int]
+    frames: list[str]
+    reference_points: np.ndarray
+    points: np.ndarray
+    rows: list[dict] = field(default_factory=list)
+    mask_source: str = ""
+
+
+#: Columns of track.csv. n_template / n_frame: keypoints in the template ROI / in the frame; matches:
+#: template keypoints with a nearest neighbour; inliers: RANSAC inliers among them; ms: correct
+#: inliers / min(n_template, n_frame) (the bench's matching score applied to the kept matches);
+#: precision: correct inliers / inliers (correct: the bench's ground truth within 3 px);
+#: grid_error_px: median over the grid of |ground truth(tracked point) - grid point|, reference pixels.
+TRACK_COLUMNS = ["sequence", "descriptor", "frame", "n_template", "n_frame", "matches", "inliers", "inlier_rate",
+                 "ms", "precision", "ssim", "ncc", "grid_error_px", "failed"]
+
+
+def sequence_radius(seq: Sequence, radius: float | None) -> float:
+    """Geodesic radius in metres: `radius`, else the sequence's geofeat.json, else 0.075 (the bench's rule)."""
+    from types import SimpleNamespace
+
+    from .bench.runner import _radius
+
+    return _radius(seq, SimpleNamespace(radius=radius))
+
+
+def track_sequence(
+    folder: str | Path,
+    descriptors: tuple[str, ...] = ("geopatch", "geobit", "sift"),
+    roi: tuple[int, int, int, int] | None = None,
+    n_keypoints: int = N_KEYPOINTS,
+    tps_dir: str | None = None,
+    radius: float | None = None,
+    depth_scale: float | None = None,
+    threshold_px: float = RANSAC_THRESHOLD_PX,
+    seed: int = 0,
+    progress: bool = True,
+) -> dict[str, TrackResult]:
+    """Track the template ROI of a sequence's reference frame through all its frames.
+
+    Args:
+        folder: a sequence in the public layout (reference frame + targets).
+        descriptors: names known to `geofeat.make_descriptor`.
+        roi: (x0, y0, x1, y1) reference pixels; None = the object mask's bounding box shrunk by 10 %.
+        n_keypoints: SIFT keypoints per frame (the strongest).
+        tps_dir: the authors' TPS ground truth (object masks, and ground truth for the scores).
+        radius: geodesic radius in metres (None: the sequence's geofeat.json or 0.075).
+        threshold_px: RANSAC inlier threshold, pixels.
+    Returns:
+        {descriptor: TrackResult}. Frames whose fit fails are recorded as failed; the run goes on.
+    """
+    from .bench.protocol import GT_THRESHOLD_PX
+    from .bench.runner import Describer, GroundTruth
+    from .depth import sequence_depth_profile
+    from .descriptors import check_descriptor_name
+    from .keypoints import detect
+    from .matching import match
+    from .objectmask import object_mask
+
+    names = tuple(check_descriptor_name(d) for d in descriptors if d.strip())  # unknown names fail before any work
+    if not names:
+        raise ValueError("descriptors: expected at least one descriptor name")
+    seq = read_sequence(folder, depth_scale=depth_scale)
+    if len(seq) < 2:
+        raise ValueError(f"sequence {seq.name}: needs a reference frame and at least one other frame, got {len(seq)} frame(s)")
+    ref = seq.frame(seq.reference)
+    mask, mask_source = object_mask(seq, seq.reference, tps_dir)
+    roi = check_roi(default_roi(mask) if roi is None else roi, ref.shape)
+    x0, y0, x1, y1 = roi
+    k_ref = detect(ref, n_keypoints)
+    inside = (k_ref.xy[:, 0] >= x0) & (k_ref.xy[:, 0] <= x1) & (k_ref.xy[:, 1] >= y0) & (k_ref.xy[:, 1] <= y1)
+    k_ref = k_ref[inside]
+    if len(k_ref) < MIN_ROI_KEYPOINTS:
+        raise ValueError(f"roi: {roi} holds {len(k_ref)} keypoints of {seq.reference}; expected at least {MIN_ROI_KEYPOINTS}")
+    try:
+        truth = GroundTruth(seq, tps_dir)
+    except ValueError:
+        truth = None
+    describe = Describer(names, sequence_radius(seq, radius), sequence_depth_profile(seq, None, ref))
+    f_ref = describe(ref, k_ref)
+    grid = roi_grid(roi)
+    results = {
+        n: TrackResult(seq.name, n, roi, list(seq.names), grid, np.full((len(seq), len(grid), 2), np.nan),
+                       mask_source=mask_source)
+        for n in names
+    }
+    for r in results.values():
+        r.points[0] = grid
+    bar = tqdm(list(enumerate(seq.targets, start=1)), desc=f"track {seq.name}", unit="frame", disable=not progress)
+    for k, target in bar:
+        frame = seq.frame(target)
+        k_tgt = detect(frame, n_keypoints)
+        f_tgt = describe(frame, k_tgt)
+        to_ref = truth.target_to_reference(target, k_tgt.xy, frame.shape) if truth is not None else None
+        for name in names:
+            m = match(f_ref[name][0], f_tgt[name][0])
+            i0 = np.flatnonzero(m.matches0 >= 0)
+            i1 = m.matches0[i0]
+            fit = fit_tps_ransac(k_ref.xy[i0], k_tgt.xy[i1], threshold_px=threshold_px, seed=seed)
+            row = dict(sequence=seq.name, descriptor=name, frame=target, n_template=len(k_ref), n_frame=len(k_tgt),
+                       matches=len(i0), inliers=int(fit.inliers.sum()),
+                       inlier_rate=fit.inliers.sum() / len(i0) if len(i0) else 0.0, ms=float("nan"),
+                       precision=float("nan"), ssim=float("nan"), ncc=float("nan"), grid_error_px=float("nan"),
+                       failed=not fit.ok)
+            if fit.ok:
+                pts = warp_points(fit.warp, grid)
+                results[name].points[k] = pts
+                row["ssim"], row["ncc"] = similarity(ref.image, frame.image, fit.warp, roi)
+                if to_ref is not None:
+                    kept = fit.inliers
+                    err = np.linalg.norm(to_ref[i1[kept]] - k_ref.xy[i0[kept]], axis=1)
+                    correct = int((err < GT_THRESHOLD_PX).sum())  # NaN (no ground truth): not correct
+                    row["ms"] = correct / max(min(len(k_ref), len(k_tgt)), 1)
+                    row["precision"] = correct / kept.sum() if kept.any() else 0.0
+                    back = truth.target_to_reference(target, pts, frame.shape)
+                    g = np.linalg.norm(back - grid, axis=1)
+                    row["grid_error_px"] = float(np.nanmedian(g)) if np.isfinite(g).any() else float("nan")
+            results[name].rows.append(row)
+    return results
+
+
+def _draw_grid(image: np.ndarray, pts: np.ndarray, side: int, colour, label: str) -> np.ndarray:
+    out = image.copy()
+    if np.isfinite(pts).all():
+        g = np.round(pts.reshape(side, side, 2) * 4).astype(np.int32)  # 2 fractional bits
+        for line in list(g) + list(g.transpose(1, 0, 2)):
+            cv2.polylines(out, [np.ascontiguousarray(line.reshape(-1, 1, 2))], False, colour, 2, cv2.LINE_AA, shift=2)
+    else:
+        label += " (fit failed)"
+    cv2.putText(out, label, (8, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 3, cv2.LINE_AA)
+    cv2.putText(out, label, (8, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
+    return out
+
+
+def grid_frames(seq: Sequence, result: TrackResult, scale: float = 0.5) -> list[np.ndarray]:
+    """(h, w, 3) uint8 RGB pictures of every frame with the tracked grid drawn, resized by `scale`."""
+    from .viz import to_bgr
+
+    pictures = []
+    for k, name in enumerate(result.frames):
+        bgr = to_bgr(seq.frame(name))
+        pic = _draw_grid(bgr, result.points[k], GRID_SIDE, (0, 255, 0) if k else (255, 200, 0),
+                         f"{result.descriptor}  {name}")
+        if scale != 1:
+            pic = cv2.resize(pic, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        pictures.append(cv2.cvtColor(pic, cv2.COLOR_BGR2RGB))
+    return pictures
+
+
+def _mean(values) -> float:
+    v = np.asarray([x for x in values], float)
+    return float(np.nanmean(v)) if np.isfinite(v).any() else float("nan")
+
+
+def tracking_table(rows: list[dict]) -> str:
+    """Markdown table like the paper's Table IV: per descriptor, each metric averaged per sequence
+    (over its target frames; failed frames count 0 inliers and no SSIM), then over sequences."""
+    names = list(dict.fromkeys(r["descriptor"] for r in rows))
+    seqs = list(dict.fromkeys(r["sequence"] for r in rows))
+    lines = ["| descriptor | inlier rate | matching score | precision | SSIM | NCC | grid error (px, median) | failed frames |",
+             "|---|---|---|---|---|---|---|---|"]
+    for name in names:
+        per = {key: [] for key in ("inlier_rate", "ms", "precision", "ssim", "ncc", "grid_error_px")}
+        failed = total = 0
+        for s in seqs:
+            sel = [r for r in rows if r["descriptor"] == name and r["sequence"] == s]
+            if not sel:
+                continue
+            for key in ("inlier_rate", "ms", "precision", "ssim", "ncc"):
+                per[key].append(_mean(float(r[key]) for r in sel))
+            per["grid_error_px"].append(_median(float(r["grid_error_px"]) for r in sel))
+            failed += sum(str(r["failed"]) in ("True", "1") for r in sel)
+            total += len(sel)
+        fmt = lambda v, d=2: "–" if not np.isfinite(v) else f"{v:.{d}f}"  # noqa: E731
+        lines.append(f"| {name} | {fmt(_mean(per['inlier_rate']))} | {fmt(_mean(per['ms']))} | {fmt(_mean(per['precision']))} | "
+                     f"{fmt(_mean(per['ssim']))} | {fmt(_mean(per['ncc']))} | {fmt(_mean(per['grid_error_px']), 1)} | "
+                     f"{failed}/{total} |")
+    return "\n".join(lines) + "\n"
+
+
+def _median(values) -> float:
+    v = np.asarray([x for x in values], float)
+    return float(np.nanmedian(v)) if np.isfinite(v).any() else float("nan")
+
+
+def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi=None, n_keypoints: int = N_KEYPOINTS,
+                   tps_dir: str | None = None, radius: float | None = None, depth_scale: float | None = None,
+                   threshold_px: float = RANSAC_THRESHOLD_PX, progress: bool = True) -> tuple[Path, str]:
+    """Track every sequence with every descriptor and write into `out`:
+    `track.csv` (one row per sequence, descriptor and target frame), per sequence and descriptor
+    `<sequence>/<descriptor>/grid.npz` (reference_points (G, 2), points (F, G, 2), frames (F,),
+    roi (4,)) and `<sequence>/<descriptor>/track.gif`, and `tracking.md` (the averaged table).
+    Returns the csv path and the table."""
+    import imageio.v2 as imageio
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path = out / "track.csv"
+    rows: list[dict] = []
+    notes = []
+    with open(csv_path, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, TRACK_COLUMNS)
+        writer.writeheader()
+        for folder in sequences:
+            results = track_sequence(folder, descriptors, roi=roi, n_keypoints=n_keypoints, tps_dir=tps_dir,
+                                     radius=radius, depth_scale=depth_scale, threshold_px=threshold_px,
+                                     progress=progress)
+            seq = read_sequence(folder, depth_scale=depth_scale)
+            for name, r in results.items():
+                writer.writerows(r.rows)
+                fh.flush()
+                rows.extend(r.rows)
+                sub = out / seq.name / name.replace("=", "_").replace("/", "_")
+                sub.mkdir(parents=True, exist_ok=True)
+                np.savez(sub / "grid.npz", reference_points=r.reference_points, points=r.points,
+                         frames=np.array(r.frames), roi=np.array(r.roi))
+                imageio.mimsave(sub / "track.gif", grid_frames(seq, r), duration=400, loop=0)
+            first = next(iter(results.values()))
+            notes.append(f"{first.sequence}: ROI {first.roi}, object mask from {first.mask_source}")
+    table = tracking_table(rows)
+    (out / "tracking.md").write_text(table + "\n" + "\n".join(f"- {n}" for n in notes) + "\n")
+    return csv_path, table

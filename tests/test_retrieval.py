@@ -1,0 +1,174 @@
+"""Retrieval: K-medoids vocabulary, histograms, search, Acc@K, and the whole run on simulated objects."""
+
+import csv
+
+import cv2
+import numpy as np
+import pytest
+
+from geofeat.features import Features
+from geofeat.matching import distance_matrix, match
+from geofeat.retrieval import accuracy_at_k, histogram, read_classes, run_retrieval, search, vocabulary
+
+
+def binary_rotations(bits: np.ndarray) -> np.ndarray:
+    """(N, 512) bool -> (N, 16, 64) uint8: 16 circular shifts by 32 bits (GeoBit-like rotations)."""
+    return np.stack([np.packbits(np.roll(bits, 32 * k, axis=1), axis=1) for k in range(16)], axis=1)
+
+
+def objects(kind: str, seed: int = 0):
+    """Three objects, four images each: every object draws its descriptors from its own 3 of 9
+    word prototypes (noisy copies). Returns per-image descriptors and the images' classes."""
+    rng = np.random.default_rng(seed)
+    if kind == "l2":
+        protos = rng.normal(size=(9, 32))
+    else:
+        protos = rng.random((9, 512)) < 0.5
+    images, classes = [], []
+    for obj in range(3):
+        for _ in range(4):
+            word = rng.choice(np.arange(3 * obj, 3 * obj + 3), size=60)
+            if kind == "l2":
+                d = (protos[word] + 0.1 * rng.normal(size=(60, 32))).astype(np.float32)
+            else:
+                bits = protos[word] ^ (rng.random((60, 512)) < 0.05)
+                d = np.packbits(bits, axis=1) if kind == "hamming" else binary_rotations(bits)
+            images.append(d)
+            classes.append(f"object{obj}")
+    return images, classes
+
+
+@pytest.mark.parametrize("kind", ["l2", "hamming", "hamming-rot"])
+def test_every_query_finds_its_class_first(kind):
+    images, classes = objects(kind)
+    vocab = vocabulary(np.concatenate(images), words=9, seed=0)
+    assert vocab.metric == kind and len(vocab) == 9
+    hist = np.stack([histogram(d, vocab) for d in images])
+    np.testing.assert_allclose(hist.sum(axis=1), 1.0)
+    queries = np.array([0, 4, 8])  # the first image of each object
+    nn, dist = search(hist[queries], hist, k=3, exclude=queries)
+    assert all(q not in row for q, row in zip(queries, nn))  # the query itself is excluded
+    acc = accuracy_at_k(nn, classes, np.asarray(classes)[queries])
+    assert acc[0] == 1.0 and acc[2] == 1.0
+    assert (np.diff(dist, axis=1) >= 0).all()
+
+
+def test_distance_matrix_agrees_with_match():
+    images, _ = objects("hamming-rot")
+    a, b = images[0], images[5]
+    D = distance_matrix(a, b)
+    m = match(a, b)
+    np.testing.assert_array_equal(D.min(axis=1), m.distances0)
+    bits_a = np.unpackbits(a[:3, 0], axis=1)
+    bits_b = np.unpackbits(b[:4], axis=2)
+    brute = (bits_a[:, None, None, :] != bits_b[None]).sum(-1).min(-1)
+    np.testing.assert_array_equal(D[:3, :4], brute)
+    x = np.random.default_rng(1).normal(size=(5, 8))
+    np.testing.assert_allclose(distance_matrix(x, x[:3]), np.linalg.norm(x[:, None] - x[None, :3], axis=-1), atol=1e-5)
+
+
+def test_histogram_ignores_invalid_and_vocabulary_bad_input():
+    images, _ = objects("l2")
+    vocab = vocabulary(np.concatenate(images), words=9)
+    f = Features(np.zeros((60, 2)), images[0], np.zeros(60, bool))
+    assert histogram(f, vocab).sum() == 0
+    with pytest.raises(ValueError, match="too few"):
+        vocabulary(images[0][:10], words=10)
+    with pytest.raises(ValueError, match="words"):
+        vocabulary(images[0], words=1)
+
+
+def test_read_classes(tmp_path):
+    p = tmp_path / "c.csv"
+    p.write_text("sequence,class\na,cloth\nb,cloth\nc,paper\n")
+    assert read_classes(p) == {"a": "cloth", "b": "cloth", "c": "paper"}
+    p.write_text("a\n")
+    with pytest.raises(ValueError, match="classes"):
+        read_classes(p)
+
+
+def texture(kind: int, size: int = 512) -> np.ndarray:
+    """Three visibly different synthetic textures (BGR uint8): blobs, checkers, line drawing."""
+    rng = np.random.default_rng(kind)
+    img = np.full((size, size, 3), 255, np.uint8)
+    if kind == 0:
+        for _ in range(250):
+            c = tuple(int(v) for v in rng.integers(0, 200, 3))
+            cv2.circle(img, tuple(int(v) for v in rng.integers(0, size, 2)), int(rng.integers(3, 14)), c, -1)
+    elif kind == 1:
+        yy, xx = np.mgrid[:size, :size]
+        img[((yy // 24 + xx // 24) % 2) == 0] = (30, 30, 30)
+        img[(yy // 24) % 3 == 0] //= 2
+    else:
+        for _ in range(120):
+            p = rng.integers(0, size, 4)
+            cv2.line(img, (int(p[0]), int(p[1])), (int(p[2]), int(p[3])), (0, 0, 0), 2)
+    return img
+
+
+@pytest.fixture(scope="module")
+def three_objects(tmp_path_factory):
+    from geofeat.sim import simulate_sequence
+
+    root = tmp_path_factory.mktemp("retrieval")
+    for k, name in enumerate(["blobs", "checkers", "lines"]):
+        simulate_sequence(root / name, scenario="deform", n_frames=3, seed=30 + k, texture=texture(k), width=320,
+                          height=240, progress=False)
+    return root
+
+
+def test_retrieval_on_three_simulated_objects(three_objects, tmp_path):
+    acc, db = run_retrieval([three_objects], tmp_path, ("sift", "orb"), words=10, n_samples=2000, n_keypoints=300,
+                            max_k=2, progress=False)
+    assert db.is_query.sum() == 3 and len(db.frames) == 9
+    for name in ("sift", "orb"):
+        assert acc[name][0] == 1.0, (name, acc[name])  # every query's own class first
+    rows = list(csv.DictReader(open(tmp_path / "retrieval.csv")))
+    assert [r["descriptor"] for r in rows] == ["sift", "sift", "orb", "orb"]
+    assert (tmp_path / "acc_at_k.png").is_file() and cv2.imread(str(tmp_path / "top6.png")) is not None
+    assert "blobs: simulator" in (tmp_path / "retrieval.md").read_text()
+
+
+def test_retrieval_bad_input(three_objects, tmp_path):
+    with pytest.raises(ValueError, match="descriptor"):
+        run_retrieval([three_objects], tmp_path, ("nope",), progress=False)
+    with pytest.raises(ValueError, match="too few"):
+        run_retrieval([three_objects / "lines"], tmp_path, ("sift",), words=10, n_keypoints=2, progress=False)
+    classes = tmp_path / "classes.csv"
+    classes.write_text("blobs,a\n")
+    with pytest.raises(ValueError, match="no class"):
+        run_retrieval([three_objects], tmp_path, ("sift",), classes_file=str(classes), progress=False)
+
+
+def test_retrieval_command(three_objects, tmp_path, capsys):
+    from geofeat.cli import main
+
+    args = ["retrieval", str(three_objects), "--descriptors", "sift", "--keypoints", "300", "--samples", "1000",
+            "--out", str(tmp_path)]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "Acc@1" in out and "object masks" in out
+    assert main(args[:-2] + ["--words", "100000", "--out", str(tmp_path)]) == 2
+    assert "too few" in capsys.readouterr().err
+
+
+def test_object_mask_sources(three_objects, tmp_path):
+    from geofeat.io import read_sequence
+    from geofeat.objectmask import foreground_from_depth, object_mask
+
+    depth = np.full((60, 80), 2.5, np.float32)  # a wall 2.5 m away
+    depth[10:40, 20:60] = 1.0 + np.linspace(0, 0.1, 40)[None, :]  # a slanted object at 1 m
+    depth[0, 0] = 0  # a hole
+    expected = np.zeros(depth.shape, bool)
+    expected[10:40, 20:60] = True
+    np.testing.assert_array_equal(foreground_from_depth(depth), expected)
+    # no ground-truth files: the depth foreground, which on the simulator's frames is the cloth
+    seq_dir = tmp_path / "plain"
+    seq_dir.mkdir()
+    for f in (three_objects / "blobs").iterdir():
+        if not f.name.endswith("-gt.npz"):
+            (seq_dir / f.name).write_bytes(f.read_bytes())
+    mask, source = object_mask(read_sequence(seq_dir), "frame-000-master")
+    truth, truth_source = object_mask(read_sequence(three_objects / "blobs"), "frame-000-master")
+    assert source == "depth" and truth_source == "simulator"
+    assert (mask & truth).sum() / (mask | truth).sum() > 0.95

@@ -1,0 +1,151 @@
+"""Tracking: TPS + RANSAC on synthetic matches, similarity measures, and a short simulated sequence."""
+
+import numpy as np
+import pytest
+
+from geofeat.tracking import (
+    check_roi, default_roi, fit_tps, fit_tps_ransac, ncc, normalise_points, roi_grid, ssim, track_sequence,
+    warp_points, write_tracking,
+)
+
+
+def smooth_warp(p: np.ndarray) -> np.ndarray:
+    """A smooth non-affine warp of 640 x 480 pixels (bending of up to ~12 px on top of an affine map)."""
+    x, y = p[:, 0], p[:, 1]
+    return np.stack([30 + 1.1 * x + 0.1 * y + 12 * np.sin(y / 80), 20 - 0.08 * x + 0.95 * y + 10 * np.cos(x / 90)], 1)
+
+
+def matches_with_outliers(n: int, outlier_fraction: float, seed: int):
+    rng = np.random.default_rng(seed)
+    src = rng.uniform([40, 40], [600, 440], (n, 2))
+    dst = smooth_warp(src) + rng.normal(0, 0.2, (n, 2))
+    outlier = rng.permutation(n) < int(outlier_fraction * n)
+    dst[outlier] = rng.uniform([0, 0], [700, 500], (outlier.sum(), 2))
+    return src, dst, outlier
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_tps_ransac_recovers_a_smooth_warp_with_half_outliers(seed):
+    src, dst, outlier = matches_with_outliers(300, 0.5, seed)
+    fit = fit_tps_ransac(src, dst, seed=seed)
+    assert fit.ok
+    # the outliers are rejected, (nearly) all inliers kept
+    assert (fit.inliers & outlier).sum() <= 2
+    assert (fit.inliers & ~outlier).sum() >= 0.95 * (~outlier).sum()
+    # sub-pixel on the inliers, against the true (noise-free) warp
+    err = np.linalg.norm(warp_points(fit.warp, src[~outlier]) - smooth_warp(src[~outlier]), axis=1)
+    assert np.median(err) < 0.5 and np.percentile(err, 95) < 1.0
+
+
+def test_tps_interpolates_and_normalisation_is_hartleys():
+    rng = np.random.default_rng(3)
+    src = rng.uniform(0, 500, (20, 2))
+    dst = smooth_warp(src)
+    warp = fit_tps(src, dst, regularisation=0.0)
+    np.testing.assert_allclose(warp_points(warp, src), dst, atol=1e-6)
+    T, p = normalise_points(src)
+    np.testing.assert_allclose(p.mean(axis=0), 0, atol=1e-9)
+    assert np.isclose(np.linalg.norm(p, axis=1).mean(), np.sqrt(2))
+    np.testing.assert_allclose(p, src @ T[:2, :2].T + T[:2, 2])
+
+
+def test_affine_warp_is_reproduced_exactly():
+    rng = np.random.default_rng(4)
+    src = rng.uniform(0, 400, (50, 2))
+    A = np.array([[0.9, -0.3, 40], [0.25, 1.05, -12]])
+    dst = src @ A[:, :2].T + A[:, 2]
+    fit = fit_tps_ransac(src, dst)
+    test = rng.uniform(0, 400, (100, 2))
+    np.testing.assert_allclose(warp_points(fit.warp, test), test @ A[:, :2].T + A[:, 2], atol=1e-3)
+
+
+def test_ransac_fails_cleanly_on_pure_noise_and_too_few_matches():
+    rng = np.random.default_rng(5)
+    fit = fit_tps_ransac(rng.uniform(0, 640, (200, 2)), rng.uniform(0, 640, (200, 2)), threshold_px=1.0)
+    assert not fit.ok and fit.warp is None
+    assert not fit_tps_ransac(np.zeros((5, 2)), np.zeros((5, 2))).ok
+    with pytest.raises(ValueError, match="src, dst"):
+        fit_tps_ransac(np.zeros((5, 2)), np.zeros((6, 2)))
+    with pytest.raises(ValueError, match="collinear"):
+        fit_tps(np.c_[np.arange(5.0), np.arange(5.0)], np.zeros((5, 2)))
+
+
+def test_similarity_measures():
+    rng = np.random.default_rng(6)
+    a = rng.random((40, 50)).astype(np.float32)
+    assert np.isclose(ncc(a, a), 1.0) and np.isclose(ncc(a, 1 - a), -1.0)
+    assert np.isclose(ncc(a, 0.5 * a + 0.2), 1.0)  # invariant to gain and offset
+    assert np.isclose(ssim(a, a), 1.0)
+    assert ssim(a, rng.random((40, 50)).astype(np.float32)) < 0.2
+
+
+def test_roi_helpers():
+    mask = np.zeros((100, 200), bool)
+    mask[20:81, 40:141] = True
+    assert default_roi(mask) == (45, 23, 135, 77)
+    g = roi_grid((0, 0, 90, 45))
+    assert g.shape == (100, 2) and g[0].tolist() == [0, 0] and g[-1].tolist() == [90, 45]
+    with pytest.raises(ValueError, match="roi"):
+        check_roi((10, 10, 300, 50), (100, 200))
+    with pytest.raises(ValueError, match="roi"):
+        check_roi("a,b", (100, 200))
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory):
+    from geofeat.sim import simulate_sequence
+
+    return simulate_sequence(tmp_path_factory.mktemp("track") / "cloth", scenario="deform", n_frames=3, seed=21,
+                             width=320, height=240, progress=False)
+
+
+def test_track_simulated_sequence_outputs(sequence, tmp_path):
+    import imageio.v2 as imageio
+
+    csv_path, table = write_tracking([sequence], tmp_path, ("sift", "orb"), n_keypoints=500, progress=False)
+    lines = csv_path.read_text().splitlines()
+    assert len(lines) == 1 + 2 * 2  # header + 2 descriptors x 2 target frames
+    grid = np.load(tmp_path / "cloth" / "sift" / "grid.npz")
+    assert grid["reference_points"].shape == (100, 2) and grid["points"].shape == (3, 100, 2)
+    np.testing.assert_array_equal(grid["points"][0], grid["reference_points"])
+    assert len(imageio.mimread(tmp_path / "cloth" / "sift" / "track.gif")) == 3
+    md = (tmp_path / "tracking.md").read_text()
+    assert "| sift |" in md and "object mask from simulator" in md
+    # SIFT tracks a gently deforming cloth: the tracked grid is a few pixels from the truth
+    import csv
+
+    rows = [r for r in csv.DictReader(open(csv_path)) if r["descriptor"] == "sift"]
+    assert all(r["failed"] == "False" for r in rows)
+    assert max(float(r["grid_error_px"]) for r in rows) < 5.0
+    assert min(float(r["ssim"]) for r in rows) > 0.3
+    # the kept matches are mostly correct under the bench's ground truth; MS counts them over the keypoints
+    assert min(float(r["precision"]) for r in rows) > 0.8
+    assert all(0 < float(r["ms"]) <= float(r["inliers"]) / min(int(r["n_template"]), int(r["n_frame"])) + 1e-9
+               for r in rows)
+
+
+def test_track_bad_input(sequence, tmp_path):
+    with pytest.raises(ValueError, match="descriptor"):
+        track_sequence(sequence, ("nope",), progress=False)
+    with pytest.raises(ValueError, match="roi"):
+        track_sequence(sequence, ("sift",), roi=(0, 0, 1000, 10), progress=False)
+    with pytest.raises(ValueError, match="keypoints"):
+        track_sequence(sequence, ("sift",), roi=(0, 0, 3, 3), progress=False)
+    single = tmp_path / "single"
+    single.mkdir()
+    for f in sequence.iterdir():
+        if f.name.startswith("frame-000-master") or f.name in ("intrinsics.xml", "groundtruth.json"):
+            (single / f.name).write_bytes(f.read_bytes())
+    with pytest.raises(ValueError, match="reference frame and at least one other"):
+        track_sequence(single, ("sift",), progress=False)
+
+
+def test_track_command(sequence, tmp_path, capsys):
+    from geofeat.cli import main
+
+    assert main(["track", str(sequence), "--descriptors", "sift", "--keypoints", "400", "--out", str(tmp_path)]) == 0
+    assert "| sift |" in capsys.readouterr().out
+    assert (tmp_path / "track.csv").is_file() and (tmp_path / "cloth" / "sift" / "track.gif").is_file()
+    assert main(["track", str(sequence), "--descriptors", "sift", "--roi", "1,2,3", "--out", str(tmp_path)]) == 2
+    assert "--roi" in capsys.readouterr().err
+    assert main(["track", str(sequence), "--descriptors", "bogus", "--out", str(tmp_path)]) == 2
