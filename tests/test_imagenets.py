@@ -25,11 +25,11 @@ def pair(tmp_path_factory):
     k_ref, k_tgt = detect(ref, 400), detect(tgt, 400)
     mapped, visible = seq.correspondences(seq.targets[-1], seq.reference, k_tgt.xy)
     k_tgt, mapped = k_tgt[visible], mapped[visible]
-    return ref, tgt, k_ref, k_tgt, ground_truth_pairs(k_ref.xy, mapped)
+    return ref, tgt, k_ref, k_tgt, ground_truth_pairs(k_ref.xy, mapped), folder
 
 
 def _ms(d, pair) -> float:
-    ref, tgt, k_ref, k_tgt, gt = pair
+    ref, tgt, k_ref, k_tgt, gt, _ = pair
     m = match(d.compute(ref, k_ref), d.compute(tgt, k_tgt))
     return score_detect(m.matches0, gt, len(k_ref), len(k_tgt)).ms
 
@@ -38,6 +38,19 @@ def _ms(d, pair) -> float:
 def test_trained_weights_beat_random_weights(pair, arch):
     trained, random = _ms(ImagePatchDescriptor(arch), pair), _ms(ImagePatchDescriptor(arch, weights="random"), pair)
     assert trained > random + 0.02, (trained, random)
+
+
+def test_train_command_writes_weights_that_make_descriptor_loads(pair, tmp_path):
+    from geofeat.cli import main
+
+    out = tmp_path / "tfeat.pt"
+    rc = main(["train", "--net", "tfeat", "--data", str(pair[-1]), "--out", str(out), "--epochs", "1",
+               "--steps", "2", "--batch-size", "16", "--keypoints", "64", "--device", "cpu"])
+    assert rc == 0 and out.is_file()
+    d = geofeat.make_descriptor(f"tfeat-sim={out}")
+    assert d.net.config.arch == "tfeat"
+    ref, _, k_ref = pair[:3]
+    assert d.compute(ref, k_ref[:5]).descriptors.shape == (5, 128)
 
 
 def test_make_descriptor_shapes_and_defaults():
