@@ -29,8 +29,9 @@ Ours, step by step (one patch = one keypoint; all patches at once where possible
 
 Departures, and why: the published DaLI uses a 41x41 pixel patch, 100 eigenpairs and more
 diffusion times and compresses the result with PCA (DaLI-PCA); we use a 25x25 grid and 24
-eigenpairs so one keypoint costs tens of milliseconds instead of hundreds (the paper reports
-~60 s per image; the bench's timing table gives ours), and no PCA (no training data to fit it on
+eigenpairs, which makes a keypoint several times cheaper (one eigsh on 441 vertices instead of
+~1,300; the paper reports ~60 s per image; BENCHMARKS.md gives ours: ~0.5 s per keypoint on a
+heavily loaded 2-core machine), and no PCA (no training data to fit it on
 that would not leak test data). The paper's light invariance comes partly from its height
 normalisation; ours is the z-score of step 2 (exactly invariant to I -> a I + b, a > 0).
 """
