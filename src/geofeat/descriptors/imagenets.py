@@ -158,8 +158,9 @@ class ImagePatchDescriptor:
         self.arch = arch
         self.name = f"{arch}-sim"
         if weights == "random":
-            torch.manual_seed(0)
-            self.net = ImagePatchNet(default_config(arch)).eval()
+            with torch.random.fork_rng():  # seeded, without touching the caller's torch RNG
+                torch.manual_seed(0)
+                self.net = ImagePatchNet(default_config(arch)).eval()
         else:
             self.net = load_image_net(default_weights_path(arch) if weights is None else weights)
         self.batch_size = int(batch_size)
