@@ -215,26 +215,38 @@ def _match(args: argparse.Namespace) -> int:
 
 
 def _train(args: argparse.Namespace) -> int:
+    from functools import partial
+
     from .descriptors.geopatch import GeoPatchConfig
     from .train.dataset import PatchSet, build_patch_set, validation_pairs
     from .train.loop import TrainConfig, train
 
+    net = None  # geodesic polar patches with the depth profile asked for (auto: per sequence)
+    build = partial(build_patch_set, depth_config=args.depth_profile)
+    make_validation = partial(validation_pairs, depth_config=args.depth_profile)
+    if args.net != "geopatch":  # image-patch baselines (tfeat-sim, logpolar-sim) on the same data
+        from .descriptors.imagenets import ImagePatchNet, default_config
+        from .train.imagepatches import build_image_patch_set, image_validation_pairs
+
+        net = ImagePatchNet(default_config(args.net))
+        build = partial(build_image_patch_set, arch=args.net)
+        make_validation = partial(image_validation_pairs, arch=args.net)
     cache = Path(str(args.out) + ".patches.npz")
     if args.resume and cache.is_file():
         data = PatchSet.load(cache)
         print(f"training patches: {len(data)} from {cache}")
     else:
-        data = build_patch_set(args.data, n_keypoints=args.keypoints, depth_config=args.depth_profile)
+        data = build(args.data, n_keypoints=args.keypoints)
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         data.save(cache)
         print(f"training patches: {len(data)} of {len(np.unique(data.ids))} surface points (cached in {cache})")
-    validation = validation_pairs(args.val, depth_config=args.depth_profile) if args.val else None
+    validation = make_validation(args.val) if args.val else None
     config = TrainConfig(
         epochs=args.epochs, steps_per_epoch=args.steps, batch_size=args.batch_size, lr=args.lr,
         mining=args.mining, augment_shift=args.augment_shift, seed=args.seed,
         net=GeoPatchConfig(angle_pool=not args.no_angle_pool),
     )
-    history = train(data, args.out, config, validation=validation, resume=args.resume, device=args.device)
+    history = train(data, args.out, config, validation=validation, resume=args.resume, device=args.device, net=net)
     print(f"wrote {args.out} (final loss {history['loss'][-1]:.4f}, validation MS {history['val_ms'][-1]:.3f}), "
           f"{args.out}.png and {args.out}.json")
     return 0
@@ -388,6 +400,8 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--no-angle-pool", action="store_true", help="flatten instead of max-pooling over angle (ablation)")
     tr.add_argument("--keypoints", type=int, default=512, help="SIFT keypoints per reference frame (default 512)")
     tr.add_argument("--seed", type=int, default=0)
+    tr.add_argument("--net", choices=("geopatch", "tfeat", "logpolar"), default="geopatch",
+                    help="network: GeoPatch (geodesic patches) or an image-patch baseline (tfeat-sim, logpolar-sim)")
     tr.add_argument("--resume", action="store_true", help="continue from OUT.ckpt")
     tr.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
     depth_profile_option(tr, "auto")

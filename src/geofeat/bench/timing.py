@@ -40,6 +40,10 @@ def timing_table(frame, descriptors: tuple[str, ...], radius: float, counts=(250
             d = make_descriptor(name, radius=radius, depth_config=config)
             if d.geodesic:
                 t_ext, f = best(lambda: d.compute(frame, kps, patches=patches))
+            elif getattr(d, "slow", False):  # e.g. DaLI: one run, not the best of `repeat`
+                t = time.perf_counter()
+                f = d.compute(frame, kps)
+                t_ext = time.perf_counter() - t
             else:
                 t_ext, f = best(lambda: d.compute(frame, kps))
             t_match, _ = best(lambda: match(f, f))

@@ -120,8 +120,9 @@ def _batch(patches: np.ndarray, index: np.ndarray, rng: np.random.Generator, shi
 
 def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
           validation: list[ValidationPair] | None = None, resume: bool = False,
-          device: str | None = None, progress: bool = True) -> dict:
-    """Train GeoPatchNet; writes `out` (final weights), `out`.ckpt (resumable state after every
+          device: str | None = None, progress: bool = True, net: torch.nn.Module | None = None) -> dict:
+    """Train GeoPatchNet (or `net`, any module mapping (B, 1, H, W) patches to unit (B, dim)
+    descriptors with a dataclass `config` holding `dim`, e.g. the image-patch baselines); writes `out` (final weights), `out`.ckpt (resumable state after every
     epoch), `out`.json (history) and `out`.png (loss / validation plot). Returns the history."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -129,7 +130,7 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
     device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     torch.manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
-    net = GeoPatchNet(config.net).to(device)
+    net = (GeoPatchNet(config.net) if net is None else net).to(device)
     opt = torch.optim.SGD(net.parameters(), lr=config.lr, momentum=config.momentum, weight_decay=config.weight_decay)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=config.epochs * config.steps_per_epoch)
     history = {"epoch": [], "loss": [], "val_ms": [], "config": asdict(config)}
