@@ -185,7 +185,7 @@ def test_match_command_counts_the_bench_hits(datasets, tmp_path, capsys):
 def test_bad_descriptor_names_fail_before_anything_is_built(tmp_path):
     with pytest.raises(ValueError, match="unknown name 'surf'"):
         BenchConfig(descriptors=("orb", "surf"))
-    with pytest.raises(ValueError, match="no GeoPatch weights file"):
+    with pytest.raises(ValueError, match="no weights file"):
         BenchConfig(descriptors=(f"geopatch={tmp_path / 'missing.pt'}",))
     with pytest.raises(ValueError, match="keypoint_set"):
         BenchConfig(keypoint_set="all")

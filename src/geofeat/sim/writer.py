@@ -7,7 +7,7 @@ A sequence folder gets, per frame `<name>` (`frame-000-master` is the reference,
     `<name>.csv`        the 100 best Harris corners of the reference tracked into this frame
                         (`id,x,y,valid`; pixels, OpenCV convention: the centre of the top-left
                         pixel is (0, 0); valid = 0 where occluded, off the cloth or off the image),
-    `<name>-gt.npz`     dense ground truth (see `geofeat.sim.groundtruth`),
+    `<name>-gt.npz`     dense ground truth (see `geofeat.truth`),
 and `intrinsics.xml`, `groundtruth.json`.
 
 The folder is written under a temporary name next to OUT_DIR and renamed at the end, so an error
