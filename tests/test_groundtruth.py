@@ -114,9 +114,10 @@ def test_refinement_recovers_an_analytic_warp(tmp_path):
 @pytest.fixture(scope="module")
 def simulated(tmp_path_factory):
     root = tmp_path_factory.mktemp("gtsim")
-    full = simulate_sequence(root / "full", "deform", n_frames=3, seed=3, texture=packaged_texture_dir() / "kodak_kodim23.jpg",
-                             width=320, height=240, steps_per_frame=30, progress=False)
-    seq = read_sequence(keep_landmarks(full, root / "k25", 25, seed=0))
+    # one target frame 100 simulation steps after the reference (a strong deformation), 320x240, 15 landmarks
+    full = simulate_sequence(root / "full", "deform", n_frames=2, seed=3, width=320, height=240, steps_per_frame=100,
+                             texture=packaged_texture_dir() / "budgie_the-spices-of-life.jpg", progress=False)
+    seq = read_sequence(keep_landmarks(full, root / "k15", 15, seed=0))
     out = {}
     for refine in (False, True):
         out[refine] = root / f"gt{int(refine)}" / seq.name
@@ -125,7 +126,7 @@ def simulated(tmp_path_factory):
 
 
 def test_refined_ground_truth_beats_the_landmark_spline_on_the_simulator(simulated):
-    """The issue's acceptance check, small: 25 landmarks, exact simulator correspondences."""
+    """The issue's acceptance check, small: few landmarks, exact simulator correspondences."""
     seq, out = simulated
     for target in seq.targets:
         lm = mapping_errors(seq, out[False], target)
@@ -133,6 +134,7 @@ def test_refined_ground_truth_beats_the_landmark_spline_on_the_simulator(simulat
         assert np.median(ref.inside) <= 1.0
         assert np.percentile(ref.inside, 90) <= 0.7 * np.percentile(lm.inside, 90)
         assert np.median(ref.outside) <= np.median(lm.outside) + 0.1
+        assert np.percentile(ref.outside, 90) <= np.percentile(lm.outside, 90) + 0.1
 
 
 def test_bench_reads_the_generated_files(simulated):
@@ -147,7 +149,7 @@ def test_bench_reads_the_generated_files(simulated):
     exact, visible = seq.correspondences(target, seq.reference, xy)
     kept = np.isfinite(mapped).all(axis=1)
     assert kept.sum() > 0.5 * visible.sum()  # most of the visible cloth keeps a ground truth
-    assert visible[kept].mean() > 0.97  # and almost nothing off the cloth or hidden does
+    assert visible[kept].mean() > 0.95  # and almost nothing off the cloth or hidden does
     err = np.linalg.norm(mapped[kept & visible] - exact[kept & visible], axis=1)
     assert np.median(err) < 0.5
     ref_mask = cv2.imread(str(out[True] / f"{seq.reference}_objmask.png"), cv2.IMREAD_GRAYSCALE)
