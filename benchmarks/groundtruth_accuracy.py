@@ -77,7 +77,7 @@ def main() -> None:
     print("|---|---|---|---|---|---|")
     for refine, label in ((False, "landmark-only TPS (`--no-refine`)"), (True, f"refined (spacing {DEFAULT_SPACING_PX:g} px)")):
         i, o, s = results[refine]
-        print(f"| {label} | {_stats(i).replace(' | ', ' | ')} | {_stats(o)} | {s:.2f} |")
+        print(f"| {label} | {_stats(i)} | {_stats(o)} | {s:.2f} |")
     i0, o0, s0 = results[False]
     i1, o1, s1 = results[True]
     print(f"\ninside the hull: p90 {100 * (1 - np.percentile(i1, 90) / np.percentile(i0, 90)):.0f} % lower; "

@@ -202,3 +202,16 @@ def test_bad_landmarks_are_clear_errors(tmp_path, capsys, case, message):
         write_landmarks(folder / "frame-000-master.csv", ids, lms, ids < 3)
     assert main(["groundtruth", str(folder), "--out", str(tmp_path / "out"), "--no-progress"]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_a_frame_failing_a_divergence_test_gets_no_files(tmp_path, monkeypatch):
+    """The divergence tests are wired to the report: demand an impossible cost drop and the frame fails."""
+    from geofeat.groundtruth import pipeline
+
+    monkeypatch.setattr(pipeline, "MAX_COST_RISE", -1.0)
+    folder = _write_pair(tmp_path / "seq", _grid_landmarks(3))
+    reports = generate_ground_truth(folder, tmp_path / "out", GroundTruthConfig(spacing=16, refine_config=FAST),
+                                    progress=False)
+    assert reports[0].status == "failed" and "photometric cost rose" in reports[0].reason
+    assert not (tmp_path / "out" / "frame-001_theta.npy").exists()
+    assert (tmp_path / "out" / "frame-000-master_objmask.png").exists()
