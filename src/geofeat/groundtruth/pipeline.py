@@ -26,7 +26,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from scipy.spatial import Delaunay
 
 from ..frame import RGBDFrame
 from ..io import Sequence, read_sequence
