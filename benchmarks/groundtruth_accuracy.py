@@ -6,8 +6,8 @@ refinement and its target -> reference mapping is compared with the exact one at
 the cloth visible in both frames, inside and outside the convex hull of the landmarks. Then
 `geofeat bench` (SIFT, ORB) is run with the exact ground truth, the refined files and the
 landmark-only files. A control-point spacing sweep on the first sequence chose the default.
-Seconds per frame are wall time on this (shared) machine; the ratio refined / landmark-only is
-measured in the same process.
+Seconds per frame: wall time and CPU time of the process (all threads) on this (shared) machine;
+the ratio refined / landmark-only is measured in the same process.
 
 Run: .venv/bin/python benchmarks/groundtruth_accuracy.py [--seeds 1,2,3] [--frames 8] [--sweep 8,12,20]
 """
@@ -33,13 +33,15 @@ def _stats(e: np.ndarray) -> str:
 
 
 def _run(seqs, out: Path, refine: bool, spacing: float, targets=None):
-    """Generate ground truth for every sequence; returns pooled inside/outside errors and seconds per frame."""
-    inside, outside, seconds, frames = [], [], 0.0, 0
+    """Generate ground truth for every sequence; returns pooled inside/outside errors and wall and CPU
+    (this process, all threads) seconds per frame."""
+    inside, outside, seconds, cpu, frames = [], [], 0.0, 0.0, 0
     for seq in seqs:
         folder = out / seq.name
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         reports = generate_ground_truth(seq, folder, GroundTruthConfig(refine=refine, spacing=spacing), progress=False)
         seconds += time.perf_counter() - t
+        cpu += time.process_time() - c
         frames += len(reports)
         for r in reports:
             if r.status != "ok":
@@ -48,7 +50,8 @@ def _run(seqs, out: Path, refine: bool, spacing: float, targets=None):
             e = mapping_errors(seq, folder, r.frame)
             inside.append(e.inside)
             outside.append(e.outside)
-    return np.concatenate(inside), np.concatenate(outside), seconds / max(frames, 1)
+    n = max(frames, 1)
+    return np.concatenate(inside), np.concatenate(outside), (seconds / n, cpu / n)
 
 
 def main() -> None:
@@ -73,15 +76,15 @@ def main() -> None:
     for label, refine in (("landmark-only TPS (--no-refine)", False), (f"refined, spacing {DEFAULT_SPACING_PX:g} px", True)):
         results[refine] = _run(seqs, args.out / ("gt-refined" if refine else "gt-landmarks"), refine, DEFAULT_SPACING_PX)
     print("Target -> reference error (px) at cloth pixels visible in both frames (every 4th pixel):\n")
-    print("| ground truth | inside hull median | inside p90 | outside hull median | outside p90 | s/frame |")
-    print("|---|---|---|---|---|---|")
+    print("| ground truth | inside hull median | inside p90 | outside hull median | outside p90 | wall s/frame | CPU s/frame |")
+    print("|---|---|---|---|---|---|---|")
     for refine, label in ((False, "landmark-only TPS (`--no-refine`)"), (True, f"refined (spacing {DEFAULT_SPACING_PX:g} px)")):
         i, o, s = results[refine]
-        print(f"| {label} | {_stats(i)} | {_stats(o)} | {s:.2f} |")
+        print(f"| {label} | {_stats(i)} | {_stats(o)} | {s[0]:.2f} | {s[1]:.2f} |")
     i0, o0, s0 = results[False]
     i1, o1, s1 = results[True]
     print(f"\ninside the hull: p90 {100 * (1 - np.percentile(i1, 90) / np.percentile(i0, 90)):.0f} % lower; "
-          f"points: {len(i0)} inside, {len(o0)} outside; refinement costs {s1 / s0:.0f}x the landmark spline's time")
+          f"points: {len(i0)} inside, {len(o0)} outside; refinement costs {s1[1] / s0[1]:.0f}x the landmark spline's CPU time")
 
     print("\nMatching score with each ground truth (`geofeat bench`, protocol detect):\n")
     config = BenchConfig(descriptors=tuple(args.descriptors.split(",")))
@@ -103,11 +106,11 @@ def main() -> None:
     sweep = [float(s) for s in args.sweep.split(",") if s]
     if sweep:
         print(f"\nControl-point spacing on {seqs[0].name} ({len(seqs[0].targets)} frames):\n")
-        print("| spacing px | inside median | inside p90 | outside median | outside p90 | s/frame |")
-        print("|---|---|---|---|---|---|")
+        print("| spacing px | inside median | inside p90 | outside median | outside p90 | wall s/frame | CPU s/frame |")
+        print("|---|---|---|---|---|---|---|")
         for sp in sorted(set(sweep + [DEFAULT_SPACING_PX])):
             i, o, s = _run(seqs[:1], args.out / f"gt-spacing{sp:g}", True, sp)
-            print(f"| {sp:g} | {_stats(i)} | {_stats(o)} | {s:.2f} |", flush=True)
+            print(f"| {sp:g} | {_stats(i)} | {_stats(o)} | {s[0]:.2f} | {s[1]:.2f} |", flush=True)
 
 
 if __name__ == "__main__":
