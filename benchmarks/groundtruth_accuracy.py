@@ -62,6 +62,7 @@ def main() -> None:
     ap.add_argument("--landmarks", type=int, default=25)
     ap.add_argument("--sweep", default="8,20", help="extra spacings tried on the first sequence (default 8,20)")
     ap.add_argument("--descriptors", default="sift,orb")
+    ap.add_argument("--sweep-only", action="store_true", help="only the spacing sweep, with exactly the --sweep spacings")
     args = ap.parse_args()
     seqs = []
     for seed in [int(s) for s in args.seeds.split(",")]:
@@ -72,6 +73,20 @@ def main() -> None:
     n_targets = sum(len(s.targets) for s in seqs)
     print(f"{len(seqs)} simulated deform sequences, {n_targets} target frames, {args.landmarks} landmarks kept per csv\n")
 
+    if not args.sweep_only:
+        _tables(args, seqs)
+    sweep = [float(s) for s in args.sweep.split(",") if s]
+    if sweep:
+        print(f"\nControl-point spacing on {seqs[0].name} ({len(seqs[0].targets)} frames):\n")
+        print("| spacing px | inside median | inside p90 | outside median | outside p90 | wall s/frame | CPU s/frame |")
+        print("|---|---|---|---|---|---|---|")
+        for sp in sorted(set(sweep + ([] if args.sweep_only else [DEFAULT_SPACING_PX]))):
+            i, o, s = _run(seqs[:1], args.out / f"gt-spacing{sp:g}", True, sp)
+            print(f"| {sp:g} | {_stats(i)} | {_stats(o)} | {s[0]:.2f} | {s[1]:.2f} |", flush=True)
+
+
+def _tables(args, seqs) -> None:
+    """Errors of the landmark-only and the refined ground truth, and the bench with each."""
     results = {}
     for label, refine in (("landmark-only TPS (--no-refine)", False), (f"refined, spacing {DEFAULT_SPACING_PX:g} px", True)):
         results[refine] = _run(seqs, args.out / ("gt-refined" if refine else "gt-landmarks"), refine, DEFAULT_SPACING_PX)
@@ -102,15 +117,6 @@ def main() -> None:
         diff = "" if label.startswith("exact") else " (" + ", ".join(
             f"{row[d] - ms['exact (simulator)'][d]:+.3f}" for d in config.descriptors) + ")"
         print(f"| {label}{diff} | " + " | ".join(f"{row[d]:.3f}" for d in config.descriptors) + " |")
-
-    sweep = [float(s) for s in args.sweep.split(",") if s]
-    if sweep:
-        print(f"\nControl-point spacing on {seqs[0].name} ({len(seqs[0].targets)} frames):\n")
-        print("| spacing px | inside median | inside p90 | outside median | outside p90 | wall s/frame | CPU s/frame |")
-        print("|---|---|---|---|---|---|---|")
-        for sp in sorted(set(sweep + [DEFAULT_SPACING_PX])):
-            i, o, s = _run(seqs[:1], args.out / f"gt-spacing{sp:g}", True, sp)
-            print(f"| {sp:g} | {_stats(i)} | {_stats(o)} | {s[0]:.2f} | {s[1]:.2f} |", flush=True)
 
 
 if __name__ == "__main__":
