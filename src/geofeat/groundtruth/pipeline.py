@@ -33,7 +33,7 @@ from .refine import RefineConfig, refine
 from .tps import MIN_LANDMARKS, TPS, robust_landmark_tps
 
 #: Default control-point spacing, pixels (chosen by measurement, see BENCHMARKS.md).
-DEFAULT_SPACING_PX = 12.0
+DEFAULT_SPACING_PX = 16.0
 #: The bench keeps target keypoints where the SSIM map exceeds this.
 SSIM_KEEP = 0.25
 #: Divergence tests of a refined frame.

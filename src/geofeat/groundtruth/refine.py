@@ -30,7 +30,7 @@ from .tps import TPS
 class RefineConfig:
     """Refinement settings. spacing, sigma_px in pixels; bending, landmarks are weights."""
 
-    spacing: float = 12.0
+    spacing: float = 16.0
     levels: int = 3
     iterations: tuple[int, ...] = (10, 20, 30)  # L-BFGS iterations per pyramid level, finest first
     window: int = 7
