@@ -8,9 +8,8 @@ from pathlib import Path
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add `groundtruth` to an argparse subparsers object and return its parser."""
-    from .pipeline import DEFAULT_SPACING_PX, GroundTruthConfig
+    from .defaults import DEFAULT_DEPTH_MARGIN_M, DEFAULT_MARGIN_PX, DEFAULT_SPACING_PX
 
-    d = GroundTruthConfig()
     p = subparsers.add_parser(
         "groundtruth",
         help="dense ground truth (the authors' TPS files) for sequences annotated with landmarks",
@@ -24,10 +23,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--no-refine", action="store_true", help="landmark-only spline, no photometric refinement")
     p.add_argument("--spacing", type=float, default=DEFAULT_SPACING_PX,
                    help=f"control-point spacing in reference pixels (default {DEFAULT_SPACING_PX:g})")
-    p.add_argument("--margin", type=float, default=d.margin_px,
-                   help=f"object mask: pixels beyond the landmarks' convex hull (default {d.margin_px:g})")
-    p.add_argument("--depth-margin", type=float, default=d.depth_margin_m,
-                   help=f"object mask: metres beyond the landmarks' depth range (default {d.depth_margin_m:g})")
+    p.add_argument("--margin", type=float, default=DEFAULT_MARGIN_PX,
+                   help=f"object mask: pixels beyond the landmarks' convex hull (default {DEFAULT_MARGIN_PX:g})")
+    p.add_argument("--depth-margin", type=float, default=DEFAULT_DEPTH_MARGIN_M,
+                   help=f"object mask: metres beyond the landmarks' depth range (default {DEFAULT_DEPTH_MARGIN_M:g})")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 

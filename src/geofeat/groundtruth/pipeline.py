@@ -29,11 +29,10 @@ import numpy as np
 
 from ..frame import RGBDFrame
 from ..io import Sequence, read_sequence
-from .refine import RefineConfig, refine
+from .defaults import DEFAULT_DEPTH_MARGIN_M, DEFAULT_MARGIN_PX, DEFAULT_SPACING_PX
+from .photometric import RefineConfig, refine
 from .tps import MIN_LANDMARKS, TPS, robust_landmark_tps
 
-#: Default control-point spacing, pixels (chosen by measurement, see BENCHMARKS.md).
-DEFAULT_SPACING_PX = 16.0
 #: The bench keeps target keypoints where the SSIM map exceeds this.
 SSIM_KEEP = 0.25
 #: Divergence tests of a refined frame.
@@ -58,8 +57,8 @@ class GroundTruthConfig:
 
     refine: bool = True
     spacing: float = DEFAULT_SPACING_PX
-    margin_px: float = 150.0
-    depth_margin_m: float = 0.15
+    margin_px: float = DEFAULT_MARGIN_PX
+    depth_margin_m: float = DEFAULT_DEPTH_MARGIN_M
     refine_config: RefineConfig = field(default_factory=RefineConfig)
 
 

@@ -23,6 +23,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from .defaults import DEFAULT_SPACING_PX
 from .tps import TPS
 
 
@@ -30,7 +31,7 @@ from .tps import TPS
 class RefineConfig:
     """Refinement settings. spacing, sigma_px in pixels; bending, landmarks are weights."""
 
-    spacing: float = 16.0
+    spacing: float = DEFAULT_SPACING_PX
     levels: int = 3
     iterations: tuple[int, ...] = (10, 20, 30)  # L-BFGS iterations per pyramid level, finest first
     window: int = 7
