@@ -436,6 +436,10 @@ def build_parser() -> argparse.ArgumentParser:
     from .sim import command as sim_command
 
     sim_command.add_parser(sub).set_defaults(func=sim_command.run)
+
+    from .groundtruth import command as gt_command
+
+    gt_command.add_parser(sub).set_defaults(func=gt_command.run)
     return parser
 
 

@@ -163,6 +163,11 @@ class GroundTruth:
             keep &= np.isfinite(LandmarkTPS(lm[vis], lm[vis])(xy)).all(axis=1)
         return keep
 
+    def covers(self, target: str) -> bool:
+        """False for a target frame that the TPS files leave out (e.g. one `geofeat groundtruth`
+        marked failed): the benchmark skips that pair and says so."""
+        return self.tps is None or (self.tps / f"{target}_theta.npy").is_file()
+
     def target_to_reference(self, target: str, xy: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         """(N, 2) target pixels -> reference pixels, NaN where the ground truth is unreliable."""
         if self.tps is not None:
@@ -222,6 +227,9 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
         k_ref = k_ref[truth.reference_keep(k_ref.xy)]
     f_ref = describe(ref, k_ref) if len(k_ref) else None
     for target in seq.targets:
+        if config.protocol == "detect" and not truth.covers(target):
+            tqdm.write(f"{seq.name}: no ground truth for {target} in the TPS files; pair skipped")
+            continue
         frame = seq.frame(target)
         angle, scale = _pose_change(seq, target)
         if config.protocol == "landmarks":

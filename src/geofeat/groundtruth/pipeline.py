@@ -1,0 +1,356 @@
+"""Dense ground truth for an annotated sequence: landmarks -> robust spline -> photometric refinement
+-> the authors' TPS files, a per-frame quality report and overlay pictures.
+
+Output folder (one per sequence, read by `geofeat bench --tps-dir`):
+    `<frame>_objmask.png`   every frame, reference included: 255 on the object, else 0,
+    `<k>_theta.npy`         (1, T+3, 2) float32, `<k>_ctrlpts.npy` (T, 2) float32: the target -> reference
+                            spline of target frame k in the authors' parametrisation (`tps.TPS`),
+    `<k>_SSIM.png`          SSIM (x 255) between frame k and the reference warped into it, 0 off the object;
+                            the bench keeps target keypoints where it is > 0.25 (occluded or misregistered
+                            parts fall below),
+    `<k>_overlay.png`       frame k with the refined control-point grid and the landmarks, next to a
+                            checkerboard of frame k and the warped reference,
+    `report.csv`, `report.json`  per frame: status, landmarks (used, rejected, residuals), SSIM before and
+                            after refinement, photometric cost, control points, seconds.
+A frame that fails (too few landmarks, refinement diverged) gets no TPS files and status `failed` with
+the reason; the others are written.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..frame import RGBDFrame
+from ..io import Sequence, read_sequence
+from .defaults import DEFAULT_DEPTH_MARGIN_M, DEFAULT_MARGIN_PX, DEFAULT_SPACING_PX
+from .photometric import RefineConfig, refine
+from .tps import MIN_LANDMARKS, TPS, robust_landmark_tps
+
+#: The bench keeps target keypoints where the SSIM map exceeds this.
+SSIM_KEEP = 0.25
+#: Divergence tests of a refined frame.
+MAX_COST_RISE = 0.02
+MAX_SSIM_DROP = 0.02
+MAX_FOLDED_FRACTION = 0.05
+MAX_LANDMARK_MEDIAN_PX = 3.0
+
+
+@dataclass
+class GroundTruthConfig:
+    """Settings of `generate_ground_truth`.
+
+    Attributes:
+        refine: photometric refinement (False: the landmark-only spline).
+        spacing: control-point spacing in reference pixels.
+        margin_px: the reference object mask reaches this far (pixels) beyond the landmarks' convex hull.
+        depth_margin_m: ... and keeps depths within this many metres of the landmarks' depth range
+            (pixels without depth are off the object).
+        refine_config: further refinement settings (its `spacing` is overridden by `spacing`).
+    """
+
+    refine: bool = True
+    spacing: float = DEFAULT_SPACING_PX
+    margin_px: float = DEFAULT_MARGIN_PX
+    depth_margin_m: float = DEFAULT_DEPTH_MARGIN_M
+    refine_config: RefineConfig = field(default_factory=RefineConfig)
+
+
+@dataclass
+class FrameReport:
+    """Quality of one target frame's ground truth (pixels, SSIM on 0..1, seconds)."""
+
+    frame: str
+    status: str = "ok"
+    reason: str = ""
+    landmarks: int = 0
+    inliers: int = 0
+    rejected_ids: list = field(default_factory=list)
+    loo_median_px: float = float("nan")
+    landmark_median_px: float = float("nan")
+    landmark_max_px: float = float("nan")
+    ssim_before: float = float("nan")
+    ssim_after: float = float("nan")
+    cost_before: float = float("nan")
+    cost_after: float = float("nan")
+    ctrlpts: int = 0
+    seconds: float = 0.0
+
+
+def _valid_landmarks(seq: Sequence, shape: tuple[int, int]) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Every frame's (ids, xy, visible), checked: csv present, ids unique, visible rows on the image,
+    target ids known in the reference."""
+    H, W = shape
+    out = {}
+    for name in seq.names:
+        if not (seq.folder / f"{name}.csv").is_file():
+            raise ValueError(f"sequence {seq.name}: frame {name} has no landmark csv ({name}.csv); "
+                             "ground truth needs landmarks in every frame")
+        ids, xy, vis = seq.landmarks(name)
+        uniq, counts = np.unique(ids, return_counts=True)
+        if (counts > 1).any():
+            raise ValueError(f"landmarks: {name}.csv repeats ids {uniq[counts > 1][:10].tolist()}")
+        off = vis & ((xy[:, 0] > W - 0.5) | (xy[:, 1] > H - 0.5))
+        if off.any():
+            raise ValueError(f"landmarks: {name}.csv has visible landmarks off the {W}x{H} image: ids "
+                             f"{ids[off][:10].tolist()} at {np.round(xy[off][:3], 1).tolist()}")
+        out[name] = (ids, xy, vis)
+    ref_ids = out[seq.reference][0]
+    for name in seq.targets:
+        unknown = np.setdiff1d(out[name][0], ref_ids)
+        if len(unknown):
+            raise ValueError(f"landmarks: {name}.csv has ids missing from the reference csv "
+                             f"({seq.reference}.csv): {unknown[:10].tolist()}")
+    if out[seq.reference][2].sum() < MIN_LANDMARKS:
+        raise ValueError(f"landmarks: the reference {seq.reference} has {out[seq.reference][2].sum()} visible landmarks, "
+                         f"a spline needs >= {MIN_LANDMARKS}")
+    return out
+
+
+def _hull_distance(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) distance in pixels to the convex hull of points (0 inside)."""
+    hull = cv2.convexHull(points.astype(np.float32)).astype(np.int32)
+    inside = np.zeros(shape, np.uint8)
+    cv2.fillConvexPoly(inside, hull, 1)
+    return cv2.distanceTransform((1 - inside).astype(np.uint8), cv2.DIST_L2, 5)
+
+
+def _depth_ok(frame: RGBDFrame, zmin: float, zmax: float) -> np.ndarray:
+    return (frame.depth > 0) & (frame.depth >= zmin) & (frame.depth <= zmax)
+
+
+def _depth_range(frame: RGBDFrame, xy: np.ndarray, margin: float) -> tuple[float, float]:
+    H, W = frame.shape
+    z = frame.depth[np.clip(np.rint(xy[:, 1]).astype(int), 0, H - 1), np.clip(np.rint(xy[:, 0]).astype(int), 0, W - 1)]
+    z = z[z > 0]
+    if len(z) == 0:  # no depth at the landmarks: depth does not restrict the mask
+        return 0.0, np.inf
+    return float(z.min() - margin), float(z.max() + margin)
+
+
+def reference_mask(frame: RGBDFrame, landmarks: np.ndarray, margin_px: float, depth_margin_m: float) -> np.ndarray:
+    """(H, W) bool object mask of the reference: within `margin_px` of the landmarks' hull, with depth
+    inside the landmarks' depth range widened by `depth_margin_m` metres."""
+    mask = _hull_distance(landmarks, frame.shape) <= margin_px
+    zmin, zmax = _depth_range(frame, landmarks, depth_margin_m)
+    return mask & _depth_ok(frame, zmin, zmax) if np.isfinite(zmax) else mask
+
+
+def _dense_map(tps: TPS, shape: tuple[int, int], stride: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """The spline at every pixel (H, W) x 2 float32 maps, evaluated every `stride` pixels and
+    interpolated bilinearly in between (the spline is smooth at that scale)."""
+    H, W = shape
+    xs = np.arange(0, W + stride, stride, dtype=float)
+    ys = np.arange(0, H + stride, stride, dtype=float)
+    gx, gy = np.meshgrid(xs, ys)
+    m = tps(np.stack([gx.ravel(), gy.ravel()], 1)).reshape(len(ys), len(xs), 2).astype(np.float32)
+    px, py = np.meshgrid(np.arange(W, dtype=np.float32) / stride, np.arange(H, dtype=np.float32) / stride)
+    mx = cv2.remap(m[..., 0], px, py, cv2.INTER_LINEAR)
+    my = cv2.remap(m[..., 1], px, py, cv2.INTER_LINEAR)
+    return mx, my
+
+
+def ssim_map(a: np.ndarray, b: np.ndarray, sigma: float = 1.5) -> np.ndarray:
+    """(H, W) SSIM of two float images in [0, 1] with a Gaussian window of `sigma` pixels."""
+    C1, C2 = 0.01**2, 0.03**2
+    blur = lambda x: cv2.GaussianBlur(x, (0, 0), sigma)  # noqa: E731
+    ma, mb = blur(a), blur(b)
+    va = blur(a * a) - ma * ma
+    vb = blur(b * b) - mb * mb
+    cov = blur(a * b) - ma * mb
+    return ((2 * ma * mb + C1) * (2 * cov + C2)) / ((ma * ma + mb * mb + C1) * (va + vb + C2))
+
+
+@dataclass
+class _Warped:
+    mask: np.ndarray  # (H, W) bool target object mask
+    ssim: np.ndarray  # (H, W) float32 SSIM, 0 off the mask
+    warped: np.ndarray  # (H, W) reference warped into the target
+
+
+def _evaluate(tps_inv: TPS, ref: RGBDFrame, ref_mask: np.ndarray, tgt: RGBDFrame, zrange) -> _Warped:
+    mx, my = _dense_map(tps_inv, tgt.shape)
+    warped = cv2.remap(ref.image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    on_ref = cv2.remap(ref_mask.astype(np.uint8), mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
+                       borderValue=0) > 0
+    mask = on_ref & (_depth_ok(tgt, *zrange) if np.isfinite(zrange[1]) else True)
+    ssim = np.clip(ssim_map(tgt.image, warped), 0, 1) * mask
+    return _Warped(mask=mask, ssim=ssim.astype(np.float32), warped=warped)
+
+
+def _overlay(tgt: RGBDFrame, ev: _Warped, lines: np.ndarray | None, lm_in: np.ndarray, lm_out: np.ndarray) -> np.ndarray:
+    """Frame with the control-point grid (red) and landmarks (green inliers, red rejected), next to a
+    checkerboard of the frame and the warped reference (object only)."""
+    gray = (tgt.image * 255).astype(np.uint8)
+    left = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
+    if lines is not None:
+        for a, b in lines:
+            cv2.line(left, tuple(np.rint(a).astype(int)), tuple(np.rint(b).astype(int)), (0, 0, 230), 1, cv2.LINE_AA)
+    for x, y in lm_in:
+        cv2.circle(left, (int(round(x)), int(round(y))), 4, (0, 220, 0), 2, cv2.LINE_AA)
+    for x, y in lm_out:
+        cv2.drawMarker(left, (int(round(x)), int(round(y))), (0, 0, 255), cv2.MARKER_TILTED_CROSS, 12, 2)
+    H, W = gray.shape
+    yy, xx = np.mgrid[0:H, 0:W]
+    checker = ((yy // 24 + xx // 24) % 2 == 0) & ev.mask
+    right = np.where(checker, (ev.warped * 255).astype(np.uint8), gray)
+    right = cv2.cvtColor(right, cv2.COLOR_GRAY2BGR)
+    cv2.putText(right, "checkerboard: frame / warped reference", (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 255, 255), 1)
+    return np.concatenate([left, right], axis=1)
+
+
+def _grid_lines(mapped: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """(M, 2, 2) segments between horizontally or vertically adjacent kept nodes."""
+    segs = []
+    h = keep[:, 1:] & keep[:, :-1]
+    segs.append(np.stack([mapped[:, :-1][h], mapped[:, 1:][h]], axis=1))
+    v = keep[1:] & keep[:-1]
+    segs.append(np.stack([mapped[:-1][v], mapped[1:][v]], axis=1))
+    return np.concatenate(segs)
+
+
+def _nodes_near_object(refined, ref_mask: np.ndarray, spacing: float, shape) -> np.ndarray:
+    """(Gy, Gx) bool: nodes near the object (within one spacing of the mask) and mapped near the frame."""
+    H, W = shape
+    near = cv2.dilate(ref_mask.astype(np.uint8), cv2.getStructuringElement(
+        cv2.MORPH_ELLIPSE, (2 * int(spacing) + 1, 2 * int(spacing) + 1))) > 0
+    n = refined.nodes
+    ix = np.clip(np.rint(n[..., 0]).astype(int), 0, W - 1)
+    iy = np.clip(np.rint(n[..., 1]).astype(int), 0, H - 1)
+    inside = (n[..., 0] >= -0.5) & (n[..., 0] <= W - 0.5) & (n[..., 1] >= -0.5) & (n[..., 1] <= H - 0.5)
+    m = refined.mapped
+    in_frame = (m[..., 0] > -2 * spacing) & (m[..., 0] < W + 2 * spacing) & (m[..., 1] > -2 * spacing) & (m[..., 1] < H + 2 * spacing)
+    return inside & near[iy, ix] & in_frame
+
+
+def _write_frame(out: Path, name: str, tps_inv: TPS, ev: _Warped) -> None:
+    theta, ctrl = tps_inv.authors_arrays()
+    np.save(out / f"{name}_theta.npy", theta)
+    np.save(out / f"{name}_ctrlpts.npy", ctrl)
+    cv2.imwrite(str(out / f"{name}_objmask.png"), ev.mask.astype(np.uint8) * 255)
+    cv2.imwrite(str(out / f"{name}_SSIM.png"), np.rint(ev.ssim * 255).astype(np.uint8))
+
+
+def _frame(seq: Sequence, name: str, ref: RGBDFrame, ref_mask, lms, config: GroundTruthConfig, out: Path,
+           zrange) -> FrameReport:
+    t0 = time.perf_counter()
+    rep = FrameReport(frame=name)
+    ids_r, xy_r, vis_r = lms[seq.reference]
+    ids_t, xy_t, vis_t = lms[name]
+    common, ir, it = np.intersect1d(ids_r[vis_r], ids_t[vis_t], return_indices=True)
+    rep.landmarks = len(common)
+    if len(common) < MIN_LANDMARKS:
+        rep.status, rep.reason = "failed", f"{len(common)} landmarks visible in both frames, a spline needs >= {MIN_LANDMARKS}"
+        return rep
+    p_ref, p_tgt = xy_r[vis_r][ir], xy_t[vis_t][it]
+    tgt = seq.frame(name)
+    size = (ref.shape[1], ref.shape[0])
+    try:
+        fit = robust_landmark_tps(p_ref, p_tgt, size)
+        inl = fit.inliers
+        lm_inv = TPS(p_tgt[inl], p_ref[inl], size)
+    except ValueError as error:
+        rep.status, rep.reason = "failed", str(error)
+        return rep
+    rep.inliers = int(inl.sum())
+    rep.rejected_ids = common[~inl].tolist()
+    rep.loo_median_px = float(np.nanmedian(fit.loo_px))
+    before = _evaluate(lm_inv, ref, ref_mask, tgt, zrange)
+    tps_inv, lines, ev = lm_inv, None, before
+    if config.refine:
+        rcfg = RefineConfig(**{**asdict(config.refine_config), "spacing": config.spacing})
+        r = refine(ref.image, tgt.image, ref_mask, fit.tps, p_ref[inl], p_tgt[inl], rcfg)
+        rep.cost_before, rep.cost_after = r.init_cost, r.cost
+        near = _nodes_near_object(r, ref_mask, config.spacing, ref.shape)
+        keep = near & (r.jac_det > 0.1)  # folded or crushed nodes would make the inverse ill-posed
+        folded = float((near & (r.jac_det <= 0)).sum() / max(near.sum(), 1))
+        try:
+            tps_inv = TPS(r.mapped[keep], r.nodes[keep], size)
+        except ValueError as error:
+            rep.status, rep.reason = "failed", f"refinement diverged: {error}"
+            return rep
+        ev = _evaluate(tps_inv, ref, ref_mask, tgt, zrange)
+        lines = _grid_lines(r.mapped, keep)
+        rep.ctrlpts = int(keep.sum())
+    else:
+        rep.ctrlpts = int(inl.sum())
+    res = np.linalg.norm(tps_inv(p_tgt[inl]) - p_ref[inl], axis=1)
+    rep.landmark_median_px, rep.landmark_max_px = float(np.median(res)), float(res.max())
+    common_mask = ev.mask & before.mask
+    rep.ssim_before = float(before.ssim[common_mask].mean()) if common_mask.any() else float("nan")
+    rep.ssim_after = float(ev.ssim[common_mask].mean()) if common_mask.any() else float("nan")
+    if config.refine:
+        reasons = []
+        if rep.cost_after > rep.cost_before + MAX_COST_RISE:
+            reasons.append(f"photometric cost rose {rep.cost_before:.3f} -> {rep.cost_after:.3f}")
+        if rep.ssim_after < rep.ssim_before - MAX_SSIM_DROP:
+            reasons.append(f"SSIM fell {rep.ssim_before:.3f} -> {rep.ssim_after:.3f}")
+        if folded > MAX_FOLDED_FRACTION:
+            reasons.append(f"the map folds over at {folded:.0%} of the control points")
+        if rep.landmark_median_px > MAX_LANDMARK_MEDIAN_PX:
+            reasons.append(f"landmark residuals median {rep.landmark_median_px:.1f} px > {MAX_LANDMARK_MEDIAN_PX} px")
+        if reasons:
+            rep.status, rep.reason = "failed", "refinement diverged: " + "; ".join(reasons)
+            rep.seconds = time.perf_counter() - t0
+            return rep
+    _write_frame(out, name, tps_inv, ev)
+    cv2.imwrite(str(out / f"{name}_overlay.png"), _overlay(tgt, ev, lines, p_tgt[inl], p_tgt[~inl]))
+    rep.seconds = time.perf_counter() - t0
+    return rep
+
+
+def generate_ground_truth(sequence: str | Path | Sequence, out: str | Path, config: GroundTruthConfig | None = None,
+                          progress: bool = True) -> list[FrameReport]:
+    """Dense ground truth of one annotated sequence, written to the folder `out` (see the module docstring).
+
+    Args:
+        sequence: a sequence folder in the public layout with a landmark csv per frame, or a `Sequence`.
+        out: output folder (created); the bench reads it as `--tps-dir` when it is named like the sequence
+            or sits in a folder given as `--tps-dir`.
+        config: settings (`GroundTruthConfig()` by default).
+    Returns:
+        one FrameReport per target frame (also in out/report.csv and out/report.json).
+    Raises:
+        ValueError: bad landmark files (missing, repeated ids, visible rows off the image, ids unknown
+            to the reference, fewer than 4 visible in the reference).
+    """
+    config = config or GroundTruthConfig()
+    if config.spacing < 2:
+        raise ValueError(f"spacing: expected >= 2 pixels, got {config.spacing}")
+    seq = sequence if isinstance(sequence, Sequence) else read_sequence(sequence)
+    if len(seq) < 2:
+        raise ValueError(f"sequence {seq.name}: needs a reference and at least one target frame")
+    ref = seq.frame(seq.reference)
+    lms = _valid_landmarks(seq, ref.shape)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    ids_r, xy_r, vis_r = lms[seq.reference]
+    ref_mask = reference_mask(ref, xy_r[vis_r], config.margin_px, config.depth_margin_m)
+    zrange = _depth_range(ref, xy_r[vis_r], config.depth_margin_m)
+    cv2.imwrite(str(out / f"{seq.reference}_objmask.png"), ref_mask.astype(np.uint8) * 255)
+    names = seq.targets
+    if progress:
+        from tqdm import tqdm
+
+        names = tqdm(names, desc=f"groundtruth {seq.name}", unit="frame")
+    reports = [_frame(seq, name, ref, ref_mask, lms, config, out, zrange) for name in names]
+    _write_report(out, seq, config, reports)
+    return reports
+
+
+def _write_report(out: Path, seq: Sequence, config: GroundTruthConfig, reports: list[FrameReport]) -> None:
+    rows = [asdict(r) for r in reports]
+    with open(out / "report.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, list(rows[0].keys()) if rows else ["frame"])
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: (" ".join(map(str, v)) if isinstance(v, list) else v) for k, v in row.items()})
+    (out / "report.json").write_text(json.dumps(
+        {"sequence": str(seq.folder), "reference": seq.reference, "config": asdict(config), "frames": rows},
+        indent=1, default=float))

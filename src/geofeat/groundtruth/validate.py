@@ -1,0 +1,68 @@
+"""Check generated ground truth against a simulated sequence's exact correspondences.
+
+`keep_landmarks` copies a simulated sequence keeping only some landmark rows (as a person would
+annotate a few points); `mapping_errors` compares the target -> reference mapping of a TPS folder with
+the simulator's exact one at object pixels, split by the landmarks' convex hull.
+"""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import Delaunay
+
+from ..bench.protocol import authors_tps_warp
+from ..io import Sequence, read_sequence, write_landmarks
+
+
+def keep_landmarks(sequence: str | Path, out: str | Path, n: int, seed: int = 0) -> Path:
+    """Copy a sequence folder to `out` keeping `n` landmark ids (drawn with `seed` among the ids visible
+    in the reference) in every csv; the other rows are dropped. Returns `out`."""
+    seq = read_sequence(sequence)
+    ids, _, vis = seq.landmarks(seq.reference)
+    if n < 1 or n > vis.sum():
+        raise ValueError(f"n: expected 1..{vis.sum()} (landmarks visible in the reference), got {n}")
+    keep = np.random.default_rng(seed).choice(ids[vis], size=n, replace=False)
+    out = Path(out)
+    if out.exists():
+        shutil.rmtree(out)
+    shutil.copytree(seq.folder, out)
+    for name in seq.names:
+        i, xy, v = seq.landmarks(name)
+        sel = np.isin(i, keep)
+        write_landmarks(out / f"{name}.csv", i[sel], np.where(v[sel, None], xy[sel], -1.0), v[sel])
+    return out
+
+
+@dataclass
+class MappingErrors:
+    """Errors (pixels) of one frame's target -> reference mapping at object pixels visible in both
+    frames, inside and outside the convex hull of the target landmarks visible in both frames."""
+
+    frame: str
+    inside: np.ndarray
+    outside: np.ndarray
+
+
+def mapping_errors(seq: Sequence, tps_folder: str | Path, target: str, stride: int = 4) -> MappingErrors:
+    """Compare `<target>_theta.npy` / `_ctrlpts.npy` in `tps_folder` with the exact ground truth of a
+    simulated `seq` on a pixel grid of `stride` pixels over the target frame (points on the object in
+    the target and visible in the reference)."""
+    tps_folder = Path(tps_folder)
+    frame = seq.frame(target)
+    H, W = frame.shape
+    gx, gy = np.meshgrid(np.arange(0, W, stride, dtype=float), np.arange(0, H, stride, dtype=float))
+    q = np.stack([gx.ravel(), gy.ravel()], 1)
+    exact, visible = seq.correspondences(target, seq.reference, q)
+    q, exact = q[visible], exact[visible]
+    theta = np.load(tps_folder / f"{target}_theta.npy")
+    ctrl = np.load(tps_folder / f"{target}_ctrlpts.npy")
+    err = np.linalg.norm(authors_tps_warp(q, theta, ctrl, (W, H)) - exact, axis=1)
+    ids_r, _, vis_r = seq.landmarks(seq.reference)
+    ids_t, xy_t, vis_t = seq.landmarks(target)
+    both = vis_t & np.isin(ids_t, ids_r[vis_r])
+    inside = Delaunay(xy_t[both]).find_simplex(q) >= 0
+    return MappingErrors(frame=target, inside=err[inside], outside=err[~inside])
