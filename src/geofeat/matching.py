@@ -53,6 +53,26 @@ def _popcount64(x):
     return (x * _H01) >> _S56
 
 
+@njit(cache=True, inline="always")
+def _min_over_rotations8(q0, q1, q2, q3, q4, q5, q6, q7, t, j):
+    """min over k of the Hamming distance between a 512-bit query (8 uint64 words, in registers)
+    and rotation k of target j of t (N1, R, 8)."""
+    m = _BIG
+    for k in range(t.shape[1]):
+        dk = (
+            _popcount64(q0 ^ t[j, k, 0])
+            + _popcount64(q1 ^ t[j, k, 1])
+            + _popcount64(q2 ^ t[j, k, 2])
+            + _popcount64(q3 ^ t[j, k, 3])
+            + _popcount64(q4 ^ t[j, k, 4])
+            + _popcount64(q5 ^ t[j, k, 5])
+            + _popcount64(q6 ^ t[j, k, 6])
+            + _popcount64(q7 ^ t[j, k, 7])
+        )
+        m = min(m, dk)
+    return m
+
+
 @njit(parallel=True, cache=True)
 def _hamming_nn(q, t, valid0, valid1, n_chunks, want_cols, best_d, best_j, second_d, col_d, col_i):
     """Nearest neighbours under min-over-rotations Hamming distance.
@@ -107,7 +127,7 @@ def _hamming_nn8(q, t, valid0, valid1, n_chunks, want_cols, best_d, best_j, seco
     the query words live in registers and each (target, rotation) distance is one unrolled sum.
     q: (N0, 8) uint64; t: (N1, R, 8) uint64 (rotations first). Other arguments as `_hamming_nn`."""
     n0 = q.shape[0]
-    n1, R, _ = t.shape
+    n1 = t.shape[0]
     for c in prange(n_chunks):
         i_start = (c * n0) // n_chunks
         i_stop = ((c + 1) * n0) // n_chunks
@@ -121,19 +141,7 @@ def _hamming_nn8(q, t, valid0, valid1, n_chunks, want_cols, best_d, best_j, seco
                 for j in range(n1):
                     if not valid1[j]:
                         continue
-                    m = _BIG
-                    for k in range(R):
-                        dk = (
-                            _popcount64(q0 ^ t[j, k, 0])
-                            + _popcount64(q1 ^ t[j, k, 1])
-                            + _popcount64(q2 ^ t[j, k, 2])
-                            + _popcount64(q3 ^ t[j, k, 3])
-                            + _popcount64(q4 ^ t[j, k, 4])
-                            + _popcount64(q5 ^ t[j, k, 5])
-                            + _popcount64(q6 ^ t[j, k, 6])
-                            + _popcount64(q7 ^ t[j, k, 7])
-                        )
-                        m = min(m, dk)
+                    m = _min_over_rotations8(q0, q1, q2, q3, q4, q5, q6, q7, t, j)
                     if m < best:
                         second = best
                         best = m
@@ -517,24 +525,12 @@ def _hamming_matrix8(q, t, out):
     """All (query, target) min-over-rotations Hamming distances for 512-bit descriptors.
     q: (N0, 8) uint64 (rotation 0); t: (N1, R, 8) uint64; out: (N0, N1) float32."""
     n0 = q.shape[0]
-    n1, R, _ = t.shape
+    n1 = t.shape[0]
     for i in prange(n0):
         q0, q1, q2, q3 = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
         q4, q5, q6, q7 = q[i, 4], q[i, 5], q[i, 6], q[i, 7]
         for j in range(n1):
-            m = _BIG
-            for k in range(R):
-                dk = (
-                    _popcount64(q0 ^ t[j, k, 0])
-                    + _popcount64(q1 ^ t[j, k, 1])
-                    + _popcount64(q2 ^ t[j, k, 2])
-                    + _popcount64(q3 ^ t[j, k, 3])
-                    + _popcount64(q4 ^ t[j, k, 4])
-                    + _popcount64(q5 ^ t[j, k, 5])
-                    + _popcount64(q6 ^ t[j, k, 6])
-                    + _popcount64(q7 ^ t[j, k, 7])
-                )
-                m = min(m, dk)
+            m = _min_over_rotations8(q0, q1, q2, q3, q4, q5, q6, q7, t, j)
             out[i, j] = np.float32(m)
 
 
