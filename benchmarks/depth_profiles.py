@@ -61,12 +61,19 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=5)
     parser.add_argument("--keypoints", type=int, default=2048)
     parser.add_argument("--descriptors", default="geopatch,geobit")
-    parser.add_argument("--data", default=None, help="keep the generated data here (default: a temporary folder)")
+    parser.add_argument("--data", default=None, help="keep the generated data here (default: a temporary folder); "
+                                                     "data already there is reused")
+    parser.add_argument("--noise-only", action="store_true", help="print the noise statistic only")
     args = parser.parse_args()
     root = Path(args.data or tempfile.mkdtemp(prefix="geofeat-profiles-"))
-    kinds = {"real Kinect (rolled pair)": kinect_sequence(root),
-             "simulated, clean depth": simulated(root, args.sequences, args.frames, False),
-             "simulated, Kinect noise": simulated(root, args.sequences, args.frames, True)}
+
+    def reuse(folder: Path, make):
+        return folder if folder.is_dir() else make()
+
+    kinds = {"real Kinect (rolled pair)": reuse(root / "kinect", lambda: kinect_sequence(root)),
+             "simulated, clean depth": reuse(root / "sim-clean", lambda: simulated(root, args.sequences, args.frames, False)),
+             "simulated, Kinect noise": reuse(root / "sim-kinect-noise",
+                                              lambda: simulated(root, args.sequences, args.frames, True))}
 
     print(f"slope noise (sigma_z / pixel footprint); auto picks kinect above {SLOPE_NOISE_THRESHOLD}\n")
     print("| data | frames | slope noise: min / median / max | relative noise (median) | auto picks |")
@@ -85,6 +92,8 @@ def main() -> None:
         print(f"| {kind} | {len(stats)} | {slope.min():.3f} / {np.median(slope):.3f} / {slope.max():.3f} | "
               f"{rel:.2e} | {counts} |")
 
+    if args.noise_only:
+        return
     names = tuple(args.descriptors.split(","))
     print("\n| data | descriptor | MS kinect | MS clean | MS auto | auto / better fixed |")
     print("|---|---|---|---|---|---|")

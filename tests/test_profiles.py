@@ -31,6 +31,7 @@ def test_noise_statistic_ignores_curvature_and_measures_noise():
     depth, K = _sphere_cap()
     clean = depth_noise(depth, K)
     assert clean.slope_noise < 0.02 and clean.windows > 50_000  # a smooth curved surface is not noise
+    assert clean.quantisation_step < 1e-4  # continuous depth: no millimetre steps
     rng = np.random.default_rng(0)
     for sigma in (0.0005, 0.002):
         noisy = depth + rng.normal(0, sigma, depth.shape)
@@ -49,9 +50,13 @@ def test_auto_picks_kinect_on_the_real_frame_and_clean_on_clean_depth():
     cos_view = np.ones_like(bent.depth)
     noisy = kinect_depth_noise(bent.depth, cos_view, np.random.default_rng(0), n_blobs=0)
     assert depth_profile(geofeat.RGBDFrame(bent.image, noisy, bent.K)) == "kinect"
-    # millimetre-quantised clean depth (16-bit PNGs) still counts as clean at 1 m
-    quantised = np.round(bent.depth * 1000) / 1000
-    assert depth_profile(geofeat.RGBDFrame(bent.image, quantised.astype(np.float32), bent.K)) == "clean"
+    # millimetre-quantised clean depth (16-bit PNGs) still counts as clean, even close up where a
+    # millimetre is a third of a pixel's footprint: the quantisation step is measured and taken out
+    for z_scale in (1.0, 0.4):
+        quantised = (np.round(bent.depth * z_scale * 1000) / 1000).astype(np.float32)
+        noise = depth_noise(quantised, bent.K)
+        assert noise.quantisation_step == pytest.approx(0.001, rel=0.01)
+        assert depth_profile(geofeat.RGBDFrame(bent.image, quantised, bent.K)) == "clean", noise
 
 
 def test_auto_default_equals_the_profile_it_picks():

@@ -84,16 +84,32 @@ class DepthNoise:
 
     Attributes:
         slope_noise: depth noise in units of the pixel footprint (sigma_z / (z / fx)): the noise of
-            the surface slope between neighbouring pixels. Dimensionless.
-        relative_noise: sigma_z / z, dimensionless.
+            the surface slope between neighbouring pixels, with the depth map's own quantisation
+            step (a 16-bit PNG's millimetre) taken out. Dimensionless.
+        relative_noise: sigma_z / z (quantisation taken out the same way), dimensionless.
+        quantisation_step: the smallest step between the map's depth values (robust: 5th percentile
+            of the gaps between distinct values), metres; 0 for continuous depth.
         hole_fraction: fraction of the frame's pixels without depth.
         windows: number of 5x5 windows (all pixels with depth) the statistics come from.
     """
 
     slope_noise: float
     relative_noise: float
+    quantisation_step: float
     hole_fraction: float
     windows: int
+
+
+#: E[min(x^2, q^2)] / sigma^2 for a normal x winsorised at its 95th percentile of |x| (q = 1.96 sigma):
+#: divides the winsorised mean square back to sigma^2.
+_WINSOR_95 = 0.9135
+
+
+def _noise_rms(residual: np.ndarray, floor: np.ndarray) -> float:
+    """sqrt(winsorised mean of residual^2 (95th percentile), Gaussian-corrected, minus mean floor^2)."""
+    r2 = residual**2
+    r2 = np.minimum(r2, np.quantile(r2, 0.95))
+    return float(np.sqrt(max(r2.mean() / _WINSOR_95 - np.mean(floor**2), 0.0)))
 
 
 def depth_noise(depth: np.ndarray, K: np.ndarray) -> DepthNoise:
@@ -101,9 +117,11 @@ def depth_noise(depth: np.ndarray, K: np.ndarray) -> DepthNoise:
 
     Every 5x5 window whose pixels all have depth gets a least-squares quadratic surface; the
     residual at its centre, divided by sqrt(1 - h0) (h0 = the fit's centre weight), estimates the
-    depth noise without the surface's own curvature. Its mean absolute value (residuals above the
-    95th percentile, mostly depth discontinuities, clipped there) times sqrt(pi / 2) gives sigma
-    for Gaussian noise; quantisation steps count as noise too.
+    depth noise without the surface's own curvature. Its root mean square (squares winsorised at
+    their 95th percentile against depth discontinuities, corrected to sigma for Gaussian noise)
+    gives sigma; the variance of the depth map's quantisation (step^2 / 12) is subtracted, so that
+    millimetre PNGs of clean depth read as clean at any distance, while sensor noise (Kinect's
+    disparity steps are several times coarser than a millimetre at a metre) remains.
     """
     depth = np.asarray(depth, dtype=np.float64)
     if depth.ndim != 2:
@@ -113,18 +131,18 @@ def depth_noise(depth: np.ndarray, K: np.ndarray) -> DepthNoise:
                       borderValue=0) > 0
     n = int(inner.sum())
     holes = float(1.0 - valid.mean())
+    gaps = np.diff(np.unique(depth[valid]))
+    step = float(np.quantile(gaps, 0.05)) if len(gaps) else 0.0
     if n == 0:
-        return DepthNoise(float("nan"), float("nan"), holes, 0)
+        return DepthNoise(float("nan"), float("nan"), step, holes, 0)
     kernel = _quadratic_fit_kernel()
-    residual = np.abs(depth - cv2.filter2D(depth, -1, kernel, borderType=cv2.BORDER_REFLECT))[inner]
+    residual = (depth - cv2.filter2D(depth, -1, kernel, borderType=cv2.BORDER_REFLECT))[inner]
     residual /= np.sqrt(1.0 - kernel[2, 2])
     z = depth[inner]
-    gauss = np.sqrt(np.pi / 2.0)
-
-    def robust_sigma(values: np.ndarray) -> float:
-        return float(gauss * np.minimum(values, np.quantile(values, 0.95)).mean())
-
-    return DepthNoise(robust_sigma(residual * K[0, 0] / z), robust_sigma(residual / z), holes, n)
+    footprint = z / K[0, 0]
+    sigma_q = step / np.sqrt(12.0)
+    return DepthNoise(_noise_rms(residual / footprint, sigma_q / footprint), _noise_rms(residual / z, sigma_q / z),
+                      step, holes, n)
 
 
 def depth_profile(frame) -> str:
