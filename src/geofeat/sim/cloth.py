@@ -271,7 +271,8 @@ def _substeps(pos, prev, acc, pinned, pin_from, pin_to, damping, dt2, substeps, 
 def vertex_normals(pos, rows, cols):
     """(N, 3) unit normals of a (rows * cols, 3) grid from central differences (one-sided at borders).
 
-    Orientation: du x dv, which for the rest cloth facing a camera looking down +z points to -z.
+    Orientation: du x dv, which for the rest cloth facing a camera looking down +z points to +z
+    (away from the camera).
     """
     out = np.empty((rows * cols, 3))
     for r in range(rows):
