@@ -11,6 +11,7 @@ Presets (`PRESETS`) set how hard the scenes are:
     into strong folds, abrupt gusts, the camera orbits the cloth (foreshortening up to ~70 deg),
     fast-moving lights with specular highlights, a plain back side, stronger image noise and
     (optional) motion blur.
+  paper and hard also jitter the texture's colours and contrast (`textures.jitter_colours`).
 
 World coordinates are the reference camera's: x right, y down (gravity), z forward, metres.
 The reference frame (frame 0) shows the flat cloth before any simulation step.
@@ -26,7 +27,7 @@ import numpy as np
 from .cloth import Cloth, ClothConfig
 from .noise import finish_image, kinect_depth_noise, motion_blur
 from .render import RenderOutput, render
-from .textures import prepare_texture
+from .textures import jitter_colours, prepare_texture
 
 SCENARIOS = ("deform", "rotate", "scale")
 #: Open interval of accepted vertical fields of view, degrees.
@@ -249,7 +250,7 @@ class ClothScene:
         self.motion_blur = bool(motion_blur)
         self.params = p = SceneParams.draw(rng, steps_per_frame)
         if self.preset.name != "mild":
-            self._draw_preset(texture)
+            texture = self._draw_preset(texture)
         cfg = ClothConfig(**{**cloth_config.__dict__, "width_m": p.cloth_width})
         self.config = cfg
         R0 = _rot("y", p.tilt[1]) @ _rot("x", p.tilt[0])
@@ -265,8 +266,9 @@ class ClothScene:
         self.texture = prepare_texture(texture, cfg.width_m / cfg.height_m, int(min(1024, 1.5 * px_width + 16)))
         self.step_count = 0
 
-    def _draw_preset(self, texture: np.ndarray) -> None:
-        """Redraw the parameters a non-mild preset changes (after mild's draws, same generator)."""
+    def _draw_preset(self, texture: np.ndarray) -> np.ndarray:
+        """Redraw the parameters a non-mild preset changes (after mild's draws, same generator);
+        returns the texture with its colours and contrast jittered."""
         p, pr, rng, (H, W) = self.params, self.preset, self.rng, self.size
         cfg = ClothConfig(width_m=p.cloth_width)
         if pr.fill is not None:
@@ -309,6 +311,7 @@ class ClothScene:
             "shininess": float(rng.uniform(10.0, 60.0)),
             "back_color": (0.5 * grey + 0.5 * mean) * rng.uniform(0.5, 0.9) if pr.back_plain else None,
         }
+        return jitter_colours(np.ascontiguousarray(texture, dtype=np.uint8), rng)
 
     # ------------------------------------------------------------------ time-varying inputs
     def _wind(self, k: int) -> np.ndarray:
