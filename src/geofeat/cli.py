@@ -10,10 +10,19 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .constants import DEFAULT_RADIUS_M, DEPTH_SCALE_M, N_KEYPOINTS
+from .constants import DEFAULT_RADIUS_M, DEPTH_PROFILE_NAMES, DEPTH_SCALE_M, N_KEYPOINTS
+from .keypoints import KEYPOINT_SETS
 
 
-def _demo_patches(out: Path, radius: float) -> None:
+def _profile_of(profile: str, frame) -> str:
+    """The concrete profile name for `frame` ("auto" measured on it)."""
+    from .depth import depth_profile
+
+    return depth_profile(frame) if profile == "auto" else profile
+
+
+def _demo_patches(out: Path, radius: float, profile: str) -> None:
+    from .depth import depth_noise
     from .geodesic.mesh import build_mesh
     from .geodesic.polar import polar_patches
     from .io import demo_data_dir, read_demo_frame, read_landmarks
@@ -23,8 +32,11 @@ def _demo_patches(out: Path, radius: float) -> None:
     _, landmarks, _ = read_landmarks(demo_data_dir() / "cloud_1.csv")
     print(f"frame: {demo_data_dir() / 'cloud_1'} ({frame.shape[1]}x{frame.shape[0]}, "
           f"{(frame.depth == 0).mean():.1%} missing depth), {len(landmarks)} annotated keypoints")
+    chosen = _profile_of(profile, frame)
+    print(f"depth profile: {chosen}" + (f" (auto: measured slope noise {depth_noise(frame.depth, frame.K).slope_noise:.2f})"
+                                        if profile == "auto" else ""))
     t0 = time.perf_counter()
-    mesh = build_mesh(frame)
+    mesh = build_mesh(frame, chosen)
     t1 = time.perf_counter()
     patches = polar_patches(frame, landmarks, radius=radius, mesh=mesh)
     t2 = time.perf_counter()
@@ -37,7 +49,7 @@ def _demo_patches(out: Path, radius: float) -> None:
 
 
 def _demo_match_pair(out: Path, picture_name: str, frame0, frame1, k0, k1, truth: np.ndarray,
-                     names: list[str]) -> None:
+                     names: list[str], profile: str) -> None:
     """Match frame0 -> frame1 with each descriptor on the same keypoints, print how many matches
     land within 3 px of `truth` (the true positions in frame 1 of k0, NaN = not visible), and save
     the correct matches of the first two descriptors, one above the other."""
@@ -48,7 +60,7 @@ def _demo_match_pair(out: Path, picture_name: str, frame0, frame1, k0, k1, truth
     visible = np.isfinite(truth).all(axis=1)
     pictures = []
     for name in names:
-        descriptor = make_descriptor(name)
+        descriptor = make_descriptor(name, depth_config=_profile_of(profile, frame0))
         t = time.perf_counter()
         m = match(descriptor.compute(frame0, k0), descriptor.compute(frame1, k1))
         elapsed = time.perf_counter() - t
@@ -67,7 +79,7 @@ def _demo_match_pair(out: Path, picture_name: str, frame0, frame1, k0, k1, truth
     print(f"wrote {path} (correct matches of {names[0]}, top, and {names[1]}, bottom)")
 
 
-def _demo_rolled_pair(out: Path, angle: float, n: int) -> None:
+def _demo_rolled_pair(out: Path, angle: float, n: int, profile: str) -> None:
     from .frame import roll_camera
     from .io import read_demo_frame
     from .keypoints import detect
@@ -78,10 +90,10 @@ def _demo_rolled_pair(out: Path, angle: float, n: int) -> None:
     truth = k0.xy @ A[:, :2].T + A[:, 2]  # where each reference keypoint really is in frame 1
     print(f"\nrolled pair: the Kinect frame vs the camera rolled by {angle:g} deg; SIFT keypoints "
           f"detected independently: {len(k0)} and {len(k1)}")
-    _demo_match_pair(out, "rolled_pair_matches.png", frame0, frame1, k0, k1, truth, ["geobit", "orb"])
+    _demo_match_pair(out, "rolled_pair_matches.png", frame0, frame1, k0, k1, truth, ["geobit", "orb"], profile)
 
 
-def _demo_deformed_pair(out: Path, n: int) -> None:
+def _demo_deformed_pair(out: Path, n: int, profile: str) -> None:
     from .io import read_sequence
     from .keypoints import detect
     from .sim import simulate_sequence
@@ -96,16 +108,24 @@ def _demo_deformed_pair(out: Path, n: int) -> None:
     print(f"\nsimulated cloth: {folder} ({len(seq)} frames, wind-blown cloth and a rolling camera); "
           f"{seq.reference} vs {target}, SIFT keypoints {len(k0)} and {len(k1)}")
     _demo_match_pair(out, "simulated_pair_matches.png", frame0, frame1, k0, k1,
-                     np.where(visible[:, None], truth, np.nan), ["geopatch", "geobit", "orb", "sift"])
+                     np.where(visible[:, None], truth, np.nan), ["geopatch", "geobit", "orb", "sift"], profile)
 
 
 def _demo(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    _demo_patches(out, args.radius)
-    _demo_rolled_pair(out, args.angle, args.keypoints)
-    _demo_deformed_pair(out, args.keypoints)
+    _demo_patches(out, args.radius, args.depth_profile)
+    _demo_rolled_pair(out, args.angle, args.keypoints, args.depth_profile)
+    _demo_deformed_pair(out, args.keypoints, args.depth_profile)
     return 0
+
+
+def _file_label(descriptor: str) -> str:
+    """A descriptor name fit for a file name ("geopatch=runs/a.pt" -> "geopatch-a")."""
+    if "=" in descriptor:
+        name, path = descriptor.split("=", 1)
+        return f"{name}-{Path(path).stem}"
+    return descriptor
 
 
 def _features_path(out: Path, descriptor: str) -> Path:
@@ -115,20 +135,23 @@ def _features_path(out: Path, descriptor: str) -> Path:
 def _extract(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from .depth import PROFILES, sequence_depth_profile
     from .descriptors import make_descriptor
     from .features import save_features
     from .io import read_sequence
     from .keypoints import detect
 
     seq = read_sequence(args.folder, depth_scale=args.depth_scale)
-    descriptor = make_descriptor(args.descriptor, radius=args.radius)
-    path = _features_path(Path(args.out), args.descriptor)
+    profile = sequence_depth_profile(seq, args.depth_profile)
+    descriptor = make_descriptor(args.descriptor, radius=args.radius, depth_config=PROFILES[profile])
+    print(f"{seq.name}: depth profile {profile}, keypoints {args.keypoint_set}")
+    path = _features_path(Path(args.out), _file_label(args.descriptor))
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.exists():
         path.unlink()
     for name in tqdm(seq.names, desc=f"extract {args.descriptor}", unit="frame"):
         frame = seq.frame(name)
-        features = descriptor.compute(frame, detect(frame, args.keypoints))
+        features = descriptor.compute(frame, detect(frame, args.keypoints, keypoint_set=args.keypoint_set))
         if path.suffix == ".h5":
             save_features(path, features, name=name)
         else:
@@ -141,7 +164,8 @@ def _extract(args: argparse.Namespace) -> int:
 def _match(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from .bench.protocol import LandmarkTPS
+    from .bench.runner import GroundTruth, correct_matches
+    from .depth import PROFILES, sequence_depth_profile
     from .descriptors import make_descriptor
     from .features import save_matches
     from .io import read_sequence
@@ -154,30 +178,38 @@ def _match(args: argparse.Namespace) -> int:
         raise ValueError(f"folder: {seq.folder} has a single frame; matching needs a reference and a target")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    descriptor = make_descriptor(args.descriptor, radius=args.radius)
+    profile = sequence_depth_profile(seq, args.depth_profile)
+    descriptor = make_descriptor(args.descriptor, radius=args.radius, depth_config=PROFILES[profile])
+    label = _file_label(args.descriptor)
+    try:
+        truth = GroundTruth(seq, None)
+    except ValueError:
+        truth = None  # no ground truth: matches are written, not judged
+    print(f"{seq.name}: depth profile {profile}, keypoints {args.keypoint_set}, ground truth: "
+          + ("none" if truth is None else "simulator (exact)" if truth.exact else "thin-plate spline on the landmarks"))
     ref = seq.frame(seq.reference)
-    k_ref = detect(ref, args.keypoints)
+    k_ref = detect(ref, args.keypoints, keypoint_set=args.keypoint_set)
     f_ref = descriptor.compute(ref, k_ref)
-    matches_path = out / f"matches-{args.descriptor}.h5"
+    matches_path = out / f"matches-{label}.h5"
     if matches_path.exists():
         matches_path.unlink()
-    total_matches, total_correct, known = 0, 0, False
+    total_matches, total_correct = 0, 0
     for name in tqdm(seq.targets, desc=f"match {args.descriptor}", unit="pair"):
         tgt = seq.frame(name)
-        k_tgt = detect(tgt, args.keypoints)
+        k_tgt = detect(tgt, args.keypoints, keypoint_set=args.keypoint_set)
         m = match(f_ref, descriptor.compute(tgt, k_tgt))
         save_matches(matches_path, m, name=f"{seq.reference}/{name}")
-        correct = _correct_matches(seq, name, k_ref.xy, k_tgt.xy, m.matches0, LandmarkTPS)
-        summary = f"{(m.matches0 >= 0).sum()} matches"
-        total_matches += int((m.matches0 >= 0).sum())
+        n_matches = int((m.matches0 >= 0).sum())
+        total_matches += n_matches
+        summary = f"{n_matches} matches"
+        correct = None if truth is None else correct_matches(truth, name, k_ref.xy, k_tgt.xy, m.matches0, tgt.shape)
         if correct is not None:
-            known = True
-            total_correct += int(correct[m.matches0 >= 0].sum())
-            summary += f", {int(correct[m.matches0 >= 0].sum())} correct"
+            total_correct += int(correct.sum())
+            summary += f", {int(correct.sum())} correct"
         picture = draw_matches(ref, tgt, k_ref.xy, k_tgt.xy, m.matches0, correct, title=f"{args.descriptor}: {summary}")
-        cv2.imwrite(str(out / f"{seq.reference}__{name}__{args.descriptor}.png"), picture)
+        cv2.imwrite(str(out / f"{seq.reference}__{name}__{label}.png"), picture)
         tqdm.write(f"{seq.reference} -> {name}: {summary}")
-    print(f"total: {total_matches} matches" + (f", {total_correct} correct" if known else " (no ground truth)"))
+    print(f"total: {total_matches} matches" + (f", {total_correct} correct" if truth is not None else " (no ground truth)"))
     print(f"wrote {matches_path} and one match picture per pair in {out}")
     return 0
 
@@ -192,11 +224,11 @@ def _train(args: argparse.Namespace) -> int:
         data = PatchSet.load(cache)
         print(f"training patches: {len(data)} from {cache}")
     else:
-        data = build_patch_set(args.data, n_keypoints=args.keypoints)
+        data = build_patch_set(args.data, n_keypoints=args.keypoints, depth_config=args.depth_profile)
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         data.save(cache)
         print(f"training patches: {len(data)} of {len(np.unique(data.ids))} surface points (cached in {cache})")
-    validation = validation_pairs(args.val) if args.val else None
+    validation = validation_pairs(args.val, depth_config=args.depth_profile) if args.val else None
     config = TrainConfig(
         epochs=args.epochs, steps_per_epoch=args.steps, batch_size=args.batch_size, lr=args.lr,
         mining=args.mining, augment_shift=args.augment_shift, seed=args.seed,
@@ -209,15 +241,18 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from .bench.report import markdown_table, plot_curves, read_results, timing_table
+    from .bench.report import markdown_table, plot_curves, read_results
     from .bench.runner import BenchConfig, run_benchmark
+    from .bench.timing import timing_table
+    from .depth import sequence_depth_profile
     from .io import find_sequences, read_sequence
 
     config = BenchConfig(descriptors=tuple(d for d in args.descriptors.split(",") if d), protocol=args.protocol,
                          radius=args.radius, depth_scale=args.depth_scale, n_keypoints=args.keypoints,
-                         tps_dir=args.tps_dir)
+                         tps_dir=args.tps_dir, keypoint_set=args.keypoint_set, depth_profile=args.depth_profile)
     out = Path(args.out)
-    csv_path, failed = run_benchmark(args.datasets, out, config, workers=args.workers, scheduler=args.scheduler)
+    csv_path, failed = run_benchmark(args.datasets, out, config, workers=args.workers, scheduler=args.scheduler,
+                                     overwrite=args.overwrite)
     rows = read_results(csv_path)
     if not rows:
         raise ValueError(f"datasets: no sequence could be evaluated ({len(failed)} failed)")
@@ -228,7 +263,8 @@ def _bench(args: argparse.Namespace) -> int:
         print(f"wrote {path}")
     if args.timing:
         seq = read_sequence(find_sequences(args.datasets)[0], depth_scale=args.depth_scale)
-        timing = timing_table(seq.frame(seq.reference), config.descriptors, args.radius or DEFAULT_RADIUS_M)
+        timing = timing_table(seq.frame(seq.reference), config.descriptors, args.radius or DEFAULT_RADIUS_M,
+                              depth_profile=sequence_depth_profile(seq, args.depth_profile))
         (out / "timing.md").write_text(timing)
         print(timing)
     print(f"wrote {csv_path} ({len(rows)} rows) and {out / 'table.md'}"
@@ -236,31 +272,20 @@ def _bench(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
-def _correct_matches(seq, target, ref_xy, tgt_xy, matches0, tps_class) -> np.ndarray | None:
-    """Per reference keypoint: is its match within 3 px of the ground truth (None when unknown)?
-    Ground truth: the simulator's exact correspondences, else a TPS on the csv landmarks."""
-    mapped = None
-    if seq.has_ground_truth():
-        mapped, visible = seq.correspondences(seq.reference, target, ref_xy)
-        mapped = np.where(visible[:, None], mapped, np.nan)
-    elif seq.has_landmarks():
-        ids_r, xy_r, vis_r = seq.landmarks(seq.reference)
-        ids_t, xy_t, vis_t = seq.landmarks(target)
-        common = np.intersect1d(ids_r[vis_r], ids_t[vis_t])
-        if len(common) >= 4:
-            pos_r = {i: p for i, p in zip(ids_r, xy_r)}
-            pos_t = {i: p for i, p in zip(ids_t, xy_t)}
-            mapped = tps_class(np.array([pos_r[i] for i in common]), np.array([pos_t[i] for i in common]))(ref_xy)
-    if mapped is None:
-        return None
-    ok = matches0 >= 0
-    error = np.full(len(ref_xy), np.inf)
-    error[ok] = np.linalg.norm(tgt_xy[matches0[ok]] - mapped[ok], axis=1)
-    return error < 3.0
-
-
 def build_parser() -> argparse.ArgumentParser:
-    from .descriptors import available_descriptors
+    from .descriptors import available_descriptors, check_descriptor_name
+
+    def descriptor_name(text: str) -> str:
+        try:
+            return check_descriptor_name(text)
+        except ValueError as error:
+            raise argparse.ArgumentTypeError(str(error)) from None
+
+    def depth_profile_option(p: argparse.ArgumentParser, default: str | None) -> None:
+        p.add_argument("--depth-profile", choices=DEPTH_PROFILE_NAMES, default=default,
+                       help="depth preprocessing: kinect (hole filling, smoothing, half-resolution mesh), clean "
+                            "(raw depth, holes filled, full-resolution mesh) or auto (chosen from the measured "
+                            "depth noise; default, unless the sequence's geofeat.json names one)")
 
     parser = argparse.ArgumentParser(prog="geofeat", description="Geodesic-aware local features on RGB-D images.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -270,12 +295,17 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--radius", type=float, default=DEFAULT_RADIUS_M, help="geodesic radius, metres (default 0.075)")
     demo.add_argument("--angle", type=float, default=60.0, help="camera roll of the rotated pair, degrees (default 60)")
     demo.add_argument("--keypoints", type=int, default=1000, help="SIFT keypoints per frame (default 1000)")
+    depth_profile_option(demo, "auto")
     demo.set_defaults(func=_demo)
 
     def frames_options(p: argparse.ArgumentParser) -> None:
         p.add_argument("folder", help="a sequence folder in the public layout (<name>-rgb.png, <name>-depth.png, intrinsics.xml)")
-        p.add_argument("--descriptor", default="geobit", choices=available_descriptors())
+        p.add_argument("--descriptor", default="geobit", type=descriptor_name,
+                       help=f"one of {', '.join(available_descriptors())}, or geopatch=WEIGHTS.pt (default geobit)")
         p.add_argument("--keypoints", type=int, default=N_KEYPOINTS, help="SIFT keypoints per frame (default 2048)")
+        p.add_argument("--keypoint-set", choices=KEYPOINT_SETS, default="unique",
+                       help="unique: one keypoint per position (default); protocol: SIFT's strongest as OpenCV returns them")
+        depth_profile_option(p, None)
         p.add_argument("--radius", type=float, default=None, help="geodesic radius, metres (default 0.075)")
         p.add_argument("--depth-scale", type=float, default=None,
                        help=f"metres per depth-PNG unit (default: geofeat.json or {DEPTH_SCALE_M})")
@@ -303,6 +333,11 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--workers", type=int, default=1, help="local worker processes (sequences in parallel)")
     bench.add_argument("--scheduler", default=None, help="Dask scheduler address (e.g. tcp://host:8786); needs geofeat[dask]")
     bench.add_argument("--timing", action="store_true", help="also time f(.), extraction and matching for 250 and 2048 keypoints")
+    bench.add_argument("--keypoint-set", choices=KEYPOINT_SETS, default="protocol",
+                       help="protocol: OpenCV SIFT's strongest exactly as returned, duplicates kept (default, the "
+                            "published protocol); unique: one keypoint per position")
+    depth_profile_option(bench, None)
+    bench.add_argument("--overwrite", action="store_true", help="redo every result (default: a rerun skips finished ones)")
     bench.set_defaults(func=_bench)
 
     tr = sub.add_parser("train", help="train GeoPatch on simulated sequences (see `geofeat simulate`)")
@@ -321,6 +356,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--seed", type=int, default=0)
     tr.add_argument("--resume", action="store_true", help="continue from OUT.ckpt")
     tr.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
+    depth_profile_option(tr, "auto")
     tr.set_defaults(func=_train)
 
     from .sim import command as sim_command
@@ -334,7 +370,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (ValueError, TypeError, FileNotFoundError) as error:
+    except (ValueError, FileNotFoundError) as error:  # user errors; programming errors keep their traceback
         print(f"geofeat {args.command}: error: {error}", file=sys.stderr)
         return 2
 

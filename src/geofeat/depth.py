@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from .constants import HOLE_MAX_PERIMETER_PX, IDW_POWER, MESH_SCALE, SMOOTH_LEVELS, SMOOTH_WINDOW_PX
+from .constants import DEPTH_PROFILE_NAMES, HOLE_MAX_PERIMETER_PX, IDW_POWER, MESH_SCALE, SMOOTH_LEVELS, SMOOTH_WINDOW_PX
 
 FILL_METHODS = ("idw", "simple", "none")
 
@@ -45,13 +45,124 @@ class DepthConfig:
             raise ValueError(f"mesh_scale: must be in (0, 1], got {self.mesh_scale}")
 
 
-#: Ablation settings: raw depth, constant depth, simple fill, IDW fill (the default).
-DEPTH_MODES = {
-    "default": DepthConfig(),
-    "raw": DepthConfig(fill="none", smooth_levels=0),
-    "constant": DepthConfig(constant=True),
-    "simple-fill": DepthConfig(fill="simple"),
+#: Named depth profiles (see `depth_profile`): "kinect" is the paper's real-data setting (IDW hole
+#: filling, two rounds of masked smoothing, half-resolution mesh); "clean" keeps the measured depth
+#: (holes still filled) on a full-resolution mesh, for noise-free depth such as simulations.
+PROFILES = {
+    "kinect": DepthConfig(),
+    "clean": DepthConfig(smooth_levels=0, mesh_scale=1.0),
 }
+#: Names accepted wherever a depth profile is asked for ("auto" = chosen by `depth_profile`).
+PROFILE_NAMES = DEPTH_PROFILE_NAMES
+#: `depth_profile` picks "kinect" when the frame's slope noise (`DepthNoise.slope_noise`) is above this.
+#: Measured (`benchmarks/depth_noise.py`): the real Kinect v1 frame 0.47, Kinect-noise simulations
+#: about 1.0, clean simulations 0.07-0.20 (millimetre-quantised depth PNGs).
+SLOPE_NOISE_THRESHOLD = 0.3
+#: Fewer measurable 5x5 windows than this: too little surface to measure, "kinect" (the safe choice).
+MIN_NOISE_WINDOWS = 500
+
+
+def check_profile(profile: str, what: str = "depth_profile") -> str:
+    """Return `profile` lower-cased if it names a depth profile, else raise ValueError naming `what`."""
+    name = str(profile).strip().lower() if isinstance(profile, str) else None
+    if name not in PROFILE_NAMES:
+        raise ValueError(f"{what}: expected one of {', '.join(PROFILE_NAMES)}, got {profile!r}")
+    return name
+
+
+def _quadratic_fit_kernel() -> np.ndarray:
+    """(5, 5) weights whose correlation with a depth window gives the centre value of the window's
+    least-squares quadratic surface z = a + bx + cy + dx^2 + exy + fy^2 (a 2-D Savitzky-Golay filter)."""
+    ys, xs = np.mgrid[-2:3, -2:3].astype(np.float64)
+    A = np.stack([np.ones(25), xs.ravel(), ys.ravel(), xs.ravel() ** 2, (xs * ys).ravel(), ys.ravel() ** 2], 1)
+    return np.linalg.pinv(A)[0].reshape(5, 5)
+
+
+@dataclass(frozen=True)
+class DepthNoise:
+    """Noise of a depth map measured on itself.
+
+    Attributes:
+        slope_noise: depth noise in units of the pixel footprint (sigma_z / (z / fx)): the noise of
+            the surface slope between neighbouring pixels. Dimensionless.
+        relative_noise: sigma_z / z, dimensionless.
+        hole_fraction: fraction of the frame's pixels without depth.
+        windows: number of 5x5 windows (all pixels with depth) the statistics come from.
+    """
+
+    slope_noise: float
+    relative_noise: float
+    hole_fraction: float
+    windows: int
+
+
+def depth_noise(depth: np.ndarray, K: np.ndarray) -> DepthNoise:
+    """Measure the noise of an (H, W) depth map (metres, 0 = missing) with intrinsics K (3, 3).
+
+    Every 5x5 window whose pixels all have depth gets a least-squares quadratic surface; the
+    residual at its centre, divided by sqrt(1 - h0) (h0 = the fit's centre weight), estimates the
+    depth noise without the surface's own curvature. Its mean absolute value (residuals above the
+    95th percentile, mostly depth discontinuities, clipped there) times sqrt(pi / 2) gives sigma
+    for Gaussian noise; quantisation steps count as noise too.
+    """
+    depth = np.asarray(depth, dtype=np.float64)
+    if depth.ndim != 2:
+        raise ValueError(f"depth: expected an (H, W) map, got shape {depth.shape}")
+    valid = depth > 0
+    inner = cv2.erode(valid.astype(np.uint8), np.ones((5, 5), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                      borderValue=0) > 0
+    n = int(inner.sum())
+    holes = float(1.0 - valid.mean())
+    if n == 0:
+        return DepthNoise(float("nan"), float("nan"), holes, 0)
+    kernel = _quadratic_fit_kernel()
+    residual = np.abs(depth - cv2.filter2D(depth, -1, kernel, borderType=cv2.BORDER_REFLECT))[inner]
+    residual /= np.sqrt(1.0 - kernel[2, 2])
+    z = depth[inner]
+    gauss = np.sqrt(np.pi / 2.0)
+
+    def robust_sigma(values: np.ndarray) -> float:
+        return float(gauss * np.minimum(values, np.quantile(values, 0.95)).mean())
+
+    return DepthNoise(robust_sigma(residual * K[0, 0] / z), robust_sigma(residual / z), holes, n)
+
+
+def depth_profile(frame) -> str:
+    """The depth profile for `frame` (an RGBDFrame): "kinect" when its measured slope noise
+    (`depth_noise`) exceeds `SLOPE_NOISE_THRESHOLD` or too little surface can be measured, else
+    "clean"."""
+    noise = depth_noise(frame.depth, frame.K)
+    if noise.windows < MIN_NOISE_WINDOWS or noise.slope_noise > SLOPE_NOISE_THRESHOLD:
+        return "kinect"
+    return "clean"
+
+
+def sequence_depth_profile(seq, requested: str | None = None, frame=None) -> str:
+    """The concrete depth profile ("kinect" or "clean") for a whole sequence (a `geofeat.io.Sequence`):
+    `requested` unless None or "auto", else the sequence's geofeat.json `depth_profile`, else the
+    one `depth_profile` picks on `frame` (default: the sequence's reference frame). One profile per
+    sequence keeps every frame of it on the same kind of mesh."""
+    name = check_profile(requested) if requested is not None else "auto"
+    if name == "auto":
+        name = check_profile(getattr(seq, "depth_profile", "auto"), "geofeat.json depth_profile")
+    if name == "auto":
+        name = depth_profile(frame if frame is not None else seq.frame(seq.reference))
+    return name
+
+
+def resolve_depth_config(depth_config, frame=None) -> DepthConfig:
+    """A `DepthConfig`, or a profile name ("auto", "kinect", "clean") -> the DepthConfig to use on
+    `frame` ("auto" needs the frame and measures it)."""
+    if isinstance(depth_config, DepthConfig):
+        return depth_config
+    if not isinstance(depth_config, str):
+        raise TypeError(f"depth_config: expected a DepthConfig or a profile name, got {type(depth_config).__name__}")
+    name = check_profile(depth_config, "depth_config")
+    if name == "auto":
+        if frame is None:
+            raise ValueError("depth_config: 'auto' needs the frame to measure its depth noise")
+        name = depth_profile(frame)
+    return PROFILES[name]
 
 
 def fill_holes(

@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .constants import DEPTH_SCALE_M
+from .constants import DEPTH_PROFILE_NAMES, DEPTH_SCALE_M
 from .frame import RGBDFrame
 
 RGB_SUFFIX = "-rgb.png"
@@ -141,12 +141,15 @@ class Sequence:
         names: frame names, sorted, reference first.
         K: (3, 3) intrinsics shared by all frames.
         depth_scale: metres per depth-PNG unit.
+        depth_profile: the depth profile asked for by the folder's geofeat.json ("auto" when it
+            names none: chosen from the measured depth noise, see `geofeat.depth_profile`).
     """
 
     folder: Path
     names: list[str]
     K: np.ndarray
     depth_scale: float = DEPTH_SCALE_M
+    depth_profile: str = "auto"
 
     @property
     def name(self) -> str:
@@ -200,7 +203,8 @@ def read_sequence(folder: str | Path, depth_scale: float | None = None) -> Seque
     """Open a sequence folder of the public layout (see module docstring).
 
     `depth_scale` (metres per depth unit) defaults to the folder's optional `geofeat.json`
-    (`{"depth_scale": ...}`) and otherwise to 0.001 (millimetres).
+    (`{"depth_scale": ...}`) and otherwise to 0.001 (millimetres). The same file may name a
+    `depth_profile` ("auto", "kinect" or "clean"); without it the profile is "auto".
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -218,8 +222,12 @@ def read_sequence(folder: str | Path, depth_scale: float | None = None) -> Seque
     config = json.loads(config_path.read_text()) if config_path.is_file() else {}
     if depth_scale is None:
         depth_scale = float(config.get("depth_scale", DEPTH_SCALE_M))
+    profile = config.get("depth_profile", "auto")
+    if not isinstance(profile, str) or profile.strip().lower() not in DEPTH_PROFILE_NAMES:
+        raise ValueError(f"{config_path}: depth_profile: expected one of {', '.join(DEPTH_PROFILE_NAMES)}, "
+                         f"got {profile!r}")
     K = read_intrinsics(folder / "intrinsics.xml")
-    return Sequence(folder=folder, names=names, K=K, depth_scale=depth_scale)
+    return Sequence(folder=folder, names=names, K=K, depth_scale=depth_scale, depth_profile=profile.strip().lower())
 
 
 def demo_data_dir() -> Path:

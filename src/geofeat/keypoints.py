@@ -10,10 +10,13 @@ import numpy as np
 from .constants import N_KEYPOINTS
 from .frame import RGBDFrame
 
-__all__ = ["Keypoints", "detect"]
+__all__ = ["KEYPOINT_SETS", "Keypoints", "as_keypoints", "detect"]
 
 #: SIFT contrast threshold used by `detect` (OpenCV's default is 0.04; lower finds more keypoints).
 DEFAULT_CONTRAST_THRESHOLD = 0.004
+#: Keypoint sets of `detect`: "protocol" = OpenCV SIFT's n strongest exactly as OpenCV returns them
+#: (the published matching-score protocol); "unique" = one keypoint per position, on depth.
+KEYPOINT_SETS = ("protocol", "unique")
 
 
 @dataclass
@@ -59,6 +62,57 @@ class Keypoints:
         )
 
 
+def as_keypoints(keypoints, shape: tuple[int, int] | None = None, allow_empty: bool = False,
+                 what: str = "keypoints") -> Keypoints:
+    """The one keypoint normaliser that every stage calls.
+
+    Args:
+        keypoints: a `Keypoints`, a list/tuple of cv2.KeyPoint, or an (N, 2) array-like of (x, y)
+            pixels. Arrays carry no orientation or size: they get angle 0 (image +x) and size NaN
+            (unknown; descriptors that need a size use their documented default).
+        shape: (H, W) of the image; when given, keypoints off the image raise ValueError.
+        allow_empty: accept an empty set (else ValueError).
+        what: the argument's name in error messages.
+
+    Returns:
+        `Keypoints` (a new object for arrays and cv2 lists; the same object for `Keypoints`).
+    """
+    if isinstance(keypoints, Keypoints):
+        kps = keypoints
+    elif isinstance(keypoints, (list, tuple)) and keypoints and all(isinstance(k, cv2.KeyPoint) for k in keypoints):
+        kps = Keypoints.from_cv(list(keypoints))
+    else:
+        if isinstance(keypoints, (str, bytes, dict)) or keypoints is None:
+            raise TypeError(f"{what}: expected an (N, 2) array of (x, y) pixels, cv2.KeyPoints or Keypoints, "
+                            f"got {type(keypoints).__name__}")
+        try:
+            xy = np.asarray(keypoints, dtype=np.float64)
+        except (TypeError, ValueError) as error:
+            raise TypeError(f"{what}: expected an (N, 2) array of (x, y) pixels, cv2.KeyPoints or Keypoints, "
+                            f"got {type(keypoints).__name__}") from error
+        if xy.size == 0 and xy.ndim <= 2 and (xy.ndim < 2 or xy.shape[-1] in (0, 2)):
+            xy = xy.reshape(0, 2)
+        if xy.ndim != 2 or xy.shape[1] != 2:
+            raise ValueError(f"{what}: expected shape (N, 2) of (x, y) pixels, got {xy.shape}")
+        n = len(xy)
+        kps = Keypoints(xy, np.zeros(n), np.full(n, np.nan), np.full(n, np.nan))
+    if len(kps) == 0 and not allow_empty:
+        raise ValueError(f"{what}: the keypoint set is empty")
+    xy = kps.xy
+    if xy.ndim != 2 or xy.shape[1] != 2:
+        raise ValueError(f"{what}: expected xy of shape (N, 2), got {xy.shape}")
+    if not np.isfinite(xy).all():
+        raise ValueError(f"{what}: contain NaN or infinite coordinates")
+    if shape is not None and len(xy):
+        H, W = shape
+        off = (xy[:, 0] < -0.5) | (xy[:, 0] > W - 0.5) | (xy[:, 1] < -0.5) | (xy[:, 1] > H - 0.5)
+        if off.any():
+            i = int(np.argmax(off))
+            raise ValueError(f"{what}: {int(off.sum())} keypoint(s) off the {W}x{H} image, e.g. #{i} at "
+                             f"({xy[i, 0]:.1f}, {xy[i, 1]:.1f})")
+    return kps
+
+
 def to_uint8(image: np.ndarray) -> np.ndarray:
     """(H, W) float image in [0, 1] -> uint8 (rounded, clipped)."""
     return np.clip(np.rint(np.asarray(image, dtype=np.float32) * 255.0), 0, 255).astype(np.uint8)
@@ -71,7 +125,7 @@ def detect(
     require_depth: bool = True,
     border_px: int = 3,
     mask: np.ndarray | None = None,
-    unique: bool = True,
+    keypoint_set: str = "unique",
 ) -> Keypoints:
     """Detect SIFT keypoints on `frame.image`, strongest `n` first.
 
@@ -82,8 +136,13 @@ def detect(
         require_depth: drop keypoints whose rounded pixel has no depth (`frame.depth == 0`).
         border_px: drop keypoints closer than this to the image border, pixels.
         mask: optional (H, W) uint8/bool detection mask (nonzero = allowed).
-        unique: keep only the strongest of keypoints at the same position (SIFT repeats a position
-            once per dominant orientation; position-only descriptors would describe it twice).
+        keypoint_set: "unique" keeps only the strongest of keypoints at the same position (SIFT
+            repeats a position once per dominant orientation; position-only descriptors would
+            describe it twice), after the depth and border filters. "protocol" is the published
+            matching-score protocol's set: `cv2.SIFT_create(nfeatures=n, contrastThreshold=...)`,
+            the n strongest exactly as OpenCV returns them (a position with two orientations is two
+            keypoints), with no depth or border filter (`require_depth`, `border_px` are ignored;
+            the benchmark drops keypoints off the object afterwards, as the protocol does).
 
     Returns:
         `Keypoints` sorted by decreasing response (ties keep OpenCV's order).
@@ -100,6 +159,13 @@ def detect(
         if mask.shape != (H, W):
             raise ValueError(f"mask: expected shape {(H, W)}, got {mask.shape}")
         mask = (mask != 0).astype(np.uint8)
+    if keypoint_set not in KEYPOINT_SETS:
+        raise ValueError(f"keypoint_set: expected one of {', '.join(KEYPOINT_SETS)}, got {keypoint_set!r}")
+    if keypoint_set == "protocol":
+        sift = cv2.SIFT_create(nfeatures=int(n), contrastThreshold=float(contrast_threshold))
+        kps = Keypoints.from_cv(list(sift.detect(to_uint8(frame.image), mask)))
+        order = np.argsort(-kps.responses, kind="stable")
+        return kps[order[:n] if n else order]
     sift = cv2.SIFT_create(contrastThreshold=float(contrast_threshold))
     kps = Keypoints.from_cv(list(sift.detect(to_uint8(frame.image), mask)))
     if len(kps) == 0:
@@ -112,7 +178,7 @@ def detect(
         keep &= frame.depth[yi, xi] > 0
     kps = kps[keep]
     order = np.argsort(-kps.responses, kind="stable")
-    if unique and len(order):
+    if len(order):
         _, first = np.unique(np.round(kps.xy[order], 2), axis=0, return_index=True)
         order = order[np.sort(first)]
     if n:

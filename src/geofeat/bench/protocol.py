@@ -15,76 +15,14 @@ Score = hits / landmarks visible in both frames.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from scipy.interpolate import RBFInterpolator
-from scipy.spatial import Delaunay, cKDTree
+from scipy.spatial import Delaunay
 
-#: Ground-truth partner distance threshold, pixels (strictly less than).
-GT_THRESHOLD_PX = 3.0
+from ..scoring import GT_THRESHOLD_PX, PairScore, ground_truth_pairs, score_detect, score_landmarks
 
-
-@dataclass
-class PairScore:
-    """Score of one (reference, target) pair."""
-
-    ms: float
-    mma: float
-    hits: int
-    n_ref: int
-    n_tgt: int
-    n_gt: int
-
-
-def ground_truth_pairs(ref_xy: np.ndarray, tgt_in_ref: np.ndarray, threshold: float = GT_THRESHOLD_PX) -> np.ndarray:
-    """Ground-truth pairs between reference keypoints and target keypoints mapped into the reference.
-
-    Args:
-        ref_xy: (n_ref, 2) reference keypoints, pixels.
-        tgt_in_ref: (n_tgt, 2) target keypoints mapped into the reference image, pixels (NaN rows
-            = no ground truth, never paired).
-    Returns:
-        (M, 2) int64 pairs (r, t), at most one per reference keypoint (the first t in target order).
-    """
-    ref_xy = np.asarray(ref_xy, float).reshape(-1, 2)
-    tgt_in_ref = np.asarray(tgt_in_ref, float).reshape(-1, 2)
-    if len(ref_xy) == 0 or len(tgt_in_ref) == 0:
-        return np.zeros((0, 2), np.int64)
-    ok = np.isfinite(tgt_in_ref).all(axis=1)
-    dist, r = cKDTree(ref_xy).query(np.where(ok[:, None], tgt_in_ref, 0.0))
-    t = np.flatnonzero(ok & (dist < threshold))
-    r = r[t]
-    _, first = np.unique(r, return_index=True)  # first target (in target order) for each r
-    keep = np.sort(first)
-    return np.stack([r[keep], t[keep]], axis=1).astype(np.int64)
-
-
-def score_detect(matches0: np.ndarray, gt_pairs: np.ndarray, n_ref: int, n_tgt: int) -> PairScore:
-    """MS and MMA of protocol "detect" from the reference->target nearest neighbours `matches0`
-    (n_ref,) (-1 = none) and the ground-truth pairs (M, 2)."""
-    gt_pairs = np.asarray(gt_pairs, np.int64).reshape(-1, 2)
-    hits = int((np.asarray(matches0)[gt_pairs[:, 0]] == gt_pairs[:, 1]).sum()) if len(gt_pairs) else 0
-    denom = min(n_ref, n_tgt)
-    return PairScore(
-        ms=hits / denom if denom else 0.0,
-        mma=hits / len(gt_pairs) if len(gt_pairs) else 0.0,
-        hits=hits, n_ref=int(n_ref), n_tgt=int(n_tgt), n_gt=int(len(gt_pairs)),
-    )
-
-
-def score_landmarks(matches0: np.ndarray, ref_ids: np.ndarray, tgt_ids: np.ndarray) -> PairScore:
-    """Protocol "landmarks": `matches0` maps each visible reference landmark (ids `ref_ids`) to an
-    index into the visible target landmarks (ids `tgt_ids`). A query is a reference landmark whose id
-    is visible in the target; a hit is a nearest neighbour with the same id."""
-    ref_ids, tgt_ids = np.asarray(ref_ids), np.asarray(tgt_ids)
-    query = np.isin(ref_ids, tgt_ids)
-    m = np.asarray(matches0)
-    matched_ids = np.where(m >= 0, tgt_ids[np.clip(m, 0, max(len(tgt_ids) - 1, 0))] if len(tgt_ids) else -1, -1)
-    hits = int((query & (matched_ids == ref_ids)).sum())
-    n = int(query.sum())
-    score = hits / n if n else 0.0
-    return PairScore(ms=score, mma=score, hits=hits, n_ref=len(ref_ids), n_tgt=len(tgt_ids), n_gt=n)
+__all__ = ["GT_THRESHOLD_PX", "LandmarkTPS", "PairScore", "authors_tps_warp", "ground_truth_pairs", "score_detect",
+           "score_landmarks"]
 
 
 class LandmarkTPS:

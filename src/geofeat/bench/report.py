@@ -1,9 +1,9 @@
-"""Tables and plots from `results.csv` of `geofeat bench`."""
+"""Tables and plots from `results.csv` of `geofeat bench`. It reads results only; it never extracts
+(timing lives in bench/timing.py)."""
 
 from __future__ import annotations
 
 import csv
-import time
 from pathlib import Path
 
 import numpy as np
@@ -52,7 +52,15 @@ def markdown_table(rows: list[dict], group_of=lambda seq: seq.split("-")[-1] if 
             cells.append(f"**{text}**" if s[n]["ms"] == best else text)
         n_seq = len({r["sequence"] for r in grows})
         lines.append(f"| {group} ({n_seq}) | " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n\nMatching score (MS, mean over sequences of the per-sequence mean over pairs).\n"
+    kp_sets = sorted({r.get("keypoint_set", "") for r in rows} - {""})
+    profiles: dict[str, set] = {}
+    for r in rows:
+        profiles.setdefault(r.get("depth_profile", "") or "?", set()).add(r["sequence"])
+    notes = "Matching score (MS, mean over sequences of the per-sequence mean over pairs)."
+    if kp_sets:
+        notes += f" Keypoints: {', '.join(kp_sets)}."
+    notes += " Depth profile: " + ", ".join(f"{p} ({len(v)} sequences)" for p, v in sorted(profiles.items())) + "."
+    return "\n".join(lines) + "\n\n" + notes + "\n"
 
 
 def plot_curves(rows: list[dict], path: str | Path) -> list[Path]:
@@ -90,46 +98,3 @@ def plot_curves(rows: list[dict], path: str | Path) -> list[Path]:
         plt.close(fig)
         written.append(out)
     return written
-
-
-def timing_table(frame, descriptors: tuple[str, ...], radius: float, counts=(250, 2048), repeat: int = 3) -> str:
-    """Markdown timing table on one frame: map f(.) (polar patches), extraction and matching per
-    descriptor for each keypoint count (best of `repeat`; counts above the number of keypoints the
-    frame has are lowered to it, and the header says the count used)."""
-    from ..descriptors import make_descriptor
-    from ..geodesic.mesh import build_mesh
-    from ..geodesic.polar import polar_patches
-    from ..keypoints import detect
-    from ..matching import match
-
-    def best(fn):
-        times = []
-        for _ in range(repeat):
-            t = time.perf_counter()
-            result = fn()
-            times.append(time.perf_counter() - t)
-        return min(times), result
-
-    kps_all = detect(frame, max(counts))
-    counts = sorted({min(n, len(kps_all)) for n in counts})  # a frame may have fewer keypoints
-    lines = ["| step | " + " | ".join(f"{n} kps (s)" for n in counts) + " |", "|---|" + "---|" * len(counts)]
-    cells: dict[str, list[str]] = {}
-    for n in counts:
-        kps = kps_all[:n]
-        mesh = build_mesh(frame)
-        t_map, patches = best(lambda: polar_patches(frame, kps.xy, radius=radius, mesh=mesh))
-        cells.setdefault("map f(.) (polar patches)", []).append(f"{t_map:.3f}")
-        for name in descriptors:
-            d = make_descriptor(name, radius=radius)
-            if name == "geobit" or name.startswith("geopatch"):
-                t_ext, f = best(lambda: d.compute(frame, kps, patches=patches))
-            else:
-                t_ext, f = best(lambda: d.compute(frame, kps))
-            t_match, _ = best(lambda: match(f, f))
-            cells.setdefault(f"{name} extraction", []).append(f"{t_ext:.3f}")
-            cells.setdefault(f"{name} matching (N x N)", []).append(f"{t_match:.3f}")
-    for step, values in cells.items():
-        if len(values) < len(counts):
-            values = values + ["-"] * (len(counts) - len(values))
-        lines.append(f"| {step} | " + " | ".join(values) + " |")
-    return "\n".join(lines) + "\n"

@@ -3,7 +3,14 @@
 Work unit = one sequence (independent of the others): a local process pool (`workers`) or a Dask
 cluster (`scheduler` address) runs them; every finished sequence appends its rows to
 `results.csv` at once, so an interrupted run keeps what it finished, and a failed sequence is
-reported by name while the others go on.
+reported by name while the others go on. A rerun into the same folder skips the (sequence,
+descriptor) results already there, unless `overwrite`.
+
+Keypoints (`keypoint_set`): "protocol" (default) = OpenCV SIFT's n strongest exactly as OpenCV
+returns them, as the published protocol; "unique" = one keypoint per position, on depth. Each
+sequence is described with one depth profile: the one asked for (`depth_profile`), else its
+geofeat.json's, else the one `geofeat.depth_profile` picks on its reference frame; results.csv
+records the keypoint set and the profile used.
 """
 
 from __future__ import annotations
@@ -22,20 +29,20 @@ import numpy as np
 from tqdm import tqdm
 
 from ..constants import DEFAULT_RADIUS_M, N_KEYPOINTS
-from ..descriptors import make_descriptor
+from ..depth import PROFILES, check_profile, sequence_depth_profile
+from ..descriptors import check_descriptor_name, make_descriptor
 from ..frame import RGBDFrame
 from ..geodesic.mesh import build_mesh
 from ..geodesic.polar import polar_patches
 from ..io import Sequence, find_sequences, read_sequence
-from ..keypoints import Keypoints, detect
+from ..keypoints import KEYPOINT_SETS, Keypoints, detect
 from ..matching import match
 from .protocol import LandmarkTPS, authors_tps_warp, ground_truth_pairs, score_detect, score_landmarks
 
-COLUMNS = ["sequence", "reference", "target", "descriptor", "protocol", "ms", "mma", "hits", "n_ref", "n_tgt",
-           "seconds_extract", "seconds_match", "angle_deg", "scale"]
-def is_geodesic(name: str) -> bool:
-    """Descriptors computed on the shared geodesic polar patches."""
-    return name == "geobit" or name.startswith("geopatch")
+COLUMNS = ["sequence", "reference", "target", "descriptor", "protocol", "keypoint_set", "depth_profile", "ms", "mma",
+           "hits", "n_ref", "n_tgt", "seconds_extract", "seconds_match", "angle_deg", "scale"]
+#: Settings that must be equal for a rerun to reuse the results already in the output folder.
+REUSE_KEYS = ("protocol", "keypoint_set", "depth_profile", "radius", "depth_scale", "n_keypoints", "tps_dir")
 
 
 @dataclass
@@ -49,13 +56,20 @@ class BenchConfig:
     depth_scale: float | None = None
     n_keypoints: int = N_KEYPOINTS
     tps_dir: str | None = None
+    keypoint_set: str = "protocol"
+    depth_profile: str | None = None
 
     def __post_init__(self) -> None:
         if self.protocol not in ("detect", "landmarks"):
             raise ValueError(f"protocol: expected 'detect' or 'landmarks', got {self.protocol!r}")
-        self.descriptors = tuple(d.strip() if "=" in d else d.strip().lower() for d in self.descriptors)
-        for name in self.descriptors:
-            make_descriptor(name)  # fails early on unknown names
+        if self.keypoint_set not in KEYPOINT_SETS:
+            raise ValueError(f"keypoint_set: expected one of {', '.join(KEYPOINT_SETS)}, got {self.keypoint_set!r}")
+        if self.depth_profile is not None:
+            self.depth_profile = check_profile(self.depth_profile)
+        if not self.descriptors:
+            raise ValueError("descriptors: at least one descriptor is needed")
+        # validates the names (and that weights files exist) without building anything
+        self.descriptors = tuple(check_descriptor_name(d) for d in self.descriptors)
 
 
 def _radius(seq: Sequence, config: BenchConfig) -> float:
@@ -68,24 +82,26 @@ def _radius(seq: Sequence, config: BenchConfig) -> float:
 
 
 class Describer:
-    """Describes keypoints of a frame with every descriptor; geodesic descriptors share one mesh and
-    one set of polar patches."""
+    """Describes keypoints of a frame with every descriptor; geodesic descriptors (`Descriptor.geodesic`)
+    share one mesh and one set of polar patches, built with the given depth profile."""
 
-    def __init__(self, names: tuple[str, ...], radius: float) -> None:
+    def __init__(self, names: tuple[str, ...], radius: float, profile: str = "kinect") -> None:
         self.radius = radius
-        self.descriptors = {n: make_descriptor(n, radius=radius) for n in names}
+        self.depth_config = PROFILES[profile]
+        self.descriptors = {n: make_descriptor(n, radius=radius, depth_config=self.depth_config) for n in names}
 
     def __call__(self, frame: RGBDFrame, kps: Keypoints) -> dict[str, tuple]:
+        """{name: (Features, seconds)}; the seconds of a geodesic descriptor include the polar patches."""
         out = {}
         patches, t_patches = None, 0.0
-        if any(is_geodesic(n) for n in self.descriptors):
+        if any(d.geodesic for d in self.descriptors.values()):
             t = time.perf_counter()
-            patches = polar_patches(frame, kps.xy, radius=self.radius, mesh=build_mesh(frame))
+            patches = polar_patches(frame, kps, radius=self.radius, mesh=build_mesh(frame, self.depth_config))
             t_patches = time.perf_counter() - t
         for name, d in self.descriptors.items():
             t = time.perf_counter()
-            f = d.compute(frame, kps, patches=patches) if is_geodesic(name) else d.compute(frame, kps)
-            out[name] = (f, time.perf_counter() - t + (t_patches if is_geodesic(name) else 0.0))
+            f = d.compute(frame, kps, patches=patches) if d.geodesic else d.compute(frame, kps)
+            out[name] = (f, time.perf_counter() - t + (t_patches if d.geodesic else 0.0))
         return out
 
 
@@ -137,7 +153,10 @@ class GroundTruth:
         return m
 
     def reference_keep(self, xy: np.ndarray) -> np.ndarray:
-        """Reference keypoints on the object (and inside the landmarks' hull for landmark TPS)."""
+        """Reference keypoints on the object (the simulator's visible surface, the TPS files' object
+        mask; inside the landmarks' hull for landmark TPS)."""
+        if self.exact:
+            return self.seq.correspondences(self.seq.reference, self.seq.reference, xy)[1]
         keep = _on_mask(self._mask(self.seq.reference), xy)
         if self.tps is None and not self.exact:
             ids, lm, vis = self.seq.landmarks(self.seq.reference)
@@ -165,22 +184,43 @@ class GroundTruth:
         return LandmarkTPS(xy_t[vis_t][it], xy_r[vis_r][ir])(xy)
 
 
-def evaluate_sequence(folder: str | Path, config: BenchConfig) -> list[dict]:
-    """All (reference, target) pairs of one sequence, every descriptor: result rows (see COLUMNS)."""
+def correct_matches(truth: GroundTruth, target: str, ref_xy: np.ndarray, tgt_xy: np.ndarray,
+                    matches0: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(n_ref,) bool: is reference keypoint i's match (matches0[i], -1 = none) a ground-truth pair of the
+    protocol (the target keypoint whose ground-truth position in the reference is within 3 px of i,
+    first in target order)? The count of True equals the benchmark's hits on the same keypoints."""
+    mapped = truth.target_to_reference(target, np.asarray(tgt_xy, float).reshape(-1, 2), shape)
+    pairs = ground_truth_pairs(np.asarray(ref_xy, float).reshape(-1, 2), mapped)
+    partner = np.full(len(ref_xy), -2, np.int64)
+    partner[pairs[:, 0]] = pairs[:, 1]
+    return np.asarray(matches0) == partner
+
+
+def _empty_row_score(n_ref: int, n_tgt: int):
+    from .protocol import PairScore
+
+    return PairScore(ms=0.0, mma=0.0, hits=0, n_ref=n_ref, n_tgt=n_tgt, n_gt=0)
+
+
+def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tuple[str, ...] | None = None) -> list[dict]:
+    """All (reference, target) pairs of one sequence for each descriptor (default: the config's):
+    result rows (see COLUMNS). The reference frame is described once."""
+    names = config.descriptors if descriptors is None else tuple(descriptors)
     seq = read_sequence(folder, depth_scale=config.depth_scale)
     if len(seq) < 2:
         raise ValueError(f"sequence {seq.name}: needs a reference and at least one target frame")
-    describe = Describer(config.descriptors, _radius(seq, config))
     ref = seq.frame(seq.reference)
+    profile = sequence_depth_profile(seq, config.depth_profile, ref)
+    describe = Describer(names, _radius(seq, config), profile)
     rows = []
     if config.protocol == "landmarks":
         ids_r, xy_r, vis_r = seq.landmarks(seq.reference)
         k_ref = Keypoints(xy_r[vis_r], np.zeros(vis_r.sum()), np.full(vis_r.sum(), 8.0), np.zeros(vis_r.sum()))
     else:
         truth = GroundTruth(seq, config.tps_dir)
-        k_ref = detect(ref, config.n_keypoints)
+        k_ref = detect(ref, config.n_keypoints, keypoint_set=config.keypoint_set)
         k_ref = k_ref[truth.reference_keep(k_ref.xy)]
-    f_ref = describe(ref, k_ref)
+    f_ref = describe(ref, k_ref) if len(k_ref) else None
     for target in seq.targets:
         frame = seq.frame(target)
         angle, scale = _pose_change(seq, target)
@@ -188,47 +228,88 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig) -> list[dict]:
             ids_t, xy_t, vis_t = seq.landmarks(target)
             k_tgt = Keypoints(xy_t[vis_t], np.zeros(vis_t.sum()), np.full(vis_t.sum(), 8.0), np.zeros(vis_t.sum()))
         else:
-            k_tgt = detect(frame, config.n_keypoints)
+            k_tgt = detect(frame, config.n_keypoints, keypoint_set=config.keypoint_set)
             mapped = truth.target_to_reference(target, k_tgt.xy, frame.shape)
             known = np.isfinite(mapped).all(axis=1)
             k_tgt, mapped = k_tgt[known], mapped[known]
             gt = ground_truth_pairs(k_ref.xy, mapped)
-        f_tgt = describe(frame, k_tgt)
-        for name in config.descriptors:
-            (fr, tr), (ft, tt) = f_ref[name], f_tgt[name]
-            t = time.perf_counter()
-            m = match(fr, ft)
-            t_match = time.perf_counter() - t
-            if config.protocol == "landmarks":
-                s = score_landmarks(m.matches0, ids_r[vis_r], ids_t[vis_t])
+        f_tgt = describe(frame, k_tgt) if len(k_tgt) and f_ref is not None else None
+        for name in names:
+            t_match, t_extract = 0.0, 0.0
+            if f_tgt is None:  # nothing to match on one side: the pair scores 0
+                s = _empty_row_score(len(k_ref), len(k_tgt))
             else:
-                s = score_detect(m.matches0, gt, len(k_ref), len(k_tgt))
+                (fr, tr), (ft, tt) = f_ref[name], f_tgt[name]
+                t = time.perf_counter()
+                m = match(fr, ft)
+                t_match, t_extract = time.perf_counter() - t, tr + tt
+                if config.protocol == "landmarks":
+                    s = score_landmarks(m.matches0, ids_r[vis_r], ids_t[vis_t])
+                else:
+                    s = score_detect(m.matches0, gt, len(k_ref), len(k_tgt))
             rows.append(dict(sequence=seq.name, reference=seq.reference, target=target, descriptor=name,
-                             protocol=config.protocol, ms=s.ms, mma=s.mma, hits=s.hits, n_ref=s.n_ref,
-                             n_tgt=s.n_tgt, seconds_extract=tr + tt, seconds_match=t_match,
-                             angle_deg=angle, scale=scale))
+                             protocol=config.protocol, keypoint_set=config.keypoint_set, depth_profile=profile,
+                             ms=s.ms, mma=s.mma, hits=s.hits, n_ref=s.n_ref, n_tgt=s.n_tgt,
+                             seconds_extract=t_extract, seconds_match=t_match, angle_deg=angle, scale=scale))
     return rows
 
 
-def _run_one(folder: str, config: BenchConfig) -> tuple[str, list[dict] | None, str | None]:
+def _run_one(folder: str, config: BenchConfig, descriptors: tuple[str, ...]) -> tuple[str, list[dict] | None, str | None]:
     try:
-        return folder, evaluate_sequence(folder, config), None
+        return folder, evaluate_sequence(folder, config, descriptors), None
     except Exception as error:  # reported by name; the other sequences go on
         return folder, None, f"{type(error).__name__}: {error}\n{traceback.format_exc(limit=3)}"
 
 
+def _finished(csv_path: Path) -> set[tuple[str, str]]:
+    """(sequence, descriptor) pairs whose rows are in results.csv (a sequence's rows are appended at once)."""
+    if not csv_path.is_file():
+        return set()
+    with open(csv_path, newline="") as fh:
+        return {(row["sequence"], row["descriptor"]) for row in csv.DictReader(fh)}
+
+
+def _settings(config: BenchConfig) -> dict:
+    return {key: asdict(config)[key] for key in REUSE_KEYS}
+
+
 def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int = 1,
-                  scheduler: str | None = None, progress: bool = True) -> tuple[Path, list[str]]:
+                  scheduler: str | None = None, progress: bool = True,
+                  overwrite: bool = False) -> tuple[Path, list[str]]:
     """Evaluate every sequence under `datasets`; write OUT/results.csv incrementally.
 
-    Returns the csv path and the names of failed sequences (with reasons printed)."""
+    A rerun into the same folder with the same settings evaluates only the (sequence, descriptor)
+    results not yet in results.csv; with other settings it raises ValueError unless `overwrite`,
+    which starts the file anew. Returns the csv path and the names of failed sequences (with
+    reasons printed)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     folders = [str(f) for f in find_sequences(datasets)]
     csv_path = out / "results.csv"
-    (out / "config.json").write_text(json.dumps(asdict(config), indent=1))
-    with open(csv_path, "w", newline="") as fh:
-        csv.DictWriter(fh, COLUMNS).writeheader()
+    config_path = out / "config.json"
+    if csv_path.is_file() and not overwrite:
+        before = json.loads(config_path.read_text()) if config_path.is_file() else {}
+        if {k: before.get(k) for k in REUSE_KEYS} != _settings(config):
+            raise ValueError(f"out: {out} holds results made with other settings "
+                             f"({ {k: before.get(k) for k in REUSE_KEYS} }); use --overwrite or another --out")
+        with open(csv_path, newline="") as fh:
+            if next(csv.reader(fh), None) != COLUMNS:
+                raise ValueError(f"out: {csv_path} has other columns (an older geofeat?); use --overwrite")
+        done = _finished(csv_path)
+    else:
+        with open(csv_path, "w", newline="") as fh:
+            csv.DictWriter(fh, COLUMNS).writeheader()
+        done = set()
+    config_path.write_text(json.dumps(asdict(config), indent=1))
+    work = []
+    for folder in folders:
+        name = Path(folder).name
+        todo = tuple(d for d in config.descriptors if (name, d) not in done)
+        if todo:
+            work.append((folder, todo))
+    skipped = len(folders) - len(work)
+    if skipped and progress:
+        tqdm.write(f"bench: {skipped} sequence(s) already in {csv_path}, skipped (--overwrite to redo)")
     failed = []
 
     def record(folder, rows, error, bar):
@@ -240,22 +321,22 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
                 csv.DictWriter(fh, COLUMNS).writerows(rows)
         bar.update(1)
 
-    bar = tqdm(total=len(folders), desc="bench", unit="seq", disable=not progress)
+    bar = tqdm(total=len(work), desc="bench", unit="seq", disable=not progress)
     if scheduler:
         from dask.distributed import Client, as_completed as dask_completed
 
         with Client(scheduler) as client:
-            futures = [client.submit(_run_one, f, config, pure=False) for f in folders]
+            futures = [client.submit(_run_one, f, config, todo, pure=False) for f, todo in work]
             for fut in dask_completed(futures):
                 record(*fut.result(), bar)
     elif workers > 1:
         # spawn, not fork: the numba/OpenMP thread pool of this process must not be forked
         with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = [pool.submit(_run_one, f, config) for f in folders]
+            futures = [pool.submit(_run_one, f, config, todo) for f, todo in work]
             for fut in as_completed(futures):
                 record(*fut.result(), bar)
     else:
-        for f in folders:
-            record(*_run_one(f, config), bar)
+        for f, todo in work:
+            record(*_run_one(f, config, todo), bar)
     bar.close()
     return csv_path, failed

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..features import Features
 from ..frame import RGBDFrame
-from ..keypoints import Keypoints, to_uint8
+from ..keypoints import as_keypoints, to_uint8
 
 #: SIFT diameter -> descriptor size factors (see module docstring).
 SIZE_FACTORS = {"orb": 1.0, "brisk": 6.0, "freak": 6.0, "daisy": 1.0, "sift": 1.0}
@@ -47,20 +47,6 @@ def _make_extractor(name: str):
     raise ValueError(f"descriptor: unknown OpenCV baseline {name!r}; expected one of {sorted(SIZE_FACTORS)}")
 
 
-def as_keypoints(keypoints, angles=None, sizes=None) -> Keypoints:
-    """Accept `Keypoints`, a list of cv2.KeyPoint, or an (N, 2) array (+ optional angles in degrees,
-    sizes in pixels)."""
-    if isinstance(keypoints, Keypoints):
-        return keypoints
-    if isinstance(keypoints, (list, tuple)) and keypoints and isinstance(keypoints[0], cv2.KeyPoint):
-        return Keypoints.from_cv(list(keypoints))
-    xy = np.asarray(keypoints, dtype=np.float64).reshape(-1, 2)
-    n = len(xy)
-    angles = np.zeros(n) if angles is None else np.asarray(angles, dtype=np.float64).reshape(n)
-    sizes = np.full(n, DEFAULT_SIZE_PX) if sizes is None else np.asarray(sizes, dtype=np.float64).reshape(n)
-    return Keypoints(xy, angles, sizes, np.zeros(n))
-
-
 @dataclass
 class OpenCVDescriptor:
     """An OpenCV descriptor on given keypoints.
@@ -74,23 +60,28 @@ class OpenCVDescriptor:
     name: str
     use_angle: bool = True
     size_factor: float | None = None
+    geodesic: bool = field(default=False, init=False)
     _extractor: object = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.name = self.name.lower()
         self._extractor = _make_extractor(self.name)
+        self.binary = self._extractor.descriptorType() == cv2.CV_8U
+        self.metric = "hamming" if self.binary else "l2"
         if self.size_factor is None:
             self.size_factor = SIZE_FACTORS[self.name]
 
-    def compute(self, frame: RGBDFrame, keypoints, angles=None, sizes=None) -> Features:
-        """Describe `keypoints` on `frame.image`; returns Features with (N, D) descriptors (uint8 for
-        the binary ones, float32 for SIFT and DAISY)."""
-        kps = as_keypoints(keypoints, angles, sizes)
+    def compute(self, frame: RGBDFrame, keypoints) -> Features:
+        """Describe `keypoints` (see `geofeat.keypoints.as_keypoints`) on `frame.image`; a keypoint
+        without a size (an (N, 2) array) gets `DEFAULT_SIZE_PX`, without an angle 0. Returns Features
+        with (N, D) descriptors (uint8 for the binary ones, float32 for SIFT and DAISY)."""
+        kps = as_keypoints(keypoints, frame.shape)
         n = len(kps)
+        sizes = np.where(np.isfinite(kps.sizes), kps.sizes, DEFAULT_SIZE_PX)
         cv_kps = [
             cv2.KeyPoint(float(x), float(y), float(max(s * self.size_factor, 1.0)),
                          float(a) if self.use_angle else 0.0, 0.0, 0, i)
-            for i, ((x, y), s, a) in enumerate(zip(kps.xy, kps.sizes, kps.angles))
+            for i, ((x, y), s, a) in enumerate(zip(kps.xy, sizes, kps.angles))
         ]
         kept, desc = self._extractor.compute(to_uint8(frame.image), cv_kps)
         dim = self._extractor.descriptorSize()

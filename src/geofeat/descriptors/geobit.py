@@ -62,9 +62,10 @@ import numpy as np
 from numba import njit, prange
 
 from ..constants import DEFAULT_RADIUS_M, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX
-from ..depth import DepthConfig
+from ..depth import DepthConfig, check_profile
 from ..features import Features
 from ..frame import RGBDFrame
+from ..keypoints import as_keypoints
 from ..geodesic.mesh import GridMesh
 from ..geodesic.polar import PolarPatches, polar_patches
 
@@ -152,7 +153,7 @@ def _binary_tests(values, valid, idx_x, idx_y, out):
 
 
 class GeoBit:
-    """GeoBit descriptor extractor.
+    """GeoBit descriptor extractor (a `geofeat.descriptors.base.Descriptor`).
 
     Args:
         n_bits: binary tests per rotation (a multiple of 8); 512 in the paper.
@@ -174,7 +175,7 @@ class GeoBit:
         sigma: float | None = None,
         n_rings: int = N_RINGS,
         n_angles: int = N_ANGLES,
-        depth_config: DepthConfig = DepthConfig(),
+        depth_config: DepthConfig | str = "auto",
         blur_px: float = SAMPLING_BLUR_PX,
     ) -> None:
         if n_bits < 8 or n_bits % 8:
@@ -188,7 +189,9 @@ class GeoBit:
         self.radius = float(radius)
         self.n_rings = int(n_rings)
         self.n_angles = int(n_angles)
-        self.depth_config = depth_config
+        self.name, self.binary, self.metric, self.geodesic = "geobit", True, "hamming-rot", True
+        self.depth_config = depth_config if isinstance(depth_config, DepthConfig) else check_profile(
+            depth_config, "depth_config")
         self.blur_px = blur_px
         default = (n_bits, self.sigma, n_rings, n_angles) == (DEFAULT_N_BITS, DEFAULT_SIGMA_ROWS, N_RINGS, N_ANGLES)
         if seed is None and default:
@@ -259,17 +262,11 @@ class GeoBit:
         Returns:
             `Features` with descriptors (N, n_rotations, n_bits // 8) uint8 and valid from the patches.
         """
-        angles = sizes = None
-        if hasattr(keypoints, "xy") and hasattr(keypoints, "angles"):
-            angles, sizes = keypoints.angles, getattr(keypoints, "sizes", None)
-            keypoints = keypoints.xy
-        elif isinstance(keypoints, (list, tuple)) and keypoints and hasattr(keypoints[0], "pt"):
-            angles = np.array([k.angle for k in keypoints], dtype=np.float64)
-            sizes = np.array([k.size for k in keypoints], dtype=np.float64)
+        kps = as_keypoints(keypoints, frame.shape)
         if patches is None:
             patches = polar_patches(
                 frame,
-                keypoints,
+                kps,
                 radius=self.radius,
                 n_angles=self.n_angles,
                 n_rings=self.n_rings,
@@ -279,13 +276,13 @@ class GeoBit:
             )
         elif not isinstance(patches, PolarPatches):
             raise TypeError(f"patches: expected PolarPatches, got {type(patches).__name__}")
-        elif keypoints is not None and len(keypoints) != len(patches):
-            raise ValueError(f"patches: hold {len(patches)} keypoints, but {len(keypoints)} keypoints were given")
+        elif len(kps) != len(patches):
+            raise ValueError(f"patches: hold {len(patches)} keypoints, but {len(kps)} keypoints were given")
         desc = self.describe(patches.values, patches.valid)
         return Features(
             keypoints=patches.keypoints,
             descriptors=desc,
             valid=patches.valid.copy(),
-            angles=angles,
-            sizes=sizes,
+            angles=kps.angles,
+            sizes=kps.sizes,
         )

@@ -32,9 +32,10 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from ..constants import DEFAULT_RADIUS_M, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX
-from ..depth import DepthConfig
+from ..depth import DepthConfig, check_profile
 from ..features import Features
 from ..frame import RGBDFrame
+from ..keypoints import as_keypoints
 from ..geodesic.mesh import GridMesh
 from ..geodesic.polar import PolarPatches, polar_patches
 
@@ -150,7 +151,8 @@ def load_network(path: str | Path | None = None, device: str | torch.device | No
 
 
 class GeoPatch:
-    """GeoPatch descriptor extractor: polar patches -> GeoPatchNet -> (N, 128) float32 unit vectors.
+    """GeoPatch descriptor extractor: polar patches -> GeoPatchNet -> (N, 128) float32 unit vectors
+    (a `geofeat.descriptors.base.Descriptor`).
 
     Args:
         weights: checkpoint path; None = the weights shipped with geofeat.
@@ -160,13 +162,16 @@ class GeoPatch:
     """
 
     def __init__(self, weights: str | Path | None = None, device: str | None = None,
-                 radius: float = DEFAULT_RADIUS_M, depth_config: DepthConfig = DepthConfig(),
+                 radius: float = DEFAULT_RADIUS_M, depth_config: DepthConfig | str = "auto",
                  blur_px: float = SAMPLING_BLUR_PX, batch_size: int = 128) -> None:
         self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
         net, self.checkpoint = load_network(weights)
         self.net = fuse_batchnorm(net).to(self.device)
         self.radius = float(radius)
-        self.depth_config = depth_config
+        self.name = "geopatch" if weights is None else f"geopatch={weights}"
+        self.binary, self.metric, self.geodesic = False, "l2", True
+        self.depth_config = depth_config if isinstance(depth_config, DepthConfig) else check_profile(
+            depth_config, "depth_config")
         self.blur_px = blur_px
         self.batch_size = int(batch_size)
 
@@ -193,12 +198,11 @@ class GeoPatch:
     def compute(self, frame: RGBDFrame, keypoints, patches: PolarPatches | None = None,
                 mesh: GridMesh | None = None) -> Features:
         """GeoPatch features of `keypoints` ((N, 2) pixels, cv2.KeyPoint list or `Keypoints`)."""
-        angles = sizes = None
-        if hasattr(keypoints, "xy") and hasattr(keypoints, "angles"):
-            angles, sizes = keypoints.angles, getattr(keypoints, "sizes", None)
-            keypoints = keypoints.xy
+        kps = as_keypoints(keypoints, frame.shape)
         if patches is None:
-            patches = polar_patches(frame, keypoints, radius=self.radius, depth_config=self.depth_config,
+            patches = polar_patches(frame, kps, radius=self.radius, depth_config=self.depth_config,
                                     mesh=mesh, blur_px=self.blur_px)
+        elif len(patches) != len(kps):
+            raise ValueError(f"patches: hold {len(patches)} keypoints, but {len(kps)} keypoints were given")
         return Features(patches.keypoints, self.describe(patches.values, patches.valid), patches.valid,
-                        angles=angles, sizes=sizes)
+                        angles=kps.angles, sizes=kps.sizes)

@@ -398,7 +398,7 @@ def heat_polar_patches(
     radius: float = DEFAULT_RADIUS_M,
     n_angles: int = N_ANGLES,
     n_rings: int = N_RINGS,
-    depth_config: DepthConfig = DepthConfig(),
+    depth_config: DepthConfig | str = "auto",
     mesh: GridMesh | None = None,
     blur_px: float = SAMPLING_BLUR_PX,
     solver: HeatGeodesics | None = None,

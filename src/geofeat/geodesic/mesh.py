@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..constants import MAX_EDGE_STRETCH
-from ..depth import DepthConfig, backproject, preprocess_depth, scale_intrinsics
+from ..depth import DepthConfig, backproject, preprocess_depth, resolve_depth_config, scale_intrinsics
 from ..frame import RGBDFrame
 
 
@@ -117,9 +117,11 @@ def mesh_from_points(
     return GridMesh(points=points, face_ok=face_ok, normals=normals, K=K, scale=scale, image_shape=image_shape)
 
 
-def build_mesh(frame: RGBDFrame, config: DepthConfig = DepthConfig(), max_edge_stretch: float = MAX_EDGE_STRETCH) -> GridMesh:
-    """Preprocess the frame's depth (see `DepthConfig`) and build its GridMesh."""
-    depth = preprocess_depth(frame.depth, config)
+def build_mesh(frame: RGBDFrame, config: DepthConfig | str = "auto",
+               max_edge_stretch: float = MAX_EDGE_STRETCH) -> GridMesh:
+    """Preprocess the frame's depth (a `DepthConfig`, or a profile name: "auto", "kinect", "clean";
+    see `geofeat.depth.depth_profile`) and build its GridMesh."""
+    depth = preprocess_depth(frame.depth, resolve_depth_config(config, frame))
     H, W = frame.shape
     Hm, Wm = depth.shape
     scale = (Wm / W, Hm / H)

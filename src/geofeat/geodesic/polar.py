@@ -17,6 +17,7 @@ import numpy as np
 from ..constants import DEFAULT_RADIUS_M, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX
 from ..depth import DepthConfig
 from ..frame import RGBDFrame
+from ..keypoints import as_keypoints
 from .mesh import GridMesh, build_mesh
 from .walk import MAX_CROSSINGS, walk_polar
 
@@ -53,26 +54,9 @@ class PolarPatches:
 
 
 def as_keypoint_array(keypoints, shape: tuple[int, int] | None = None) -> np.ndarray:
-    """Accept an (N, 2) array of (x, y) pixels or a list of cv2.KeyPoint; check they lie on the image."""
-    if isinstance(keypoints, (list, tuple)) and keypoints and isinstance(keypoints[0], cv2.KeyPoint):
-        keypoints = np.array([k.pt for k in keypoints], dtype=np.float64)
-    kp = np.asarray(keypoints, dtype=np.float64)
-    if kp.size == 0:
-        return np.zeros((0, 2))
-    if kp.ndim != 2 or kp.shape[1] != 2:
-        raise ValueError(f"keypoints: expected shape (N, 2) of (x, y) pixels, got {kp.shape}")
-    if not np.isfinite(kp).all():
-        raise ValueError("keypoints: contain NaN or infinite coordinates")
-    if shape is not None:
-        H, W = shape
-        off = (kp[:, 0] < -0.5) | (kp[:, 0] > W - 0.5) | (kp[:, 1] < -0.5) | (kp[:, 1] > H - 0.5)
-        if off.any():
-            i = int(np.argmax(off))
-            raise ValueError(
-                f"keypoints: {int(off.sum())} keypoint(s) off the {W}x{H} image, e.g. #{i} at "
-                f"({kp[i, 0]:.1f}, {kp[i, 1]:.1f})"
-            )
-    return kp
+    """(N, 2) float64 pixel coordinates of keypoints given in any form `geofeat.keypoints.as_keypoints`
+    accepts ((N, 2) array, cv2.KeyPoint list, `Keypoints`); off-image or empty sets raise ValueError."""
+    return as_keypoints(keypoints, shape).xy
 
 
 def check_patch_request(frame: RGBDFrame, keypoints, radius: float, n_angles: int, n_rings: int) -> np.ndarray:
@@ -129,7 +113,7 @@ def polar_patches(
     radius: float = DEFAULT_RADIUS_M,
     n_angles: int = N_ANGLES,
     n_rings: int = N_RINGS,
-    depth_config: DepthConfig = DepthConfig(),
+    depth_config: DepthConfig | str = "auto",
     mesh: GridMesh | None = None,
     blur_px: float = SAMPLING_BLUR_PX,
 ) -> PolarPatches:
@@ -137,10 +121,11 @@ def polar_patches(
 
     Args:
         frame: the RGB-D frame.
-        keypoints: (N, 2) pixel coordinates (x, y) or a list of cv2.KeyPoint.
+        keypoints: (N, 2) pixel coordinates (x, y), a list of cv2.KeyPoint, or `Keypoints`.
         radius: geodesic radius of the outer ring, metres.
         n_angles, n_rings: patch size (columns, rows).
-        depth_config: depth preprocessing (ignored when `mesh` is given).
+        depth_config: depth preprocessing, a `DepthConfig` or a profile name ("auto": chosen from
+            the frame's measured depth noise, see `geofeat.depth_profile`); ignored when `mesh` is given.
         mesh: a prebuilt `build_mesh(frame, ...)` to reuse across calls.
         blur_px: Gaussian blur of the gray image before sampling, pixels.
     """

@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from ..bench.protocol import ground_truth_pairs
+from ..scoring import ground_truth_pairs
 from ..constants import DEFAULT_RADIUS_M
-from ..depth import DepthConfig
+from ..depth import DepthConfig, PROFILES, sequence_depth_profile
 from ..geodesic.polar import polar_patches
 from ..io import Sequence, find_sequences, read_sequence
 from ..keypoints import detect
@@ -49,11 +49,21 @@ def _to_uint8(values: np.ndarray) -> np.ndarray:
     return np.clip(np.rint(values * 255), 0, 255).astype(np.uint8)
 
 
+def _sequence_config(seq: Sequence, depth_config: DepthConfig | str, ref) -> DepthConfig:
+    if isinstance(depth_config, DepthConfig):
+        return depth_config
+    return PROFILES[sequence_depth_profile(seq, depth_config, ref)]
+
+
 def sequence_patches(seq: Sequence, n_keypoints: int = 512, radius: float = DEFAULT_RADIUS_M,
-                     depth_config: DepthConfig = DepthConfig(), first_id: int = 0) -> PatchSet:
-    """Patches of the reference frame's SIFT keypoints in every frame where they are visible."""
+                     depth_config: DepthConfig | str = "auto", first_id: int = 0) -> PatchSet:
+    """Patches of the reference frame's SIFT keypoints in every frame where they are visible.
+    `depth_config`: a DepthConfig or a profile name, resolved once for the sequence (as the bench does)."""
     ref = seq.frame(seq.reference)
+    depth_config = _sequence_config(seq, depth_config, ref)
     kps = detect(ref, n_keypoints)
+    if not len(kps):
+        return PatchSet(np.zeros((0, 32, 32), np.uint8), np.zeros(0, np.int64))
     p_ref = polar_patches(ref, kps.xy, radius=radius, depth_config=depth_config)
     patches, ids = [_to_uint8(p_ref.values[p_ref.valid])], [np.flatnonzero(p_ref.valid)]
     for name in seq.targets:
@@ -68,7 +78,7 @@ def sequence_patches(seq: Sequence, n_keypoints: int = 512, radius: float = DEFA
 
 
 def build_patch_set(paths, n_keypoints: int = 512, radius: float = DEFAULT_RADIUS_M,
-                    depth_config: DepthConfig = DepthConfig(), progress: bool = True) -> PatchSet:
+                    depth_config: DepthConfig | str = "auto", progress: bool = True) -> PatchSet:
     """Patch set of all sequences under `paths` (see `geofeat.io.find_sequences`)."""
     sets, next_id = [], 0
     for folder in tqdm(find_sequences(paths), desc="patches", unit="seq", disable=not progress):
@@ -95,15 +105,18 @@ class ValidationPair:
 
 
 def validation_pairs(paths, n_keypoints: int = 1024, radius: float = DEFAULT_RADIUS_M,
-                     depth_config: DepthConfig = DepthConfig(), max_pairs_per_sequence: int = 2) -> list[ValidationPair]:
+                     depth_config: DepthConfig | str = "auto", max_pairs_per_sequence: int = 2) -> list[ValidationPair]:
     """Reference-target pairs of held-out sequences with independently detected SIFT keypoints and
     the simulator's ground truth, for a per-epoch matching score."""
     pairs = []
     for folder in find_sequences(paths):
         seq = read_sequence(folder)
         ref = seq.frame(seq.reference)
+        config = _sequence_config(seq, depth_config, ref)
         k_ref = detect(ref, n_keypoints)
-        p_ref = polar_patches(ref, k_ref.xy, radius=radius, depth_config=depth_config)
+        if not len(k_ref):
+            continue
+        p_ref = polar_patches(ref, k_ref.xy, radius=radius, depth_config=config)
         step = max(1, len(seq.targets) // max_pairs_per_sequence)
         for name in seq.targets[::step][:max_pairs_per_sequence]:
             tgt = seq.frame(name)
@@ -111,7 +124,9 @@ def validation_pairs(paths, n_keypoints: int = 1024, radius: float = DEFAULT_RAD
             mapped, visible = seq.correspondences(name, seq.reference, k_tgt.xy)
             # protocol step 3: target keypoints without ground truth in the reference are dropped
             k_tgt, mapped = k_tgt[visible], mapped[visible]
-            p_tgt = polar_patches(tgt, k_tgt.xy, radius=radius, depth_config=depth_config)
+            if not len(k_tgt):
+                continue
+            p_tgt = polar_patches(tgt, k_tgt.xy, radius=radius, depth_config=config)
             gt = ground_truth_pairs(k_ref.xy, mapped)
             pairs.append(ValidationPair(p_ref.values, p_ref.valid, p_tgt.values, p_tgt.valid, gt))
     return pairs

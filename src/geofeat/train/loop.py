@@ -12,7 +12,7 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
-from ..bench.protocol import score_detect
+from ..scoring import score_detect
 from ..descriptors.geopatch import GeoPatchConfig, GeoPatchNet, save_checkpoint
 from ..matching import match
 from .dataset import PatchSet, ValidationPair

@@ -1,0 +1,52 @@
+"""Timing of f(.), extraction and matching per descriptor on one frame (`geofeat bench --timing`)."""
+
+from __future__ import annotations
+
+import time
+
+from ..depth import resolve_depth_config
+from ..descriptors import make_descriptor
+from ..geodesic.mesh import build_mesh
+from ..geodesic.polar import polar_patches
+from ..keypoints import detect
+from ..matching import match
+
+
+def timing_table(frame, descriptors: tuple[str, ...], radius: float, counts=(250, 2048), repeat: int = 3,
+                 depth_profile: str = "auto") -> str:
+    """Markdown timing table on one frame: map f(.) (polar patches), extraction and matching per
+    descriptor for each keypoint count (best of `repeat`; counts above the number of keypoints the
+    frame has are lowered to it, and the header says the count used)."""
+    config = resolve_depth_config(depth_profile, frame)
+
+    def best(fn):
+        times = []
+        for _ in range(repeat):
+            t = time.perf_counter()
+            result = fn()
+            times.append(time.perf_counter() - t)
+        return min(times), result
+
+    kps_all = detect(frame, max(counts))
+    counts = sorted({min(n, len(kps_all)) for n in counts})  # a frame may have fewer keypoints
+    lines = ["| step | " + " | ".join(f"{n} kps (s)" for n in counts) + " |", "|---|" + "---|" * len(counts)]
+    cells: dict[str, list[str]] = {}
+    for n in counts:
+        kps = kps_all[:n]
+        mesh = build_mesh(frame, config)
+        t_map, patches = best(lambda: polar_patches(frame, kps, radius=radius, mesh=mesh))
+        cells.setdefault("map f(.) (polar patches)", []).append(f"{t_map:.3f}")
+        for name in descriptors:
+            d = make_descriptor(name, radius=radius, depth_config=config)
+            if d.geodesic:
+                t_ext, f = best(lambda: d.compute(frame, kps, patches=patches))
+            else:
+                t_ext, f = best(lambda: d.compute(frame, kps))
+            t_match, _ = best(lambda: match(f, f))
+            cells.setdefault(f"{name} extraction", []).append(f"{t_ext:.3f}")
+            cells.setdefault(f"{name} matching (N x N)", []).append(f"{t_match:.3f}")
+    for step, values in cells.items():
+        if len(values) < len(counts):
+            values = values + ["-"] * (len(counts) - len(values))
+        lines.append(f"| {step} | " + " | ".join(values) + " |")
+    return "\n".join(lines) + "\n"
