@@ -7,7 +7,8 @@ foreshortening over the frames.
         [--presets mild,paper,hard] [--per-scenario 3] [--frames 8] [--sheets docs]
 
 Sequences are written under OUT/<preset>/<scenario>-<k> (kept and reused when present), textured
-with photographs that training never sees (the shared texture folder minus the packaged ones).
+with photographs that training and validation never see (the shared texture folder minus the
+packaged ones minus the validation ones); they double as the test sets of `geofeat bench`.
 Keypoints: OpenCV SIFT's 2048 strongest (contrastThreshold 0.004, duplicates at one position with
 several orientations kept), on pixels with depth, as the protocol's keypoint set. Matching: one-way
 nearest neighbour of SIFT descriptors, reference -> target; a hit is a ground-truth pair < 3 px.
@@ -45,10 +46,14 @@ SHARED_TEXTURES = next((p / "shared/data/textures" for p in Path(__file__).resol
                         if (p / "shared/data/textures").is_dir()), Path("shared/data/textures"))
 
 
-def heldout_textures(folder: Path) -> list[Path]:
-    """Photographs of `folder` that are not packaged (never seen by training)."""
-    packaged = {p.stem.split(".")[0] for p in list_textures(packaged_texture_dir())}
-    return [p for p in list_textures(folder) if p.stem not in packaged]
+#: The first held-out photographs texture the validation sequences (make_sim_datasets.py --val 4).
+N_VAL_TEXTURES = 4
+
+
+def test_textures(folder: Path) -> list[Path]:
+    """Photographs of `folder` that are neither packaged (trained on) nor validation textures."""
+    packaged = {p.stem for p in list_textures(packaged_texture_dir())}
+    return [p for p in list_textures(folder) if p.stem not in packaged][N_VAL_TEXTURES:]
 
 
 def protocol_sift(image: np.ndarray, depth: np.ndarray, n: int = 2048) -> tuple[np.ndarray, np.ndarray]:
@@ -175,7 +180,7 @@ def main() -> None:
     ap.add_argument("--sheets", type=Path, default=None, help="write one contact sheet per preset here (PNG)")
     ap.add_argument("--seed0", type=int, default=5000)
     a = ap.parse_args()
-    textures = heldout_textures(a.texture_dir)
+    textures = test_textures(a.texture_dir)
     presets = a.presets.split(",")
     table, k = {}, 0
     for preset in presets:

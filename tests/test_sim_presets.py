@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -133,3 +134,29 @@ def test_command_presets(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["simulate", str(tmp_path / "r"), "--preset", "brutal"])
     assert not (tmp_path / "r").exists()
+
+
+def test_fabric_textures_and_colour_jitter():
+    from geofeat.sim.textures import FABRIC_KINDS, choose_texture, fabric_texture, jitter_colours, list_textures
+
+    images = [fabric_texture(np.random.default_rng(i), kind, 96, 64) for i, kind in enumerate(FABRIC_KINDS)]
+    for img in images:
+        assert img.shape == (64, 96, 3) and img.dtype == np.uint8 and img.std() > 3
+    # distinct families give distinct images; the same seed gives the same image
+    assert len({img.tobytes() for img in images}) == len(FABRIC_KINDS)
+    assert np.array_equal(fabric_texture(np.random.default_rng(1), "plaid"), fabric_texture(np.random.default_rng(1), "plaid"))
+    with pytest.raises(ValueError, match="kind"):
+        fabric_texture(np.random.default_rng(0), "velvet")
+    with pytest.raises(ValueError, match="texture"):
+        choose_texture(np.random.default_rng(0), "fabric:velvet")
+    assert choose_texture(np.random.default_rng(0), "fabric:dots")[1] == "fabric"
+    jittered = jitter_colours(images[1], np.random.default_rng(2))
+    assert jittered.shape == images[1].shape and np.abs(jittered.astype(int) - images[1]).mean() > 2
+    # the shipped photographs: many, small (<= 512 px per side), with their licences listed
+    files = list_textures(packaged_texture_dir())
+    assert len(files) >= 60
+    sources = (packaged_texture_dir() / "SOURCES.md").read_text()
+    for f in files:
+        img = cv2.imread(str(f))
+        assert max(img.shape[:2]) <= 512
+        assert f.stem in sources
