@@ -129,16 +129,26 @@ def _batch(patches: np.ndarray, index: np.ndarray, rng: np.random.Generator, shi
 
 def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
           validation: list[ValidationPair] | None = None, resume: bool = False,
-          device: str | None = None, progress: bool = True) -> dict:
+          device: str | None = None, progress: bool = True, init: str | Path | None = None) -> dict:
     """Train GeoPatchNet; writes `out` (final weights), `out`.ckpt (resumable state after every
-    epoch), `out`.json (history) and `out`.png (loss / validation plot). Returns the history."""
+    epoch), `out`.json (history) and `out`.png (loss / validation plot). Returns the history.
+    `init`: start from these GeoPatch weights ("shipped" = geofeat's own) instead of at random
+    (fine-tuning; the network shape must match `config.net`)."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     ckpt_path = out.with_suffix(out.suffix + ".ckpt")
     device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     torch.manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
-    net = GeoPatchNet(config.net).to(device)
+    net = GeoPatchNet(config.net)
+    if init is not None:
+        from ..descriptors.geopatch import load_network
+
+        start, _ = load_network(None if str(init) == "shipped" else init)
+        if start.config != config.net:
+            raise ValueError(f"init: the weights' network {start.config} differs from the requested {config.net}")
+        net.load_state_dict(start.state_dict())
+    net = net.to(device)
     opt = torch.optim.SGD(net.parameters(), lr=config.lr, momentum=config.momentum, weight_decay=config.weight_decay)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=config.epochs * config.steps_per_epoch)
     history = {"epoch": [], "loss": [], "val_ms": [], "config": asdict(config)}
