@@ -1,9 +1,12 @@
 """Simulated datasets for training and evaluating GeoPatch (and for `geofeat bench`).
 
 train/: sequences textured with the packaged training photographs (geofeat/data/textures) and
-procedural textures; val/ and test/: sequences textured with held-out photographs that training
-never sees (from --heldout-dir, default ../shared/data/textures minus the packaged ones).
-Half of the sequences have Kinect-like depth noise and holes. Scenarios cycle deform/rotate/scale.
+procedural / fabric textures, presets cycling through --train-presets (default paper, hard, mild);
+val/ and test/: sequences of --val-preset / --test-preset (default hard) textured with held-out
+photographs that training never sees (from --heldout-dir, default shared/data/textures minus the
+packaged ones; val takes the first --val of them, test the next). Half of the sequences have
+Kinect-like depth noise and holes. Scenarios cycle deform/rotate/scale.
+(`benchmarks/sim_difficulty.py` writes the per-preset test sequences with the test textures.)
 
 Run: .venv/bin/python benchmarks/make_sim_datasets.py --out out/sim [--train 30 --val 4 --test 6 --frames 8]
 """
@@ -22,19 +25,22 @@ SCENARIOS = ("deform", "rotate", "scale")
 
 
 def heldout_textures(folder: Path) -> list[Path]:
-    packaged = {p.name for p in list_textures(packaged_texture_dir())}
-    return [p for p in list_textures(folder) if p.name not in packaged]
+    """Photographs of `folder` that are not packaged (never trained on), in name order."""
+    packaged = {p.stem for p in list_textures(packaged_texture_dir())}
+    return [p for p in list_textures(folder) if p.stem not in packaged]
 
 
-def make(split: str, count: int, out: Path, frames: int, seed0: int, textures: list[Path] | None) -> None:
+def make(split: str, count: int, out: Path, frames: int, seed0: int, textures: list[Path] | None,
+         presets: tuple[str, ...] = ("mild",)) -> None:
     for i in tqdm(range(count), desc=split, unit="seq"):
-        folder = out / split / f"{split}{i:03d}-{SCENARIOS[i % 3]}"
+        preset = presets[(i // 3) % len(presets)]
+        folder = out / split / f"{split}{i:03d}-{preset}-{SCENARIOS[i % 3]}"
         if folder.is_dir() and any(folder.iterdir()):
             continue
         kwargs = dict(texture=str(textures[i % len(textures)])) if textures else dict(texture_dir=packaged_texture_dir())
         if not textures and i % 4 == 3:
-            kwargs = dict(texture="procedural")
-        simulate_sequence(folder, scenario=SCENARIOS[i % 3], n_frames=frames, seed=seed0 + i,
+            kwargs = dict(texture="procedural" if i % 8 == 3 else "fabric")
+        simulate_sequence(folder, scenario=SCENARIOS[i % 3], n_frames=frames, seed=seed0 + i, preset=preset,
                           kinect_noise=bool(i % 2), progress=False, **kwargs)
 
 
@@ -45,14 +51,19 @@ def main() -> None:
     parser.add_argument("--val", type=int, default=4)
     parser.add_argument("--test", type=int, default=6)
     parser.add_argument("--frames", type=int, default=8)
-    parser.add_argument("--heldout-dir", type=Path, default=Path(__file__).resolve().parents[2] / "shared/data/textures")
+    shared = next((p / "shared/data/textures" for p in Path(__file__).resolve().parents
+                   if (p / "shared/data/textures").is_dir()), Path("shared/data/textures"))
+    parser.add_argument("--heldout-dir", type=Path, default=shared)
+    parser.add_argument("--train-presets", default="paper,hard,mild", help="comma-separated, cycled every 3 sequences")
+    parser.add_argument("--val-preset", default="hard")
+    parser.add_argument("--test-preset", default="hard")
     args = parser.parse_args()
     held = heldout_textures(args.heldout_dir)
-    if len(held) < args.val + args.test:
-        raise SystemExit(f"need {args.val + args.test} held-out textures in {args.heldout_dir}, found {len(held)}")
-    make("train", args.train, args.out, args.frames, 1000, None)
-    make("val", args.val, args.out, args.frames, 2000, held[: args.val])
-    make("test", args.test, args.out, args.frames, 3000, held[args.val: args.val + args.test])
+    if len(held) < args.val + min(args.test, 1):
+        raise SystemExit(f"need {args.val + 1} held-out textures in {args.heldout_dir}, found {len(held)}")
+    make("train", args.train, args.out, args.frames, 1000, None, tuple(args.train_presets.split(",")))
+    make("val", args.val, args.out, args.frames, 2000, held[: args.val], (args.val_preset,))
+    make("test", args.test, args.out, args.frames, 3000, held[args.val:], (args.test_preset,))
     print(f"datasets in {args.out}: train {args.train}, val {args.val}, test {args.test} sequences of {args.frames} frames")
 
 

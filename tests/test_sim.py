@@ -297,3 +297,19 @@ def test_texture_loading():
     assert img.ndim == 3 and img.dtype == np.uint8
     proc = procedural_texture(np.random.default_rng(0), 64, 48)
     assert proc.shape == (48, 64, 3) and proc.std() > 10
+
+
+def test_simulate_writes_the_depth_profile_it_rendered(tmp_path):
+    """The folder's geofeat.json names the depth profile of what was rendered, and it agrees with
+    the profile `auto` measures on the frames."""
+    import json
+
+    import geofeat
+
+    for noise, profile in ((False, "clean"), (True, "kinect")):
+        folder = simulate_sequence(tmp_path / profile, scenario="deform", n_frames=2, seed=3, width=320, height=240,
+                                   kinect_noise=noise, progress=False)
+        assert json.loads((folder / "geofeat.json").read_text()) == {"depth_profile": profile}
+        seq = geofeat.read_sequence(folder)
+        assert seq.depth_profile == profile
+        assert geofeat.depth_profile(seq.frame(seq.reference)) == profile

@@ -244,9 +244,11 @@ def _train(args: argparse.Namespace) -> int:
     config = TrainConfig(
         epochs=args.epochs, steps_per_epoch=args.steps, batch_size=args.batch_size, lr=args.lr,
         mining=args.mining, augment_shift=args.augment_shift, seed=args.seed,
-        net=GeoPatchConfig(angle_pool=not args.no_angle_pool),
+        augment_photometric=args.augment_photometric,
+        net=GeoPatchConfig(channels=tuple(args.channels), angle_pool=not args.no_angle_pool),
     )
-    history = train(data, args.out, config, validation=validation, resume=args.resume, device=args.device, net=net)
+    history = train(data, args.out, config, validation=validation, resume=args.resume, device=args.device, net=net,
+                    init=args.init)
     print(f"wrote {args.out} (final loss {history['loss'][-1]:.4f}, validation MS {history['val_ms'][-1]:.3f}), "
           f"{args.out}.png and {args.out}.json")
     return 0
@@ -397,6 +399,10 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--mining", choices=("random", "hardest"), default="random",
                     help="negatives: random with anchor swap (the paper) or the hardest in the batch")
     tr.add_argument("--augment-shift", action="store_true", help="random circular shifts along the angle axis")
+    tr.add_argument("--augment-photometric", action="store_true", help="random per-patch gamma and noise")
+    tr.add_argument("--init", default=None, help="start from these GeoPatch weights ('shipped': geofeat's own)")
+    tr.add_argument("--channels", type=int, nargs=3, default=(16, 32, 64), metavar=("C1", "C2", "C3"),
+                    help="channels of the three convolutions (default 16 32 64; the paper's: 32 64 128)")
     tr.add_argument("--no-angle-pool", action="store_true", help="flatten instead of max-pooling over angle (ablation)")
     tr.add_argument("--keypoints", type=int, default=512, help="SIFT keypoints per reference frame (default 512)")
     tr.add_argument("--seed", type=int, default=0)

@@ -19,8 +19,11 @@ Mapping a point p of frame i to frame j:
     projection;
  3. visible in j if the projection lands in the image, in front of the camera, and the surface
     seen at the nearest pixel centre there is the same point: |uv_j(pixel) - (u, v)| below
-    `tol_px` pixel footprints (divided by the cosine of the viewing angle). Points hidden by a
-    fold (another part of the cloth, far away in (u, v)) or off the image are not visible.
+    `tol_px` pixel footprints (divided by the cosine of the viewing angle) and not in front of it
+    (depth within the point's own slope over 0.75 px), and frame j sees the
+    front side of the cloth there (the side the reference camera sees). Points hidden by a fold
+    (another part of the cloth, far away in (u, v)), seen from the back, or off the image are not
+    visible.
 """
 
 from __future__ import annotations
@@ -164,10 +167,19 @@ def map_points(
     r, c, _, _, upper = _triangles_of(uv[on], rows, cols, spacing)
     a, b, cc = _triangle_vertices(truth_j.vertices, r, c, upper)
     n = np.cross(b - a, cc - b)
+    # front side seen: du x dv (upper triangles; dv x du for the lower ones) points away from the camera
+    facing = np.where(upper, 1.0, -1.0) * np.einsum("ij,ij->i", n, P) > 0
     cos = np.abs(np.einsum("ij,ij->i", n, P)) / (np.linalg.norm(n, axis=1) * np.linalg.norm(P, axis=1) + 1e-30)
-    tol = tol_px * Zs / min(K[0, 0], K[1, 1]) / np.maximum(cos, 0.2)
+    footprint = Zs / min(K[0, 0], K[1, 1])
+    tol = tol_px * footprint / np.maximum(cos, 0.2)
     same = np.linalg.norm(uv_j - uv[on], axis=1) <= tol
-    visible[on] = front & ok_j & same
+    # and nothing in front: the surface seen at that pixel centre is not closer than the point by more
+    # than the depth change of the point's own surface over 0.75 px (a tight fold can bring a layer
+    # whose (u, v) is close to the point's in front of it)
+    seen_z = surface_to_points(np.where(ok_j[:, None], uv_j, 0.0), truth_j.vertices, spacing)[:, 2]
+    slope = np.sqrt(np.maximum(1.0 - cos**2, 0.0)) / np.maximum(cos, 0.2)
+    unoccluded = seen_z >= Zs - (0.75 * footprint * slope + 0.5 * footprint)
+    visible[on] = front & ok_j & same & facing & unoccluded
     return mapped, visible
 
 

@@ -271,7 +271,8 @@ def _substeps(pos, prev, acc, pinned, pin_from, pin_to, damping, dt2, substeps, 
 def vertex_normals(pos, rows, cols):
     """(N, 3) unit normals of a (rows * cols, 3) grid from central differences (one-sided at borders).
 
-    Orientation: du x dv, which for the rest cloth facing a camera looking down +z points to -z.
+    Orientation: du x dv, which for the rest cloth facing a camera looking down +z points to +z
+    (away from the camera).
     """
     out = np.empty((rows * cols, 3))
     for r in range(rows):
@@ -357,9 +358,6 @@ class Cloth:
         self.stiffness = np.where(self.kind >= 2, config.bending_stiffness, 1.0)
         self._pin_last = self.pin_pos.copy()  # pin targets at the end of the last step
         self._weights: tuple[np.ndarray, np.ndarray] | None = None
-
-    def index(self, r: int, c: int) -> int:
-        return r * self.config.cols + c
 
     def pin(self, indices: np.ndarray, positions: np.ndarray | None = None) -> None:
         """Pin particles `indices` (M,) at `positions` (M, 3) metres (default: where they are)."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .scenes import SCENARIOS
+from .scenes import PRESETS, SCENARIOS
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -20,6 +20,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("out_dir", type=Path, help="sequence folder to create")
     p.add_argument("--scenario", choices=SCENARIOS, default="deform",
                    help="deform: fixed camera; rotate: camera roll 0..180 deg; scale: camera moves back to half scale")
+    p.add_argument("--preset", choices=tuple(PRESETS), default="mild",
+                   help="mild: the original gentle scenes; paper: the paper's simulation section (scale swings "
+                   "0.5x-1.3x, bends, gusts); hard: strong folds, foreshortening up to ~70 deg, self-occlusion, "
+                   "gusts, moving specular lights, image noise (default mild)")
+    p.add_argument("--fov", type=float, default=None,
+                   help="vertical field of view in degrees, in (20, 120) (default: Kinect-like f = 525 px at "
+                   "640 x 480, 49.1 deg; the paper authors rendered 90)")
+    p.add_argument("--motion-blur", action="store_true", help="motion blur on the target frames (paper, hard)")
     p.add_argument("--frames", type=int, default=30, help="number of frames, reference included (default 30)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     tex = p.add_mutually_exclusive_group()
@@ -54,6 +62,9 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         steps_per_frame=args.steps_per_frame,
         overwrite=args.overwrite,
+        preset=args.preset,
+        fov=args.fov,
+        motion_blur=args.motion_blur,
     )
     print(f"wrote {args.frames} frames to {folder}")
     if args.contact_sheet is not None:

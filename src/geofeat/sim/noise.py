@@ -60,10 +60,20 @@ def finish_image(color: np.ndarray, mask: np.ndarray, background: np.ndarray, si
                    np.asarray(background, dtype=np.float64), float(sigma), key, normal_table())
 
 
-def add_image_noise(color: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
-    """(H, W, 3) float [0, 1] colour + N(0, sigma^2) per channel (sigma in 8-bit grey levels) -> uint8."""
-    noisy = color * 255.0 + rng.standard_normal(color.shape, dtype=np.float32) * np.float32(sigma)
-    return np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+def motion_blur(color: np.ndarray, length_px: float, angle: float) -> np.ndarray:
+    """(H, W, 3) float32 image blurred by a centred line kernel of `length_px` pixels at `angle`
+    radians (a straight camera / object motion during the exposure); unchanged below 1 px."""
+    if length_px < 1.0:
+        return color
+    size = int(np.ceil(length_px)) | 1
+    kernel = np.zeros((size, size), np.float32)
+    c, h = (size - 1) / 2.0, (length_px - 1) / 2.0
+    dx, dy = h * np.cos(angle), h * np.sin(angle)
+    shift = 4  # sub-pixel line end points
+    cv2.line(kernel, (int(round((c - dx) * 16)), int(round((c - dy) * 16))),
+             (int(round((c + dx) * 16)), int(round((c + dy) * 16))), 1.0, 1, cv2.LINE_AA, shift)
+    kernel /= max(float(kernel.sum()), 1e-12)
+    return cv2.filter2D(np.ascontiguousarray(color, dtype=np.float32), -1, kernel, borderType=cv2.BORDER_REPLICATE)
 
 
 def kinect_depth_noise(

@@ -88,7 +88,7 @@ def _rasterize(verts, tris, fx, fy, cx, cy, height, width, near):
 
 @njit(cache=True, parallel=True)
 def _shade(zbuf, tri_id, bary, tris, uv_verts, normals, texture, tex_scale_u, tex_scale_v,
-           lights, light_power, ambient, fx, fy, cx, cy):
+           lights, light_power, ambient, fx, fy, cx, cy, specular, shininess, back_color):
     height, width = zbuf.shape
     th, tw = texture.shape[0], texture.shape[1]
     color = np.zeros((height, width, 3), dtype=np.float32)
@@ -121,12 +121,14 @@ def _shade(zbuf, tri_id, bary, tris, uv_verts, normals, texture, tex_scale_u, te
             nz /= nn
             rn = np.sqrt(X * X + Y * Y + z * z)
             cv = (nx * X + ny * Y + nz * z) / rn
+            back = cv < 0  # the normal du x dv points away from the side seen in the reference
             if cv > 0:
                 nx = -nx
                 ny = -ny
                 nz = -nz
                 cv = -cv
             shade = ambient
+            spec = 0.0
             for li in range(lights.shape[0]):
                 lx = lights[li, 0] - X
                 ly = lights[li, 1] - Y
@@ -135,6 +137,15 @@ def _shade(zbuf, tri_id, bary, tris, uv_verts, normals, texture, tex_scale_u, te
                 d = (nx * lx + ny * ly + nz * lz) / ln
                 if d > 0:
                     shade += light_power[li] * d
+                    if specular > 0:
+                        # Blinn-Phong: half vector of the light and the view direction (-X, -Y, -z)
+                        hx = lx / ln - X / rn
+                        hy = ly / ln - Y / rn
+                        hz = lz / ln - z / rn
+                        hn = np.sqrt(hx * hx + hy * hy + hz * hz) + 1e-12
+                        nh = (nx * hx + ny * hy + nz * hz) / hn
+                        if nh > 0:
+                            spec += specular * light_power[li] * nh ** shininess
             # bilinear texture lookup (clamped)
             tx = min(max(u * tex_scale_u, 0.0), tw - 1.0)
             ty = min(max(v * tex_scale_v, 0.0), th - 1.0)
@@ -143,9 +154,12 @@ def _shade(zbuf, tri_id, bary, tris, uv_verts, normals, texture, tex_scale_u, te
             fxr = tx - ix
             fyr = ty - iy
             for k in range(3):
-                col = (texture[iy, ix, k] * (1 - fxr) * (1 - fyr) + texture[iy, ix + 1, k] * fxr * (1 - fyr)
-                       + texture[iy + 1, ix, k] * (1 - fxr) * fyr + texture[iy + 1, ix + 1, k] * fxr * fyr)
-                color[py, px, k] = min(col * shade, 1.0)
+                if back and back_color[0] >= 0:
+                    col = back_color[k]
+                else:
+                    col = (texture[iy, ix, k] * (1 - fxr) * (1 - fyr) + texture[iy, ix + 1, k] * fxr * (1 - fyr)
+                           + texture[iy + 1, ix, k] * (1 - fxr) * fyr + texture[iy + 1, ix + 1, k] * fxr * fyr)
+                color[py, px, k] = min(col * shade + spec, 1.0)
             depth[py, px] = z
             uv[py, px, 0] = u
             uv[py, px, 1] = v
@@ -165,8 +179,11 @@ def render(
     lights_cam: np.ndarray | None = None,
     light_power: np.ndarray | None = None,
     ambient: float = 0.3,
+    specular: float = 0.0,
+    shininess: float = 20.0,
+    back_color: np.ndarray | None = None,
 ) -> RenderOutput:
-    """Rasterise the textured, diffusely lit cloth.
+    """Rasterise the textured cloth, lit diffusely (plus an optional Blinn-Phong highlight).
 
     Args:
         verts_cam: (N, 3) vertex positions in camera coordinates, metres.
@@ -181,6 +198,10 @@ def render(
         lights_cam: (L, 3) point-light positions in camera coordinates, metres (default: one at the camera).
         light_power: (L,) diffuse strengths (default 0.7).
         ambient: ambient term added to the diffuse shading.
+        specular: strength of a white Blinn-Phong highlight per light (0 = matte).
+        shininess: Blinn-Phong exponent (larger = smaller, sharper highlights).
+        back_color: (3,) BGR albedo in [0, 1] of the cloth's back side (the side facing away from
+            the camera in the reference); None = the back shows the texture too.
     """
     H, W = size
     if lights_cam is None:
@@ -199,5 +220,7 @@ def render(
         (tw - 1) / cloth_size_m[0], (th - 1) / cloth_size_m[1],
         np.ascontiguousarray(lights_cam, dtype=np.float64).reshape(-1, 3),
         np.ascontiguousarray(light_power, dtype=np.float64).ravel(), float(ambient), fx, fy, cx, cy,
+        float(specular), float(shininess),
+        np.full(3, -1.0) if back_color is None else np.asarray(back_color, dtype=np.float64).reshape(3),
     )
     return RenderOutput(color=color, depth=depth, uv=uv, cos_view=cos_view)

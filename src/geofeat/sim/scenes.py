@@ -3,6 +3,16 @@ that stays put (`deform`), rolls about its optical axis from 0 to 180 degrees (`
 back to twice the distance, i.e. half the scale (`scale`). Lights, noise and all simulation
 parameters are drawn from one seed.
 
+Presets (`PRESETS`) set how hard the scenes are:
+  * `mild`: the original scenes (cloth ~0.6 m wide at 0.85-1.05 m, pins moving a few cm).
+  * `paper`: the paper's simulation section: the cloth fills 30-60 % of the frame, the camera of
+    `deform` swings between 0.5x and 1.3x image scale, pins move and squeeze more, gusts.
+  * `hard`: what real handling does: the cloth fills 40-80 % of the frame, pins squeeze the cloth
+    into strong folds, abrupt gusts, the camera orbits the cloth (foreshortening up to ~70 deg),
+    fast-moving lights with specular highlights, a plain back side, stronger image noise and
+    (optional) motion blur.
+  paper and hard also jitter the texture's colours and contrast (`textures.jitter_colours`).
+
 World coordinates are the reference camera's: x right, y down (gravity), z forward, metres.
 The reference frame (frame 0) shows the flat cloth before any simulation step.
 """
@@ -15,17 +25,98 @@ from typing import Iterator
 import numpy as np
 
 from .cloth import Cloth, ClothConfig
-from .noise import finish_image, kinect_depth_noise
+from .noise import finish_image, kinect_depth_noise, motion_blur
 from .render import RenderOutput, render
-from .textures import prepare_texture
+from .textures import jitter_colours, prepare_texture
 
 SCENARIOS = ("deform", "rotate", "scale")
+#: Open interval of accepted vertical fields of view, degrees.
+FOV_RANGE_DEG = (20.0, 120.0)
 
 
-def default_intrinsics(width: int = 640, height: int = 480) -> np.ndarray:
-    """Kinect-like (3, 3) intrinsics: f = 525 px at 640 x 480 (scaled with the width), centred."""
-    f = 525.0 * width / 640.0
+@dataclass(frozen=True)
+class Preset:
+    """How hard a scene is. Ranges are (low, high) drawn uniformly per sequence.
+
+    Attributes:
+        name: preset name.
+        fill: fraction of the image area the flat reference cloth covers (sets the camera distance);
+            None = mild's distance draw (0.85-1.05 m).
+        scale_swing: `deform` camera distance swings so that the image scale goes through this range
+            (None = fixed camera).
+        orbit_deg: the camera orbits the cloth centre by up to this yaw (and 0.6x this pitch).
+        tilt_rad: largest rest tilt of the cloth about x and y.
+        pin_amp: (3,) largest amplitude (x, y, z) of the pin motion, metres.
+        squeeze: pins are drawn together by up to this fraction of their spread (folds).
+        gust_rate: wind gusts per 100 simulation steps; gust_gain: their peak wind multiplier.
+        wind_gain, gravity_gain: multipliers of mild's wind and gravity draws.
+        light_speed: multiplier of mild's light drift rate; light_drift_m: drift amplitude, metres.
+        ambient: ambient light range; specular: highlight strength range (0 = matte).
+        image_sigma: pixel noise range, 8-bit grey levels.
+        back_plain: the back side of the cloth is a plain colour (not the texture).
+        blur_px: largest motion-blur length, pixels, when motion blur is on.
+    """
+
+    name: str
+    fill: tuple[float, float] | None = None
+    scale_swing: tuple[float, float] | None = None
+    orbit_deg: float = 0.0
+    tilt_rad: float = 0.15
+    pin_amp: tuple[float, float, float] = (0.06, 0.03, 0.08)
+    squeeze: float = 0.1
+    gust_rate: float = 0.0
+    gust_gain: float = 0.0
+    wind_gain: float = 1.0
+    gravity_gain: float = 1.0
+    light_speed: float = 1.0
+    light_drift_m: tuple[float, float] = (0.05, 0.3)
+    ambient: tuple[float, float] = (0.15, 0.4)
+    specular: tuple[float, float] = (0.0, 0.0)
+    image_sigma: tuple[float, float] = (1.0, 4.0)
+    back_plain: bool = False
+    blur_px: float = 0.0
+
+
+PRESETS: dict[str, Preset] = {
+    "mild": Preset("mild"),
+    "paper": Preset("paper", fill=(0.3, 0.6), scale_swing=(0.5, 1.3), orbit_deg=10.0, tilt_rad=0.2,
+                    pin_amp=(0.08, 0.04, 0.10), squeeze=0.15, gust_rate=0.5, gust_gain=1.5, wind_gain=1.2,
+                    light_speed=2.0, specular=(0.0, 0.15), back_plain=True, blur_px=3.0),
+    "hard": Preset("hard", fill=(0.4, 0.8), scale_swing=(0.5, 1.3), orbit_deg=30.0, tilt_rad=0.3,
+                   pin_amp=(0.12, 0.06, 0.15), squeeze=0.3, gust_rate=1.0, gust_gain=3.0, wind_gain=2.0,
+                   gravity_gain=1.3, light_speed=4.0, light_drift_m=(0.2, 0.5), ambient=(0.05, 0.25),
+                   specular=(0.1, 0.4), image_sigma=(2.0, 6.0), back_plain=True, blur_px=6.0),
+}
+
+
+def default_intrinsics(width: int = 640, height: int = 480, fov_deg: float | None = None) -> np.ndarray:
+    """Centred (3, 3) intrinsics with square pixels: Kinect-like f = 525 px at 640 x 480 (scaled with
+    the width; 49.1 deg vertical at 640 x 480), or the focal length giving `fov_deg` degrees of
+    vertical field of view (the paper authors' renders: 90)."""
+    if fov_deg is None:
+        f = 525.0 * width / 640.0
+    else:
+        check_fov(fov_deg)
+        f = (height / 2.0) / np.tan(np.radians(fov_deg) / 2.0)
     return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+
+
+def check_fov(fov_deg: float) -> None:
+    """ValueError unless fov_deg is a number inside FOV_RANGE_DEG (open interval)."""
+    lo, hi = FOV_RANGE_DEG
+    if isinstance(fov_deg, bool) or not isinstance(fov_deg, (int, float, np.floating, np.integer)) \
+            or not lo < float(fov_deg) < hi:
+        raise ValueError(f"fov: expected a vertical field of view in degrees strictly between {lo:g} and {hi:g}, "
+                         f"got {fov_deg!r}")
+
+
+def get_preset(preset: str | Preset) -> Preset:
+    """The Preset of a name (ValueError naming the choices) or the Preset itself."""
+    if isinstance(preset, Preset):
+        return preset
+    if preset not in PRESETS:
+        raise ValueError(f"preset: expected one of {', '.join(PRESETS)}, got {preset!r}")
+    return PRESETS[preset]
 
 
 def _rot(axis: str, angle: float) -> np.ndarray:
@@ -79,7 +170,7 @@ class SceneParams:
             wind_strength=float(rng.uniform(0.00015, 0.0005)),
             wind_wobble=np.stack([rng.uniform(0.005, 0.025, 4), rng.uniform(0, 2 * np.pi, 4)], axis=1),
             wave=np.array([rng.uniform(-25, 25), rng.uniform(-25, 25), rng.uniform(0.02, 0.1), rng.uniform(0.3, 1.0)]),
-            pin_cols=np.array([0]) if n_pins < 2 else np.linspace(0, 1, n_pins),
+            pin_cols=np.linspace(0, 1, n_pins),  # n_pins >= 2: both top corners and evenly between
             pin_amp=rng.uniform(0.0, 1.0, (n_pins, 3)) * np.array([0.06, 0.03, 0.08]),
             pin_rate=rng.uniform(0.005, 0.0125, (n_pins, 3)),
             pin_phase=rng.uniform(0, 2 * np.pi, (n_pins, 3)),
@@ -129,6 +220,8 @@ class ClothScene:
         kinect_noise: degrade the written depth with `kinect_depth_noise`.
         cloth_config: grid and solver settings (the width is overridden by the drawn one).
         steps_per_frame: simulation steps between two frames.
+        preset: a name of PRESETS (or a Preset): how hard the scene is.
+        motion_blur: blur each frame along a random direction, up to `preset.blur_px` pixels.
     """
 
     def __init__(
@@ -142,16 +235,22 @@ class ClothScene:
         kinect_noise: bool = False,
         cloth_config: ClothConfig = ClothConfig(),
         steps_per_frame: int = 6,
+        preset: str | Preset = "mild",
+        motion_blur: bool = False,
     ) -> None:
         if scenario not in SCENARIOS:
             raise ValueError(f"scenario: expected one of {', '.join(SCENARIOS)}, got {scenario!r}")
+        self.preset = get_preset(preset)
         self.scenario = scenario
         self.n_frames = int(n_frames)
         self.rng = rng
         self.size = (int(size[0]), int(size[1]))
         self.K = default_intrinsics(self.size[1], self.size[0]) if K is None else np.asarray(K, dtype=np.float64)
         self.kinect_noise = kinect_noise
+        self.motion_blur = bool(motion_blur)
         self.params = p = SceneParams.draw(rng, steps_per_frame)
+        if self.preset.name != "mild":
+            texture = self._draw_preset(texture)
         cfg = ClothConfig(**{**cloth_config.__dict__, "width_m": p.cloth_width})
         self.config = cfg
         R0 = _rot("y", p.tilt[1]) @ _rot("x", p.tilt[0])
@@ -163,20 +262,73 @@ class ClothScene:
         self.pin_rest = self.cloth.pos[self.pin_idx].copy()
         self.cloth.pin(self.pin_idx)
         # texture at about 1.5 texels per pixel of the closest view
-        px_width = self.K[0, 0] * cfg.width_m / p.distance
+        px_width = self.K[0, 0] * cfg.width_m / p.distance * (1.3 if self.preset.scale_swing else 1.0)
         self.texture = prepare_texture(texture, cfg.width_m / cfg.height_m, int(min(1024, 1.5 * px_width + 16)))
         self.step_count = 0
+
+    def _draw_preset(self, texture: np.ndarray) -> np.ndarray:
+        """Redraw the parameters a non-mild preset changes (after mild's draws, same generator);
+        returns the texture with its colours and contrast jittered."""
+        p, pr, rng, (H, W) = self.params, self.preset, self.rng, self.size
+        cfg = ClothConfig(width_m=p.cloth_width)
+        if pr.fill is not None:
+            fill = rng.uniform(*pr.fill)
+            p.distance = float(np.sqrt(self.K[0, 0] * self.K[1, 1] * cfg.width_m * cfg.height_m / (fill * W * H)))
+        d = p.distance
+        p.tilt = rng.uniform(-pr.tilt_rad, pr.tilt_rad, 2)
+        steps = max(1, (self.n_frames - 1) * p.steps_per_frame)
+        n_pins = len(p.pin_cols)
+        p.pin_amp = rng.uniform(0.0, 1.0, (n_pins, 3)) * np.asarray(pr.pin_amp)
+        # pin motion: at least half a period within the sequence, however short it is
+        p.pin_rate = np.maximum(p.pin_rate, rng.uniform(1.0, 2.5, p.pin_rate.shape) * np.pi / steps)
+        p.gravity *= pr.gravity_gain
+        p.wind_strength *= pr.wind_gain
+        n_lights = len(p.lights)
+        p.lights = np.stack([rng.uniform(-0.8, 0.8, n_lights) * d, rng.uniform(-0.8, 0.5, n_lights) * d,
+                             rng.uniform(0.0, 0.7, n_lights) * d], axis=1)
+        p.light_drift[:, 0] = rng.uniform(*pr.light_drift_m, n_lights) * d
+        p.light_drift[:, 1] *= pr.light_speed
+        p.ambient = float(rng.uniform(*pr.ambient))
+        p.image_sigma = float(rng.uniform(*pr.image_sigma))
+        n_gusts = int(rng.poisson(pr.gust_rate * steps / 100.0))
+        gust_dir = rng.normal(0, 0.5, (n_gusts, 3))
+        gust_dir[:, 2] = rng.choice([-1.0, 1.0], n_gusts)
+        mean = texture.reshape(-1, 3).mean(axis=0) / 255.0
+        grey = mean.mean()
+        p.extras = {
+            "squeeze": float(rng.uniform(0.5, 1.0) * pr.squeeze),
+            "squeeze_rate": float(rng.uniform(1.0, 2.0) * np.pi / steps),
+            "ramp_steps": 0.25 * steps,
+            "gust_start": rng.uniform(0, steps, n_gusts),
+            "gust_tau": rng.uniform(4.0, 25.0, n_gusts),
+            "gust_gain": rng.uniform(0.5, 1.0, n_gusts) * pr.gust_gain,
+            "gust_dir": gust_dir / np.linalg.norm(gust_dir, axis=1, keepdims=True),
+            "swing_cycles": float(rng.uniform(0.75, 1.5)),
+            "orbit": rng.uniform(0.5, 1.0, 2) * np.radians(pr.orbit_deg) * rng.choice([-1.0, 1.0], 2)
+            * np.array([1.0, 0.6]),
+            "orbit_cycles": rng.uniform(0.4, 1.2, 2),
+            "specular": float(rng.uniform(*pr.specular)),
+            "shininess": float(rng.uniform(10.0, 60.0)),
+            "back_color": (0.5 * grey + 0.5 * mean) * rng.uniform(0.5, 0.9) if pr.back_plain else None,
+        }
+        return jitter_colours(np.ascontiguousarray(texture, dtype=np.uint8), rng)
 
     # ------------------------------------------------------------------ time-varying inputs
     def _wind(self, k: int) -> np.ndarray:
         p = self.params
         wob = np.sin(p.wind_wobble[:, 0] * k + p.wind_wobble[:, 1])
         d = p.wind_dir + 0.6 * wob[:3]
-        return p.wind_strength * (0.55 + 0.45 * wob[3]) * d / np.linalg.norm(d)
+        wind = p.wind_strength * (0.55 + 0.45 * wob[3]) * d / np.linalg.norm(d)
+        e = p.extras
+        if len(e.get("gust_start", ())):
+            dt = k - e["gust_start"]
+            pulse = np.where(dt >= 0, np.exp(-np.maximum(dt, 0) / e["gust_tau"]), 0.0) * e["gust_gain"]
+            wind = wind + p.wind_strength * (pulse[:, None] * e["gust_dir"]).sum(axis=0)
+        return wind
 
     def _pins(self, k: int) -> np.ndarray:
         p = self.params
-        ramp = min(1.0, k / 150.0)  # start from rest smoothly
+        ramp = min(1.0, k / p.extras.get("ramp_steps", 150.0))  # start from rest smoothly
         offset = p.pin_amp * (np.sin(p.pin_rate * k + p.pin_phase) - np.sin(p.pin_phase)) * ramp
         pins = self.pin_rest + offset
         # keep the pin set feasible with some slack: no two pins farther apart than 90 % of their
@@ -186,17 +338,37 @@ class ClothScene:
         rest = np.linalg.norm(self.pin_rest[:, None] - self.pin_rest[None], axis=2)
         off = ~np.eye(len(pins), dtype=bool)
         slack = 1.0 - 0.1 * ramp
-        scale = min(1.0, float(np.min(slack * rest[off] / np.maximum(d[off], 1e-12))))
+        scale = min(1.0, float(np.min(slack * rest[off] / np.maximum(d[off], 1e-12)))) if off.any() else 1.0
+        if "squeeze" in p.extras:  # draw the pins together (and apart again): folds between them
+            scale *= 1.0 - p.extras["squeeze"] * ramp * (0.5 - 0.5 * np.cos(p.extras["squeeze_rate"] * k))
         return centre + (pins - centre) * scale
 
     def _camera(self, f: int) -> tuple[np.ndarray, np.ndarray]:
+        """World-to-camera (R, t) of frame f: X_cam = R X + t."""
         a = f / (self.n_frames - 1) if self.n_frames > 1 else 0.0
-        if self.scenario == "rotate":
-            # roll about the ray through the cloth centre (on the optical axis)
-            return _rot("z", np.pi * a), np.zeros(3)
+        d, e = self.params.distance, self.params.extras
+        if self.preset.name == "mild":
+            if self.scenario == "rotate":
+                # roll about the ray through the cloth centre (on the optical axis)
+                return _rot("z", np.pi * a), np.zeros(3)
+            if self.scenario == "scale":
+                return np.eye(3), np.array([0.0, 0.0, d * a])
+            return np.eye(3), np.zeros(3)
+        roll = np.pi * a if self.scenario == "rotate" else 0.0
+        back = 0.0  # camera moved back along its axis, metres
         if self.scenario == "scale":
-            return np.eye(3), np.array([0.0, 0.0, self.params.distance * a])
-        return np.eye(3), np.zeros(3)
+            back = d * a
+        elif self.scenario == "deform" and self.preset.scale_swing is not None:
+            lo, hi = self.preset.scale_swing
+            mid, amp = (lo + hi) / 2, (hi - lo) / 2
+            phi0 = np.arcsin(np.clip((1.0 - mid) / amp, -1, 1))  # image scale 1 at the reference
+            s = mid + amp * np.sin(phi0 + 2 * np.pi * e["swing_cycles"] * a)
+            back = d * (1.0 / s - 1.0)
+        yaw, pitch = e["orbit"] * np.sin(np.pi * e["orbit_cycles"] * a)
+        orbit = _rot("y", yaw) @ _rot("x", pitch)
+        centre = np.array([0.0, 0.0, d])  # the cloth centre, on the reference optical axis
+        R = _rot("z", roll) @ orbit
+        return R, centre - R @ centre + np.array([0.0, 0.0, back])
 
     def _lights(self, f: int) -> tuple[np.ndarray, np.ndarray]:
         p = self.params
@@ -238,9 +410,18 @@ class ClothScene:
         verts = self.cloth.pos @ R.T + t
         normals = self.cloth.normals() @ R.T
         lights, power = self._lights(f)
+        e = self.params.extras
         out = render(verts, normals, self.cloth.uv, self.cloth.triangles, self.K, self.size, self.texture,
-                     (self.config.width_m, self.config.height_m), lights @ R.T + t, power, self.params.ambient)
-        image = finish_image(out.color, out.mask, self.params.background, self.params.image_sigma, self.rng)
+                     (self.config.width_m, self.config.height_m), lights @ R.T + t, power, self.params.ambient,
+                     specular=e.get("specular", 0.0), shininess=e.get("shininess", 20.0),
+                     back_color=e.get("back_color"))
+        if self.motion_blur and self.preset.blur_px > 0 and f > 0:
+            color = np.where(out.mask[..., None], out.color, self.params.background[None, None].astype(np.float32))
+            color = motion_blur(color, self.rng.uniform(0, self.preset.blur_px), self.rng.uniform(0, np.pi))
+            image = finish_image(color, np.ones_like(out.mask), self.params.background, self.params.image_sigma,
+                                 self.rng)
+        else:
+            image = finish_image(out.color, out.mask, self.params.background, self.params.image_sigma, self.rng)
         depth = kinect_depth_noise(out.depth, out.cos_view, self.rng) if self.kinect_noise else out.depth
         cfg = self.config
         return SimFrame(f, image, depth, out, verts.reshape(cfg.rows, cfg.cols, 3), R, t)

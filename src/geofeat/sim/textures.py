@@ -97,7 +97,8 @@ def choose_texture(
 ) -> tuple[np.ndarray, str]:
     """Pick the texture of a sequence: an explicit file or array, one drawn at random from
     `texture_dir`, or (both None) a packaged photograph or, with probability `procedural_fraction`,
-    a procedural texture. Returns ((H, W, 3) uint8 BGR, description)."""
+    a procedural texture (half the time a `fabric_texture`; texture="fabric" or "fabric:KIND" asks for
+    one). Returns ((H, W, 3) uint8 BGR, description)."""
     if texture is not None and texture_dir is not None:
         raise ValueError("texture, texture_dir: give at most one of them")
     if isinstance(texture, np.ndarray):
@@ -108,13 +109,137 @@ def choose_texture(
     if texture is not None:
         if str(texture) == "procedural":
             return procedural_texture(rng), "procedural"
+        if str(texture) == "fabric" or str(texture).startswith("fabric:"):
+            kind = str(texture).partition(":")[2] or None
+            if kind is not None and kind not in FABRIC_KINDS:
+                raise ValueError(f"texture: expected 'fabric' or 'fabric:KIND' with KIND one of {', '.join(FABRIC_KINDS)}, "
+                                 f"got {texture!r}")
+            img = fabric_texture(rng, kind)
+            return img, "fabric"
         return read_texture(texture), Path(texture).name
     if texture_dir is not None:
         files = list_textures(texture_dir)
         path = files[int(rng.integers(len(files)))]
         return read_texture(path), path.name
     if rng.random() < procedural_fraction:
-        return procedural_texture(rng), "procedural"
+        if rng.random() < 0.5:
+            return procedural_texture(rng), "procedural"
+        return fabric_texture(rng), "fabric"
     files = list_textures(packaged_texture_dir())
     path = files[int(rng.integers(len(files)))]
     return read_texture(path), path.name
+
+
+#: Families of `fabric_texture` (printed and woven fabric patterns, generated in code).
+FABRIC_KINDS = ("stripes", "plaid", "gingham", "dots", "houndstooth", "herringbone", "floral", "paisley",
+                "camouflage", "knit", "lettering", "geometric", "denim")
+
+
+def _palette(rng: np.random.Generator, n: int) -> np.ndarray:
+    """(n, 3) float32 BGR colours in [0, 1]: random hues, mixed saturation and value."""
+    hsv = np.stack([rng.integers(0, 180, n), rng.integers(40, 256, n), rng.integers(40, 256, n)], axis=1)
+    return cv2.cvtColor(hsv.astype(np.uint8)[None], cv2.COLOR_HSV2BGR)[0].astype(np.float32) / 255.0
+
+
+def _noise(rng: np.random.Generator, h: int, w: int, cells: int) -> np.ndarray:
+    """(h, w) float32 smooth noise in [0, 1] with about `cells` blobs across."""
+    small = rng.random((max(2, cells * h // max(w, 1)), max(2, cells))).astype(np.float32)
+    n = cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC)
+    return (n - n.min()) / max(float(np.ptp(n)), 1e-6)
+
+
+def fabric_texture(rng: np.random.Generator, kind: str | None = None, width: int = 512, height: int = 384) -> np.ndarray:
+    """A random (height, width, 3) uint8 BGR fabric pattern of family `kind` (one of FABRIC_KINDS;
+    None = drawn at random): printed or woven repeats with random colours, scale and angle, plus
+    fine weave grain and smooth dye variation, so that there is structure at every scale."""
+    if kind is None:
+        kind = FABRIC_KINDS[int(rng.integers(len(FABRIC_KINDS)))]
+    if kind not in FABRIC_KINDS:
+        raise ValueError(f"kind: expected one of {', '.join(FABRIC_KINDS)}, got {kind!r}")
+    h, w = height, width
+    pal = _palette(rng, 6)
+    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    angle = rng.uniform(0, np.pi)
+    xr = x * np.cos(angle) + y * np.sin(angle)
+    yr = -x * np.sin(angle) + y * np.cos(angle)
+    period = float(rng.uniform(12, 60))
+    img = np.empty((h, w, 3), np.float32)
+    img[:] = pal[0]
+    if kind in ("stripes", "plaid", "gingham"):
+        def bands(coord: np.ndarray) -> np.ndarray:
+            widths = rng.uniform(0.1, 1.0, int(rng.integers(2, 6)))
+            edges = np.cumsum(widths) / widths.sum()
+            phase = (coord / (period * 3)) % 1.0
+            return np.searchsorted(edges, phase).clip(0, len(widths) - 1)
+        if kind == "stripes":
+            img = pal[1:][bands(xr) % 5]
+        else:
+            a, b = bands(xr), bands(yr)
+            alpha = 0.5 if kind == "gingham" else rng.uniform(0.3, 0.7)
+            img = alpha * pal[1:][a % 5] + (1 - alpha) * pal[1:][(b + 2) % 5]
+    elif kind == "dots":
+        gx, gy = (xr / period) % 1.0 - 0.5, (yr / period) % 1.0 - 0.5
+        r = rng.uniform(0.15, 0.4)
+        img[np.hypot(gx, gy) < r] = pal[1]
+    elif kind == "houndstooth":
+        u, v = (xr / period * 4).astype(np.int64) % 4, (yr / period * 4).astype(np.int64) % 4
+        pattern = np.array([[1, 1, 0, 1], [1, 1, 1, 0], [0, 1, 1, 0], [1, 0, 0, 0]], bool)
+        img[pattern[v, u]] = pal[1]
+    elif kind in ("herringbone", "denim"):
+        col = ((xr / period * 3).astype(np.int64) % 2) * 2 - 1
+        diag = ((yr + col * xr) / (period / 4)) % 1.0 < 0.5 if kind == "herringbone" else ((yr + xr) / 4) % 1.0 < 0.5
+        if kind == "denim":
+            pal[:2] = _palette(rng, 1) * np.array([1.0, 0.5, 0.3], np.float32) + np.array([0.3, 0.1, 0.0], np.float32)
+            pal[1] = np.clip(pal[0] * 1.8 + 0.2, 0, 1)
+        img[diag] = pal[1]
+    elif kind == "camouflage":
+        levels = np.stack([_noise(rng, h, w, int(rng.integers(4, 12))) for _ in range(3)])
+        idx = np.argmax(levels + rng.uniform(0, 0.2, (3, 1, 1)), axis=0)
+        img = pal[1:4][idx]
+    elif kind == "knit":
+        wave = np.sin(2 * np.pi * xr / (period / 3)) * np.sin(2 * np.pi * yr / (period / 2))
+        img = pal[0] + (pal[1] - pal[0]) * (0.5 + 0.5 * wave[..., None])
+        img = img * (0.7 + 0.3 * _noise(rng, h, w, 20)[..., None])
+    else:  # motifs drawn with OpenCV: floral, paisley, lettering, geometric
+        canvas = (img * 255).astype(np.uint8)
+        n = int(w * h / period**2 * rng.uniform(0.3, 0.8))
+        for _ in range(n):
+            cx, cy = int(rng.integers(0, w)), int(rng.integers(0, h))
+            col = tuple(int(c) for c in (pal[int(rng.integers(1, 6))] * 255))
+            s = int(rng.uniform(0.3, 0.7) * period)
+            if kind == "floral":
+                for k in range(int(rng.integers(4, 8))):
+                    t = k * 2 * np.pi / 6 + rng.uniform(-0.2, 0.2)
+                    cv2.ellipse(canvas, (int(cx + s * np.cos(t)), int(cy + s * np.sin(t))), (s, max(1, s // 3)),
+                                np.degrees(t), 0, 360, col, -1, cv2.LINE_AA)
+                cv2.circle(canvas, (cx, cy), max(1, s // 3), tuple(int(c) for c in pal[5] * 255), -1, cv2.LINE_AA)
+            elif kind == "paisley":
+                cv2.ellipse(canvas, (cx, cy), (s, max(1, s // 2)), rng.uniform(0, 180), 0, 360, col, -1, cv2.LINE_AA)
+                cv2.ellipse(canvas, (cx, cy), (max(1, s // 2), max(1, s // 4)), rng.uniform(0, 180), 0, 360,
+                            tuple(int(c) for c in pal[0] * 255), 2, cv2.LINE_AA)
+            elif kind == "lettering":
+                text = "".join(chr(int(c)) for c in rng.integers(65, 91, int(rng.integers(1, 5))))
+                cv2.putText(canvas, text, (cx, cy), int(rng.choice([0, 2, 3, 4])), s / 25, col, 2, cv2.LINE_AA)
+            else:
+                pts = (np.array([cx, cy]) + rng.uniform(-s, s, (int(rng.integers(3, 7)), 2))).astype(np.int32)
+                cv2.fillPoly(canvas, [cv2.convexHull(pts)], col, cv2.LINE_AA)
+        img = canvas.astype(np.float32) / 255.0
+    img = np.asarray(img, np.float32).reshape(h, w, 3)
+    # dye variation and weave grain
+    img = img * (0.85 + 0.3 * _noise(rng, h, w, int(rng.integers(2, 6))))[..., None]
+    img = img + rng.normal(0, rng.uniform(0.01, 0.04), (h, w, 1)).astype(np.float32)
+    return np.clip(np.rint(img * 255), 0, 255).astype(np.uint8)
+
+
+def jitter_colours(image: np.ndarray, rng: np.random.Generator, strength: float = 1.0) -> np.ndarray:
+    """Colour / contrast augmentation of an (H, W, 3) uint8 BGR texture: hue rotation, saturation
+    and contrast scaling, gamma, and a per-channel gain (`strength` scales all ranges)."""
+    hsv = cv2.cvtColor(image, cv2.COLOR_BGR2HSV).astype(np.float32)
+    hsv[..., 0] = (hsv[..., 0] + rng.uniform(-30, 30) * strength) % 180
+    hsv[..., 1] = np.clip(hsv[..., 1] * (1 + rng.uniform(-0.5, 0.5) * strength), 0, 255)
+    img = cv2.cvtColor(hsv.astype(np.uint8), cv2.COLOR_HSV2BGR).astype(np.float32) / 255.0
+    mean = img.mean()
+    img = (img - mean) * (1 + rng.uniform(-0.4, 0.4) * strength) + mean
+    img = np.clip(img, 0, 1) ** np.exp(rng.uniform(-0.4, 0.4) * strength)
+    img = img * (1 + rng.uniform(-0.15, 0.15, 3) * strength)
+    return np.clip(np.rint(img * 255), 0, 255).astype(np.uint8)

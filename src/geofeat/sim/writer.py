@@ -28,7 +28,7 @@ import numpy as np
 
 from ..io import write_intrinsics, write_landmarks
 from ..truth import GT_JSON, GT_SUFFIX, FrameTruth, map_points
-from .scenes import SCENARIOS, ClothScene, SimFrame
+from .scenes import SCENARIOS, ClothScene, SimFrame, default_intrinsics, get_preset
 from .textures import choose_texture
 
 REFERENCE_NAME = "frame-000-master"
@@ -91,6 +91,9 @@ def simulate_sequence(
     texture_dir: str | Path | None = None,
     steps_per_frame: int = 6,
     overwrite: bool = False,
+    preset: str = "mild",
+    fov: float | None = None,
+    motion_blur: bool = False,
 ) -> Path:
     """Simulate, render and write one sequence; returns the sequence folder.
 
@@ -108,14 +111,23 @@ def simulate_sequence(
         texture_dir: draw the texture from this folder instead.
         steps_per_frame: simulation steps between frames.
         overwrite: replace an existing non-empty out_dir.
+        preset: `mild` (the original scenes), `paper` (the paper's simulation section) or `hard`
+            (strong folds, foreshortening, gusts, moving specular lights, noise); see
+            `geofeat.sim.scenes.PRESETS`.
+        fov: vertical field of view in degrees, strictly between 20 and 120 (None: Kinect-like
+            f = 525 px at 640 x 480, 49.1 deg; the paper authors' renders: 90).
+        motion_blur: blur the target frames along a random direction (up to the preset's length).
     """
     _check_args(scenario, n_frames, width, height)
+    preset_obj = get_preset(preset)
+    K = default_intrinsics(width, height, fov)
     out_dir = Path(out_dir)
     if out_dir.exists() and (not out_dir.is_dir() or (any(out_dir.iterdir()) and not overwrite)):
         raise ValueError(f"out_dir: {out_dir} exists and is not an empty folder (pass overwrite=True / --overwrite)")
     rng = np.random.default_rng(seed)
     tex_image, tex_name = choose_texture(rng, texture, texture_dir)
-    scene = ClothScene(scenario, int(n_frames), rng, tex_image, (height, width), steps_per_frame=steps_per_frame)
+    scene = ClothScene(scenario, int(n_frames), rng, tex_image, (height, width), K=K, steps_per_frame=steps_per_frame,
+                       preset=preset_obj, motion_blur=motion_blur)
 
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = out_dir.parent / f".{out_dir.name}.partial-{os.getpid()}"
@@ -125,7 +137,8 @@ def simulate_sequence(
     try:
         _write(tmp, scene, progress, meta={
             "generator": "geofeat.sim", "format_version": FORMAT_VERSION, "scenario": scenario, "seed": int(seed),
-            "texture": tex_name, "kinect_noise": bool(kinect_noise),
+            "texture": tex_name, "kinect_noise": bool(kinect_noise), "preset": preset_obj.name,
+            "fov_deg": None if fov is None else float(fov), "motion_blur": bool(motion_blur),
         })
     except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -180,6 +193,8 @@ def _write(folder: Path, scene: ClothScene, progress: bool, meta: dict) -> None:
         },
     }
     (folder / GT_JSON).write_text(json.dumps(meta, indent=1))
+    # the depth profile of what was rendered (`geofeat.depth_profile` measures the same on these frames)
+    (folder / "geofeat.json").write_text(json.dumps({"depth_profile": "kinect" if meta["kinect_noise"] else "clean"}))
 
 
 def write_frame(folder: Path, name: str, frame: SimFrame) -> FrameTruth:

@@ -25,6 +25,8 @@ class TrainConfig:
     mining: "random" (the paper: one random negative per triplet, anchor swap picks the harder of
     the two negative distances) or "hardest" (the hardest negative among the batch, as HardNet).
     augment_shift: roll every training patch by a random number of angle columns.
+    augment_photometric: per patch, a random gamma (exp U(-0.5, 0.5)) and Gaussian noise (sigma up to
+    0.03): contrast changes the per-patch z-score of the network does not remove by itself.
     """
 
     epochs: int = 10
@@ -36,6 +38,7 @@ class TrainConfig:
     margin: float = 1.0
     mining: str = "random"
     augment_shift: bool = False
+    augment_photometric: bool = False
     seed: int = 0
     net: GeoPatchConfig = field(default_factory=GeoPatchConfig)
 
@@ -109,8 +112,14 @@ def validation_score(net: GeoPatchNet, pairs: list[ValidationPair], device) -> f
     return float(np.mean(scores)) if scores else float("nan")
 
 
-def _batch(patches: np.ndarray, index: np.ndarray, rng: np.random.Generator, shift: bool) -> torch.Tensor:
+def _batch(patches: np.ndarray, index: np.ndarray, rng: np.random.Generator, shift: bool,
+           photometric: bool = False) -> torch.Tensor:
+    """(B, 1, R, A) float32 patches in [0, 1] of `index`, augmented as asked (see TrainConfig)."""
     x = patches[index].astype(np.float32) / 255.0
+    if photometric:
+        gamma = np.exp(rng.uniform(-0.5, 0.5, (len(x), 1, 1))).astype(np.float32)
+        sigma = rng.uniform(0.0, 0.03, (len(x), 1, 1)).astype(np.float32)
+        x = x ** gamma + sigma * rng.standard_normal(x.shape, dtype=np.float32)
     if shift:
         k = rng.integers(0, x.shape[2], size=len(x))
         cols = (np.arange(x.shape[2])[None, :] + k[:, None]) % x.shape[2]
@@ -120,17 +129,32 @@ def _batch(patches: np.ndarray, index: np.ndarray, rng: np.random.Generator, shi
 
 def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
           validation: list[ValidationPair] | None = None, resume: bool = False,
-          device: str | None = None, progress: bool = True, net: torch.nn.Module | None = None) -> dict:
+          device: str | None = None, progress: bool = True, net: torch.nn.Module | None = None,
+          init: str | Path | None = None) -> dict:
     """Train GeoPatchNet (or `net`, any module mapping (B, 1, H, W) patches to unit (B, dim)
-    descriptors with a dataclass `config` holding `dim`, e.g. the image-patch baselines); writes `out` (final weights), `out`.ckpt (resumable state after every
-    epoch), `out`.json (history) and `out`.png (loss / validation plot). Returns the history."""
+    descriptors with a dataclass `config` holding `dim`, e.g. the image-patch baselines); writes
+    `out` (final weights), `out`.ckpt (resumable state after every epoch), `out`.json (history) and
+    `out`.png (loss / validation plot). Returns the history. `init`: start GeoPatchNet from these
+    weights ("shipped" = geofeat's own) instead of at random (fine-tuning; the network shape must
+    match `config.net`)."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     ckpt_path = out.with_suffix(out.suffix + ".ckpt")
     device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     torch.manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
-    net = (GeoPatchNet(config.net) if net is None else net).to(device)
+    if net is None:
+        net = GeoPatchNet(config.net)
+        if init is not None:
+            from ..descriptors.geopatch import load_network
+
+            start, _ = load_network(None if str(init) == "shipped" else init)
+            if start.config != config.net:
+                raise ValueError(f"init: the weights' network {start.config} differs from the requested {config.net}")
+            net.load_state_dict(start.state_dict())
+    elif init is not None:
+        raise ValueError("init: fine-tuning starts from GeoPatch weights; not with another network")
+    net = net.to(device)
     opt = torch.optim.SGD(net.parameters(), lr=config.lr, momentum=config.momentum, weight_decay=config.weight_decay)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=config.epochs * config.steps_per_epoch)
     history = {"epoch": [], "loss": [], "val_ms": [], "config": asdict(config)}
@@ -151,10 +175,11 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
         bar = tqdm(range(config.steps_per_epoch), desc=f"epoch {epoch + 1}/{config.epochs}", disable=not progress)
         for _ in bar:
             a, p, n = sampler.sample(config.batch_size)
-            xa = _batch(data.patches, a, rng, config.augment_shift).to(device)
-            xp = _batch(data.patches, p, rng, config.augment_shift).to(device)
+            aug = (config.augment_shift, config.augment_photometric)
+            xa = _batch(data.patches, a, rng, *aug).to(device)
+            xp = _batch(data.patches, p, rng, *aug).to(device)
             if config.mining == "random":
-                xn = _batch(data.patches, n, rng, config.augment_shift).to(device)
+                xn = _batch(data.patches, n, rng, *aug).to(device)
                 da, dp, dn = net(torch.cat([xa, xp, xn])).split(len(a))
             else:
                 (da, dp), dn = net(torch.cat([xa, xp])).split(len(a)), None

@@ -1,0 +1,162 @@
+"""Tests of the simulator presets (mild / paper / hard), the field of view, and hidden points."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from geofeat.io import read_sequence
+from geofeat.sim import simulate_sequence
+from geofeat.sim.command import main
+from geofeat.truth import read_frame_truth, read_metadata, surface_coordinates, surface_to_points
+from geofeat.sim.scenes import PRESETS, default_intrinsics
+from geofeat.sim.textures import packaged_texture_dir
+
+TEXTURE = packaged_texture_dir() / "kodak_kodim23.jpg"
+W, H = 160, 120
+
+
+@pytest.fixture(scope="module")
+def hard(tmp_path_factory):
+    out = tmp_path_factory.mktemp("hard") / "seq"
+    simulate_sequence(out, "deform", n_frames=6, seed=3, texture=TEXTURE, width=W, height=H, progress=False,
+                      preset="hard", fov=90.0, motion_blur=True)
+    return read_sequence(out)
+
+
+def _grid_normals(vertices: np.ndarray) -> np.ndarray:
+    """(rows, cols, 3) unit du x dv normals of a vertex grid (central differences)."""
+    n = np.cross(np.gradient(vertices, axis=1), np.gradient(vertices, axis=0))
+    return n / (np.linalg.norm(n, axis=2, keepdims=True) + 1e-12)
+
+
+def test_fov_sets_the_focal_length(hard):
+    # 90 deg vertical: f = (H / 2) / tan(45 deg)
+    assert np.allclose(hard.K[[0, 1], [0, 1]], H / 2)
+    assert read_metadata(hard.folder)["fov_deg"] == 90.0 and read_metadata(hard.folder)["preset"] == "hard"
+    K = default_intrinsics(640, 480, 60.0)
+    assert np.isclose(2 * np.degrees(np.arctan(240 / K[1, 1])), 60.0)
+    assert np.isclose(default_intrinsics(640, 480)[0, 0], 525.0)  # default unchanged
+
+
+def test_ground_truth_never_maps_to_a_hidden_point(hard):
+    """A point declared visible lies, in the target, on the surface the camera sees there (depth
+    agrees), on the side of the cloth the reference sees, inside the image; and hard scenes really
+    hide points (occluded, back-facing or out of frame)."""
+    meta = read_metadata(hard.folder)
+    spacing = float(meta["spacing_m"])
+    ref = hard.frame(0)
+    ys, xs = np.nonzero(ref.depth > 0)
+    pts = np.stack([xs, ys], axis=1)[:: 3].astype(np.float64)
+    t0 = read_frame_truth(hard.folder, 0)
+    uv, on = surface_coordinates(t0, hard.K, spacing, pts)
+    hidden_total = 0
+    for j in range(1, len(hard)):
+        mapped, vis = hard.correspondences(0, j, pts)
+        tj = read_frame_truth(hard.folder, j)
+        depth = hard.frame(j).depth
+        hidden_total += int((on & ~vis).sum())
+        assert vis.any()
+        m = mapped[vis]
+        assert ((m >= -0.5) & (m < [W - 0.5, H - 0.5])).all()  # inside the image
+        P = surface_to_points(uv[vis], tj.vertices, spacing)
+        px = np.rint(m).astype(int)
+        z_seen = depth[px[:, 1], px[:, 0]]
+        # depth agrees: not behind another part of the cloth (1 cm + slope allowance)
+        agree = np.abs(z_seen - P[:, 2]) < 0.01 + 0.05 * P[:, 2]
+        assert agree.mean() > 0.99
+        # front side: the surface normal du x dv (finite differences on the piecewise-linear surface)
+        # points away from the camera
+        eps = 1e-6
+        du = surface_to_points(uv[vis] + [eps, 0.0], tj.vertices, spacing) - P
+        dv = surface_to_points(uv[vis] + [0.0, eps], tj.vertices, spacing) - P
+        cos = (np.cross(du, dv) * P).sum(axis=1)
+        assert (cos > 0).mean() > 0.995
+    assert hidden_total > 0
+
+
+def test_hard_keeps_the_cloth_isometric(hard):
+    """Structural edges keep their rest length (median < 1 %, 99th percentile < 6 %) although the
+    cloth is bent strongly (normals turn by more than 45 degrees somewhere)."""
+    meta = read_metadata(hard.folder)
+    spacing = float(meta["spacing_m"])
+    strains, max_bend = [], 0.0
+    for j in range(len(hard)):
+        v = read_frame_truth(hard.folder, j).vertices
+        e = np.concatenate([np.linalg.norm(np.diff(v, axis=1), axis=2).ravel(),
+                            np.linalg.norm(np.diff(v, axis=0), axis=2).ravel()])
+        strains.append(np.abs(e - spacing) / spacing)
+        n = _grid_normals(v).reshape(-1, 3)
+        max_bend = max(max_bend, float(np.degrees(np.arccos(np.clip(n @ n.mean(axis=0) / np.linalg.norm(
+            n.mean(axis=0)), -1, 1))).max()))
+    s = np.concatenate(strains)
+    assert np.median(s) < 0.01
+    assert np.percentile(s, 99) < 0.06
+    assert max_bend > 45.0
+
+
+def test_hard_fills_the_frame_and_moves_more_than_mild(tmp_path):
+    """The flat reference cloth of hard covers roughly 40-80 % of the image (less by tilt); mild's
+    about a quarter."""
+    fills = {}
+    for preset in ("mild", "hard"):
+        out = tmp_path / preset
+        simulate_sequence(out, "rotate", n_frames=1, seed=4, texture=TEXTURE, width=W, height=H, progress=False,
+                          preset=preset)
+        fills[preset] = float((read_sequence(out).frame(0).depth > 0).mean())
+    assert 0.3 < fills["hard"] < 0.85
+    assert fills["mild"] < 0.35
+    assert PRESETS["hard"].orbit_deg > PRESETS["paper"].orbit_deg
+
+
+@pytest.mark.parametrize("kwargs, word", [
+    (dict(preset="brutal"), "preset"),
+    (dict(fov=20.0), "fov"),
+    (dict(fov=120.0), "fov"),
+    (dict(fov=175.0), "fov"),
+    (dict(fov="wide"), "fov"),
+    (dict(scenario="twist"), "scenario"),
+])
+def test_bad_input_gives_one_clear_error_and_writes_nothing(tmp_path, kwargs, word):
+    with pytest.raises(ValueError, match=word):
+        simulate_sequence(tmp_path / "o", n_frames=2, width=64, height=48, progress=False, **kwargs)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_command_presets(tmp_path, capsys):
+    assert main(["simulate", str(tmp_path / "p"), "--preset", "paper", "--fov", "90", "--frames", "2",
+                 "--width", "64", "--height", "48", "--texture", "procedural", "--no-progress"]) == 0
+    assert read_metadata(tmp_path / "p")["preset"] == "paper"
+    assert main(["simulate", str(tmp_path / "q"), "--fov", "10", "--frames", "2", "--no-progress"]) == 2
+    assert "fov" in capsys.readouterr().err
+    assert not (tmp_path / "q").exists()
+    with pytest.raises(SystemExit):
+        main(["simulate", str(tmp_path / "r"), "--preset", "brutal"])
+    assert not (tmp_path / "r").exists()
+
+
+def test_fabric_textures_and_colour_jitter():
+    from geofeat.sim.textures import FABRIC_KINDS, choose_texture, fabric_texture, jitter_colours, list_textures
+
+    images = [fabric_texture(np.random.default_rng(i), kind, 96, 64) for i, kind in enumerate(FABRIC_KINDS)]
+    for img in images:
+        assert img.shape == (64, 96, 3) and img.dtype == np.uint8 and img.std() > 3
+    # distinct families give distinct images; the same seed gives the same image
+    assert len({img.tobytes() for img in images}) == len(FABRIC_KINDS)
+    assert np.array_equal(fabric_texture(np.random.default_rng(1), "plaid"), fabric_texture(np.random.default_rng(1), "plaid"))
+    with pytest.raises(ValueError, match="kind"):
+        fabric_texture(np.random.default_rng(0), "velvet")
+    with pytest.raises(ValueError, match="texture"):
+        choose_texture(np.random.default_rng(0), "fabric:velvet")
+    assert choose_texture(np.random.default_rng(0), "fabric:dots")[1] == "fabric"
+    jittered = jitter_colours(images[1], np.random.default_rng(2))
+    assert jittered.shape == images[1].shape and np.abs(jittered.astype(int) - images[1]).mean() > 2
+    # the shipped photographs: many, small (<= 512 px per side), with their licences listed
+    files = list_textures(packaged_texture_dir())
+    assert len(files) >= 60
+    sources = (packaged_texture_dir() / "SOURCES.md").read_text()
+    for f in files:
+        img = cv2.imread(str(f))
+        assert max(img.shape[:2]) <= 512
+        assert f.stem in sources
