@@ -192,3 +192,10 @@ def test_bad_descriptor_names_fail_before_anything_is_built(tmp_path):
         BenchConfig(descriptors=(f"geopatch={tmp_path / 'missing.pt'}",))
     with pytest.raises(ValueError, match="keypoint_set"):
         BenchConfig(keypoint_set="all")
+
+
+def test_sequences_are_grouped_by_their_scenario_word():
+    from geofeat.bench.report import sequence_group
+
+    assert [sequence_group(n) for n in ("deform-0", "b-rotate", "hard_scale_2", "cloud-roll", "seq")] == \
+        ["deform", "rotate", "scale", "roll", "all"]

@@ -31,7 +31,21 @@ def summary(rows: list[dict]) -> dict[str, dict[str, float]]:
     return out
 
 
-def markdown_table(rows: list[dict], group_of=lambda seq: seq.split("-")[-1] if "-" in seq else "all") -> str:
+#: Scenario words that name a group of sequences wherever they stand in the name ("deform-0", "a-rotate").
+SCENARIO_WORDS = ("deform", "rotate", "scale")
+
+
+def sequence_group(name: str) -> str:
+    """The group of a sequence in `markdown_table`: a scenario word of its name (`SCENARIO_WORDS`),
+    else the part after its last "-", else "all"."""
+    parts = name.replace("_", "-").split("-")
+    for word in SCENARIO_WORDS:
+        if word in parts:
+            return word
+    return parts[-1] if len(parts) > 1 else "all"
+
+
+def markdown_table(rows: list[dict], group_of=sequence_group) -> str:
     """Table 1 style: matching score per descriptor (columns) for each group of sequences (rows, e.g.
     the scenario suffix of simulated sequence names) and overall; best of each row in bold."""
     groups = {}
