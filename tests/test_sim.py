@@ -309,7 +309,7 @@ def test_simulate_writes_the_depth_profile_it_rendered(tmp_path):
     for noise, profile in ((False, "clean"), (True, "kinect")):
         folder = simulate_sequence(tmp_path / profile, scenario="deform", n_frames=2, seed=3, width=320, height=240,
                                    kinect_noise=noise, progress=False)
-        assert json.loads((folder / "geofeat.json").read_text()) == {"depth_profile": profile}
+        assert json.loads((folder / "geofeat.json").read_text()) == {"depth_scale": 0.0001, "depth_profile": profile}
         seq = geofeat.read_sequence(folder)
         assert seq.depth_profile == profile
         assert geofeat.depth_profile(seq.frame(seq.reference)) == profile

@@ -58,6 +58,11 @@ PROFILE_NAMES = DEPTH_PROFILE_NAMES
 #: Measured (`benchmarks/depth_noise.py`): the real Kinect v1 frame 0.47, Kinect-noise simulations
 #: about 1.0, clean simulations 0.07-0.20 (millimetre-quantised depth PNGs).
 SLOPE_NOISE_THRESHOLD = 0.3
+#: `depth_profile` also picks "kinect" when the depth is stored in steps coarser than this many pixel
+#: footprints: on millimetre PNGs of close-up noise-free cloth (0.5-1 footprint) the full-resolution
+#: mesh reads the staircase as surface and the smoothed half-resolution one scores a fifth higher;
+#: with 0.1 mm steps (0.05-0.1) the clean profile is the better one (BENCHMARKS.md, "Depth units").
+STEP_THRESHOLD = 0.3
 #: Fewer measurable 5x5 windows than this: too little surface to measure, "kinect" (the safe choice).
 MIN_NOISE_WINDOWS = 500
 
@@ -89,6 +94,8 @@ class DepthNoise:
         relative_noise: sigma_z / z (quantisation taken out the same way), dimensionless.
         quantisation_step: the smallest step between the map's depth values (robust: 5th percentile
             of the gaps between distinct values), metres; 0 for continuous depth.
+        step_per_footprint: that step over the median pixel footprint: how coarse the stored depth
+            is for the walk (a millimetre PNG at 1 m with fx = 525: 0.53).
         hole_fraction: fraction of the frame's pixels without depth.
         windows: number of 5x5 windows (all pixels with depth) the statistics come from.
     """
@@ -96,6 +103,7 @@ class DepthNoise:
     slope_noise: float
     relative_noise: float
     quantisation_step: float
+    step_per_footprint: float
     hole_fraction: float
     windows: int
 
@@ -134,7 +142,7 @@ def depth_noise(depth: np.ndarray, K: np.ndarray) -> DepthNoise:
     gaps = np.diff(np.unique(depth[valid]))
     step = float(np.quantile(gaps, 0.05)) if len(gaps) else 0.0
     if n == 0:
-        return DepthNoise(float("nan"), float("nan"), step, holes, 0)
+        return DepthNoise(float("nan"), float("nan"), step, float("nan"), holes, 0)
     kernel = _quadratic_fit_kernel()
     residual = (depth - cv2.filter2D(depth, -1, kernel, borderType=cv2.BORDER_REFLECT))[inner]
     residual /= np.sqrt(1.0 - kernel[2, 2])
@@ -142,15 +150,16 @@ def depth_noise(depth: np.ndarray, K: np.ndarray) -> DepthNoise:
     footprint = z / K[0, 0]
     sigma_q = step / np.sqrt(12.0)
     return DepthNoise(_noise_rms(residual / footprint, sigma_q / footprint), _noise_rms(residual / z, sigma_q / z),
-                      step, holes, n)
+                      step, float(step / np.median(footprint)), holes, n)
 
 
 def depth_profile(frame) -> str:
     """The depth profile for `frame` (an RGBDFrame): "kinect" when its measured slope noise
-    (`depth_noise`) exceeds `SLOPE_NOISE_THRESHOLD` or too little surface can be measured, else
-    "clean"."""
+    (`depth_noise`) exceeds `SLOPE_NOISE_THRESHOLD`, when its depth is stored in steps coarser than
+    `STEP_THRESHOLD` pixel footprints, or when too little surface can be measured; else "clean"."""
     noise = depth_noise(frame.depth, frame.K)
-    if noise.windows < MIN_NOISE_WINDOWS or noise.slope_noise > SLOPE_NOISE_THRESHOLD:
+    if (noise.windows < MIN_NOISE_WINDOWS or noise.slope_noise > SLOPE_NOISE_THRESHOLD
+            or noise.step_per_footprint > STEP_THRESHOLD):
         return "kinect"
     return "clean"
 

@@ -3,7 +3,7 @@
 A sequence folder gets, per frame `<name>` (`frame-000-master` is the reference, then
 `frame-001`, ...):
     `<name>-rgb.png`    8-bit BGR,
-    `<name>-depth.png`  16-bit depth in millimetres (camera Z), 0 = background / hole,
+    `<name>-depth.png`  16-bit camera Z in 0.1 mm units (`depth_scale` 0.0001 in geofeat.json), 0 = background / hole,
     `<name>.csv`        the 100 best Harris corners of the reference tracked into this frame
                         (`id,x,y,valid`; pixels, OpenCV convention: the centre of the top-left
                         pixel is (0, 0); valid = 0 where occluded, off the cloth or off the image),
@@ -64,9 +64,19 @@ def harris_landmarks(image: np.ndarray, mask: np.ndarray, n: int = N_LANDMARKS) 
     return corners.reshape(-1, 2).astype(np.float64)
 
 
-def encode_depth_mm(depth: np.ndarray) -> np.ndarray:
-    """(H, W) float metres -> uint16 millimetres (0 stays 0; clipped at 65.535 m)."""
-    return np.clip(np.rint(depth * 1000.0), 0, 65535).astype(np.uint16)
+#: Metres per unit of the depth PNGs the simulator writes (0.1 mm; `depth_scale` in geofeat.json).
+#: Millimetre PNGs quantise close-up cloth in steps of up to half a pixel footprint, which the
+#: full-resolution walk reads as noise: on `hard` scenes that cost the clean profile a fifth of its
+#: matching score (BENCHMARKS.md, "Depth units"). 16 bits of 0.1 mm reach 6.55 m.
+DEPTH_UNIT_M = 0.0001
+
+
+def encode_depth(depth: np.ndarray, unit: float = DEPTH_UNIT_M) -> np.ndarray:
+    """(H, W) float metres -> uint16 depth in `unit` metres (0 stays 0); ValueError past 16 bits."""
+    units = np.rint(np.asarray(depth, np.float64) / unit)
+    if units.max(initial=0) > 65535:
+        raise ValueError(f"depth: {units.max() * unit:.2f} m does not fit a 16-bit PNG at {unit} m per unit")
+    return units.astype(np.uint16)
 
 
 def _check_args(scenario: str, n_frames: int, width: int, height: int) -> None:
@@ -186,7 +196,7 @@ def _write(folder: Path, scene: ClothScene, progress: bool, meta: dict) -> None:
         "frames": names,
         "conventions": {
             "pixels": "OpenCV: the centre of the top-left pixel is (0, 0); x = fx X / Z + cx",
-            "depth_png": "uint16 millimetres of camera Z, 0 = background or hole",
+            "depth_png": "uint16 camera Z in units of depth_scale (geofeat.json, 0.1 mm), 0 = background or hole",
             "uv": "metres on the flat rest cloth (geodesic distance = |uv1 - uv2|), -1 = background",
             "vertices": "(rows, cols, 3) particle positions in the frame's camera coordinates, metres",
             "pose": "R, t map reference-camera (world) coordinates to this frame's camera",
@@ -194,14 +204,15 @@ def _write(folder: Path, scene: ClothScene, progress: bool, meta: dict) -> None:
     }
     (folder / GT_JSON).write_text(json.dumps(meta, indent=1))
     # the depth profile of what was rendered (`geofeat.depth_profile` measures the same on these frames)
-    (folder / "geofeat.json").write_text(json.dumps({"depth_profile": "kinect" if meta["kinect_noise"] else "clean"}))
+    (folder / "geofeat.json").write_text(json.dumps({"depth_scale": DEPTH_UNIT_M,
+                                                    "depth_profile": "kinect" if meta["kinect_noise"] else "clean"}))
 
 
 def write_frame(folder: Path, name: str, frame: SimFrame) -> FrameTruth:
     """Write the PNGs and `<name>-gt.npz` of one frame; return its ground truth."""
     if not cv2.imwrite(str(folder / f"{name}-rgb.png"), frame.image):
         raise ValueError(f"out_dir: cannot write {folder / f'{name}-rgb.png'}")
-    cv2.imwrite(str(folder / f"{name}-depth.png"), encode_depth_mm(frame.depth))
+    cv2.imwrite(str(folder / f"{name}-depth.png"), encode_depth(frame.depth))
     truth = FrameTruth(uv=frame.render.uv, vertices=frame.vertices)
     save_npz(folder / f"{name}{GT_SUFFIX}", uv=truth.uv, vertices=truth.vertices, R=frame.R, t=frame.t)
     return truth
