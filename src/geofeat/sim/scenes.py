@@ -382,7 +382,7 @@ class ClothScene:
     def _perturb(self) -> None:
         """Bend the flat cloth out of its plane by a smooth random bump (<= 3 mm) so that
         in-plane compression by the pins buckles it instead of straining it."""
-        cfg, p = self.config, self.params
+        cfg = self.config
         uv = self.cloth.uv / np.array([cfg.width_m, cfg.height_m])
         k = self.rng.uniform(1.0, 3.0, 2) * np.pi
         phase = self.rng.uniform(0, 2 * np.pi, 2)

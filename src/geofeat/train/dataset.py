@@ -104,29 +104,37 @@ class ValidationPair:
     gt_pairs: np.ndarray
 
 
-def validation_pairs(paths, n_keypoints: int = 1024, radius: float = DEFAULT_RADIUS_M,
-                     depth_config: DepthConfig | str = "auto", max_pairs_per_sequence: int = 2) -> list[ValidationPair]:
-    """Reference-target pairs of held-out sequences with independently detected SIFT keypoints and
-    the simulator's ground truth, for a per-epoch matching score."""
-    pairs = []
+def validation_keypoints(paths, n_keypoints: int = 1024, max_pairs_per_sequence: int = 2):
+    """Held-out pairs as protocol "detect" sees them, per sequence under `paths`: yields
+    (seq, reference frame, its SIFT keypoints, [(target frame, its SIFT keypoints with ground truth,
+    their (M, 2) ground-truth positions in the reference, pixels)]). Target keypoints without ground
+    truth in the reference are dropped (protocol step 3)."""
     for folder in find_sequences(paths):
         seq = read_sequence(folder)
         ref = seq.frame(seq.reference)
-        config = _sequence_config(seq, depth_config, ref)
-        k_ref = detect(ref, n_keypoints)
-        if not len(k_ref):
-            continue
-        p_ref = polar_patches(ref, k_ref.xy, radius=radius, depth_config=config)
+        targets = []
         step = max(1, len(seq.targets) // max_pairs_per_sequence)
         for name in seq.targets[::step][:max_pairs_per_sequence]:
             tgt = seq.frame(name)
             k_tgt = detect(tgt, n_keypoints)
             mapped, visible = seq.correspondences(name, seq.reference, k_tgt.xy)
-            # protocol step 3: target keypoints without ground truth in the reference are dropped
-            k_tgt, mapped = k_tgt[visible], mapped[visible]
-            if not len(k_tgt):
-                continue
+            if visible.any():
+                targets.append((tgt, k_tgt[visible], mapped[visible]))
+        yield seq, ref, detect(ref, n_keypoints), targets
+
+
+def validation_pairs(paths, n_keypoints: int = 1024, radius: float = DEFAULT_RADIUS_M,
+                     depth_config: DepthConfig | str = "auto", max_pairs_per_sequence: int = 2) -> list[ValidationPair]:
+    """Reference-target pairs of held-out sequences with independently detected SIFT keypoints and
+    the simulator's ground truth, geodesic polar patches precomputed, for a per-epoch matching score."""
+    pairs = []
+    for seq, ref, k_ref, targets in validation_keypoints(paths, n_keypoints, max_pairs_per_sequence):
+        if not len(k_ref):
+            continue
+        config = _sequence_config(seq, depth_config, ref)
+        p_ref = polar_patches(ref, k_ref.xy, radius=radius, depth_config=config)
+        for tgt, k_tgt, mapped in targets:
             p_tgt = polar_patches(tgt, k_tgt.xy, radius=radius, depth_config=config)
-            gt = ground_truth_pairs(k_ref.xy, mapped)
-            pairs.append(ValidationPair(p_ref.values, p_ref.valid, p_tgt.values, p_tgt.valid, gt))
+            pairs.append(ValidationPair(p_ref.values, p_ref.valid, p_tgt.values, p_tgt.valid,
+                                        ground_truth_pairs(k_ref.xy, mapped)))
     return pairs

@@ -13,11 +13,11 @@ from __future__ import annotations
 import numpy as np
 from tqdm import tqdm
 
-from ..bench.protocol import ground_truth_pairs
+from ..scoring import ground_truth_pairs
 from ..descriptors.imagenets import image_patches
 from ..io import Sequence, find_sequences, read_sequence
 from ..keypoints import detect
-from .dataset import PatchSet, ValidationPair
+from .dataset import PatchSet, ValidationPair, validation_keypoints
 
 
 def _to_uint8(values: np.ndarray) -> np.ndarray:
@@ -57,18 +57,12 @@ def image_validation_pairs(paths, arch: str, n_keypoints: int = 1024, max_pairs_
     """Held-out reference-target pairs (protocol "detect", independent SIFT keypoints) with `arch`
     patches precomputed, for the training loop's per-epoch matching score."""
     pairs = []
-    for folder in find_sequences(paths):
-        seq = read_sequence(folder)
-        ref = seq.frame(seq.reference)
-        k_ref = detect(ref, n_keypoints)
+    for _, ref, k_ref, targets in validation_keypoints(paths, n_keypoints, max_pairs_per_sequence):
+        if not len(k_ref):
+            continue
         p_ref = image_patches(ref.image, k_ref, arch)
-        step = max(1, len(seq.targets) // max_pairs_per_sequence)
-        for name in seq.targets[::step][:max_pairs_per_sequence]:
-            tgt = seq.frame(name)
-            k_tgt = detect(tgt, n_keypoints)
-            mapped, visible = seq.correspondences(name, seq.reference, k_tgt.xy)
-            k_tgt, mapped = k_tgt[visible], mapped[visible]
+        for tgt, k_tgt, mapped in targets:
             p_tgt = image_patches(tgt.image, k_tgt, arch)
-            gt = ground_truth_pairs(k_ref.xy, mapped)
-            pairs.append(ValidationPair(p_ref, np.ones(len(p_ref), bool), p_tgt, np.ones(len(p_tgt), bool), gt))
+            pairs.append(ValidationPair(p_ref, np.ones(len(p_ref), bool), p_tgt, np.ones(len(p_tgt), bool),
+                                        ground_truth_pairs(k_ref.xy, mapped)))
     return pairs
