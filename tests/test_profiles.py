@@ -84,5 +84,6 @@ def test_unknown_profiles_are_clear_errors(tmp_path):
     (tmp_path / "geofeat.json").write_text(json.dumps({"depth_profile": "noisy"}))
     with pytest.raises(ValueError, match="geofeat.json: depth_profile"):
         read_sequence(tmp_path)
-    (tmp_path / "geofeat.json").write_text(json.dumps({"depth_profile": "clean"}))
-    assert read_sequence(tmp_path).depth_profile == "clean"
+    (tmp_path / "geofeat.json").write_text(json.dumps({"depth_profile": "clean", "radius": 0.05}))
+    seq = read_sequence(tmp_path)
+    assert seq.depth_profile == "clean" and seq.radius == 0.05  # the bench and the applications use seq.radius

@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .constants import DEPTH_PROFILE_NAMES, DEPTH_SCALE_M
+from .constants import DEFAULT_RADIUS_M, DEPTH_PROFILE_NAMES, DEPTH_SCALE_M
 from .frame import RGBDFrame
 
 RGB_SUFFIX = "-rgb.png"
@@ -143,6 +143,7 @@ class Sequence:
         depth_scale: metres per depth-PNG unit.
         depth_profile: the depth profile asked for by the folder's geofeat.json ("auto" when it
             names none: chosen from the measured depth noise, see `geofeat.depth_profile`).
+        radius: geodesic radius for this sequence, metres (geofeat.json `radius`, else 0.075).
     """
 
     folder: Path
@@ -150,6 +151,7 @@ class Sequence:
     K: np.ndarray
     depth_scale: float = DEPTH_SCALE_M
     depth_profile: str = "auto"
+    radius: float = DEFAULT_RADIUS_M
 
     @property
     def name(self) -> str:
@@ -227,7 +229,9 @@ def read_sequence(folder: str | Path, depth_scale: float | None = None) -> Seque
         raise ValueError(f"{config_path}: depth_profile: expected one of {', '.join(DEPTH_PROFILE_NAMES)}, "
                          f"got {profile!r}")
     K = read_intrinsics(folder / "intrinsics.xml")
-    return Sequence(folder=folder, names=names, K=K, depth_scale=depth_scale, depth_profile=profile.strip().lower())
+    radius = float(config.get("radius", DEFAULT_RADIUS_M))
+    return Sequence(folder=folder, names=names, K=K, depth_scale=depth_scale, depth_profile=profile.strip().lower(),
+                    radius=radius)
 
 
 def demo_data_dir() -> Path:

@@ -175,9 +175,7 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
                       radius: float | None = None, depth_scale: float | None = None,
                       progress: bool = True) -> RetrievalDatabase:
     """Detect keypoints inside the object mask of every frame of every sequence and describe them."""
-    from types import SimpleNamespace
-
-    from .bench.runner import Describer, _radius
+    from .bench.runner import Describer
     from .depth import sequence_depth_profile
     from .descriptors import check_descriptor_name
     from .io import find_sequences, read_sequence
@@ -199,7 +197,7 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
     bar = tqdm(total=total, desc="retrieval: describe", unit="frame", disable=not progress)
     for seq in seqs:
         # the bench's rules for the radius and the depth profile
-        describe = Describer(names, _radius(seq, SimpleNamespace(radius=radius)), sequence_depth_profile(seq))
+        describe = Describer(names, seq.radius if radius is None else float(radius), sequence_depth_profile(seq))
         sources = set()
         for name in seq.names:
             frame = seq.frame(name)

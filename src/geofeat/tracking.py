@@ -387,12 +387,8 @@ TRACK_COLUMNS = ["sequence", "descriptor", "frame", "n_template", "n_frame", "ma
 
 
 def sequence_radius(seq: Sequence, radius: float | None) -> float:
-    """Geodesic radius in metres: `radius`, else the sequence's geofeat.json, else 0.075 (the bench's rule)."""
-    from types import SimpleNamespace
-
-    from .bench.runner import _radius
-
-    return _radius(seq, SimpleNamespace(radius=radius))
+    """Geodesic radius in metres: `radius`, else the sequence's (geofeat.json, else 0.075), as the bench."""
+    return seq.radius if radius is None else float(radius)
 
 
 def track_sequence(

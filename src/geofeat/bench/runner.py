@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from ..constants import DEFAULT_RADIUS_M, N_KEYPOINTS
+from ..constants import N_KEYPOINTS
 from ..depth import PROFILES, check_profile, sequence_depth_profile
 from ..descriptors import check_descriptor_name, make_descriptor
 from ..frame import RGBDFrame
@@ -70,15 +70,6 @@ class BenchConfig:
             raise ValueError("descriptors: at least one descriptor is needed")
         # validates the names (and that weights files exist) without building anything
         self.descriptors = tuple(check_descriptor_name(d) for d in self.descriptors)
-
-
-def _radius(seq: Sequence, config: BenchConfig) -> float:
-    if config.radius is not None:
-        return config.radius
-    path = seq.folder / "geofeat.json"
-    if path.is_file():
-        return float(json.loads(path.read_text()).get("radius", DEFAULT_RADIUS_M))
-    return DEFAULT_RADIUS_M
 
 
 class Describer:
@@ -216,7 +207,7 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
         raise ValueError(f"sequence {seq.name}: needs a reference and at least one target frame")
     ref = seq.frame(seq.reference)
     profile = sequence_depth_profile(seq, config.depth_profile, ref)
-    describe = Describer(names, _radius(seq, config), profile)
+    describe = Describer(names, config.radius if config.radius is not None else seq.radius, profile)
     rows = []
     if config.protocol == "landmarks":
         ids_r, xy_r, vis_r = seq.landmarks(seq.reference)
