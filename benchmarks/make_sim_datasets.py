@@ -8,7 +8,7 @@ packaged ones; val takes the first --val of them, test the next). Half of the se
 Kinect-like depth noise and holes. Scenarios cycle deform/rotate/scale.
 (`benchmarks/sim_difficulty.py` writes the per-preset test sequences with the test textures.)
 
-Run: .venv/bin/python benchmarks/make_sim_datasets.py --out out/sim [--train 30 --val 4 --test 6 --frames 8]
+Run: .venv/bin/python benchmarks/make_sim_datasets.py --out out/sim [--train 30 --val 4 --test 6 --frames 8 --seed 1000]
 """
 
 from __future__ import annotations
@@ -51,6 +51,9 @@ def main() -> None:
     parser.add_argument("--val", type=int, default=4)
     parser.add_argument("--test", type=int, default=6)
     parser.add_argument("--frames", type=int, default=8)
+    parser.add_argument("--seed", type=int, default=1000,
+                        help="first training seed (val starts at seed + 1000, test at seed + 2000); "
+                             "a new seed gives new scenes")
     shared = next((p / "shared/data/textures" for p in Path(__file__).resolve().parents
                    if (p / "shared/data/textures").is_dir()), Path("shared/data/textures"))
     parser.add_argument("--heldout-dir", type=Path, default=shared)
@@ -61,9 +64,9 @@ def main() -> None:
     held = heldout_textures(args.heldout_dir)
     if len(held) < args.val + min(args.test, 1):
         raise SystemExit(f"need {args.val + 1} held-out textures in {args.heldout_dir}, found {len(held)}")
-    make("train", args.train, args.out, args.frames, 1000, None, tuple(args.train_presets.split(",")))
-    make("val", args.val, args.out, args.frames, 2000, held[: args.val], (args.val_preset,))
-    make("test", args.test, args.out, args.frames, 3000, held[args.val:], (args.test_preset,))
+    make("train", args.train, args.out, args.frames, args.seed, None, tuple(args.train_presets.split(",")))
+    make("val", args.val, args.out, args.frames, args.seed + 1000, held[: args.val], (args.val_preset,))
+    make("test", args.test, args.out, args.frames, args.seed + 2000, held[args.val:], (args.test_preset,))
     print(f"datasets in {args.out}: train {args.train}, val {args.val}, test {args.test} sequences of {args.frames} frames")
 
 

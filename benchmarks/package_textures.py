@@ -2,7 +2,11 @@
 its SOURCES.md) into geofeat/data/textures as JPEGs of at most 512 px per side, holding back every
 third photograph (in name order, among those not packaged before) for validation / test sequences.
 
-    .venv/bin/python benchmarks/package_textures.py [--shared ../shared/data/textures]
+    .venv/bin/python benchmarks/package_textures.py [--shared ../shared/data/textures] [--extra DIR]
+
+--extra: a folder of further photographs with their own SOURCES.md (the ones taken from PyPI
+packages, see that file); all of them are training textures (the held-out split of the shared set
+stays as it was, so test sequences made before never see a training photograph).
 
 Writes the images and SOURCES.md (which files ship, how they were processed, then the shared
 SOURCES.md with every licence and credit). Run once; the result is committed.
@@ -41,8 +45,14 @@ def main() -> None:
                     if (p / "shared/data/textures").is_dir()), Path("shared/data/textures"))
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--shared", type=Path, default=default)
+    ap.add_argument("--extra", type=Path, default=None, help="folder of further training photographs + SOURCES.md")
     a = ap.parse_args()
     train, held = split(a.shared)
+    extra = [p for p in list_textures(a.extra) if p.stem != "contact"] if a.extra else []
+    if a.extra and not (a.extra / "SOURCES.md").is_file():
+        raise SystemExit(f"--extra: {a.extra} has no SOURCES.md with the photographs' licences")
+    n_shared = len(train)
+    train = train + extra
     out = packaged_texture_dir()
     for p in out.glob("*.jpg"):
         p.unlink()
@@ -56,8 +66,9 @@ def main() -> None:
     lines = [
         "# Training textures shipped with geofeat",
         "",
-        f"{len(train)} of the {len(train) + len(held)} photographs described below (the project's "
-        "`shared/data/textures` set), downscaled with OpenCV's area filter so that the longer side is at most "
+        f"{len(train)} photographs: {n_shared} of the {n_shared + len(held)} photographs of the project's "
+        f"`shared/data/textures` set and {len(extra)} photographs taken from PyPI packages (both described below), "
+        "downscaled with OpenCV's area filter so that the longer side is at most "
         f"{MAX_SIDE} px and saved as JPEG quality {QUALITY} by `benchmarks/package_textures.py`; no other edits. "
         "They are used only as cloth textures for simulated training sequences. The other "
         f"{len(held)} photographs are held back for validation and test sequences (never trained on) and are "
@@ -77,6 +88,8 @@ def main() -> None:
         "",
         shared_sources.replace("# Texture photographs: sources and licences", "## Sources and licences (full list)"),
     ]
+    if extra:
+        lines += ["", "---", "", (a.extra / "SOURCES.md").read_text().replace("# ", "## ", 1)]
     (out / "SOURCES.md").write_text("\n".join(lines))
     size = sum(p.stat().st_size for p in out.iterdir())
     print(f"packaged {len(train)} photographs ({size / 1e6:.1f} MB) in {out}; held out {len(held)}")
