@@ -6,7 +6,7 @@ Run: .venv/bin/python benchmarks/ablation_rotation.py --train out/sim2/train --t
         [--cache PATCHES.npz --epochs 4 --steps 100 --batch-size 256 --channels 32 64 128]
 (make the data first with benchmarks/make_sim_datasets.py and benchmarks/sim_difficulty.py). All
 variants share the shipped recipe (paper widths, lr 0.1, hardest-in-batch mining, photometric
-augmentation) and differ only in how they treat rotation.
+augmentation; --mining random for the paper's) and differ only in how they treat rotation.
 """
 
 from __future__ import annotations
@@ -39,6 +39,10 @@ def main() -> None:
     parser.add_argument("--keypoints", type=int, default=1024)
     parser.add_argument("--channels", type=int, nargs=3, default=(32, 64, 128))
     parser.add_argument("--lr", type=float, default=0.1)
+    parser.add_argument("--mining", choices=("hardest", "random"), default="hardest",
+                        help="hardest in batch (shipped) or the paper's random negative with anchor swap")
+    parser.add_argument("--only", type=int, nargs="+", default=None,
+                        help="run only these variants (0 flatten, 1 max-pool, 2 shift augmentation)")
     parser.add_argument("--cache", type=Path, default=None,
                         help="patch set of --train made before (a geofeat train .patches.npz)")
     args = parser.parse_args()
@@ -49,10 +53,12 @@ def main() -> None:
         data.save(cache)
     results, minutes = {}, {}
     for i, (label, (angle_pool, shift)) in enumerate(VARIANTS.items()):
+        if args.only is not None and i not in args.only:
+            continue
         weights = args.out / f"variant{i}.pt"
         if not weights.is_file():
             config = TrainConfig(epochs=args.epochs, steps_per_epoch=args.steps, batch_size=args.batch_size,
-                                 lr=args.lr, mining="hardest", augment_shift=shift, augment_photometric=True,
+                                 lr=args.lr, mining=args.mining, augment_shift=shift, augment_photometric=True,
                                  seed=0, net=GeoPatchConfig(channels=tuple(args.channels), angle_pool=angle_pool))
             start = time.perf_counter()
             train(data, weights, config, device="cpu")
@@ -61,7 +67,8 @@ def main() -> None:
                                     BenchConfig(descriptors=(f"geopatch={weights}",), n_keypoints=args.keypoints))
         rows = read_results(csv_path)
         results[label] = {kind: summary([r for r in rows if kind in r["sequence"]]) for kind in ("rotate", "deform", "scale")}
-    print(f"training: {args.epochs} x {args.steps} steps x {args.batch_size}, channels {tuple(args.channels)}; "
+    print(f"training: {args.epochs} x {args.steps} steps x {args.batch_size}, channels {tuple(args.channels)}, "
+          f"lr {args.lr}, {args.mining} mining; "
           f"test: {args.test}")
     print("| variant | rotate MS | deform MS | scale MS | training time |\n|---|---|---|---|---|")
     for label, by_kind in results.items():

@@ -1,7 +1,7 @@
 """Simulated datasets for training and evaluating GeoPatch (and for `geofeat bench`).
 
-train/: sequences textured with the packaged training photographs (geofeat/data/textures) and
-procedural / fabric textures, presets cycling through --train-presets (default paper, hard, mild);
+train/: sequences textured with the packaged training photographs (geofeat/data/textures, each in
+turn) and procedural / fabric textures (every fourth sequence), presets cycling through --train-presets (default paper, hard, mild);
 val/ and test/: sequences of --val-preset / --test-preset (default hard) textured with held-out
 photographs that training never sees (from --heldout-dir, default shared/data/textures minus the
 packaged ones; val takes the first --val of them, test the next). Half of the sequences have
@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import numpy as np
 from tqdm import tqdm
 
 from geofeat.sim import simulate_sequence
@@ -32,14 +33,19 @@ def heldout_textures(folder: Path) -> list[Path]:
 
 def make(split: str, count: int, out: Path, frames: int, seed0: int, textures: list[Path] | None,
          presets: tuple[str, ...] = ("mild",)) -> None:
+    packaged = list_textures(packaged_texture_dir())
+    photos = [packaged[k] for k in np.random.default_rng(seed0).permutation(len(packaged))]
     for i in tqdm(range(count), desc=split, unit="seq"):
         preset = presets[(i // 3) % len(presets)]
         folder = out / split / f"{split}{i:03d}-{preset}-{SCENARIOS[i % 3]}"
         if folder.is_dir() and any(folder.iterdir()):
             continue
-        kwargs = dict(texture=str(textures[i % len(textures)])) if textures else dict(texture_dir=packaged_texture_dir())
-        if not textures and i % 4 == 3:
+        if textures:
+            kwargs = dict(texture=str(textures[i % len(textures)]))
+        elif i % 4 == 3:
             kwargs = dict(texture="procedural" if i % 8 == 3 else "fabric")
+        else:  # every packaged photograph in turn, in an order shuffled by the first seed
+            kwargs = dict(texture=str(photos[(i - i // 4) % len(photos)]))
         simulate_sequence(folder, scenario=SCENARIOS[i % 3], n_frames=frames, seed=seed0 + i, preset=preset,
                           kinect_noise=bool(i % 2), progress=False, **kwargs)
 
