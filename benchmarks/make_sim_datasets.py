@@ -1,7 +1,8 @@
 """Simulated datasets for training and evaluating GeoPatch (and for `geofeat bench`).
 
 train/: sequences textured with the packaged training photographs (geofeat/data/textures, each in
-turn) and procedural / fabric textures (every fourth sequence), presets cycling through --train-presets (default paper, hard, mild);
+turn) and procedural / fabric textures (every fourth sequence), presets cycling through
+--train-presets (default paper, hard, mild);
 val/ and test/: sequences of --val-preset / --test-preset (default hard) textured with held-out
 photographs that training never sees (from --heldout-dir, default shared/data/textures minus the
 packaged ones; val takes the first --val of them, test the next). Half of the sequences have
