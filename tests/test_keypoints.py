@@ -30,10 +30,10 @@ def test_detect_strongest_first_with_depth(frame):
 
 
 def test_depth_filter_removes_keypoints_on_holes(frame):
-    with_holes = detect(frame, n=0, require_depth=False)
+    with_holes = detect(frame, n=None, require_depth=False)
     xi, yi = np.rint(with_holes.xy).astype(int).T
     assert (frame.depth[yi, xi] == 0).any()  # the demo frame has missing depth with texture
-    assert len(detect(frame, n=0)) < len(with_holes)
+    assert len(detect(frame, n=None)) < len(with_holes)
 
 
 def test_to_cv_round_trip_and_compute(frame):

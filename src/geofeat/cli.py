@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from .constants import DEFAULT_RADIUS_M, DEPTH_PROFILE_NAMES, DEPTH_SCALE_M, N_KEYPOINTS
-from .keypoints import KEYPOINT_SETS
+from .keypoints import KEYPOINT_SETS, check_detector_name
 
 
 def _profile_of(profile: str, frame) -> str:
@@ -144,14 +144,15 @@ def _extract(args: argparse.Namespace) -> int:
     seq = read_sequence(args.folder, depth_scale=args.depth_scale)
     profile = sequence_depth_profile(seq, args.depth_profile)
     descriptor = make_descriptor(args.descriptor, radius=args.radius, depth_config=PROFILES[profile])
-    print(f"{seq.name}: depth profile {profile}, keypoints {args.keypoint_set}")
+    print(f"{seq.name}: depth profile {profile}, detector {args.detector}, keypoints {args.keypoint_set}")
     path = _features_path(Path(args.out), _file_label(args.descriptor))
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.exists():
         path.unlink()
     for name in tqdm(seq.names, desc=f"extract {args.descriptor}", unit="frame"):
         frame = seq.frame(name)
-        features = descriptor.compute(frame, detect(frame, args.keypoints, keypoint_set=args.keypoint_set))
+        features = descriptor.compute(frame, detect(frame, args.keypoints, detector=args.detector,
+                                                            keypoint_set=args.keypoint_set))
         if path.suffix == ".h5":
             save_features(path, features, name=name)
         else:
@@ -185,10 +186,10 @@ def _match(args: argparse.Namespace) -> int:
         truth = GroundTruth(seq, None)
     except ValueError:
         truth = None  # no ground truth: matches are written, not judged
-    print(f"{seq.name}: depth profile {profile}, keypoints {args.keypoint_set}, ground truth: "
+    print(f"{seq.name}: depth profile {profile}, detector {args.detector}, keypoints {args.keypoint_set}, ground truth: "
           + ("none" if truth is None else "simulator (exact)" if truth.exact else "thin-plate spline on the landmarks"))
     ref = seq.frame(seq.reference)
-    k_ref = detect(ref, args.keypoints, keypoint_set=args.keypoint_set)
+    k_ref = detect(ref, args.keypoints, detector=args.detector, keypoint_set=args.keypoint_set)
     f_ref = descriptor.compute(ref, k_ref)
     matches_path = out / f"matches-{label}.h5"
     if matches_path.exists():
@@ -196,7 +197,7 @@ def _match(args: argparse.Namespace) -> int:
     total_matches, total_correct = 0, 0
     for name in tqdm(seq.targets, desc=f"match {args.descriptor}", unit="pair"):
         tgt = seq.frame(name)
-        k_tgt = detect(tgt, args.keypoints, keypoint_set=args.keypoint_set)
+        k_tgt = detect(tgt, args.keypoints, detector=args.detector, keypoint_set=args.keypoint_set)
         m = match(f_ref, descriptor.compute(tgt, k_tgt))
         save_matches(matches_path, m, name=f"{seq.reference}/{name}")
         n_matches = int((m.matches0 >= 0).sum())
@@ -255,7 +256,7 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from .bench.report import markdown_table, plot_curves, read_results
+    from .bench.report import detail_table, markdown_table, plot_curves, read_results
     from .bench.runner import BenchConfig, run_benchmark
     from .bench.timing import timing_table
     from .depth import sequence_depth_profile
@@ -263,7 +264,8 @@ def _bench(args: argparse.Namespace) -> int:
 
     config = BenchConfig(descriptors=tuple(d for d in args.descriptors.split(",") if d), protocol=args.protocol,
                          radius=args.radius, depth_scale=args.depth_scale, n_keypoints=args.keypoints,
-                         tps_dir=args.tps_dir, keypoint_set=args.keypoint_set, depth_profile=args.depth_profile)
+                         tps_dir=args.tps_dir, keypoint_set=args.keypoint_set, depth_profile=args.depth_profile,
+                         detector=args.detector)
     out = Path(args.out)
     csv_path, failed = run_benchmark(args.datasets, out, config, workers=args.workers, scheduler=args.scheduler,
                                      overwrite=args.overwrite)
@@ -273,6 +275,10 @@ def _bench(args: argparse.Namespace) -> int:
     table = markdown_table(rows)
     (out / "table.md").write_text(table)
     print(table)
+    if config.protocol == "detect":
+        details = detail_table(rows)
+        (out / "details.md").write_text(details)
+        print(details)
     for path in plot_curves(rows, out):
         print(f"wrote {path}")
     if args.timing:
@@ -284,6 +290,19 @@ def _bench(args: argparse.Namespace) -> int:
     print(f"wrote {csv_path} ({len(rows)} rows) and {out / 'table.md'}"
           + (f"; FAILED sequences: {', '.join(failed)}" if failed else ""))
     return 1 if failed else 0
+
+
+def _train_detector(args: argparse.Namespace) -> int:
+    from .train.detector import train_detector
+
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    model, results = train_detector(args.data, args.val, args.out, n=args.keypoints, hidden=tuple(args.hidden),
+                                    steps=args.steps, seed=args.seed)
+    for radius, r in results.items():
+        print(f"validation, NMS radius {radius:g} px: repeatability {r['repeatability']:.3f} at {args.keypoints} "
+              f"keypoints ({r['pairs']:.0f} ground-truth pairs per pair)" + ("  <- chosen" if radius == model.nms_radius else ""))
+    print(f"wrote {args.out}")
+    return 0
 
 
 def _retrieval(args: argparse.Namespace) -> int:
@@ -335,6 +354,17 @@ def build_parser() -> argparse.ArgumentParser:
                             "(raw depth, holes filled, full-resolution mesh) or auto (chosen from the measured "
                             "depth noise; default, unless the sequence's geofeat.json names one)")
 
+    def detector_name(text: str) -> str:
+        try:
+            return check_detector_name(text)
+        except ValueError as error:
+            raise argparse.ArgumentTypeError(str(error)) from None
+
+    def detector_option(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--detector", default="sift", type=detector_name,
+                       help="keypoint detector: sift (OpenCV, default), geokey (learned, image + depth cues) or "
+                            "geokey=WEIGHTS (from `geofeat train-detector`)")
+
     parser = argparse.ArgumentParser(prog="geofeat", description="Geodesic-aware local features on RGB-D images.")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -350,7 +380,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("folder", help="a sequence folder in the public layout (<name>-rgb.png, <name>-depth.png, intrinsics.xml)")
         p.add_argument("--descriptor", default="geobit", type=descriptor_name,
                        help=f"one of {', '.join(available_descriptors())}, or geopatch=WEIGHTS.pt (default geobit)")
-        p.add_argument("--keypoints", type=int, default=N_KEYPOINTS, help="SIFT keypoints per frame (default 2048)")
+        p.add_argument("--keypoints", type=int, default=N_KEYPOINTS, help="keypoints per frame (default 2048)")
+        detector_option(p)
         p.add_argument("--keypoint-set", choices=KEYPOINT_SETS, default="unique",
                        help="unique: one keypoint per position (default); protocol: SIFT's strongest as OpenCV returns them")
         depth_profile_option(p, None)
@@ -376,7 +407,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--out", required=True, help="output folder: results.csv, table.md, plots, timing.md")
     bench.add_argument("--radius", type=float, default=None, help="geodesic radius, metres (default: geofeat.json or 0.075)")
     bench.add_argument("--depth-scale", type=float, default=None, help="metres per depth-PNG unit (default: geofeat.json or 0.001)")
-    bench.add_argument("--keypoints", type=int, default=N_KEYPOINTS, help="SIFT keypoints per frame (default 2048)")
+    bench.add_argument("--keypoints", type=int, default=N_KEYPOINTS, help="keypoints per frame (default 2048)")
+    detector_option(bench)
     bench.add_argument("--tps-dir", default=None, help="the authors' published TPS ground truth, one folder per sequence")
     bench.add_argument("--workers", type=int, default=1, help="local worker processes (sequences in parallel)")
     bench.add_argument("--scheduler", default=None, help="Dask scheduler address (e.g. tcp://host:8786); needs geofeat[dask]")
@@ -412,6 +444,16 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
     depth_profile_option(tr, "auto")
     tr.set_defaults(func=_train)
+
+    td = sub.add_parser("train-detector", help="train GeoKey, the learned keypoint detector, on simulated sequences")
+    td.add_argument("--data", nargs="+", required=True, help="simulated sequence folders, or folders of them")
+    td.add_argument("--val", nargs="+", required=True, help="held-out simulated sequences (choose the NMS radius)")
+    td.add_argument("--out", required=True, help="weights file to write (e.g. geokey.pt; an .npz archive)")
+    td.add_argument("--keypoints", type=int, default=1024, help="keypoints per frame for validation (default 1024)")
+    td.add_argument("--hidden", type=int, nargs="+", default=(32, 32), help="hidden layer widths (default 32 32)")
+    td.add_argument("--steps", type=int, default=3000, help="Adam steps (default 3000)")
+    td.add_argument("--seed", type=int, default=0)
+    td.set_defaults(func=_train_detector)
 
     def app_options(p: argparse.ArgumentParser) -> None:
         p.add_argument("--descriptors", default="geopatch,geobit,sift",

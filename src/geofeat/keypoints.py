@@ -10,13 +10,16 @@ import numpy as np
 from .constants import N_KEYPOINTS
 from .frame import RGBDFrame
 
-__all__ = ["KEYPOINT_SETS", "Keypoints", "as_keypoints", "detect"]
+__all__ = ["DETECTORS", "KEYPOINT_SETS", "Keypoints", "as_keypoints", "check_detector_name", "detect", "detect_sift"]
 
 #: SIFT contrast threshold used by `detect` (OpenCV's default is 0.04; lower finds more keypoints).
 DEFAULT_CONTRAST_THRESHOLD = 0.004
 #: Keypoint sets of `detect`: "protocol" = OpenCV SIFT's n strongest exactly as OpenCV returns them
 #: (the published matching-score protocol); "unique" = one keypoint per position, on depth.
 KEYPOINT_SETS = ("protocol", "unique")
+#: Detector names of `detect`: "sift" (OpenCV) and "geokey" (learned, `geofeat.detectors.geokey`);
+#: "geokey=PATH" uses weights made by `geofeat train-detector`.
+DETECTORS = ("sift", "geokey")
 
 
 @dataclass
@@ -118,7 +121,61 @@ def to_uint8(image: np.ndarray) -> np.ndarray:
     return np.clip(np.rint(np.asarray(image, dtype=np.float32) * 255.0), 0, 255).astype(np.uint8)
 
 
-def detect(
+def _check_n(n) -> int:
+    """n >= 1 (or None = all, returned as 0); anything else is a ValueError naming `n`."""
+    if n is None:
+        return 0
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n <= 0:
+        raise ValueError(f"n: expected a positive number of keypoints (or None for all), got {n!r}")
+    return int(n)
+
+
+def check_detector_name(detector: str) -> str:
+    """Validate a detector name ("sift", "geokey", "geokey=WEIGHTS") without loading anything;
+    a weights file must exist. Returns the name unchanged."""
+    if not isinstance(detector, str):
+        raise TypeError(f"detector: expected a name such as 'sift' or 'geokey', got {type(detector).__name__}")
+    name, _, weights = detector.partition("=")
+    if name not in DETECTORS or (weights and name != "geokey") or ("=" in detector and not weights):
+        raise ValueError(f"detector: expected one of {', '.join(DETECTORS)} or geokey=WEIGHTS, got {detector!r}")
+    if weights:
+        from pathlib import Path
+
+        if not Path(weights).is_file():
+            raise ValueError(f"detector: weights file {weights} does not exist")
+    return detector
+
+
+def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = "sift", **sift_options) -> Keypoints:
+    """Detect keypoints on `frame`, best first.
+
+    Args:
+        frame: the RGB-D frame.
+        n: maximum number of keypoints (>= 1), or None for all.
+        detector: "sift" (OpenCV SIFT, `detect_sift`; the published protocol's keypoints), "geokey"
+            (the learned deformation-aware detector with the shipped weights, image and depth cues,
+            `geofeat.detectors.geokey`) or "geokey=WEIGHTS" (weights from `geofeat train-detector`).
+        **sift_options: options of `detect_sift` (keypoint_set, contrast_threshold, mask, ...).
+
+    Returns:
+        `Keypoints` sorted best first. GeoKey's have angle 0 and a size of 8 px per pyramid level.
+    """
+    if not isinstance(frame, RGBDFrame):
+        raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
+    name, _, weights = check_detector_name(detector).partition("=")
+    if name == "sift":
+        return detect_sift(frame, n, **sift_options)
+    n = _check_n(n)
+    from .detectors.geokey import detect_geokey, load_geokey
+
+    mask = sift_options.pop("mask", None)
+    sift_options.pop("keypoint_set", None)  # GeoKey has one keypoint per position by construction
+    if sift_options:
+        raise TypeError(f"detector: options {sorted(sift_options)} apply to 'sift' only")
+    return detect_geokey(frame, n, load_geokey(weights or None), mask=mask)
+
+
+def detect_sift(
     frame: RGBDFrame,
     n: int = N_KEYPOINTS,
     contrast_threshold: float = DEFAULT_CONTRAST_THRESHOLD,
@@ -131,7 +188,7 @@ def detect(
 
     Args:
         frame: the RGB-D frame (its gray image is converted to uint8 for OpenCV).
-        n: maximum number of keypoints kept (by decreasing response, after filtering); 0 = all.
+        n: maximum number of keypoints kept (by decreasing response, after filtering); None = all.
         contrast_threshold: SIFT contrast threshold (OpenCV `contrastThreshold`).
         require_depth: drop keypoints whose rounded pixel has no depth (`frame.depth == 0`).
         border_px: drop keypoints closer than this to the image border, pixels.
@@ -149,8 +206,7 @@ def detect(
     """
     if not isinstance(frame, RGBDFrame):
         raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
-    if n < 0:
-        raise ValueError(f"n: expected a non-negative number of keypoints, got {n}")
+    n = _check_n(n)
     if contrast_threshold < 0:
         raise ValueError(f"contrast_threshold: expected >= 0, got {contrast_threshold}")
     H, W = frame.shape
@@ -162,7 +218,7 @@ def detect(
     if keypoint_set not in KEYPOINT_SETS:
         raise ValueError(f"keypoint_set: expected one of {', '.join(KEYPOINT_SETS)}, got {keypoint_set!r}")
     if keypoint_set == "protocol":
-        sift = cv2.SIFT_create(nfeatures=int(n), contrastThreshold=float(contrast_threshold))
+        sift = cv2.SIFT_create(nfeatures=int(n or 0), contrastThreshold=float(contrast_threshold))
         kps = Keypoints.from_cv(list(sift.detect(to_uint8(frame.image), mask)))
         order = np.argsort(-kps.responses, kind="stable")
         return kps[order[:n] if n else order]

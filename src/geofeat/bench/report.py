@@ -13,9 +13,32 @@ def read_results(path: str | Path) -> list[dict]:
     with open(path, newline="") as fh:
         rows = list(csv.DictReader(fh))
     for r in rows:
-        for key in ("ms", "mma", "seconds_extract", "seconds_match", "angle_deg", "scale"):
-            r[key] = float(r[key])
+        for key in ("ms", "mma", "repeatability", "seconds_extract", "seconds_match", "angle_deg", "scale"):
+            if key in r:
+                r[key] = float(r[key])
+        for key in ("hits", "n_gt", "n_ref", "n_tgt"):
+            if key in r:
+                r[key] = int(r[key])
     return rows
+
+
+def detail_table(rows: list[dict]) -> str:
+    """Per descriptor and sequence, and in total (mean over sequences of per-sequence means): MS, MMA,
+    repeatability (the MS of a perfect descriptor on the same keypoints), reference keypoints per
+    frame and correct matches (hits) per pair. Markdown."""
+    lines = ["| descriptor | detector | sequence | MS | MMA | repeatability | keypoints / frame | correct matches / pair |",
+             "|---|---|---|---|---|---|---|---|"]
+    keys = ("ms", "mma", "repeatability", "n_ref", "hits")
+    for name in dict.fromkeys(r["descriptor"] for r in rows):
+        mine = [r for r in rows if r["descriptor"] == name]
+        detector = ", ".join(dict.fromkeys(r.get("detector", "sift") for r in mine))
+        per_seq = {}
+        for r in mine:
+            per_seq.setdefault(r["sequence"], []).append([float(r.get(k, "nan")) for k in keys])
+        means = {seq: np.mean(v, axis=0) for seq, v in per_seq.items()}
+        for seq, m in list(means.items()) + [("**all**", np.mean(list(means.values()), axis=0))]:
+            lines.append(f"| {name} | {detector} | {seq} | {m[0]:.3f} | {m[1]:.3f} | {m[2]:.3f} | {m[3]:.0f} | {m[4]:.0f} |")
+    return "\n".join(lines) + "\n"
 
 
 def summary(rows: list[dict]) -> dict[str, dict[str, float]]:
@@ -67,10 +90,13 @@ def markdown_table(rows: list[dict], group_of=sequence_group) -> str:
         n_seq = len({r["sequence"] for r in grows})
         lines.append(f"| {group} ({n_seq}) | " + " | ".join(cells) + " |")
     kp_sets = sorted({r.get("keypoint_set", "") for r in rows} - {""})
+    detectors = sorted({r.get("detector", "") for r in rows} - {""})
     profiles: dict[str, set] = {}
     for r in rows:
         profiles.setdefault(r.get("depth_profile", "") or "?", set()).add(r["sequence"])
     notes = "Matching score (MS, mean over sequences of the per-sequence mean over pairs)."
+    if detectors:
+        notes += f" Detector: {', '.join(detectors)}."
     if kp_sets:
         notes += f" Keypoints: {', '.join(kp_sets)}."
     notes += " Depth profile: " + ", ".join(f"{p} ({len(v)} sequences)" for p, v in sorted(profiles.items())) + "."

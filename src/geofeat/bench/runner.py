@@ -35,14 +35,15 @@ from ..frame import RGBDFrame
 from ..geodesic.mesh import build_mesh
 from ..geodesic.polar import polar_patches
 from ..io import Sequence, find_sequences, read_sequence
-from ..keypoints import KEYPOINT_SETS, Keypoints, detect
+from ..keypoints import KEYPOINT_SETS, Keypoints, check_detector_name, detect
 from ..matching import match
 from .protocol import LandmarkTPS, authors_tps_warp, ground_truth_pairs, score_detect, score_landmarks
 
-COLUMNS = ["sequence", "reference", "target", "descriptor", "protocol", "keypoint_set", "depth_profile", "ms", "mma",
-           "hits", "n_ref", "n_tgt", "seconds_extract", "seconds_match", "angle_deg", "scale"]
+COLUMNS = ["sequence", "reference", "target", "descriptor", "detector", "protocol", "keypoint_set", "depth_profile",
+           "ms", "mma", "repeatability", "hits", "n_gt", "n_ref", "n_tgt", "seconds_extract", "seconds_match",
+           "angle_deg", "scale"]
 #: Settings that must be equal for a rerun to reuse the results already in the output folder.
-REUSE_KEYS = ("protocol", "keypoint_set", "depth_profile", "radius", "depth_scale", "n_keypoints", "tps_dir")
+REUSE_KEYS = ("protocol", "detector", "keypoint_set", "depth_profile", "radius", "depth_scale", "n_keypoints", "tps_dir")
 
 
 @dataclass
@@ -58,8 +59,10 @@ class BenchConfig:
     tps_dir: str | None = None
     keypoint_set: str = "protocol"
     depth_profile: str | None = None
+    detector: str = "sift"
 
     def __post_init__(self) -> None:
+        self.detector = check_detector_name(self.detector)
         if self.protocol not in ("detect", "landmarks"):
             raise ValueError(f"protocol: expected 'detect' or 'landmarks', got {self.protocol!r}")
         if self.keypoint_set not in KEYPOINT_SETS:
@@ -214,7 +217,7 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
         k_ref = Keypoints(xy_r[vis_r], np.zeros(vis_r.sum()), np.full(vis_r.sum(), 8.0), np.zeros(vis_r.sum()))
     else:
         truth = GroundTruth(seq, config.tps_dir)
-        k_ref = detect(ref, config.n_keypoints, keypoint_set=config.keypoint_set)
+        k_ref = detect(ref, config.n_keypoints, detector=config.detector, keypoint_set=config.keypoint_set)
         k_ref = k_ref[truth.reference_keep(k_ref.xy)]
     f_ref = describe(ref, k_ref) if len(k_ref) else None
     for target in seq.targets:
@@ -227,7 +230,7 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
             ids_t, xy_t, vis_t = seq.landmarks(target)
             k_tgt = Keypoints(xy_t[vis_t], np.zeros(vis_t.sum()), np.full(vis_t.sum(), 8.0), np.zeros(vis_t.sum()))
         else:
-            k_tgt = detect(frame, config.n_keypoints, keypoint_set=config.keypoint_set)
+            k_tgt = detect(frame, config.n_keypoints, detector=config.detector, keypoint_set=config.keypoint_set)
             mapped = truth.target_to_reference(target, k_tgt.xy, frame.shape)
             known = np.isfinite(mapped).all(axis=1)
             k_tgt, mapped = k_tgt[known], mapped[known]
@@ -247,8 +250,10 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
                 else:
                     s = score_detect(m.matches0, gt, len(k_ref), len(k_tgt))
             rows.append(dict(sequence=seq.name, reference=seq.reference, target=target, descriptor=name,
+                             detector=config.detector if config.protocol == "detect" else "landmarks",
                              protocol=config.protocol, keypoint_set=config.keypoint_set, depth_profile=profile,
-                             ms=s.ms, mma=s.mma, hits=s.hits, n_ref=s.n_ref, n_tgt=s.n_tgt,
+                             ms=s.ms, mma=s.mma, repeatability=s.n_gt / max(min(s.n_ref, s.n_tgt), 1),
+                             hits=s.hits, n_gt=s.n_gt, n_ref=s.n_ref, n_tgt=s.n_tgt,
                              seconds_extract=t_extract, seconds_match=t_match, angle_deg=angle, scale=scale))
     return rows
 

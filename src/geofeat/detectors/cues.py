@@ -1,0 +1,109 @@
+"""Per-pixel cues of an RGB-D frame that tell a keypoint that stays put on a bending surface from one
+that slides along a fold edge, a silhouette or a foreshortened slope.
+
+Every cue is a dense (H, W) float32 map computed with a few OpenCV filters (no Python loops), read
+at the candidate keypoints by `cue_features`. Image cues are on the gray image in [0, 1]; depth cues
+are in units of the pixel footprint z / fx, so they do not depend on the distance to the camera.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ..frame import RGBDFrame
+
+#: Names of the columns of `cue_features`, in order.
+CUE_NAMES = (
+    "level",            # pyramid level of the candidate (0 = full resolution, 1 = half)
+    "log_eig_3",        # log of the structure tensor's smaller eigenvalue, 3 x 3 window
+    "log_eig_7",        # the same, 7 x 7 window
+    "log_grad_1",       # log gradient magnitude after a sigma = 1 px blur
+    "log_grad_3",       # after a sigma = 3 px blur
+    "log_dog",          # log |difference of Gaussians| (sigma 1.6 - sigma 1)
+    "log_std_9",        # log local standard deviation in a 9 x 9 window
+    "log_std_21",       # in a 21 x 21 window
+    "valid_frac_31",    # fraction of pixels with depth in a 31 x 31 window
+    "slope",            # depth slope in pixel footprints per pixel (0 = facing the camera)
+    "log_curv_2",       # log |Laplacian of depth| in footprints, sigma = 2 px
+    "log_curv_6",       # sigma = 6 px
+    "log_edge_dist",    # log(1 + distance in px to the nearest depth discontinuity or hole)
+    "border_dist",      # distance to the image border / min(H, W)
+    "radial",           # distance to the principal point / min(H, W)
+)
+
+
+def _log(x: np.ndarray, eps: float) -> np.ndarray:
+    return np.log(np.abs(x) + eps).astype(np.float32)
+
+
+def cue_maps(frame: RGBDFrame) -> dict[str, np.ndarray]:
+    """Dense cue maps of `frame`, each (H, W) float32 (see `CUE_NAMES`; "level" is per candidate)."""
+    g = frame.image.astype(np.float32)
+    H, W = g.shape
+    maps: dict[str, np.ndarray] = {}
+    maps["log_eig_3"] = _log(cv2.cornerMinEigenVal(g, 3, 3), 1e-7)
+    maps["log_eig_7"] = _log(cv2.cornerMinEigenVal(g, 7, 3), 1e-7)
+    g1 = cv2.GaussianBlur(g, (0, 0), 1.0)
+    g16 = cv2.GaussianBlur(g, (0, 0), 1.6)
+    g3 = cv2.GaussianBlur(g, (0, 0), 3.0)
+    for name, img in (("log_grad_1", g1), ("log_grad_3", g3)):
+        gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3)
+        gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3)
+        maps[name] = _log(np.sqrt(gx * gx + gy * gy), 1e-4)
+    maps["log_dog"] = _log(g16 - g1, 1e-4)
+    for k in (9, 21):
+        mean = cv2.blur(g, (k, k))
+        var = np.maximum(cv2.blur(g * g, (k, k)) - mean * mean, 0.0)
+        maps[f"log_std_{k}"] = _log(np.sqrt(var), 1e-4)
+
+    depth = frame.depth.astype(np.float32)
+    valid = (depth > 0).astype(np.float32)
+    maps["valid_frac_31"] = cv2.blur(valid, (31, 31))
+    fx = float(frame.K[0, 0])
+
+    def smooth_depth(sigma: float) -> np.ndarray:
+        # normalised convolution: holes do not pull the depth towards 0
+        num = cv2.GaussianBlur(depth * valid, (0, 0), sigma)
+        den = cv2.GaussianBlur(valid, (0, 0), sigma)
+        return np.where(den > 1e-3, num / np.maximum(den, 1e-3), 0.0).astype(np.float32)
+
+    z2 = smooth_depth(2.0)
+    footprint = np.where(z2 > 0, z2 / fx, 1.0).astype(np.float32)  # metres per pixel
+    zx = cv2.Sobel(z2, cv2.CV_32F, 1, 0, ksize=3) / 8.0
+    zy = cv2.Sobel(z2, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+    slope = np.sqrt(zx * zx + zy * zy) / footprint
+    maps["slope"] = np.minimum(slope, 20.0).astype(np.float32)
+    maps["log_curv_2"] = _log(cv2.Laplacian(z2, cv2.CV_32F, ksize=3) / footprint, 1e-3)
+    z6 = smooth_depth(6.0)
+    maps["log_curv_6"] = _log(cv2.Laplacian(z6, cv2.CV_32F, ksize=3) / footprint, 1e-3)
+    # depth discontinuities: a raw-depth step of more than 4 footprints between neighbours, or a hole
+    raw_fp = np.where(depth > 0, depth / fx, 1.0)
+    step_x = np.abs(np.diff(depth, axis=1, append=depth[:, -1:])) / raw_fp
+    step_y = np.abs(np.diff(depth, axis=0, append=depth[-1:, :])) / raw_fp
+    edge = (valid == 0) | (step_x > 4.0) | (step_y > 4.0)
+    dist = cv2.distanceTransform((~edge).astype(np.uint8), cv2.DIST_L2, 3)
+    maps["log_edge_dist"] = np.log1p(np.minimum(dist, 200.0)).astype(np.float32)
+    ys, xs = np.mgrid[0:H, 0:W].astype(np.float32)
+    size = float(min(H, W))
+    maps["border_dist"] = np.minimum(np.minimum(xs, W - 1 - xs), np.minimum(ys, H - 1 - ys)) / size
+    cx, cy = float(frame.K[0, 2]), float(frame.K[1, 2])
+    maps["radial"] = np.sqrt((xs - cx) ** 2 + (ys - cy) ** 2) / size
+    return maps
+
+
+def cue_features(maps: dict[str, np.ndarray], xy: np.ndarray, level: np.ndarray) -> np.ndarray:
+    """(N, len(CUE_NAMES)) float32: the cue maps read at the nearest pixel of each candidate.
+
+    Args:
+        maps: from `cue_maps`.
+        xy: (N, 2) candidate positions, pixels.
+        level: (N,) pyramid level of each candidate.
+    """
+    some = next(iter(maps.values()))
+    H, W = some.shape
+    xi = np.clip(np.rint(xy[:, 0]).astype(np.int64), 0, W - 1)
+    yi = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, H - 1)
+    cols = [np.asarray(level, np.float32)]
+    cols += [maps[name][yi, xi] for name in CUE_NAMES[1:]]
+    return np.stack(cols, axis=1).astype(np.float32)

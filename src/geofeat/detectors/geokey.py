@@ -1,0 +1,196 @@
+"""GeoKey: a learned, deformation-aware keypoint detector for RGB-D frames.
+
+Three steps, all vectorised:
+
+1. **Candidates.** Well-localised corners (the structure tensor's smaller eigenvalue, Shi-Tomasi)
+   at full and half resolution, refined to sub-pixel, on pixels with depth. They are dense (several
+   thousand per 640 x 480 frame), so the detector can afford to be choosy.
+2. **Learned score.** A small multi-layer perceptron reads image and depth cues at each candidate
+   (`geofeat.detectors.cues`: cornerness, contrast, depth slope, curvature, distance to a depth
+   edge, ...) and predicts the probability that the point is found again, at the same surface
+   point, in another view of the bent surface. It is trained on simulated sequences with exact
+   correspondences (`geofeat train-detector`, `geofeat.train.detector`).
+3. **Selection.** Non-maximum suppression of the scores within `nms_radius` pixels, then the `n`
+   best.
+
+The weights are a small `.npz` archive (whatever the file's extension) of numpy arrays: inference
+needs neither torch nor a GPU.
+"""
+
+from __future__ import annotations
+
+import warnings
+import zipfile
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..frame import RGBDFrame
+from ..keypoints import Keypoints
+from .cues import CUE_NAMES, cue_features, cue_maps
+
+#: The shipped weights.
+SHIPPED_WEIGHTS = Path(__file__).resolve().parent.parent / "data" / "geokey.npz"
+#: Candidate corners per pyramid level (level 0 = full resolution, level 1 = half).
+MAX_CANDIDATES = (6000, 2000)
+#: Minimum distance between candidates of one level, pixels of that level.
+CANDIDATE_SPACING_PX = 3
+#: Default suppression radius between selected keypoints, pixels.
+NMS_RADIUS_PX = 3
+#: Candidates closer than this to the image border are dropped, pixels.
+BORDER_PX = 4
+
+
+@dataclass(frozen=True)
+class GeoKeyModel:
+    """The learned scorer: feature standardisation and a ReLU MLP, numpy arrays.
+
+    Attributes:
+        mean, std: (D,) feature standardisation, D = len(CUE_NAMES).
+        weights: [(D, H1), (H1, H2), ..., (Hk, 1)] layer matrices.
+        biases: [(H1,), ..., (1,)] layer biases.
+        nms_radius: suppression radius chosen on validation data, pixels.
+    """
+
+    mean: np.ndarray
+    std: np.ndarray
+    weights: tuple[np.ndarray, ...]
+    biases: tuple[np.ndarray, ...]
+    nms_radius: float = NMS_RADIUS_PX
+
+    def score(self, features: np.ndarray) -> np.ndarray:
+        """(N, D) cue features -> (N,) float32 logits (higher = more likely to be found again)."""
+        h = (np.asarray(features, np.float32) - self.mean) / self.std
+        for k, (w, b) in enumerate(zip(self.weights, self.biases)):
+            h = h @ w + b
+            if k < len(self.weights) - 1:
+                h = np.maximum(h, 0.0)
+        return h[:, 0]
+
+    def save(self, path: str | Path) -> None:
+        """Write the model to `path` as an .npz archive (the extension is kept as given)."""
+        arrays = {"mean": self.mean, "std": self.std, "nms_radius": np.float32(self.nms_radius),
+                  "cue_names": np.array(CUE_NAMES)}
+        for k, (w, b) in enumerate(zip(self.weights, self.biases)):
+            arrays[f"w{k}"], arrays[f"b{k}"] = w, b
+        with open(path, "wb") as fh:
+            np.savez(fh, **arrays)
+
+
+def load_geokey(path: str | Path | None = None) -> GeoKeyModel:
+    """Load GeoKey weights (default: the shipped ones).
+
+    Raises:
+        ValueError naming the file when it is missing, corrupt, or made for other cues.
+    """
+    path = Path(path) if path is not None else SHIPPED_WEIGHTS
+    return _load(str(path.resolve()))
+
+
+@lru_cache(maxsize=4)
+def _load(path: str) -> GeoKeyModel:
+    if not Path(path).is_file():
+        raise ValueError(f"detector weights: {path} does not exist")
+    try:
+        with np.load(path, allow_pickle=False) as a:
+            arrays = {k: a[k] for k in a.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
+        raise ValueError(f"detector weights: {path} is not a GeoKey weights file ({error})") from None
+    names = tuple(str(s) for s in arrays.get("cue_names", ()))
+    if names != CUE_NAMES or "w0" not in arrays:
+        raise ValueError(f"detector weights: {path} is not a GeoKey weights file for this version "
+                         f"(cues {names[:3]}..., expected {CUE_NAMES[:3]}...)")
+    k = sum(1 for name in arrays if name.startswith("w"))
+    weights = tuple(arrays[f"w{i}"].astype(np.float32) for i in range(k))
+    biases = tuple(arrays[f"b{i}"].astype(np.float32) for i in range(k))
+    return GeoKeyModel(arrays["mean"].astype(np.float32), arrays["std"].astype(np.float32), weights, biases,
+                       float(arrays["nms_radius"]))
+
+
+def candidates(frame: RGBDFrame, max_candidates: tuple[int, ...] = MAX_CANDIDATES) -> tuple[np.ndarray, np.ndarray]:
+    """Corner candidates of `frame` on pixels with depth.
+
+    Returns:
+        xy (N, 2) float64 pixels (full resolution, OpenCV convention), level (N,) int (0 full, 1 half).
+    """
+    g = frame.image.astype(np.float32)
+    H, W = g.shape
+    has_depth = (frame.depth > 0).astype(np.uint8)
+    out_xy, out_level = [], []
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 10, 0.03)
+    image, mask = g, has_depth
+    for level, count in enumerate(max_candidates):
+        if level:
+            image = cv2.pyrDown(image)
+            mask = cv2.resize(mask, (image.shape[1], image.shape[0]), interpolation=cv2.INTER_NEAREST)
+        pts = cv2.goodFeaturesToTrack(image, maxCorners=int(count), qualityLevel=1e-4,
+                                      minDistance=CANDIDATE_SPACING_PX, mask=mask, blockSize=5)
+        if pts is None:
+            continue
+        pts = cv2.cornerSubPix(image, pts.astype(np.float32), (3, 3), (-1, -1), criteria).reshape(-1, 2)
+        scale = 2.0**level
+        xy = (pts.astype(np.float64) + 0.5) * scale - 0.5  # pixel centres of level -> full resolution
+        out_xy.append(xy)
+        out_level.append(np.full(len(xy), level, np.int64))
+    if not out_xy:
+        return np.zeros((0, 2)), np.zeros(0, np.int64)
+    xy, level = np.concatenate(out_xy), np.concatenate(out_level)
+    inside = ((xy[:, 0] >= BORDER_PX) & (xy[:, 0] <= W - 1 - BORDER_PX)
+              & (xy[:, 1] >= BORDER_PX) & (xy[:, 1] <= H - 1 - BORDER_PX))
+    xy, level = xy[inside], level[inside]
+    xi, yi = np.rint(xy[:, 0]).astype(np.int64), np.rint(xy[:, 1]).astype(np.int64)
+    on_depth = frame.depth[yi, xi] > 0
+    return xy[on_depth], level[on_depth]
+
+
+def suppress(xy: np.ndarray, score: np.ndarray, radius: float, shape: tuple[int, int]) -> np.ndarray:
+    """(N,) bool: candidates whose score is the largest within `radius` pixels (ties: all kept).
+
+    The scores are splatted onto the pixel grid and compared with a grey dilation, so the cost is a
+    few image operations whatever N is.
+    """
+    if len(xy) == 0 or radius <= 0:
+        return np.ones(len(xy), bool)
+    H, W = shape
+    xi = np.clip(np.rint(xy[:, 0]).astype(np.int64), 0, W - 1)
+    yi = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, H - 1)
+    grid = np.full((H, W), -np.inf, np.float32)
+    np.maximum.at(grid, (yi, xi), score.astype(np.float32))
+    r = int(np.ceil(radius))
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    peak = cv2.dilate(grid, kernel)
+    return score.astype(np.float32) >= peak[yi, xi]
+
+
+def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
+                  nms_radius: float | None = None, mask: np.ndarray | None = None) -> Keypoints:
+    """The `n` best GeoKey keypoints of `frame`, best first (0 = all that survive suppression).
+
+    `mask` (H, W), nonzero = allowed, restricts the keypoints like OpenCV's detection masks.
+
+    Returns `Keypoints` with angles 0 (GeoKey gives no orientation: geodesic descriptors are
+    rotation-invariant), sizes 2^level x 8 px, and responses = the learned score (logit).
+    A frame without depth or texture gives fewer keypoints, or none, with a warning.
+    """
+    model = model or load_geokey()
+    xy, level = candidates(frame)
+    if mask is not None:
+        mask = np.asarray(mask)
+        if mask.shape != frame.shape:
+            raise ValueError(f"mask: expected shape {frame.shape}, got {mask.shape}")
+        inside = mask[np.rint(xy[:, 1]).astype(np.int64), np.rint(xy[:, 0]).astype(np.int64)] != 0
+        xy, level = xy[inside], level[inside]
+    if len(xy) == 0:
+        warnings.warn("geokey: no corner with depth under it in this frame (no texture or no depth)", stacklevel=2)
+        return Keypoints(np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0))
+    score = model.score(cue_features(cue_maps(frame), xy, level))
+    keep = suppress(xy, score, model.nms_radius if nms_radius is None else nms_radius, frame.shape)
+    xy, level, score = xy[keep], level[keep], score[keep]
+    order = np.argsort(-score, kind="stable")
+    if n:
+        order = order[:n]
+    m = len(order)
+    return Keypoints(xy[order], np.zeros(m), 8.0 * 2.0 ** level[order], score[order].astype(np.float64))
