@@ -10,6 +10,7 @@ from .geodesic.polar import PolarPatches, polar_patches
 from .io import read_frame, read_sequence, read_demo_frame, Sequence
 from .keypoints import Keypoints, as_keypoints, detect
 from .matching import match
+from .pipeline import extract
 from .sim import simulate_sequence
 
 __version__ = "0.1.0"
@@ -37,6 +38,7 @@ __all__ = [
     "Keypoints",
     "Matches",
     "detect",
+    "extract",
     "load_features",
     "load_matches",
     "make_descriptor",

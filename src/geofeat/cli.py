@@ -265,7 +265,7 @@ def _bench(args: argparse.Namespace) -> int:
     config = BenchConfig(descriptors=tuple(d for d in args.descriptors.split(",") if d), protocol=args.protocol,
                          radius=args.radius, depth_scale=args.depth_scale, n_keypoints=args.keypoints,
                          tps_dir=args.tps_dir, keypoint_set=args.keypoint_set, depth_profile=args.depth_profile,
-                         detector=args.detector)
+                         detector=args.detector, features=tuple(args.features or ()))
     out = Path(args.out)
     csv_path, failed = run_benchmark(args.datasets, out, config, workers=args.workers, scheduler=args.scheduler,
                                      overwrite=args.overwrite)
@@ -297,11 +297,14 @@ def _train_detector(args: argparse.Namespace) -> int:
 
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     model, results = train_detector(args.data, args.val, args.out, n=args.keypoints, hidden=tuple(args.hidden),
-                                    steps=args.steps, seed=args.seed)
-    for radius, r in results.items():
-        print(f"validation, NMS radius {radius:g} px: repeatability {r['repeatability']:.3f} at {args.keypoints} "
-              f"keypoints ({r['pairs']:.0f} ground-truth pairs per pair)" + ("  <- chosen" if radius == model.nms_radius else ""))
-    print(f"wrote {args.out}")
+                                    steps=args.steps, seed=args.seed, labels=args.labels)
+    print(f"| scorer | NMS radius (px) | GeoPatch MS | MMA | repeatability | correct matches / pair |")
+    print("|---|---|---|---|---|---|")
+    for (name, radius), r in results.items():
+        chosen = name == ("image + depth cues" if model.uses_depth_cues else "image cues") and radius == model.nms_radius
+        print(f"| {name}{' (chosen)' if chosen else ''} | {radius:g} | {r['ms']:.3f} | {r['mma']:.3f} | "
+              f"{r['repeatability']:.3f} | {r['hits']:.0f} |")
+    print(f"wrote {args.out} (validation at {args.keypoints} keypoints per frame)")
     return 0
 
 
@@ -409,6 +412,9 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--depth-scale", type=float, default=None, help="metres per depth-PNG unit (default: geofeat.json or 0.001)")
     bench.add_argument("--keypoints", type=int, default=N_KEYPOINTS, help="keypoints per frame (default 2048)")
     detector_option(bench)
+    bench.add_argument("--features", action="append", metavar="NAME=PATH",
+                       help="also score features computed elsewhere: an hloc-style .h5 (groups <sequence>/<frame>) "
+                            "or a folder of <frame>.npz with keypoints, descriptors and optional scores (repeatable)")
     bench.add_argument("--tps-dir", default=None, help="the authors' published TPS ground truth, one folder per sequence")
     bench.add_argument("--workers", type=int, default=1, help="local worker processes (sequences in parallel)")
     bench.add_argument("--scheduler", default=None, help="Dask scheduler address (e.g. tcp://host:8786); needs geofeat[dask]")
@@ -453,6 +459,8 @@ def build_parser() -> argparse.ArgumentParser:
     td.add_argument("--hidden", type=int, nargs="+", default=(32, 32), help="hidden layer widths (default 32 32)")
     td.add_argument("--steps", type=int, default=3000, help="Adam steps (default 3000)")
     td.add_argument("--seed", type=int, default=0)
+    td.add_argument("--labels", choices=("repeatable", "matchable"), default="repeatable",
+                    help="training labels: found again within 1 px (default), or also matched by GeoPatch (slower)")
     td.set_defaults(func=_train_detector)
 
     def app_options(p: argparse.ArgumentParser) -> None:

@@ -37,13 +37,15 @@ from ..geodesic.polar import polar_patches
 from ..io import Sequence, find_sequences, read_sequence
 from ..keypoints import KEYPOINT_SETS, Keypoints, check_detector_name, detect
 from ..matching import match
+from ..features import Features
+from .external import ExternalFeatures, parse_features_option
 from .protocol import LandmarkTPS, authors_tps_warp, ground_truth_pairs, score_detect, score_landmarks
 
 COLUMNS = ["sequence", "reference", "target", "descriptor", "detector", "protocol", "keypoint_set", "depth_profile",
            "ms", "mma", "repeatability", "hits", "n_gt", "n_ref", "n_tgt", "seconds_extract", "seconds_match",
            "angle_deg", "scale"]
 #: Settings that must be equal for a rerun to reuse the results already in the output folder.
-REUSE_KEYS = ("protocol", "detector", "keypoint_set", "depth_profile", "radius", "depth_scale", "n_keypoints", "tps_dir")
+REUSE_KEYS = ("protocol", "detector", "features", "keypoint_set", "depth_profile", "radius", "depth_scale", "n_keypoints", "tps_dir")
 
 
 @dataclass
@@ -60,19 +62,35 @@ class BenchConfig:
     keypoint_set: str = "protocol"
     depth_profile: str | None = None
     detector: str = "sift"
+    #: "NAME=PATH" feature sets computed elsewhere (`geofeat.bench.external`), scored beside the descriptors
+    features: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         self.detector = check_detector_name(self.detector)
+        self.features = tuple(str(f) for f in self.features)
+        external = [parse_features_option(f)[0] for f in self.features]
+        if len(set(external)) != len(external):
+            raise ValueError(f"features: names must differ, got {external}")
+        if self.features and self.protocol != "detect":
+            raise ValueError("features: external features are scored with protocol 'detect' only")
         if self.protocol not in ("detect", "landmarks"):
             raise ValueError(f"protocol: expected 'detect' or 'landmarks', got {self.protocol!r}")
         if self.keypoint_set not in KEYPOINT_SETS:
             raise ValueError(f"keypoint_set: expected one of {', '.join(KEYPOINT_SETS)}, got {self.keypoint_set!r}")
         if self.depth_profile is not None:
             self.depth_profile = check_profile(self.depth_profile)
-        if not self.descriptors:
-            raise ValueError("descriptors: at least one descriptor is needed")
+        if not self.descriptors and not self.features:
+            raise ValueError("descriptors: at least one descriptor (or --features) is needed")
         # validates the names (and that weights files exist) without building anything
         self.descriptors = tuple(check_descriptor_name(d) for d in self.descriptors)
+        clash = set(external) & set(self.descriptors)
+        if clash:
+            raise ValueError(f"features: {sorted(clash)} is also a descriptor name; rename the feature set")
+
+    @property
+    def methods(self) -> tuple[str, ...]:
+        """Every result name: the descriptors, then the external feature sets."""
+        return self.descriptors + tuple(parse_features_option(f)[0] for f in self.features)
 
 
 class Describer:
@@ -204,13 +222,16 @@ def _empty_row_score(n_ref: int, n_tgt: int):
 def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tuple[str, ...] | None = None) -> list[dict]:
     """All (reference, target) pairs of one sequence for each descriptor (default: the config's):
     result rows (see COLUMNS). The reference frame is described once."""
-    names = config.descriptors if descriptors is None else tuple(descriptors)
+    requested = config.methods if descriptors is None else tuple(descriptors)
+    names = tuple(n for n in requested if n in config.descriptors)
+    external = [ExternalFeatures(*parse_features_option(f)) for f in config.features]
+    external = [e for e in external if e.name in requested]
     seq = read_sequence(folder, depth_scale=config.depth_scale)
     if len(seq) < 2:
         raise ValueError(f"sequence {seq.name}: needs a reference and at least one target frame")
     ref = seq.frame(seq.reference)
-    profile = sequence_depth_profile(seq, config.depth_profile, ref)
-    describe = Describer(names, config.radius if config.radius is not None else seq.radius, profile)
+    profile = sequence_depth_profile(seq, config.depth_profile, ref) if names else ""
+    describe = Describer(names, config.radius if config.radius is not None else seq.radius, profile or "kinect")
     rows = []
     if config.protocol == "landmarks":
         ids_r, xy_r, vis_r = seq.landmarks(seq.reference)
@@ -219,6 +240,9 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
         truth = GroundTruth(seq, config.tps_dir)
         k_ref = detect(ref, config.n_keypoints, detector=config.detector, keypoint_set=config.keypoint_set)
         k_ref = k_ref[truth.reference_keep(k_ref.xy)]
+        rows += [dict(r, depth_profile=profile) for e in external for r in evaluate_external(seq, truth, e, config)]
+    if not names:
+        return rows
     f_ref = describe(ref, k_ref) if len(k_ref) else None
     for target in seq.targets:
         if config.protocol == "detect" and not truth.covers(target):
@@ -255,6 +279,37 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
                              ms=s.ms, mma=s.mma, repeatability=s.n_gt / max(min(s.n_ref, s.n_tgt), 1),
                              hits=s.hits, n_gt=s.n_gt, n_ref=s.n_ref, n_tgt=s.n_tgt,
                              seconds_extract=t_extract, seconds_match=t_match, angle_deg=angle, scale=scale))
+    return rows
+
+
+def evaluate_external(seq: Sequence, truth: GroundTruth, features: ExternalFeatures, config: BenchConfig) -> list[dict]:
+    """Rows of one external feature set on every pair of `seq`: its own keypoints and descriptors,
+    filtered and scored exactly as geofeat's (reference keypoints on the object, target keypoints
+    with a reliable ground truth, one-way nearest neighbour, hits within 3 px)."""
+    f_ref = features.load(seq.name, seq.reference, config.n_keypoints)
+    keep = truth.reference_keep(f_ref.keypoints)
+    f_ref = Features(f_ref.keypoints[keep], f_ref.descriptors[keep], f_ref.valid[keep])
+    rows = []
+    for target in seq.targets:
+        if not truth.covers(target):
+            continue
+        f_tgt = features.load(seq.name, target, config.n_keypoints)
+        shape = seq.frame(target).shape
+        mapped = truth.target_to_reference(target, f_tgt.keypoints, shape)
+        known = np.isfinite(mapped).all(axis=1)
+        f_tgt = Features(f_tgt.keypoints[known], f_tgt.descriptors[known], f_tgt.valid[known])
+        gt = ground_truth_pairs(f_ref.keypoints, mapped[known])
+        t = time.perf_counter()
+        if len(f_ref) and len(f_tgt):
+            s = score_detect(match(f_ref, f_tgt).matches0, gt, len(f_ref), len(f_tgt))
+        else:
+            s = _empty_row_score(len(f_ref), len(f_tgt))
+        angle, scale = _pose_change(seq, target)
+        rows.append(dict(sequence=seq.name, reference=seq.reference, target=target, descriptor=features.name,
+                         detector="external", protocol="detect", keypoint_set="external", depth_profile="",
+                         ms=s.ms, mma=s.mma, repeatability=s.n_gt / max(min(s.n_ref, s.n_tgt), 1), hits=s.hits,
+                         n_gt=s.n_gt, n_ref=s.n_ref, n_tgt=s.n_tgt, seconds_extract=0.0,
+                         seconds_match=time.perf_counter() - t, angle_deg=angle, scale=scale))
     return rows
 
 
@@ -308,7 +363,7 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
     work = []
     for folder in folders:
         name = Path(folder).name
-        todo = tuple(d for d in config.descriptors if (name, d) not in done)
+        todo = tuple(d for d in config.methods if (name, d) not in done)
         if todo:
             work.append((folder, todo))
     skipped = len(folders) - len(work)

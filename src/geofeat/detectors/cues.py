@@ -13,8 +13,10 @@ import numpy as np
 
 from ..frame import RGBDFrame
 
-#: Names of the columns of `cue_features`, in order.
-CUE_NAMES = (
+#: Image cues: the scorer combines them linearly, so that its ranking of corners follows their
+#: contrast and cornerness the same way in every view (a non-linear mix of image cues learned on
+#: simulated renders ranked the same corner differently in two views of a bent sheet).
+IMAGE_CUES = (
     "level",            # pyramid level of the candidate (0 = full resolution, 1 = half)
     "log_eig_3",        # log of the structure tensor's smaller eigenvalue, 3 x 3 window
     "log_eig_7",        # the same, 7 x 7 window
@@ -23,39 +25,49 @@ CUE_NAMES = (
     "log_dog",          # log |difference of Gaussians| (sigma 1.6 - sigma 1)
     "log_std_9",        # log local standard deviation in a 9 x 9 window
     "log_std_21",       # in a 21 x 21 window
+)
+#: Geometry cues from the depth, in pixel footprints: the scorer's small MLP learns from them where
+#: points slide or disappear (folds, silhouettes, steep slopes).
+CONTEXT_CUES = (
     "valid_frac_31",    # fraction of pixels with depth in a 31 x 31 window
     "slope",            # depth slope in pixel footprints per pixel (0 = facing the camera)
     "log_curv_2",       # log |Laplacian of depth| in footprints, sigma = 2 px
     "log_curv_6",       # sigma = 6 px
     "log_edge_dist",    # log(1 + distance in px to the nearest depth discontinuity or hole)
-    "border_dist",      # distance to the image border / min(H, W)
-    "radial",           # distance to the principal point / min(H, W)
 )
+#: Names of the columns of `cue_features`, in order.
+CUE_NAMES = IMAGE_CUES + CONTEXT_CUES
 
 
 def _log(x: np.ndarray, eps: float) -> np.ndarray:
     return np.log(np.abs(x) + eps).astype(np.float32)
 
 
+#: eps of the "log_" cues: cue = log(|raw| + eps), taken after sampling at the candidates (cheaper).
+LOG_EPS = {"log_eig_3": 1e-7, "log_eig_7": 1e-7, "log_grad_1": 1e-4, "log_grad_3": 1e-4, "log_dog": 1e-4,
+           "log_std_9": 1e-4, "log_std_21": 1e-4, "log_curv_2": 1e-3, "log_curv_6": 1e-3}
+
+
 def cue_maps(frame: RGBDFrame) -> dict[str, np.ndarray]:
-    """Dense cue maps of `frame`, each (H, W) float32 (see `CUE_NAMES`; "level" is per candidate)."""
+    """Dense raw cue maps of `frame`, each (H, W) float32, keyed by cue name (see `CUE_NAMES`; "level"
+    is per candidate). The "log_" cues are stored before their logarithm (`LOG_EPS`)."""
     g = frame.image.astype(np.float32)
     H, W = g.shape
     maps: dict[str, np.ndarray] = {}
-    maps["log_eig_3"] = _log(cv2.cornerMinEigenVal(g, 3, 3), 1e-7)
-    maps["log_eig_7"] = _log(cv2.cornerMinEigenVal(g, 7, 3), 1e-7)
+    maps["log_eig_3"] = cv2.cornerMinEigenVal(g, 3, 3)
+    maps["log_eig_7"] = cv2.cornerMinEigenVal(g, 7, 3)
     g1 = cv2.GaussianBlur(g, (0, 0), 1.0)
     g16 = cv2.GaussianBlur(g, (0, 0), 1.6)
     g3 = cv2.GaussianBlur(g, (0, 0), 3.0)
     for name, img in (("log_grad_1", g1), ("log_grad_3", g3)):
         gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3)
         gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3)
-        maps[name] = _log(np.sqrt(gx * gx + gy * gy), 1e-4)
-    maps["log_dog"] = _log(g16 - g1, 1e-4)
+        maps[name] = cv2.magnitude(gx, gy)
+    maps["log_dog"] = g16 - g1
     for k in (9, 21):
         mean = cv2.blur(g, (k, k))
         var = np.maximum(cv2.blur(g * g, (k, k)) - mean * mean, 0.0)
-        maps[f"log_std_{k}"] = _log(np.sqrt(var), 1e-4)
+        maps[f"log_std_{k}"] = np.sqrt(var)
 
     depth = frame.depth.astype(np.float32)
     valid = (depth > 0).astype(np.float32)
@@ -74,26 +86,22 @@ def cue_maps(frame: RGBDFrame) -> dict[str, np.ndarray]:
     zy = cv2.Sobel(z2, cv2.CV_32F, 0, 1, ksize=3) / 8.0
     slope = np.sqrt(zx * zx + zy * zy) / footprint
     maps["slope"] = np.minimum(slope, 20.0).astype(np.float32)
-    maps["log_curv_2"] = _log(cv2.Laplacian(z2, cv2.CV_32F, ksize=3) / footprint, 1e-3)
+    maps["log_curv_2"] = cv2.Laplacian(z2, cv2.CV_32F, ksize=3) / footprint
     z6 = smooth_depth(6.0)
-    maps["log_curv_6"] = _log(cv2.Laplacian(z6, cv2.CV_32F, ksize=3) / footprint, 1e-3)
+    maps["log_curv_6"] = cv2.Laplacian(z6, cv2.CV_32F, ksize=3) / footprint
     # depth discontinuities: a raw-depth step of more than 4 footprints between neighbours, or a hole
     raw_fp = np.where(depth > 0, depth / fx, 1.0)
     step_x = np.abs(np.diff(depth, axis=1, append=depth[:, -1:])) / raw_fp
     step_y = np.abs(np.diff(depth, axis=0, append=depth[-1:, :])) / raw_fp
     edge = (valid == 0) | (step_x > 4.0) | (step_y > 4.0)
     dist = cv2.distanceTransform((~edge).astype(np.uint8), cv2.DIST_L2, 3)
-    maps["log_edge_dist"] = np.log1p(np.minimum(dist, 200.0)).astype(np.float32)
-    ys, xs = np.mgrid[0:H, 0:W].astype(np.float32)
-    size = float(min(H, W))
-    maps["border_dist"] = np.minimum(np.minimum(xs, W - 1 - xs), np.minimum(ys, H - 1 - ys)) / size
-    cx, cy = float(frame.K[0, 2]), float(frame.K[1, 2])
-    maps["radial"] = np.sqrt((xs - cx) ** 2 + (ys - cy) ** 2) / size
+    maps["log_edge_dist"] = dist
     return maps
 
 
 def cue_features(maps: dict[str, np.ndarray], xy: np.ndarray, level: np.ndarray) -> np.ndarray:
-    """(N, len(CUE_NAMES)) float32: the cue maps read at the nearest pixel of each candidate.
+    """(N, len(CUE_NAMES)) float32: the candidates' pyramid level and the cue maps read at the
+    nearest pixel of each candidate.
 
     Args:
         maps: from `cue_maps`.
@@ -105,5 +113,12 @@ def cue_features(maps: dict[str, np.ndarray], xy: np.ndarray, level: np.ndarray)
     xi = np.clip(np.rint(xy[:, 0]).astype(np.int64), 0, W - 1)
     yi = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, H - 1)
     cols = [np.asarray(level, np.float32)]
-    cols += [maps[name][yi, xi] for name in CUE_NAMES[1:]]
+    for name in CUE_NAMES[1:]:
+        raw = maps[name][yi, xi]
+        if name == "log_edge_dist":
+            cols.append(np.log1p(np.minimum(raw, 200.0)))
+        elif name in LOG_EPS:
+            cols.append(_log(raw, LOG_EPS[name]))
+        else:
+            cols.append(raw)
     return np.stack(cols, axis=1).astype(np.float32)

@@ -5,10 +5,12 @@ Three steps, all vectorised:
 1. **Candidates.** Well-localised corners (the structure tensor's smaller eigenvalue, Shi-Tomasi)
    at full and half resolution, refined to sub-pixel, on pixels with depth. They are dense (several
    thousand per 640 x 480 frame), so the detector can afford to be choosy.
-2. **Learned score.** A small multi-layer perceptron reads image and depth cues at each candidate
-   (`geofeat.detectors.cues`: cornerness, contrast, depth slope, curvature, distance to a depth
-   edge, ...) and predicts the probability that the point is found again, at the same surface
-   point, in another view of the bent surface. It is trained on simulated sequences with exact
+2. **Learned score.** logit = a linear function of image cues (cornerness, gradient, contrast at
+   a few scales) + a small MLP of depth cues (slope, curvature, distance to a depth edge, depth
+   coverage; `geofeat.detectors.cues`). It predicts the probability that the point is found again,
+   at the same surface point, in another view of the bent surface, and matched there. The image
+   part is linear on purpose: the ranking of two corners by contrast and cornerness then stays the
+   same in every view, which a free non-linear mix learned on renders did not do. It is trained on simulated sequences with exact
    correspondences (`geofeat train-detector`, `geofeat.train.detector`).
 3. **Selection.** Non-maximum suppression of the scores within `nms_radius` pixels, then the `n`
    best.
@@ -30,7 +32,7 @@ import numpy as np
 
 from ..frame import RGBDFrame
 from ..keypoints import Keypoints
-from .cues import CUE_NAMES, cue_features, cue_maps
+from .cues import CUE_NAMES, IMAGE_CUES, cue_features, cue_maps
 
 #: The shipped weights.
 SHIPPED_WEIGHTS = Path(__file__).resolve().parent.parent / "data" / "geokey.npz"
@@ -46,34 +48,47 @@ BORDER_PX = 4
 
 @dataclass(frozen=True)
 class GeoKeyModel:
-    """The learned scorer: feature standardisation and a ReLU MLP, numpy arrays.
+    """The learned scorer, numpy arrays.
 
     Attributes:
         mean, std: (D,) feature standardisation, D = len(CUE_NAMES).
-        weights: [(D, H1), (H1, H2), ..., (Hk, 1)] layer matrices.
-        biases: [(H1,), ..., (1,)] layer biases.
+        linear: (len(IMAGE_CUES),) weights of the standardised image cues.
+        weights: [(len(CONTEXT_CUES), H1), ..., (Hk, 1)] layer matrices of the depth-cue MLP; empty
+            when training found that the depth cues do not help (the score is then linear).
+        biases: [(H1,), ..., (1,)] its biases.
         nms_radius: suppression radius chosen on validation data, pixels.
     """
 
     mean: np.ndarray
     std: np.ndarray
+    linear: np.ndarray
     weights: tuple[np.ndarray, ...]
     biases: tuple[np.ndarray, ...]
     nms_radius: float = NMS_RADIUS_PX
 
     def score(self, features: np.ndarray) -> np.ndarray:
-        """(N, D) cue features -> (N,) float32 logits (higher = more likely to be found again)."""
-        h = (np.asarray(features, np.float32) - self.mean) / self.std
-        for k, (w, b) in enumerate(zip(self.weights, self.biases)):
-            h = h @ w + b
-            if k < len(self.weights) - 1:
-                h = np.maximum(h, 0.0)
-        return h[:, 0]
+        """(N, D) cue features -> (N,) float32 logits (higher = more likely found again and matched)."""
+        x = (np.asarray(features, np.float32) - self.mean) / self.std
+        n_image = len(IMAGE_CUES)
+        score = x[:, :n_image] @ self.linear
+        if self.weights:
+            h = x[:, n_image:]
+            for k, (w, b) in enumerate(zip(self.weights, self.biases)):
+                h = h @ w + b
+                if k < len(self.weights) - 1:
+                    h = np.maximum(h, 0.0)
+            score = score + h[:, 0]
+        return score.astype(np.float32)
+
+    @property
+    def uses_depth_cues(self) -> bool:
+        """True when the score has the depth-cue MLP."""
+        return bool(self.weights)
 
     def save(self, path: str | Path) -> None:
         """Write the model to `path` as an .npz archive (the extension is kept as given)."""
-        arrays = {"mean": self.mean, "std": self.std, "nms_radius": np.float32(self.nms_radius),
-                  "cue_names": np.array(CUE_NAMES)}
+        arrays = {"mean": self.mean, "std": self.std, "linear": self.linear,
+                  "nms_radius": np.float32(self.nms_radius), "cue_names": np.array(CUE_NAMES)}
         for k, (w, b) in enumerate(zip(self.weights, self.biases)):
             arrays[f"w{k}"], arrays[f"b{k}"] = w, b
         with open(path, "wb") as fh:
@@ -100,22 +115,38 @@ def _load(path: str) -> GeoKeyModel:
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
         raise ValueError(f"detector weights: {path} is not a GeoKey weights file ({error})") from None
     names = tuple(str(s) for s in arrays.get("cue_names", ()))
-    if names != CUE_NAMES or "w0" not in arrays:
+    if names != CUE_NAMES or "linear" not in arrays:
         raise ValueError(f"detector weights: {path} is not a GeoKey weights file for this version "
                          f"(cues {names[:3]}..., expected {CUE_NAMES[:3]}...)")
     k = sum(1 for name in arrays if name.startswith("w"))
     weights = tuple(arrays[f"w{i}"].astype(np.float32) for i in range(k))
     biases = tuple(arrays[f"b{i}"].astype(np.float32) for i in range(k))
-    return GeoKeyModel(arrays["mean"].astype(np.float32), arrays["std"].astype(np.float32), weights, biases,
-                       float(arrays["nms_radius"]))
+    return GeoKeyModel(arrays["mean"].astype(np.float32), arrays["std"].astype(np.float32),
+                       arrays["linear"].astype(np.float32), weights, biases, float(arrays["nms_radius"]))
 
 
-def candidates(frame: RGBDFrame, max_candidates: tuple[int, ...] = MAX_CANDIDATES) -> tuple[np.ndarray, np.ndarray]:
-    """Corner candidates of `frame` on pixels with depth.
+@dataclass
+class Candidates:
+    """Candidate keypoints: xy (N, 2) float64 pixels (OpenCV convention), level (N,) int pyramid
+    level (0 = full resolution, 1 = half)."""
 
-    Returns:
-        xy (N, 2) float64 pixels (full resolution, OpenCV convention), level (N,) int (0 full, 1 half).
-    """
+    xy: np.ndarray
+    level: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.xy)
+
+    def __getitem__(self, index) -> "Candidates":
+        return Candidates(self.xy[index], self.level[index])
+
+    @property
+    def size(self) -> np.ndarray:
+        """(N,) nominal diameter, pixels: 8 x 2^level."""
+        return 8.0 * 2.0 ** self.level
+
+
+def candidates(frame: RGBDFrame, max_candidates: tuple[int, ...] = MAX_CANDIDATES) -> Candidates:
+    """Corner candidates of `frame`, on pixels with depth, away from the border."""
     g = frame.image.astype(np.float32)
     H, W = g.shape
     has_depth = (frame.depth > 0).astype(np.uint8)
@@ -136,18 +167,19 @@ def candidates(frame: RGBDFrame, max_candidates: tuple[int, ...] = MAX_CANDIDATE
         out_xy.append(xy)
         out_level.append(np.full(len(xy), level, np.int64))
     if not out_xy:
-        return np.zeros((0, 2)), np.zeros(0, np.int64)
-    xy, level = np.concatenate(out_xy), np.concatenate(out_level)
+        return Candidates(np.zeros((0, 2)), np.zeros(0, np.int64))
+    cands = Candidates(np.concatenate(out_xy).reshape(-1, 2), np.concatenate(out_level))
+    xy = cands.xy
     inside = ((xy[:, 0] >= BORDER_PX) & (xy[:, 0] <= W - 1 - BORDER_PX)
               & (xy[:, 1] >= BORDER_PX) & (xy[:, 1] <= H - 1 - BORDER_PX))
-    xy, level = xy[inside], level[inside]
-    xi, yi = np.rint(xy[:, 0]).astype(np.int64), np.rint(xy[:, 1]).astype(np.int64)
-    on_depth = frame.depth[yi, xi] > 0
-    return xy[on_depth], level[on_depth]
+    cands = cands[inside]
+    xi, yi = np.rint(cands.xy[:, 0]).astype(np.int64), np.rint(cands.xy[:, 1]).astype(np.int64)
+    return cands[frame.depth[yi, xi] > 0]
 
 
 def suppress(xy: np.ndarray, score: np.ndarray, radius: float, shape: tuple[int, int]) -> np.ndarray:
-    """(N,) bool: candidates whose score is the largest within `radius` pixels (ties: all kept).
+    """(N,) bool: candidates whose score is the largest within `radius` pixels (of equal scores on
+    one pixel, the first candidate only).
 
     The scores are splatted onto the pixel grid and compared with a grey dilation, so the cost is a
     few image operations whatever N is.
@@ -162,7 +194,12 @@ def suppress(xy: np.ndarray, score: np.ndarray, radius: float, shape: tuple[int,
     r = int(np.ceil(radius))
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
     peak = cv2.dilate(grid, kernel)
-    return score.astype(np.float32) >= peak[yi, xi]
+    keep = score.astype(np.float32) >= peak[yi, xi]
+    kept = np.flatnonzero(keep)
+    _, first = np.unique(yi[kept] * W + xi[kept], return_index=True)
+    keep[:] = False
+    keep[kept[first]] = True
+    return keep
 
 
 def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
@@ -176,21 +213,26 @@ def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
     A frame without depth or texture gives fewer keypoints, or none, with a warning.
     """
     model = model or load_geokey()
-    xy, level = candidates(frame)
+    cands = candidates(frame)
     if mask is not None:
         mask = np.asarray(mask)
         if mask.shape != frame.shape:
             raise ValueError(f"mask: expected shape {frame.shape}, got {mask.shape}")
-        inside = mask[np.rint(xy[:, 1]).astype(np.int64), np.rint(xy[:, 0]).astype(np.int64)] != 0
-        xy, level = xy[inside], level[inside]
-    if len(xy) == 0:
-        warnings.warn("geokey: no corner with depth under it in this frame (no texture or no depth)", stacklevel=2)
+        xi, yi = np.rint(cands.xy[:, 0]).astype(np.int64), np.rint(cands.xy[:, 1]).astype(np.int64)
+        cands = cands[mask[yi, xi] != 0]
+    if len(cands) == 0:
+        warnings.warn("geokey: no candidate with depth under it in this frame (no texture or no depth)", stacklevel=2)
         return Keypoints(np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0))
-    score = model.score(cue_features(cue_maps(frame), xy, level))
-    keep = suppress(xy, score, model.nms_radius if nms_radius is None else nms_radius, frame.shape)
-    xy, level, score = xy[keep], level[keep], score[keep]
+    score = model.score(candidate_features(frame, cands))
+    keep = suppress(cands.xy, score, model.nms_radius if nms_radius is None else nms_radius, frame.shape)
+    cands, score = cands[keep], score[keep]
     order = np.argsort(-score, kind="stable")
     if n:
         order = order[:n]
     m = len(order)
-    return Keypoints(xy[order], np.zeros(m), 8.0 * 2.0 ** level[order], score[order].astype(np.float64))
+    return Keypoints(cands.xy[order], np.zeros(m), cands.size[order], score[order].astype(np.float64))
+
+
+def candidate_features(frame: RGBDFrame, cands: Candidates) -> np.ndarray:
+    """(N, len(CUE_NAMES)) float32 cue features of the candidates (the scorer's input)."""
+    return cue_features(cue_maps(frame), cands.xy, cands.level)

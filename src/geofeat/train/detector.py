@@ -1,10 +1,13 @@
 """Training GeoKey (`geofeat train-detector`) on simulated sequences with exact correspondences.
 
 Training signal (per candidate, from the simulator's dense ground truth): a candidate corner of
-frame A is positive when its surface point is visible in frame B and B's own candidates include one
-within `match_px` pixels of where that point lands. That is repeatability measured where it counts
-(a corner found again at the same surface point), with occlusion, self-occlusion, foreshortening and
-folds all taken into account by the simulator. The scorer (a small MLP on `cues`) is fitted with a
+frame A is *repeatable* when its surface point is visible in frame B and B's own candidates include
+one within `match_px` pixels of where that point lands: a corner found again at the same surface
+point, with occlusion, self-occlusion, foreshortening and folds all taken into account by the
+simulator. With `labels="matchable"` (the shipped weights) it must also be *matched*: its GeoPatch
+descriptor's nearest neighbour among all of B's candidates lies within the protocol's 3 px of where
+the point lands (SiLK's idea of scoring a pixel by whether its descriptor finds its partner, with
+the descriptor fixed and the correspondences exact). The scorer (a small MLP on `cues`) is fitted with a
 binary cross-entropy, which learns in a couple of minutes on a CPU; the suppression radius is then
 chosen on the validation sequences by the protocol's repeatability.
 
@@ -21,37 +24,76 @@ import numpy as np
 from scipy.spatial import cKDTree
 from tqdm import tqdm
 
-from ..detectors.cues import CUE_NAMES, cue_features, cue_maps
-from ..detectors.geokey import GeoKeyModel, candidates, detect_geokey
+from ..detectors.cues import CUE_NAMES, IMAGE_CUES
+from ..detectors.geokey import GeoKeyModel, candidate_features, candidates, detect_geokey
 from ..io import Sequence, find_sequences, read_sequence
-from ..scoring import ground_truth_pairs
+from ..scoring import GT_THRESHOLD_PX, ground_truth_pairs
 
 #: A candidate is found again when another view's candidate lies within this many pixels.
 MATCH_PX = 1.0
 #: Suppression radii tried on the validation data, pixels.
-NMS_CHOICES = (2.0, 3.0, 4.0, 5.0)
+NMS_CHOICES = (2.0, 3.0, 4.0)
+
+
+#: Training labels: "repeatable" (found again) or "matchable" (found again and matched by GeoPatch).
+LABELS = ("repeatable", "matchable")
 
 
 @dataclass
 class FrameCandidates:
-    xy: np.ndarray        # (N, 2) pixels
-    features: np.ndarray  # (N, D) float32
+    xy: np.ndarray                 # (N, 2) pixels
+    features: np.ndarray           # (N, D) float32 cues
+    descriptors: np.ndarray | None  # (N, 128) float32 GeoPatch descriptors (NaN rows where invalid)
 
 
-def _frame_candidates(seq: Sequence, name: str) -> FrameCandidates:
+def _frame_candidates(seq: Sequence, name: str, descriptor=None) -> FrameCandidates:
     frame = seq.frame(name)
-    xy, level = candidates(frame)
-    return FrameCandidates(xy, cue_features(cue_maps(frame), xy, level))
+    cands = candidates(frame)
+    desc = None
+    if descriptor is not None and len(cands):
+        f = descriptor.compute(frame, cands.xy)
+        desc = np.where(f.valid[:, None], f.descriptors, np.nan).astype(np.float32)
+    return FrameCandidates(cands.xy, candidate_features(frame, cands), desc)
 
 
-def sequence_samples(seq: Sequence, match_px: float = MATCH_PX) -> tuple[np.ndarray, np.ndarray]:
+def _nearest_descriptor(da: np.ndarray, db: np.ndarray) -> np.ndarray:
+    """(Na,) index of the L2-nearest row of db for each row of da (-1 where a row is invalid)."""
+    ok_a, ok_b = np.isfinite(da).all(axis=1), np.isfinite(db).all(axis=1)
+    nn = np.full(len(da), -1, np.int64)
+    if ok_a.any() and ok_b.any():
+        ib = np.flatnonzero(ok_b)
+        sim = da[ok_a] @ db[ib].T  # unit-length descriptors: the largest dot product is the nearest
+        nn[ok_a] = ib[np.argmax(sim, axis=1)]
+    return nn
+
+
+def sequence_samples(seq: Sequence, match_px: float = MATCH_PX, labels: str = "repeatable",
+                     descriptor=None, max_targets: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Features (M, D) float32 and labels (M,) float32 in {0, 1} of every candidate of every
-    (reference, target) pair of a simulated sequence, in both directions."""
+    (reference, target) pair of a simulated sequence, in both directions.
+
+    Args:
+        labels: "repeatable" or "matchable" (see the module docstring).
+        descriptor: the `Descriptor` that decides "matchable" (default: the shipped GeoPatch with the
+            sequence's radius and depth profile).
+        max_targets: use only the first this many target frames (None: all).
+    """
     if not seq.has_ground_truth():
         raise ValueError(f"data: {seq.folder} has no simulator ground truth (geofeat simulate writes it)")
-    frames = {name: _frame_candidates(seq, name) for name in seq.names}
+    if labels not in LABELS:
+        raise ValueError(f"labels: expected one of {', '.join(LABELS)}, got {labels!r}")
+    if labels == "matchable" and descriptor is None:
+        from ..depth import PROFILES, sequence_depth_profile
+        from ..descriptors import make_descriptor
+
+        profile = sequence_depth_profile(seq)
+        descriptor = make_descriptor("geopatch", radius=seq.radius, depth_config=PROFILES[profile])
+    if labels == "repeatable":
+        descriptor = None
+    targets = seq.targets[:max_targets] if max_targets else seq.targets
+    frames = {name: _frame_candidates(seq, name, descriptor) for name in [seq.reference, *targets]}
     xs, ys = [], []
-    for target in seq.targets:
+    for target in targets:
         for a, b in ((seq.reference, target), (target, seq.reference)):
             ca, cb = frames[a], frames[b]
             if len(ca.xy) == 0:
@@ -60,7 +102,12 @@ def sequence_samples(seq: Sequence, match_px: float = MATCH_PX) -> tuple[np.ndar
             label = np.zeros(len(ca.xy), np.float32)
             if len(cb.xy) and visible.any():
                 dist, _ = cKDTree(cb.xy).query(mapped[visible], k=1)
-                label[visible] = (dist <= match_px).astype(np.float32)
+                found = dist <= match_px
+                if descriptor is not None:
+                    nn = _nearest_descriptor(ca.descriptors[visible], cb.descriptors)
+                    landed = np.linalg.norm(cb.xy[np.maximum(nn, 0)] - mapped[visible], axis=1)
+                    found &= (nn >= 0) & (landed < GT_THRESHOLD_PX)
+                label[visible] = found.astype(np.float32)
             xs.append(ca.features)
             ys.append(label)
     if not xs:
@@ -68,24 +115,26 @@ def sequence_samples(seq: Sequence, match_px: float = MATCH_PX) -> tuple[np.ndar
     return np.concatenate(xs), np.concatenate(ys)
 
 
-def collect(folders: list[Path], progress: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def collect(folders: list[Path], labels: str = "repeatable", max_targets: int | None = None,
+            progress: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """`sequence_samples` of every simulated sequence under `folders`, concatenated."""
     xs, ys = [], []
     for folder in tqdm(folders, desc="candidates", unit="seq", disable=not progress):
-        x, y = sequence_samples(read_sequence(folder))
+        x, y = sequence_samples(read_sequence(folder), labels=labels, max_targets=max_targets)
         xs.append(x)
         ys.append(y)
     return np.concatenate(xs), np.concatenate(ys)
 
 
-def fit(x: np.ndarray, y: np.ndarray, hidden: tuple[int, ...] = (32, 32), steps: int = 3000,
+def fit(x: np.ndarray, y: np.ndarray, hidden: tuple[int, ...] | None = (32, 32), steps: int = 3000,
         batch: int = 4096, lr: float = 3e-3, seed: int = 0, device: str | None = None,
         progress: bool = True) -> GeoKeyModel:
-    """Fit the MLP scorer with a binary cross-entropy (torch, CPU or the GPU when present).
+    """Fit the scorer (linear in the image cues + an MLP of the depth cues) with a binary
+    cross-entropy (torch, CPU or the GPU when present).
 
     Args:
-        x: (M, D) cue features; y: (M,) labels in {0, 1}.
-        hidden: widths of the hidden layers.
+        x: (M, D) cue features (`CUE_NAMES` order); y: (M,) labels in {0, 1}.
+        hidden: widths of the depth-cue MLP's hidden layers; None: no MLP (a linear image score).
         steps, batch, lr: Adam iterations, minibatch size, learning rate.
         seed: the same seed gives the same weights (on the same device).
     """
@@ -100,91 +149,138 @@ def fit(x: np.ndarray, y: np.ndarray, hidden: tuple[int, ...] = (32, 32), steps:
     std = (x.std(axis=0) + 1e-6).astype(np.float32)
     xt = torch.from_numpy((x - mean) / std).to(device)
     yt = torch.from_numpy(y.astype(np.float32)).to(device)
-    widths = (x.shape[1], *hidden, 1)
-    layers: list = []
+    n_image = len(IMAGE_CUES)
+    linear = torch.nn.Linear(n_image, 1, bias=False).to(device)
+    widths = (x.shape[1] - n_image, *hidden, 1) if hidden is not None else ()
+    layers: list = [torch.nn.Identity()]
     for k in range(len(widths) - 1):
         layers.append(torch.nn.Linear(widths[k], widths[k + 1]))
         if k < len(widths) - 2:
             layers.append(torch.nn.ReLU())
-    net = torch.nn.Sequential(*layers).to(device)
-    opt = torch.optim.Adam(net.parameters(), lr=lr)
+    mlp = torch.nn.Sequential(*layers).to(device)
+    opt = torch.optim.Adam([*linear.parameters(), *mlp.parameters()], lr=lr)
+    if hidden is None:
+        opt = torch.optim.Adam(linear.parameters(), lr=lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
     loss_fn = torch.nn.BCEWithLogitsLoss()
     bar = tqdm(range(steps), desc="train-detector", unit="step", disable=not progress)
     for step in bar:
         idx = torch.from_numpy(rng.integers(0, len(x), batch)).to(device)
-        loss = loss_fn(net(xt[idx])[:, 0], yt[idx])
+        xb = xt[idx]
+        logit = linear(xb[:, :n_image])[:, 0]
+        if hidden is not None:
+            logit = logit + mlp(xb[:, n_image:])[:, 0]
+        loss = loss_fn(logit, yt[idx])
         opt.zero_grad()
         loss.backward()
         opt.step()
         sched.step()
         if step % 200 == 0:
             bar.set_postfix(loss=f"{loss.item():.4f}")
-    linears = [m for m in net if isinstance(m, torch.nn.Linear)]
+    linears = [m for m in mlp if isinstance(m, torch.nn.Linear)]
     weights = tuple(m.weight.detach().cpu().numpy().T.copy() for m in linears)
     biases = tuple(m.bias.detach().cpu().numpy().copy() for m in linears)
-    return GeoKeyModel(mean, std, weights, biases)
+    return GeoKeyModel(mean, std, linear.weight.detach().cpu().numpy()[0].copy(), weights, biases)
 
 
-def repeatability(folders: list[Path], detector, n: int, progress: bool = False) -> dict:
-    """The protocol's best matching score of a detector on simulated sequences.
+def validation_scores(folders: list[Path], detector, n: int, descriptor: str | None = "geopatch",
+                      progress: bool = False) -> dict:
+    """The protocol's figures of a detector on simulated sequences (means over sequences of the
+    per-sequence means over (reference, target) pairs).
 
-    For each (reference, target) pair: the detector's n keypoints in both frames, reference
-    keypoints off the visible surface dropped, target keypoints whose surface point is not visible
-    in the reference dropped; ground-truth pairs < 3 px (the protocol's rule) / min(n_ref, n_tgt).
+    For each pair: the detector's n keypoints in both frames, reference keypoints off the visible
+    surface dropped, target keypoints whose surface point is not visible in the reference dropped;
+    ground-truth pairs < 3 px (the protocol's rule). repeatability = ground-truth pairs /
+    min(n_ref, n_tgt) (the MS of a perfect descriptor); with `descriptor` (a `make_descriptor` name,
+    described with each sequence's radius and depth profile), also its MS, MMA and hits.
 
     Args:
         detector: callable (frame, n) -> Keypoints.
+        descriptor: None for repeatability only (fast).
 
     Returns:
-        {"repeatability": mean over sequences of the mean over pairs, "n_ref": mean reference
-        keypoints kept, "pairs": ground-truth pairs per pair (mean)}.
+        {"repeatability", "ms", "mma", "hits" (per pair), "pairs" (ground-truth pairs per pair),
+        "n_ref" (reference keypoints kept)}.
     """
-    per_seq, n_refs, n_pairs = [], [], []
-    for folder in tqdm(folders, desc="repeatability", unit="seq", disable=not progress):
+    from ..depth import PROFILES, sequence_depth_profile
+    from ..descriptors import make_descriptor
+    from ..matching import match
+    from ..scoring import score_detect
+
+    keys = ("repeatability", "ms", "mma", "hits", "pairs", "n_ref")
+    per_seq = []
+    for folder in tqdm(folders, desc="validation", unit="seq", disable=not progress):
         seq = read_sequence(folder)
-        ref = detector(seq.frame(seq.reference), n).xy
+        ref_frame = seq.frame(seq.reference)
+        describe = None
+        if descriptor:
+            profile = sequence_depth_profile(seq, None, ref_frame)
+            describe = make_descriptor(descriptor, radius=seq.radius, depth_config=PROFILES[profile]).compute
+        ref = detector(ref_frame, n).xy
         ref = ref[seq.correspondences(seq.reference, seq.reference, ref)[1]]
-        scores = []
+        f_ref = describe(ref_frame, ref) if describe is not None and len(ref) else None
+        rows = []
         for target in seq.targets:
-            tgt = detector(seq.frame(target), n).xy
+            frame = seq.frame(target)
+            tgt = detector(frame, n).xy
             mapped, visible = seq.correspondences(target, seq.reference, tgt)
-            mapped = mapped[visible]
+            tgt, mapped = tgt[visible], mapped[visible]
             pairs = ground_truth_pairs(ref, mapped)
-            denom = min(len(ref), len(mapped))
-            scores.append(len(pairs) / denom if denom else 0.0)
-            n_pairs.append(len(pairs))
-        per_seq.append(float(np.mean(scores)))
-        n_refs.append(len(ref))
-    return {"repeatability": float(np.mean(per_seq)), "n_ref": float(np.mean(n_refs)),
-            "pairs": float(np.mean(n_pairs))}
+            denom = min(len(ref), len(tgt))
+            row = [len(pairs) / denom if denom else 0.0, np.nan, np.nan, np.nan, len(pairs), len(ref)]
+            if f_ref is not None and len(tgt):
+                s = score_detect(match(f_ref, describe(frame, tgt)).matches0, pairs, len(ref), len(tgt))
+                row[1:4] = [s.ms, s.mma, s.hits]
+            rows.append(row)
+        per_seq.append(np.mean(rows, axis=0))
+    means = np.mean(per_seq, axis=0)
+    return {k: float(v) for k, v in zip(keys, means)}
 
 
-def choose_nms_radius(model: GeoKeyModel, folders: list[Path], n: int) -> tuple[float, dict]:
-    """The suppression radius of NMS_CHOICES with the best validation repeatability at n keypoints."""
+def repeatability(folders: list[Path], detector, n: int, progress: bool = False) -> dict:
+    """`validation_scores` without a descriptor: repeatability, ground-truth pairs, n_ref."""
+    return validation_scores(folders, detector, n, descriptor=None, progress=progress)
+
+
+def choose_model(models: dict[str, GeoKeyModel], folders: list[Path], n: int,
+                 radii: tuple[float, ...] = NMS_CHOICES, progress: bool = True) -> tuple[GeoKeyModel, dict]:
+    """The (model, suppression radius) with the best validation matching score of the shipped
+    GeoPatch at n keypoints (denser keypoints are more repeatable but harder to tell apart).
+
+    Returns the chosen model (its `nms_radius` set) and {(model name, radius): validation_scores}.
+    """
     results = {}
-    for radius in NMS_CHOICES:
-        results[radius] = repeatability(folders, lambda f, k: detect_geokey(f, k, model, nms_radius=radius), n)
-    best = max(results, key=lambda r: results[r]["repeatability"])
-    return best, results
+    for name, model in models.items():
+        for radius in radii:
+            results[(name, radius)] = validation_scores(
+                folders, lambda f, k, m=model, r=radius: detect_geokey(f, k, m, nms_radius=r), n)
+            if progress:
+                r = results[(name, radius)]
+                tqdm.write(f"validation {name}, NMS {radius:g} px: MS {r['ms']:.3f}, MMA {r['mma']:.3f}, "
+                           f"repeatability {r['repeatability']:.3f}")
+    name, radius = max(results, key=lambda key: results[key]["ms"])
+    best = models[name]
+    return GeoKeyModel(best.mean, best.std, best.linear, best.weights, best.biases, radius), results
 
 
 def train_detector(data, val, out: str | Path, n: int = 1024, hidden: tuple[int, ...] = (32, 32),
-                   steps: int = 3000, seed: int = 0, progress: bool = True) -> tuple[GeoKeyModel, dict]:
-    """Collect candidates from `data`, fit the scorer, choose the suppression radius on `val`, and
-    write the weights to `out`. Returns the model and the validation figures per radius."""
+                   steps: int = 3000, seed: int = 0, labels: str = "repeatable",
+                   radii: tuple[float, ...] = NMS_CHOICES, progress: bool = True) -> tuple[GeoKeyModel, dict]:
+    """Collect candidates from `data`, fit two scorers (image cues only, and image + depth cues),
+    choose the scorer and the suppression radius on `val` by GeoPatch's matching score, and write
+    the weights to `out`. Returns the model and the validation figures per (scorer, radius)."""
     train_folders = find_sequences(data)
     val_folders = find_sequences(val)
     if not train_folders:
         raise ValueError(f"data: no sequences under {data}")
     if not val_folders:
         raise ValueError(f"val: no sequences under {val}")
-    x, y = collect(train_folders, progress)
+    x, y = collect(train_folders, labels, progress=progress)
     if progress:
         tqdm.write(f"train-detector: {len(x)} candidates from {len(train_folders)} sequences, "
-                   f"{y.mean():.3f} positive")
-    model = fit(x, y, hidden=hidden, steps=steps, seed=seed, progress=progress)
-    radius, results = choose_nms_radius(model, val_folders, n)
-    model = GeoKeyModel(model.mean, model.std, model.weights, model.biases, radius)
+                   f"{y.mean():.3f} positive ({labels})")
+    models = {"image cues": fit(x, y, hidden=None, steps=steps, seed=seed, progress=progress),
+              "image + depth cues": fit(x, y, hidden=hidden, steps=steps, seed=seed, progress=progress)}
+    model, results = choose_model(models, val_folders, n, radii, progress)
     model.save(out)
     return model, results

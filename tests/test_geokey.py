@@ -1,0 +1,183 @@
+"""GeoKey, the learned deformation-aware detector: repeatable on an isometrically bent sheet (better
+than the same network with random weights), deterministic, clear errors, and the bench with both
+detectors on a tiny simulated sequence."""
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+import geofeat
+from geofeat.bench.report import read_results
+from geofeat.bench.runner import BenchConfig, run_benchmark
+from geofeat.detectors.geokey import GeoKeyModel, candidates, detect_geokey, load_geokey, suppress
+from geofeat.sim import simulate_sequence
+from geofeat.train.detector import fit, sequence_samples
+
+from sheets import K_SHEET, make_texture, project_bent, project_flat, render_bent, render_flat
+
+Z0, BEND = 0.6, 0.12
+
+
+def _bent_repeatability(detector, n: int = 400) -> float:
+    """Share of the flat sheet's keypoints (inside the part of the sheet the bent view sees) that
+    have a keypoint of the bent view within 3 px of their exact position there."""
+    tex = make_texture(3)
+    flat, bent = render_flat(tex, Z0), render_bent(tex, Z0, BEND)
+    k_flat, k_bent = detector(flat, n), detector(bent, n)
+    # flat pixel -> material (u, v) -> bent pixel
+    uv = np.stack([(k_flat.xy[:, 0] - K_SHEET[0, 2]) * Z0 / K_SHEET[0, 0],
+                   (k_flat.xy[:, 1] - K_SHEET[1, 2]) * Z0 / K_SHEET[1, 1]], axis=1)
+    seen = np.abs(uv[:, 0]) < 0.6 * BEND * np.pi / 2  # well inside the bent view's silhouette
+    mapped = project_bent(uv[seen], Z0, BEND)
+    inside = (mapped[:, 0] > 8) & (mapped[:, 0] < 632) & (mapped[:, 1] > 8) & (mapped[:, 1] < 472)
+    dist, _ = cKDTree(k_bent.xy).query(mapped[inside])
+    return float(np.mean(dist < 3.0))
+
+
+def _random_model(seed: int = 0) -> GeoKeyModel:
+    shipped = load_geokey()
+    rng = np.random.default_rng(seed)
+    weights = tuple(rng.normal(size=w.shape).astype(np.float32) for w in shipped.weights)
+    linear = rng.normal(size=shipped.linear.shape).astype(np.float32)
+    return GeoKeyModel(shipped.mean, shipped.std, linear, weights, shipped.biases, shipped.nms_radius)
+
+
+def test_geokey_is_repeatable_on_a_bent_sheet_and_beats_random_weights():
+    trained = _bent_repeatability(lambda f, n: geofeat.detect(f, n, detector="geokey"))
+    random = np.mean([_bent_repeatability(lambda f, n, s=s: detect_geokey(f, n, _random_model(s))) for s in range(3)])
+    assert trained > 0.6, trained
+    assert trained > random + 0.05, (trained, random)
+
+
+def test_projections_of_the_test_sheet_agree():
+    """The check above relies on flat pixel -> material -> bent pixel; the flat round trip is exact."""
+    uv = np.array([[0.01, -0.02], [0.0, 0.05]])
+    xy = project_flat(uv, Z0)
+    back = np.stack([(xy[:, 0] - K_SHEET[0, 2]) * Z0 / K_SHEET[0, 0], (xy[:, 1] - K_SHEET[1, 2]) * Z0 / K_SHEET[1, 1]], 1)
+    np.testing.assert_allclose(back, uv, atol=1e-12)
+
+
+def test_detect_geokey_returns_sorted_unique_keypoints_on_depth():
+    frame = geofeat.read_demo_frame()
+    kps = geofeat.detect(frame, 500, detector="geokey")
+    assert 0 < len(kps) <= 500
+    assert np.all(np.diff(kps.responses) <= 0)
+    xi, yi = np.rint(kps.xy).astype(int).T
+    assert np.all(frame.depth[yi, xi] > 0)
+    d, _ = cKDTree(kps.xy).query(kps.xy, k=2)
+    assert d[:, 1].min() >= load_geokey().nms_radius - 1.0  # suppression keeps keypoints apart
+    again = geofeat.detect(frame, 500, detector="geokey")
+    np.testing.assert_array_equal(kps.xy, again.xy)
+
+
+def test_mask_restricts_geokey():
+    frame = geofeat.read_demo_frame()
+    mask = np.zeros(frame.shape, np.uint8)
+    mask[:, : frame.shape[1] // 2] = 1
+    kps = geofeat.detect(frame, 300, detector="geokey", mask=mask)
+    assert len(kps) and np.all(kps.xy[:, 0] < frame.shape[1] // 2 + 0.5)
+
+
+def test_suppression_keeps_the_local_maximum_only():
+    xy = np.array([[10.0, 10.0], [11.0, 10.0], [30.0, 30.0]])
+    keep = suppress(xy, np.array([1.0, 2.0, 0.5]), 3, (50, 50))
+    assert keep.tolist() == [False, True, True]
+
+
+def test_frame_without_texture_or_depth_gives_no_keypoints_and_a_warning():
+    K = K_SHEET
+    blank = geofeat.RGBDFrame(np.full((120, 160), 0.5, np.float32), np.full((120, 160), 1.0, np.float32), K)
+    with pytest.warns(UserWarning, match="geokey"):
+        assert len(geofeat.detect(blank, 100, detector="geokey")) == 0
+    tex = (make_texture(1, 256)[:120, :160]).astype(np.float32)
+    depth = np.zeros((120, 160), np.float32)
+    depth[0, 0] = 1.0  # RGBDFrame refuses an all-zero depth map
+    no_depth = geofeat.RGBDFrame(tex, depth, K)
+    with pytest.warns(UserWarning, match="geokey"):
+        assert len(geofeat.detect(no_depth, 100, detector="geokey")) == 0
+
+
+@pytest.mark.parametrize("n", [0, -5, 2.5])
+def test_bad_n_is_an_error(n):
+    frame = geofeat.read_demo_frame()
+    with pytest.raises(ValueError, match="n:"):
+        geofeat.detect(frame, n, detector="geokey")
+
+
+def test_bad_detector_names_and_weights_files(tmp_path):
+    frame = geofeat.read_demo_frame()
+    with pytest.raises(ValueError, match="detector"):
+        geofeat.detect(frame, 10, detector="surf")
+    with pytest.raises(ValueError, match="does not exist"):
+        geofeat.detect(frame, 10, detector=f"geokey={tmp_path / 'missing.pt'}")
+    corrupt = tmp_path / "corrupt.pt"
+    corrupt.write_bytes(b"not weights")
+    with pytest.raises(ValueError, match="corrupt.pt"):
+        geofeat.detect(frame, 10, detector=f"geokey={corrupt}")
+    other = tmp_path / "other.pt"
+    np.savez(open(other, "wb"), w0=np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="other.pt"):
+        geofeat.detect(frame, 10, detector=f"geokey={other}")
+    with pytest.raises(ValueError, match="detector"):
+        BenchConfig(descriptors=("geobit",), detector="geokey=")
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    root = tmp_path_factory.mktemp("geokey")
+    simulate_sequence(root / "seqs" / "a-deform", scenario="deform", n_frames=3, seed=21,
+                      width=320, height=240, progress=False)
+    return root / "seqs"
+
+
+def test_training_labels_and_same_seed_same_weights(tiny, tmp_path):
+    seq = geofeat.read_sequence(tiny / "a-deform")
+    x, y = sequence_samples(seq)
+    assert x.shape[0] == y.shape[0] > 100 and 0 < y.mean() < 1
+    a = fit(x, y, hidden=(8,), steps=30, batch=256, seed=3, device="cpu", progress=False)
+    b = fit(x, y, hidden=(8,), steps=30, batch=256, seed=3, device="cpu", progress=False)
+    for wa, wb in zip(a.weights, b.weights):
+        np.testing.assert_array_equal(wa, wb)
+    a.save(tmp_path / "a.pt")
+    frame = seq.frame(seq.reference)
+    k1 = geofeat.detect(frame, 200, detector=f"geokey={tmp_path / 'a.pt'}")
+    k2 = detect_geokey(frame, 200, a)
+    np.testing.assert_array_equal(k1.xy, k2.xy)
+    # "matchable" labels are a subset of "repeatable" ones
+    x_m, y_m = sequence_samples(seq, labels="matchable", max_targets=1)
+    x_r, y_r = sequence_samples(seq, labels="repeatable", max_targets=1)
+    np.testing.assert_array_equal(x_m, x_r)
+    assert np.all(y_m <= y_r) and y_m.sum() > 0
+
+
+def test_bench_runs_with_both_detectors(tiny, tmp_path):
+    for detector in ("sift", "geokey"):
+        config = BenchConfig(descriptors=("geobit",), n_keypoints=300, detector=detector)
+        csv_path, failed = run_benchmark(tiny, tmp_path / detector, config, progress=False)
+        rows = read_results(csv_path)
+        assert not failed and len(rows) == 2
+        for r in rows:
+            assert r["detector"] == detector
+            assert 0 <= r["ms"] <= r["repeatability"] <= 1
+            assert r["hits"] <= r["n_gt"] <= min(r["n_ref"], r["n_tgt"])
+
+
+def test_candidates_lie_on_depth_inside_the_image():
+    frame = geofeat.read_demo_frame()
+    cands = candidates(frame)
+    xy = cands.xy
+    assert len(xy) > 1000 and set(np.unique(cands.level)) == {0, 1}
+    xi, yi = np.rint(xy).astype(int).T
+    assert np.all(frame.depth[yi, xi] > 0)
+    H, W = frame.shape
+    assert xy[:, 0].min() >= 0 and xy[:, 0].max() <= W - 1 and xy[:, 1].min() >= 0 and xy[:, 1].max() <= H - 1
+
+
+def test_extract_is_detect_then_describe():
+    frame = geofeat.read_demo_frame()
+    f = geofeat.extract(frame, n=300, detector="geokey", descriptor="geobit")
+    kps = geofeat.detect(frame, 300, detector="geokey")
+    np.testing.assert_array_equal(f.keypoints, kps.xy)
+    assert f.descriptors.shape == (len(kps), 16, 64) and f.valid.mean() > 0.8
+    with pytest.raises(ValueError, match="n:"):
+        geofeat.extract(frame, n=0)
