@@ -48,9 +48,10 @@ LOG_EPS = {"log_eig_3": 1e-7, "log_eig_7": 1e-7, "log_grad_1": 1e-4, "log_grad_3
            "log_std_9": 1e-4, "log_std_21": 1e-4, "log_curv_2": 1e-3, "log_curv_6": 1e-3}
 
 
-def cue_maps(frame: RGBDFrame) -> dict[str, np.ndarray]:
+def cue_maps(frame: RGBDFrame, depth_cues: bool = True) -> dict[str, np.ndarray]:
     """Dense raw cue maps of `frame`, each (H, W) float32, keyed by cue name (see `CUE_NAMES`; "level"
-    is per candidate). The "log_" cues are stored before their logarithm (`LOG_EPS`)."""
+    is per candidate). The "log_" cues are stored before their logarithm (`LOG_EPS`). Without
+    `depth_cues` the depth maps are left out (and read as 0 by `cue_features`)."""
     g = frame.image.astype(np.float32)
     H, W = g.shape
     maps: dict[str, np.ndarray] = {}
@@ -68,6 +69,8 @@ def cue_maps(frame: RGBDFrame) -> dict[str, np.ndarray]:
         mean = cv2.blur(g, (k, k))
         var = np.maximum(cv2.blur(g * g, (k, k)) - mean * mean, 0.0)
         maps[f"log_std_{k}"] = np.sqrt(var)
+    if not depth_cues:
+        return maps
 
     depth = frame.depth.astype(np.float32)
     valid = (depth > 0).astype(np.float32)
@@ -114,6 +117,9 @@ def cue_features(maps: dict[str, np.ndarray], xy: np.ndarray, level: np.ndarray)
     yi = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, H - 1)
     cols = [np.asarray(level, np.float32)]
     for name in CUE_NAMES[1:]:
+        if name not in maps:
+            cols.append(np.zeros(len(xi), np.float32))
+            continue
         raw = maps[name][yi, xi]
         if name == "log_edge_dist":
             cols.append(np.log1p(np.minimum(raw, 200.0)))

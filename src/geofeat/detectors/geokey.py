@@ -223,7 +223,7 @@ def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
     if len(cands) == 0:
         warnings.warn("geokey: no candidate with depth under it in this frame (no texture or no depth)", stacklevel=2)
         return Keypoints(np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0))
-    score = model.score(candidate_features(frame, cands))
+    score = model.score(candidate_features(frame, cands, depth_cues=model.uses_depth_cues))
     keep = suppress(cands.xy, score, model.nms_radius if nms_radius is None else nms_radius, frame.shape)
     cands, score = cands[keep], score[keep]
     order = np.argsort(-score, kind="stable")
@@ -233,6 +233,7 @@ def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
     return Keypoints(cands.xy[order], np.zeros(m), cands.size[order], score[order].astype(np.float64))
 
 
-def candidate_features(frame: RGBDFrame, cands: Candidates) -> np.ndarray:
-    """(N, len(CUE_NAMES)) float32 cue features of the candidates (the scorer's input)."""
-    return cue_features(cue_maps(frame), cands.xy, cands.level)
+def candidate_features(frame: RGBDFrame, cands: Candidates, depth_cues: bool = True) -> np.ndarray:
+    """(N, len(CUE_NAMES)) float32 cue features of the candidates (the scorer's input); without
+    `depth_cues` (a scorer that does not read them) their columns are 0."""
+    return cue_features(cue_maps(frame, depth_cues), cands.xy, cands.level)
