@@ -40,7 +40,7 @@ def main() -> None:
         t_sift = best_of(lambda: geofeat.detect(frame, args.n, keypoint_set="protocol"), 7)
         t_geokey = best_of(lambda: detect_geokey(frame, args.n, model), 7)
         t_cand = best_of(lambda: candidates(frame), 7)
-        t_maps = best_of(lambda: cue_maps(frame), 7)
+        t_maps = best_of(lambda: cue_maps(frame, model.uses_depth_cues), 7)
         print(f"| {name} | {t_sift * 1e3:.1f} | {t_geokey * 1e3:.1f} | {t_geokey / t_sift:.2f} | "
               f"{t_cand * 1e3:.1f} | {t_maps * 1e3:.1f} |")
     print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")

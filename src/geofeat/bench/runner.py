@@ -329,7 +329,8 @@ def _finished(csv_path: Path) -> set[tuple[str, str]]:
 
 
 def _settings(config: BenchConfig) -> dict:
-    return {key: asdict(config)[key] for key in REUSE_KEYS}
+    """The settings a rerun must share, as config.json stores them (JSON turns tuples into lists)."""
+    return json.loads(json.dumps({key: asdict(config)[key] for key in REUSE_KEYS}))
 
 
 def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int = 1,
