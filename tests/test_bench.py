@@ -199,3 +199,21 @@ def test_sequences_are_grouped_by_their_scenario_word():
 
     assert [sequence_group(n) for n in ("deform-0", "b-rotate", "hard_scale_2", "cloud-roll", "seq")] == \
         ["deform", "rotate", "scale", "roll", "all"]
+
+
+def test_curves_have_one_line_per_detector_and_descriptor(tmp_path):
+    from geofeat.bench.report import CURVES, curve_series, plot_curves
+
+    rows = [{"sequence": f"rotate-{k}", "descriptor": desc, "detector": det, "angle_deg": angle,
+             "scale": float("nan"), "ms": ms}
+            for k in range(2) for det, base in (("sift", 0.2), ("geokey", 0.4)) for desc in ("geopatch", "geobit")
+            for angle, ms in ((10.0, base), (90.0, base / 2))]
+    key, kind, _, bins = CURVES[0]
+    series = curve_series(rows, key, kind, bins)
+    assert set(series) == {"sift + geopatch", "sift + geobit", "geokey + geopatch", "geokey + geobit"}
+    x, y = series["geokey + geopatch"]
+    np.testing.assert_allclose(x, [10.0, 90.0])
+    np.testing.assert_allclose(y, [0.4, 0.2])
+    one = curve_series([r for r in rows if r["detector"] == "sift"], key, kind, bins)
+    assert set(one) == {"geopatch", "geobit"}
+    assert [p.name for p in plot_curves(rows, tmp_path)] == ["ms_vs_rotate.png"]

@@ -103,31 +103,55 @@ def markdown_table(rows: list[dict], group_of=sequence_group) -> str:
     return "\n".join(lines) + "\n\n" + notes + "\n"
 
 
+CURVES = (  # (row column, sequence kind, axis label, bin edges)
+    ("angle_deg", "rotate", "camera roll (degrees)", np.arange(0, 200, 20)),
+    ("scale", "scale", "scale (reference depth / target depth)", np.linspace(0.4, 1.05, 8)),
+)
+
+
+def curve_series(rows: list[dict], key: str, kind: str, bins: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Mean MS per bin of `key` over the rows of `kind` sequences ("rotate" or "scale").
+
+    Returns {label: (bin centres (B,), mean MS (B,))}, centres ascending. The label is the
+    descriptor, or "detector + descriptor" when the rows come from several detectors."""
+    sel = [r for r in rows if kind in r["sequence"] and np.isfinite(r[key])]
+    detectors = list(dict.fromkeys(r.get("detector") or "sift" for r in sel))
+    series = {}
+    for name, det in dict.fromkeys((r["descriptor"], r.get("detector") or "sift") for r in sel):
+        mine = [r for r in sel if r["descriptor"] == name and (r.get("detector") or "sift") == det]
+        x = np.array([r[key] for r in mine], dtype=float)
+        y = np.array([r["ms"] for r in mine], dtype=float)
+        idx = np.digitize(x, bins)
+        groups = np.unique(idx)
+        centres = np.array([x[idx == b].mean() for b in groups])
+        means = np.array([y[idx == b].mean() for b in groups])
+        order = np.argsort(centres)
+        series[name if len(detectors) == 1 else f"{det} + {name}"] = (centres[order], means[order])
+    return series
+
+
 def plot_curves(rows: list[dict], path: str | Path) -> list[Path]:
-    """MS against camera roll (rotate sequences) and against scale (scale sequences): PNG files."""
+    """MS against camera roll (rotate sequences) and against scale (scale sequences): PNG files.
+
+    One line per descriptor; when the rows come from several detectors, one line per
+    (detector, descriptor) pair, with one line style per detector."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     written = []
-    for key, kind, label, bins in (("angle_deg", "rotate", "camera roll (degrees)", np.arange(0, 200, 20)),
-                                   ("scale", "scale", "scale (reference depth / target depth)", np.linspace(0.4, 1.05, 8))):
-        sel = [r for r in rows if kind in r["sequence"] and np.isfinite(r[key])]
-        if not sel:
+    styles = ("o-", "s--", "^:", "d-.")
+    for key, kind, axis_label, bins in CURVES:
+        series = curve_series(rows, key, kind, bins)
+        if not series:
             continue
+        detectors = list(dict.fromkeys(lab.split(" + ")[0] for lab in series if " + " in lab))
         fig, ax = plt.subplots(figsize=(6, 4))
-        for name in dict.fromkeys(r["descriptor"] for r in sel):
-            x = np.array([r[key] for r in sel if r["descriptor"] == name])
-            y = np.array([r["ms"] for r in sel if r["descriptor"] == name])
-            idx = np.digitize(x, bins)
-            centres, means = [], []
-            for b in np.unique(idx):
-                centres.append(x[idx == b].mean())
-                means.append(y[idx == b].mean())
-            order = np.argsort(centres)
-            ax.plot(np.array(centres)[order], np.array(means)[order], "o-", label=name)
-        ax.set_xlabel(label)
+        for lab, (x, y) in series.items():
+            style = styles[detectors.index(lab.split(" + ")[0]) % len(styles)] if " + " in lab else "o-"
+            ax.plot(x, y, style, label=lab)
+        ax.set_xlabel(axis_label)
         ax.set_ylabel("matching score")
         ax.set_ylim(0, 1)
         ax.grid(alpha=0.3)
