@@ -153,7 +153,8 @@ def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = "sift"
         frame: the RGB-D frame.
         n: maximum number of keypoints (>= 1), or None for all.
         detector: "sift" (OpenCV SIFT, `detect_sift`; the published protocol's keypoints), "geokey"
-            (the learned deformation-aware detector with the shipped weights, image and depth cues,
+            (the learned deformation-aware detector with the shipped weights: corner candidates on
+            pixels with depth, scored by image cues, plus depth cues when the weights use them;
             `geofeat.detectors.geokey`) or "geokey=WEIGHTS" (weights from `geofeat train-detector`).
         **sift_options: options of `detect_sift` (keypoint_set, contrast_threshold, mask, ...).
 
