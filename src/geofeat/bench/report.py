@@ -148,9 +148,11 @@ def plot_curves(rows: list[dict], path: str | Path) -> list[Path]:
             continue
         detectors = list(dict.fromkeys(lab.split(" + ")[0] for lab in series if " + " in lab))
         fig, ax = plt.subplots(figsize=(6, 4))
+        descriptors = list(dict.fromkeys(lab.split(" + ")[-1] for lab in series))
         for lab, (x, y) in series.items():
             style = styles[detectors.index(lab.split(" + ")[0]) % len(styles)] if " + " in lab else "o-"
-            ax.plot(x, y, style, label=lab)
+            colour = f"C{descriptors.index(lab.split(' + ')[-1]) % 10}"  # one colour per descriptor
+            ax.plot(x, y, style, color=colour, label=lab)
         ax.set_xlabel(axis_label)
         ax.set_ylabel("matching score")
         ax.set_ylim(0, 1)
