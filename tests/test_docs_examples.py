@@ -78,3 +78,9 @@ def test_page_examples_run(page, tmp_path, monkeypatch):
             run = subprocess.run(["bash", "-e", "-c", block["code"]], cwd=tmp_path, env=env,
                                  capture_output=True, text=True, timeout=300)
             assert run.returncode == 0, f"{where} exited {run.returncode}:\n{run.stdout[-2000:]}\n{run.stderr[-2000:]}"
+
+
+def test_readme_stays_short():
+    """The README is a front page (what, one picture, two commands, an example, results, links);
+    the manual lives in docs/."""
+    assert len((ROOT / "README.md").read_text()) <= 8000
