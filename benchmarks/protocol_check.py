@@ -1,5 +1,5 @@
 """`geofeat bench` against a second, independent implementation of the published matching-score
-protocol (`shared/reference/matching_score_protocol.md`, part A) for OpenCV SIFT.
+protocol (docs/concepts.md, "Protocols", "detect") for OpenCV SIFT.
 
 The independent scorer below uses OpenCV directly (SIFT detect + compute with nfeatures=2048 and
 contrastThreshold=0.004 on the 8-bit gray image, brute-force L2 nearest neighbours, first index on

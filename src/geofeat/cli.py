@@ -226,7 +226,7 @@ def _train(args: argparse.Namespace) -> int:
     build = partial(build_patch_set, depth_config=args.depth_profile)
     make_validation = partial(validation_pairs, depth_config=args.depth_profile)
     if args.net != "geopatch":  # image-patch baselines (tfeat-sim, logpolar-sim) on the same data
-        from .descriptors.imagenets import ImagePatchNet, default_config
+        from .descriptors.image_patch_nets import ImagePatchNet, default_config
         from .train.imagepatches import build_image_patch_set, image_validation_pairs
 
         net = ImagePatchNet(default_config(args.net))

@@ -1,5 +1,5 @@
 """Matching score of one image pair from nearest-neighbour matches and ground-truth pairs, as the
-authors' evaluation scripts compute it (see `shared/reference/matching_score_protocol.md`), on plain
+authors' evaluation scripts compute it (see docs/concepts.md, "Protocols"), on plain
 arrays. Shared by the benchmark and the training loop's validation (so it lives below both).
 
 Protocol "detect": each target keypoint mapped into the reference with the ground truth; its nearest

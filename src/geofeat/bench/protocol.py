@@ -1,5 +1,5 @@
-"""Matching score, as the authors' evaluation scripts compute it (see
-`shared/reference/matching_score_protocol.md`), on plain arrays.
+"""Matching score, as the authors' evaluation scripts compute it (see docs/concepts.md,
+"Protocols"), on plain arrays.
 
 Protocol "detect" (the paper's Table 1): keypoints detected independently in the reference and the
 target frame; each target keypoint is mapped into the reference with the ground-truth deformation;

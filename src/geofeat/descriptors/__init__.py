@@ -16,7 +16,7 @@ from .baselines import BASELINES, OpenCVDescriptor
 from .geobit import GeoBit, generate_pattern, load_pattern
 
 GEODESIC_DESCRIPTORS = ("geobit", "geopatch")
-#: The paper's other baselines (brand.py, dali.py, imagenets.py); "-sim": trained on our simulator.
+#: The paper's other baselines (brand.py, dali.py, image_patch_nets.py); "-sim": trained on our simulator.
 PAPER_BASELINES = ("brand", "dali", "tfeat-sim", "logpolar-sim")
 #: Names that take other weights as "NAME=PATH".
 TRAINED = ("geopatch", "tfeat-sim", "logpolar-sim")
@@ -76,7 +76,7 @@ def make_descriptor(name: str, radius: float | None = None, depth_config=None) -
         from .dali import DaLI
 
         return DaLI()
-    from .imagenets import ImagePatchDescriptor  # tfeat-sim, logpolar-sim; imports torch
+    from .image_patch_nets import ImagePatchDescriptor  # tfeat-sim, logpolar-sim; imports torch
 
     return ImagePatchDescriptor(base.split("-", 1)[0], weights=weights or None)
 

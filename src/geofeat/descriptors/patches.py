@@ -1,5 +1,5 @@
 """Image patches around keypoints, oriented and scaled by the keypoint: the input of the image-only
-baselines (TFeat-/Log-Polar-style nets in `imagenets.py`, DaLI in `dali.py`).
+baselines (TFeat-/Log-Polar-style nets in `image_patch_nets.py`, DaLI in `dali.py`).
 
 A patch is an (S, S) grid of sample offsets in units of the support radius, rotated by the
 keypoint's angle and scaled by its support radius (pixels), then sampled bilinearly with

@@ -82,10 +82,14 @@ class HeatGeodesics:
             calibration removes that offset. False = the classic pinning (as potpourri3d).
 
     Attributes:
-        V (n, 3) float64 vertices, metres; F (m, 3) int64 faces; index (Hm, Wm) int64 grid vertex
-        -> row of V (-1 unused); L (n, n) cotangent Laplacian (positive semi-definite, csc);
-        M (n,) lumped vertex areas, m^2; t heat time, m^2; component (n,) connected component of
-        every vertex; mean_edge, metres.
+        V: (n, 3) float64 vertices, metres.
+        F: (m, 3) int64 faces.
+        index: (Hm, Wm) int64 grid vertex -> row of V (-1 unused).
+        L: (n, n) cotangent Laplacian (positive semi-definite, csc).
+        M: (n,) lumped vertex areas, m^2.
+        t: heat time, m^2.
+        component: (n,) connected component of every vertex.
+        mean_edge: mean edge length, metres.
     """
 
     def __init__(

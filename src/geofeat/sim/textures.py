@@ -148,6 +148,115 @@ def _noise(rng: np.random.Generator, h: int, w: int, cells: int) -> np.ndarray:
     return (n - n.min()) / max(float(np.ptp(n)), 1e-6)
 
 
+def _bands(rng: np.random.Generator, coord: np.ndarray, period: float) -> np.ndarray:
+    """Index (0..k-1) of a band of random widths repeating every 3 periods along `coord`."""
+    widths = rng.uniform(0.1, 1.0, int(rng.integers(2, 6)))
+    edges = np.cumsum(widths) / widths.sum()
+    phase = (coord / (period * 3)) % 1.0
+    return np.searchsorted(edges, phase).clip(0, len(widths) - 1)
+
+
+def _stripes(rng, kind, img, pal, xr, yr, period):
+    return pal[1:][_bands(rng, xr, period) % 5]
+
+
+def _checks(rng, kind, img, pal, xr, yr, period):  # plaid, gingham: two crossing band sets
+    a, b = _bands(rng, xr, period), _bands(rng, yr, period)
+    alpha = 0.5 if kind == "gingham" else rng.uniform(0.3, 0.7)
+    return alpha * pal[1:][a % 5] + (1 - alpha) * pal[1:][(b + 2) % 5]
+
+
+def _dots(rng, kind, img, pal, xr, yr, period):
+    gx, gy = (xr / period) % 1.0 - 0.5, (yr / period) % 1.0 - 0.5
+    img[np.hypot(gx, gy) < rng.uniform(0.15, 0.4)] = pal[1]
+    return img
+
+
+_HOUNDSTOOTH = np.array([[1, 1, 0, 1], [1, 1, 1, 0], [0, 1, 1, 0], [1, 0, 0, 0]], bool)
+
+
+def _houndstooth(rng, kind, img, pal, xr, yr, period):
+    u, v = (xr / period * 4).astype(np.int64) % 4, (yr / period * 4).astype(np.int64) % 4
+    img[_HOUNDSTOOTH[v, u]] = pal[1]
+    return img
+
+
+def _twill(rng, kind, img, pal, xr, yr, period):  # herringbone, denim: diagonal weaves
+    col = ((xr / period * 3).astype(np.int64) % 2) * 2 - 1
+    if kind == "herringbone":
+        diag = ((yr + col * xr) / (period / 4)) % 1.0 < 0.5
+    else:
+        diag = ((yr + xr) / 4) % 1.0 < 0.5
+        pal[:2] = _palette(rng, 1) * np.array([1.0, 0.5, 0.3], np.float32) + np.array([0.3, 0.1, 0.0], np.float32)
+        pal[1] = np.clip(pal[0] * 1.8 + 0.2, 0, 1)
+    img[diag] = pal[1]
+    return img
+
+
+def _camouflage(rng, kind, img, pal, xr, yr, period):
+    h, w = img.shape[:2]
+    levels = np.stack([_noise(rng, h, w, int(rng.integers(4, 12))) for _ in range(3)])
+    return pal[1:4][np.argmax(levels + rng.uniform(0, 0.2, (3, 1, 1)), axis=0)]
+
+
+def _knit(rng, kind, img, pal, xr, yr, period):
+    h, w = img.shape[:2]
+    wave = np.sin(2 * np.pi * xr / (period / 3)) * np.sin(2 * np.pi * yr / (period / 2))
+    img = pal[0] + (pal[1] - pal[0]) * (0.5 + 0.5 * wave[..., None])
+    return img * (0.7 + 0.3 * _noise(rng, h, w, 20)[..., None])
+
+
+def _bgr(colour: np.ndarray) -> tuple:
+    return tuple(int(c) for c in colour * 255)
+
+
+def _floral(canvas, rng, pal, cx, cy, s, col):
+    for k in range(int(rng.integers(4, 8))):
+        t = k * 2 * np.pi / 6 + rng.uniform(-0.2, 0.2)
+        cv2.ellipse(canvas, (int(cx + s * np.cos(t)), int(cy + s * np.sin(t))), (s, max(1, s // 3)),
+                    np.degrees(t), 0, 360, col, -1, cv2.LINE_AA)
+    cv2.circle(canvas, (cx, cy), max(1, s // 3), _bgr(pal[5]), -1, cv2.LINE_AA)
+
+
+def _paisley(canvas, rng, pal, cx, cy, s, col):
+    cv2.ellipse(canvas, (cx, cy), (s, max(1, s // 2)), rng.uniform(0, 180), 0, 360, col, -1, cv2.LINE_AA)
+    cv2.ellipse(canvas, (cx, cy), (max(1, s // 2), max(1, s // 4)), rng.uniform(0, 180), 0, 360,
+                _bgr(pal[0]), 2, cv2.LINE_AA)
+
+
+def _lettering(canvas, rng, pal, cx, cy, s, col):
+    text = "".join(chr(int(c)) for c in rng.integers(65, 91, int(rng.integers(1, 5))))
+    cv2.putText(canvas, text, (cx, cy), int(rng.choice([0, 2, 3, 4])), s / 25, col, 2, cv2.LINE_AA)
+
+
+def _geometric(canvas, rng, pal, cx, cy, s, col):
+    pts = (np.array([cx, cy]) + rng.uniform(-s, s, (int(rng.integers(3, 7)), 2))).astype(np.int32)
+    cv2.fillPoly(canvas, [cv2.convexHull(pts)], col, cv2.LINE_AA)
+
+
+#: Motif families: one drawer per motif, scattered at random over the base colour.
+_MOTIFS = {"floral": _floral, "paisley": _paisley, "lettering": _lettering, "geometric": _geometric}
+
+
+def _motifs(rng, kind, img, pal, xr, yr, period):
+    h, w = img.shape[:2]
+    canvas = (img * 255).astype(np.uint8)
+    for _ in range(int(w * h / period**2 * rng.uniform(0.3, 0.8))):
+        cx, cy = int(rng.integers(0, w)), int(rng.integers(0, h))
+        col = _bgr(pal[int(rng.integers(1, 6))])
+        s = int(rng.uniform(0.3, 0.7) * period)
+        _MOTIFS[kind](canvas, rng, pal, cx, cy, s, col)
+    return canvas.astype(np.float32) / 255.0
+
+
+#: kind -> pattern function (rng, kind, base image, palette, rotated x, rotated y, period) -> image.
+_PATTERNS = {
+    "stripes": _stripes, "plaid": _checks, "gingham": _checks, "dots": _dots, "houndstooth": _houndstooth,
+    "herringbone": _twill, "denim": _twill, "camouflage": _camouflage, "knit": _knit,
+    **{kind: _motifs for kind in _MOTIFS},
+}
+
+
 def fabric_texture(rng: np.random.Generator, kind: str | None = None, width: int = 512, height: int = 384) -> np.ndarray:
     """A random (height, width, 3) uint8 BGR fabric pattern of family `kind` (one of FABRIC_KINDS;
     None = drawn at random): printed or woven repeats with random colours, scale and angle, plus
@@ -165,66 +274,7 @@ def fabric_texture(rng: np.random.Generator, kind: str | None = None, width: int
     period = float(rng.uniform(12, 60))
     img = np.empty((h, w, 3), np.float32)
     img[:] = pal[0]
-    if kind in ("stripes", "plaid", "gingham"):
-        def bands(coord: np.ndarray) -> np.ndarray:
-            widths = rng.uniform(0.1, 1.0, int(rng.integers(2, 6)))
-            edges = np.cumsum(widths) / widths.sum()
-            phase = (coord / (period * 3)) % 1.0
-            return np.searchsorted(edges, phase).clip(0, len(widths) - 1)
-        if kind == "stripes":
-            img = pal[1:][bands(xr) % 5]
-        else:
-            a, b = bands(xr), bands(yr)
-            alpha = 0.5 if kind == "gingham" else rng.uniform(0.3, 0.7)
-            img = alpha * pal[1:][a % 5] + (1 - alpha) * pal[1:][(b + 2) % 5]
-    elif kind == "dots":
-        gx, gy = (xr / period) % 1.0 - 0.5, (yr / period) % 1.0 - 0.5
-        r = rng.uniform(0.15, 0.4)
-        img[np.hypot(gx, gy) < r] = pal[1]
-    elif kind == "houndstooth":
-        u, v = (xr / period * 4).astype(np.int64) % 4, (yr / period * 4).astype(np.int64) % 4
-        pattern = np.array([[1, 1, 0, 1], [1, 1, 1, 0], [0, 1, 1, 0], [1, 0, 0, 0]], bool)
-        img[pattern[v, u]] = pal[1]
-    elif kind in ("herringbone", "denim"):
-        col = ((xr / period * 3).astype(np.int64) % 2) * 2 - 1
-        diag = ((yr + col * xr) / (period / 4)) % 1.0 < 0.5 if kind == "herringbone" else ((yr + xr) / 4) % 1.0 < 0.5
-        if kind == "denim":
-            pal[:2] = _palette(rng, 1) * np.array([1.0, 0.5, 0.3], np.float32) + np.array([0.3, 0.1, 0.0], np.float32)
-            pal[1] = np.clip(pal[0] * 1.8 + 0.2, 0, 1)
-        img[diag] = pal[1]
-    elif kind == "camouflage":
-        levels = np.stack([_noise(rng, h, w, int(rng.integers(4, 12))) for _ in range(3)])
-        idx = np.argmax(levels + rng.uniform(0, 0.2, (3, 1, 1)), axis=0)
-        img = pal[1:4][idx]
-    elif kind == "knit":
-        wave = np.sin(2 * np.pi * xr / (period / 3)) * np.sin(2 * np.pi * yr / (period / 2))
-        img = pal[0] + (pal[1] - pal[0]) * (0.5 + 0.5 * wave[..., None])
-        img = img * (0.7 + 0.3 * _noise(rng, h, w, 20)[..., None])
-    else:  # motifs drawn with OpenCV: floral, paisley, lettering, geometric
-        canvas = (img * 255).astype(np.uint8)
-        n = int(w * h / period**2 * rng.uniform(0.3, 0.8))
-        for _ in range(n):
-            cx, cy = int(rng.integers(0, w)), int(rng.integers(0, h))
-            col = tuple(int(c) for c in (pal[int(rng.integers(1, 6))] * 255))
-            s = int(rng.uniform(0.3, 0.7) * period)
-            if kind == "floral":
-                for k in range(int(rng.integers(4, 8))):
-                    t = k * 2 * np.pi / 6 + rng.uniform(-0.2, 0.2)
-                    cv2.ellipse(canvas, (int(cx + s * np.cos(t)), int(cy + s * np.sin(t))), (s, max(1, s // 3)),
-                                np.degrees(t), 0, 360, col, -1, cv2.LINE_AA)
-                cv2.circle(canvas, (cx, cy), max(1, s // 3), tuple(int(c) for c in pal[5] * 255), -1, cv2.LINE_AA)
-            elif kind == "paisley":
-                cv2.ellipse(canvas, (cx, cy), (s, max(1, s // 2)), rng.uniform(0, 180), 0, 360, col, -1, cv2.LINE_AA)
-                cv2.ellipse(canvas, (cx, cy), (max(1, s // 2), max(1, s // 4)), rng.uniform(0, 180), 0, 360,
-                            tuple(int(c) for c in pal[0] * 255), 2, cv2.LINE_AA)
-            elif kind == "lettering":
-                text = "".join(chr(int(c)) for c in rng.integers(65, 91, int(rng.integers(1, 5))))
-                cv2.putText(canvas, text, (cx, cy), int(rng.choice([0, 2, 3, 4])), s / 25, col, 2, cv2.LINE_AA)
-            else:
-                pts = (np.array([cx, cy]) + rng.uniform(-s, s, (int(rng.integers(3, 7)), 2))).astype(np.int32)
-                cv2.fillPoly(canvas, [cv2.convexHull(pts)], col, cv2.LINE_AA)
-        img = canvas.astype(np.float32) / 255.0
-    img = np.asarray(img, np.float32).reshape(h, w, 3)
+    img = np.asarray(_PATTERNS[kind](rng, kind, img, pal, xr, yr, period), np.float32).reshape(h, w, 3)
     # dye variation and weave grain
     img = img * (0.85 + 0.3 * _noise(rng, h, w, int(rng.integers(2, 6))))[..., None]
     img = img + rng.normal(0, rng.uniform(0.01, 0.04), (h, w, 1)).astype(np.float32)

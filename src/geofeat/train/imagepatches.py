@@ -14,7 +14,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..scoring import ground_truth_pairs
-from ..descriptors.imagenets import image_patches
+from ..descriptors.image_patch_nets import image_patches
 from ..io import Sequence, find_sequences, read_sequence
 from ..keypoints import detect
 from .dataset import PatchSet, ValidationPair, validation_keypoints

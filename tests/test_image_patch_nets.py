@@ -6,7 +6,7 @@ import pytest
 
 import geofeat
 from geofeat.bench.protocol import ground_truth_pairs, score_detect
-from geofeat.descriptors.imagenets import ImagePatchDescriptor, image_patches
+from geofeat.descriptors.image_patch_nets import ImagePatchDescriptor, image_patches
 from geofeat.descriptors.patches import cartesian_grid, sample_patches
 from geofeat.keypoints import detect
 from geofeat.matching import match

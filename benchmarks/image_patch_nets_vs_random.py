@@ -1,7 +1,7 @@
 """Matching score of the shipped tfeat-sim / logpolar-sim weights against a random-weight net of the
 same architecture, on held-out simulated pairs (protocol "detect", the training loop's validation).
 
-Run: PYTHONPATH=src python benchmarks/imagenets_vs_random.py out/sim/val [--keypoints 1024]
+Run: PYTHONPATH=src python benchmarks/image_patch_nets_vs_random.py out/sim/val [--keypoints 1024]
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import argparse
 
 import torch
 
-from geofeat.descriptors.imagenets import ARCHS, ImagePatchDescriptor
+from geofeat.descriptors.image_patch_nets import ARCHS, ImagePatchDescriptor
 from geofeat.train.imagepatches import image_validation_pairs
 from geofeat.train.loop import validation_score
 
