@@ -133,7 +133,11 @@ def read_landmarks(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
     xy = data[:, 1:3]
     if not np.isfinite(data[:, 0]).all() or (data[:, 0] != np.round(data[:, 0])).any():
         raise ValueError(f"landmarks: {path}: ids must be integers")
-    visible = (data[:, 3] > 0) & (xy[:, 0] >= 0) & (xy[:, 1] >= 0)
+    flagged = data[:, 3] > 0
+    if (flagged & ~np.isfinite(xy).all(axis=1)).any():
+        raise ValueError(f"landmarks: {path}: landmarks marked valid need finite coordinates, ids "
+                         f"{ids[flagged & ~np.isfinite(xy).all(axis=1)][:10].tolist()}")
+    visible = flagged & (xy[:, 0] >= 0) & (xy[:, 1] >= 0)
     return ids, xy, visible
 
 
