@@ -384,6 +384,8 @@ def _no_depth_frame(command: str) -> Callable[[Path], list[str]]:
             return ["extract", str(seq), "--descriptor", "sift", "--keypoints", "200", "--out", str(tmp / "f.h5")]
         if command == "match":
             return ["match", str(seq), "--descriptor", "sift", "--keypoints", "200", "--out", str(tmp / "m")]
+        if command == "track":
+            return ["track", str(seq), "--descriptors", "sift", "--keypoints", "300", "--out", str(tmp / "t")]
         return ["retrieval", str(seq), "--descriptors", "sift", "--keypoints", "200", "--samples", "200",
                 "--words", "3", "--out", str(tmp / "r")]
 
@@ -540,6 +542,8 @@ CASES = [
          _extract_kept_other_frames),
     Case("match-frame-without-depth", _no_depth_frame("match"), 1, "SKIPPED.*frame-001", _match_kept_other_frames),
     Case("retrieval-frame-without-depth", _no_depth_frame("retrieval"), 1, "SKIPPED.*frame-001", _retrieval_written),
+    Case("track-frame-without-depth", _no_depth_frame("track"), 1, "SKIPPED.*frame-001",
+         lambda t: "SKIPPED frames: frame-001" in (t / "t" / "tracking.md").read_text() or pytest.fail("not named")),
     # more of our own
     Case("geofeat-json-not-json", _config("{depth_scale: 0.001"), 2, "not valid JSON"),
     Case("geofeat-json-negative-depth-scale", _config('{"depth_scale": -0.001}'), 2, "depth_scale"),

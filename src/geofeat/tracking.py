@@ -513,11 +513,14 @@ def _draw_grid(image: np.ndarray, pts: np.ndarray, side: int, colour, label: str
 
 
 def grid_frames(seq: Sequence, result: TrackResult, scale: float = 0.5) -> list[np.ndarray]:
-    """(h, w, 3) uint8 RGB pictures of every frame with the tracked grid drawn, resized by `scale`."""
+    """(h, w, 3) uint8 RGB pictures of every frame with the tracked grid drawn, resized by `scale`
+    (frames in `result.skipped` are left out)."""
     from .viz import to_bgr
 
     pictures = []
     for k, name in enumerate(result.frames):
+        if name in result.skipped:
+            continue
         bgr = to_bgr(seq.frame(name))
         pic = _draw_grid(bgr, result.points[k], GRID_SIDE, (0, 255, 0) if k else (255, 200, 0),
                          f"{result.descriptor}  {name}")
