@@ -137,7 +137,7 @@ def test_retrieval_bad_input(three_objects, tmp_path):
     classes = tmp_path / "classes.csv"
     classes.write_text("blobs,a\n")
     with pytest.raises(ValueError, match="no class"):
-        run_retrieval([three_objects], tmp_path, ("sift",), classes_file=str(classes), progress=False)
+        run_retrieval([three_objects], tmp_path / "out", ("sift",), classes_file=str(classes), progress=False)
 
 
 def test_retrieval_command(three_objects, tmp_path, capsys):
@@ -148,8 +148,11 @@ def test_retrieval_command(three_objects, tmp_path, capsys):
     assert main(args) == 0
     out = capsys.readouterr().out
     assert "Acc@1" in out and "object masks" in out
-    assert main(args[:-2] + ["--words", "100000", "--out", str(tmp_path)]) == 2
+    assert main(args[:-2] + ["--words", "100000", "--out", str(tmp_path)]) == 2  # non-empty OUT refused
+    assert "--overwrite" in capsys.readouterr().err
+    assert main(args[:-2] + ["--words", "100000", "--out", str(tmp_path), "--overwrite"]) == 2
     assert "too few" in capsys.readouterr().err
+    assert (tmp_path / "retrieval.csv").is_file()  # the failed run left the earlier results in place
 
 
 def test_object_mask_sources(three_objects, tmp_path):

@@ -132,34 +132,78 @@ def _features_path(out: Path, descriptor: str) -> Path:
     return out if out.suffix in (".h5", ".npz") else out / f"features-{descriptor}.h5"
 
 
+def _skip_frame(skipped: list[str], name: str, error: Exception) -> None:
+    """Report a frame that cannot be processed by name; the run goes on and exits 1 at the end."""
+    from tqdm import tqdm
+
+    skipped.append(name)
+    tqdm.write(f"SKIPPED frame {name}: {str(error).splitlines()[0] if str(error) else type(error).__name__}")
+
+
+def _finish_skipped(skipped: list[str], total: int, what: str) -> int:
+    """Exit status after a run that skipped `skipped` of `total` frames (1 when any was skipped)."""
+    if skipped and len(skipped) >= total:
+        raise ValueError(f"{what}: every frame was skipped ({', '.join(skipped[:5])}); nothing written")
+    if skipped:
+        print(f"{len(skipped)} frame(s) SKIPPED: {', '.join(skipped)}", file=sys.stderr)
+        return 1
+    return 0
+
+
 def _extract(args: argparse.Namespace) -> int:
+    import os
+
     from tqdm import tqdm
 
     from .depth import PROFILES, sequence_depth_profile
     from .descriptors import make_descriptor
     from .features import save_features
+    from .inputs import resolve_radius
     from .io import read_sequence
     from .keypoints import detect
+    from .outputs import atomic_file, check_out_file
 
     seq = read_sequence(args.folder, depth_scale=args.depth_scale)
-    profile = sequence_depth_profile(seq, args.depth_profile)
-    descriptor = make_descriptor(args.descriptor, radius=args.radius, depth_config=PROFILES[profile])
-    print(f"{seq.name}: depth profile {profile}, detector {args.detector}, keypoints {args.keypoint_set}")
+    radius = resolve_radius(args.radius, seq)
     path = _features_path(Path(args.out), _file_label(args.descriptor))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if path.exists():
-        path.unlink()
-    for name in tqdm(seq.names, desc=f"extract {args.descriptor}", unit="frame"):
-        frame = seq.frame(name)
-        features = descriptor.compute(frame, detect(frame, args.keypoints, detector=args.detector,
-                                                            keypoint_set=args.keypoint_set))
-        if path.suffix == ".h5":
-            save_features(path, features, name=name)
-        else:
-            save_features(path.with_name(f"{path.stem}-{name}.npz"), features)
+    finals = [path] if path.suffix == ".h5" else [path.with_name(f"{path.stem}-{n}.npz") for n in seq.names]
+    for final in finals:
+        check_out_file(final, args.overwrite)
+    profile = sequence_depth_profile(seq, args.depth_profile)
+    descriptor = make_descriptor(args.descriptor, radius=radius, depth_config=PROFILES[profile])
+    print(f"{seq.name}: depth profile {profile}, detector {args.detector}, keypoints {args.keypoint_set}, "
+          f"radius {radius:g} m")
+    skipped: list[str] = []
+    written: list[tuple[Path, Path]] = []  # (temporary, final) of the .npz files
+    with atomic_file(path) as h5_tmp:
+        try:
+            for name in tqdm(seq.names, desc=f"extract {args.descriptor}", unit="frame"):
+                try:
+                    frame = seq.frame(name)
+                    kps = detect(frame, args.keypoints, detector=args.detector, keypoint_set=args.keypoint_set)
+                    if len(kps) == 0:
+                        raise ValueError("no keypoints detected")
+                    features = descriptor.compute(frame, kps)
+                except ValueError as error:
+                    _skip_frame(skipped, name, error)
+                    continue
+                if path.suffix == ".h5":
+                    save_features(h5_tmp, features, name=name)
+                else:
+                    final = path.with_name(f"{path.stem}-{name}.npz")
+                    tmp = final.with_name(f".geofeat-partial-{os.getpid()}-{final.name}")
+                    save_features(tmp, features)
+                    written.append((tmp, final))
+            status = _finish_skipped(skipped, len(seq), "extract")
+            for tmp, final in written:
+                os.replace(tmp, final)
+            written.clear()
+        finally:
+            for tmp, _ in written:
+                tmp.unlink(missing_ok=True)
     where = path if path.suffix == ".h5" else path.with_name(f"{path.stem}-<frame>.npz")
-    print(f"wrote {args.descriptor} features of {len(seq)} frames of {seq.folder} to {where}")
-    return 0
+    print(f"wrote {args.descriptor} features of {len(seq) - len(skipped)} frames of {seq.folder} to {where}")
+    return status
 
 
 def _match(args: argparse.Namespace) -> int:
@@ -169,50 +213,67 @@ def _match(args: argparse.Namespace) -> int:
     from .depth import PROFILES, sequence_depth_profile
     from .descriptors import make_descriptor
     from .features import save_matches
+    from .inputs import resolve_radius
     from .io import read_sequence
     from .keypoints import detect
     from .matching import match
+    from .outputs import check_out_dir, output_folder
     from .viz import draw_matches
 
     seq = read_sequence(args.folder, depth_scale=args.depth_scale)
     if len(seq) < 2:
         raise ValueError(f"folder: {seq.folder} has a single frame; matching needs a reference and a target")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = check_out_dir(args.out, args.overwrite)
+    radius = resolve_radius(args.radius, seq)
     profile = sequence_depth_profile(seq, args.depth_profile)
-    descriptor = make_descriptor(args.descriptor, radius=args.radius, depth_config=PROFILES[profile])
+    descriptor = make_descriptor(args.descriptor, radius=radius, depth_config=PROFILES[profile])
     label = _file_label(args.descriptor)
     try:
         truth = GroundTruth(seq, None)
-    except ValueError:
+    except ValueError as error:
+        if "no ground truth" not in str(error):
+            raise
         truth = None  # no ground truth: matches are written, not judged
-    print(f"{seq.name}: depth profile {profile}, detector {args.detector}, keypoints {args.keypoint_set}, ground truth: "
+    print(f"{seq.name}: depth profile {profile}, detector {args.detector}, keypoints {args.keypoint_set}, "
+          f"radius {radius:g} m, ground truth: "
           + ("none" if truth is None else "simulator (exact)" if truth.exact else "thin-plate spline on the landmarks"))
+    if truth is not None and not truth.exact:
+        for name in seq.names:  # the landmark validator, before any work
+            seq.landmarks(name)
     ref = seq.frame(seq.reference)
     k_ref = detect(ref, args.keypoints, detector=args.detector, keypoint_set=args.keypoint_set)
+    if len(k_ref) == 0:
+        raise ValueError(f"frame {seq.reference}: the reference frame has no keypoints; nothing to match")
     f_ref = descriptor.compute(ref, k_ref)
-    matches_path = out / f"matches-{label}.h5"
-    if matches_path.exists():
-        matches_path.unlink()
     total_matches, total_correct = 0, 0
-    for name in tqdm(seq.targets, desc=f"match {args.descriptor}", unit="pair"):
-        tgt = seq.frame(name)
-        k_tgt = detect(tgt, args.keypoints, detector=args.detector, keypoint_set=args.keypoint_set)
-        m = match(f_ref, descriptor.compute(tgt, k_tgt))
-        save_matches(matches_path, m, name=f"{seq.reference}/{name}")
-        n_matches = int((m.matches0 >= 0).sum())
-        total_matches += n_matches
-        summary = f"{n_matches} matches"
-        correct = None if truth is None else correct_matches(truth, name, k_ref.xy, k_tgt.xy, m.matches0, tgt.shape)
-        if correct is not None:
-            total_correct += int(correct.sum())
-            summary += f", {int(correct.sum())} correct"
-        picture = draw_matches(ref, tgt, k_ref.xy, k_tgt.xy, m.matches0, correct, title=f"{args.descriptor}: {summary}")
-        cv2.imwrite(str(out / f"{seq.reference}__{name}__{label}.png"), picture)
-        tqdm.write(f"{seq.reference} -> {name}: {summary}")
+    skipped: list[str] = []
+    with output_folder(out) as tmp:
+        matches_path = tmp / f"matches-{label}.h5"
+        for name in tqdm(seq.targets, desc=f"match {args.descriptor}", unit="pair"):
+            try:
+                tgt = seq.frame(name)
+                k_tgt = detect(tgt, args.keypoints, detector=args.detector, keypoint_set=args.keypoint_set)
+                if len(k_tgt) == 0:
+                    raise ValueError("no keypoints detected")
+                m = match(f_ref, descriptor.compute(tgt, k_tgt))
+            except ValueError as error:
+                _skip_frame(skipped, name, error)
+                continue
+            save_matches(matches_path, m, name=f"{seq.reference}/{name}")
+            n_matches = int((m.matches0 >= 0).sum())
+            total_matches += n_matches
+            summary = f"{n_matches} matches"
+            correct = None if truth is None else correct_matches(truth, name, k_ref.xy, k_tgt.xy, m.matches0, tgt.shape)
+            if correct is not None:
+                total_correct += int(correct.sum())
+                summary += f", {int(correct.sum())} correct"
+            picture = draw_matches(ref, tgt, k_ref.xy, k_tgt.xy, m.matches0, correct, title=f"{args.descriptor}: {summary}")
+            cv2.imwrite(str(tmp / f"{seq.reference}__{name}__{label}.png"), picture)
+            tqdm.write(f"{seq.reference} -> {name}: {summary}")
+        status = _finish_skipped(skipped, len(seq.targets), "match")
     print(f"total: {total_matches} matches" + (f", {total_correct} correct" if truth is not None else " (no ground truth)"))
-    print(f"wrote {matches_path} and one match picture per pair in {out}")
-    return 0
+    print(f"wrote {out / f'matches-{label}.h5'} and one match picture per pair in {out}")
+    return status
 
 
 def _train(args: argparse.Namespace) -> int:
@@ -261,6 +322,12 @@ def _bench(args: argparse.Namespace) -> int:
     from .bench.timing import timing_table
     from .depth import sequence_depth_profile
     from .io import find_sequences, read_sequence
+    from .outputs import add_to_manifest, atomic_file
+
+    def write(path: Path, text: str) -> None:
+        with atomic_file(path) as tmp:
+            tmp.write_text(text)
+        add_to_manifest(path.parent, [path.name])
 
     config = BenchConfig(descriptors=tuple(d for d in args.descriptors.split(",") if d), protocol=args.protocol,
                          radius=args.radius, depth_scale=args.depth_scale, n_keypoints=args.keypoints,
@@ -273,19 +340,20 @@ def _bench(args: argparse.Namespace) -> int:
     if not rows:
         raise ValueError(f"datasets: no sequence could be evaluated ({len(failed)} failed)")
     table = markdown_table(rows)
-    (out / "table.md").write_text(table)
+    write(out / "table.md", table)
     print(table)
     if config.protocol == "detect":
         details = detail_table(rows)
-        (out / "details.md").write_text(details)
+        write(out / "details.md", details)
         print(details)
     for path in plot_curves(rows, out):
+        add_to_manifest(out, [Path(path).name])
         print(f"wrote {path}")
     if args.timing:
         seq = read_sequence(find_sequences(args.datasets)[0], depth_scale=args.depth_scale)
         timing = timing_table(seq.frame(seq.reference), config.descriptors, args.radius or DEFAULT_RADIUS_M,
                               depth_profile=sequence_depth_profile(seq, args.depth_profile))
-        (out / "timing.md").write_text(timing)
+        write(out / "timing.md", timing)
         print(timing)
     print(f"wrote {csv_path} ({len(rows)} rows) and {out / 'table.md'}"
           + (f"; FAILED sequences: {', '.join(failed)}" if failed else ""))
@@ -314,11 +382,13 @@ def _retrieval(args: argparse.Namespace) -> int:
     acc, db = run_retrieval(args.datasets, args.out, tuple(d for d in args.descriptors.split(",") if d),
                             words=args.words, n_samples=args.samples, seed=args.seed, classes_file=args.classes,
                             n_keypoints=args.keypoints, tps_dir=args.tps_dir, radius=args.radius,
-                            depth_scale=args.depth_scale)
+                            depth_scale=args.depth_scale, overwrite=args.overwrite)
     out = Path(args.out)
     print((out / "retrieval.md").read_text())
     print(f"wrote {out / 'retrieval.csv'}, {out / 'acc_at_k.png'}, {out / 'top6.png'}")
-    return 0
+    if db.skipped:
+        print(f"{len(db.skipped)} frame(s) SKIPPED: {', '.join(db.skipped)}", file=sys.stderr)
+    return 1 if db.skipped else 0
 
 
 def _track(args: argparse.Namespace) -> int:
@@ -333,13 +403,17 @@ def _track(args: argparse.Namespace) -> int:
     if args.lpips:
         raise ValueError("--lpips: LPIPS needs pretrained backbone weights that geofeat never downloads; "
                          "not supported in this build (SSIM and NCC are reported instead)")
-    csv_path, table = write_tracking(find_sequences(args.sequences), args.out,
+    skipped: list[str] = []
+    csv_path, table = write_tracking(find_sequences(args.sequences, unique_names=True), args.out,
                                      tuple(d for d in args.descriptors.split(",") if d), roi=roi,
                                      n_keypoints=args.keypoints, tps_dir=args.tps_dir, radius=args.radius,
-                                     depth_scale=args.depth_scale, threshold_px=args.threshold)
+                                     depth_scale=args.depth_scale, threshold_px=args.threshold,
+                                     overwrite=args.overwrite, skipped=skipped)
     print((Path(args.out) / "tracking.md").read_text())
     print(f"wrote {csv_path}, {Path(args.out) / 'tracking.md'} and per sequence/descriptor grid.npz + track.gif")
-    return 0
+    if skipped:
+        print(f"{len(skipped)} frame(s) SKIPPED: {', '.join(skipped)}", file=sys.stderr)
+    return 1 if skipped else 0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -395,11 +469,14 @@ def build_parser() -> argparse.ArgumentParser:
     extract = sub.add_parser("extract", help="detect SIFT keypoints and describe every frame of a sequence")
     frames_options(extract)
     extract.add_argument("--out", required=True, help="features file (.h5 or .npz) or folder")
+    extract.add_argument("--overwrite", action="store_true", help="replace an existing features file")
     extract.set_defaults(func=_extract)
 
     match = sub.add_parser("match", help="match the reference frame of a sequence to every other frame")
     frames_options(match)
     match.add_argument("--out", required=True, help="output folder (matches .h5 + pictures)")
+    match.add_argument("--overwrite", action="store_true",
+                       help="replace what geofeat wrote in an existing non-empty OUT (other files stay)")
     match.set_defaults(func=_match)
 
     bench = sub.add_parser("bench", help="matching score of descriptors on datasets in the public layout")
@@ -467,6 +544,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--descriptors", default="geopatch,geobit,sift",
                        help=f"comma-separated, from {','.join(available_descriptors())} (default geopatch,geobit,sift)")
         p.add_argument("--out", required=True, help="output folder")
+        p.add_argument("--overwrite", action="store_true",
+                       help="replace what geofeat wrote in an existing non-empty OUT (other files stay)")
         p.add_argument("--keypoints", type=int, default=N_KEYPOINTS, help="SIFT keypoints per frame (default 2048)")
         p.add_argument("--tps-dir", default=None, help="the authors' TPS ground truth (objmask, warps), one folder per sequence")
         p.add_argument("--radius", type=float, default=None, help="geodesic radius, metres (default: geofeat.json or 0.075)")
@@ -499,13 +578,41 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def is_interrupt(error: BaseException) -> bool:
+    """True for Ctrl-C, also when a compiled (numba) kernel surfaces it as a SystemError."""
+    seen: set[int] = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, KeyboardInterrupt):
+            return True
+        if isinstance(error, SystemError) and "KeyboardInterrupt" in str(error):
+            return True
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return False
+
+
+#: Exit status of a run stopped by Ctrl-C (128 + SIGINT, as shells report it).
+EXIT_INTERRUPTED = 130
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line: 0 success, 1 something was skipped or failed (named in the output),
+    2 bad input (one-line error), 130 interrupted (finished results are kept)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError) as error:  # user errors; programming errors keep their traceback
-        print(f"geofeat {args.command}: error: {error}", file=sys.stderr)
+    except KeyboardInterrupt:
+        print(f"geofeat {args.command}: interrupted; finished results are kept", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except SystemError as error:
+        if not is_interrupt(error):
+            raise
+        print(f"geofeat {args.command}: interrupted; finished results are kept", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except (ValueError, OSError) as error:  # user errors; programming errors keep their traceback
+        text = " ".join(str(error).split()) or type(error).__name__
+        print(f"geofeat {args.command}: error: {text}", file=sys.stderr)
         return 2
 
 

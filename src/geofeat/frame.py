@@ -11,13 +11,15 @@ from .constants import MAX_PLAUSIBLE_DEPTH_M
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
-    """Convert an (H, W) or (H, W, 3) BGR image (uint8 or float in [0, 1]) to float32 gray in [0, 1]."""
+    """Convert an (H, W) or (H, W, 3) BGR image (uint8, uint16 or float in [0, 1]) to float32 gray in [0, 1]."""
     image = np.asarray(image)
     if image.ndim == 3 and image.shape[2] == 1:
         image = image[:, :, 0]
     if image.ndim == 3 and image.shape[2] == 3:
         if image.dtype == np.uint8:
             gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY).astype(np.float32) / 255.0
+        elif image.dtype == np.uint16:
+            gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY).astype(np.float32) / 65535.0
         else:
             gray = cv2.cvtColor(image.astype(np.float32), cv2.COLOR_BGR2GRAY)
     elif image.ndim == 2:

@@ -5,12 +5,12 @@ A sequence folder holds, per frame `<name>`:
     `<name>-depth.png`  16-bit depth (default unit: millimetres, 0 = missing),
     `<name>.csv`        optional landmarks: a header line, then `id, x, y, valid` (pixels),
 and one `intrinsics.xml` (OpenCV FileStorage, node `intrinsics`, 3x3 matrix).
-The reference frame is the one whose name contains `master` or `ref`.
+The reference frame is the one whose name holds `master` or `ref` as a whole token (see
+`geofeat.inputs.is_reference_name`). Every reader validates what it reads (`geofeat.inputs`).
 """
 
 from __future__ import annotations
 
-import json
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,8 +18,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .constants import DEFAULT_RADIUS_M, DEPTH_PROFILE_NAMES, DEPTH_SCALE_M
+from .constants import DEFAULT_RADIUS_M, DEPTH_SCALE_M
 from .frame import RGBDFrame
+from .inputs import (check_depth_plausible, check_depth_scale, check_intrinsics_for_image, check_landmarks,
+                     check_unique_names, is_reference_name, read_config)
 
 RGB_SUFFIX = "-rgb.png"
 DEPTH_SUFFIX = "-depth.png"
@@ -35,12 +37,19 @@ def _existing(path: str | Path, what: str) -> Path:
 def read_intrinsics(path: str | Path) -> np.ndarray:
     """Read the (3, 3) camera matrix from an OpenCV FileStorage `intrinsics.xml` (node `intrinsics`)."""
     path = _existing(path, "intrinsics_path")
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    try:  # a malformed or truncated file makes OpenCV raise cv2.error (or SystemError)
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError) as error:
+        raise ValueError(f"intrinsics_path: cannot parse {path} as OpenCV FileStorage "
+                         f"({str(error).strip().splitlines()[-1] if str(error).strip() else type(error).__name__})") from None
     try:
         if not fs.isOpened():
             raise ValueError(f"intrinsics_path: cannot parse {path} as OpenCV FileStorage")
         node = fs.getNode("intrinsics")
-        K = None if node.empty() else node.mat()
+        try:
+            K = None if node.empty() else node.mat()
+        except (cv2.error, SystemError):
+            K = None
     finally:
         fs.release()
     if K is None or np.asarray(K).shape != (3, 3):
@@ -74,8 +83,7 @@ def read_depth(path: str | Path, depth_scale: float = DEPTH_SCALE_M) -> np.ndarr
         raise ValueError(f"depth_path: expected a single-channel depth image, got shape {raw.shape}")
     if raw.dtype == np.uint8:
         raise ValueError(f"depth_path: {path} is 8-bit; depth must be a 16-bit PNG")
-    if depth_scale <= 0:
-        raise ValueError(f"depth_scale: must be positive metres per unit, got {depth_scale}")
+    check_depth_scale(depth_scale, "depth_scale")
     return raw.astype(np.float32) * np.float32(depth_scale)
 
 
@@ -116,11 +124,20 @@ def read_landmarks(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
             continue
         if len(tokens) < 4:
             raise ValueError(f"landmarks: {path}: expected 'id, x, y, valid', got {line!r}")
-        rows.append([float(t) for t in tokens[:4]])
+        try:
+            rows.append([float(t) for t in tokens[:4]])
+        except ValueError:
+            raise ValueError(f"landmarks: {path}: expected numbers 'id, x, y, valid', got {line!r}") from None
     data = np.asarray(rows, dtype=np.float64).reshape(-1, 4)
     ids = data[:, 0].astype(np.int64)
     xy = data[:, 1:3]
-    visible = (data[:, 3] > 0) & (xy[:, 0] >= 0) & (xy[:, 1] >= 0)
+    if not np.isfinite(data[:, 0]).all() or (data[:, 0] != np.round(data[:, 0])).any():
+        raise ValueError(f"landmarks: {path}: ids must be integers")
+    flagged = data[:, 3] > 0
+    if (flagged & ~np.isfinite(xy).all(axis=1)).any():
+        raise ValueError(f"landmarks: {path}: landmarks marked valid need finite coordinates, ids "
+                         f"{ids[flagged & ~np.isfinite(xy).all(axis=1)][:10].tolist()}")
+    visible = flagged & (xy[:, 0] >= 0) & (xy[:, 1] >= 0)
     return ids, xy, visible
 
 
@@ -144,6 +161,7 @@ class Sequence:
         depth_profile: the depth profile asked for by the folder's geofeat.json ("auto" when it
             names none: chosen from the measured depth noise, see `geofeat.depth_profile`).
         radius: geodesic radius for this sequence, metres (geofeat.json `radius`, else 0.075).
+        shape: (H, W) of the frames (the reference's), None when unknown.
     """
 
     folder: Path
@@ -152,6 +170,7 @@ class Sequence:
     depth_scale: float = DEPTH_SCALE_M
     depth_profile: str = "auto"
     radius: float = DEFAULT_RADIUS_M
+    shape: tuple[int, int] | None = None
 
     @property
     def name(self) -> str:
@@ -159,7 +178,7 @@ class Sequence:
 
     @property
     def reference(self) -> str:
-        """Name of the reference frame (contains `master` or `ref`)."""
+        """Name of the reference frame (the name holds `master` or `ref` as a whole token)."""
         return self.names[0]
 
     @property
@@ -168,16 +187,22 @@ class Sequence:
 
     def frame(self, name: str | int) -> RGBDFrame:
         name = self.names[name] if isinstance(name, int) else name
-        return RGBDFrame(
-            read_image(self.folder / f"{name}{RGB_SUFFIX}"),
-            read_depth(self.folder / f"{name}{DEPTH_SUFFIX}", self.depth_scale),
-            self.K,
-        )
+        image = read_image(self.folder / f"{name}{RGB_SUFFIX}")
+        depth = read_depth(self.folder / f"{name}{DEPTH_SUFFIX}", self.depth_scale)
+        if depth.shape != image.shape[:2]:
+            raise ValueError(f"frame {name}: depth {depth.shape[1]}x{depth.shape[0]} and colour "
+                             f"{image.shape[1]}x{image.shape[0]} differ in size ({self.folder})")
+        check_depth_plausible(depth, self.depth_scale, f"frame {name} of {self.folder}")
+        return RGBDFrame(image, depth, self.K)
 
     def landmarks(self, name: str | int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(ids, xy, visible) of the frame's csv, see `read_landmarks`."""
+        """(ids, xy, visible) of the frame's csv, see `read_landmarks`, checked by
+        `geofeat.inputs.check_landmarks` (unique ids, visible landmarks on the image)."""
         name = self.names[name] if isinstance(name, int) else name
-        return read_landmarks(self.folder / f"{name}.csv")
+        ids, xy, visible = read_landmarks(self.folder / f"{name}.csv")
+        if self.shape is not None:
+            check_landmarks(ids, xy, visible, self.shape, f"{name}.csv")
+        return ids, xy, visible
 
     def correspondences(self, i: str | int, j: str | int, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Exact ground truth of a simulated sequence: map (N, 2) pixels of frame i to frame j.
@@ -217,21 +242,27 @@ def read_sequence(folder: str | Path, depth_scale: float | None = None) -> Seque
     missing = [n for n in names if not (folder / f"{n}{DEPTH_SUFFIX}").is_file()]
     if missing:
         raise ValueError(f"folder: frames without '{DEPTH_SUFFIX}' in {folder}: {missing[:5]}")
-    refs = [n for n in names if "master" in n.lower() or "ref" in n.lower()]
+    refs = [n for n in names if is_reference_name(n)]
+    if len(refs) > 1:
+        raise ValueError(f"folder: {folder} has several reference frames ({', '.join(refs[:5])}); "
+                         "exactly one frame name may hold 'master' or 'ref'")
     reference = refs[0] if refs else names[0]
     names = [reference] + [n for n in names if n != reference]
-    config_path = folder / "geofeat.json"
-    config = json.loads(config_path.read_text()) if config_path.is_file() else {}
+    config = read_config(folder)
     if depth_scale is None:
         depth_scale = float(config.get("depth_scale", DEPTH_SCALE_M))
+    check_depth_scale(depth_scale)
     profile = config.get("depth_profile", "auto")
-    if not isinstance(profile, str) or profile.strip().lower() not in DEPTH_PROFILE_NAMES:
-        raise ValueError(f"{config_path}: depth_profile: expected one of {', '.join(DEPTH_PROFILE_NAMES)}, "
-                         f"got {profile!r}")
     K = read_intrinsics(folder / "intrinsics.xml")
     radius = float(config.get("radius", DEFAULT_RADIUS_M))
-    return Sequence(folder=folder, names=names, K=K, depth_scale=depth_scale, depth_profile=profile.strip().lower(),
-                    radius=radius)
+    image = read_image(folder / f"{reference}{RGB_SUFFIX}")
+    shape = (int(image.shape[0]), int(image.shape[1]))
+    K = check_intrinsics_for_image(K, shape, f"intrinsics_path: {folder / 'intrinsics.xml'}")
+    seq = Sequence(folder=folder, names=names, K=K, depth_scale=depth_scale, depth_profile=profile.strip().lower(),
+                   radius=radius, shape=shape)
+    depth = read_depth(folder / f"{reference}{DEPTH_SUFFIX}", depth_scale)
+    check_depth_plausible(depth, depth_scale, f"frame {reference} of {folder}")
+    return seq
 
 
 def demo_data_dir() -> Path:
@@ -245,9 +276,11 @@ def read_demo_frame() -> RGBDFrame:
     return read_frame(d / "cloud_1-rgb.png", d / "cloud_1-depth.png", d / "intrinsics.xml")
 
 
-def find_sequences(paths) -> list[Path]:
+def find_sequences(paths, unique_names: bool = False) -> list[Path]:
     """Sequence folders under the given paths: a path that holds `*-rgb.png` frames is a sequence,
-    otherwise its sub-folders that do are (one level down), sorted by name."""
+    otherwise its sub-folders that do are (one level down), sorted by name. A folder reached twice is
+    listed once; with `unique_names`, two different folders with one name are refused (commands key
+    their results by the sequence name)."""
     found: list[Path] = []
     for p in [Path(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]:
         if not p.is_dir():
@@ -259,4 +292,8 @@ def find_sequences(paths) -> list[Path]:
         if not subs:
             raise ValueError(f"dataset: no sequence (folder of '*{RGB_SUFFIX}' frames) in {p}")
         found.extend(subs)
-    return found
+    seen: set[Path] = set()
+    unique = [f for f in found if not (f.resolve() in seen or seen.add(f.resolve()))]
+    if unique_names:
+        check_unique_names(unique)
+    return unique

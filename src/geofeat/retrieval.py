@@ -16,7 +16,7 @@
 from __future__ import annotations
 
 import csv
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -159,7 +159,8 @@ def read_classes(path: str | Path) -> dict[str, str]:
 @dataclass
 class RetrievalDatabase:
     """Described frames: per frame (sequence, frame name, class, is reference), the masks' sources
-    per sequence, and per descriptor the list of Features (one per frame, same order)."""
+    per sequence, and per descriptor the list of Features (one per frame, same order). `skipped`
+    names ("sequence/frame") the frames that could not be read or described (left out)."""
 
     sequences: list[str]
     frames: list[str]
@@ -168,6 +169,7 @@ class RetrievalDatabase:
     folders: list[Path]
     mask_sources: dict[str, str]
     features: dict[str, list[Features]]
+    skipped: list[str] = field(default_factory=list)
 
 
 def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int = N_KEYPOINTS,
@@ -185,7 +187,11 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
     names = tuple(check_descriptor_name(d) for d in descriptors if d.strip())  # nothing built yet
     if not names:
         raise ValueError("descriptors: expected at least one descriptor name")
-    folders = find_sequences(datasets)
+    from .inputs import resolve_radius
+
+    folders = find_sequences(datasets, unique_names=True)
+    if tps_dir is not None and not Path(tps_dir).is_dir():
+        raise ValueError(f"tps-dir: not a directory: {tps_dir}")
     db = RetrievalDatabase([], [], [], np.zeros(0, bool), [], {}, {n: [] for n in names})
     is_query = []
     seqs = [read_sequence(f, depth_scale=depth_scale) for f in folders]
@@ -197,14 +203,23 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
     bar = tqdm(total=total, desc="retrieval: describe", unit="frame", disable=not progress)
     for seq in seqs:
         # the bench's rules for the radius and the depth profile
-        describe = Describer(names, seq.radius if radius is None else float(radius), sequence_depth_profile(seq))
+        describe = Describer(names, resolve_radius(radius, seq), sequence_depth_profile(seq))
         sources = set()
         for name in seq.names:
-            frame = seq.frame(name)
-            mask, source = object_mask(seq, name, tps_dir)
+            try:
+                frame = seq.frame(name)
+                mask, source = object_mask(seq, name, tps_dir)
+                kps = detect(frame, n_keypoints, mask=mask)
+                if len(kps) == 0:
+                    raise ValueError("no keypoints detected")
+                described = describe(frame, kps)
+            except ValueError as error:  # reported by name; the other frames go on
+                tqdm.write(f"SKIPPED frame {name} of {seq.name}: {str(error).splitlines()[0]}")
+                db.skipped.append(f"{seq.name}/{name}")
+                bar.update(1)
+                continue
             sources.add(source)
-            kps = detect(frame, n_keypoints, mask=mask)
-            for d, (f, _) in describe(frame, kps).items():
+            for d, (f, _) in described.items():
                 db.features[d].append(f)
             db.sequences.append(seq.name)
             db.frames.append(name)
@@ -278,19 +293,36 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
                   words: int = N_WORDS, n_samples: int = N_VOCABULARY_SAMPLES, seed: int = 0,
                   classes_file: str | None = None, n_keypoints: int = N_KEYPOINTS, tps_dir: str | None = None,
                   radius: float | None = None, depth_scale: float | None = None, max_k: int = MAX_K,
-                  progress: bool = True) -> tuple[dict[str, np.ndarray], RetrievalDatabase]:
+                  progress: bool = True, overwrite: bool = False) -> tuple[dict[str, np.ndarray], RetrievalDatabase]:
     """The whole retrieval experiment; writes into `out`: `retrieval.csv` (descriptor, k, accuracy),
     `acc_at_k.png`, `top6.png` (two queries per descriptor) and `retrieval.md` (table + mask sources).
 
+    The folder is built aside and moved into place at the end; an existing non-empty `out` needs
+    `overwrite` (`geofeat.outputs`). Frames that cannot be described are skipped and named in
+    `db.skipped` and in retrieval.md.
+
     Returns ({descriptor: (max_k,) Acc@K}, the described database)."""
-    out = Path(out)
+    from .outputs import check_out_dir, output_folder
+
+    out = check_out_dir(out, overwrite)
     classes = read_classes(classes_file) if classes_file else None
     db = describe_datasets(datasets, descriptors, n_keypoints, classes, tps_dir, radius, depth_scale, progress)
     if db.is_query.sum() == 0:
         raise ValueError("datasets: no reference frame to query")
-    out.mkdir(parents=True, exist_ok=True)
+    if db.is_query.all():
+        raise ValueError(f"datasets: {len(db.frames)} frame(s), all of them reference frames (queries); retrieval "
+                         "needs other frames to search among")
+    acc: dict[str, np.ndarray] = {}
+    with output_folder(out) as tmp:
+        _write_retrieval(tmp, db, acc, words, n_samples, seed, max_k)
+    return acc, db
+
+
+def _write_retrieval(out: Path, db: RetrievalDatabase, acc: dict, words: int, n_samples: int, seed: int,
+                     max_k: int) -> None:
+    """Vocabulary, search and the result files of `run_retrieval`, into `out`; fills `acc`."""
     q_idx = np.flatnonzero(db.is_query)
-    acc, results = {}, {}
+    results = {}
     for name, feats in db.features.items():
         sample = sample_descriptors(feats, n_samples, seed)
         if len(sample) <= words:
@@ -315,5 +347,6 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
     notes = [f"- {len(db.frames)} frames of {len(set(db.sequences))} sequences, {n_cls} classes, "
              f"{len(q_idx)} queries; {words} words from {min(n_samples, sum(int(f.valid.sum()) for f in next(iter(db.features.values()))))} descriptors",
              "- object masks: " + ", ".join(f"{s}: {src}" for s, src in db.mask_sources.items())]
+    if db.skipped:
+        notes.append(f"- SKIPPED frames: {', '.join(db.skipped)}")
     (out / "retrieval.md").write_text("\n".join(lines) + "\n\n" + "\n".join(notes) + "\n")
-    return acc, db

@@ -365,6 +365,7 @@ class TrackResult:
             itself), NaN where the fit failed.
         rows: one dict per target frame (see `TRACK_COLUMNS`).
         mask_source: where the object mask came from ("simulator", "objmask", "depth").
+        skipped: target frames that could not be read or described (no row; points stay NaN).
     """
 
     sequence: str
@@ -375,6 +376,7 @@ class TrackResult:
     points: np.ndarray
     rows: list[dict] = field(default_factory=list)
     mask_source: str = ""
+    skipped: list[str] = field(default_factory=list)
 
 
 #: Columns of track.csv. n_template / n_frame: keypoints in the template ROI / in the frame; matches:
@@ -387,8 +389,11 @@ TRACK_COLUMNS = ["sequence", "descriptor", "frame", "n_template", "n_frame", "ma
 
 
 def sequence_radius(seq: Sequence, radius: float | None) -> float:
-    """Geodesic radius in metres: `radius`, else the sequence's (geofeat.json, else 0.075), as the bench."""
-    return seq.radius if radius is None else float(radius)
+    """Geodesic radius in metres: `radius`, else the sequence's (geofeat.json, else 0.075), as the bench
+    (`geofeat.inputs.resolve_radius`, the one rule)."""
+    from .inputs import resolve_radius
+
+    return resolve_radius(radius, seq)
 
 
 def track_sequence(
@@ -455,9 +460,17 @@ def track_sequence(
         r.points[0] = grid
     bar = tqdm(list(enumerate(seq.targets, start=1)), desc=f"track {seq.name}", unit="frame", disable=not progress)
     for k, target in bar:
-        frame = seq.frame(target)
-        k_tgt = detect(frame, n_keypoints)
-        f_tgt = describe(frame, k_tgt)
+        try:
+            frame = seq.frame(target)
+            k_tgt = detect(frame, n_keypoints)
+            if len(k_tgt) == 0:
+                raise ValueError("no keypoints detected")
+            f_tgt = describe(frame, k_tgt)
+        except ValueError as error:  # reported by name; the other frames go on
+            tqdm.write(f"SKIPPED frame {target} of {seq.name}: {str(error).splitlines()[0]}")
+            for r in results.values():
+                r.skipped.append(target)
+            continue
         to_ref = truth.target_to_reference(target, k_tgt.xy, frame.shape) if truth is not None else None
         for name in names:
             m = match(f_ref[name][0], f_tgt[name][0])
@@ -500,11 +513,14 @@ def _draw_grid(image: np.ndarray, pts: np.ndarray, side: int, colour, label: str
 
 
 def grid_frames(seq: Sequence, result: TrackResult, scale: float = 0.5) -> list[np.ndarray]:
-    """(h, w, 3) uint8 RGB pictures of every frame with the tracked grid drawn, resized by `scale`."""
+    """(h, w, 3) uint8 RGB pictures of every frame with the tracked grid drawn, resized by `scale`
+    (frames in `result.skipped` are left out)."""
     from .viz import to_bgr
 
     pictures = []
     for k, name in enumerate(result.frames):
+        if name in result.skipped:
+            continue
         bgr = to_bgr(seq.frame(name))
         pic = _draw_grid(bgr, result.points[k], GRID_SIDE, (0, 255, 0) if k else (255, 200, 0),
                          f"{result.descriptor}  {name}")
@@ -552,38 +568,49 @@ def _median(values) -> float:
 
 def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi=None, n_keypoints: int = N_KEYPOINTS,
                    tps_dir: str | None = None, radius: float | None = None, depth_scale: float | None = None,
-                   threshold_px: float = RANSAC_THRESHOLD_PX, progress: bool = True) -> tuple[Path, str]:
+                   threshold_px: float = RANSAC_THRESHOLD_PX, progress: bool = True,
+                   overwrite: bool = False, skipped: list[str] | None = None) -> tuple[Path, str]:
     """Track every sequence with every descriptor and write into `out`:
     `track.csv` (one row per sequence, descriptor and target frame), per sequence and descriptor
     `<sequence>/<descriptor>/grid.npz` (reference_points (G, 2), points (F, G, 2), frames (F,),
     roi (4,)) and `<sequence>/<descriptor>/track.gif`, and `tracking.md` (the averaged table).
-    Returns the csv path and the table."""
+    The folder is built aside and moved into place at the end (`geofeat.outputs`); an existing
+    non-empty `out` needs `overwrite`. Frames that could not be described are listed in
+    `tracking.md` and appended as "sequence/frame" to `skipped` when a list is given. Returns the csv
+    path and the table."""
     import imageio.v2 as imageio
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    csv_path = out / "track.csv"
+    from .io import find_sequences
+    from .outputs import check_out_dir, output_folder
+
+    out = check_out_dir(out, overwrite)
+    sequences = find_sequences(sequences, unique_names=True)
+    if tps_dir is not None and not Path(tps_dir).is_dir():
+        raise ValueError(f"tps-dir: not a directory: {tps_dir}")
     rows: list[dict] = []
     notes = []
-    with open(csv_path, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, TRACK_COLUMNS)
-        writer.writeheader()
-        for folder in sequences:
-            results = track_sequence(folder, descriptors, roi=roi, n_keypoints=n_keypoints, tps_dir=tps_dir,
-                                     radius=radius, depth_scale=depth_scale, threshold_px=threshold_px,
-                                     progress=progress)
-            seq = read_sequence(folder, depth_scale=depth_scale)
-            for name, r in results.items():
-                writer.writerows(r.rows)
-                fh.flush()
-                rows.extend(r.rows)
-                sub = out / seq.name / name.replace("=", "_").replace("/", "_")
-                sub.mkdir(parents=True, exist_ok=True)
-                np.savez(sub / "grid.npz", reference_points=r.reference_points, points=r.points,
-                         frames=np.array(r.frames), roi=np.array(r.roi))
-                imageio.mimsave(sub / "track.gif", grid_frames(seq, r), duration=400, loop=0)
-            first = next(iter(results.values()))
-            notes.append(f"{first.sequence}: ROI {first.roi}, object mask from {first.mask_source}")
-    table = tracking_table(rows)
-    (out / "tracking.md").write_text(table + "\n" + "\n".join(f"- {n}" for n in notes) + "\n")
-    return csv_path, table
+    with output_folder(out) as tmp:
+        with open(tmp / "track.csv", "w", newline="") as fh:
+            writer = csv.DictWriter(fh, TRACK_COLUMNS)
+            writer.writeheader()
+            for folder in sequences:
+                results = track_sequence(folder, descriptors, roi=roi, n_keypoints=n_keypoints, tps_dir=tps_dir,
+                                         radius=radius, depth_scale=depth_scale, threshold_px=threshold_px,
+                                         progress=progress)
+                seq = read_sequence(folder, depth_scale=depth_scale)
+                for name, r in results.items():
+                    writer.writerows(r.rows)
+                    rows.extend(r.rows)
+                    sub = tmp / seq.name / name.replace("=", "_").replace("/", "_")
+                    sub.mkdir(parents=True, exist_ok=True)
+                    np.savez(sub / "grid.npz", reference_points=r.reference_points, points=r.points,
+                             frames=np.array(r.frames), roi=np.array(r.roi))
+                    imageio.mimsave(sub / "track.gif", grid_frames(seq, r), duration=400, loop=0)
+                first = next(iter(results.values()))
+                if skipped is not None:
+                    skipped.extend(f"{first.sequence}/{f}" for f in first.skipped)
+                notes.append(f"{first.sequence}: ROI {first.roi}, object mask from {first.mask_source}"
+                             + (f"; SKIPPED frames: {', '.join(first.skipped)}" if first.skipped else ""))
+        table = tracking_table(rows)
+        (tmp / "tracking.md").write_text(table + "\n" + "\n".join(f"- {n}" for n in notes) + "\n")
+    return out / "track.csv", table

@@ -16,6 +16,7 @@ records the keypoint set and the profile used.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import multiprocessing
 import time
@@ -34,7 +35,9 @@ from ..descriptors import check_descriptor_name, make_descriptor
 from ..frame import RGBDFrame
 from ..geodesic.mesh import build_mesh
 from ..geodesic.polar import polar_patches
+from ..inputs import resolve_radius
 from ..io import Sequence, find_sequences, read_sequence
+from ..outputs import add_to_manifest, append_line_durably, atomic_file, check_out_dir, read_manifest
 from ..keypoints import KEYPOINT_SETS, Keypoints, check_detector_name, detect
 from ..matching import match
 from ..features import Features
@@ -129,12 +132,25 @@ def _pose_change(seq: Sequence, target: str) -> tuple[float, float]:
         return float("nan"), float("nan")
 
 
+def _has_tps_files(folder: Path) -> bool:
+    return folder.is_dir() and (any(folder.glob("*_theta.npy")) or any(folder.glob("*_objmask.png")))
+
+
 def _tps_folder(tps_dir: str, name: str) -> Path | None:
+    """The folder of TPS files of sequence `name` under `tps_dir`: the first of `tps_dir/name`,
+    `tps_dir/name/name` (groundtruth run with `--out tps_dir/name`) and `tps_dir/*/name` that holds
+    TPS files (`*_theta.npy` or `*_objmask.png`); None when none does."""
     root = Path(tps_dir)
-    for candidate in [root / name, *root.glob(f"*/{name}")]:
-        if candidate.is_dir():
+    for candidate in [root / name, root / name / name, *sorted(root.glob(f"*/{name}"))]:
+        if _has_tps_files(candidate):
             return candidate
     return None
+
+
+def check_tps_dir(tps_dir: str | None) -> None:
+    """`--tps-dir` must name an existing folder."""
+    if tps_dir is not None and not Path(tps_dir).is_dir():
+        raise ValueError(f"tps-dir: not a directory: {tps_dir}")
 
 
 def _on_mask(mask: np.ndarray | None, xy: np.ndarray) -> np.ndarray:
@@ -151,7 +167,11 @@ class GroundTruth:
 
     def __init__(self, seq: Sequence, tps_dir: str | None) -> None:
         self.seq = seq
+        check_tps_dir(tps_dir)
         self.tps = _tps_folder(tps_dir, seq.name) if tps_dir else None
+        if tps_dir and self.tps is None:
+            raise ValueError(f"tps-dir: no TPS files (<frame>_theta.npy, <frame>_objmask.png) for sequence {seq.name} "
+                             f"in {Path(tps_dir) / seq.name} or {Path(tps_dir)}/*/{seq.name}")
         self.exact = self.tps is None and seq.has_ground_truth()
         if self.tps is None and not self.exact and not seq.has_landmarks():
             raise ValueError(f"sequence {seq.name}: no ground truth (no simulator files, no csv landmarks, no TPS files)")
@@ -231,7 +251,7 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
         raise ValueError(f"sequence {seq.name}: needs a reference and at least one target frame")
     ref = seq.frame(seq.reference)
     profile = sequence_depth_profile(seq, config.depth_profile, ref) if names else ""
-    describe = Describer(names, config.radius if config.radius is not None else seq.radius, profile or "kinect")
+    describe = Describer(names, resolve_radius(config.radius, seq), profile or "kinect")
     rows = []
     if config.protocol == "landmarks":
         ids_r, xy_r, vis_r = seq.landmarks(seq.reference)
@@ -316,8 +336,63 @@ def evaluate_external(seq: Sequence, truth: GroundTruth, features: ExternalFeatu
 def _run_one(folder: str, config: BenchConfig, descriptors: tuple[str, ...]) -> tuple[str, list[dict] | None, str | None]:
     try:
         return folder, evaluate_sequence(folder, config, descriptors), None
+    except SystemError:  # an interpreter-level error, e.g. Ctrl-C inside a numba kernel: stop the run
+        raise
     except Exception as error:  # reported by name; the other sequences go on
         return folder, None, f"{type(error).__name__}: {error}\n{traceback.format_exc(limit=3)}"
+
+
+_FLOAT_COLUMNS = ("ms", "mma", "repeatability", "seconds_extract", "seconds_match", "angle_deg", "scale")
+_INT_COLUMNS = ("hits", "n_gt", "n_ref", "n_tgt")
+
+
+def _parses(row: list[str]) -> bool:
+    """True for a complete results.csv row: every column, numbers where numbers belong."""
+    if len(row) != len(COLUMNS) or not row[0]:
+        return False
+    values = dict(zip(COLUMNS, row))
+    try:
+        for key in _FLOAT_COLUMNS:
+            float(values[key])
+        for key in _INT_COLUMNS:
+            int(values[key])
+    except ValueError:
+        return False
+    return True
+
+
+def _sequence_of(line: str) -> str:
+    row = next(csv.reader([line]), [])
+    return row[0] if row else ""
+
+
+def repair_results(csv_path: Path) -> int:
+    """Drop from results.csv what a kill during an append can leave: a last line without its newline
+    and any unparsable row, together with the other rows of that sequence just before it (rows of
+    one sequence are appended in one write, so a torn write cuts only the end of that block). The
+    dropped results are recomputed by the rerun. Returns the number of lines dropped."""
+    text = csv_path.read_text()
+    lines = text.splitlines(keepends=True)
+    if not lines:
+        return 0
+    kept: list[str] = [lines[0]]
+    dropped = 0
+    for line in lines[1:]:
+        row = next(csv.reader([line]), [])
+        if line.endswith("\n") and _parses(row):
+            kept.append(line)
+            continue
+        dropped += 1
+        prefix = row[0] if row else ""  # the broken row's sequence, perhaps cut short
+        block = _sequence_of(kept[-1]) if len(kept) > 1 else None
+        if block is not None and block.startswith(prefix):
+            while len(kept) > 1 and _sequence_of(kept[-1]) == block:
+                kept.pop()
+                dropped += 1
+    if dropped:
+        with atomic_file(csv_path) as tmp:
+            tmp.write_text("".join(kept))
+    return dropped
 
 
 def _finished(csv_path: Path) -> set[tuple[str, str]]:
@@ -326,6 +401,14 @@ def _finished(csv_path: Path) -> set[tuple[str, str]]:
         return set()
     with open(csv_path, newline="") as fh:
         return {(row["sequence"], row["descriptor"]) for row in csv.DictReader(fh)}
+
+
+def _append_rows(csv_path: Path, rows: list[dict]) -> None:
+    """Append a sequence's rows to results.csv in one durable write (see `repair_results`)."""
+    buffer = io.StringIO()
+    csv.DictWriter(buffer, COLUMNS, lineterminator="\n").writerows(rows)
+    if buffer.getvalue():
+        append_line_durably(csv_path, buffer.getvalue())
 
 
 def _settings(config: BenchConfig) -> dict:
@@ -339,28 +422,52 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
     """Evaluate every sequence under `datasets`; write OUT/results.csv incrementally.
 
     A rerun into the same folder with the same settings evaluates only the (sequence, descriptor)
-    results not yet in results.csv; with other settings it raises ValueError unless `overwrite`,
-    which starts the file anew. Returns the csv path and the names of failed sequences (with
+    results not yet in results.csv (a row cut short by a kill is dropped and recomputed, see
+    `repair_results`); with other settings it raises ValueError unless `overwrite`, which starts the
+    file anew. A non-empty `out` without results.csv needs `overwrite`; files geofeat did not write
+    are never replaced. Sequence names must be unique (results are keyed by them). Ctrl-C stops the
+    run (KeyboardInterrupt) and leaves the finished rows in place. Returns the csv path and the names of failed sequences (with
     reasons printed)."""
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    folders = [str(f) for f in find_sequences(datasets)]
     csv_path = out / "results.csv"
     config_path = out / "config.json"
-    if csv_path.is_file() and not overwrite:
-        before = json.loads(config_path.read_text()) if config_path.is_file() else {}
-        if {k: before.get(k) for k in REUSE_KEYS} != _settings(config):
-            raise ValueError(f"out: {out} holds results made with other settings "
-                             f"({ {k: before.get(k) for k in REUSE_KEYS} }); use --overwrite or another --out")
+    resume = csv_path.is_file() and not overwrite
+    if not csv_path.is_file():
+        check_out_dir(out, overwrite)  # a non-empty folder without results.csv is not a bench to resume
+    elif out.exists() and not out.is_dir():
+        raise ValueError(f"out: {out} is a file, not a folder")
+    folders = [str(f) for f in find_sequences(datasets, unique_names=True)]
+    check_tps_dir(config.tps_dir)
+    header = None
+    if csv_path.is_file():
         with open(csv_path, newline="") as fh:
-            if next(csv.reader(fh), None) != COLUMNS:
-                raise ValueError(f"out: {csv_path} has other columns (an older geofeat?); use --overwrite")
+            header = next(csv.reader(fh), None)
+    if overwrite and header is not None and header != COLUMNS and "results.csv" not in read_manifest(out):
+        raise ValueError(f"out: {csv_path} is not a geofeat bench result (other columns); --overwrite never "
+                         "replaces a file geofeat did not write: choose another --out")
+    if resume:
+        try:
+            before = json.loads(config_path.read_text()) if config_path.is_file() else {}
+        except ValueError:
+            raise ValueError(f"out: {config_path} is not valid JSON; use --overwrite or another --out") from None
+        if not isinstance(before, dict) or {k: before.get(k) for k in REUSE_KEYS} != _settings(config):
+            shown = {k: before.get(k) for k in REUSE_KEYS} if isinstance(before, dict) else before
+            raise ValueError(f"out: {out} holds results made with other settings ({shown}); use --overwrite or "
+                             "another --out")
+        if header != COLUMNS:
+            raise ValueError(f"out: {csv_path} has other columns (an older geofeat?); use --overwrite")
+        dropped = repair_results(csv_path)
+        if dropped and progress:
+            tqdm.write(f"bench: dropped {dropped} incomplete row(s) at the end of {csv_path}; they are recomputed")
         done = _finished(csv_path)
     else:
-        with open(csv_path, "w", newline="") as fh:
-            csv.DictWriter(fh, COLUMNS).writeheader()
+        with atomic_file(csv_path) as tmp:
+            with open(tmp, "w", newline="") as fh:
+                csv.DictWriter(fh, COLUMNS, lineterminator="\n").writeheader()
         done = set()
-    config_path.write_text(json.dumps(asdict(config), indent=1))
+    with atomic_file(config_path) as tmp:
+        tmp.write_text(json.dumps(asdict(config), indent=1))
+    add_to_manifest(out, ["results.csv", "config.json"])
     work = []
     for folder in folders:
         name = Path(folder).name
@@ -377,8 +484,7 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
             failed.append(Path(folder).name)
             tqdm.write(f"FAILED {Path(folder).name}: {error.splitlines()[0]}")
         else:
-            with open(csv_path, "a", newline="") as fh:
-                csv.DictWriter(fh, COLUMNS).writerows(rows)
+            _append_rows(csv_path, rows)
         bar.update(1)
 
     bar = tqdm(total=len(work), desc="bench", unit="seq", disable=not progress)

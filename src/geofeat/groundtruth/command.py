@@ -27,21 +27,32 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help=f"object mask: pixels beyond the landmarks' convex hull (default {DEFAULT_MARGIN_PX:g})")
     p.add_argument("--depth-margin", type=float, default=DEFAULT_DEPTH_MARGIN_M,
                    help=f"object mask: metres beyond the landmarks' depth range (default {DEFAULT_DEPTH_MARGIN_M:g})")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace what geofeat wrote in existing OUT/<sequence> folders (other files stay)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
 
 def run(args: argparse.Namespace) -> int:
     """Run `groundtruth`; ValueError on bad input. Returns 0, or 1 when a frame failed."""
-    from ..io import find_sequences
-    from .pipeline import GroundTruthConfig, generate_ground_truth
+    from ..io import find_sequences, read_sequence
+    from ..outputs import check_out_dir
+    from .pipeline import GroundTruthConfig, check_config, generate_ground_truth
 
     config = GroundTruthConfig(refine=not args.no_refine, spacing=args.spacing, margin_px=args.margin,
                                depth_margin_m=args.depth_margin)
+    check_config(config)
+    folders = find_sequences(args.sequences, unique_names=True)
+    if args.out.exists() and not args.out.is_dir():
+        raise ValueError(f"--out: {args.out} is a file, not a folder")
+    for folder in folders:  # every input and output is checked before the first frame is refined
+        seq = read_sequence(folder)
+        check_config(config, seq.shape)
+        check_out_dir(args.out / folder.name, args.overwrite)
     failed = []
-    for folder in find_sequences(args.sequences):
+    for folder in folders:
         out = args.out / folder.name
-        reports = generate_ground_truth(folder, out, config, progress=not args.no_progress)
+        reports = generate_ground_truth(folder, out, config, progress=not args.no_progress, overwrite=args.overwrite)
         ok = [r for r in reports if r.status == "ok"]
         bad = [r for r in reports if r.status != "ok"]
         if ok:

@@ -28,7 +28,9 @@ import cv2
 import numpy as np
 
 from ..frame import RGBDFrame
+from ..inputs import check_landmarks
 from ..io import Sequence, read_sequence
+from ..outputs import check_out_dir, output_folder
 from .defaults import DEFAULT_DEPTH_MARGIN_M, DEFAULT_MARGIN_PX, DEFAULT_SPACING_PX
 from .photometric import RefineConfig, refine
 from .tps import MIN_LANDMARKS, TPS, robust_landmark_tps
@@ -93,13 +95,7 @@ def _valid_landmarks(seq: Sequence, shape: tuple[int, int]) -> dict[str, tuple[n
             raise ValueError(f"sequence {seq.name}: frame {name} has no landmark csv ({name}.csv); "
                              "ground truth needs landmarks in every frame")
         ids, xy, vis = seq.landmarks(name)
-        uniq, counts = np.unique(ids, return_counts=True)
-        if (counts > 1).any():
-            raise ValueError(f"landmarks: {name}.csv repeats ids {uniq[counts > 1][:10].tolist()}")
-        off = vis & ((xy[:, 0] > W - 0.5) | (xy[:, 1] > H - 0.5))
-        if off.any():
-            raise ValueError(f"landmarks: {name}.csv has visible landmarks off the {W}x{H} image: ids "
-                             f"{ids[off][:10].tolist()} at {np.round(xy[off][:3], 1).tolist()}")
+        check_landmarks(ids, xy, vis, (H, W), f"{name}.csv")  # the one landmark validator
         out[name] = (ids, xy, vis)
     ref_ids = out[seq.reference][0]
     for name in seq.targets:
@@ -258,6 +254,9 @@ def _frame(seq: Sequence, name: str, ref: RGBDFrame, ref_mask, lms, config: Grou
     except ValueError as error:
         rep.status, rep.reason = "failed", str(error)
         return rep
+    # the target's own depth range: the object moves in depth (a camera moving back, another renderer's
+    # units and scene scale), so the reference's range would empty the target mask and make SSIM NaN
+    zrange = _depth_range(tgt, p_tgt[inl], config.depth_margin_m)
     rep.inliers = int(inl.sum())
     rep.rejected_ids = common[~inl].tolist()
     rep.loo_median_px = float(np.nanmedian(fit.loo_px))
@@ -283,8 +282,12 @@ def _frame(seq: Sequence, name: str, ref: RGBDFrame, ref_mask, lms, config: Grou
     res = np.linalg.norm(tps_inv(p_tgt[inl]) - p_ref[inl], axis=1)
     rep.landmark_median_px, rep.landmark_max_px = float(np.median(res)), float(res.max())
     common_mask = ev.mask & before.mask
-    rep.ssim_before = float(before.ssim[common_mask].mean()) if common_mask.any() else float("nan")
-    rep.ssim_after = float(ev.ssim[common_mask].mean()) if common_mask.any() else float("nan")
+    if not common_mask.any():
+        rep.status, rep.reason = "failed", "the object mask of the frame is empty (no pixel to judge the alignment on)"
+        rep.seconds = time.perf_counter() - t0
+        return rep
+    rep.ssim_before = float(before.ssim[common_mask].mean())
+    rep.ssim_after = float(ev.ssim[common_mask].mean())
     if config.refine:
         reasons = []
         if rep.cost_after > rep.cost_before + MAX_COST_RISE:
@@ -299,6 +302,14 @@ def _frame(seq: Sequence, name: str, ref: RGBDFrame, ref_mask, lms, config: Grou
             rep.status, rep.reason = "failed", "refinement diverged: " + "; ".join(reasons)
             rep.seconds = time.perf_counter() - t0
             return rep
+    numbers = {k: v for k, v in asdict(rep).items() if isinstance(v, float) and k not in ("cost_before", "cost_after")}
+    if config.refine:
+        numbers.update(cost_before=rep.cost_before, cost_after=rep.cost_after)
+    not_finite = [k for k, v in numbers.items() if not np.isfinite(v)]
+    if not_finite:  # a NaN in a report is a failure, never "ok"
+        rep.status, rep.reason = "failed", f"not finite: {', '.join(not_finite)}"
+        rep.seconds = time.perf_counter() - t0
+        return rep
     _write_frame(out, name, tps_inv, ev)
     cv2.imwrite(str(out / f"{name}_overlay.png"), _overlay(tgt, ev, lines, p_tgt[inl], p_tgt[~inl]))
     rep.seconds = time.perf_counter() - t0
@@ -306,42 +317,64 @@ def _frame(seq: Sequence, name: str, ref: RGBDFrame, ref_mask, lms, config: Grou
 
 
 def generate_ground_truth(sequence: str | Path | Sequence, out: str | Path, config: GroundTruthConfig | None = None,
-                          progress: bool = True) -> list[FrameReport]:
+                          progress: bool = True, overwrite: bool = False) -> list[FrameReport]:
     """Dense ground truth of one annotated sequence, written to the folder `out` (see the module docstring).
 
     Args:
         sequence: a sequence folder in the public layout with a landmark csv per frame, or a `Sequence`.
-        out: output folder (created); the bench reads it as `--tps-dir` when it is named like the sequence
+        out: output folder (created; built aside and moved into place at the end; an existing non-empty
+            folder needs `overwrite`, which replaces only what geofeat wrote there); the bench reads it as `--tps-dir` when it is named like the sequence
             or sits in a folder given as `--tps-dir`.
         config: settings (`GroundTruthConfig()` by default).
     Returns:
         one FrameReport per target frame (also in out/report.csv and out/report.json).
     Raises:
         ValueError: bad landmark files (missing, repeated ids, visible rows off the image, ids unknown
-            to the reference, fewer than 4 visible in the reference).
+            to the reference, fewer than 4 visible in the reference), bad settings, an existing output.
     """
     config = config or GroundTruthConfig()
-    if config.spacing < 2:
-        raise ValueError(f"spacing: expected >= 2 pixels, got {config.spacing}")
+    check_config(config)
     seq = sequence if isinstance(sequence, Sequence) else read_sequence(sequence)
     if len(seq) < 2:
         raise ValueError(f"sequence {seq.name}: needs a reference and at least one target frame")
     ref = seq.frame(seq.reference)
+    check_config(config, ref.shape)
     lms = _valid_landmarks(seq, ref.shape)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = check_out_dir(out, overwrite)
     ids_r, xy_r, vis_r = lms[seq.reference]
     ref_mask = reference_mask(ref, xy_r[vis_r], config.margin_px, config.depth_margin_m)
+    if not ref_mask.any():
+        raise ValueError(f"sequence {seq.name}: the reference object mask is empty (landmarks without depth in "
+                         f"range, or --margin {config.margin_px:g} too small)")
     zrange = _depth_range(ref, xy_r[vis_r], config.depth_margin_m)
-    cv2.imwrite(str(out / f"{seq.reference}_objmask.png"), ref_mask.astype(np.uint8) * 255)
     names = seq.targets
     if progress:
         from tqdm import tqdm
 
         names = tqdm(names, desc=f"groundtruth {seq.name}", unit="frame")
-    reports = [_frame(seq, name, ref, ref_mask, lms, config, out, zrange) for name in names]
-    _write_report(out, seq, config, reports)
+    with output_folder(out) as tmp:
+        cv2.imwrite(str(tmp / f"{seq.reference}_objmask.png"), ref_mask.astype(np.uint8) * 255)
+        reports = [_frame(seq, name, ref, ref_mask, lms, config, tmp, zrange) for name in names]
+        _write_report(tmp, seq, config, reports)
     return reports
+
+
+def check_config(config: GroundTruthConfig, shape: tuple[int, int] | None = None) -> None:
+    """Settings must be finite, margins >= 0, the spacing >= 2 pixels and (with the frame's (H, W))
+    at most half the smaller image side: a grid needs control points inside the frame."""
+    for key in ("spacing", "margin_px", "depth_margin_m"):
+        value = getattr(config, key)
+        if not np.isfinite(value):
+            raise ValueError(f"{key}: expected a finite number, got {value}")
+    if config.margin_px < 0:
+        raise ValueError(f"margin: expected >= 0 pixels beyond the landmarks' hull, got {config.margin_px:g}")
+    if config.depth_margin_m < 0:
+        raise ValueError(f"depth-margin: expected >= 0 metres, got {config.depth_margin_m:g}")
+    if config.spacing < 2:
+        raise ValueError(f"spacing: expected >= 2 pixels, got {config.spacing}")
+    if shape is not None and config.spacing > min(shape) / 2:
+        raise ValueError(f"spacing: {config.spacing:g} pixels leaves no control-point grid on a {shape[1]}x{shape[0]} "
+                         f"frame; expected 2-{min(shape) / 2:g}")
 
 
 def _write_report(out: Path, seq: Sequence, config: GroundTruthConfig, reports: list[FrameReport]) -> None:

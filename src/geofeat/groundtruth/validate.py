@@ -16,19 +16,20 @@ from scipy.spatial import Delaunay
 
 from ..bench.protocol import authors_tps_warp
 from ..io import Sequence, read_sequence, write_landmarks
+from ..outputs import check_out_dir
 
 
 def keep_landmarks(sequence: str | Path, out: str | Path, n: int, seed: int = 0) -> Path:
-    """Copy a sequence folder to `out` keeping `n` landmark ids (drawn with `seed` among the ids visible
+    """Copy a sequence folder to `out` (which must not exist or be empty) keeping `n` landmark ids (drawn with `seed` among the ids visible
     in the reference) in every csv; the other rows are dropped. Returns `out`."""
     seq = read_sequence(sequence)
     ids, _, vis = seq.landmarks(seq.reference)
     if n < 1 or n > vis.sum():
         raise ValueError(f"n: expected 1..{vis.sum()} (landmarks visible in the reference), got {n}")
     keep = np.random.default_rng(seed).choice(ids[vis], size=n, replace=False)
-    out = Path(out)
+    out = check_out_dir(out, what="out")  # never deletes an existing folder
     if out.exists():
-        shutil.rmtree(out)
+        out.rmdir()  # empty
     shutil.copytree(seq.folder, out)
     for name in seq.names:
         i, xy, v = seq.landmarks(name)

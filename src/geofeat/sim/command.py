@@ -38,7 +38,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--steps-per-frame", type=int, default=6, help="simulation steps between frames (default 6)")
     p.add_argument("--kinect-noise", action="store_true", help="Kinect-like depth noise and holes")
     p.add_argument("--contact-sheet", type=Path, help="also write a contact sheet PNG with ground-truth tracks")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing non-empty OUT_DIR")
+    p.add_argument("--overwrite", action="store_true", help="replace an earlier simulation in OUT_DIR (only files geofeat wrote; "
+                   "a folder holding other files is refused)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 

@@ -10,8 +10,9 @@ A sequence folder gets, per frame `<name>` (`frame-000-master` is the reference,
     `<name>-gt.npz`     dense ground truth (see `geofeat.truth`),
 and `intrinsics.xml`, `groundtruth.json`.
 
-The folder is written under a temporary name next to OUT_DIR and renamed at the end, so an error
-never leaves a half-written sequence behind.
+The folder is written under a temporary name next to OUT_DIR and moved into place at the end, so an
+error never leaves a half-written sequence behind; `--overwrite` removes only files geofeat wrote
+(`geofeat.outputs`), never a user's.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import cv2
 import numpy as np
 
 from ..io import write_intrinsics, write_landmarks
+from ..outputs import check_out_dir, replace_folder
 from ..truth import GT_JSON, GT_SUFFIX, FrameTruth, map_points
 from .scenes import SCENARIOS, ClothScene, SimFrame, default_intrinsics, get_preset
 from .textures import choose_texture
@@ -120,7 +122,8 @@ def simulate_sequence(
         progress: show a tqdm progress bar.
         texture_dir: draw the texture from this folder instead.
         steps_per_frame: simulation steps between frames.
-        overwrite: replace an existing non-empty out_dir.
+        overwrite: replace an earlier simulation in out_dir: only the files geofeat wrote there (its
+            `.geofeat-manifest.json`) are removed; a folder holding any other file is refused.
         preset: `mild` (the original scenes), `paper` (the paper's simulation section) or `hard`
             (strong folds, foreshortening, gusts, moving specular lights, noise); see
             `geofeat.sim.scenes.PRESETS`.
@@ -132,8 +135,8 @@ def simulate_sequence(
     preset_obj = get_preset(preset)
     K = default_intrinsics(width, height, fov)
     out_dir = Path(out_dir)
-    if out_dir.exists() and (not out_dir.is_dir() or (any(out_dir.iterdir()) and not overwrite)):
-        raise ValueError(f"out_dir: {out_dir} exists and is not an empty folder (pass overwrite=True / --overwrite)")
+    # overwrite replaces only what geofeat wrote there; a folder holding other files is refused
+    check_out_dir(out_dir, overwrite, what="out_dir", strict=True)
     rng = np.random.default_rng(seed)
     tex_image, tex_name = choose_texture(rng, texture, texture_dir)
     scene = ClothScene(scenario, int(n_frames), rng, tex_image, (height, width), K=K, steps_per_frame=steps_per_frame,
@@ -155,9 +158,7 @@ def simulate_sequence(
         if isinstance(exc, Exception):
             raise type(exc)(f"{exc} (nothing was written to {out_dir})") from exc
         raise
-    if out_dir.exists():
-        shutil.rmtree(out_dir)
-    tmp.rename(out_dir)
+    replace_folder(tmp, out_dir)
     return out_dir
 
 

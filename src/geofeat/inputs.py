@@ -1,0 +1,148 @@
+"""One validator per kind of input, used by every command and by the readers in `geofeat.io`.
+
+Each raises ValueError with a one-line message naming the file (or option) and what to change:
+`geofeat.json`, the depth scale (plausible median depth), the intrinsics (plausible for the image
+size), landmark csv files, reference-frame names, and the one rule for the geodesic radius.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .constants import DEFAULT_RADIUS_M, DEPTH_PROFILE_NAMES
+
+#: Median depth (metres) of a frame must lie in this range at the depth scale used.
+PLAUSIBLE_MEDIAN_DEPTH_M = (0.05, 50.0)
+#: Focal lengths must lie between these multiples of the larger image side.
+PLAUSIBLE_FOCAL_SIDES = (0.1, 20.0)
+#: Geodesic radius (metres) must lie in this range.
+PLAUSIBLE_RADIUS_M = (0.001, 2.0)
+#: Whole name tokens (split on _ - . and spaces) that mark the reference frame, optionally with digits.
+REFERENCE_TOKEN = re.compile(r"^(master|ref|reference)\d*$")
+CONFIG_KEYS = ("depth_scale", "depth_profile", "radius")
+
+
+def _positive_number(value: Any, what: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+        raise ValueError(f"{what}: expected a positive number, got {value!r}")
+    return float(value)
+
+
+def read_config(folder: str | Path) -> dict:
+    """The folder's optional `geofeat.json`, validated: a JSON object whose `depth_scale` and `radius` are
+    positive numbers and whose `depth_profile` is a known profile name. Other keys are kept as they are."""
+    path = Path(folder) / "geofeat.json"
+    if not path.is_file():
+        return {}
+    try:
+        config = json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError) as error:
+        raise ValueError(f"{path}: not valid JSON ({error})") from None
+    if not isinstance(config, dict):
+        raise ValueError(f"{path}: expected a JSON object like {{\"depth_scale\": 0.001}}, got a {type(config).__name__}")
+    if "depth_scale" in config:
+        _positive_number(config["depth_scale"], f"{path}: depth_scale")
+    if "radius" in config:
+        check_radius(_positive_number(config["radius"], f"{path}: radius"), f"{path}: radius")
+    profile = config.get("depth_profile", "auto")
+    if not isinstance(profile, str) or profile.strip().lower() not in DEPTH_PROFILE_NAMES:
+        raise ValueError(f"{path}: depth_profile: expected one of {', '.join(DEPTH_PROFILE_NAMES)}, got {profile!r}")
+    return config
+
+
+def check_radius(radius: float, what: str = "--radius") -> float:
+    """A geodesic radius in metres, within `PLAUSIBLE_RADIUS_M`."""
+    radius = _positive_number(radius, what)
+    lo, hi = PLAUSIBLE_RADIUS_M
+    if not lo <= radius <= hi:
+        raise ValueError(f"{what}: {radius:g} m is not a plausible geodesic radius (expected {lo:g}-{hi:g} m, "
+                         f"default {DEFAULT_RADIUS_M})")
+    return radius
+
+
+def resolve_radius(radius: float | None, seq) -> float:
+    """The one rule for the geodesic radius of a sequence: the command's `--radius` when given, else
+    the sequence's geofeat.json `radius`, else 0.075 m (`Sequence.radius` holds the last two)."""
+    if radius is not None:
+        return check_radius(radius)
+    return check_radius(seq.radius, f"{seq.folder / 'geofeat.json'}: radius")
+
+
+def check_depth_scale(depth_scale: float, what: str = "--depth-scale") -> float:
+    """A depth scale (metres per depth-PNG unit): a positive finite number."""
+    return _positive_number(depth_scale, what)
+
+
+def check_depth_plausible(depth_m: np.ndarray, depth_scale: float, where: str) -> None:
+    """The median of the valid depths (metres, after scaling) must be plausible, else the depth scale is
+    wrong (metres stored where millimetres are expected, or the other way round)."""
+    depth_m = np.asarray(depth_m)
+    valid = depth_m[np.isfinite(depth_m) & (depth_m > 0)]
+    if valid.size == 0:
+        return  # a frame without depth is reported by the command that needs depth
+    median = float(np.median(valid))
+    lo, hi = PLAUSIBLE_MEDIAN_DEPTH_M
+    if not lo <= median <= hi:
+        raise ValueError(f"{where}: median depth {median:.4g} m at depth scale {depth_scale:g} m per unit is "
+                         f"implausible (expected {lo:g}-{hi:g} m); set --depth-scale (or depth_scale in "
+                         "geofeat.json) to the metres per unit of the depth PNGs")
+
+
+def check_intrinsics_for_image(K: np.ndarray, shape: tuple[int, int], where: str) -> np.ndarray:
+    """A 3x3 pinhole matrix in pixels plausible for an (H, W) image: finite, last row [0, 0, 1],
+    fx and fy between 0.1 and 20 times the larger side, principal point inside the image."""
+    K = np.asarray(K, dtype=np.float64)
+    H, W = shape
+    if K.shape != (3, 3) or not np.isfinite(K).all():
+        raise ValueError(f"{where}: expected a finite 3x3 camera matrix")
+    if abs(K[2, 2] - 1.0) > 1e-6 or abs(K[2, 0]) > 1e-6 or abs(K[2, 1]) > 1e-6 or abs(K[1, 0]) > 1e-6:
+        raise ValueError(f"{where}: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got rows {K[1:].tolist()}")
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    lo, hi = (f * max(H, W) for f in PLAUSIBLE_FOCAL_SIDES)
+    if not (lo <= fx <= hi and lo <= fy <= hi):
+        raise ValueError(f"{where}: focal lengths fx={fx:g}, fy={fy:g} are implausible for a {W}x{H} image "
+                         f"(expected {lo:g}-{hi:g} pixels; normalised intrinsics must be multiplied by the image size)")
+    if not (0 <= cx <= W and 0 <= cy <= H):
+        raise ValueError(f"{where}: principal point ({cx:g}, {cy:g}) lies outside the {W}x{H} image")
+    return K
+
+
+def check_landmarks(ids: np.ndarray, xy: np.ndarray, visible: np.ndarray, shape: tuple[int, int],
+                    where: str) -> None:
+    """The one landmark validator (groundtruth, match, bench): ids unique, visible landmarks finite
+    and on the (H, W) image (pixel centres at integers, so within -0.5 .. W - 0.5)."""
+    H, W = shape
+    uniq, counts = np.unique(ids, return_counts=True)
+    if (counts > 1).any():
+        raise ValueError(f"landmarks: {where} repeats ids {uniq[counts > 1][:10].tolist()}")
+    xy = np.asarray(xy, np.float64).reshape(-1, 2)
+    bad = visible & ~np.isfinite(xy).all(axis=1)
+    if bad.any():
+        raise ValueError(f"landmarks: {where} has visible landmarks without finite coordinates: ids {ids[bad][:10].tolist()}")
+    off = visible & ((xy[:, 0] > W - 0.5) | (xy[:, 1] > H - 0.5) | (xy[:, 0] < -0.5) | (xy[:, 1] < -0.5))
+    if off.any():
+        raise ValueError(f"landmarks: {where} has visible landmarks off the {W}x{H} image: ids "
+                         f"{ids[off][:10].tolist()} at {np.round(xy[off][:3], 1).tolist()}")
+
+
+def is_reference_name(name: str) -> bool:
+    """True when a frame name holds `master`, `ref` or `reference` (optionally with digits) as a whole
+    token, tokens being split on `_`, `-`, `.` and spaces: `cloud_ref`, `frame-000-master`; not
+    `cloth_preflight`."""
+    return any(REFERENCE_TOKEN.match(token) for token in re.split(r"[_\-.\s]+", name.lower()))
+
+
+def check_unique_names(folders: list[Path], what: str = "datasets") -> None:
+    """Results are keyed by the sequence folder's name: refuse two different folders with one name."""
+    seen: dict[str, Path] = {}
+    for folder in folders:
+        other = seen.setdefault(folder.name, folder)
+        if other != folder:
+            raise ValueError(f"{what}: two sequences are named {folder.name!r} ({other} and {folder}); results are "
+                             "keyed by the sequence folder name, so rename one or run them separately")

@@ -1,0 +1,198 @@
+"""One output policy for every command: nothing a user had is deleted, nothing half-written is left.
+
+- A result file is written to a temporary sibling and renamed over its final name only when it is
+  complete (`atomic_file`), so an error or a kill never leaves a truncated file under the real name.
+- A result folder is built in a temporary sibling folder and moved into place at the end
+  (`replace_folder`); the folder gets a manifest, `.geofeat-manifest.json`, listing the files
+  geofeat wrote there.
+- An existing non-empty output folder is refused unless the user passes `--overwrite`
+  (`check_out_dir`); `--overwrite` then removes only the files the manifest lists, never a file
+  geofeat did not write.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+#: Name of the file listing, relative to its folder, the files geofeat wrote into that folder.
+MANIFEST = ".geofeat-manifest.json"
+
+
+def read_manifest(folder: str | Path) -> list[str]:
+    """Relative paths of the files geofeat wrote into `folder` (empty when it has no readable manifest)."""
+    path = Path(folder) / MANIFEST
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return []
+    files = data.get("files", []) if isinstance(data, dict) else []
+    return [f for f in files if isinstance(f, str) and f and not Path(f).is_absolute() and ".." not in Path(f).parts]
+
+
+def write_manifest(folder: str | Path, files: Iterable[str]) -> None:
+    """Record (atomically) that geofeat wrote `files` (paths relative to `folder`)."""
+    folder = Path(folder)
+    with atomic_file(folder / MANIFEST) as tmp:
+        tmp.write_text(json.dumps({"generator": "geofeat", "files": sorted(set(files))}, indent=1))
+
+
+def add_to_manifest(folder: str | Path, files: Iterable[str | Path]) -> None:
+    """Add files (absolute, or relative to `folder`) to the folder's manifest."""
+    folder = Path(folder)
+    rel = [str(Path(f).relative_to(folder)) if Path(f).is_absolute() else str(f) for f in files]
+    write_manifest(folder, read_manifest(folder) + rel)
+
+
+def foreign_entries(folder: str | Path) -> list[str]:
+    """Entries of `folder` (files, or folders holding such files) that its manifest does not list."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    ours = set(read_manifest(folder)) | {MANIFEST}
+    foreign = []
+    for path in sorted(folder.rglob("*")):
+        rel = str(path.relative_to(folder))
+        if path.is_dir() and not path.is_symlink():
+            continue
+        if rel not in ours and not Path(rel).name.startswith(".geofeat-partial"):
+            foreign.append(rel)
+    return foreign
+
+
+def check_out_file(path: str | Path, overwrite: bool = False, what: str = "--out") -> Path:
+    """Refuse an output file path that names a folder, sits under a file, or exists (unless `overwrite`)."""
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{what}: {path} is a folder; expected a file name")
+    for parent in path.parents:
+        if parent.exists() and not parent.is_dir():
+            raise ValueError(f"{what}: {parent} is a file, so {path} cannot be written")
+    if path.exists() and not overwrite:
+        raise ValueError(f"{what}: {path} exists; pass --overwrite to replace it, or choose another name")
+    return path
+
+
+def check_out_dir(path: str | Path, overwrite: bool = False, what: str = "--out", strict: bool = False) -> Path:
+    """Check an output folder before any work: it must not be a file, and an existing non-empty folder
+    needs `overwrite`. With `strict`, a folder holding files geofeat did not write (not in its
+    manifest) is refused even with `overwrite`, because leftovers would mix with the new output."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"{what}: {path} is a file, not a folder")
+    for parent in path.parents:
+        if parent.exists() and not parent.is_dir():
+            raise ValueError(f"{what}: {parent} is a file, so the folder {path} cannot be created")
+    if path.is_dir() and any(path.iterdir()):
+        if not overwrite:
+            raise ValueError(f"{what}: {path} exists and is not empty; pass --overwrite to replace what geofeat "
+                             "wrote there, or choose another folder")
+        foreign = foreign_entries(path)
+        if strict and foreign:
+            raise ValueError(f"{what}: {path} holds files geofeat did not write ({', '.join(foreign[:5])}"
+                             f"{', ...' if len(foreign) > 5 else ''}); --overwrite never deletes those: move them "
+                             "away or choose another folder")
+    return path
+
+
+def _partial_name(path: Path) -> Path:
+    return path.with_name(f".geofeat-partial-{os.getpid()}-{path.name}")
+
+
+@contextmanager
+def atomic_file(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary sibling path to write; on success it replaces `path` (os.replace), on any
+    error (or interrupt) it is removed and `path` is left as it was."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = _partial_name(path)
+    if tmp.exists():
+        tmp.unlink()
+    try:
+        yield tmp
+        if tmp.exists():
+            os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def temporary_folder(out: str | Path) -> Path:
+    """A fresh, empty temporary sibling folder of `out` to build a result folder in."""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = _partial_name(out)
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir()
+    return tmp
+
+
+def remove_written(folder: str | Path) -> None:
+    """Remove the files that the manifest of `folder` lists (and the folders that leaves empty)."""
+    folder = Path(folder)
+    for rel in read_manifest(folder):
+        path = folder / rel
+        if path.is_file() or path.is_symlink():
+            path.unlink()
+        for parent in (folder / rel).parents:
+            if parent == folder or folder not in parent.parents:
+                break
+            try:
+                parent.rmdir()  # only when empty
+            except OSError:
+                break
+    (folder / MANIFEST).unlink(missing_ok=True)
+
+
+def replace_folder(tmp: str | Path, out: str | Path) -> Path:
+    """Move the finished folder `tmp` into `out`. Files geofeat wrote earlier into `out` (its manifest)
+    are removed first; every other file there stays. The new manifest lists the files moved in."""
+    tmp, out = Path(tmp), Path(out)
+    files = [str(p.relative_to(tmp)) for p in sorted(tmp.rglob("*")) if p.is_file() and p.name != MANIFEST]
+    if not out.exists():
+        write_manifest(tmp, files)
+        os.replace(tmp, out)
+        return out
+    remove_written(out)
+    for rel in files:
+        target = out / rel
+        target.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(tmp / rel, target)
+    write_manifest(out, files)
+    shutil.rmtree(tmp, ignore_errors=True)
+    return out
+
+
+@contextmanager
+def output_folder(out: str | Path) -> Iterator[Path]:
+    """Build a result folder: yields a temporary sibling folder to write into, which replaces what
+    geofeat wrote in `out` when the block ends without error (`replace_folder`); on error it is
+    removed and `out` is untouched. Call `check_out_dir` first."""
+    tmp = temporary_folder(out)
+    try:
+        yield tmp
+        replace_folder(tmp, out)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def append_line_durably(path: str | Path, text: str) -> None:
+    """Append complete csv lines (`text` ends with a newline) in one write, then flush and fsync, so a
+    kill leaves either all of them or a torn tail that the reader drops."""
+    if not text.endswith("\n"):
+        raise ValueError("text: must end with a newline")
+    fd = os.open(str(path), os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        data = text.encode()
+        written = 0
+        while written < len(data):
+            written += os.write(fd, data[written:])
+        os.fsync(fd)
+    finally:
+        os.close(fd)

@@ -1,0 +1,698 @@
+"""Bad and edge inputs for every command (issue 22): each is a clear one-line error (exit 2), a frame
+skipped by name (exit 1), an interrupt (exit 130), or a correct result; no run deletes or corrupts
+anything a user had. One table row per case; a property test of `polar_patches` at the end."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import geofeat
+from geofeat.cli import main
+from geofeat.io import read_landmarks, read_sequence, write_frame, write_intrinsics, write_landmarks
+
+W, H = 160, 120
+K = np.array([[150.0, 0, 79.5], [0, 150.0, 59.5], [0, 0, 1]])
+SHIFT = 3  # the target frame is the reference moved SHIFT px to the right
+
+
+def _texture(seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    img = sum(cv2.GaussianBlur(rng.standard_normal((H, W)).astype(np.float32), (0, 0), s) * s for s in (1.5, 4))
+    return cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+
+
+def _landmarks() -> np.ndarray:
+    gx, gy = np.meshgrid(np.linspace(20, W - 30, 5), np.linspace(20, H - 20, 4))
+    return np.stack([gx.ravel(), gy.ravel()], 1)
+
+
+def make_sequence(folder: Path, names=("frame-000-master", "frame-001"), depth_m: float = 1.0,
+                  landmarks: bool = True) -> Path:
+    """A small sequence in the public layout: mm depth PNGs, shifted texture, landmark csvs."""
+    folder.mkdir(parents=True, exist_ok=True)
+    write_intrinsics(folder / "intrinsics.xml", K)
+    ref = _texture()
+    lm = _landmarks()
+    for i, name in enumerate(names):
+        image = np.roll(ref, SHIFT * i, axis=1)
+        write_frame(folder, name, cv2.cvtColor(image, cv2.COLOR_GRAY2BGR), np.full((H, W), depth_m))
+        if landmarks:
+            write_landmarks(folder / f"{name}.csv", np.arange(len(lm)), lm + [SHIFT * i, 0], np.ones(len(lm), bool))
+    return folder
+
+
+@dataclass
+class Case:
+    """One bad input: `setup(tmp)` builds the inputs and returns the command line (paths under tmp);
+    the command must exit with `code` and print `message` (regex) on one stderr line (exit 2) or
+    anywhere (other codes); `check(tmp)` then asserts what must hold on disk."""
+
+    id: str
+    setup: Callable[[Path], list[str]]
+    code: int
+    message: str = ""
+    check: Callable[[Path], None] | None = None
+    patch: Callable[[pytest.MonkeyPatch], None] | None = field(default=None)
+
+
+# ---------------------------------------------------------------- setups
+def _seq(tmp: Path, **kw) -> Path:
+    return make_sequence(tmp / "seq", **kw)
+
+
+def _user_files(folder: Path) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "thesis.txt").write_text("years of work")
+    (folder / "sub").mkdir(exist_ok=True)
+    (folder / "sub" / "notes.md").write_text("notes")
+
+
+def _user_files_kept(folder: Path) -> None:
+    assert (folder / "thesis.txt").read_text() == "years of work"
+    assert (folder / "sub" / "notes.md").read_text() == "notes"
+
+
+def simulate_over_user_files(tmp):
+    _user_files(tmp / "out")
+    return ["simulate", str(tmp / "out"), "--frames", "2", "--width", "64", "--height", "48", "--no-progress",
+            "--texture", "procedural", "--overwrite"]
+
+
+def simulate_over_earlier_simulation_plus_user_file(tmp):
+    assert main(["simulate", str(tmp / "out"), "--frames", "3", "--width", "64", "--height", "48", "--no-progress",
+                 "--texture", "procedural"]) == 0
+    (tmp / "out" / "thesis.txt").write_text("years of work")
+    return ["simulate", str(tmp / "out"), "--frames", "2", "--width", "64", "--height", "48", "--no-progress",
+            "--texture", "procedural", "--overwrite"]
+
+
+def simulate_over_earlier_simulation(tmp):
+    assert main(["simulate", str(tmp / "out"), "--frames", "4", "--width", "64", "--height", "48", "--no-progress",
+                 "--texture", "procedural"]) == 0
+    return ["simulate", str(tmp / "out"), "--frames", "2", "--width", "64", "--height", "48", "--no-progress",
+            "--texture", "procedural", "--overwrite"]
+
+
+def _two_frames_exactly(tmp):
+    assert len(read_sequence(tmp / "out")) == 2  # nothing stale of the 4-frame run is left
+
+
+def extract_over_existing(tmp):
+    (tmp / "f.h5").write_bytes(b"earlier results")
+    return ["extract", str(_seq(tmp)), "--descriptor", "sift", "--out", str(tmp / "f.h5")]
+
+
+def _earlier_h5_kept(tmp):
+    assert (tmp / "f.h5").read_bytes() == b"earlier results"
+
+
+def _fail_second_save(monkeypatch):
+    import geofeat.features as features
+
+    original, calls = features.save_features, []
+
+    def failing(path, f, name=None):
+        calls.append(name)
+        if len(calls) == 2:
+            raise OSError("disk full (simulated)")
+        return original(path, f, name=name)
+
+    monkeypatch.setattr(features, "save_features", failing)
+
+
+def extract_error_midway(tmp):
+    (tmp / "f.h5").write_bytes(b"earlier results")
+    return ["extract", str(_seq(tmp)), "--descriptor", "sift", "--out", str(tmp / "f.h5"), "--overwrite"]
+
+
+def _no_partial_files(tmp):
+    _earlier_h5_kept(tmp)
+    assert not [p for p in tmp.iterdir() if "partial" in p.name]
+
+
+def match_into_user_folder(tmp):
+    _user_files(tmp / "m")
+    return ["match", str(_seq(tmp)), "--descriptor", "sift", "--out", str(tmp / "m")]
+
+
+def match_overwrite_keeps_user_files(tmp):
+    seq = _seq(tmp)
+    assert main(["match", str(seq), "--descriptor", "sift", "--out", str(tmp / "m"), "--keypoints", "200"]) == 0
+    (tmp / "m" / "thesis.txt").write_text("years of work")
+    (tmp / "m" / "sub").mkdir()
+    (tmp / "m" / "sub" / "notes.md").write_text("notes")
+    return ["match", str(seq), "--descriptor", "sift", "--out", str(tmp / "m"), "--keypoints", "200", "--overwrite"]
+
+
+def _matches_and_user_files(tmp):
+    _user_files_kept(tmp / "m")
+    assert geofeat.load_matches(tmp / "m" / "matches-sift.h5", name="frame-000-master/frame-001") is not None
+
+
+def _bench_args(tmp, *datasets, extra=()):
+    return ["bench", *map(str, datasets), "--descriptors", "sift", "--keypoints", "200", "--out", str(tmp / "b"),
+            *extra]
+
+
+def _two_datasets(tmp):
+    make_sequence(tmp / "ds" / "s1")
+    make_sequence(tmp / "ds" / "s2")
+    return tmp / "ds"
+
+
+def bench_partial_row(tmp):
+    ds = _two_datasets(tmp)
+    assert main(_bench_args(tmp, ds)) == 0
+    text = (tmp / "b" / "results.csv").read_text()
+    (tmp / "b" / "results.csv").write_text(text[: len(text) - 25])  # killed during the append
+    return _bench_args(tmp, ds)
+
+
+def bench_unparsable_row(tmp):
+    ds = _two_datasets(tmp)
+    assert main(_bench_args(tmp, ds)) == 0
+    lines = (tmp / "b" / "results.csv").read_text().splitlines(keepends=True)
+    (tmp / "b" / "results.csv").write_text("".join(lines[:-1]) + "s2,frame-000-master,fra\x00garbage\n")
+    return _bench_args(tmp, ds)
+
+
+def _results_complete(tmp):
+    import csv
+
+    rows = list(csv.DictReader(open(tmp / "b" / "results.csv")))
+    assert sorted(r["sequence"] for r in rows) == ["s1", "s2"]
+    assert all(r["scale"] not in (None, "") for r in rows)
+    assert (tmp / "b" / "table.md").is_file()
+
+
+def _interrupt_in_walk(monkeypatch):
+    import geofeat.bench.runner as runner
+
+    def interrupted(*args, **kwargs):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as error:  # how numba surfaces Ctrl-C
+            raise SystemError("<numba function> returned a result with an exception set") from error
+
+    monkeypatch.setattr(runner, "evaluate_sequence", interrupted)
+
+
+def bench_interrupted(tmp):
+    return _bench_args(tmp, _two_datasets(tmp))
+
+
+def _no_table(tmp):
+    assert not (tmp / "b" / "table.md").exists()
+
+
+def _interrupt_extract(monkeypatch):
+    import geofeat.keypoints as keypoints
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(keypoints, "detect", interrupted)
+
+
+def extract_interrupted(tmp):
+    return ["extract", str(_seq(tmp)), "--descriptor", "sift", "--out", str(tmp / "f.h5")]
+
+
+def _nothing_written(tmp):
+    assert not (tmp / "f.h5").exists() and not [p for p in tmp.iterdir() if "partial" in p.name]
+
+
+def bench_duplicate_names(tmp):
+    make_sequence(tmp / "dsA" / "cloth")
+    make_sequence(tmp / "dsB" / "cloth")
+    return _bench_args(tmp, tmp / "dsA", tmp / "dsB")
+
+
+def bench_same_folder_twice(tmp):
+    make_sequence(tmp / "ds" / "s1")
+    return _bench_args(tmp, tmp / "ds", tmp / "ds" / "s1")
+
+
+def _one_sequence(tmp):
+    import csv
+
+    rows = list(csv.DictReader(open(tmp / "b" / "results.csv")))
+    assert [r["sequence"] for r in rows] == ["s1"]
+
+
+def bench_missing_tps_dir(tmp):
+    return _bench_args(tmp, _seq(tmp), extra=["--tps-dir", str(tmp / "nope")])
+
+
+def bench_empty_tps_folder(tmp):
+    (tmp / "gt" / "seq").mkdir(parents=True)  # named like the sequence, no TPS files in it
+    return _bench_args(tmp, _seq(tmp), extra=["--tps-dir", str(tmp / "gt")])
+
+
+def extract_json_radius(tmp):
+    seq = _seq(tmp)
+    (seq / "geofeat.json").write_text(json.dumps({"radius": 0.04}))
+    assert main(["extract", str(seq), "--descriptor", "geobit", "--keypoints", "40", "--radius", "0.04",
+                 "--out", str(tmp / "explicit.h5")]) == 0
+    return ["extract", str(seq), "--descriptor", "geobit", "--keypoints", "40", "--out", str(tmp / "json.h5")]
+
+
+def _same_descriptors_as_explicit_radius(tmp):
+    a = geofeat.load_features(tmp / "explicit.h5", name="frame-001")
+    b = geofeat.load_features(tmp / "json.h5", name="frame-001")
+    assert np.array_equal(a.descriptors, b.descriptors)
+
+
+def _off_image_landmark(tmp, command: str) -> list[str]:
+    seq = _seq(tmp)
+    ids, xy, vis = read_landmarks(seq / "frame-001.csv")
+    xy[3] = [W + 20, 40]  # 20 px off the image
+    write_landmarks(seq / "frame-001.csv", ids, xy, vis)
+    if command == "match":
+        return ["match", str(seq), "--descriptor", "sift", "--out", str(tmp / "m")]
+    return _bench_args(tmp, seq, extra=["--protocol", "landmarks"] if command == "bench-landmarks" else [])
+
+
+def metres_under_mm_scale(tmp):
+    seq = _seq(tmp, depth_m=1.0)
+    depth = np.full((H, W), 2, np.uint16)  # 2 "mm": metres stored as integers
+    for name in ("frame-000-master", "frame-001"):
+        cv2.imwrite(str(seq / f"{name}-depth.png"), depth)
+    return ["extract", str(seq), "--descriptor", "sift", "--out", str(tmp / "f.h5")]
+
+
+def _with_K(matrix) -> Callable[[Path], list[str]]:
+    def setup(tmp):
+        seq = _seq(tmp)
+        write_intrinsics(seq / "intrinsics.xml", np.asarray(matrix, float))
+        return ["extract", str(seq), "--descriptor", "sift", "--out", str(tmp / "f.h5")]
+
+    return setup
+
+
+def preflight_is_not_the_reference(tmp):
+    make_sequence(tmp / "seq", names=("cloth_frame0", "cloth_preflight"))
+    return ["match", str(tmp / "seq"), "--descriptor", "sift", "--keypoints", "200", "--out", str(tmp / "m")]
+
+
+def _reference_is_frame0(tmp):
+    assert read_sequence(tmp / "seq").reference == "cloth_frame0"
+    assert (tmp / "m" / "cloth_frame0__cloth_preflight__sift.png").is_file()
+
+
+def _gt(tmp, *extra, seq=None):
+    seq = seq or _seq(tmp)
+    return ["groundtruth", str(seq), "--out", str(tmp / "gt"), "--no-progress", "--no-refine", *extra]
+
+
+def groundtruth_object_moves_back(tmp):
+    """The target is the reference seen 0.5 m further back (another renderer's scale scenario)."""
+    seq = _seq(tmp)
+    write_frame(seq, "frame-001", cv2.imread(str(seq / "frame-001-rgb.png")), np.full((H, W), 1.5))
+    return _gt(tmp, seq=seq)
+
+
+def _report_finite_ok(tmp):
+    import csv
+
+    rows = list(csv.DictReader(open(tmp / "gt" / "seq" / "report.csv")))
+    assert rows and all(r["status"] == "ok" for r in rows)
+    assert all(np.isfinite(float(r["ssim_before"])) and np.isfinite(float(r["ssim_after"])) for r in rows)
+    assert float(rows[0]["ssim_after"]) > 0.5
+    assert cv2.imread(str(tmp / "gt" / "seq" / "frame-001_SSIM.png"), cv2.IMREAD_GRAYSCALE).max() > 100
+
+
+def retrieval_single_frame(tmp):
+    make_sequence(tmp / "seq", names=("frame-000-master",))
+    return ["retrieval", str(tmp / "seq"), "--descriptors", "sift", "--out", str(tmp / "r")]
+
+
+def _out_is_file(command: str) -> Callable[[Path], list[str]]:
+    def setup(tmp):
+        seq = _seq(tmp)
+        (tmp / "taken").write_text("a file")
+        head = {"bench": ["bench", str(seq), "--descriptors", "sift"],
+                "match": ["match", str(seq), "--descriptor", "sift"],
+                "track": ["track", str(seq), "--descriptors", "sift"],
+                "retrieval": ["retrieval", str(seq), "--descriptors", "sift"],
+                "groundtruth": ["groundtruth", str(seq), "--no-progress"],
+                "extract": ["extract", str(seq), "--descriptor", "sift"]}[command]
+        return head + ["--out", str(tmp / "taken")]
+
+    return setup
+
+
+def _file_kept(tmp):
+    assert (tmp / "taken").read_text() == "a file"
+
+
+def _intrinsics_text(text: str) -> Callable[[Path], list[str]]:
+    def setup(tmp):
+        seq = _seq(tmp)
+        (seq / "intrinsics.xml").write_text(text)
+        return ["extract", str(seq), "--descriptor", "sift", "--out", str(tmp / "f.h5")]
+
+    return setup
+
+
+def _config(text: str, command: str = "extract") -> Callable[[Path], list[str]]:
+    def setup(tmp):
+        seq = _seq(tmp)
+        (seq / "geofeat.json").write_text(text)
+        if command == "bench":
+            return _bench_args(tmp, seq)
+        return ["extract", str(seq), "--descriptor", "sift", "--out", str(tmp / "f.h5")]
+
+    return setup
+
+
+def _no_depth_frame(command: str) -> Callable[[Path], list[str]]:
+    def setup(tmp):
+        seq = make_sequence(tmp / "seq", names=("frame-000-master", "frame-001", "frame-002"))
+        cv2.imwrite(str(seq / "frame-001-depth.png"), np.zeros((H, W), np.uint16))
+        if command == "extract":
+            return ["extract", str(seq), "--descriptor", "sift", "--keypoints", "200", "--out", str(tmp / "f.h5")]
+        if command == "match":
+            return ["match", str(seq), "--descriptor", "sift", "--keypoints", "200", "--out", str(tmp / "m")]
+        if command == "track":
+            return ["track", str(seq), "--descriptors", "sift", "--keypoints", "300", "--out", str(tmp / "t")]
+        return ["retrieval", str(seq), "--descriptors", "sift", "--keypoints", "200", "--samples", "200",
+                "--words", "3", "--out", str(tmp / "r")]
+
+    return setup
+
+
+def _extract_kept_other_frames(tmp):
+    from geofeat.features import list_names
+
+    assert sorted(list_names(tmp / "f.h5")) == ["frame-000-master", "frame-002"]
+
+
+def _match_kept_other_frames(tmp):
+    assert (tmp / "m" / "frame-000-master__frame-002__sift.png").is_file()
+
+
+def _retrieval_written(tmp):
+    assert "SKIPPED frames: seq/frame-001" in (tmp / "r" / "retrieval.md").read_text()
+
+
+def _landmark_csv(text: str) -> Callable[[Path], list[str]]:
+    def setup(tmp):
+        seq = _seq(tmp)
+        (seq / "frame-001.csv").write_text(text)
+        return ["match", str(seq), "--descriptor", "sift", "--out", str(tmp / "m")]
+
+    return setup
+
+
+def depth_size_differs(tmp):
+    seq = _seq(tmp)
+    cv2.imwrite(str(seq / "frame-001-depth.png"), np.full((H // 2, W // 2), 1000, np.uint16))
+    return ["extract", str(seq), "--descriptor", "sift", "--keypoints", "200", "--out", str(tmp / "f.h5")]
+
+
+def two_references(tmp):
+    make_sequence(tmp / "seq", names=("a_ref", "b_master"))
+    return ["extract", str(tmp / "seq"), "--descriptor", "sift", "--out", str(tmp / "f.h5")]
+
+
+def depth_8bit(tmp):
+    seq = _seq(tmp)
+    cv2.imwrite(str(seq / "frame-000-master-depth.png"), np.full((H, W), 100, np.uint8))
+    return ["extract", str(seq), "--descriptor", "sift", "--out", str(tmp / "f.h5")]
+
+
+def corrupt_colour_frame(tmp):
+    seq = make_sequence(tmp / "seq", names=("frame-000-master", "frame-001", "frame-002"))
+    (seq / "frame-001-rgb.png").write_bytes(b"\x89PNG truncated")
+    return ["extract", str(seq), "--descriptor", "sift", "--keypoints", "200", "--out", str(tmp / "f.h5")]
+
+
+def bench_into_user_folder(tmp):
+    _user_files(tmp / "b")
+    return _bench_args(tmp, _seq(tmp))
+
+
+def bench_overwrite_foreign_results_csv(tmp):
+    (tmp / "b").mkdir()
+    (tmp / "b" / "results.csv").write_text("my,own,table\n1,2,3\n")
+    return _bench_args(tmp, _seq(tmp), extra=["--overwrite"])
+
+
+def _foreign_csv_kept(tmp):
+    assert (tmp / "b" / "results.csv").read_text() == "my,own,table\n1,2,3\n"
+
+
+def extract_out_under_file(tmp):
+    (tmp / "taken").write_text("a file")
+    return ["extract", str(_seq(tmp)), "--descriptor", "sift", "--out", str(tmp / "taken" / "f.h5")]
+
+
+def groundtruth_into_user_folder(tmp):
+    _user_files(tmp / "gt" / "seq")
+    return _gt(tmp)
+
+
+def groundtruth_overwrite(tmp):
+    seq = _seq(tmp)
+    assert main(_gt(tmp, seq=seq)) == 0
+    (tmp / "gt" / "seq" / "thesis.txt").write_text("years of work")
+    (tmp / "gt" / "seq" / "sub").mkdir()
+    (tmp / "gt" / "seq" / "sub" / "notes.md").write_text("notes")
+    return _gt(tmp, "--overwrite", seq=seq)
+
+
+def _gt_files_and_user_files(tmp):
+    _user_files_kept(tmp / "gt" / "seq")
+    assert (tmp / "gt" / "seq" / "frame-001_theta.npy").is_file()
+
+
+def _app_with_missing_tps(command: str) -> Callable[[Path], list[str]]:
+    def setup(tmp):
+        return [command, str(_seq(tmp)), "--descriptors", "sift", "--out", str(tmp / "o"),
+                "--tps-dir", str(tmp / "nope")]
+
+    return setup
+
+
+def nested_tps_folder(tmp):
+    """`groundtruth --out gt/seq` nests gt/seq/seq: the bench must take the folder with the files."""
+    seq = _seq(tmp)
+    assert main(["groundtruth", str(seq), "--out", str(tmp / "gt" / "seq"), "--no-progress", "--no-refine"]) == 0
+    return _bench_args(tmp, seq, extra=["--tps-dir", str(tmp / "gt")])
+
+
+def _bench_scored(tmp):
+    import csv
+
+    rows = list(csv.DictReader(open(tmp / "b" / "results.csv")))
+    assert len(rows) == 1 and float(rows[0]["ms"]) > 0.3
+
+
+CASES = [
+    # data loss (issue)
+    Case("simulate-overwrite-user-files", simulate_over_user_files, 2, "did not write",
+         lambda t: _user_files_kept(t / "out")),
+    Case("simulate-overwrite-sim-plus-user-file", simulate_over_earlier_simulation_plus_user_file, 2,
+         "thesis.txt", lambda t: (t / "out" / "thesis.txt").is_file() or pytest.fail("deleted")),
+    Case("simulate-overwrite-earlier-sim", simulate_over_earlier_simulation, 0, "", _two_frames_exactly),
+    Case("extract-existing-output", extract_over_existing, 2, "exists.*--overwrite", _earlier_h5_kept),
+    Case("extract-error-midway-keeps-output", extract_error_midway, 2, "disk full", _no_partial_files,
+         _fail_second_save),
+    Case("match-into-user-folder", match_into_user_folder, 2, "not empty", lambda t: _user_files_kept(t / "m")),
+    Case("match-overwrite-keeps-user-files", match_overwrite_keeps_user_files, 0, "", _matches_and_user_files),
+    Case("bench-partial-row-recomputed", bench_partial_row, 0, "dropped", _results_complete),
+    Case("bench-ctrl-c-as-systemerror", bench_interrupted, 130, "interrupted", _no_table, _interrupt_in_walk),
+    # silently wrong (issue)
+    Case("bench-duplicate-sequence-names", bench_duplicate_names, 2, "two sequences are named 'cloth'"),
+    Case("bench-tps-dir-missing", bench_missing_tps_dir, 2, "tps-dir: not a directory"),
+    Case("bench-tps-folder-without-files", bench_empty_tps_folder, 2, "no TPS files"),
+    Case("bench-nested-tps-folder", nested_tps_folder, 0, "", _bench_scored),
+    Case("extract-honours-json-radius", extract_json_radius, 0, "radius 0.04 m", _same_descriptors_as_explicit_radius),
+    Case("match-off-image-landmark", lambda t: _off_image_landmark(t, "match"), 2, "off the 160x120 image"),
+    Case("bench-off-image-landmark", lambda t: _off_image_landmark(t, "bench"), 2, "off the 160x120 image"),
+    Case("bench-landmarks-off-image-landmark", lambda t: _off_image_landmark(t, "bench-landmarks"), 2,
+         "off the 160x120 image"),
+    Case("metres-under-mm-scale", metres_under_mm_scale, 2, "median depth 0.002 m.*--depth-scale"),
+    Case("normalised-intrinsics", _with_K([[0.8, 0, 0.5], [0, 0.8, 0.5], [0, 0, 1]]), 2, "focal lengths"),
+    Case("negative-focal-length", _with_K([[-150, 0, 79.5], [0, 150, 59.5], [0, 0, 1]]), 2, "focal lengths"),
+    Case("preflight-is-not-the-reference", preflight_is_not_the_reference, 0, "", _reference_is_frame0),
+    Case("groundtruth-negative-margin", lambda t: _gt(t, "--margin", "-5"), 2, "margin"),
+    Case("groundtruth-object-moves-back", groundtruth_object_moves_back, 0, "", _report_finite_ok),
+    Case("retrieval-single-frame", retrieval_single_frame, 2, "reference frames"),
+    # tracebacks (issue)
+    *[Case(f"{c}-out-is-a-file", _out_is_file(c), 2, "taken", _file_kept)
+      for c in ("bench", "match", "track", "retrieval", "groundtruth", "extract")],
+    Case("truncated-intrinsics-xml", _intrinsics_text('<?xml version="1.0"?>\n<opencv_storage>\n<intrinsics type_id='),
+         2, "cannot parse"),
+    Case("geofeat-json-list", _config("[0.001]"), 2, "expected a JSON object"),
+    Case("groundtruth-huge-spacing", lambda t: _gt(t, "--spacing", "100000"), 2, "spacing"),
+    # robustness (issue)
+    Case("extract-frame-without-depth", _no_depth_frame("extract"), 1, "SKIPPED.*frame-001",
+         _extract_kept_other_frames),
+    Case("match-frame-without-depth", _no_depth_frame("match"), 1, "SKIPPED.*frame-001", _match_kept_other_frames),
+    Case("retrieval-frame-without-depth", _no_depth_frame("retrieval"), 1, "SKIPPED.*frame-001", _retrieval_written),
+    Case("track-frame-without-depth", _no_depth_frame("track"), 1, "SKIPPED.*frame-001",
+         lambda t: "SKIPPED frames: frame-001" in (t / "t" / "tracking.md").read_text() or pytest.fail("not named")),
+    # more of our own
+    Case("geofeat-json-not-json", _config("{depth_scale: 0.001"), 2, "not valid JSON"),
+    Case("geofeat-json-negative-depth-scale", _config('{"depth_scale": -0.001}'), 2, "depth_scale"),
+    Case("geofeat-json-radius-string", _config('{"radius": "75mm"}'), 2, "radius"),
+    Case("geofeat-json-radius-in-mm", _config('{"radius": 75}', "bench"), 2, "radius"),
+    Case("geofeat-json-bad-profile", _config('{"depth_profile": "lidar"}'), 2, "depth_profile"),
+    Case("radius-zero", lambda t: ["extract", str(_seq(t)), "--radius", "0", "--out", str(t / "f.h5")], 2, "radius"),
+    Case("depth-scale-zero", lambda t: ["extract", str(_seq(t)), "--depth-scale", "0", "--out", str(t / "f.h5")], 2,
+         "depth.scale"),
+    Case("mm-read-as-metres", lambda t: ["extract", str(_seq(t)), "--depth-scale", "1", "--out", str(t / "f.h5")], 2,
+         "median depth 1000 m.*--depth-scale"),
+    Case("principal-point-outside", _with_K([[150, 0, 400], [0, 150, 59.5], [0, 0, 1]]), 2, "principal point"),
+    Case("intrinsics-without-node", _intrinsics_text('<?xml version="1.0"?>\n<opencv_storage>\n</opencv_storage>\n'),
+         2, "no 3x3 matrix"),
+    Case("intrinsics-nan", _with_K([[np.nan, 0, 79.5], [0, 150, 59.5], [0, 0, 1]]), 2, "finite"),
+    Case("landmark-csv-text", _landmark_csv("id,x,y,valid\n0,abc,3,1\n"), 2, "expected numbers"),
+    Case("landmark-csv-repeated-ids", _landmark_csv("id,x,y,valid\n0,10,10,1\n0,20,20,1\n"), 2, "repeats ids"),
+    Case("landmark-csv-nan-visible", _landmark_csv("id,x,y,valid\n0,nan,10,1\n"), 2, "finite"),
+    Case("depth-size-differs", depth_size_differs, 1, "SKIPPED.*frame-001.*differ in size"),
+    Case("two-reference-frames", two_references, 2, "several reference frames"),
+    Case("depth-8-bit", depth_8bit, 2, "8-bit"),
+    Case("corrupt-colour-frame", corrupt_colour_frame, 1, "SKIPPED.*frame-001", _extract_kept_other_frames),
+    Case("bench-into-user-folder", bench_into_user_folder, 2, "not empty", lambda t: _user_files_kept(t / "b")),
+    Case("bench-overwrite-foreign-results-csv", bench_overwrite_foreign_results_csv, 2, "did not write",
+         _foreign_csv_kept),
+    Case("bench-unparsable-row-recomputed", bench_unparsable_row, 0, "dropped", _results_complete),
+    Case("bench-same-folder-twice", bench_same_folder_twice, 0, "", _one_sequence),
+    Case("extract-out-under-a-file", extract_out_under_file, 2, "is a file", _file_kept),
+    Case("extract-ctrl-c", extract_interrupted, 130, "interrupted", _nothing_written, _interrupt_extract),
+    Case("groundtruth-into-user-folder", groundtruth_into_user_folder, 2, "not empty",
+         lambda t: _user_files_kept(t / "gt" / "seq")),
+    Case("groundtruth-overwrite-keeps-user-files", groundtruth_overwrite, 0, "", _gt_files_and_user_files),
+    Case("groundtruth-negative-depth-margin", lambda t: _gt(t, "--depth-margin", "-1"), 2, "depth-margin"),
+    Case("groundtruth-nan-spacing", lambda t: _gt(t, "--spacing", "nan"), 2, "spacing"),
+    Case("track-tps-dir-missing", _app_with_missing_tps("track"), 2, "tps-dir"),
+    Case("retrieval-tps-dir-missing", _app_with_missing_tps("retrieval"), 2, "tps-dir"),
+]
+
+
+@pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
+def test_bad_input(case: Case, tmp_path: Path, capsys, monkeypatch) -> None:
+    args = case.setup(tmp_path)
+    capsys.readouterr()
+    if case.patch is not None:
+        case.patch(monkeypatch)
+    code = main(args)
+    captured = capsys.readouterr()
+    err_lines = [line for line in captured.err.splitlines() if line.strip() and "it/s]" not in line
+                 and "%|" not in line]
+    assert code == case.code, (code, captured.err[-2000:])
+    if case.code == 2:
+        assert len(err_lines) == 1 and err_lines[0].startswith(f"geofeat {args[0]}: error: "), captured.err[-2000:]
+    if case.message:
+        import re
+
+        assert re.search(case.message, captured.out + captured.err, re.S), captured.err[-2000:]
+    if case.check is not None:
+        case.check(tmp_path)
+
+
+def test_enough_cases() -> None:
+    assert len(CASES) >= 29 + 20
+
+
+def test_uint16_colour_is_rescaled() -> None:
+    image = np.random.default_rng(0).integers(0, 255, (H, W, 3), dtype=np.uint8)
+    a = geofeat.RGBDFrame(image, np.ones((H, W)), K)
+    b = geofeat.RGBDFrame(image.astype(np.uint16) * 257, np.ones((H, W)), K)
+    assert b.image.max() <= 1.0 and np.abs(a.image - b.image).max() < 1e-2
+    assert len(geofeat.detect(b, 300)) > 0
+
+
+@pytest.mark.parametrize("name, expected", [("frame-000-master", True), ("cloud_ref", True), ("Ref.1", True),
+                                            ("seq_reference", True), ("ref2", True), ("cloth_preflight", False),
+                                            ("refined-03", False), ("mastered", False), ("frame-001", False)])
+def test_reference_names_are_whole_tokens(name: str, expected: bool) -> None:
+    from geofeat.inputs import is_reference_name
+
+    assert is_reference_name(name) is expected
+
+
+def test_a_torn_bench_block_is_dropped_whole(tmp_path: Path) -> None:
+    """A kill inside the one write of a sequence's rows can leave some of its rows complete and the
+    next cut: the whole block is dropped, so the sequence is recomputed in full."""
+    from geofeat.bench.runner import COLUMNS, _append_rows, _finished, repair_results
+
+    path = tmp_path / "results.csv"
+    path.write_text(",".join(COLUMNS) + "\n")
+    row = dict(reference="r", target="t", descriptor="sift", detector="sift", protocol="detect", keypoint_set="p",
+               depth_profile="", ms=0.5, mma=0.5, repeatability=0.5, hits=1, n_gt=1, n_ref=1, n_tgt=1,
+               seconds_extract=0.1, seconds_match=0.1, angle_deg=0.0, scale=1.0)
+    _append_rows(path, [dict(row, sequence="a", target=t) for t in ("t1", "t2")])
+    _append_rows(path, [dict(row, sequence="b", target=t) for t in ("t1", "t2")])
+    path.write_text(path.read_text()[:-10])  # the second row of b is cut
+    assert repair_results(path) == 2  # the cut row and the complete row of b before it
+    assert _finished(path) == {("a", "sift")}
+    assert path.read_text().endswith("\n")
+
+
+# ---------------------------------------------------------------- property test of polar_patches
+@st.composite
+def surfaces(draw):
+    """A small frame: a tilted, bumpy surface 0.4-3 m away with random holes, random intrinsics."""
+    h = draw(st.integers(24, 56))
+    w = draw(st.integers(24, 72))
+    seed = draw(st.integers(0, 2**31 - 1))
+    rng = np.random.default_rng(seed)
+    f = draw(st.floats(0.4, 3.0)) * max(h, w)
+    fy = f * draw(st.floats(0.9, 1.1))
+    cx = draw(st.floats(0.2, 0.8)) * (w - 1)
+    cy = draw(st.floats(0.2, 0.8)) * (h - 1)
+    Km = np.array([[f, 0, cx], [0, fy, cy], [0, 0, 1.0]])
+    z0 = draw(st.floats(0.4, 3.0))
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    depth = z0 * (1 + draw(st.floats(-0.3, 0.3)) * (xx - cx) / w + 0.05 * np.sin(xx / 3) * np.cos(yy / 4))
+    depth *= 1 + rng.normal(0, draw(st.sampled_from([0.0, 0.002, 0.01])), depth.shape)
+    holes = rng.random((h, w)) < draw(st.floats(0.0, 0.4))
+    if draw(st.booleans()):
+        y0, x0 = rng.integers(0, h // 2), rng.integers(0, w // 2)
+        holes[y0:y0 + h // 3, x0:x0 + w // 3] = True
+    depth[holes] = 0
+    depth[0, 0] = z0  # at least one valid pixel
+    image = cv2.GaussianBlur(rng.random((h, w)).astype(np.float32), (0, 0), 1.0)
+    n = draw(st.integers(1, 12))
+    kps = np.stack([rng.uniform(0, w - 1, n), rng.uniform(0, h - 1, n)], 1)
+    radius = draw(st.sampled_from([0.01, 0.03, 0.075]))
+    profile = draw(st.sampled_from(["clean", "kinect"]))
+    return geofeat.RGBDFrame(np.clip(image, 0, 1), depth.astype(np.float32), Km), kps, radius, profile
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(surfaces())
+def test_polar_patches_valid_ones_lie_on_the_surface(sample) -> None:
+    from geofeat.geodesic.polar import polar_patches
+
+    frame, kps, radius, profile = sample
+    p = polar_patches(frame, kps, radius=radius, depth_config=profile)
+    assert p.valid.shape == (len(kps),) and p.valid.dtype == bool
+    v = p.valid
+    # valid: finite values in [0, 1], finite coordinates, finite samples in front of the camera
+    assert np.isfinite(p.values[v]).all() and (p.values[v] >= 0).all() and (p.values[v] <= 1 + 1e-6).all()
+    assert np.isfinite(p.coords[v]).all() and np.isfinite(p.points[v]).all()
+    assert (p.points[v][..., 2] > 0).all()
+    # ... and on the surface: each sample projects to its image coordinates, at a depth the frame has
+    pts = p.points[v].reshape(-1, 3).astype(np.float64)
+    proj = np.stack([frame.K[0, 0] * pts[:, 0] / pts[:, 2] + frame.K[0, 2],
+                     frame.K[1, 1] * pts[:, 1] / pts[:, 2] + frame.K[1, 2]], 1)
+    assert np.abs(proj - p.coords[v].reshape(-1, 2)).max(initial=0) < 0.05
+    valid_depth = frame.depth[frame.depth > 0]
+    assert (pts[:, 2] >= valid_depth.min() * 0.9).all() and (pts[:, 2] <= valid_depth.max() * 1.1).all()
+    # invalid: flagged, never a NaN passed off as data
+    assert np.isnan(p.coords[~v]).all() and (p.values[~v] == 0).all()
