@@ -336,7 +336,8 @@ def _track(args: argparse.Namespace) -> int:
     csv_path, table = write_tracking(find_sequences(args.sequences), args.out,
                                      tuple(d for d in args.descriptors.split(",") if d), roi=roi,
                                      n_keypoints=args.keypoints, tps_dir=args.tps_dir, radius=args.radius,
-                                     depth_scale=args.depth_scale, threshold_px=args.threshold)
+                                     depth_scale=args.depth_scale, threshold_px=args.threshold,
+                                     refine=args.refine)
     print((Path(args.out) / "tracking.md").read_text())
     print(f"wrote {csv_path}, {Path(args.out) / 'tracking.md'} and per sequence/descriptor grid.npz + track.gif")
     return 0
@@ -491,6 +492,9 @@ def build_parser() -> argparse.ArgumentParser:
     app_options(trk)
     trk.add_argument("--roi", default=None, help="x0,y0,x1,y1 in reference pixels (default: object mask box shrunk by 10%%)")
     trk.add_argument("--threshold", type=float, default=3.0, help="RANSAC inlier threshold, pixels (default 3)")
+    trk.add_argument("--refine", choices=("none", "photometric"), default="photometric",
+                     help="after RANSAC + TPS, refine the warp densely against the template: photometric (the "
+                          "refiner of 'geofeat groundtruth') or none (default photometric)")
     trk.add_argument("--lpips", action="store_true", help="LPIPS (needs local pretrained weights; not supported here)")
     trk.set_defaults(func=_track)
 
