@@ -122,8 +122,8 @@ def retrieval(folders, names, args) -> None:
     print("\n## Retrieval\n")
     print((args.out / "retrieval" / "retrieval.md").read_text())
     print("Acc@K, K = 1..10:")
-    for name, a in acc.items():
-        print(f"  {name:10s} " + " ".join(f"{v:.2f}" for v in a))
+    for name, r in acc.items():
+        print(f"  {name:10s} " + " ".join(f"{v:.2f}" for v in r.accuracy))
     print(f"retrieval wall time: {t_ret:.0f} s")
 
 

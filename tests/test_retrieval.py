@@ -8,7 +8,10 @@ import pytest
 
 from geofeat.features import Features
 from geofeat.matching import distance_matrix, match
-from geofeat.retrieval import accuracy_at_k, histogram, read_classes, run_retrieval, search, vocabulary
+from geofeat.retrieval import (
+    accuracy_at_k, bootstrap_interval, exclusion_mask, histogram, read_classes, run_retrieval, search, split_queries,
+    vocabulary,
+)
 
 
 def binary_rotations(bits: np.ndarray) -> np.ndarray:
@@ -118,11 +121,12 @@ def three_objects(tmp_path_factory):
 
 
 def test_retrieval_on_three_simulated_objects(three_objects, tmp_path):
-    acc, db = run_retrieval([three_objects], tmp_path, ("sift", "orb"), words=10, n_samples=2000, n_keypoints=300,
-                            max_k=2, progress=False)
+    res, db = run_retrieval([three_objects], tmp_path, ("sift", "orb"), words=10, n_samples=2000, n_keypoints=300,
+                            max_k=2, include_own_sequence=True, progress=False)
     assert db.is_query.sum() == 3 and len(db.frames) == 9
     for name in ("sift", "orb"):
-        assert acc[name][0] == 1.0, (name, acc[name])  # every query's own class first
+        assert res[name].accuracy[0] == 1.0, (name, res[name].accuracy)  # every query's own class first
+        assert (res[name].low <= res[name].accuracy).all() and (res[name].accuracy <= res[name].high).all()
     rows = list(csv.DictReader(open(tmp_path / "retrieval.csv")))
     assert [r["descriptor"] for r in rows] == ["sift", "sift", "orb", "orb"]
     assert (tmp_path / "acc_at_k.png").is_file() and cv2.imread(str(tmp_path / "top6.png")) is not None
@@ -133,21 +137,25 @@ def test_retrieval_bad_input(three_objects, tmp_path):
     with pytest.raises(ValueError, match="descriptor"):
         run_retrieval([three_objects], tmp_path, ("nope",), progress=False)
     with pytest.raises(ValueError, match="too few"):
-        run_retrieval([three_objects / "lines"], tmp_path, ("sift",), words=10, n_keypoints=2, progress=False)
+        run_retrieval([three_objects / "lines"], tmp_path, ("sift",), words=10, n_keypoints=2,
+                      include_own_sequence=True, progress=False)
     classes = tmp_path / "classes.csv"
     classes.write_text("blobs,a\n")
     with pytest.raises(ValueError, match="no class"):
         run_retrieval([three_objects], tmp_path / "out", ("sift",), classes_file=str(classes), progress=False)
+    # the paper's setting with one sequence per class: no query can be answered
+    with pytest.raises(ValueError, match="include-own-sequence"):
+        run_retrieval([three_objects], tmp_path / "out2", ("sift",), n_keypoints=300, progress=False)
 
 
 def test_retrieval_command(three_objects, tmp_path, capsys):
     from geofeat.cli import main
 
     args = ["retrieval", str(three_objects), "--descriptors", "sift", "--keypoints", "300", "--samples", "1000",
-            "--out", str(tmp_path)]
+            "--include-own-sequence", "--out", str(tmp_path)]
     assert main(args) == 0
     out = capsys.readouterr().out
-    assert "Acc@1" in out and "object masks" in out
+    assert "Acc@1" in out and "object masks" in out and "chosen by validation" in out
     assert main(args[:-2] + ["--words", "100000", "--out", str(tmp_path)]) == 2  # non-empty OUT refused
     assert "--overwrite" in capsys.readouterr().err
     assert main(args[:-2] + ["--words", "100000", "--out", str(tmp_path), "--overwrite"]) == 2
@@ -175,3 +183,50 @@ def test_object_mask_sources(three_objects, tmp_path):
     truth, truth_source = object_mask(read_sequence(three_objects / "blobs"), "frame-000-master")
     assert source == "depth" and truth_source == "simulator"
     assert (mask & truth).sum() / (mask | truth).sum() > 0.95
+
+
+def test_exclusion_split_and_bootstrap():
+    seqs = ["a", "a", "b", "b", "b"]
+    m = exclusion_mask(seqs, np.array([0, 2]))
+    np.testing.assert_array_equal(m, [[1, 1, 0, 0, 0], [0, 0, 1, 1, 1]])
+    np.testing.assert_array_equal(exclusion_mask(seqs, np.array([0, 2]), include_own_sequence=True),
+                                  [[1, 0, 0, 0, 0], [0, 0, 1, 0, 0]])
+    hist = np.eye(5)
+    nn, _ = search(hist[[0, 2]], hist, k=10, exclude=m)
+    assert nn.shape == (2, 2) and set(nn[0]) == {2, 3} and set(nn[1]) == {0, 1}
+    val, test = split_queries(7, seed=3)
+    assert len(val) == 3 and len(test) == 4 and not set(val) & set(test)
+    per_query = np.array([[1.0, 0.5]] * 6 + [[0.0, 0.5]] * 4)
+    low, high = bootstrap_interval(per_query)
+    assert low[0] < 0.6 < high[0] and 0.25 < low[0] and high[0] < 0.95  # a real interval around the mean 0.6
+    np.testing.assert_allclose([low[1], high[1]], 0.5)  # no spread, no interval
+
+
+@pytest.fixture(scope="module")
+def deformed_copy(tmp_path_factory):
+    """The 'blobs' object of `three_objects` again, in another sequence: hard preset (strong folds)."""
+    from geofeat.sim import simulate_sequence
+
+    root = tmp_path_factory.mktemp("retrieval_copy")
+    simulate_sequence(root / "blobs_folded", scenario="deform", preset="hard", n_frames=3, seed=31,
+                      texture=texture(0), width=320, height=240, progress=False)
+    return root
+
+
+def test_retrieval_leaves_out_the_query_sequence_and_ranks_the_deformed_copy_first(three_objects, deformed_copy,
+                                                                                   tmp_path):
+    classes = tmp_path / "classes.csv"
+    classes.write_text("sequence,class\nblobs,blobs\nblobs_folded,blobs\ncheckers,checkers\nlines,lines\n")
+    res, db = run_retrieval([three_objects, deformed_copy], tmp_path / "out", ("geopatch",), words=10,
+                            n_samples=2000, n_keypoints=300, max_k=10, classes_file=str(classes), progress=False)
+    r = res["geopatch"]
+    seqs = np.asarray(db.sequences)
+    # only the two 'blobs' sequences have a class mate; checkers and lines are reported and skipped
+    assert sorted(seqs[r.queries]) == ["blobs", "blobs_folded"]
+    assert "skipped 2 queries" in (tmp_path / "out" / "retrieval.md").read_text()
+    for q, row in zip(r.queries, r.neighbours):
+        assert not (seqs[row] == seqs[q]).any()  # the query's own sequence is left out
+        assert len(row) == len(seqs) - (seqs == seqs[q]).sum()  # everything else is ranked
+        # the deformed copy (the other blobs sequence) comes before every distractor frame
+        is_copy = np.asarray(db.classes)[row] == "blobs"
+        assert is_copy.sum() == 3 and is_copy[:3].all(), seqs[row]  # 3 frames of the copy, then 6 distractors

@@ -149,3 +149,41 @@ def test_track_command(sequence, tmp_path, capsys):
     assert main(["track", str(sequence), "--descriptors", "sift", "--roi", "1,2,3", "--out", str(tmp_path)]) == 2
     assert "--roi" in capsys.readouterr().err
     assert main(["track", str(sequence), "--descriptors", "bogus", "--out", str(tmp_path)]) == 2
+
+
+def test_refinement_never_worse_than_the_spline_on_an_easy_pair(sequence):
+    res = track_sequence(sequence, ("sift",), n_keypoints=500, progress=False, refine="photometric")
+    rows = res["sift"].rows
+    assert all(not r["failed"] for r in rows) and any(r["refined"] for r in rows)
+    for r in rows:  # gentle deformation: the spline is already sub-pixel; refinement must not lose it
+        assert r["grid_error_px"] <= r["grid_error_tps_px"] + 0.05, r
+        assert r["grid_error_px"] < 1.0 and r["ssim"] > 0.8
+    with pytest.raises(ValueError, match="refine"):
+        track_sequence(sequence, ("sift",), progress=False, refine="bogus")
+
+
+@pytest.fixture(scope="module")
+def folded(tmp_path_factory):
+    """The reference and frame 2 of a 5-frame simulated sequence with strong folds (hard preset)."""
+    from geofeat.sim import simulate_sequence
+
+    root = tmp_path_factory.mktemp("fold")
+    full = simulate_sequence(root / "full", scenario="deform", preset="hard", n_frames=5, seed=3, width=320,
+                             height=240, progress=False)
+    pair = root / "fold"
+    pair.mkdir()
+    for f in full.iterdir():
+        if f.name.startswith(("frame-000-master", "frame-002")) or not f.name.startswith("frame-"):
+            (pair / f.name).write_bytes(f.read_bytes())
+    return pair
+
+
+def test_refinement_follows_a_fold_the_spline_misses(folded):
+    res = track_sequence(folded, ("sift",), progress=False, refine="photometric")
+    r = res["sift"].rows[-1]  # strong folds: sparse matches and one spline leave pixels of error
+    assert r["grid_error_tps_px"] > 3.0 and r["refined"], r
+    assert r["grid_error_px"] < 0.5 * r["grid_error_tps_px"], r
+    # the grid written out is the refined one, not the spline's
+    none = track_sequence(folded, ("sift",), progress=False, refine="none")["sift"]
+    assert np.abs(res["sift"].points[-1] - none.points[-1]).max() > 1.0
+    assert none.rows[-1]["grid_error_px"] == pytest.approx(r["grid_error_tps_px"])

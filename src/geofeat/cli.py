@@ -382,7 +382,8 @@ def _retrieval(args: argparse.Namespace) -> int:
     acc, db = run_retrieval(args.datasets, args.out, tuple(d for d in args.descriptors.split(",") if d),
                             words=args.words, n_samples=args.samples, seed=args.seed, classes_file=args.classes,
                             n_keypoints=args.keypoints, tps_dir=args.tps_dir, radius=args.radius,
-                            depth_scale=args.depth_scale, overwrite=args.overwrite)
+                            depth_scale=args.depth_scale, include_own_sequence=args.include_own_sequence,
+                            overwrite=args.overwrite)
     out = Path(args.out)
     print((out / "retrieval.md").read_text())
     print(f"wrote {out / 'retrieval.csv'}, {out / 'acc_at_k.png'}, {out / 'top6.png'}")
@@ -408,7 +409,7 @@ def _track(args: argparse.Namespace) -> int:
                                      tuple(d for d in args.descriptors.split(",") if d), roi=roi,
                                      n_keypoints=args.keypoints, tps_dir=args.tps_dir, radius=args.radius,
                                      depth_scale=args.depth_scale, threshold_px=args.threshold,
-                                     overwrite=args.overwrite, skipped=skipped)
+                                     overwrite=args.overwrite, skipped=skipped, refine=args.refine)
     print((Path(args.out) / "tracking.md").read_text())
     print(f"wrote {csv_path}, {Path(args.out) / 'tracking.md'} and per sequence/descriptor grid.npz + track.gif")
     if skipped:
@@ -554,7 +555,12 @@ def build_parser() -> argparse.ArgumentParser:
     ret = sub.add_parser("retrieval", help="object retrieval with a bag of visual words (Acc@K)")
     ret.add_argument("datasets", nargs="+", help="sequence folders, or folders of sequences")
     app_options(ret)
-    ret.add_argument("--words", type=int, default=10, help="visual words K (default 10, the paper's)")
+    ret.add_argument("--words", type=int, default=None,
+                     help="visual words K (default: chosen per descriptor among 5,10,20,40,80 by validation on a "
+                          "random half of the queries; Acc@K is then reported on the other half)")
+    ret.add_argument("--include-own-sequence", action="store_true",
+                     help="the database also holds the query's own sequence (default: only the other sequences, "
+                          "the paper's setting)")
     ret.add_argument("--samples", type=int, default=10000, help="descriptors sampled for the vocabulary (default 10000)")
     ret.add_argument("--classes", default=None, help="CSV 'sequence,class' (default: class = sequence folder name)")
     ret.add_argument("--seed", type=int, default=0)
@@ -565,6 +571,9 @@ def build_parser() -> argparse.ArgumentParser:
     app_options(trk)
     trk.add_argument("--roi", default=None, help="x0,y0,x1,y1 in reference pixels (default: object mask box shrunk by 10%%)")
     trk.add_argument("--threshold", type=float, default=3.0, help="RANSAC inlier threshold, pixels (default 3)")
+    trk.add_argument("--refine", choices=("none", "photometric"), default="photometric",
+                     help="after RANSAC + TPS, refine the warp densely against the template: photometric (the "
+                          "refiner of 'geofeat groundtruth') or none (default photometric)")
     trk.add_argument("--lpips", action="store_true", help="LPIPS (needs local pretrained weights; not supported here)")
     trk.set_defaults(func=_track)
 

@@ -8,9 +8,15 @@
    symmetrised as (D + D^T) / 2;
 3. `histogram`: each frame becomes the L1-normalised histogram of its descriptors' nearest words;
 4. `search`: k-nearest neighbours of a query histogram among the database histograms (L2);
-5. `accuracy_at_k`: queries are the reference frames, the database every frame of every sequence
-   (the query itself excluded); Acc@K is the fraction of the top K results of the query's class,
-   averaged over queries.
+5. `accuracy_at_k`: queries are the reference frames; as in the paper the database holds the frames of
+   the *other* sequences (`exclusion_mask`; the query's own sequence is left out unless
+   `include_own_sequence`, and then only the query itself is), so that a query must find its object
+   under another deformation. A query whose class has no other sequence is reported and skipped.
+   Acc@K is the fraction of the top K results of the query's class, averaged over queries, with a
+   95 % bootstrap interval over queries (`bootstrap_interval`).
+6. `choose_words`: unless K is given, it is chosen per descriptor by validation: the queries are split
+   at random in two halves; the K of `WORD_CANDIDATES` with the best mean Acc@1..10 on the validation
+   half is kept, and Acc@K is reported on the other (test) half only.
 """
 
 from __future__ import annotations
@@ -27,7 +33,9 @@ from .features import Features
 
 __all__ = [
     "Vocabulary", "vocabulary", "sample_descriptors", "histogram", "search", "accuracy_at_k", "read_classes",
-    "RetrievalDatabase", "describe_datasets", "run_retrieval",
+    "RetrievalDatabase", "describe_datasets", "run_retrieval", "exclusion_mask", "per_query_accuracy",
+    "bootstrap_interval", "split_queries", "WORD_CANDIDATES", "DescriptorResult", "evaluate_descriptor",
+    "sample_distances",
 ]
 
 #: Visual words (the paper's K).
@@ -36,6 +44,10 @@ N_WORDS = 10
 N_VOCABULARY_SAMPLES = 10_000
 #: Largest K of Acc@K.
 MAX_K = 10
+#: Vocabulary sizes tried by validation when K is not given.
+WORD_CANDIDATES = (5, 10, 20, 40, 80)
+#: Bootstrap resamples of the queries for the 95 % intervals.
+N_BOOTSTRAP = 2000
 
 
 @dataclass
@@ -69,8 +81,18 @@ def sample_descriptors(features: list[Features], n: int = N_VOCABULARY_SAMPLES, 
     return pool[np.sort(rng.choice(len(pool), n, replace=False))]
 
 
+def sample_distances(descriptors: np.ndarray, metric: str | None = None) -> np.ndarray:
+    """(N, N) float32 symmetrised distance matrix (D + D^T) / 2 of (N, ...) descriptors under `metric`."""
+    from .matching import distance_matrix
+
+    descriptors = np.asarray(descriptors)
+    metric = _metric_of(descriptors) if metric is None else metric
+    D = distance_matrix(descriptors, descriptors, metric)
+    return (D + D.T) * np.float32(0.5)
+
+
 def vocabulary(descriptors: np.ndarray, words: int = N_WORDS, metric: str | None = None,
-               seed: int = 0) -> Vocabulary:
+               seed: int = 0, distances: np.ndarray | None = None) -> Vocabulary:
     """K-medoids visual words of (N, ...) descriptors (FasterPAM on the full distance matrix).
 
     Args:
@@ -78,10 +100,10 @@ def vocabulary(descriptors: np.ndarray, words: int = N_WORDS, metric: str | None
         words: K, the number of visual words.
         metric: see `geofeat.matching.distance_matrix`; None chooses from dtype and rank.
         seed: FasterPAM's random initialisation and processing order.
+        distances: optional precomputed (N, N) `sample_distances(descriptors, metric)` (to try
+            several K on one sample without recomputing it).
     """
     import kmedoids
-
-    from .matching import distance_matrix
 
     descriptors = np.asarray(descriptors)
     if isinstance(words, bool) or not isinstance(words, (int, np.integer)) or words < 2:
@@ -90,8 +112,7 @@ def vocabulary(descriptors: np.ndarray, words: int = N_WORDS, metric: str | None
         raise ValueError(f"descriptors: too few for {words} visual words: got {len(descriptors)} "
                          f"(shape {descriptors.shape}), expected more than {words}")
     metric = _metric_of(descriptors) if metric is None else metric
-    D = distance_matrix(descriptors, descriptors, metric)
-    D = (D + D.T) * np.float32(0.5)
+    D = sample_distances(descriptors, metric) if distances is None else distances
     result = kmedoids.fasterpam(D, int(words), init="random", random_state=int(seed), n_cpu=1)
     medoids = np.sort(np.asarray(result.medoids, np.int64))
     return Vocabulary(descriptors[medoids].copy(), metric)
@@ -113,30 +134,82 @@ def search(queries: np.ndarray, database: np.ndarray, k: int = MAX_K, exclude: n
     """k-nearest neighbours (L2) of (Q, K) query histograms among (N, K) database histograms.
 
     Args:
-        exclude: optional (Q,) database index per query never returned (the query itself); -1 = none.
+        exclude: optional database entries never returned: (Q,) one index per query (the query
+            itself; -1 = none), or a (Q, N) bool mask (True = excluded, see `exclusion_mask`).
     Returns:
-        indices (Q, k) int64 and distances (Q, k) float64, nearest first (ties: lowest index first).
+        indices (Q, k) int64 and distances (Q, k) float64, nearest first (ties: lowest index first);
+        k is lowered to the fewest database entries any query may return.
     """
     queries = np.atleast_2d(np.asarray(queries, np.float64))
     database = np.atleast_2d(np.asarray(database, np.float64))
     if queries.shape[1] != database.shape[1]:
         raise ValueError(f"queries, database: histograms of different lengths {queries.shape} and {database.shape}")
     d = np.sqrt(np.maximum(((queries[:, None, :] - database[None, :, :]) ** 2).sum(-1), 0.0))
+    allowed = database.shape[0]
     if exclude is not None:
-        exclude = np.asarray(exclude, np.int64).reshape(-1)
-        rows = np.flatnonzero(exclude >= 0)
-        d[rows, exclude[rows]] = np.inf
-    k = min(k, database.shape[0] - (0 if exclude is None else 1))
+        exclude = np.asarray(exclude)
+        if exclude.dtype == bool:
+            if exclude.shape != d.shape:
+                raise ValueError(f"exclude: expected a {d.shape} bool mask, got shape {exclude.shape}")
+            d[exclude] = np.inf
+            allowed -= int(exclude.sum(axis=1).max()) if len(exclude) else 0
+        else:
+            exclude = exclude.astype(np.int64).reshape(-1)
+            rows = np.flatnonzero(exclude >= 0)
+            d[rows, exclude[rows]] = np.inf
+            allowed -= 1
+    k = max(min(k, allowed), 0)
     idx = np.argsort(d, axis=1, kind="stable")[:, :k]
     return idx, np.take_along_axis(d, idx, axis=1)
+
+
+def per_query_accuracy(neighbours: np.ndarray, database_classes, query_classes) -> np.ndarray:
+    """(Q, k) Acc@K of each query for K = 1..k: the fraction of its top K results (neighbours (Q, k)
+    database indices) of its class."""
+    db = np.asarray(database_classes)
+    correct = db[np.asarray(neighbours)] == np.asarray(query_classes)[:, None]  # (Q, k)
+    return np.cumsum(correct, axis=1) / np.arange(1, correct.shape[1] + 1)
 
 
 def accuracy_at_k(neighbours: np.ndarray, database_classes, query_classes) -> np.ndarray:
     """(k,) Acc@K for K = 1..k: fraction of the top K results (neighbours (Q, k) database indices)
     of the query's class, averaged over the Q queries."""
-    db = np.asarray(database_classes)
-    correct = db[np.asarray(neighbours)] == np.asarray(query_classes)[:, None]  # (Q, k)
-    return (np.cumsum(correct, axis=1) / np.arange(1, correct.shape[1] + 1)).mean(axis=0)
+    return per_query_accuracy(neighbours, database_classes, query_classes).mean(axis=0)
+
+
+def bootstrap_interval(per_query: np.ndarray, n: int = N_BOOTSTRAP, level: float = 0.95,
+                       seed: int | np.random.Generator = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Percentile bootstrap interval over queries of the mean of (Q, ...) per-query values.
+
+    Returns (low, high), each of shape per_query.shape[1:]: the (1 - level) / 2 and (1 + level) / 2
+    quantiles of the means of `n` resamples of the Q queries with replacement."""
+    per_query = np.asarray(per_query, np.float64)
+    if len(per_query) == 0:
+        nan = np.full(per_query.shape[1:], np.nan)
+        return nan, nan.copy()
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, len(per_query), (n, len(per_query)))  # (n, Q)
+    means = per_query[idx].mean(axis=1)  # (n, ...)
+    return (np.quantile(means, (1 - level) / 2, axis=0), np.quantile(means, (1 + level) / 2, axis=0))
+
+
+def exclusion_mask(sequences, queries: np.ndarray, include_own_sequence: bool = False) -> np.ndarray:
+    """(Q, N) bool: the database entries (frames of `sequences`, (N,) sequence names) that query
+    `queries[i]` (a database index) may not return: every frame of its own sequence (the paper's
+    setting), or with `include_own_sequence` only the query frame itself."""
+    seqs = np.asarray(sequences)
+    queries = np.asarray(queries, np.int64)
+    if include_own_sequence:
+        mask = np.zeros((len(queries), len(seqs)), bool)
+        mask[np.arange(len(queries)), queries] = True
+        return mask
+    return seqs[queries][:, None] == seqs[None, :]
+
+
+def split_queries(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(validation, test) sorted indices into n queries: a random half (floor(n / 2)) and the rest."""
+    perm = np.random.default_rng(seed).permutation(n)
+    return np.sort(perm[: n // 2]), np.sort(perm[n // 2 :])
 
 
 def read_classes(path: str | Path) -> dict[str, str]:
@@ -244,17 +317,20 @@ def _thumbnail(folder: Path, name: str, size: tuple[int, int], colour) -> np.nda
     return img
 
 
-def _top6_picture(db: RetrievalDatabase, results: dict[str, np.ndarray], path: Path, queries_per: int = 2) -> None:
-    """Rows: descriptor x query; query thumbnail (blue frame), then its top 6 (green = same class)."""
+def _top6_picture(db: RetrievalDatabase, results: dict[str, tuple[np.ndarray, np.ndarray]], path: Path,
+                  queries_per: int = 2) -> None:
+    """Rows: descriptor x query; query thumbnail (blue frame), then its top 6 (green = same class).
+
+    results: {descriptor: (query database indices (Q,), neighbours (Q, k))}."""
     import cv2
 
     size = (160, 120)
     rows = []
-    q_idx = np.flatnonzero(db.is_query)
-    chosen = q_idx[np.linspace(0, len(q_idx) - 1, min(queries_per, len(q_idx))).round().astype(int)]
-    for name, neighbours in results.items():
-        for qi in chosen:
-            row_q = int(np.flatnonzero(q_idx == qi)[0])
+    for name, (q_idx, neighbours) in results.items():
+        if len(q_idx) == 0:
+            continue
+        for row_q in np.linspace(0, len(q_idx) - 1, min(queries_per, len(q_idx))).round().astype(int):
+            qi = q_idx[row_q]
             tiles = [_thumbnail(db.folders[qi], db.frames[qi], size, (255, 128, 0))]
             for j in neighbours[row_q, :6]:
                 ok = db.classes[j] == db.classes[qi]
@@ -264,7 +340,8 @@ def _top6_picture(db: RetrievalDatabase, results: dict[str, np.ndarray], path: P
             label = np.full((size[1], 110, 3), 255, np.uint8)
             cv2.putText(label, name[:12], (4, size[1] // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
             rows.append(np.concatenate([label] + tiles, axis=1))
-    cv2.imwrite(str(path), np.concatenate(rows, axis=0))
+    if rows:
+        cv2.imwrite(str(path), np.concatenate(rows, axis=0))
 
 
 def _plot(acc: dict[str, np.ndarray], path: Path) -> None:
@@ -289,19 +366,92 @@ def _plot(acc: dict[str, np.ndarray], path: Path) -> None:
     plt.close(fig)
 
 
+@dataclass
+class DescriptorResult:
+    """Retrieval outcome of one descriptor.
+
+    Attributes:
+        words: the vocabulary size K used.
+        validation: {K: mean Acc@1..max_k on the validation queries} (empty when K was given).
+        queries: (Q,) database indices of the test queries (all eligible queries when K was given).
+        neighbours: (Q, k) their results, database indices, nearest first.
+        per_query: (Q, k) each query's Acc@1..k.
+        accuracy, low, high: (k,) Acc@K and its 95 % bootstrap interval over the queries.
+    """
+
+    words: int
+    validation: dict[int, float]
+    queries: np.ndarray
+    neighbours: np.ndarray
+    per_query: np.ndarray
+    accuracy: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+
+
+def evaluate_descriptor(features: list[Features], db: RetrievalDatabase, queries: np.ndarray,
+                        exclude: np.ndarray, words: int | None = None, n_samples: int = N_VOCABULARY_SAMPLES,
+                        seed: int = 0, max_k: int = MAX_K, candidates: tuple[int, ...] = WORD_CANDIDATES
+                        ) -> DescriptorResult:
+    """Vocabulary, histograms, search and Acc@K of one descriptor.
+
+    Args:
+        features: one Features record per database frame.
+        queries: (Q,) database indices of the eligible queries; exclude: their (Q, N) `exclusion_mask`.
+        words: K; None chooses it among `candidates` by validation on a random half of the queries
+            (`split_queries`) and reports Acc@K on the other half.
+    """
+    sample = sample_descriptors(features, n_samples, seed)
+    ks = [int(words)] if words is not None else [k for k in candidates if k < len(sample)]
+    if not ks or len(sample) <= min(ks):
+        raise ValueError(f"descriptors: {len(sample)} valid descriptors in all, too few for "
+                         f"{words if words is not None else min(candidates)} visual words")
+    D = sample_distances(sample)
+
+    def run(k: int) -> tuple[np.ndarray, np.ndarray]:
+        vocab = vocabulary(sample, k, seed=seed, distances=D)
+        hist = np.stack([histogram(f, vocab) for f in features])
+        neighbours, _ = search(hist[queries], hist, max_k, exclude=exclude)
+        return neighbours, per_query_accuracy(neighbours, db.classes, np.asarray(db.classes)[queries])
+
+    validation: dict[int, float] = {}
+    test = np.arange(len(queries))
+    if words is None:
+        if len(queries) < 2:
+            raise ValueError(f"queries: {len(queries)} eligible query, too few to choose K by validation; pass --words")
+        val, test = split_queries(len(queries), seed)
+        best = None
+        for k in ks:
+            _, acc = run(k)
+            validation[k] = float(acc[val].mean())
+            if best is None or validation[k] > validation[best]:  # ties: the smaller K
+                best = k
+        ks = [best]
+    neighbours, acc = run(ks[0])
+    neighbours, acc = neighbours[test], acc[test]
+    low, high = bootstrap_interval(acc, seed=seed)
+    return DescriptorResult(ks[0], validation, queries[test], neighbours, acc, acc.mean(axis=0), low, high)
+
+
 def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("geopatch", "geobit", "sift"),
-                  words: int = N_WORDS, n_samples: int = N_VOCABULARY_SAMPLES, seed: int = 0,
+                  words: int | None = None, n_samples: int = N_VOCABULARY_SAMPLES, seed: int = 0,
                   classes_file: str | None = None, n_keypoints: int = N_KEYPOINTS, tps_dir: str | None = None,
                   radius: float | None = None, depth_scale: float | None = None, max_k: int = MAX_K,
-                  progress: bool = True, overwrite: bool = False) -> tuple[dict[str, np.ndarray], RetrievalDatabase]:
-    """The whole retrieval experiment; writes into `out`: `retrieval.csv` (descriptor, k, accuracy),
-    `acc_at_k.png`, `top6.png` (two queries per descriptor) and `retrieval.md` (table + mask sources).
+                  include_own_sequence: bool = False, progress: bool = True, overwrite: bool = False
+                  ) -> tuple[dict[str, DescriptorResult], RetrievalDatabase]:
+    """The whole retrieval experiment; writes into `out`: `retrieval.csv` (descriptor, words, k,
+    accuracy, low, high: Acc@K and its 95 % bootstrap interval), `acc_at_k.png`, `top6.png` (two
+    queries per descriptor) and `retrieval.md` (table, chosen K, skipped queries and frames, mask sources).
 
     The folder is built aside and moved into place at the end; an existing non-empty `out` needs
     `overwrite` (`geofeat.outputs`). Frames that cannot be described are skipped and named in
     `db.skipped` and in retrieval.md.
 
-    Returns ({descriptor: (max_k,) Acc@K}, the described database)."""
+    Args:
+        words: K; None = chosen per descriptor by validation (see `evaluate_descriptor`).
+        include_own_sequence: the database also holds the query's own sequence (the query frame
+            itself excluded); by default the query's whole sequence is left out (the paper's setting).
+    Returns ({descriptor: DescriptorResult}, the described database)."""
     from .outputs import check_out_dir, output_folder
 
     out = check_out_dir(out, overwrite)
@@ -312,41 +462,71 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
     if db.is_query.all():
         raise ValueError(f"datasets: {len(db.frames)} frame(s), all of them reference frames (queries); retrieval "
                          "needs other frames to search among")
-    acc: dict[str, np.ndarray] = {}
-    with output_folder(out) as tmp:
-        _write_retrieval(tmp, db, acc, words, n_samples, seed, max_k)
-    return acc, db
-
-
-def _write_retrieval(out: Path, db: RetrievalDatabase, acc: dict, words: int, n_samples: int, seed: int,
-                     max_k: int) -> None:
-    """Vocabulary, search and the result files of `run_retrieval`, into `out`; fills `acc`."""
-    q_idx = np.flatnonzero(db.is_query)
-    results = {}
+    q_all = np.flatnonzero(db.is_query)
+    exclude = exclusion_mask(db.sequences, q_all, include_own_sequence)
+    cls = np.asarray(db.classes)
+    eligible = ((cls[q_all][:, None] == cls[None, :]) & ~exclude).any(axis=1)  # a frame of its class remains
+    skipped = [f"{db.sequences[i]}/{db.frames[i]} (class {db.classes[i]})" for i in q_all[~eligible]]
+    q_idx, exclude = q_all[eligible], exclude[eligible]
+    if len(q_idx) == 0:
+        raise ValueError("datasets: no query has another sequence of its class in the database (classes default to "
+                         "the sequence folder name); pass --classes with a 'sequence,class' CSV, or "
+                         "--include-own-sequence")
+    res: dict[str, DescriptorResult] = {}
     for name, feats in db.features.items():
-        sample = sample_descriptors(feats, n_samples, seed)
-        if len(sample) <= words:
-            raise ValueError(f"descriptors: {name} gave {len(sample)} valid descriptors in all, too few for "
-                             f"{words} visual words")
-        vocab = vocabulary(sample, words, seed=seed)
-        hist = np.stack([histogram(f, vocab) for f in feats])
-        neighbours, _ = search(hist[q_idx], hist, max_k, exclude=q_idx)
-        results[name] = neighbours
-        acc[name] = accuracy_at_k(neighbours, db.classes, np.asarray(db.classes)[q_idx])
+        try:
+            res[name] = evaluate_descriptor(feats, db, q_idx, exclude, words, n_samples, seed, max_k)
+        except ValueError as e:
+            raise ValueError(f"{e} (descriptor {name})") from None
+    with output_folder(out) as tmp:
+        _write_retrieval(tmp, db, res, skipped, words, n_samples, include_own_sequence)
+    return res, db
+
+
+def _write_retrieval(out: Path, db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: list[str],
+                     words: int | None, n_samples: int, include_own_sequence: bool) -> None:
+    """The result files of `run_retrieval`, into `out`."""
     with open(out / "retrieval.csv", "w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["descriptor", "k", "accuracy"])
-        for name, a in acc.items():
-            w.writerows([name, k + 1, f"{v:.4f}"] for k, v in enumerate(a))
-    _plot(acc, out / "acc_at_k.png")
-    _top6_picture(db, results, out / "top6.png")
-    ks = [k for k in (1, 3, 5, 10) if k <= max(len(a) for a in acc.values())]
-    lines = ["| descriptor | " + " | ".join(f"Acc@{k}" for k in ks) + " |", "|---" * (len(ks) + 1) + "|"]
-    lines += [f"| {n} | " + " | ".join(f"{a[k - 1]:.3f}" for k in ks) + " |" for n, a in acc.items()]
+        w.writerow(["descriptor", "words", "k", "accuracy", "low", "high"])
+        for name, r in res.items():
+            w.writerows([name, r.words, k + 1, f"{v:.4f}", f"{lo:.4f}", f"{hi:.4f}"]
+                        for k, (v, lo, hi) in enumerate(zip(r.accuracy, r.low, r.high)))
+    _plot({n: r.accuracy for n, r in res.items()}, out / "acc_at_k.png")
+    _top6_picture(db, {n: (r.queries, r.neighbours) for n, r in res.items()}, out / "top6.png")
+    (out / "retrieval.md").write_text(_report(db, res, skipped, words, n_samples, include_own_sequence))
+
+
+def _report(db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: list[str], words: int | None,
+            n_samples: int, include_own_sequence: bool) -> str:
+    """retrieval.md: Acc@K [95 % interval] per descriptor, then notes."""
+    k_max = max(len(r.accuracy) for r in res.values())
+    ks = [k for k in (1, 3, 5, 10) if k <= k_max]
+    head = "| descriptor | K (words) | queries | " + " | ".join(f"Acc@{k}" for k in ks) + f" | mean Acc@1–{k_max} |"
+    lines = [head, "|---" * (len(ks) + 4) + "|"]
+    for n, r in res.items():
+        cells = [f"{r.accuracy[k - 1]:.3f} [{r.low[k - 1]:.2f}, {r.high[k - 1]:.2f}]" for k in ks]
+        mlo, mhi = bootstrap_interval(r.per_query.mean(axis=1, keepdims=True))
+        cells.append(f"{r.per_query.mean():.3f} [{mlo[0]:.2f}, {mhi[0]:.2f}]")
+        lines.append(f"| {n} | {r.words} | {len(r.queries)} | " + " | ".join(cells) + " |")
     n_cls = len(set(db.classes))
-    notes = [f"- {len(db.frames)} frames of {len(set(db.sequences))} sequences, {n_cls} classes, "
-             f"{len(q_idx)} queries; {words} words from {min(n_samples, sum(int(f.valid.sum()) for f in next(iter(db.features.values()))))} descriptors",
-             "- object masks: " + ", ".join(f"{s}: {src}" for s, src in db.mask_sources.items())]
+    n_desc = sum(int(f.valid.sum()) for f in next(iter(db.features.values())))
+    notes = [f"{len(db.frames)} frames of {len(set(db.sequences))} sequences, {n_cls} classes; database: "
+             + ("every frame but the query" if include_own_sequence else "the frames of the other sequences")
+             + "; [95 % bootstrap interval over queries]",
+             f"vocabulary from {min(n_samples, n_desc)} sampled descriptors"]
+    if words is None:
+        for n, r in res.items():
+            scores = ", ".join(f"{k}: {v:.3f}" for k, v in r.validation.items())
+            notes.append(f"{n}: K = {r.words} chosen by validation (mean Acc@1–{k_max} on "
+                         f"{len(db.is_query.nonzero()[0]) - len(skipped) - len(r.queries)} held-out queries: {scores}); "
+                         f"Acc@K on the other {len(r.queries)}")
+    else:
+        notes.append(f"K = {words} given")
+    if skipped:
+        notes.append(f"skipped {len(skipped)} quer{'y' if len(skipped) == 1 else 'ies'} whose class has no other "
+                     f"sequence: " + ", ".join(skipped))
+    notes.append("object masks: " + ", ".join(f"{s}: {src}" for s, src in db.mask_sources.items()))
     if db.skipped:
-        notes.append(f"- SKIPPED frames: {', '.join(db.skipped)}")
-    (out / "retrieval.md").write_text("\n".join(lines) + "\n\n" + "\n".join(notes) + "\n")
+        notes.append(f"SKIPPED frames: {', '.join(db.skipped)}")
+    return "\n".join(lines) + "\n\n" + "\n".join(f"- {x}" for x in notes) + "\n"

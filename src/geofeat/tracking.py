@@ -15,6 +15,13 @@ A template region of interest (ROI) of the reference frame is followed in every 
    MS; and their precision, correct over inliers), and the photometric
    similarity (SSIM, NCC) inside the ROI of the template and frame k warped back onto the template;
    a 10 x 10 grid over the ROI is carried into every frame by the fitted warp.
+4. optionally (`refine="photometric"`), the spline is refined densely and photometrically against the
+   template by the refiner of `geofeat groundtruth` (`geofeat.groundtruth.refine`: a B-spline
+   displacement field on a 16 px control grid over the ROI's object pixels, L-BFGS coarse to fine on
+   local NCC, the RANSAC inliers as soft landmarks). Every frame is registered to the template itself,
+   from that frame's own spline, so errors cannot accumulate (no drift); the refined warp is kept only
+   when it lowers the photometric cost and does not fold over (`RefinedWarp`, `refine_warp`),
+   otherwise the spline stays. The per-frame SSIM / NCC inside the ROI are the confidence.
 
 Pixels follow the OpenCV convention (the centre of the top-left pixel is (0, 0)).
 """
@@ -34,7 +41,8 @@ from .io import Sequence, read_sequence
 
 __all__ = [
     "TPSWarp", "RansacResult", "TrackResult", "normalise_points", "fit_tps", "fit_tps_ransac", "warp_points",
-    "default_roi", "roi_grid", "similarity", "ncc", "ssim", "track_sequence", "write_tracking",
+    "default_roi", "roi_grid", "similarity", "ncc", "ssim", "track_sequence", "write_tracking", "RefinedWarp",
+    "refine_warp", "map_points", "REFINE_MODES",
 ]
 
 #: RANSAC inlier threshold, pixels in the frame (the bench's 3 px correctness radius).
@@ -53,6 +61,13 @@ MIN_INLIERS = 10
 MIN_ROI_KEYPOINTS = 10
 #: Grid side over the ROI (G = GRID_SIDE ** 2 points).
 GRID_SIDE = 10
+#: Dense refinement after RANSAC + TPS (`track_sequence(refine=...)`).
+REFINE_MODES = ("none", "photometric")
+#: A refined map is rejected when it folds over (Jacobian determinant <= 0) at more than this fraction
+#: of the control points inside the ROI (as `geofeat groundtruth` rejects a refined frame).
+MAX_FOLDED_FRACTION = 0.05
+#: `geofeat track --refine` default (chosen by grid error on simulated sequences, see BENCHMARKS.md).
+DEFAULT_REFINE = "photometric"
 
 
 # ----------------------------------------------------------------------------------------------
@@ -319,7 +334,70 @@ def ssim(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:
     return float(qmap[m].mean()) if m.any() else float("nan")
 
 
-def warp_back(image: np.ndarray, warp: TPSWarp, roi: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+def map_points(warp: "TPSWarp | RefinedWarp", xy: np.ndarray) -> np.ndarray:
+    """(M, 2) template pixels -> (M, 2) frame pixels through a TPS or a refined warp."""
+    return warp_points(warp, xy) if isinstance(warp, TPSWarp) else warp(xy)
+
+
+@dataclass
+class RefinedWarp:
+    """A spline refined by a dense displacement field: p -> spline(p) + D(p), template -> frame pixels.
+
+    Attributes:
+        spline: the RANSAC TPS it refines.
+        origin: (2,) pixel (x, y) of node [0, 0]; spacing: node spacing, pixels.
+        displacement: (Gy, Gx, 2) D at the nodes, pixels (interpolated bilinearly in between; zero
+            beyond the outermost nodes' neighbours).
+    """
+
+    spline: TPSWarp
+    origin: np.ndarray
+    spacing: float
+    displacement: np.ndarray
+
+    def __call__(self, xy: np.ndarray) -> np.ndarray:
+        from scipy.ndimage import map_coordinates
+
+        xy = np.asarray(xy, np.float64).reshape(-1, 2)
+        rc = ((xy - self.origin) / self.spacing)[:, ::-1].T  # (2, M) node rows, columns
+        d = np.stack([map_coordinates(self.displacement[..., c], rc, order=1, mode="constant", cval=0.0)
+                      for c in range(2)], axis=1)
+        return warp_points(self.spline, xy) + d
+
+
+def refine_warp(template: np.ndarray, image: np.ndarray, mask: np.ndarray, spline: TPSWarp,
+                lm_template: np.ndarray, lm_image: np.ndarray, roi: tuple[int, int, int, int],
+                config=None) -> tuple["TPSWarp | RefinedWarp", bool]:
+    """Refine `spline` photometrically with `geofeat.groundtruth.refine` (template as the anchor).
+
+    Args:
+        template, image: (H, W) float32 gray images in [0, 1], template (reference) and frame.
+        mask: (H, W) bool template pixels to register (the ROI's object pixels).
+        spline: the RANSAC TPS, template -> frame pixels.
+        lm_template, lm_image: (L, 2) RANSAC inlier pixels (soft landmarks).
+        roi: (x0, y0, x1, y1): the fold-over test looks at the control points inside it.
+        config: a `geofeat.groundtruth.RefineConfig` (default settings when None).
+    Returns:
+        (warp, accepted): the `RefinedWarp`, or `spline` itself when the refinement did not lower the
+        photometric cost or folded the map over (Jacobian determinant <= 0 at more than
+        MAX_FOLDED_FRACTION of the control points inside the ROI).
+    """
+    from .groundtruth import refine
+
+    r = refine(template, image, mask, lambda xy: warp_points(spline, xy), lm_template, lm_image, config)
+    x0, y0, x1, y1 = roi
+    n = r.nodes
+    inside = (n[..., 0] >= x0) & (n[..., 0] <= x1) & (n[..., 1] >= y0) & (n[..., 1] <= y1)
+    folded = float((r.jac_det[inside] <= 0).mean()) if inside.any() else 0.0
+    if not r.cost < r.init_cost or folded > MAX_FOLDED_FRACTION:
+        return spline, False
+    spacing = float(n[0, 1, 0] - n[0, 0, 0]) if n.shape[1] > 1 else float(n[1, 0, 1] - n[0, 0, 1])
+    disp = r.mapped - warp_points(spline, n.reshape(-1, 2)).reshape(n.shape)
+    return RefinedWarp(spline, n[0, 0].astype(np.float64), spacing, disp), True
+
+
+def warp_back(image: np.ndarray, warp: "TPSWarp | RefinedWarp", roi: tuple[int, int, int, int]
+              ) -> tuple[np.ndarray, np.ndarray]:
     """Frame `image` (H, W) sampled at the warped template ROI pixels: returns the (h, w) float32
     image in template ROI coordinates and the (h, w) bool mask of pixels landing inside the frame."""
     x0, y0, x1, y1 = roi
@@ -327,7 +405,7 @@ def warp_back(image: np.ndarray, warp: TPSWarp, roi: tuple[int, int, int, int]) 
     # the warp is smooth: evaluate it every `step` pixels and interpolate bilinearly in between
     step = 4
     gx, gy = np.meshgrid(x0 + step * np.arange((w - 1) // step + 2.0), y0 + step * np.arange((h - 1) // step + 2.0))
-    coarse = warp_points(warp, np.stack([gx.ravel(), gy.ravel()], axis=1)).reshape(gx.shape + (2,)).astype(np.float32)
+    coarse = map_points(warp, np.stack([gx.ravel(), gy.ravel()], axis=1)).reshape(gx.shape + (2,)).astype(np.float32)
     fx, fy = np.meshgrid(np.arange(w, dtype=np.float32) / step, np.arange(h, dtype=np.float32) / step)
     p = cv2.remap(coarse, fx, fy, cv2.INTER_LINEAR)  # (h, w, 2) frame pixels of the template ROI pixels
     H, W = image.shape
@@ -336,7 +414,7 @@ def warp_back(image: np.ndarray, warp: TPSWarp, roi: tuple[int, int, int, int]) 
     return out, inside
 
 
-def similarity(template: np.ndarray, image: np.ndarray, warp: TPSWarp | None,
+def similarity(template: np.ndarray, image: np.ndarray, warp: "TPSWarp | RefinedWarp | None",
                roi: tuple[int, int, int, int]) -> tuple[float, float]:
     """(SSIM, NCC) inside the ROI of the template (H, W) gray image and `image` warped back onto it;
     NaN when there is no warp."""
@@ -383,9 +461,13 @@ class TrackResult:
 #: template keypoints with a nearest neighbour; inliers: RANSAC inliers among them; ms: correct
 #: inliers / min(n_template, n_frame) (the bench's matching score applied to the kept matches);
 #: precision: correct inliers / inliers (correct: the bench's ground truth within 3 px);
-#: grid_error_px: median over the grid of |ground truth(tracked point) - grid point|, reference pixels.
+#: grid_error_px: median over the grid of |ground truth(tracked point) - grid point|, reference pixels;
+#: grid_error_tps_px: the same for the RANSAC spline alone (before refinement); refined: the refined
+#: warp was kept; ssim, ncc: the frame's confidence, template vs frame warped back inside the ROI;
+#: seconds: this descriptor's matching, RANSAC, refinement and confidence for the frame.
 TRACK_COLUMNS = ["sequence", "descriptor", "frame", "n_template", "n_frame", "matches", "inliers", "inlier_rate",
-                 "ms", "precision", "ssim", "ncc", "grid_error_px", "failed"]
+                 "ms", "precision", "ssim", "ncc", "grid_error_px", "grid_error_tps_px", "refined", "seconds",
+                 "failed"]
 
 
 def sequence_radius(seq: Sequence, radius: float | None) -> float:
@@ -407,6 +489,7 @@ def track_sequence(
     threshold_px: float = RANSAC_THRESHOLD_PX,
     seed: int = 0,
     progress: bool = True,
+    refine: str = DEFAULT_REFINE,
 ) -> dict[str, TrackResult]:
     """Track the template ROI of a sequence's reference frame through all its frames.
 
@@ -418,9 +501,12 @@ def track_sequence(
         tps_dir: the authors' TPS ground truth (object masks, and ground truth for the scores).
         radius: geodesic radius in metres (None: the sequence's geofeat.json or 0.075).
         threshold_px: RANSAC inlier threshold, pixels.
+        refine: "none" (the RANSAC spline) or "photometric" (`refine_warp` on the ROI's object pixels).
     Returns:
         {descriptor: TrackResult}. Frames whose fit fails are recorded as failed; the run goes on.
     """
+    import time
+
     from .bench.protocol import GT_THRESHOLD_PX
     from .bench.runner import Describer, GroundTruth
     from .depth import sequence_depth_profile
@@ -432,6 +518,8 @@ def track_sequence(
     names = tuple(check_descriptor_name(d) for d in descriptors if d.strip())  # unknown names fail before any work
     if not names:
         raise ValueError("descriptors: expected at least one descriptor name")
+    if refine not in REFINE_MODES:
+        raise ValueError(f"refine: expected one of {', '.join(REFINE_MODES)}, got {refine!r}")
     seq = read_sequence(folder, depth_scale=depth_scale)
     if len(seq) < 2:
         raise ValueError(f"sequence {seq.name}: needs a reference frame and at least one other frame, got {len(seq)} frame(s)")
@@ -451,6 +539,10 @@ def track_sequence(
     describe = Describer(names, sequence_radius(seq, radius), sequence_depth_profile(seq, None, ref))
     f_ref = describe(ref, k_ref)
     grid = roi_grid(roi)
+    roi_mask = np.zeros(ref.shape, bool)
+    roi_mask[y0 : y1 + 1, x0 : x1 + 1] = True
+    if (roi_mask & mask).sum() >= 0.25 * roi_mask.sum():  # the object's pixels, unless the mask misses the ROI
+        roi_mask &= mask
     results = {
         n: TrackResult(seq.name, n, roi, list(seq.names), grid, np.full((len(seq), len(grid), 2), np.nan),
                        mask_source=mask_source)
@@ -473,6 +565,7 @@ def track_sequence(
             continue
         to_ref = truth.target_to_reference(target, k_tgt.xy, frame.shape) if truth is not None else None
         for name in names:
+            t0 = time.perf_counter()
             m = match(f_ref[name][0], f_tgt[name][0])
             i0 = np.flatnonzero(m.matches0 >= 0)
             i1 = m.matches0[i0]
@@ -481,22 +574,35 @@ def track_sequence(
                        matches=len(i0), inliers=int(fit.inliers.sum()),
                        inlier_rate=fit.inliers.sum() / len(i0) if len(i0) else 0.0, ms=float("nan"),
                        precision=float("nan"), ssim=float("nan"), ncc=float("nan"), grid_error_px=float("nan"),
-                       failed=not fit.ok)
+                       grid_error_tps_px=float("nan"), refined=False, seconds=float("nan"), failed=not fit.ok)
             if fit.ok:
-                pts = warp_points(fit.warp, grid)
+                warp = fit.warp
+                if refine == "photometric":
+                    kept = fit.inliers
+                    warp, row["refined"] = refine_warp(ref.image, frame.image, roi_mask, fit.warp,
+                                                       k_ref.xy[i0[kept]], k_tgt.xy[i1[kept]], roi)
+                pts = map_points(warp, grid)
                 results[name].points[k] = pts
-                row["ssim"], row["ncc"] = similarity(ref.image, frame.image, fit.warp, roi)
+                row["ssim"], row["ncc"] = similarity(ref.image, frame.image, warp, roi)
+                row["seconds"] = time.perf_counter() - t0
                 if to_ref is not None:
                     kept = fit.inliers
                     err = np.linalg.norm(to_ref[i1[kept]] - k_ref.xy[i0[kept]], axis=1)
                     correct = int((err < GT_THRESHOLD_PX).sum())  # NaN (no ground truth): not correct
                     row["ms"] = correct / max(min(len(k_ref), len(k_tgt)), 1)
                     row["precision"] = correct / kept.sum() if kept.any() else 0.0
-                    back = truth.target_to_reference(target, pts, frame.shape)
-                    g = np.linalg.norm(back - grid, axis=1)
-                    row["grid_error_px"] = float(np.nanmedian(g)) if np.isfinite(g).any() else float("nan")
+                    row["grid_error_px"] = _grid_error(truth, target, pts, grid, frame.shape)
+                    row["grid_error_tps_px"] = (row["grid_error_px"] if warp is fit.warp else
+                                                _grid_error(truth, target, warp_points(fit.warp, grid), grid,
+                                                            frame.shape))
             results[name].rows.append(row)
     return results
+
+
+def _grid_error(truth, target: str, pts: np.ndarray, grid: np.ndarray, shape: tuple[int, int]) -> float:
+    """Median over the (G, 2) grid of |ground truth(tracked (G, 2) frame pixels) - grid point|, pixels."""
+    g = np.linalg.norm(truth.target_to_reference(target, pts, shape) - grid, axis=1)
+    return float(np.nanmedian(g)) if np.isfinite(g).any() else float("nan")
 
 
 def _draw_grid(image: np.ndarray, pts: np.ndarray, side: int, colour, label: str) -> np.ndarray:
@@ -569,15 +675,20 @@ def _median(values) -> float:
 def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi=None, n_keypoints: int = N_KEYPOINTS,
                    tps_dir: str | None = None, radius: float | None = None, depth_scale: float | None = None,
                    threshold_px: float = RANSAC_THRESHOLD_PX, progress: bool = True,
-                   overwrite: bool = False, skipped: list[str] | None = None) -> tuple[Path, str]:
+                   overwrite: bool = False, skipped: list[str] | None = None,
+                   refine: str = DEFAULT_REFINE) -> tuple[Path, str]:
     """Track every sequence with every descriptor and write into `out`:
     `track.csv` (one row per sequence, descriptor and target frame), per sequence and descriptor
     `<sequence>/<descriptor>/grid.npz` (reference_points (G, 2), points (F, G, 2), frames (F,),
-    roi (4,)) and `<sequence>/<descriptor>/track.gif`, and `tracking.md` (the averaged table).
+    roi (4,)) and `<sequence>/<descriptor>/track.gif`, and `tracking.md` (the averaged table, and
+    the speed: target frames per second of wall time, every descriptor included, and each
+    descriptor's mean seconds per frame for matching, RANSAC and refinement).
     The folder is built aside and moved into place at the end (`geofeat.outputs`); an existing
     non-empty `out` needs `overwrite`. Frames that could not be described are listed in
     `tracking.md` and appended as "sequence/frame" to `skipped` when a list is given. Returns the csv
     path and the table."""
+    import time
+
     import imageio.v2 as imageio
 
     from .io import find_sequences
@@ -589,14 +700,17 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
         raise ValueError(f"tps-dir: not a directory: {tps_dir}")
     rows: list[dict] = []
     notes = []
+    seconds = 0.0
     with output_folder(out) as tmp:
         with open(tmp / "track.csv", "w", newline="") as fh:
             writer = csv.DictWriter(fh, TRACK_COLUMNS)
             writer.writeheader()
             for folder in sequences:
+                t0 = time.perf_counter()
                 results = track_sequence(folder, descriptors, roi=roi, n_keypoints=n_keypoints, tps_dir=tps_dir,
                                          radius=radius, depth_scale=depth_scale, threshold_px=threshold_px,
-                                         progress=progress)
+                                         progress=progress, refine=refine)
+                seconds += time.perf_counter() - t0
                 seq = read_sequence(folder, depth_scale=depth_scale)
                 for name, r in results.items():
                     writer.writerows(r.rows)
@@ -612,5 +726,11 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
                 notes.append(f"{first.sequence}: ROI {first.roi}, object mask from {first.mask_source}"
                              + (f"; SKIPPED frames: {', '.join(first.skipped)}" if first.skipped else ""))
         table = tracking_table(rows)
+        n_frames = len({(r["sequence"], r["frame"]) for r in rows})
+        per = ", ".join(f"{n} {_mean(float(r['seconds']) for r in rows if r['descriptor'] == n):.3f} s"
+                        for n in dict.fromkeys(r["descriptor"] for r in rows))
+        notes.append(f"refine: {refine}; {n_frames} target frames in {seconds:.1f} s: "
+                     f"{n_frames / max(seconds, 1e-9):.2f} frames/s (detection, description and every descriptor); "
+                     f"per frame, matching + RANSAC{' + refinement' if refine != 'none' else ''}: {per}")
         (tmp / "tracking.md").write_text(table + "\n" + "\n".join(f"- {n}" for n in notes) + "\n")
     return out / "track.csv", table
