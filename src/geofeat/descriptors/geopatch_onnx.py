@@ -60,11 +60,10 @@ def file_sha256(path: str | Path) -> str:
 
 
 def onnx_available() -> bool:
-    try:
-        import onnxruntime  # noqa: F401
-    except ImportError:
-        return False
-    return True
+    """onnxruntime is installed (not imported here)."""
+    import importlib.util
+
+    return importlib.util.find_spec("onnxruntime") is not None
 
 
 # ------------------------------------------------------------------------------------------------
