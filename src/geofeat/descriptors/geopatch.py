@@ -197,6 +197,9 @@ class GeoPatch:
                              "_int8.onnx file as weights, or use backend='onnx' or 'torch'")
         if not Path(weights).is_file():
             raise ValueError(f"weights: no GeoPatch checkpoint at {weights}")
+        if importlib.util.find_spec("onnx") is None:
+            raise ValueError(f"backend: exporting {weights} for the onnx backend needs the onnx package "
+                             "(pip install 'geofeat[onnx]'), or use backend='torch'")
         return OnnxGeoPatch(export_checkpoint(weights).SerializeToString(), threads=self.threads)
 
     def __repr__(self) -> str:
