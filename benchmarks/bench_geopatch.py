@@ -26,7 +26,7 @@ def main() -> None:
     cv_kps = kps.to_cv()
     print(f"{len(kps)} keypoints of the Kinect frame ({patches.valid.sum()} valid patches); "
           f"OpenCV threads {cv2.getNumThreads()}")
-    g = GeoPatch(device="cpu")
+    g = GeoPatch(device="cpu", backend="torch")  # the ONNX backends: benchmarks/bench_pipeline.py
     g.describe(patches.values[:64])
     for threads in (1, 2):
         torch.set_num_threads(threads)

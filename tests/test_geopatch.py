@@ -37,7 +37,7 @@ def test_shipped_weights_load_offline_and_are_rotation_robust(sheet_patches):
     path = default_weights_path()
     if not path.is_file():
         pytest.fail(f"shipped GeoPatch weights missing: {path}")
-    g = GeoPatch(device="cpu")
+    g = GeoPatch(device="cpu", backend="torch")
     values, _ = sheet_patches
     d = g.describe(values)
     assert d.shape == (60, 128) and np.allclose(np.linalg.norm(d, axis=1), 1, atol=1e-5)
@@ -140,8 +140,8 @@ def test_bent_and_rolled_sheet_matches_with_shipped_weights_not_random_ones():
     assert _nn_accuracy(shipped, a.values[ok], rolled) >= 0.9
     for seed in (0, 1):
         torch.manual_seed(seed)
-        random = GeoPatch(device="cpu")
-        random.net = fuse_batchnorm(GeoPatchNet(shipped.net.config).eval())
+        random = GeoPatch(device="cpu", backend="torch")
+        random.net = fuse_batchnorm(GeoPatchNet(shipped.config).eval())
         assert _nn_accuracy(random, a.values[ok], rolled) < 0.8
 
 
@@ -152,8 +152,8 @@ def test_threads_and_batch_size_do_not_change_descriptors():
     patches = rng.random((300, 32, 32)).astype(np.float32)
     valid = rng.random(300) < 0.8
     before = torch.get_num_threads()
-    ref = GeoPatch(device="cpu").describe(patches, valid)
-    got = GeoPatch(device="cpu", threads=1, batch_size=64).describe(patches, valid)
+    ref = GeoPatch(device="cpu", backend="torch").describe(patches, valid)
+    got = GeoPatch(device="cpu", backend="torch", threads=1, batch_size=64).describe(patches, valid)
     assert torch.get_num_threads() == before  # restored after the call
     np.testing.assert_allclose(got, ref, atol=1e-5)
     assert (got[~valid] == 0).all() and np.allclose(np.linalg.norm(got[valid], axis=1), 1, atol=1e-5)

@@ -20,18 +20,24 @@ instead (the ablation without rotation invariance).
 
 Trained weights ship in `geofeat/data/geopatch.pt` (trained by `geofeat train` on simulated
 sequences; see the training notes in BENCHMARKS.md) and load offline.
+
+Backends (`GeoPatch(backend=...)`, or the environment variable GEOFEAT_GEOPATCH_BACKEND): "torch"
+(`geopatch_net.GeoPatchNet`; training, CUDA, user .pt weights), "onnx" (ONNX Runtime fp32, the
+torch descriptors within 1e-4) and "onnx-int8" (static int8, the default for the shipped weights on
+CPU: the same `geofeat bench` scores at about 2.3x less CPU than torch; `geopatch_onnx`,
+BENCHMARKS.md). This module imports no torch; the torch names below load it on first use.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
+import importlib.util
+import os
+
 import numpy as np
-import torch
-import torch.nn as nn
-import torch.nn.functional as F
 
 from ..constants import DEFAULT_RADIUS_M, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX
 from ..depth import DepthConfig, check_profile
@@ -56,100 +62,59 @@ class GeoPatchConfig:
     n_angles: int = N_ANGLES
 
 
-class CircularConv(nn.Module):
-    """Conv2d on (B, C, rings, angles) with circular padding on the angle axis only."""
-
-    def __init__(self, cin: int, cout: int, k: int) -> None:
-        super().__init__()
-        self.pad = k // 2
-        self.conv = nn.Conv2d(cin, cout, k)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.conv(F.pad(x, (self.pad, self.pad, 0, 0), mode="circular"))
-
-
-class MaxPool2x2(nn.Module):
-    """2x2 max pooling, stride 2 (even sizes), as the maximum of four strided views. On CPU this is
-    faster than nn.MaxPool2d, which here falls back to a kernel that also computes argmax indices."""
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        top = torch.maximum(x[:, :, 0::2, 0::2], x[:, :, 0::2, 1::2])
-        return torch.maximum(top, torch.maximum(x[:, :, 1::2, 0::2], x[:, :, 1::2, 1::2]))
-
-
-class GeoPatchNet(nn.Module):
-    """(B, 1, R, A) polar patches (any intensity scale) -> (B, dim) unit-length descriptors."""
-
-    def __init__(self, config: GeoPatchConfig = GeoPatchConfig()) -> None:
-        super().__init__()
-        self.config = config
-        c1, c2, c3 = config.channels
-        self.features = nn.Sequential(
-            CircularConv(1, c1, 5), nn.BatchNorm2d(c1), nn.ReLU(inplace=True), MaxPool2x2(),
-            CircularConv(c1, c2, 3), nn.BatchNorm2d(c2), nn.ReLU(inplace=True), MaxPool2x2(),
-            CircularConv(c2, c3, 3), nn.BatchNorm2d(c3), nn.ReLU(inplace=True),
-        )
-        with torch.no_grad():
-            _, c, h, w = self.features(torch.zeros(2, 1, config.n_rings, config.n_angles)).shape
-        self.head = nn.Linear(c * h if config.angle_pool else c * h * w, config.dim)
-
-    @staticmethod
-    def normalise(x: torch.Tensor) -> torch.Tensor:
-        """Per-patch z-score (flat patches stay 0 instead of NaN)."""
-        mean = x.mean(dim=(1, 2, 3), keepdim=True)
-        std = x.std(dim=(1, 2, 3), keepdim=True)
-        return (x - mean) / (std + 1e-6)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        y = self.features(self.normalise(x))
-        y = y.amax(dim=3) if self.config.angle_pool else y
-        return F.normalize(self.head(y.flatten(1)), dim=1)
-
-
-def fuse_batchnorm(net: GeoPatchNet) -> GeoPatchNet:
-    """An inference copy of `net` with every BatchNorm folded into the convolution before it
-    (same outputs up to float rounding, one pass less over the activations)."""
-    import copy
-
-    fused = copy.deepcopy(net).eval()
-    layers = list(fused.features)
-    kept = []
-    for layer in layers:
-        if isinstance(layer, nn.BatchNorm2d) and kept and isinstance(kept[-1], CircularConv):
-            conv = kept[-1].conv
-            scale = layer.weight / torch.sqrt(layer.running_var + layer.eps)
-            with torch.no_grad():
-                conv.weight.mul_(scale.reshape(-1, 1, 1, 1))
-                conv.bias.copy_((conv.bias - layer.running_mean) * scale + layer.bias)
-            continue
-        kept.append(layer)
-    fused.features = nn.Sequential(*kept)
-    return fused
-
-
 def default_weights_path() -> Path:
     return Path(str(resources.files("geofeat") / "data" / WEIGHTS_NAME))
 
 
-def save_checkpoint(path: str | Path, net: GeoPatchNet, **meta) -> None:
-    """Save weights + config (+ any metadata, e.g. optimiser state, epoch, training settings)."""
-    torch.save({"config": asdict(net.config), "state_dict": net.state_dict(), **meta}, str(path))
+#: Names defined in `geopatch_net` (torch), still importable from here; loaded on first use.
+_TORCH_NAMES = ("CircularConv", "MaxPool2x2", "GeoPatchNet", "fuse_batchnorm", "save_checkpoint", "load_network")
 
 
-def load_network(path: str | Path | None = None, device: str | torch.device | None = None) -> tuple[GeoPatchNet, dict]:
-    """Load a GeoPatchNet (eval mode) from a checkpoint; None = the shipped weights. Offline only."""
-    path = default_weights_path() if path is None else Path(path)
-    if not path.is_file():
-        raise ValueError(f"weights: no GeoPatch checkpoint at {path}")
-    ckpt = torch.load(str(path), map_location="cpu", weights_only=False)
-    config = dict(ckpt["config"])
-    config["channels"] = tuple(config["channels"])
-    net = GeoPatchNet(GeoPatchConfig(**config))
-    net.load_state_dict(ckpt["state_dict"])
-    net.eval()
-    if device is not None:
-        net.to(device)
-    return net, ckpt
+def __getattr__(name: str):
+    if name in _TORCH_NAMES:
+        from . import geopatch_net
+
+        return getattr(geopatch_net, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+#: The backend used for the shipped weights on CPU when none is asked for (the fastest one whose
+#: descriptors are equivalent to torch's; BENCHMARKS.md, "GeoPatch through ONNX Runtime").
+DEFAULT_BACKEND = "onnx-int8"
+#: Patches per forward pass on CPU, per backend (BENCHMARKS.md).
+DEFAULT_BATCH = {"torch": 128, "onnx": 256, "onnx-int8": 256}
+
+
+def _cuda_visible() -> bool:
+    """A CUDA device torch can use. Imports torch only where an NVIDIA driver is present."""
+    if importlib.util.find_spec("torch") is None or not os.path.exists("/proc/driver/nvidia/version"):
+        return False
+    import torch
+
+    return torch.cuda.is_available()
+
+
+def resolve_backend(backend: str | None, weights: str | Path | None, device: str | None) -> str:
+    """The backend GeoPatch uses: `backend` if given, else $GEOFEAT_GEOPATCH_BACKEND, else torch
+    on a CUDA device, for user .pt weights, or without onnxruntime; "onnx" for .onnx weights;
+    `DEFAULT_BACKEND` for the shipped weights on CPU."""
+    from .geopatch_onnx import BACKEND_ENV, check_backend, onnx_available
+
+    if backend is None and os.environ.get(BACKEND_ENV, "").strip():
+        backend = os.environ[BACKEND_ENV]
+    onnx_weights = weights is not None and str(weights).lower().endswith(".onnx")
+    if backend is not None:
+        backend = check_backend(backend)
+        if onnx_weights and backend == "torch":
+            raise ValueError(f"backend: torch cannot run the ONNX weights {weights}; use backend='onnx'")
+        return backend
+    if onnx_weights:
+        return "onnx"
+    if (device is not None and str(device).split(":")[0] != "cpu") or (device is None and _cuda_visible()):
+        return "torch"
+    if weights is not None or not onnx_available():
+        return "torch"
+    return DEFAULT_BACKEND
 
 
 class GeoPatch:
@@ -157,41 +122,94 @@ class GeoPatch:
     (a `geofeat.descriptors.base.Descriptor`).
 
     Args:
-        weights: checkpoint path; None = the weights shipped with geofeat.
-        device: "cpu", "cuda", ... (default: CUDA when available).
+        weights: checkpoint path (.pt, from `geofeat train`, or a .onnx file made from one by
+            benchmarks/make_geopatch_onnx.py); None = the weights shipped with geofeat.
+        device: "cpu", "cuda", ... (default: CUDA when available, through torch).
         radius, depth_config, blur_px: polar patch settings (`geofeat.polar_patches`).
-        batch_size: patches per forward pass on CPU (small batches keep activations in cache; on
-            CUDA at least 4096 patches go in one pass).
-        threads: torch CPU threads for `describe` (set for the call, then restored); None keeps
-            torch's setting. On a machine shared with other busy processes 1 thread can be several
-            times faster than 2 (torch's OpenMP threads wait on each other; see BENCHMARKS.md).
+        batch_size: patches per forward pass on CPU (None: `DEFAULT_BATCH` of the backend; on CUDA
+            at least 4096 patches go in one pass).
+        threads: CPU threads for `describe`: torch threads (set for the call, then restored; None
+            keeps torch's setting) or ONNX Runtime intra-op threads (None: the usable cores, at
+            most 4). On a machine shared with other busy processes 1 thread can be several times
+            faster than 2 with torch (its OpenMP threads wait on each other; see BENCHMARKS.md).
+        backend: "torch", "onnx" (ONNX Runtime, fp32: the torch descriptors within 1e-4) or
+            "onnx-int8" (ONNX Runtime, static int8 quantisation: close to torch's, the same
+            matching scores; shipped weights only, or an int8 .onnx file). None: the environment
+            variable GEOFEAT_GEOPATCH_BACKEND, else `resolve_backend`'s choice ("onnx-int8" for
+            the shipped weights on CPU). The ONNX backends run on CPU and do not import torch;
+            "onnx" with user .pt weights exports them on the fly (needs torch and onnx).
     """
 
     def __init__(self, weights: str | Path | None = None, device: str | None = None,
                  radius: float = DEFAULT_RADIUS_M, depth_config: DepthConfig | str = "auto",
-                 blur_px: float = SAMPLING_BLUR_PX, batch_size: int = 128, threads: int | None = None) -> None:
-        self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
-        net, self.checkpoint = load_network(weights)
-        self.net = fuse_batchnorm(net).to(self.device)
+                 blur_px: float = SAMPLING_BLUR_PX, batch_size: int | None = None, threads: int | None = None,
+                 backend: str | None = None) -> None:
+        if threads is not None and int(threads) < 1:
+            raise ValueError(f"threads: expected a positive number of CPU threads or None, got {threads}")
+        self.threads = None if threads is None else int(threads)
+        self.backend = resolve_backend(backend, weights, device)
+        self.net = self.session = None
+        self.checkpoint: dict = {}
+        if self.backend == "torch":
+            import torch
+
+            from .geopatch_net import fuse_batchnorm, load_network
+
+            self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+            net, self.checkpoint = load_network(weights)
+            self.net = fuse_batchnorm(net).to(self.device)
+            self.config = self.net.config
+        else:
+            if device is not None and str(device).split(":")[0] != "cpu":
+                raise ValueError(f"device: the {self.backend} backend runs on CPU only, got device={device!r}; "
+                                 "use backend='torch' for a GPU")
+            self.device = "cpu"
+            self.session = self._onnx_session(weights)
+            cfg = dict(self.session.config)
+            cfg["channels"] = tuple(cfg["channels"])
+            self.config = GeoPatchConfig(**cfg)
         self.radius = float(radius)
         self.name = "geopatch" if weights is None else f"geopatch={weights}"
         self.binary, self.metric, self.geodesic = False, "l2", True
         self.depth_config = depth_config if isinstance(depth_config, DepthConfig) else check_profile(
             depth_config, "depth_config")
         self.blur_px = blur_px
-        self.batch_size = int(batch_size)
-        if threads is not None and int(threads) < 1:
-            raise ValueError(f"threads: expected a positive number of CPU threads or None, got {threads}")
-        self.threads = None if threads is None else int(threads)
+        self.batch_size = int(DEFAULT_BATCH[self.backend] if batch_size is None else batch_size)
+        if self.batch_size < 1:
+            raise ValueError(f"batch_size: expected a positive number of patches, got {batch_size}")
+
+    def _onnx_session(self, weights):
+        from .geopatch_onnx import ONNX_INT8_NAME, ONNX_NAME, OnnxGeoPatch, data_path, export_checkpoint
+
+        if weights is None:
+            path = data_path(ONNX_INT8_NAME if self.backend == "onnx-int8" else ONNX_NAME)
+            if not path.is_file():
+                raise ValueError(f"backend: the {self.backend} model is missing from the package ({path}); "
+                                 "rebuild it with benchmarks/make_geopatch_onnx.py or use backend='torch'")
+            return OnnxGeoPatch(path, threads=self.threads)
+        if str(weights).lower().endswith(".onnx"):
+            if not Path(weights).is_file():
+                raise ValueError(f"weights: no GeoPatch ONNX model at {weights}")
+            return OnnxGeoPatch(weights, threads=self.threads)
+        if self.backend == "onnx-int8":
+            raise ValueError("backend: onnx-int8 needs a calibrated int8 model; make one from "
+                             f"{weights} with benchmarks/make_geopatch_onnx.py --weights and pass the "
+                             "_int8.onnx file as weights, or use backend='onnx' or 'torch'")
+        if not Path(weights).is_file():
+            raise ValueError(f"weights: no GeoPatch checkpoint at {weights}")
+        if importlib.util.find_spec("onnx") is None:
+            raise ValueError(f"backend: exporting {weights} for the onnx backend needs the onnx package "
+                             "(pip install 'geofeat[onnx]'), or use backend='torch'")
+        return OnnxGeoPatch(export_checkpoint(weights).SerializeToString(), threads=self.threads)
 
     def __repr__(self) -> str:
-        return f"GeoPatch(config={self.net.config}, device={self.device}, radius={self.radius})"
+        return (f"GeoPatch(config={self.config}, backend={self.backend}, device={self.device}, "
+                f"radius={self.radius})")
 
-    @torch.inference_mode()
     def describe(self, patch_values: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
         """(N, R, A) polar patches -> (N, dim) float32 descriptors; rows of invalid patches are 0."""
         v = np.asarray(patch_values, dtype=np.float32)
-        cfg = self.net.config
+        cfg = self.config
         if v.ndim != 3 or v.shape[1:] != (cfg.n_rings, cfg.n_angles):
             raise ValueError(f"patch_values: expected shape (N, {cfg.n_rings}, {cfg.n_angles}), got {v.shape}")
         n = v.shape[0]
@@ -200,19 +218,26 @@ class GeoPatch:
         index = np.flatnonzero(valid)
         if len(index) == 0:
             return out
+        x = np.ascontiguousarray(v[index])
+        out[index] = self._describe_torch(x) if self.backend == "torch" else self.session.run(x, self.batch_size)
+        return out
+
+    def _describe_torch(self, x: np.ndarray) -> np.ndarray:
+        import torch
+
         # one transfer each way: the patches to the device, the descriptors back (on CUDA the
         # per-batch copies and synchronisations would cost more than the network)
-        x = torch.from_numpy(np.ascontiguousarray(v[index])).to(self.device).unsqueeze(1)
-        batch = self.batch_size if self.device.type == "cpu" else max(self.batch_size, 4096)
-        before = torch.get_num_threads()
-        if self.threads is not None:
-            torch.set_num_threads(self.threads)
-        try:
-            y = torch.cat([self.net(x[start:start + batch]) for start in range(0, len(index), batch)])
-        finally:
-            torch.set_num_threads(before)
-        out[index] = y.float().cpu().numpy()
-        return out
+        with torch.inference_mode():
+            t = torch.from_numpy(x).to(self.device).unsqueeze(1)
+            batch = self.batch_size if self.device.type == "cpu" else max(self.batch_size, 4096)
+            before = torch.get_num_threads()
+            if self.threads is not None:
+                torch.set_num_threads(self.threads)
+            try:
+                y = torch.cat([self.net(t[start:start + batch]) for start in range(0, len(t), batch)])
+            finally:
+                torch.set_num_threads(before)
+            return y.float().cpu().numpy()
 
     def compute(self, frame: RGBDFrame, keypoints, patches: PolarPatches | None = None,
                 mesh: GridMesh | None = None) -> Features:

@@ -1,0 +1,106 @@
+"""The GeoPatch network in torch (`GeoPatchNet`; architecture in `geofeat.descriptors.geopatch`),
+its checkpoints, and batch-norm folding. Imported only by the torch backend and by training, so that
+GeoPatch inference through ONNX Runtime does not import torch."""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+from pathlib import Path
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from .geopatch import GeoPatchConfig, default_weights_path
+
+
+class CircularConv(nn.Module):
+    """Conv2d on (B, C, rings, angles) with circular padding on the angle axis only."""
+
+    def __init__(self, cin: int, cout: int, k: int) -> None:
+        super().__init__()
+        self.pad = k // 2
+        self.conv = nn.Conv2d(cin, cout, k)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.conv(F.pad(x, (self.pad, self.pad, 0, 0), mode="circular"))
+
+
+class MaxPool2x2(nn.Module):
+    """2x2 max pooling, stride 2 (even sizes), as the maximum of four strided views. On CPU this is
+    faster than nn.MaxPool2d, which here falls back to a kernel that also computes argmax indices."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        top = torch.maximum(x[:, :, 0::2, 0::2], x[:, :, 0::2, 1::2])
+        return torch.maximum(top, torch.maximum(x[:, :, 1::2, 0::2], x[:, :, 1::2, 1::2]))
+
+
+class GeoPatchNet(nn.Module):
+    """(B, 1, R, A) polar patches (any intensity scale) -> (B, dim) unit-length descriptors."""
+
+    def __init__(self, config: GeoPatchConfig = GeoPatchConfig()) -> None:
+        super().__init__()
+        self.config = config
+        c1, c2, c3 = config.channels
+        self.features = nn.Sequential(
+            CircularConv(1, c1, 5), nn.BatchNorm2d(c1), nn.ReLU(inplace=True), MaxPool2x2(),
+            CircularConv(c1, c2, 3), nn.BatchNorm2d(c2), nn.ReLU(inplace=True), MaxPool2x2(),
+            CircularConv(c2, c3, 3), nn.BatchNorm2d(c3), nn.ReLU(inplace=True),
+        )
+        with torch.no_grad():
+            _, c, h, w = self.features(torch.zeros(2, 1, config.n_rings, config.n_angles)).shape
+        self.head = nn.Linear(c * h if config.angle_pool else c * h * w, config.dim)
+
+    @staticmethod
+    def normalise(x: torch.Tensor) -> torch.Tensor:
+        """Per-patch z-score (flat patches stay 0 instead of NaN)."""
+        mean = x.mean(dim=(1, 2, 3), keepdim=True)
+        std = x.std(dim=(1, 2, 3), keepdim=True)
+        return (x - mean) / (std + 1e-6)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        y = self.features(self.normalise(x))
+        y = y.amax(dim=3) if self.config.angle_pool else y
+        return F.normalize(self.head(y.flatten(1)), dim=1)
+
+
+def fuse_batchnorm(net: GeoPatchNet) -> GeoPatchNet:
+    """An inference copy of `net` with every BatchNorm folded into the convolution before it
+    (same outputs up to float rounding, one pass less over the activations)."""
+    import copy
+
+    fused = copy.deepcopy(net).eval()
+    layers = list(fused.features)
+    kept = []
+    for layer in layers:
+        if isinstance(layer, nn.BatchNorm2d) and kept and isinstance(kept[-1], CircularConv):
+            conv = kept[-1].conv
+            scale = layer.weight / torch.sqrt(layer.running_var + layer.eps)
+            with torch.no_grad():
+                conv.weight.mul_(scale.reshape(-1, 1, 1, 1))
+                conv.bias.copy_((conv.bias - layer.running_mean) * scale + layer.bias)
+            continue
+        kept.append(layer)
+    fused.features = nn.Sequential(*kept)
+    return fused
+
+
+def save_checkpoint(path: str | Path, net: GeoPatchNet, **meta) -> None:
+    """Save weights + config (+ any metadata, e.g. optimiser state, epoch, training settings)."""
+    torch.save({"config": asdict(net.config), "state_dict": net.state_dict(), **meta}, str(path))
+
+
+def load_network(path: str | Path | None = None, device: str | torch.device | None = None) -> tuple[GeoPatchNet, dict]:
+    """Load a GeoPatchNet (eval mode) from a checkpoint; None = the shipped weights. Offline only."""
+    path = default_weights_path() if path is None else Path(path)
+    if not path.is_file():
+        raise ValueError(f"weights: no GeoPatch checkpoint at {path}")
+    ckpt = torch.load(str(path), map_location="cpu", weights_only=False)
+    config = dict(ckpt["config"])
+    config["channels"] = tuple(config["channels"])
+    net = GeoPatchNet(GeoPatchConfig(**config))
+    net.load_state_dict(ckpt["state_dict"])
+    net.eval()
+    if device is not None:
+        net.to(device)
+    return net, ckpt

@@ -1,0 +1,143 @@
+"""GeoPatch through ONNX Runtime: fp32 equals torch, int8 is close and matches alike, backends are
+chosen and named clearly, and the ONNX path does not import torch. No timings (see
+benchmarks/bench_pipeline.py)."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+pytest.importorskip("onnxruntime")
+
+import geofeat  # noqa: E402
+from geofeat.descriptors.geopatch import GeoPatch, default_weights_path  # noqa: E402
+from geofeat.descriptors.geopatch_onnx import (BACKEND_ENV, ONNX_INT8_NAME, ONNX_NAME, data_path,  # noqa: E402
+                                               file_sha256)
+from geofeat.frame import rotate_points90  # noqa: E402
+from geofeat.keypoints import detect  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def kinect_pair():
+    """Polar patches of the Kinect frame's keypoints and of the same points in its 90-degree roll."""
+    frame = geofeat.read_demo_frame()
+    rolled = frame.rotated90(1)
+    xy = detect(frame, 2048).xy
+    a = geofeat.polar_patches(frame, xy)
+    b = geofeat.polar_patches(rolled, rotate_points90(xy, frame.shape, 1))
+    ok = a.valid & b.valid
+    return a.values[ok], b.values[ok]
+
+
+@pytest.fixture(scope="module")
+def torch_net():
+    return GeoPatch(device="cpu", backend="torch")
+
+
+def test_shipped_models_exist_and_come_from_the_shipped_weights():
+    sha = file_sha256(default_weights_path())
+    import onnxruntime as ort
+
+    for name in (ONNX_NAME, ONNX_INT8_NAME):
+        path = data_path(name)
+        assert path.is_file(), f"{path} missing: rebuild with benchmarks/make_geopatch_onnx.py"
+        meta = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).get_modelmeta()
+        assert meta.custom_metadata_map["source_sha256"] == sha, f"{name} is stale: rerun make_geopatch_onnx.py"
+        assert json.loads(meta.custom_metadata_map["config"])["dim"] == 128
+
+
+def test_fp32_equals_torch(kinect_pair, torch_net):
+    values, _ = kinect_pair
+    rng = np.random.default_rng(0)
+    extra = np.concatenate([rng.random((40, 32, 32)), np.full((1, 32, 32), 0.5)]).astype(np.float32)  # + a flat patch
+    x = np.concatenate([values, extra])
+    valid = np.ones(len(x), bool)
+    valid[::7] = False
+    ref = torch_net.describe(x, valid)
+    for batch in (1000, 64):
+        got = GeoPatch(backend="onnx", batch_size=batch, threads=1).describe(x, valid)
+        np.testing.assert_allclose(got, ref, atol=1e-4, rtol=0)
+        assert (got[~valid] == 0).all()
+
+
+def test_int8_is_close_and_matches_like_torch(kinect_pair, torch_net):
+    a, b = kinect_pair
+    assert len(a) >= 1500
+    int8 = GeoPatch(backend="onnx-int8")
+    ref_a, ref_b = torch_net.describe(a), torch_net.describe(b)
+    got_a, got_b = int8.describe(a), int8.describe(b)
+    cosine = np.concatenate([(got_a * ref_a).sum(1), (got_b * ref_b).sum(1)])
+    assert cosine.mean() > 0.98 and cosine.min() > 0.9, (cosine.mean(), cosine.min())
+
+    def nearest(d0, d1):
+        return np.argmin(((d0[:, None] - d1[None]) ** 2).sum(-1), axis=1)
+
+    agree = (nearest(got_a, got_b) == nearest(ref_a, ref_b)).mean()
+    assert agree >= 0.95, agree
+
+
+@pytest.mark.parametrize("backend", ["onnx", "onnx-int8"])
+def test_rotated_frame_gives_the_same_descriptors(kinect_pair, backend):
+    """The same points seen in the frame and in its 90-degree roll get descriptors nearer to each
+    other than to other points' (as with torch), and column shifts by multiples of 4 (the two
+    pooling strides) leave the fp32 descriptors unchanged."""
+    a, b = kinect_pair
+    g = GeoPatch(backend=backend)
+    da, db = g.describe(a), g.describe(b)
+    same = np.linalg.norm(da - db, axis=1)
+    between = np.linalg.norm(da[:200, None] - da[None, :200], axis=-1)[~np.eye(200, dtype=bool)].mean()
+    assert np.median(same) < 0.25 * between, (np.median(same), between)
+    shifted = g.describe(np.roll(a[:100], 8, axis=2))
+    tol = 1e-5 if backend == "onnx" else 0.1
+    assert np.abs(shifted - da[:100]).max() < tol
+
+
+def test_backend_names_and_the_environment_variable(monkeypatch, tmp_path):
+    with pytest.raises(ValueError, match="backend.*onnx-int8"):
+        GeoPatch(backend="tensorrt")
+    monkeypatch.setenv(BACKEND_ENV, "onnx")
+    assert GeoPatch().backend == "onnx"
+    assert GeoPatch(backend="torch").backend == "torch"  # the argument wins over the variable
+    monkeypatch.setenv(BACKEND_ENV, "fast")
+    with pytest.raises(ValueError, match=BACKEND_ENV):
+        GeoPatch()
+    monkeypatch.delenv(BACKEND_ENV)
+    assert GeoPatch(device="cpu").backend in ("onnx", "onnx-int8")
+    with pytest.raises(ValueError, match="CPU"):
+        GeoPatch(backend="onnx", device="cuda")
+
+
+def test_user_weights_use_torch_or_are_exported_on_the_fly(tmp_path):
+    pytest.importorskip("onnx")
+    import torch
+
+    from geofeat.descriptors.geopatch_net import GeoPatchConfig, GeoPatchNet, save_checkpoint
+
+    torch.manual_seed(0)
+    net = GeoPatchNet(GeoPatchConfig(channels=(4, 8, 8), dim=16)).eval()
+    for bn in (net.features[1], net.features[5], net.features[9]):  # non-trivial batch norm to fold
+        bn.running_mean.uniform_(-0.5, 0.5)
+        bn.running_var.uniform_(0.5, 2)
+    path = tmp_path / "w.pt"
+    save_checkpoint(path, net)
+    torch_g = GeoPatch(str(path), device="cpu")
+    assert torch_g.backend == "torch"
+    onnx_g = GeoPatch(str(path), backend="onnx")
+    x = np.random.default_rng(1).random((50, 32, 32)).astype(np.float32)
+    np.testing.assert_allclose(onnx_g.describe(x), torch_g.describe(x), atol=1e-5, rtol=0)
+    with pytest.raises(ValueError, match="int8"):
+        GeoPatch(str(path), backend="onnx-int8")
+
+
+def test_onnx_backend_does_not_import_torch():
+    code = ("import sys, numpy as np, geofeat\n"
+            "g = geofeat.make_descriptor('geopatch')\n"
+            "f = g.compute(geofeat.read_demo_frame(), np.array([[320.0, 240.0], [300.0, 200.0]]))\n"
+            "assert g.backend.startswith('onnx') and f.descriptors.shape == (2, 128)\n"
+            "assert 'torch' not in sys.modules, 'torch was imported'\n")
+    env = {k: v for k, v in os.environ.items() if k != BACKEND_ENV}
+    result = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
