@@ -387,7 +387,7 @@ def _no_depth_frame(command: str) -> Callable[[Path], list[str]]:
         if command == "track":
             return ["track", str(seq), "--descriptors", "sift", "--keypoints", "300", "--out", str(tmp / "t")]
         return ["retrieval", str(seq), "--descriptors", "sift", "--keypoints", "200", "--samples", "200",
-                "--words", "3", "--out", str(tmp / "r")]
+                "--words", "3", "--include-own-sequence", "--out", str(tmp / "r")]
 
     return setup
 
