@@ -230,3 +230,13 @@ def test_retrieval_leaves_out_the_query_sequence_and_ranks_the_deformed_copy_fir
         # the deformed copy (the other blobs sequence) comes before every distractor frame
         is_copy = np.asarray(db.classes)[row] == "blobs"
         assert is_copy.sum() == 3 and is_copy[:3].all(), seqs[row]  # 3 frames of the copy, then 6 distractors
+
+
+def test_retrieval_with_geokey_keypoints(three_objects, tmp_path):
+    from geofeat.retrieval import run_retrieval
+
+    res, db = run_retrieval([three_objects], tmp_path / "r", ("geobit",), words=5, n_samples=1000, n_keypoints=300,
+                            include_own_sequence=True, progress=False, detector="geokey")
+    # every frame described with GeoKey's keypoints (inside the object mask), each query answered
+    assert all(len(f) > 0 for f in db.features["geobit"])
+    assert res["geobit"].accuracy[0] > 0.5

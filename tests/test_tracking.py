@@ -187,3 +187,17 @@ def test_refinement_follows_a_fold_the_spline_misses(folded):
     none = track_sequence(folded, ("sift",), progress=False, refine="none")["sift"]
     assert np.abs(res["sift"].points[-1] - none.points[-1]).max() > 1.0
     assert none.rows[-1]["grid_error_px"] == pytest.approx(r["grid_error_tps_px"])
+
+
+def test_track_with_geokey_keypoints(sequence, tmp_path, capsys):
+    from geofeat.cli import main
+
+    assert main(["track", str(sequence), "--descriptors", "geobit", "--keypoints", "500", "--detector", "geokey",
+                 "--refine", "none", "--out", str(tmp_path)]) == 0
+    assert "detector: geokey" in (tmp_path / "tracking.md").read_text()
+    import csv
+
+    rows = list(csv.DictReader(open(tmp_path / "track.csv")))
+    # GeoKey's keypoints, described by GeoBit, track a gently deforming cloth within a few pixels
+    assert rows and all(r["failed"] == "False" for r in rows)
+    assert max(float(r["grid_error_px"]) for r in rows) < 5.0

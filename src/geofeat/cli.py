@@ -383,7 +383,7 @@ def _retrieval(args: argparse.Namespace) -> int:
                             words=args.words, n_samples=args.samples, seed=args.seed, classes_file=args.classes,
                             n_keypoints=args.keypoints, tps_dir=args.tps_dir, radius=args.radius,
                             depth_scale=args.depth_scale, include_own_sequence=args.include_own_sequence,
-                            overwrite=args.overwrite)
+                            overwrite=args.overwrite, detector=args.detector)
     out = Path(args.out)
     print((out / "retrieval.md").read_text())
     print(f"wrote {out / 'retrieval.csv'}, {out / 'acc_at_k.png'}, {out / 'top6.png'}")
@@ -409,7 +409,8 @@ def _track(args: argparse.Namespace) -> int:
                                      tuple(d for d in args.descriptors.split(",") if d), roi=roi,
                                      n_keypoints=args.keypoints, tps_dir=args.tps_dir, radius=args.radius,
                                      depth_scale=args.depth_scale, threshold_px=args.threshold,
-                                     overwrite=args.overwrite, skipped=skipped, refine=args.refine)
+                                     overwrite=args.overwrite, skipped=skipped, refine=args.refine,
+                                     detector=args.detector)
     print((Path(args.out) / "tracking.md").read_text())
     print(f"wrote {csv_path}, {Path(args.out) / 'tracking.md'} and per sequence/descriptor grid.npz + track.gif")
     if skipped:
@@ -547,7 +548,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--out", required=True, help="output folder")
         p.add_argument("--overwrite", action="store_true",
                        help="replace what geofeat wrote in an existing non-empty OUT (other files stay)")
-        p.add_argument("--keypoints", type=int, default=N_KEYPOINTS, help="SIFT keypoints per frame (default 2048)")
+        p.add_argument("--keypoints", type=int, default=N_KEYPOINTS, help="keypoints per frame (default 2048)")
+        detector_option(p)
         p.add_argument("--tps-dir", default=None, help="the authors' TPS ground truth (objmask, warps), one folder per sequence")
         p.add_argument("--radius", type=float, default=None, help="geodesic radius, metres (default: geofeat.json or 0.075)")
         p.add_argument("--depth-scale", type=float, default=None, help="metres per depth-PNG unit (default: geofeat.json or 0.001)")

@@ -248,8 +248,9 @@ class RetrievalDatabase:
 def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int = N_KEYPOINTS,
                       classes: dict[str, str] | None = None, tps_dir: str | None = None,
                       radius: float | None = None, depth_scale: float | None = None,
-                      progress: bool = True) -> RetrievalDatabase:
-    """Detect keypoints inside the object mask of every frame of every sequence and describe them."""
+                      progress: bool = True, detector: str = "sift") -> RetrievalDatabase:
+    """Detect keypoints inside the object mask of every frame of every sequence and describe them
+    (`detector` as in `geofeat.detect`)."""
     from .bench.runner import Describer
     from .depth import sequence_depth_profile
     from .descriptors import check_descriptor_name
@@ -282,7 +283,7 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
             try:
                 frame = seq.frame(name)
                 mask, source = object_mask(seq, name, tps_dir)
-                kps = detect(frame, n_keypoints, mask=mask)
+                kps = detect(frame, n_keypoints, detector=detector, mask=mask)
                 if len(kps) == 0:
                     raise ValueError("no keypoints detected")
                 described = describe(frame, kps)
@@ -437,8 +438,8 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
                   words: int | None = None, n_samples: int = N_VOCABULARY_SAMPLES, seed: int = 0,
                   classes_file: str | None = None, n_keypoints: int = N_KEYPOINTS, tps_dir: str | None = None,
                   radius: float | None = None, depth_scale: float | None = None, max_k: int = MAX_K,
-                  include_own_sequence: bool = False, progress: bool = True, overwrite: bool = False
-                  ) -> tuple[dict[str, DescriptorResult], RetrievalDatabase]:
+                  include_own_sequence: bool = False, progress: bool = True, overwrite: bool = False,
+                  detector: str = "sift") -> tuple[dict[str, DescriptorResult], RetrievalDatabase]:
     """The whole retrieval experiment; writes into `out`: `retrieval.csv` (descriptor, words, k,
     accuracy, low, high: Acc@K and its 95 % bootstrap interval), `acc_at_k.png`, `top6.png` (two
     queries per descriptor) and `retrieval.md` (table, chosen K, skipped queries and frames, mask sources).
@@ -456,7 +457,7 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
 
     out = check_out_dir(out, overwrite)
     classes = read_classes(classes_file) if classes_file else None
-    db = describe_datasets(datasets, descriptors, n_keypoints, classes, tps_dir, radius, depth_scale, progress)
+    db = describe_datasets(datasets, descriptors, n_keypoints, classes, tps_dir, radius, depth_scale, progress, detector)
     if db.is_query.sum() == 0:
         raise ValueError("datasets: no reference frame to query")
     if db.is_query.all():

@@ -490,6 +490,7 @@ def track_sequence(
     seed: int = 0,
     progress: bool = True,
     refine: str = DEFAULT_REFINE,
+    detector: str = "sift",
 ) -> dict[str, TrackResult]:
     """Track the template ROI of a sequence's reference frame through all its frames.
 
@@ -497,7 +498,8 @@ def track_sequence(
         folder: a sequence in the public layout (reference frame + targets).
         descriptors: names known to `geofeat.make_descriptor`.
         roi: (x0, y0, x1, y1) reference pixels; None = the object mask's bounding box shrunk by 10 %.
-        n_keypoints: SIFT keypoints per frame (the strongest).
+        n_keypoints: keypoints per frame (the best).
+        detector: keypoint detector, as in `geofeat.detect` ("sift", "geokey", "geokey=WEIGHTS").
         tps_dir: the authors' TPS ground truth (object masks, and ground truth for the scores).
         radius: geodesic radius in metres (None: the sequence's geofeat.json or 0.075).
         threshold_px: RANSAC inlier threshold, pixels.
@@ -527,7 +529,7 @@ def track_sequence(
     mask, mask_source = object_mask(seq, seq.reference, tps_dir)
     roi = check_roi(default_roi(mask) if roi is None else roi, ref.shape)
     x0, y0, x1, y1 = roi
-    k_ref = detect(ref, n_keypoints)
+    k_ref = detect(ref, n_keypoints, detector=detector)
     inside = (k_ref.xy[:, 0] >= x0) & (k_ref.xy[:, 0] <= x1) & (k_ref.xy[:, 1] >= y0) & (k_ref.xy[:, 1] <= y1)
     k_ref = k_ref[inside]
     if len(k_ref) < MIN_ROI_KEYPOINTS:
@@ -554,7 +556,7 @@ def track_sequence(
     for k, target in bar:
         try:
             frame = seq.frame(target)
-            k_tgt = detect(frame, n_keypoints)
+            k_tgt = detect(frame, n_keypoints, detector=detector)
             if len(k_tgt) == 0:
                 raise ValueError("no keypoints detected")
             f_tgt = describe(frame, k_tgt)
@@ -676,7 +678,7 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
                    tps_dir: str | None = None, radius: float | None = None, depth_scale: float | None = None,
                    threshold_px: float = RANSAC_THRESHOLD_PX, progress: bool = True,
                    overwrite: bool = False, skipped: list[str] | None = None,
-                   refine: str = DEFAULT_REFINE) -> tuple[Path, str]:
+                   refine: str = DEFAULT_REFINE, detector: str = "sift") -> tuple[Path, str]:
     """Track every sequence with every descriptor and write into `out`:
     `track.csv` (one row per sequence, descriptor and target frame), per sequence and descriptor
     `<sequence>/<descriptor>/grid.npz` (reference_points (G, 2), points (F, G, 2), frames (F,),
@@ -709,7 +711,7 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
                 t0 = time.perf_counter()
                 results = track_sequence(folder, descriptors, roi=roi, n_keypoints=n_keypoints, tps_dir=tps_dir,
                                          radius=radius, depth_scale=depth_scale, threshold_px=threshold_px,
-                                         progress=progress, refine=refine)
+                                         progress=progress, refine=refine, detector=detector)
                 seconds += time.perf_counter() - t0
                 seq = read_sequence(folder, depth_scale=depth_scale)
                 for name, r in results.items():
@@ -729,7 +731,7 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
         n_frames = len({(r["sequence"], r["frame"]) for r in rows})
         per = ", ".join(f"{n} {_mean(float(r['seconds']) for r in rows if r['descriptor'] == n):.3f} s"
                         for n in dict.fromkeys(r["descriptor"] for r in rows))
-        notes.append(f"refine: {refine}; {n_frames} target frames in {seconds:.1f} s: "
+        notes.append(f"detector: {detector}; refine: {refine}; {n_frames} target frames in {seconds:.1f} s: "
                      f"{n_frames / max(seconds, 1e-9):.2f} frames/s (detection, description and every descriptor); "
                      f"per frame, matching + RANSAC{' + refinement' if refine != 'none' else ''}: {per}")
         (tmp / "tracking.md").write_text(table + "\n" + "\n".join(f"- {n}" for n in notes) + "\n")
