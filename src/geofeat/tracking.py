@@ -324,14 +324,10 @@ def ncc(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:
 
 
 def ssim(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:
-    """Mean SSIM of two gray images in [0, 1] over `mask` (OpenCV's quality.QualitySSIM map:
-    Gaussian 11 x 11 window, sigma 1.5)."""
-    _, qmap = cv2.quality.QualitySSIM_compute(np.float32(a) * 255.0, np.float32(b) * 255.0)
-    qmap = np.asarray(qmap[0] if isinstance(qmap, (tuple, list)) else qmap)
-    if qmap.ndim == 3:
-        qmap = qmap[..., 0]
-    m = np.ones(qmap.shape, bool) if mask is None else mask
-    return float(qmap[m].mean()) if m.any() else float("nan")
+    """Mean SSIM of two gray images in [0, 1] over `mask` (`geofeat.imagequality.mean_ssim`)."""
+    from .imagequality import mean_ssim
+
+    return mean_ssim(a, b, mask)
 
 
 def map_points(warp: "TPSWarp | RefinedWarp", xy: np.ndarray) -> np.ndarray:

@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from ..frame import RGBDFrame
+from ..imagequality import ssim_map
 from ..inputs import check_landmarks
 from ..io import Sequence, read_sequence
 from ..outputs import check_out_dir, output_folder
@@ -150,17 +151,6 @@ def _dense_map(tps: TPS, shape: tuple[int, int], stride: int = 4) -> tuple[np.nd
     mx = cv2.remap(m[..., 0], px, py, cv2.INTER_LINEAR)
     my = cv2.remap(m[..., 1], px, py, cv2.INTER_LINEAR)
     return mx, my
-
-
-def ssim_map(a: np.ndarray, b: np.ndarray, sigma: float = 1.5) -> np.ndarray:
-    """(H, W) SSIM of two float images in [0, 1] with a Gaussian window of `sigma` pixels."""
-    C1, C2 = 0.01**2, 0.03**2
-    blur = lambda x: cv2.GaussianBlur(x, (0, 0), sigma)  # noqa: E731
-    ma, mb = blur(a), blur(b)
-    va = blur(a * a) - ma * ma
-    vb = blur(b * b) - mb * mb
-    cov = blur(a * b) - ma * mb
-    return ((2 * ma * mb + C1) * (2 * cov + C2)) / ((ma * ma + mb * mb + C1) * (va + vb + C2))
 
 
 @dataclass
