@@ -150,6 +150,18 @@ def _finish_skipped(skipped: list[str], total: int, what: str) -> int:
     return 0
 
 
+def _frame_and_keypoints(seq, name: str, args: argparse.Namespace):
+    """(frame, keypoints) of frame `name` with the command's detector options; ValueError when the
+    frame cannot be read or has no keypoints (extract and match skip such a frame by name)."""
+    from .keypoints import detect
+
+    frame = seq.frame(name)
+    kps = detect(frame, args.keypoints, detector=args.detector, keypoint_set=args.keypoint_set)
+    if len(kps) == 0:
+        raise ValueError("no keypoints detected")
+    return frame, kps
+
+
 def _extract(args: argparse.Namespace) -> int:
     import os
 
@@ -160,8 +172,7 @@ def _extract(args: argparse.Namespace) -> int:
     from .features import save_features
     from .inputs import resolve_radius
     from .io import read_sequence
-    from .keypoints import detect
-    from .outputs import atomic_file, check_out_file
+    from .outputs import atomic_file, check_out_file, partial_name
 
     seq = read_sequence(args.folder, depth_scale=args.depth_scale)
     radius = resolve_radius(args.radius, seq)
@@ -179,10 +190,7 @@ def _extract(args: argparse.Namespace) -> int:
         try:
             for name in tqdm(seq.names, desc=f"extract {args.descriptor}", unit="frame"):
                 try:
-                    frame = seq.frame(name)
-                    kps = detect(frame, args.keypoints, detector=args.detector, keypoint_set=args.keypoint_set)
-                    if len(kps) == 0:
-                        raise ValueError("no keypoints detected")
+                    frame, kps = _frame_and_keypoints(seq, name, args)
                     features = descriptor.compute(frame, kps)
                 except ValueError as error:
                     _skip_frame(skipped, name, error)
@@ -191,7 +199,7 @@ def _extract(args: argparse.Namespace) -> int:
                     save_features(h5_tmp, features, name=name)
                 else:
                     final = path.with_name(f"{path.stem}-{name}.npz")
-                    tmp = final.with_name(f".geofeat-partial-{os.getpid()}-{final.name}")
+                    tmp = partial_name(final)
                     save_features(tmp, features)
                     written.append((tmp, final))
             status = _finish_skipped(skipped, len(seq), "extract")
@@ -215,7 +223,6 @@ def _match(args: argparse.Namespace) -> int:
     from .features import save_matches
     from .inputs import resolve_radius
     from .io import read_sequence
-    from .keypoints import detect
     from .matching import match
     from .outputs import check_out_dir, output_folder
     from .viz import draw_matches
@@ -240,10 +247,10 @@ def _match(args: argparse.Namespace) -> int:
     if truth is not None and not truth.exact:
         for name in seq.names:  # the landmark validator, before any work
             seq.landmarks(name)
-    ref = seq.frame(seq.reference)
-    k_ref = detect(ref, args.keypoints, detector=args.detector, keypoint_set=args.keypoint_set)
-    if len(k_ref) == 0:
-        raise ValueError(f"frame {seq.reference}: the reference frame has no keypoints; nothing to match")
+    try:
+        ref, k_ref = _frame_and_keypoints(seq, seq.reference, args)
+    except ValueError as error:
+        raise ValueError(f"frame {seq.reference}: the reference frame cannot be used ({error}); nothing to match") from None
     f_ref = descriptor.compute(ref, k_ref)
     total_matches, total_correct = 0, 0
     skipped: list[str] = []
@@ -251,10 +258,7 @@ def _match(args: argparse.Namespace) -> int:
         matches_path = tmp / f"matches-{label}.h5"
         for name in tqdm(seq.targets, desc=f"match {args.descriptor}", unit="pair"):
             try:
-                tgt = seq.frame(name)
-                k_tgt = detect(tgt, args.keypoints, detector=args.detector, keypoint_set=args.keypoint_set)
-                if len(k_tgt) == 0:
-                    raise ValueError("no keypoints detected")
+                tgt, k_tgt = _frame_and_keypoints(seq, name, args)
                 m = match(f_ref, descriptor.compute(tgt, k_tgt))
             except ValueError as error:
                 _skip_frame(skipped, name, error)
@@ -366,7 +370,7 @@ def _train_detector(args: argparse.Namespace) -> int:
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     model, results = train_detector(args.data, args.val, args.out, n=args.keypoints, hidden=tuple(args.hidden),
                                     steps=args.steps, seed=args.seed, labels=args.labels)
-    print(f"| scorer | NMS radius (px) | GeoPatch MS | MMA | repeatability | correct matches / pair |")
+    print("| scorer | NMS radius (px) | GeoPatch MS | MMA | repeatability | correct matches / pair |")
     print("|---|---|---|---|---|---|")
     for (name, radius), r in results.items():
         chosen = name == ("image + depth cues" if model.uses_depth_cues else "image cues") and radius == model.nms_radius

@@ -146,3 +146,9 @@ def check_unique_names(folders: list[Path], what: str = "datasets") -> None:
         if other != folder:
             raise ValueError(f"{what}: two sequences are named {folder.name!r} ({other} and {folder}); results are "
                              "keyed by the sequence folder name, so rename one or run them separately")
+
+
+def check_tps_dir(tps_dir: str | None) -> None:
+    """`--tps-dir` (the authors' TPS ground truth), when given, must name an existing folder."""
+    if tps_dir is not None and not Path(tps_dir).is_dir():
+        raise ValueError(f"tps-dir: not a directory: {tps_dir}")

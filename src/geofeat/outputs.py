@@ -99,7 +99,8 @@ def check_out_dir(path: str | Path, overwrite: bool = False, what: str = "--out"
     return path
 
 
-def _partial_name(path: Path) -> Path:
+def partial_name(path: Path) -> Path:
+    """The temporary sibling that a result is written to before it is renamed to `path`."""
     return path.with_name(f".geofeat-partial-{os.getpid()}-{path.name}")
 
 
@@ -109,7 +110,7 @@ def atomic_file(path: str | Path) -> Iterator[Path]:
     error (or interrupt) it is removed and `path` is left as it was."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _partial_name(path)
+    tmp = partial_name(path)
     if tmp.exists():
         tmp.unlink()
     try:
@@ -125,7 +126,7 @@ def temporary_folder(out: str | Path) -> Path:
     """A fresh, empty temporary sibling folder of `out` to build a result folder in."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _partial_name(out)
+    tmp = partial_name(out)
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir()

@@ -261,11 +261,10 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
     names = tuple(check_descriptor_name(d) for d in descriptors if d.strip())  # nothing built yet
     if not names:
         raise ValueError("descriptors: expected at least one descriptor name")
-    from .inputs import resolve_radius
+    from .inputs import check_tps_dir, resolve_radius
 
     folders = find_sequences(datasets, unique_names=True)
-    if tps_dir is not None and not Path(tps_dir).is_dir():
-        raise ValueError(f"tps-dir: not a directory: {tps_dir}")
+    check_tps_dir(tps_dir)
     db = RetrievalDatabase([], [], [], np.zeros(0, bool), [], {}, {n: [] for n in names})
     is_query = []
     seqs = [read_sequence(f, depth_scale=depth_scale) for f in folders]

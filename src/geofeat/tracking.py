@@ -689,13 +689,13 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
 
     import imageio.v2 as imageio
 
+    from .inputs import check_tps_dir
     from .io import find_sequences
     from .outputs import check_out_dir, output_folder
 
     out = check_out_dir(out, overwrite)
     sequences = find_sequences(sequences, unique_names=True)
-    if tps_dir is not None and not Path(tps_dir).is_dir():
-        raise ValueError(f"tps-dir: not a directory: {tps_dir}")
+    check_tps_dir(tps_dir)
     rows: list[dict] = []
     notes = []
     seconds = 0.0

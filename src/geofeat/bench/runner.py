@@ -35,7 +35,7 @@ from ..descriptors import check_descriptor_name, make_descriptor
 from ..frame import RGBDFrame
 from ..geodesic.mesh import build_mesh
 from ..geodesic.polar import polar_patches
-from ..inputs import resolve_radius
+from ..inputs import check_tps_dir, resolve_radius
 from ..io import Sequence, find_sequences, read_sequence
 from ..outputs import add_to_manifest, append_line_durably, atomic_file, check_out_dir, read_manifest
 from ..keypoints import KEYPOINT_SETS, Keypoints, check_detector_name, detect
@@ -145,12 +145,6 @@ def _tps_folder(tps_dir: str, name: str) -> Path | None:
         if _has_tps_files(candidate):
             return candidate
     return None
-
-
-def check_tps_dir(tps_dir: str | None) -> None:
-    """`--tps-dir` must name an existing folder."""
-    if tps_dir is not None and not Path(tps_dir).is_dir():
-        raise ValueError(f"tps-dir: not a directory: {tps_dir}")
 
 
 def _on_mask(mask: np.ndarray | None, xy: np.ndarray) -> np.ndarray:
