@@ -25,10 +25,14 @@ def read_results(path: str | Path) -> list[dict]:
 def detail_table(rows: list[dict]) -> str:
     """Per descriptor and sequence, and in total (mean over sequences of per-sequence means): MS, MMA,
     repeatability (the MS of a perfect descriptor on the same keypoints), reference keypoints per
-    frame and correct matches (hits) per pair. Markdown."""
-    lines = ["| descriptor | detector | sequence | MS | MMA | repeatability | keypoints / frame | correct matches / pair |",
-             "|---|---|---|---|---|---|---|---|"]
-    keys = ("ms", "mma", "repeatability", "n_ref", "hits")
+    frame, target keypoints kept per pair (those whose surface point is visible in the reference:
+    the protocol drops the others, so with n_ref they set the denominator min(n_ref, n_tgt) of MS and
+    repeatability, and a detector whose points fall off the surface is not charged for them) and
+    correct matches (hits) per pair. Markdown."""
+    lines = ["| descriptor | detector | sequence | MS | MMA | repeatability | keypoints / frame "
+             "| target keypoints kept / pair | correct matches / pair |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    keys = ("ms", "mma", "repeatability", "n_ref", "n_tgt", "hits")
     for name in dict.fromkeys(r["descriptor"] for r in rows):
         mine = [r for r in rows if r["descriptor"] == name]
         detector = ", ".join(dict.fromkeys(r.get("detector", "sift") for r in mine))
@@ -37,7 +41,7 @@ def detail_table(rows: list[dict]) -> str:
             per_seq.setdefault(r["sequence"], []).append([float(r.get(k, "nan")) for k in keys])
         means = {seq: np.mean(v, axis=0) for seq, v in per_seq.items()}
         for seq, m in list(means.items()) + [("**all**", np.mean(list(means.values()), axis=0))]:
-            lines.append(f"| {name} | {detector} | {seq} | {m[0]:.3f} | {m[1]:.3f} | {m[2]:.3f} | {m[3]:.0f} | {m[4]:.0f} |")
+            lines.append(f"| {name} | {detector} | {seq} | {m[0]:.3f} | {m[1]:.3f} | {m[2]:.3f} | {m[3]:.0f} | {m[4]:.0f} | {m[5]:.0f} |")
     return "\n".join(lines) + "\n"
 
 
