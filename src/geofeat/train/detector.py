@@ -4,12 +4,13 @@ Training signal (per candidate, from the simulator's dense ground truth): a cand
 frame A is *repeatable* when its surface point is visible in frame B and B's own candidates include
 one within `match_px` pixels of where that point lands: a corner found again at the same surface
 point, with occlusion, self-occlusion, foreshortening and folds all taken into account by the
-simulator. With `labels="matchable"` (the shipped weights) it must also be *matched*: its GeoPatch
-descriptor's nearest neighbour among all of B's candidates lies within the protocol's 3 px of where
-the point lands (SiLK's idea of scoring a pixel by whether its descriptor finds its partner, with
-the descriptor fixed and the correspondences exact). The scorer (a small MLP on `cues`) is fitted with a
-binary cross-entropy, which learns in a couple of minutes on a CPU; the suppression radius is then
-chosen on the validation sequences by the protocol's repeatability.
+simulator (the shipped weights use these labels). With `labels="matchable"` it must also be
+*matched*: its GeoPatch descriptor's nearest neighbour among all of B's candidates lies within the
+protocol's 3 px of where the point lands (SiLK's idea of scoring a pixel by whether its descriptor
+finds its partner, with the descriptor fixed and the correspondences exact). The scorer (linear in
+the image cues, optionally plus a small MLP of the depth cues) is fitted with a binary
+cross-entropy, which learns in a couple of minutes on a CPU; the scorer and the suppression radius
+are then chosen on the validation sequences by GeoPatch's matching score.
 
 Every pair (reference, target) and its reverse contributes, so the scorer sees both directions of
 each deformation, scale change and roll.
