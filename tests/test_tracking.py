@@ -164,7 +164,7 @@ def test_refinement_never_worse_than_the_spline_on_an_easy_pair(sequence):
 
 @pytest.fixture(scope="module")
 def folded(tmp_path_factory):
-    """The reference and frame 2 of a 5-frame simulated sequence with strong folds (hard preset)."""
+    """The reference and frame 3 of a 5-frame simulated sequence with strong folds (hard preset)."""
     from geofeat.sim import simulate_sequence
 
     root = tmp_path_factory.mktemp("fold")
@@ -173,7 +173,7 @@ def folded(tmp_path_factory):
     pair = root / "fold"
     pair.mkdir()
     for f in full.iterdir():
-        if f.name.startswith(("frame-000-master", "frame-002")) or not f.name.startswith("frame-"):
+        if f.name.startswith(("frame-000-master", "frame-003")) or not f.name.startswith("frame-"):
             (pair / f.name).write_bytes(f.read_bytes())
     return pair
 
@@ -201,3 +201,21 @@ def test_track_with_geokey_keypoints(sequence, tmp_path, capsys):
     # GeoKey's keypoints, described by GeoBit, track a gently deforming cloth within a few pixels
     assert rows and all(r["failed"] == "False" for r in rows)
     assert max(float(r["grid_error_px"]) for r in rows) < 5.0
+
+
+def test_guided_matches_follow_the_prediction_among_identical_descriptors():
+    """Repeated texture: two frame keypoints carry the template keypoint's exact descriptor; the one
+    near the predicted position is chosen, a keypoint without prediction is not matched, and each
+    frame keypoint is taken by at most one (the descriptor-nearest) template keypoint."""
+    from geofeat.features import Features
+    from geofeat.tracking import guided_matches
+
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=(2, 8)).astype(np.float32)
+    f0 = Features(np.array([[0.0, 0.0], [5.0, 5.0], [9.0, 9.0]]), np.stack([a, b, b + 0.1]), np.ones(3, bool))
+    f1 = Features(np.array([[10.0, 10.0], [200.0, 200.0], [60.0, 60.0]]), np.stack([a, a, b]), np.ones(3, bool))
+    predicted = np.array([[195.0, 205.0], [55.0, 58.0], [62.0, 61.0]])
+    assert guided_matches(f0, f1, predicted, radius=40.0).tolist() == [1, 2, -1]  # 2 loses keypoint 2 to 1
+    predicted[0] = np.nan
+    assert guided_matches(f0, f1, predicted, radius=40.0)[0] == -1
+    assert guided_matches(f0, f1, predicted + 100.0, radius=40.0).tolist() == [-1, -1, -1]  # nothing near

@@ -42,7 +42,7 @@ from .io import Sequence, read_sequence
 __all__ = [
     "TPSWarp", "RansacResult", "TrackResult", "normalise_points", "fit_tps", "fit_tps_ransac", "warp_points",
     "default_roi", "roi_grid", "similarity", "ncc", "ssim", "track_sequence", "write_tracking", "RefinedWarp",
-    "refine_warp", "map_points", "REFINE_MODES",
+    "refine_warp", "map_points", "REFINE_MODES", "guided_matches",
 ]
 
 #: RANSAC inlier threshold, pixels in the frame (the bench's 3 px correctness radius).
@@ -68,6 +68,9 @@ REFINE_MODES = ("none", "photometric")
 MAX_FOLDED_FRACTION = 0.05
 #: `geofeat track --refine` default (chosen by grid error on simulated sequences, see BENCHMARKS.md).
 DEFAULT_REFINE = "photometric"
+#: Guided matching: a template keypoint's partner is searched among the frame's keypoints within
+#: this many pixels of where the last successful warp puts it, pixels.
+GUIDE_RADIUS_PX = 40.0
 
 
 # ----------------------------------------------------------------------------------------------
@@ -274,6 +277,40 @@ def fit_tps_ransac(
     if warp is None or best.sum() < min_inliers:
         return failed
     return RansacResult(warp, np.linalg.norm(warp_points(warp, src) - dst, axis=1) < threshold_px)
+
+
+def guided_matches(features0, features1, predicted0: np.ndarray, radius: float = GUIDE_RADIUS_PX) -> np.ndarray:
+    """Mutual nearest-neighbour matches restricted to a neighbourhood of a predicted position.
+
+    Keypoint i of image 0 may match keypoint j of image 1 only if j lies within `radius` pixels of
+    `predicted0[i]` (where the last good warp puts i); among those candidates the descriptor-nearest
+    is taken, and kept only if i is in turn j's nearest among the image-0 keypoints that may match
+    it. The search stays template -> frame (no drift): the prediction only narrows it.
+
+    Args:
+        features0, features1: `Features` of the template and the frame (same descriptor).
+        predicted0: (N0, 2) predicted positions of image 0's keypoints in image 1, pixels (NaN rows:
+            no prediction, never matched).
+        radius: search radius, pixels.
+    Returns:
+        (N0,) int64 index into image 1's keypoints, -1 = no match.
+    """
+    from .matching import distance_matrix
+
+    n0, n1 = len(features0.keypoints), len(features1.keypoints)
+    out = np.full(n0, -1, np.int64)
+    if n0 == 0 or n1 == 0:
+        return out
+    dist = distance_matrix(features0.descriptors, features1.descriptors).astype(np.float64)
+    near = _sq_dist(np.nan_to_num(np.asarray(predicted0, float), nan=np.inf),
+                    np.asarray(features1.keypoints, float)) < radius**2
+    allowed = near & features0.valid[:, None] & features1.valid[None, :]
+    dist[~allowed] = np.inf
+    best = np.argmin(dist, axis=1)
+    back = np.argmin(dist, axis=0)
+    ok = np.isfinite(dist[np.arange(n0), best]) & (back[best] == np.arange(n0))
+    out[ok] = best[ok]
+    return out
 
 
 # ----------------------------------------------------------------------------------------------
@@ -548,6 +585,7 @@ def track_sequence(
     }
     for r in results.values():
         r.points[0] = grid
+    prior: dict = {n: None for n in names}  # each descriptor's last successful warp (guides matching)
     bar = tqdm(list(enumerate(seq.targets, start=1)), desc=f"track {seq.name}", unit="frame", disable=not progress)
     for k, target in bar:
         try:
@@ -564,10 +602,19 @@ def track_sequence(
         to_ref = truth.target_to_reference(target, k_tgt.xy, frame.shape) if truth is not None else None
         for name in names:
             t0 = time.perf_counter()
-            m = match(f_ref[name][0], f_tgt[name][0])
-            i0 = np.flatnonzero(m.matches0 >= 0)
-            i1 = m.matches0[i0]
-            fit = fit_tps_ransac(k_ref.xy[i0], k_tgt.xy[i1], threshold_px=threshold_px, seed=seed)
+            # mutual nearest neighbours; with a previous good warp, also matches searched near where
+            # it puts each template keypoint; the fit with more RANSAC inliers is kept
+            options = [match(f_ref[name][0], f_tgt[name][0], mutual=True).matches0]
+            if prior[name] is not None:
+                options.append(guided_matches(f_ref[name][0], f_tgt[name][0], map_points(prior[name], k_ref.xy)))
+            best = None
+            for matches0 in options:
+                j0 = np.flatnonzero(matches0 >= 0)
+                j1 = matches0[j0]
+                candidate = fit_tps_ransac(k_ref.xy[j0], k_tgt.xy[j1], threshold_px=threshold_px, seed=seed)
+                if best is None or candidate.inliers.sum() > best[2].inliers.sum():
+                    best = (j0, j1, candidate)
+            i0, i1, fit = best
             row = dict(sequence=seq.name, descriptor=name, frame=target, n_template=len(k_ref), n_frame=len(k_tgt),
                        matches=len(i0), inliers=int(fit.inliers.sum()),
                        inlier_rate=fit.inliers.sum() / len(i0) if len(i0) else 0.0, ms=float("nan"),
@@ -579,6 +626,7 @@ def track_sequence(
                     kept = fit.inliers
                     warp, row["refined"] = refine_warp(ref.image, frame.image, roi_mask, fit.warp,
                                                        k_ref.xy[i0[kept]], k_tgt.xy[i1[kept]], roi)
+                prior[name] = warp
                 pts = map_points(warp, grid)
                 results[name].points[k] = pts
                 row["ssim"], row["ncc"] = similarity(ref.image, frame.image, warp, roi)
