@@ -101,6 +101,60 @@ def test_gpu_walk_equals_cpu_walk_in_cuda_simulator(tmp_path):
         assert np.nanmax(np.abs(c.astype(np.float64) - g)) <= 1e-5
 
 
+E2E_SCRIPT = r'''
+import cv2, numpy as np
+import geofeat
+from geofeat.frame import RGBDFrame
+from geofeat.descriptors.geobit import GeoBit
+from geofeat.descriptors.geopatch import GeoPatch
+from geofeat.gpu import compute_cuda, match_cuda, polar_patches_cuda, simulated
+from geofeat.matching import match
+assert simulated()
+H, W = 40, 48
+K = np.array([[300.0, 0, 23.5], [0, 300.0, 19.5], [0, 0, 1]])
+v, u = np.mgrid[0:H, 0:W].astype(float)
+depth = (1.0 + 0.05 * np.sin(u / 5.0) * np.cos(v / 6.0) + 0.002 * u).astype(np.float32)
+img = cv2.GaussianBlur(np.random.default_rng(0).random((H, W)).astype(np.float32), (0, 0), 1.5)
+frame = RGBDFrame((img - img.min()) / (img.max() - img.min()), depth, K)
+kps = [np.array([[24.2, 20.3], [20.7, 17.1], [27.4, 22.6], [2.5, 3.5]]),
+       np.array([[23.8, 19.9], [21.1, 17.4], [26.9, 23.1], [30.2, 12.7]])]
+net = GeoPatch(device="cpu", backend="torch", depth_config="clean")
+gb = GeoBit(depth_config="clean")
+fc, fg, bc, partial = [], [], [], []
+for k in kps:
+    cpu = geofeat.polar_patches(frame, k, depth_config="clean")
+    gpu = polar_patches_cuda(frame, k, depth_config="clean").to_host()
+    assert cpu.valid[:3].all()
+    partial.append(bool((cpu.rings_reached < 32).any()))  # rays that leave the frame early
+    np.testing.assert_array_equal(gpu.valid, cpu.valid)
+    np.testing.assert_array_equal(gpu.rings_reached, cpu.rings_reached)
+    np.testing.assert_allclose(gpu.coords, cpu.coords, rtol=0, atol=1e-5, equal_nan=True)
+    np.testing.assert_allclose(gpu.values, cpu.values, rtol=0, atol=1e-6)
+    fc.append(net.compute(frame, k))
+    fg.append(compute_cuda(net, frame, k))
+    np.testing.assert_allclose(fg[-1].descriptors.numpy(), fc[-1].descriptors, rtol=0, atol=1e-4)
+    np.testing.assert_array_equal(fg[-1].valid.numpy(), fc[-1].valid)
+    bc.append(gb.compute(frame, k, patches=cpu))
+for mutual in (False, True):
+    np.testing.assert_array_equal(match_cuda(fg[0], fg[1], mutual=mutual).matches0,
+                                  match(fc[0], fc[1], mutual=mutual).matches0)
+    np.testing.assert_array_equal(match_cuda(bc[0], bc[1], mutual=mutual).matches0,
+                                  match(bc[0], bc[1], mutual=mutual).matches0)
+assert any(partial)
+print("ok")
+'''
+
+
+def test_gpu_path_equals_cpu_path_in_cuda_simulator():
+    """The whole `geofeat.gpu` path (walk kernel simulated, torch on CPU tensors) on a small frame:
+    patches, descriptors and matches equal the CPU path's."""
+    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
+    src = str(Path(__file__).resolve().parents[1] / "src")
+    env["PYTHONPATH"] = src + os.pathsep + env.get("PYTHONPATH", "")
+    proc = subprocess.run([sys.executable, "-c", E2E_SCRIPT], env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0 and "ok" in proc.stdout, proc.stderr[-3000:]
+
+
 def _real_gpu() -> bool:
     try:
         from numba import cuda

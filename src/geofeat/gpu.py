@@ -18,10 +18,14 @@ walk coordinates within 1e-4 px (the GPU's cos/sin and fused multiply-adds diffe
 the last bits of float64), patch values within 1e-5 where the coordinates agree, descriptors
 within 1e-4, the same matches on the tested frames. Nothing here is imported by `import geofeat`;
 torch and numba.cuda load on first use.
+
+Under numba's CUDA simulator (NUMBA_ENABLE_CUDASIM=1, no GPU needed) the same code runs with torch
+CPU tensors and the walk kernel simulated: that is how the tests run the whole path without a GPU.
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,12 +46,21 @@ def is_cuda_device(device) -> bool:
     return device is not None and str(device).split(":")[0] == "cuda"
 
 
+def simulated() -> bool:
+    """Whether numba's CUDA simulator is on (then torch tensors live on the CPU)."""
+    return os.environ.get("NUMBA_ENABLE_CUDASIM", "0") not in ("", "0")
+
+
 def require_cuda(device="cuda"):
     """The torch.device for `device`, or a RuntimeError saying what is missing: a CUDA build of
     torch with a visible GPU, and numba's CUDA target (built into numba <= 0.60, else the
     numba-cuda package: pip install 'geofeat[cuda]')."""
     import importlib.util
 
+    if simulated():
+        import torch
+
+        return torch.device("cpu")
     if importlib.util.find_spec("torch") is None:
         raise RuntimeError("device='cuda': torch is not installed")
     import torch
@@ -71,12 +84,16 @@ def require_cuda(device="cuda"):
 
 def _as_numba(t):
     """A numba device array viewing torch CUDA tensor `t` (no copy, no synchronisation)."""
+    if simulated():
+        return t.detach().numpy()
     from numba import cuda
 
     return cuda.as_cuda_array(t.detach(), sync=False)
 
 
 def _numba_stream(dev):
+    if simulated():
+        return 0
     import torch
     from numba import cuda
 
@@ -231,18 +248,21 @@ class DeviceFeatures:
                         self.sizes)
 
 
-def compute_cuda(descriptor, frame: RGBDFrame, keypoints, mesh: GridMesh | None = None) -> DeviceFeatures:
+def compute_cuda(descriptor, frame: RGBDFrame, keypoints, mesh: GridMesh | None = None,
+                 half: bool = False) -> DeviceFeatures:
     """GeoPatch features of `keypoints` on the GPU: `GeoPatch.compute` with the walk, the sampling
-    and the CNN on `descriptor.device` (a GeoPatch with the torch backend on CUDA)."""
+    and the CNN on `descriptor.device` (a GeoPatch with the torch backend on CUDA). `half`: the CNN
+    under float16 autocast (`GeoPatch.describe_tensor`)."""
     from .keypoints import as_keypoints
 
-    if not is_cuda_device(getattr(descriptor, "device", None)) or getattr(descriptor, "backend", None) != "torch":
+    on_gpu = simulated() or is_cuda_device(getattr(descriptor, "device", None))
+    if not on_gpu or getattr(descriptor, "backend", None) != "torch":
         raise ValueError("descriptor: the GPU path needs a GeoPatch on a CUDA device "
                          "(GeoPatch(device='cuda', backend='torch'))")
     kps = as_keypoints(keypoints, frame.shape)
     patches = polar_patches_cuda(frame, kps, radius=descriptor.radius, depth_config=descriptor.depth_config,
                                  mesh=mesh, blur_px=descriptor.blur_px, device=descriptor.device)
-    desc = descriptor.describe_tensor(patches.values, patches.valid)
+    desc = descriptor.describe_tensor(patches.values, patches.valid, half=half)
     return DeviceFeatures(patches.keypoints, desc, patches.valid, angles=kps.angles, sizes=kps.sizes)
 
 
