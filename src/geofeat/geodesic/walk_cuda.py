@@ -21,7 +21,13 @@ import math
 import types
 
 import numpy as np
-from numba import cuda
+
+if not hasattr(np, "row_stack"):  # pragma: no cover - depends on the installed versions
+    # numba-cuda releases before 0.30 register an overload of np.row_stack when they first compile,
+    # and fail on NumPy 2.4, which removed it (an alias of np.vstack since NumPy 2.0)
+    np.row_stack = np.vstack
+
+from numba import cuda  # noqa: E402
 
 from . import walk as _walk
 
