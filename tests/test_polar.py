@@ -246,7 +246,9 @@ frame = geofeat.RGBDFrame(np.random.default_rng(0).random((H, W)).astype(np.floa
 kps = np.random.default_rng(1).uniform([100, 100], [W - 100, H - 100], size=(2048, 2))
 P = geofeat.polar_patches(frame, kps)
 assert P.valid.mean() > 0.99
-print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+# this process's own peak (VmHWM, kB): ru_maxrss would also count the parent's peak, which Linux
+# carries across the vfork + exec of subprocess (an xdist worker's memory, not the walk's)
+print(next(int(l.split()[1]) for l in open("/proc/self/status") if l.startswith("VmHWM:")))
 """
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr

@@ -334,8 +334,11 @@ def _hamming_search_torch(d0, d1, valid0, valid1, want_cols, device, block: int 
     dtype = torch.float16 if dev.type == "cuda" else torch.float32
     shifts = torch.arange(7, -1, -1, device=dev, dtype=torch.uint8)
 
+    def on_device(x):  # numpy arrays are uploaded, tensors (e.g. GPU-path descriptors) used in place
+        return x.to(dev) if isinstance(x, torch.Tensor) else torch.from_numpy(np.ascontiguousarray(x)).to(dev)
+
     def bits(d):  # (..., B) uint8 -> (..., 8 B) {0, 1}, unpacked on the device
-        t = torch.from_numpy(np.ascontiguousarray(d)).to(dev)
+        t = on_device(d)
         return ((t.unsqueeze(-1) >> shifts) & 1).flatten(-2)
 
     n0, n1, R = d0.shape[0], d1.shape[0], d1.shape[1]
@@ -345,8 +348,8 @@ def _hamming_search_torch(d0, d1, valid0, valid1, want_cols, device, block: int 
     c1 = b1.sum(1, dtype=torch.int32)
     f1 = b1.to(dtype)
     big = int(_BIG)
-    v0 = torch.from_numpy(np.asarray(valid0)).to(dev)
-    v1 = torch.from_numpy(np.asarray(valid1)).to(dev)
+    v0 = on_device(valid0).bool()
+    v1 = on_device(valid1).bool()
     block = block or (1024 if dev.type == "cuda" else 128)
     best_d = torch.empty(n0, dtype=torch.int64, device=dev)
     best_j = torch.empty(n0, dtype=torch.int64, device=dev)
@@ -377,6 +380,39 @@ def _hamming_search_torch(d0, d1, valid0, valid1, want_cols, device, block: int 
     sd[sd >= big] = np.inf
     col_j = col_i.cpu().numpy() if want_cols else None
     return bd, best_j.cpu().numpy(), sd, col_j
+
+
+def _l2_search_torch(d0, d1, valid0, valid1, want_cols):
+    """`_l2_search` on torch tensors of one device (the GPU path): the same float32 (float64 for
+    float64 input) distances |a|^2 + |b|^2 - 2 a.b as one matrix product (TF32 off), the same
+    tie rules (first index, as torch.argmin). Returns numpy arrays like `_l2_search`."""
+    import torch
+
+    dtype = torch.float64 if torch.float64 in (d0.dtype, d1.dtype) else torch.float32
+    a, b = d0.to(dtype), d1.to(dtype)
+    n1 = b.shape[0]
+    valid0, valid1 = valid0.bool(), valid1.bool()
+    before = torch.backends.cuda.matmul.allow_tf32
+    torch.backends.cuda.matmul.allow_tf32 = False
+    try:
+        ab = a @ b.T
+    finally:
+        torch.backends.cuda.matmul.allow_tf32 = before
+    dist = ((a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2.0 * ab).clamp_min(0.0).sqrt().double()
+    inf = torch.tensor(float("inf"), dtype=dist.dtype, device=dist.device)
+    dist = torch.where(valid1[None, :] & valid0[:, None], dist, inf)
+    j = dist.argmin(1)
+    rows = torch.arange(len(j), device=dist.device)
+    bd = dist[rows, j]
+    best_j = torch.where(torch.isfinite(bd), j, -1)
+    col_j = dist.argmin(0) if want_cols else None
+    if n1 > 1:
+        dist[rows, j] = inf
+        second = dist.amin(1)
+    else:
+        second = torch.full_like(bd, float("inf"))
+    return (bd.cpu().numpy(), best_j.cpu().numpy(), second.cpu().numpy(),
+            None if col_j is None else col_j.cpu().numpy())
 
 
 def _l2_search(d0, d1, valid0, valid1, want_cols, block: int = 1024):
@@ -454,8 +490,10 @@ def match(
             (under the same distance d(i, j)).
         ratio: Lowe's ratio test: keep i -> j only if d(i, j) < ratio * d(i, second nearest).
             A match with no second candidate passes.
-        device: None: the numba kernels on the CPU. A torch device ("cuda", "cuda:1", "cpu"):
-            Hamming metrics as matrix products there (`_hamming_search_torch`; same results).
+        device: None: the numba kernels (Hamming) and numpy (L2) on the CPU. A torch device
+            ("cuda", "cuda:1", "cpu"): every metric as matrix products there (`_hamming_search_torch`,
+            `_l2_search_torch`; the same matches). For descriptors already on the GPU see
+            `geofeat.gpu.match_cuda`.
 
     Returns:
         `Matches` with matches0 (N0,) int64 (-1 = no match) and distances0 (N0,) float64 (bits for
@@ -497,7 +535,13 @@ def match(
     if n0 == 0 or n1 == 0:
         return Matches(np.full(n0, -1, np.int64), np.full(n0, np.inf))
 
-    if metric == "l2":
+    if metric == "l2" and device is not None:
+        import torch
+
+        dev = torch.device(device)
+        best_d, best_j, second_d, col_j = _l2_search_torch(
+            *(torch.from_numpy(np.ascontiguousarray(x)).to(dev) for x in (d0, d1, valid0, valid1)), mutual)
+    elif metric == "l2":
         best_d, best_j, second_d, col_j = _l2_search(d0, d1, valid0, valid1, mutual)
     else:
         if metric == "hamming":
@@ -507,11 +551,16 @@ def match(
         else:
             best_d, best_j, second_d, col_j = _hamming_search(d0, d1, valid0, valid1, mutual, ratio is not None)
 
+    return _finish_matches(best_d, best_j, second_d, col_j, ratio=ratio, mutual=mutual)
+
+
+def _finish_matches(best_d, best_j, second_d, col_j, ratio: float | None, mutual: bool) -> Matches:
+    """`Matches` from the nearest-neighbour search: ratio test and mutual check applied."""
     keep = best_j >= 0
     if ratio is not None:
         keep &= ~(best_d >= ratio * second_d)  # second = inf (single candidate) passes
     if mutual:
-        ok = np.zeros(n0, bool)
+        ok = np.zeros(len(best_j), bool)
         idx = np.flatnonzero(keep)
         ok[idx] = col_j[best_j[idx]] == idx
         keep &= ok

@@ -13,7 +13,7 @@ BEST_DETECTOR = "geokey"
 
 
 def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None, descriptor: str = "geopatch",
-            radius: float | None = None, depth_config="auto") -> Features:
+            radius: float | None = None, depth_config="auto", device: str | None = None) -> Features:
     """Detect up to `n` keypoints on `frame` and describe them.
 
     Args:
@@ -23,11 +23,32 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
         descriptor: a `geofeat.make_descriptor` name (default the shipped GeoPatch).
         radius: geodesic radius, metres (None: the descriptor's default, 0.075).
         depth_config: depth profile name or `DepthConfig` (default "auto").
+        device: None or "cpu": the CPU path. "cuda" (or "cuda:N"): GeoPatch only; the walk, patch
+            sampling and CNN run on the GPU (`geofeat.gpu`; equal to the CPU path within the
+            tolerances stated there), the descriptors come back once at the end. A RuntimeError
+            says what is missing when no CUDA GPU can be used. For descriptors that stay on the
+            GPU (to match there), see `geofeat.gpu.compute_cuda` and `geofeat.gpu.match_cuda`.
 
     Returns:
         `Features`: keypoints (N, 2) pixels, descriptors ((N, 128) float32 for GeoPatch), valid (N,).
     """
     from .descriptors import make_descriptor
 
+    if device is not None and str(device).split(":")[0] == "cuda":
+        from .descriptors import check_descriptor_name
+        from .gpu import require_cuda
+
+        base, _, weights = check_descriptor_name(descriptor).partition("=")
+        if base != "geopatch":
+            raise ValueError(f"device: the GPU path computes GeoPatch descriptors only, not {descriptor!r}")
+        require_cuda(device)
+        from .descriptors.geopatch import GeoPatch
+
+        kwargs = {} if radius is None else {"radius": radius}
+        net = GeoPatch(weights=weights or None, device=device, backend="torch", depth_config=depth_config, **kwargs)
+        keypoints = detect(frame, n, detector=detector or BEST_DETECTOR)
+        return net.compute_cuda(frame, keypoints).to_host()
+    if device is not None and str(device) != "cpu":
+        raise ValueError(f"device: expected None, 'cpu' or 'cuda[:N]', got {device!r}")
     keypoints = detect(frame, n, detector=detector or BEST_DETECTOR)
     return make_descriptor(descriptor, radius=radius, depth_config=depth_config).compute(frame, keypoints)

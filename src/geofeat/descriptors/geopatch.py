@@ -222,6 +222,41 @@ class GeoPatch:
         out[index] = self._describe_torch(x) if self.backend == "torch" else self.session.run(x, self.batch_size)
         return out
 
+    def describe_tensor(self, values, valid=None, half: bool = False):
+        """`describe` on torch tensors on the network's device (the GPU path, `geofeat.gpu`): (N, R, A)
+        float32 patches -> (N, dim) float32 descriptor tensor, rows of invalid patches 0, nothing
+        copied to the host. fp32 with TF32 off, so that descriptors equal the CPU's within 1e-4;
+        `half=True` runs the network under float16 autocast on CUDA (faster, not equal: measured in
+        benchmarks/bench_gpu.py)."""
+        import torch
+
+        if self.backend != "torch":
+            raise ValueError(f"describe_tensor: needs the torch backend, not {self.backend}")
+        cfg = self.config
+        if values.ndim != 3 or tuple(values.shape[1:]) != (cfg.n_rings, cfg.n_angles):
+            raise ValueError(f"values: expected shape (N, {cfg.n_rings}, {cfg.n_angles}), got {tuple(values.shape)}")
+        flags = torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32
+        torch.backends.cudnn.allow_tf32 = torch.backends.cuda.matmul.allow_tf32 = False
+        try:
+            autocast = torch.autocast("cuda", dtype=torch.float16, enabled=bool(half) and self.device.type == "cuda")
+            with torch.inference_mode(), autocast:
+                x = values.to(self.device, torch.float32).unsqueeze(1)
+                batch = self.batch_size if self.device.type == "cpu" else max(self.batch_size, 4096)
+                y = torch.cat([self.net(x[s:s + batch]) for s in range(0, len(x), batch)]) if len(x) else \
+                    torch.zeros((0, cfg.dim), device=self.device)
+                if valid is not None:
+                    y = torch.where(valid.to(self.device).bool()[:, None], y, torch.zeros((), device=self.device))
+                return y.float()
+        finally:
+            torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32 = flags
+
+    def compute_cuda(self, frame: RGBDFrame, keypoints, mesh: GridMesh | None = None):
+        """`compute` with the walk, patch sampling and CNN on the GPU (`geofeat.gpu.compute_cuda`):
+        `geofeat.gpu.DeviceFeatures` whose descriptors stay on the device."""
+        from ..gpu import compute_cuda
+
+        return compute_cuda(self, frame, keypoints, mesh=mesh)
+
     def _describe_torch(self, x: np.ndarray) -> np.ndarray:
         import torch
 

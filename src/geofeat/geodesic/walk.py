@@ -14,23 +14,46 @@ samples are emitted.
 Face addressing follows `geofeat.geodesic.mesh`: face (x, y, t) is triangle t of grid cell (x, y).
 Local vertex order: face 0 = (a, b, c), face 1 = (d, b, c) with a = (x, y), b = (x + 1, y),
 c = (x, y + 1), d = (x + 1, y + 1). Local edge e is the edge opposite local vertex e.
+
+One kernel source for CPU and GPU: the scalar helpers and the per-keypoint / per-ray bodies
+(`_tangent_frame_one`, `_ray_one`) are plain Python functions written with `math` only. They are
+compiled here by `numba.njit` (the CPU path: `tangent_frames`, `walk_polar`) and by
+`numba.cuda.jit(device=True)` in `geofeat.geodesic.walk_cuda` (the GPU path, imported only on
+demand), which recompiles the same code objects with the helper names bound to their CUDA versions
+(`DEVICE_SOURCES`).
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit, prange
+
+#: Plain-Python sources of the functions shared by the CPU and GPU walks, by name (filled by `_shared`).
+DEVICE_SOURCES: dict = {}
+
+
+def _shared(inline: bool = True):
+    """Compile a shared source for the CPU (njit, as before the GPU path existed) and keep the
+    plain function in `DEVICE_SOURCES` for `walk_cuda`."""
+    def wrap(fn):
+        DEVICE_SOURCES[fn.__name__] = fn
+        if inline:
+            return njit(cache=True, inline="always", error_model="numpy")(fn)
+        return njit(cache=True, error_model="numpy")(fn)
+    return wrap
 
 #: Upper bound on edge crossings of one ray; a ray that hits it stops where it is.
 MAX_CROSSINGS = 100_000
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@_shared()
 def _cross(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@_shared()
 def _corner(x, y, t, i):
     """Grid (column, row) of local vertex i of face (x, y, t)."""
     if i == 0:
@@ -42,7 +65,7 @@ def _corner(x, y, t, i):
     return x, y + 1
 
 
-@njit(cache=True, error_model="numpy")
+@_shared(inline=False)
 def _neighbour(x, y, t, e):
     """Face across local edge e of face (x, y, t), and the local index of that edge there."""
     if e == 0:
@@ -56,7 +79,7 @@ def _neighbour(x, y, t, e):
     return x + 1, y, 0, 1  # right edge d-b -> left edge a-c of the cell on the right
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@_shared()
 def _edge_vertices(e):
     """Local vertices (i0, i1) at the ends of local edge e (the edge opposite vertex e)."""
     return (1 if e == 0 else 0), (1 if e == 2 else 2)
@@ -78,14 +101,14 @@ def _swap_table() -> np.ndarray:
 _SWAP = np.array([[False, True, True], [False, True, True]])
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@_shared()
 def _face_axes(points, normals, x, y, t):
     """Intrinsic frame of face (x, y, t): origin (local vertex 0), unit x axis (towards local vertex
     1), unit y axis (normal x x axis), and the length of the edge from vertex 0 to vertex 1."""
     x0, y0 = _corner(x, y, t, 0)
     ax, ay, az = points[y0, x0, 0], points[y0, x0, 1], points[y0, x0, 2]
     ex, ey, ez = points[y, x + 1, 0] - ax, points[y, x + 1, 1] - ay, points[y, x + 1, 2] - az
-    length = np.sqrt(ex * ex + ey * ey + ez * ez)
+    length = math.sqrt(ex * ex + ey * ey + ez * ez)
     ex, ey, ez = ex / length, ey / length, ez / length
     fx, fy, fz = _cross(normals[y, x, t, 0], normals[y, x, t, 1], normals[y, x, t, 2], ex, ey, ez)
     return ax, ay, az, ex, ey, ez, fx, fy, fz, length
@@ -136,7 +159,7 @@ def edge_directions(frames, face_ok):
     return out
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@_shared()
 def _local(frames, x, y, t, i):
     """2D coordinates of local vertex i of face (x, y, t) in the face's intrinsic frame."""
     if i == 0:
@@ -146,7 +169,7 @@ def _local(frames, x, y, t, i):
     return frames[y, x, t, 1], frames[y, x, t, 2]
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@_shared()
 def _emit(points, frames, x, y, t, qx, qy, K, samples, coords, k, r, a):
     """Write the sample at intrinsic coordinates (qx, qy) of face (x, y, t): its 3D point (the
     barycentric combination of the face's corners) into samples[k, r, a] and its projection with K
@@ -166,7 +189,7 @@ def _emit(points, frames, x, y, t, qx, qy, K, samples, coords, k, r, a):
     coords[k, r, a, 1] = K[1, 1] * Y / Z + K[1, 2]
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@_shared()
 def _edge_hit(frames, x, y, t, e, px, py, dx, dy):
     """Where the line (px, py) + u (dx, dy) meets local edge e of face (x, y, t): (u, s, ex, ey, ax, ay)
     with s the position along the edge from its first end (a) to its second (a + (ex, ey));
@@ -177,12 +200,12 @@ def _edge_hit(frames, x, y, t, e, px, py, dx, dy):
     ex, ey = bx - ax, by - ay
     denom = dx * ey - dy * ex
     if abs(denom) < 1e-300:
-        return np.nan, np.nan, ex, ey, ax, ay
+        return math.nan, math.nan, ex, ey, ax, ay
     wx, wy = ax - px, ay - py
     return (wx * ey - wy * ex) / denom, (wx * dy - wy * dx) / denom, ex, ey, ax, ay
 
 
-@njit(cache=True, error_model="numpy")
+@_shared(inline=False)
 def _walk_one(points, face_ok, frames, edges, x, y, t, px, py, dx, dy, ring_step, n_rings, max_crossings,
               K, samples, coords, k, a):
     """Walk one ray on the mesh in intrinsic 2D coordinates.
@@ -203,7 +226,7 @@ def _walk_one(points, face_ok, frames, edges, x, y, t, px, py, dx, dy, ring_step
         # exit edge, distance d to it and position s along it
         if entry < 0:  # start face: the nearest edge ahead of the ray
             exit_edge = -1
-            d = np.inf
+            d = math.inf
             s = 0.0
             for e in range(3):
                 de, se, ex, ey, ax, ay = _edge_hit(frames, x, y, t, e, px, py, dx, dy)
@@ -220,9 +243,9 @@ def _walk_one(points, face_ok, frames, edges, x, y, t, px, py, dx, dy, ring_step
             if not (-1e-12 <= s <= 1.0 + 1e-12):  # also when parallel (NaN)
                 e = (entry + 2) % 3
                 de, se, ex, ey, ax, ay = _edge_hit(frames, x, y, t, e, px, py, dx, dy)
-                if -1e-12 <= se <= 1.0 + 1e-12 or np.isnan(s):
+                if -1e-12 <= se <= 1.0 + 1e-12 or math.isnan(s):
                     exit_edge, d, s, fx, fy, gx, gy = e, de, se, ex, ey, ax, ay
-                if np.isnan(s):  # parallel to both edges
+                if math.isnan(s):  # parallel to both edges
                     break
         if d < 0.0:
             d = 0.0
@@ -235,7 +258,7 @@ def _walk_one(points, face_ok, frames, edges, x, y, t, px, py, dx, dy, ring_step
             return ring
         s = min(max(s, 0.0), 1.0)
         qx, qy = gx + s * fx, gy + s * fy
-        length += np.sqrt((qx - px) ** 2 + (qy - py) ** 2)
+        length += math.sqrt((qx - px) ** 2 + (qy - py) ** 2)
         px, py = qx, qy
         xn, yn, tn, entry_n = _neighbour(x, y, t, exit_edge)
         if xn < 0 or yn < 0 or xn >= Wc or yn >= Hc or not face_ok[yn, xn, tn]:
@@ -260,11 +283,11 @@ def _walk_one(points, face_ok, frames, edges, x, y, t, px, py, dx, dy, ring_step
     return ring
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@_shared()
 def _rotate_onto(vx, vy, vz, ax, ay, az, bx, by, bz):
     """Rotate v by the smallest rotation that takes unit a to unit b (Rodrigues)."""
     kx, ky, kz = _cross(ax, ay, az, bx, by, bz)
-    sin_a = np.sqrt(kx * kx + ky * ky + kz * kz)
+    sin_a = math.sqrt(kx * kx + ky * ky + kz * kz)
     cos_a = ax * bx + ay * by + az * bz
     if sin_a < 1e-12:
         return vx, vy, vz
@@ -274,13 +297,13 @@ def _rotate_onto(vx, vy, vz, ax, ay, az, bx, by, bz):
     return vx * cos_a + cx * sin_a + kx * kv, vy * cos_a + cy * sin_a + ky * kv, vz * cos_a + cz * sin_a + kz * kv
 
 
-@njit(cache=True, error_model="numpy")
+@_shared(inline=False)
 def _locate(face_ok, xm, ym):
     """Face (x, y, t) containing mesh pixel coordinates (xm, ym), and its barycentric weights
     (w_first, w_b, w_c) for local vertices (a or d, b, c). x = -1 when outside the grid."""
     Hc, Wc = face_ok.shape[0], face_ok.shape[1]
-    x = int(np.floor(xm))
-    y = int(np.floor(ym))
+    x = int(math.floor(xm))
+    y = int(math.floor(ym))
     if x < 0 or y < 0 or x >= Wc or y >= Hc:
         return -1, -1, -1, 0.0, 0.0, 0.0
     fx = xm - x
@@ -288,6 +311,73 @@ def _locate(face_ok, xm, ym):
     if fx + fy <= 1.0:
         return x, y, 0, 1.0 - fx - fy, fx, fy
     return x, y, 1, fx + fy - 1.0, 1.0 - fy, 1.0 - fx
+
+
+@_shared(inline=False)
+def _tangent_frame_one(points, face_ok, normals, sx, sy, faces, centre, frames, k):
+    """`tangent_frames` of one keypoint at mesh pixel (sx, sy): writes faces[k], centre[k] and
+    frames[k] when the start has surface, leaves them untouched otherwise."""
+    Hc, Wc = face_ok.shape[0], face_ok.shape[1]
+    x, y, t, w0, w1, w2 = _locate(face_ok, sx, sy)
+    if x < 0 or not face_ok[y, x, t]:
+        return
+    xa, ya = _corner(x, y, t, 0)
+    p0 = w0 * points[ya, xa, 0] + w1 * points[y, x + 1, 0] + w2 * points[y + 1, x, 0]
+    p1 = w0 * points[ya, xa, 1] + w1 * points[y, x + 1, 1] + w2 * points[y + 1, x, 1]
+    p2 = w0 * points[ya, xa, 2] + w1 * points[y, x + 1, 2] + w2 * points[y + 1, x, 2]
+    # tangent plane normal: area-weighted mean of the face normals around the start cell
+    n0 = n1 = n2 = 0.0
+    for yy in range(max(0, y - 1), min(Hc, y + 2)):
+        for xx in range(max(0, x - 1), min(Wc, x + 2)):
+            for tt in range(2):
+                if face_ok[yy, xx, tt]:
+                    n0 += normals[yy, xx, tt, 0]
+                    n1 += normals[yy, xx, tt, 1]
+                    n2 += normals[yy, xx, tt, 2]
+    nl = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    n0, n1, n2 = n0 / nl, n1 / nl, n2 / nl
+    # column 0: the direction in the tangent plane that moves along image +x, i.e. that is
+    # orthogonal to the gradient of the image y coordinate, gv = (0, 1, -Y/Z) up to scale
+    gvz = -p1 / p2
+    guz = -p0 / p2
+    e0x, e0y, e0z = _cross(n0, n1, n2, 0.0, 1.0, gvz)
+    l0 = math.sqrt(e0x * e0x + e0y * e0y + e0z * e0z)
+    if l0 < 1e-12:
+        return  # surface seen exactly edge-on
+    sign = 1.0 if e0x + e0z * guz >= 0 else -1.0
+    e0x, e0y, e0z = sign * e0x / l0, sign * e0y / l0, sign * e0z / l0
+    e1x, e1y, e1z = _cross(n0, n1, n2, e0x, e0y, e0z)
+    sign = -1.0 if e1y + e1z * gvz > 0 else 1.0  # counter-clockwise as displayed: image up is -y
+    frames[k, 0, 0], frames[k, 0, 1], frames[k, 0, 2] = e0x, e0y, e0z
+    frames[k, 1, 0], frames[k, 1, 1], frames[k, 1, 2] = sign * e1x, sign * e1y, sign * e1z
+    centre[k, 0], centre[k, 1], centre[k, 2] = p0, p1, p2
+    frames[k, 2, 0], frames[k, 2, 1], frames[k, 2, 2] = n0, n1, n2
+    faces[k, 0], faces[k, 1], faces[k, 2] = x, y, t
+
+
+@_shared(inline=False)
+def _ray_one(points, face_ok, normals, local, edges, faces, centre, frames, K, ring_step, n_angles, n_rings,
+             max_crossings, samples, coords, k, a):
+    """The ray of keypoint k at direction a (`walk_polar`, one job): returns the rings reached, -1
+    when the keypoint has no surface (then nothing is written)."""
+    if faces[k, 0] < 0:  # no surface under the keypoint
+        return -1
+    x, y, t = faces[k, 0], faces[k, 1], faces[k, 2]
+    theta = 2.0 * math.pi * a / n_angles
+    c, sn = math.cos(theta), math.sin(theta)
+    dx = c * frames[k, 0, 0] + sn * frames[k, 1, 0]
+    dy = c * frames[k, 0, 1] + sn * frames[k, 1, 1]
+    dz = c * frames[k, 0, 2] + sn * frames[k, 1, 2]
+    fnx, fny, fnz = normals[y, x, t, 0], normals[y, x, t, 1], normals[y, x, t, 2]
+    ux, uy, uz = _rotate_onto(dx, dy, dz, frames[k, 2, 0], frames[k, 2, 1], frames[k, 2, 2], fnx, fny, fnz)
+    # start point and direction in the start face's intrinsic frame
+    ax, ay, az, ex, ey, ez, fx, fy, fz, _ = _face_axes(points, normals, x, y, t)
+    cx, cy, cz = centre[k, 0] - ax, centre[k, 1] - ay, centre[k, 2] - az
+    dxx, dyy = ux * ex + uy * ey + uz * ez, ux * fx + uy * fy + uz * fz
+    dl = math.sqrt(dxx * dxx + dyy * dyy)
+    return _walk_one(points, face_ok, local, edges, x, y, t, cx * ex + cy * ey + cz * ez,
+                     cx * fx + cy * fy + cz * fz, dxx / dl, dyy / dl, ring_step, n_rings,
+                     max_crossings, K, samples, coords, k, a)
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
@@ -307,43 +397,8 @@ def tangent_frames(points, face_ok, normals, starts):
     centre = np.full((N, 3), np.nan)
     frames = np.zeros((N, 3, 3))  # per keypoint: e0, e1, normal of the start face
     faces = np.full((N, 3), -1, dtype=np.int64)
-    Hc, Wc = face_ok.shape[0], face_ok.shape[1]
     for k in prange(N):
-        x, y, t, w0, w1, w2 = _locate(face_ok, starts[k, 0], starts[k, 1])
-        if x < 0 or not face_ok[y, x, t]:
-            continue
-        xa, ya = _corner(x, y, t, 0)
-        p0 = w0 * points[ya, xa, 0] + w1 * points[y, x + 1, 0] + w2 * points[y + 1, x, 0]
-        p1 = w0 * points[ya, xa, 1] + w1 * points[y, x + 1, 1] + w2 * points[y + 1, x, 1]
-        p2 = w0 * points[ya, xa, 2] + w1 * points[y, x + 1, 2] + w2 * points[y + 1, x, 2]
-        # tangent plane normal: area-weighted mean of the face normals around the start cell
-        n0 = n1 = n2 = 0.0
-        for yy in range(max(0, y - 1), min(Hc, y + 2)):
-            for xx in range(max(0, x - 1), min(Wc, x + 2)):
-                for tt in range(2):
-                    if face_ok[yy, xx, tt]:
-                        n0 += normals[yy, xx, tt, 0]
-                        n1 += normals[yy, xx, tt, 1]
-                        n2 += normals[yy, xx, tt, 2]
-        nl = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-        n0, n1, n2 = n0 / nl, n1 / nl, n2 / nl
-        # column 0: the direction in the tangent plane that moves along image +x, i.e. that is
-        # orthogonal to the gradient of the image y coordinate, gv = (0, 1, -Y/Z) up to scale
-        gvz = -p1 / p2
-        guz = -p0 / p2
-        e0x, e0y, e0z = _cross(n0, n1, n2, 0.0, 1.0, gvz)
-        l0 = np.sqrt(e0x * e0x + e0y * e0y + e0z * e0z)
-        if l0 < 1e-12:
-            continue  # surface seen exactly edge-on
-        sign = 1.0 if e0x + e0z * guz >= 0 else -1.0
-        e0x, e0y, e0z = sign * e0x / l0, sign * e0y / l0, sign * e0z / l0
-        e1x, e1y, e1z = _cross(n0, n1, n2, e0x, e0y, e0z)
-        sign = -1.0 if e1y + e1z * gvz > 0 else 1.0  # counter-clockwise as displayed: image up is -y
-        frames[k, 0, 0], frames[k, 0, 1], frames[k, 0, 2] = e0x, e0y, e0z
-        frames[k, 1, 0], frames[k, 1, 1], frames[k, 1, 2] = sign * e1x, sign * e1y, sign * e1z
-        centre[k, 0], centre[k, 1], centre[k, 2] = p0, p1, p2
-        frames[k, 2, 0], frames[k, 2, 1], frames[k, 2, 2] = n0, n1, n2
-        faces[k, 0], faces[k, 1], faces[k, 2] = x, y, t
+        _tangent_frame_one(points, face_ok, normals, starts[k, 0], starts[k, 1], faces, centre, frames, k)
     return faces, centre, frames
 
 
@@ -374,24 +429,11 @@ def walk_polar(points, face_ok, normals, local, edges, starts, K, radius, n_angl
     for job in prange(N * n_angles):
         k = job // n_angles
         a = job % n_angles
-        if faces[k, 0] < 0:  # no surface under the keypoint
+        r = _ray_one(points, face_ok, normals, local, edges, faces, centre, frames, K, ring_step, n_angles,
+                     n_rings, max_crossings, samples, coords, k, a)
+        if r < 0:  # no surface under the keypoint
             samples[k, :, a, :] = np.nan
             coords[k, :, a, :] = np.nan
-            continue
-        x, y, t = faces[k, 0], faces[k, 1], faces[k, 2]
-        theta = 2.0 * np.pi * a / n_angles
-        c, sn = np.cos(theta), np.sin(theta)
-        dx = c * frames[k, 0, 0] + sn * frames[k, 1, 0]
-        dy = c * frames[k, 0, 1] + sn * frames[k, 1, 1]
-        dz = c * frames[k, 0, 2] + sn * frames[k, 1, 2]
-        fnx, fny, fnz = normals[y, x, t, 0], normals[y, x, t, 1], normals[y, x, t, 2]
-        ux, uy, uz = _rotate_onto(dx, dy, dz, frames[k, 2, 0], frames[k, 2, 1], frames[k, 2, 2], fnx, fny, fnz)
-        # start point and direction in the start face's intrinsic frame
-        ax, ay, az, ex, ey, ez, fx, fy, fz, _ = _face_axes(points, normals, x, y, t)
-        cx, cy, cz = centre[k, 0] - ax, centre[k, 1] - ay, centre[k, 2] - az
-        dxx, dyy = ux * ex + uy * ey + uz * ez, ux * fx + uy * fy + uz * fz
-        dl = np.sqrt(dxx * dxx + dyy * dyy)
-        reached[k, a] = _walk_one(points, face_ok, local, edges, x, y, t, cx * ex + cy * ey + cz * ez,
-                                  cx * fx + cy * fy + cz * fz, dxx / dl, dyy / dl, ring_step, n_rings,
-                                  max_crossings, K, samples, coords, k, a)
+        else:
+            reached[k, a] = r
     return samples, coords, reached, centre

@@ -1,0 +1,314 @@
+"""The GPU path from frame to matches (`device="cuda"`): geodesic walk -> patch sampling -> GeoPatch
+CNN -> matching, every intermediate array staying on the GPU.
+
+Per frame, the host does what it does on the CPU path up to the mesh (depth preprocessing, mesh and
+its walk tables, keypoint detection) and uploads the mesh tables (cached on the mesh), the gray
+image and the keypoints once. Then on the GPU:
+
+1. the walk (`geodesic.walk_cuda`: the CPU walk's kernel source compiled by numba.cuda), writing
+   into torch tensors;
+2. the sampling blur (separable Gaussian, OpenCV's kernel) and the bilinear read of the patches
+   in OpenCV `remap`'s form, with border replication (`sample_bilinear_torch`);
+3. the GeoPatch CNN in torch (fp32, TF32 off);
+4. matching as matrix products: L2 for GeoPatch, min-over-rotations Hamming for GeoBit
+   (`matching._hamming_search_torch`); only the (N0,) matches and distances come back.
+
+Results equal the CPU path's within stated tolerances (tests/test_gpu.py, tests/test_walk_cuda.py):
+walk coordinates within 1e-4 px (the GPU's cos/sin and fused multiply-adds may differ from the CPU's
+in the last bits of float64; on an H100 the Kinect pair's coordinates and rings reached were
+identical), patch values within 1e-5 where the coordinates agree, descriptors within 1e-4, the
+same matches on the tested frames. Nothing here is imported by `import geofeat`;
+torch and numba.cuda load on first use.
+
+Under numba's CUDA simulator (NUMBA_ENABLE_CUDASIM=1, no GPU needed) the same code runs with torch
+CPU tensors and the walk kernel simulated: that is how the tests run the whole path without a GPU.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from .constants import DEFAULT_RADIUS_M, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX
+from .depth import DepthConfig
+from .features import Features, Matches
+from .frame import RGBDFrame
+from .geodesic.mesh import GridMesh, frame_mesh
+from .geodesic.polar import check_patch_request
+
+#: Attribute of a GridMesh under which its device tables are kept, per device.
+_MESH_ATTR = "_geofeat_device_tables"
+
+
+def is_cuda_device(device) -> bool:
+    """Whether `device` ("cuda", "cuda:1", a torch.device) names a CUDA device."""
+    return device is not None and str(device).split(":")[0] == "cuda"
+
+
+def simulated() -> bool:
+    """Whether numba's CUDA simulator is on (then torch tensors live on the CPU)."""
+    return os.environ.get("NUMBA_ENABLE_CUDASIM", "0") not in ("", "0")
+
+
+def require_cuda(device="cuda"):
+    """The torch.device for `device`, or a RuntimeError saying what is missing: a CUDA build of
+    torch with a visible GPU, and numba's CUDA target (built into numba <= 0.60, else the
+    numba-cuda package: pip install 'geofeat[cuda]')."""
+    import importlib.util
+
+    if simulated():
+        import torch
+
+        return torch.device("cpu")
+    if importlib.util.find_spec("torch") is None:
+        raise RuntimeError("device='cuda': torch is not installed")
+    import torch
+
+    if not torch.cuda.is_available():
+        raise RuntimeError(f"device={str(device)!r}: no CUDA GPU is available to torch (torch {torch.__version__}, "
+                           f"built for CUDA {torch.version.cuda}); use device='cpu' or None")
+    try:
+        from numba import cuda
+    except ImportError as exc:  # pragma: no cover - depends on the numba build
+        raise RuntimeError("device='cuda': numba's CUDA target is missing; pip install 'geofeat[cuda]' "
+                           f"(numba-cuda) ({exc})") from exc
+    if not cuda.is_available():
+        raise RuntimeError("device='cuda': numba cannot use the GPU (numba.cuda.is_available() is False; "
+                           "pip install 'geofeat[cuda]' for the numba-cuda target)")
+    dev = torch.device(device)
+    if dev.index is None:
+        dev = torch.device("cuda", torch.cuda.current_device())
+    return dev
+
+
+def _as_numba(t):
+    """A numba device array viewing torch CUDA tensor `t` (no copy, no synchronisation)."""
+    if simulated():
+        return t.detach().numpy()
+    from numba import cuda
+
+    return cuda.as_cuda_array(t.detach(), sync=False)
+
+
+def _numba_stream(dev):
+    if simulated():
+        return 0
+    import torch
+    from numba import cuda
+
+    return cuda.external_stream(torch.cuda.current_stream(dev).cuda_stream)
+
+
+def device_mesh_tables(mesh: GridMesh, dev) -> tuple:
+    """The walk's per-mesh arrays on device `dev` as numba device arrays (points, face_ok, normals,
+    local, edges), uploaded on first use and kept with the mesh (the tensors that own them too)."""
+    import torch
+
+    cache = mesh.__dict__.setdefault(_MESH_ATTR, {})
+    hit = cache.get(str(dev))
+    if hit is None:
+        local, edges = mesh.walk_tables
+        tensors = [torch.from_numpy(np.ascontiguousarray(a)).to(dev)
+                   for a in (mesh.points, mesh.face_ok, mesh.normals, local, edges)]
+        hit = (tensors, tuple(_as_numba(t) for t in tensors))
+        cache[str(dev)] = hit
+    return hit[1]
+
+
+def gaussian_blur_torch(image, sigma: float):
+    """cv2.GaussianBlur(image, (0, 0), sigma) of an (H, W) float32 tensor: the same kernel
+    (OpenCV's size rule for float images, cv2.getGaussianKernel) and border (reflect-101), rows then
+    columns; equal to OpenCV's up to float32 summation order (1e-6).
+
+    The two passes are sums of shifted slices in float32, not torch's conv2d: on CUDA, cuDNN's
+    convolutions default to TF32 (about 1e-4 off, measured on an H100), and this keeps the result
+    independent of such settings."""
+    import cv2
+    import torch
+    import torch.nn.functional as F
+
+    if sigma <= 0:
+        return image
+    ksize = int(round(sigma * 4 * 2 + 1)) | 1
+    weights = [float(w) for w in cv2.getGaussianKernel(ksize, sigma, cv2.CV_32F)[:, 0]]
+    r = ksize // 2
+    H, W = image.shape
+    x = F.pad(image[None, None], (r, r, 0, 0), mode="reflect")[0, 0]
+    rows = x[:, 0:W] * weights[0]
+    for i in range(1, ksize):
+        rows = rows + x[:, i:i + W] * weights[i]
+    y = F.pad(rows[None, None], (0, 0, r, r), mode="reflect")[0, 0]
+    out = y[0:H] * weights[0]
+    for i in range(1, ksize):
+        out = out + y[i:i + H] * weights[i]
+    return out
+
+
+def sample_bilinear_torch(image, coords):
+    """`geodesic.polar.sample_bilinear` (cv2.remap, INTER_LINEAR, BORDER_REPLICATE) on torch tensors:
+    (H, W) float32 image, (..., 2) float32 pixel coordinates (x, y) -> (...) float32.
+
+    Float32 bilinear interpolation in OpenCV 5's form (two lerps along x, then one along y, on the
+    fractional parts of the coordinates), neighbours off the image clamped to the border: equal to
+    cv2.remap's values within 1e-6 (OpenCV's SIMD code fuses some multiply-adds). NaN coordinates
+    give 0 (the caller masks them)."""
+    import torch
+
+    H, W = image.shape
+    ok = torch.isfinite(coords).all(-1)
+    c = torch.where(ok[..., None], coords, torch.zeros((), dtype=coords.dtype, device=coords.device)).float()
+    f = torch.floor(c)
+    fx, fy = c[..., 0] - f[..., 0], c[..., 1] - f[..., 1]
+    x0, y0 = f[..., 0].to(torch.int64), f[..., 1].to(torch.int64)
+    xa, xb = x0.clamp(0, W - 1), (x0 + 1).clamp(0, W - 1)
+    ya, yb = y0.clamp(0, H - 1), (y0 + 1).clamp(0, H - 1)
+    flat = image.reshape(-1)
+    s00, s01 = flat[ya * W + xa], flat[ya * W + xb]
+    s10, s11 = flat[yb * W + xa], flat[yb * W + xb]
+    top = s00 + fx * (s01 - s00)
+    v = top + fy * ((s10 + fx * (s11 - s10)) - top)
+    return torch.where(ok, v, torch.zeros((), dtype=v.dtype, device=v.device))
+
+
+@dataclass
+class DevicePatches:
+    """`geodesic.polar.PolarPatches` with its arrays as torch tensors on the GPU (keypoints and
+    radius on the host)."""
+
+    keypoints: np.ndarray
+    values: object
+    coords: object
+    valid: object
+    rings_reached: object
+    points: object
+    radius: float
+
+    def __len__(self) -> int:
+        return len(self.keypoints)
+
+    def to_host(self):
+        """The `PolarPatches` on the host (one copy per array)."""
+        from .geodesic.polar import PolarPatches
+
+        return PolarPatches(self.keypoints, self.values.cpu().numpy(), self.coords.cpu().numpy(),
+                            self.valid.cpu().numpy(), self.rings_reached.cpu().numpy(), self.points.cpu().numpy(),
+                            self.radius)
+
+
+def polar_patches_cuda(frame: RGBDFrame, keypoints, radius: float = DEFAULT_RADIUS_M, n_angles: int = N_ANGLES,
+                       n_rings: int = N_RINGS, depth_config: DepthConfig | str = "auto", mesh: GridMesh | None = None,
+                       blur_px: float = SAMPLING_BLUR_PX, device="cuda", image=None) -> DevicePatches:
+    """`geofeat.polar_patches` on the GPU: same arguments (plus `device`), same results within the
+    tolerances of the module docstring, as `DevicePatches` (torch tensors on `device`).
+
+    `image`: the frame's sampling image (`geodesic.polar.sampling_image`, blurred) already on the
+    device, to skip the upload and blur when several calls share a frame."""
+    import torch
+
+    from .geodesic.walk import MAX_CROSSINGS
+    from .geodesic.walk_cuda import walk_polar_cuda
+
+    dev = require_cuda(device)
+    kp = check_patch_request(frame, keypoints, radius, n_angles, n_rings)
+    if mesh is None:
+        mesh = frame_mesh(frame, depth_config)
+    elif tuple(mesh.image_shape) != tuple(frame.shape):
+        raise ValueError(f"mesh: built for a {mesh.image_shape} frame, not this {frame.shape} one")
+    points, face_ok, normals, local, edges = device_mesh_tables(mesh, dev)
+    starts = mesh.image_to_mesh(kp) + np.array([1.3e-6, 0.7e-6])
+    host = torch.from_numpy(np.concatenate([starts.ravel(), np.asarray(frame.K, np.float64).ravel()]))
+    upload = host.to(dev, non_blocking=False)
+    starts_t, K_t = upload[:starts.size].view(-1, 2), upload[starts.size:].view(3, 3)
+    N = len(kp)
+    samples = torch.empty((N, n_rings, n_angles, 3), dtype=torch.float32, device=dev)
+    coords = torch.empty((N, n_rings, n_angles, 2), dtype=torch.float32, device=dev)
+    reached = torch.empty((N, n_angles), dtype=torch.int32, device=dev)
+    faces = torch.full((N, 3), -1, dtype=torch.int64, device=dev)
+    centre = torch.full((N, 3), float("nan"), dtype=torch.float64, device=dev)
+    frames = torch.zeros((N, 3, 3), dtype=torch.float64, device=dev)
+    out = tuple(_as_numba(t) for t in (samples, coords, reached, faces, centre, frames))
+    walk_polar_cuda(points, face_ok, normals, local, edges, _as_numba(starts_t), _as_numba(K_t), float(radius),
+                    int(n_angles), int(n_rings), MAX_CROSSINGS, out=out, stream=_numba_stream(dev))
+    valid = (reached >= 1).sum(1) * 2 >= n_angles  # patch_validity: half of the directions reach ring 1
+    coords = torch.where(valid[:, None, None, None], coords, torch.full((), float("nan"), device=dev))
+    if image is None:
+        image = gaussian_blur_torch(torch.from_numpy(np.ascontiguousarray(frame.image, np.float32)).to(dev),
+                                    float(blur_px))
+    values = sample_bilinear_torch(image, coords)
+    return DevicePatches(kp, values, coords, valid, reached, samples, float(radius))
+
+
+@dataclass
+class DeviceFeatures:
+    """`Features` whose descriptors and valid flags are torch tensors on the GPU (keypoints,
+    angles, sizes on the host)."""
+
+    keypoints: np.ndarray
+    descriptors: object
+    valid: object
+    angles: np.ndarray | None = None
+    sizes: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.keypoints)
+
+    def to_host(self) -> Features:
+        return Features(self.keypoints, self.descriptors.cpu().numpy(), self.valid.cpu().numpy(), self.angles,
+                        self.sizes)
+
+
+def compute_cuda(descriptor, frame: RGBDFrame, keypoints, mesh: GridMesh | None = None,
+                 half: bool = False) -> DeviceFeatures:
+    """GeoPatch features of `keypoints` on the GPU: `GeoPatch.compute` with the walk, the sampling
+    and the CNN on `descriptor.device` (a GeoPatch with the torch backend on CUDA). `half`: the CNN
+    under float16 autocast (`GeoPatch.describe_tensor`)."""
+    from .keypoints import as_keypoints
+
+    on_gpu = simulated() or is_cuda_device(getattr(descriptor, "device", None))
+    if not on_gpu or getattr(descriptor, "backend", None) != "torch":
+        raise ValueError("descriptor: the GPU path needs a GeoPatch on a CUDA device "
+                         "(GeoPatch(device='cuda', backend='torch'))")
+    kps = as_keypoints(keypoints, frame.shape)
+    patches = polar_patches_cuda(frame, kps, radius=descriptor.radius, depth_config=descriptor.depth_config,
+                                 mesh=mesh, blur_px=descriptor.blur_px, device=descriptor.device)
+    desc = descriptor.describe_tensor(patches.values, patches.valid, half=half)
+    return DeviceFeatures(patches.keypoints, desc, patches.valid, angles=kps.angles, sizes=kps.sizes)
+
+
+def match_cuda(features0, features1, mutual: bool = False, ratio: float | None = None, device="cuda") -> Matches:
+    """`geofeat.match` on the GPU for `DeviceFeatures` (or host `Features`, uploaded): L2 for float
+    descriptors (GeoPatch), min-over-rotations Hamming for uint8 (N, R, B) ones (GeoBit), Hamming
+    for (N, B). Only the (N0,) matches and distances come back to the host."""
+    import torch
+
+    from .matching import _finish_matches, _hamming_search_torch, _l2_search_torch
+
+    dev = require_cuda(device)
+
+    def up(x):
+        if isinstance(x, torch.Tensor):
+            return x.to(dev)
+        return torch.from_numpy(np.ascontiguousarray(x)).to(dev)
+
+    d0, v0 = up(features0.descriptors), up(features0.valid).bool()
+    d1, v1 = up(features1.descriptors), up(features1.valid).bool()
+    if ratio is not None and not (0 < ratio <= 1):
+        raise ValueError(f"ratio: expected a number in (0, 1], got {ratio}")
+    if d0.shape[1:] != d1.shape[1:]:
+        raise ValueError(f"descriptors: trailing shapes differ: features0 {tuple(d0.shape)} vs features1 "
+                         f"{tuple(d1.shape)}")
+    n0 = d0.shape[0]
+    if n0 == 0 or d1.shape[0] == 0:
+        return Matches(np.full(n0, -1, np.int64), np.full(n0, np.inf))
+    if d0.dtype.is_floating_point:
+        res = _l2_search_torch(d0, d1, v0, v1, mutual)
+    elif d0.dtype == torch.uint8 and d0.ndim in (2, 3):
+        if d0.ndim == 2:
+            d0, d1 = d0[:, None, :], d1[:, None, :]
+        res = _hamming_search_torch(d0, d1, v0, v1, mutual, dev)
+    else:
+        raise ValueError(f"descriptors: expected float (N, D) or uint8 (N, B) / (N, R, B), got {d0.dtype} "
+                         f"{tuple(d0.shape)}")
+    return _finish_matches(*res, ratio=ratio, mutual=mutual)

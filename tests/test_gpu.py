@@ -1,0 +1,138 @@
+"""The GPU path (`geofeat.gpu`, `extract(..., device="cuda")`, `match(..., device=...)`) against the
+CPU path.
+
+Without a GPU: the torch parts of the path (blur, patch sampling, CNN on tensors, L2 / Hamming
+matching as matrix products) run on CPU tensors and are compared with the CPU path's functions; the
+walk kernel is compared in numba's CUDA simulator (tests/test_walk_cuda.py); asking for CUDA raises
+a clear error. With a GPU, the whole path runs on the shipped Kinect frame and its 90-degree roll.
+
+Tolerances (stated in `geofeat.gpu`): blur and patch values 1e-6 (float32 summation order),
+descriptors 1e-4, matches identical.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+import geofeat
+from geofeat.descriptors.geobit import GeoBit
+from geofeat.descriptors.geopatch import GeoPatch
+from geofeat.geodesic.polar import sample_bilinear, sampling_image
+from geofeat.gpu import gaussian_blur_torch, match_cuda, sample_bilinear_torch
+from geofeat.keypoints import detect
+from geofeat.matching import match
+
+CUDA = torch.cuda.is_available()
+
+
+@pytest.fixture(scope="module")
+def pair():
+    f0 = geofeat.read_demo_frame()
+    f1 = f0.rotated90(1)
+    return [(f, detect(f, 512, detector="sift")) for f in (f0, f1)]
+
+
+def test_blur_and_sampling_equal_opencv(pair):
+    frame = pair[0][0]
+    img = sampling_image(frame, 1.0)
+    blurred = gaussian_blur_torch(torch.from_numpy(frame.image), 1.0).numpy()
+    np.testing.assert_allclose(blurred, img, rtol=0, atol=1e-6)
+    rng = np.random.default_rng(0)
+    H, W = img.shape
+    # inside, on and off the border (replicated), and the walk's own coordinates
+    coords = np.concatenate([rng.uniform([-5, -5], [W + 5, H + 5], (20000, 2)),
+                             np.array([[0, 0], [W - 1, H - 1], [W - 1.5, 3.25], [-0.5, H - 0.5]])]).astype(np.float32)
+    p = geofeat.polar_patches(frame, pair[0][1][:64])
+    coords = np.concatenate([coords, p.coords[p.valid].reshape(-1, 2)])
+    got = sample_bilinear_torch(torch.from_numpy(img), torch.from_numpy(coords)).numpy()
+    np.testing.assert_allclose(got, sample_bilinear(img, coords), rtol=0, atol=1e-6)
+    nan = sample_bilinear_torch(torch.from_numpy(img), torch.full((3, 2), float("nan")))
+    assert (nan == 0).all()
+
+
+def test_describe_tensor_equals_describe(pair):
+    frame, kps = pair[0]
+    p = geofeat.polar_patches(frame, kps)
+    net = GeoPatch(device="cpu", backend="torch")
+    ref = net.describe(p.values, p.valid)
+    got = net.describe_tensor(torch.from_numpy(p.values), torch.from_numpy(p.valid)).numpy()
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-4)
+    assert (got[~p.valid] == 0).all()
+
+
+@pytest.mark.parametrize("mutual,ratio", [(False, None), (True, None), (False, 0.9), (True, 0.8)])
+def test_l2_matching_as_matrix_product_equals_cpu(pair, mutual, ratio):
+    net = GeoPatch(device="cpu", backend="torch")
+    f0, f1 = (net.compute(f, k) for f, k in pair)
+    ref = match(f0, f1, mutual=mutual, ratio=ratio)
+    got = match(f0, f1, mutual=mutual, ratio=ratio, device="cpu")
+    np.testing.assert_array_equal(got.matches0, ref.matches0)
+    np.testing.assert_allclose(got.distances0, ref.distances0, rtol=0, atol=1e-5)
+    assert (ref.matches0 >= 0).sum() > 50
+
+
+def test_hamming_on_tensors_equals_cpu(pair):
+    gb = GeoBit()
+    f0, f1 = (gb.compute(f, k) for f, k in pair)
+    ref = match(f0, f1, mutual=True)
+    from geofeat.matching import _finish_matches, _hamming_search_torch
+
+    t = [torch.from_numpy(x) for x in (f0.descriptors, f1.descriptors, f0.valid, f1.valid)]
+    got = _finish_matches(*_hamming_search_torch(*t, True, "cpu"), ratio=None, mutual=True)
+    np.testing.assert_array_equal(got.matches0, ref.matches0)
+    np.testing.assert_array_equal(got.distances0, ref.distances0)
+
+
+@pytest.mark.skipif(CUDA, reason="checks the error without a GPU")
+def test_cuda_requests_fail_clearly_without_gpu(pair):
+    frame, kps = pair[0]
+    with pytest.raises(RuntimeError, match="CUDA"):
+        geofeat.extract(frame, 64, detector="sift", device="cuda")
+    with pytest.raises(RuntimeError, match="CUDA"):
+        match_cuda(GeoBit().compute(frame, kps[:8]), GeoBit().compute(frame, kps[:8]))
+    with pytest.raises(ValueError, match="GeoPatch"):
+        geofeat.extract(frame, 64, detector="sift", descriptor="geobit", device="cuda")
+
+
+@pytest.mark.skipif(not CUDA, reason="no CUDA GPU")
+def test_gpu_path_equals_cpu_path(pair):
+    """On a real GPU, float64 arithmetic differs from the CPU's in the last bits (fused multiply-adds,
+    libdevice's cos/sin), so a ray that grazes a mesh vertex may take the other face: the tolerances
+    hold for all but a stated small fraction of rays (the simulator tests hold them for all)."""
+    from geofeat.gpu import polar_patches_cuda
+
+    net_gpu = GeoPatch(device="cuda", backend="torch")
+    net_cpu = GeoPatch(device="cpu", backend="torch")
+    feats_g, feats_c = [], []
+    for frame, kps in pair:
+        cpu = geofeat.polar_patches(frame, kps)
+        gpu = polar_patches_cuda(frame, kps).to_host()
+        assert (gpu.valid != cpu.valid).sum() <= 1
+        assert (gpu.rings_reached == cpu.rings_reached).mean() >= 0.999
+        both = gpu.valid & cpu.valid
+        d = np.abs(gpu.coords - cpu.coords)[both].max(-1)  # (M, R, A) px
+        close = d < 1e-4
+        assert close.mean() >= 0.999
+        np.testing.assert_allclose(gpu.values[both][close], cpu.values[both][close], rtol=0, atol=1e-5)
+        fg = net_gpu.compute_cuda(frame, kps)
+        fc = net_cpu.compute(frame, kps)
+        same = np.zeros(len(kps), bool)
+        same[np.flatnonzero(both)[close.all((1, 2))]] = True
+        assert same.mean() >= 0.95
+        np.testing.assert_allclose(fg.descriptors.cpu().numpy()[same], fc.descriptors[same], rtol=0, atol=1e-4)
+        feats_g.append(fg)
+        feats_c.append(fc)
+    ref = match(feats_c[0], feats_c[1], mutual=True)
+    got = match_cuda(feats_g[0], feats_g[1], mutual=True)
+    assert (got.matches0 == ref.matches0).mean() >= 0.99
+    # the same descriptors give identical matches on both devices
+    h0, h1 = feats_g[0].to_host(), feats_g[1].to_host()
+    np.testing.assert_array_equal(match(h0, h1, mutual=True, device="cuda").matches0, match(h0, h1, mutual=True).matches0)
+    np.testing.assert_array_equal(match_cuda(feats_g[0], feats_g[1], ratio=0.9).matches0, match(h0, h1, ratio=0.9).matches0)
+    gb = GeoBit()
+    b0, b1 = (gb.compute(f, k) for f, k in pair)
+    np.testing.assert_array_equal(match_cuda(b0, b1, mutual=True).matches0, match(b0, b1, mutual=True).matches0)
+    host = geofeat.extract(pair[0][0], 256, detector="sift", device="cuda")
+    assert host.descriptors.shape == (256, 128) and isinstance(host.descriptors, np.ndarray)

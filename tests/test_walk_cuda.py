@@ -1,0 +1,178 @@
+"""The GPU walk (`geofeat.geodesic.walk_cuda`, the walk's kernel source compiled by numba.cuda)
+against the CPU walk (the same source compiled by numba.njit).
+
+Without a GPU the kernel runs in numba's CUDA simulator (NUMBA_ENABLE_CUDASIM=1), in a subprocess so
+that the simulator does not leak into other tests. On a machine with a CUDA GPU (and numba's CUDA
+target) the same comparison also runs on the real device.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+#: Tolerances of GPU against CPU. In the simulator the device functions run as Python on the same
+#: float64 operations as the njit build (math.sqrt/cos/sin are the same libm calls), so the results
+#: agree to float32 rounding of the stored samples. On a real GPU, cos/sin come from libdevice and
+#: the compiler may fuse multiply-adds, so positions may differ by a few ulp of float64 before the
+#: float32 store: the same tolerance holds for all but rays that graze a vertex.
+COORD_TOL_PX = 1e-4
+POINT_TOL_M = 1e-6
+
+SCRIPT = r'''
+import json, sys
+import numpy as np
+from geofeat.geodesic.mesh import mesh_from_points
+from geofeat.geodesic.walk import MAX_CROSSINGS, walk_polar
+
+def scene():
+    """A 20x20 bumpy surface with a hole and a depth step: rays cross many faces, some stop."""
+    H = W = 20
+    K = np.array([[30.0, 0.0, 9.5], [0.0, 30.0, 9.5], [0.0, 0.0, 1.0]])
+    v, u = np.mgrid[0:H, 0:W].astype(float)
+    z = 1.0 + 0.04 * np.sin(u / 3.0) * np.cos(v / 4.0) + 0.01 * u
+    z[14:17, 3:6] = np.nan  # a hole
+    z[:, 17:] += 0.3  # a depth discontinuity
+    pts = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=-1)
+    mesh = mesh_from_points(pts, K, (1.0, 1.0), (H, W))
+    starts = np.array([[9.3, 9.1], [4.2, 13.4], [15.6, 4.3], [16.4, 10.2], [4.5, 15.5], [0.2, 0.3]])
+    return mesh, starts, K
+
+mesh, starts, K = scene()
+local, edges = mesh.walk_tables
+args = (mesh.points, mesh.face_ok, mesh.normals, local, edges, starts, K, 0.12, 8, 6, MAX_CROSSINGS)
+cpu = walk_polar(*args)
+
+from numba import cuda
+from geofeat.geodesic.walk_cuda import walk_polar_cuda
+dev = [cuda.to_device(np.ascontiguousarray(a)) for a in args[:7]]
+gpu = walk_polar_cuda(*dev, *args[7:])
+gpu = [g.copy_to_host() for g in gpu]
+out = {}
+for name, c, g in zip(("samples", "coords", "reached", "centre"), cpu, gpu):
+    np.save(sys.argv[1] + f"/{name}_cpu.npy", c)
+    np.save(sys.argv[1] + f"/{name}_gpu.npy", g)
+print(json.dumps({"simulator": bool(cuda.simulator_initialized if hasattr(cuda, "simulator_initialized") else False)}))
+'''
+
+
+def _run(tmp_path: Path, simulate: bool) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    env = dict(os.environ)
+    env.pop("NUMBA_ENABLE_CUDASIM", None)
+    if simulate:
+        env["NUMBA_ENABLE_CUDASIM"] = "1"
+    src = str(Path(__file__).resolve().parents[1] / "src")
+    env["PYTHONPATH"] = src + os.pathsep + env.get("PYTHONPATH", "")
+    proc = subprocess.run([sys.executable, "-c", SCRIPT, str(tmp_path)], env=env, capture_output=True, text=True,
+                          timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return {name: (np.load(tmp_path / f"{name}_cpu.npy"), np.load(tmp_path / f"{name}_gpu.npy"))
+            for name in ("samples", "coords", "reached", "centre")}
+
+
+def _check(res) -> None:
+    samples_c, samples_g = res["samples"]
+    coords_c, coords_g = res["coords"]
+    reached_c, reached_g = res["reached"]
+    centre_c, centre_g = res["centre"]
+    # the scene exercises every case: full rays, rays stopped by the hole / step / border, and a
+    # keypoint without surface
+    assert (reached_c == 6).any() and ((reached_c > 0) & (reached_c < 6)).any()
+    assert np.isnan(centre_c).any() and np.isfinite(centre_c).any()
+    np.testing.assert_array_equal(reached_g, reached_c)
+    np.testing.assert_array_equal(np.isnan(coords_g), np.isnan(coords_c))
+    np.testing.assert_allclose(centre_g, centre_c, rtol=0, atol=1e-12, equal_nan=True)
+    np.testing.assert_allclose(coords_g, coords_c, rtol=0, atol=COORD_TOL_PX, equal_nan=True)
+    np.testing.assert_allclose(samples_g, samples_c, rtol=0, atol=POINT_TOL_M, equal_nan=True)
+
+
+def test_gpu_walk_equals_cpu_walk_in_cuda_simulator(tmp_path):
+    res = _run(tmp_path, simulate=True)
+    _check(res)
+    # in the simulator the same float64 operations run: equal to the float32 rounding of the store
+    for name in ("samples", "coords"):
+        c, g = res[name]
+        assert np.nanmax(np.abs(c.astype(np.float64) - g)) <= 1e-5
+
+
+E2E_SCRIPT = r'''
+import cv2, numpy as np
+import geofeat
+from geofeat.frame import RGBDFrame
+from geofeat.descriptors.geobit import GeoBit
+from geofeat.descriptors.geopatch import GeoPatch
+from geofeat.gpu import compute_cuda, match_cuda, polar_patches_cuda, simulated
+from geofeat.matching import match
+assert simulated()
+H, W = 40, 48
+K = np.array([[300.0, 0, 23.5], [0, 300.0, 19.5], [0, 0, 1]])
+v, u = np.mgrid[0:H, 0:W].astype(float)
+depth = (1.0 + 0.05 * np.sin(u / 5.0) * np.cos(v / 6.0) + 0.002 * u).astype(np.float32)
+img = cv2.GaussianBlur(np.random.default_rng(0).random((H, W)).astype(np.float32), (0, 0), 1.5)
+frame = RGBDFrame((img - img.min()) / (img.max() - img.min()), depth, K)
+kps = [np.array([[24.2, 20.3], [20.7, 17.1], [27.4, 22.6], [2.5, 3.5]]),
+       np.array([[23.8, 19.9], [21.1, 17.4], [26.9, 23.1], [30.2, 12.7]])]
+net = GeoPatch(device="cpu", backend="torch", depth_config="clean")
+gb = GeoBit(depth_config="clean")
+fc, fg, bc, partial = [], [], [], []
+for k in kps:
+    cpu = geofeat.polar_patches(frame, k, depth_config="clean")
+    gpu = polar_patches_cuda(frame, k, depth_config="clean").to_host()
+    assert cpu.valid[:3].all()
+    partial.append(bool((cpu.rings_reached < 32).any()))  # rays that leave the frame early
+    np.testing.assert_array_equal(gpu.valid, cpu.valid)
+    np.testing.assert_array_equal(gpu.rings_reached, cpu.rings_reached)
+    np.testing.assert_allclose(gpu.coords, cpu.coords, rtol=0, atol=1e-5, equal_nan=True)
+    np.testing.assert_allclose(gpu.values, cpu.values, rtol=0, atol=1e-6)
+    fc.append(net.compute(frame, k))
+    fg.append(compute_cuda(net, frame, k))
+    np.testing.assert_allclose(fg[-1].descriptors.numpy(), fc[-1].descriptors, rtol=0, atol=1e-4)
+    np.testing.assert_array_equal(fg[-1].valid.numpy(), fc[-1].valid)
+    bc.append(gb.compute(frame, k, patches=cpu))
+for mutual in (False, True):
+    np.testing.assert_array_equal(match_cuda(fg[0], fg[1], mutual=mutual).matches0,
+                                  match(fc[0], fc[1], mutual=mutual).matches0)
+    np.testing.assert_array_equal(match_cuda(bc[0], bc[1], mutual=mutual).matches0,
+                                  match(bc[0], bc[1], mutual=mutual).matches0)
+assert any(partial)
+print("ok")
+'''
+
+
+def test_gpu_path_equals_cpu_path_in_cuda_simulator():
+    """The whole `geofeat.gpu` path (walk kernel simulated, torch on CPU tensors) on a small frame:
+    patches, descriptors and matches equal the CPU path's."""
+    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
+    src = str(Path(__file__).resolve().parents[1] / "src")
+    env["PYTHONPATH"] = src + os.pathsep + env.get("PYTHONPATH", "")
+    proc = subprocess.run([sys.executable, "-c", E2E_SCRIPT], env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0 and "ok" in proc.stdout, proc.stderr[-3000:]
+
+
+def _real_gpu() -> bool:
+    try:
+        from numba import cuda
+
+        return bool(cuda.is_available()) and not os.environ.get("NUMBA_ENABLE_CUDASIM")
+    except Exception:
+        return False
+
+
+@pytest.mark.skipif(not _real_gpu(), reason="no CUDA GPU")
+def test_gpu_walk_equals_cpu_walk_on_device(tmp_path):
+    _check(_run(tmp_path, simulate=False))
+
+
+def test_walk_cuda_not_imported_by_package():
+    """`import geofeat` and the CPU walk work without numba.cuda: the GPU module loads on demand."""
+    code = ("import sys, geofeat; geofeat.polar_patches; "
+            "assert 'geofeat.geodesic.walk_cuda' not in sys.modules; assert 'numba.cuda' not in sys.modules")
+    src = str(Path(__file__).resolve().parents[1] / "src")
+    env = dict(os.environ, PYTHONPATH=src + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    subprocess.run([sys.executable, "-c", code], env=env, check=True, timeout=300)
