@@ -1,6 +1,6 @@
 """Thin-plate splines in the authors' layout, and the robust landmark spline.
 
-The authors' target -> reference warp (see `geofeat.bench.protocol.authors_tps_warp`) works in
+The authors' target -> reference warp (see `geofeat.groundtruth.sources.authors_tps_warp`) works in
 coordinates normalised by the image size (W, H): `warped = p + [1, x, y] a + U(p) w` with
 `U = d^2 log(d + 1e-6)` over the distances d from p to the control points. `TPS` fits exactly that
 form, so its `theta` / `ctrlpts` can be written as `<k>_theta.npy` / `<k>_ctrlpts.npy` unchanged.
