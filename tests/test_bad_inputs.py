@@ -5,7 +5,6 @@ anything a user had. One table row per case; a property test of `polar_patches` 
 from __future__ import annotations
 
 import json
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable

@@ -8,7 +8,6 @@ target) the same comparison also runs on the real device.
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys

@@ -126,7 +126,6 @@ def gaussian_blur_torch(image, sigma: float):
     convolutions default to TF32 (about 1e-4 off, measured on an H100), and this keeps the result
     independent of such settings."""
     import cv2
-    import torch
     import torch.nn.functional as F
 
     if sigma <= 0:
