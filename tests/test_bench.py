@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 import geofeat
-from geofeat.bench.protocol import LandmarkTPS
-from geofeat.bench.runner import COLUMNS, BenchConfig, GroundTruth, run_benchmark
+from geofeat.bench.runner import COLUMNS, BenchConfig, run_benchmark
+from geofeat.groundtruth.sources import GroundTruth
+from geofeat.groundtruth.tps import LandmarkTPS
 from geofeat.cli import main
 from geofeat.sim import simulate_sequence
 
@@ -167,7 +168,7 @@ def test_rerun_skips_finished_results_and_refuses_other_settings(datasets, tmp_p
 def test_match_command_counts_the_bench_hits(datasets, tmp_path, capsys):
     """`geofeat match` judges matches with the bench's ground truth: on the same keypoints and
     matches it counts exactly the benchmark's hits."""
-    from geofeat.bench.runner import GroundTruth, correct_matches
+    from geofeat.groundtruth.sources import GroundTruth, correct_matches
     from geofeat.scoring import ground_truth_pairs, score_detect
 
     seq = geofeat.read_sequence(datasets / "seqs" / "a-deform")

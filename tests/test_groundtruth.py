@@ -9,8 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from geofeat.bench.protocol import authors_tps_warp
-from geofeat.bench.runner import GroundTruth
+from geofeat.groundtruth.sources import GroundTruth
+from geofeat.groundtruth.tps import authors_tps_warp
 from geofeat.cli import main
 from geofeat.groundtruth import TPS, GroundTruthConfig, RefineConfig, generate_ground_truth, robust_landmark_tps
 from geofeat.groundtruth.validate import keep_landmarks, mapping_errors

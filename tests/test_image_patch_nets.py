@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import geofeat
-from geofeat.bench.protocol import ground_truth_pairs, score_detect
+from geofeat.scoring import ground_truth_pairs, score_detect
 from geofeat.descriptors.image_patch_nets import ImagePatchDescriptor, image_patches
 from geofeat.descriptors.patches import cartesian_grid, sample_patches
 from geofeat.keypoints import detect

@@ -3,9 +3,8 @@
 import numpy as np
 import pytest
 
-from geofeat.bench.protocol import (
-    LandmarkTPS, authors_tps_warp, ground_truth_pairs, score_detect, score_landmarks,
-)
+from geofeat.groundtruth.tps import LandmarkTPS, authors_tps_warp
+from geofeat.scoring import ground_truth_pairs, score_detect, score_landmarks
 from geofeat.features import Features
 from geofeat.matching import match
 

@@ -217,7 +217,7 @@ def _extract(args: argparse.Namespace) -> int:
 def _match(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from .bench.runner import GroundTruth, correct_matches
+    from .groundtruth.sources import GroundTruth, correct_matches
     from .depth import PROFILES, sequence_depth_profile
     from .descriptors import make_descriptor
     from .features import save_matches

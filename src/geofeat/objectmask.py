@@ -66,9 +66,9 @@ def object_mask(seq: Sequence, name: str, tps_dir: str | Path | None = None) -> 
         with np.load(gt) as data:
             return data["uv"][..., 0] >= 0, "simulator"
     if tps_dir is not None:
-        from .bench.runner import _tps_folder
+        from .groundtruth.sources import tps_folder
 
-        folder = _tps_folder(str(tps_dir), seq.name)
+        folder = tps_folder(str(tps_dir), seq.name)
         path = None if folder is None else folder / f"{name}_objmask.png"
         if path is not None and path.is_file():
             m = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)

@@ -251,7 +251,7 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
                       progress: bool = True, detector: str = "sift") -> RetrievalDatabase:
     """Detect keypoints inside the object mask of every frame of every sequence and describe them
     (`detector` as in `geofeat.detect`)."""
-    from .bench.runner import Describer
+    from .descriptors.describer import Describer
     from .depth import sequence_depth_profile
     from .descriptors import check_descriptor_name
     from .io import find_sequences, read_sequence

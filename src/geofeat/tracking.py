@@ -505,8 +505,9 @@ def track_sequence(
     """
     import time
 
-    from .bench.protocol import GT_THRESHOLD_PX
-    from .bench.runner import Describer, GroundTruth
+    from .descriptors.describer import Describer
+    from .groundtruth.sources import GroundTruth
+    from .scoring import GT_THRESHOLD_PX
     from .depth import sequence_depth_profile
     from .descriptors import check_descriptor_name
     from .keypoints import detect

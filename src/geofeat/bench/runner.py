@@ -25,16 +25,12 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 from tqdm import tqdm
 
 from ..constants import N_KEYPOINTS
-from ..depth import PROFILES, check_profile, sequence_depth_profile
-from ..descriptors import check_descriptor_name, make_descriptor
-from ..frame import RGBDFrame
-from ..geodesic.mesh import build_mesh
-from ..geodesic.polar import polar_patches
+from ..depth import check_profile, sequence_depth_profile
+from ..descriptors import check_descriptor_name
 from ..inputs import check_tps_dir, resolve_radius
 from ..io import Sequence, find_sequences, read_sequence
 from ..outputs import add_to_manifest, append_line_durably, atomic_file, check_out_dir, read_manifest
@@ -42,7 +38,9 @@ from ..keypoints import KEYPOINT_SETS, Keypoints, check_detector_name, detect
 from ..matching import match
 from ..features import Features
 from .external import ExternalFeatures, parse_features_option
-from .protocol import LandmarkTPS, authors_tps_warp, ground_truth_pairs, score_detect, score_landmarks
+from ..descriptors.describer import Describer
+from ..groundtruth.sources import GroundTruth
+from ..scoring import ground_truth_pairs, score_detect, score_landmarks
 
 COLUMNS = ["sequence", "reference", "target", "descriptor", "detector", "protocol", "keypoint_set", "depth_profile",
            "ms", "mma", "repeatability", "hits", "n_gt", "n_ref", "n_tgt", "seconds_extract", "seconds_match",
@@ -96,30 +94,6 @@ class BenchConfig:
         return self.descriptors + tuple(parse_features_option(f)[0] for f in self.features)
 
 
-class Describer:
-    """Describes keypoints of a frame with every descriptor; geodesic descriptors (`Descriptor.geodesic`)
-    share one mesh and one set of polar patches, built with the given depth profile."""
-
-    def __init__(self, names: tuple[str, ...], radius: float, profile: str = "kinect") -> None:
-        self.radius = radius
-        self.depth_config = PROFILES[profile]
-        self.descriptors = {n: make_descriptor(n, radius=radius, depth_config=self.depth_config) for n in names}
-
-    def __call__(self, frame: RGBDFrame, kps: Keypoints) -> dict[str, tuple]:
-        """{name: (Features, seconds)}; the seconds of a geodesic descriptor include the polar patches."""
-        out = {}
-        patches, t_patches = None, 0.0
-        if any(d.geodesic for d in self.descriptors.values()):
-            t = time.perf_counter()
-            patches = polar_patches(frame, kps, radius=self.radius, mesh=build_mesh(frame, self.depth_config))
-            t_patches = time.perf_counter() - t
-        for name, d in self.descriptors.items():
-            t = time.perf_counter()
-            f = d.compute(frame, kps, patches=patches) if d.geodesic else d.compute(frame, kps)
-            out[name] = (f, time.perf_counter() - t + (t_patches if d.geodesic else 0.0))
-        return out
-
-
 def _pose_change(seq: Sequence, target: str) -> tuple[float, float]:
     """Camera roll (degrees) and scale (reference depth / target depth) of a simulated pair; NaN if unknown."""
     try:
@@ -132,103 +106,8 @@ def _pose_change(seq: Sequence, target: str) -> tuple[float, float]:
         return float("nan"), float("nan")
 
 
-def _has_tps_files(folder: Path) -> bool:
-    return folder.is_dir() and (any(folder.glob("*_theta.npy")) or any(folder.glob("*_objmask.png")))
-
-
-def _tps_folder(tps_dir: str, name: str) -> Path | None:
-    """The folder of TPS files of sequence `name` under `tps_dir`: the first of `tps_dir/name`,
-    `tps_dir/name/name` (groundtruth run with `--out tps_dir/name`) and `tps_dir/*/name` that holds
-    TPS files (`*_theta.npy` or `*_objmask.png`); None when none does."""
-    root = Path(tps_dir)
-    for candidate in [root / name, root / name / name, *sorted(root.glob(f"*/{name}"))]:
-        if _has_tps_files(candidate):
-            return candidate
-    return None
-
-
-def _on_mask(mask: np.ndarray | None, xy: np.ndarray) -> np.ndarray:
-    if mask is None:
-        return np.ones(len(xy), bool)
-    x = np.clip(xy[:, 0].astype(int), 0, mask.shape[1] - 1)
-    y = np.clip(xy[:, 1].astype(int), 0, mask.shape[0] - 1)
-    return mask[y, x] > 0
-
-
-class GroundTruth:
-    """Target -> reference mapping of a pair, from (in this order) the authors' TPS files, the
-    simulator's exact correspondences, or a thin-plate spline on the csv landmarks."""
-
-    def __init__(self, seq: Sequence, tps_dir: str | None) -> None:
-        self.seq = seq
-        check_tps_dir(tps_dir)
-        self.tps = _tps_folder(tps_dir, seq.name) if tps_dir else None
-        if tps_dir and self.tps is None:
-            raise ValueError(f"tps-dir: no TPS files (<frame>_theta.npy, <frame>_objmask.png) for sequence {seq.name} "
-                             f"in {Path(tps_dir) / seq.name} or {Path(tps_dir)}/*/{seq.name}")
-        self.exact = self.tps is None and seq.has_ground_truth()
-        if self.tps is None and not self.exact and not seq.has_landmarks():
-            raise ValueError(f"sequence {seq.name}: no ground truth (no simulator files, no csv landmarks, no TPS files)")
-
-    def _mask(self, frame: str) -> np.ndarray | None:
-        if self.tps is None:
-            return None
-        m = cv2.imread(str(self.tps / f"{frame}_objmask.png"), cv2.IMREAD_GRAYSCALE)
-        if m is None:
-            raise ValueError(f"tps-dir: missing {self.tps / f'{frame}_objmask.png'}")
-        return m
-
-    def reference_keep(self, xy: np.ndarray) -> np.ndarray:
-        """Reference keypoints on the object (the simulator's visible surface, the TPS files' object
-        mask; inside the landmarks' hull for landmark TPS)."""
-        if self.exact:
-            return self.seq.correspondences(self.seq.reference, self.seq.reference, xy)[1]
-        keep = _on_mask(self._mask(self.seq.reference), xy)
-        if self.tps is None and not self.exact:
-            ids, lm, vis = self.seq.landmarks(self.seq.reference)
-            keep &= np.isfinite(LandmarkTPS(lm[vis], lm[vis])(xy)).all(axis=1)
-        return keep
-
-    def covers(self, target: str) -> bool:
-        """False for a target frame that the TPS files leave out (e.g. one `geofeat groundtruth`
-        marked failed): the benchmark skips that pair and says so."""
-        return self.tps is None or (self.tps / f"{target}_theta.npy").is_file()
-
-    def target_to_reference(self, target: str, xy: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-        """(N, 2) target pixels -> reference pixels, NaN where the ground truth is unreliable."""
-        if self.tps is not None:
-            theta = np.load(self.tps / f"{target}_theta.npy")
-            ctrl = np.load(self.tps / f"{target}_ctrlpts.npy")
-            out = authors_tps_warp(xy, theta, ctrl, (shape[1], shape[0]))
-            ssim = cv2.imread(str(self.tps / f"{target}_SSIM.png"), cv2.IMREAD_GRAYSCALE)
-            ok = _on_mask(self._mask(target), xy)
-            if ssim is not None:
-                ok &= _on_mask((ssim.astype(np.float32) / 255.0 > 0.25).astype(np.uint8), xy)
-            out[~ok] = np.nan
-            return out
-        if self.exact:
-            mapped, visible = self.seq.correspondences(target, self.seq.reference, xy)
-            return np.where(visible[:, None], mapped, np.nan)
-        ids_r, xy_r, vis_r = self.seq.landmarks(self.seq.reference)
-        ids_t, xy_t, vis_t = self.seq.landmarks(target)
-        common, ir, it = np.intersect1d(ids_r[vis_r], ids_t[vis_t], return_indices=True)
-        return LandmarkTPS(xy_t[vis_t][it], xy_r[vis_r][ir])(xy)
-
-
-def correct_matches(truth: GroundTruth, target: str, ref_xy: np.ndarray, tgt_xy: np.ndarray,
-                    matches0: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """(n_ref,) bool: is reference keypoint i's match (matches0[i], -1 = none) a ground-truth pair of the
-    protocol (the target keypoint whose ground-truth position in the reference is within 3 px of i,
-    first in target order)? The count of True equals the benchmark's hits on the same keypoints."""
-    mapped = truth.target_to_reference(target, np.asarray(tgt_xy, float).reshape(-1, 2), shape)
-    pairs = ground_truth_pairs(np.asarray(ref_xy, float).reshape(-1, 2), mapped)
-    partner = np.full(len(ref_xy), -2, np.int64)
-    partner[pairs[:, 0]] = pairs[:, 1]
-    return np.asarray(matches0) == partner
-
-
 def _empty_row_score(n_ref: int, n_tgt: int):
-    from .protocol import PairScore
+    from ..scoring import PairScore
 
     return PairScore(ms=0.0, mma=0.0, hits=0, n_ref=n_ref, n_tgt=n_tgt, n_gt=0)
 
