@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from geofeat.tracking import (
+from geofeat.apps.tracking import (
     check_roi, default_roi, fit_tps, fit_tps_ransac, ncc, normalise_points, roi_grid, ssim, track_sequence,
     warp_points, write_tracking,
 )

@@ -381,7 +381,7 @@ def _train_detector(args: argparse.Namespace) -> int:
 
 
 def _retrieval(args: argparse.Namespace) -> int:
-    from .retrieval import run_retrieval
+    from .apps.retrieval import run_retrieval
 
     acc, db = run_retrieval(args.datasets, args.out, tuple(d for d in args.descriptors.split(",") if d),
                             words=args.words, n_samples=args.samples, seed=args.seed, classes_file=args.classes,
@@ -398,7 +398,7 @@ def _retrieval(args: argparse.Namespace) -> int:
 
 def _track(args: argparse.Namespace) -> int:
     from .io import find_sequences
-    from .tracking import write_tracking
+    from .apps.tracking import write_tracking
 
     roi = None
     if args.roi is not None:
