@@ -59,7 +59,7 @@ def object_mask(seq: Sequence, name: str, tps_dir: str | Path | None = None) -> 
     Returns:
         mask (H, W) bool, and the source: "simulator", "objmask" or "depth" (see module docstring).
     """
-    from ..truth import GT_SUFFIX
+    from ..groundtruth.simulator import GT_SUFFIX
 
     gt = seq.folder / f"{name}{GT_SUFFIX}"
     if gt.is_file():

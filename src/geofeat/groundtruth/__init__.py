@@ -1,5 +1,8 @@
-"""Dense ground truth for annotated RGB-D sequences (`geofeat groundtruth`): landmarks -> robust
-thin-plate spline -> photometric refinement on a control-point grid -> the authors' TPS file layout.
+"""Every correspondence source in one place: `sources.GroundTruth` maps target pixels to reference
+pixels from the authors' TPS files, the simulator's exact truth (`simulator`) or a landmark spline
+(`tps`); and dense ground truth for annotated RGB-D sequences (`geofeat groundtruth`): landmarks ->
+robust thin-plate spline -> photometric refinement on a control-point grid -> the authors' TPS file
+layout.
 
 Names are loaded on first use, so that the CLI can read the defaults without importing torch."""
 
