@@ -34,7 +34,7 @@ import numpy as np
 from tqdm import tqdm
 
 from geofeat import read_sequence
-from geofeat.bench.protocol import ground_truth_pairs, score_detect
+from geofeat.scoring import ground_truth_pairs, score_detect
 from geofeat.sim import simulate_sequence
 from geofeat.sim.contact_sheet import contact_sheet
 from geofeat.groundtruth.simulator import read_frame_truth, read_metadata
