@@ -27,9 +27,9 @@ from pathlib import Path
 import numpy as np
 
 from geofeat.io import find_sequences
-from geofeat.retrieval import run_retrieval
+from geofeat.apps.retrieval import run_retrieval
 from geofeat.sim import simulate_sequence
-from geofeat.tracking import tracking_table, write_tracking
+from geofeat.apps.tracking import tracking_table, write_tracking
 
 
 def simulate(data: Path, scenarios, seeds, frames: int, texture_dir) -> list[Path]:
@@ -131,7 +131,7 @@ def docs(folders, names, args) -> None:
     """Copy the Acc@K plot; draw the reference and last frame of the first rotate sequence with the
     grid tracked by the first descriptor, side by side at full resolution."""
     from geofeat.io import read_sequence
-    from geofeat.tracking import TrackResult, grid_frames
+    from geofeat.apps.tracking import TrackResult, grid_frames
 
     args.docs.mkdir(parents=True, exist_ok=True)
     if (args.out / "retrieval" / "acc_at_k.png").is_file():

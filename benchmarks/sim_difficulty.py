@@ -37,7 +37,7 @@ from geofeat import read_sequence
 from geofeat.scoring import ground_truth_pairs, score_detect
 from geofeat.sim import simulate_sequence
 from geofeat.sim.contact_sheet import contact_sheet
-from geofeat.truth import read_frame_truth, read_metadata
+from geofeat.groundtruth.simulator import read_frame_truth, read_metadata
 from geofeat.sim.textures import list_textures, packaged_texture_dir
 
 SCENARIOS = ("deform", "rotate", "scale")

@@ -9,7 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from geofeat.groundtruth.sources import GroundTruth, authors_tps_warp
+from geofeat.groundtruth.sources import GroundTruth
+from geofeat.groundtruth.tps import authors_tps_warp
 from geofeat.cli import main
 from geofeat.groundtruth import TPS, GroundTruthConfig, RefineConfig, generate_ground_truth, robust_landmark_tps
 from geofeat.groundtruth.validate import keep_landmarks, mapping_errors
@@ -214,3 +215,25 @@ def test_a_frame_failing_a_divergence_test_gets_no_files(tmp_path, monkeypatch):
     assert reports[0].status == "failed" and "photometric cost rose" in reports[0].reason
     assert not (tmp_path / "out" / "frame-001_theta.npy").exists()
     assert (tmp_path / "out" / "frame-000-master_objmask.png").exists()
+
+
+def test_splines_keep_the_warps_they_gave_before_moving_to_groundtruth_tps():
+    """The splines moved from bench/protocol.py into groundtruth/tps.py (issue 24): the same warps as
+    the old module on a fixed example (values recorded with the code before the move)."""
+    from geofeat.groundtruth.tps import LandmarkTPS
+
+    rng = np.random.default_rng(24)
+    src = rng.uniform(20, 300, (12, 2))
+    dst = src + rng.normal(0, 6, (12, 2))
+    q = np.array([[100.0, 120.0], [200.0, 80.0], [150.0, 150.0]])
+    tps = TPS(src, dst, (320, 240))
+    theta, ctrl = tps.authors_arrays()
+    np.testing.assert_allclose(authors_tps_warp(q, theta, ctrl, (320, 240)), [
+        [106.50807229193813, 120.0470479555451], [208.80008236407267, 77.19345694113082],
+        [159.0368820474872, 148.79696056072981]], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(LandmarkTPS(src, dst)(q), [
+        [106.06287954378, 120.13740513577952], [211.4988546772442, 76.59430828145304],
+        [159.139262678548, 147.6282292593429]], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(tps(q), [
+        [106.50807496707982, 120.047050449649], [208.800077386238, 77.19344673423106],
+        [159.03688765818063, 148.7969673534212]], rtol=0, atol=1e-9)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from geofeat.groundtruth.sources import LandmarkTPS, authors_tps_warp
+from geofeat.groundtruth.tps import LandmarkTPS, authors_tps_warp
 from geofeat.scoring import ground_truth_pairs, score_detect, score_landmarks
 from geofeat.features import Features
 from geofeat.matching import match

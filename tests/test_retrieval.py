@@ -8,7 +8,7 @@ import pytest
 
 from geofeat.features import Features
 from geofeat.matching import distance_matrix, match
-from geofeat.retrieval import (
+from geofeat.apps.retrieval import (
     accuracy_at_k, bootstrap_interval, exclusion_mask, histogram, read_classes, run_retrieval, search, split_queries,
     vocabulary,
 )
@@ -165,7 +165,7 @@ def test_retrieval_command(three_objects, tmp_path, capsys):
 
 def test_object_mask_sources(three_objects, tmp_path):
     from geofeat.io import read_sequence
-    from geofeat.objectmask import foreground_from_depth, object_mask
+    from geofeat.apps.objectmask import foreground_from_depth, object_mask
 
     depth = np.full((60, 80), 2.5, np.float32)  # a wall 2.5 m away
     depth[10:40, 20:60] = 1.0 + np.linspace(0, 0.1, 40)[None, :]  # a slanted object at 1 m
@@ -233,7 +233,7 @@ def test_retrieval_leaves_out_the_query_sequence_and_ranks_the_deformed_copy_fir
 
 
 def test_retrieval_with_geokey_keypoints(three_objects, tmp_path):
-    from geofeat.retrieval import run_retrieval
+    from geofeat.apps.retrieval import run_retrieval
 
     res, db = run_retrieval([three_objects], tmp_path / "r", ("geobit",), words=5, n_samples=1000, n_keypoints=300,
                             include_own_sequence=True, progress=False, detector="geokey")

@@ -14,7 +14,7 @@ from geofeat.sim import writer as writer_mod
 from geofeat.sim.command import add_parser, main
 from geofeat.sim.cloth import Cloth, ClothConfig
 from geofeat.sim.noise import finish_image
-from geofeat.truth import read_frame_truth, read_metadata, surface_coordinates, surface_to_points
+from geofeat.groundtruth.simulator import read_frame_truth, read_metadata, surface_coordinates, surface_to_points
 from geofeat.sim.textures import packaged_texture_dir, procedural_texture, read_texture
 
 TEXTURE = packaged_texture_dir() / "kodak_kodim23.jpg"

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from geofeat.tracking import (
+from geofeat.apps.tracking import (
     check_roi, default_roi, fit_tps, fit_tps_ransac, ncc, normalise_points, roi_grid, ssim, track_sequence,
     warp_points, write_tracking,
 )
@@ -208,7 +208,7 @@ def test_guided_matches_follow_the_prediction_among_identical_descriptors():
     near the predicted position is chosen, a keypoint without prediction is not matched, and each
     frame keypoint is taken by at most one (the descriptor-nearest) template keypoint."""
     from geofeat.features import Features
-    from geofeat.tracking import guided_matches
+    from geofeat.apps.tracking import guided_matches
 
     rng = np.random.default_rng(0)
     a, b = rng.normal(size=(2, 8)).astype(np.float32)

@@ -209,13 +209,13 @@ class Sequence:
 
         Returns mapped (N, 2) pixels of frame j and visible (N,) bool (on the surface in frame i and
         seen, unoccluded, in frame j). Raises ValueError for sequences without simulator ground truth."""
-        from .truth import correspondences
+        from .groundtruth.simulator import correspondences
 
         return correspondences(self, i, j, points)
 
     def has_ground_truth(self) -> bool:
         """True when the sequence carries the simulator's dense ground truth."""
-        from .truth import has_ground_truth
+        from .groundtruth.simulator import has_ground_truth
 
         return has_ground_truth(self)
 

@@ -1,5 +1,5 @@
-"""`Describer`: several descriptors of one frame's keypoints sharing one mesh and one set of polar
-patches (the geodesic ones), used by the benchmark, tracking and retrieval."""
+"""Several descriptors on one frame sharing one mesh and one set of polar patches (the benchmark,
+tracking and retrieval describe keypoints with it)."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from ..frame import RGBDFrame
 from ..geodesic.mesh import build_mesh
 from ..geodesic.polar import polar_patches
 from ..keypoints import Keypoints
+from . import make_descriptor
 
 __all__ = ["Describer"]
 
@@ -21,7 +22,7 @@ class Describer:
     def __init__(self, names: tuple[str, ...], radius: float, profile: str = "kinect") -> None:
         self.radius = radius
         self.depth_config = PROFILES[profile]
-        self.descriptors = {n: _make_descriptor(n, radius=radius, depth_config=self.depth_config) for n in names}
+        self.descriptors = {n: make_descriptor(n, radius=radius, depth_config=self.depth_config) for n in names}
 
     def __call__(self, frame: RGBDFrame, kps: Keypoints) -> dict[str, tuple]:
         """{name: (Features, seconds)}; the seconds of a geodesic descriptor include the polar patches."""
@@ -36,9 +37,3 @@ class Describer:
             f = d.compute(frame, kps, patches=patches) if d.geodesic else d.compute(frame, kps)
             out[name] = (f, time.perf_counter() - t + (t_patches if d.geodesic else 0.0))
         return out
-
-
-def _make_descriptor(name: str, **kwargs):
-    from . import make_descriptor
-
-    return make_descriptor(name, **kwargs)

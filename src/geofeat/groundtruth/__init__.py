@@ -1,7 +1,8 @@
-"""Ground truth: `GroundTruth` (`sources`), one interface over every source of correspondences (the
-simulator's exact truth, the authors' TPS files, a landmark spline); and dense ground truth for
-annotated RGB-D sequences (`geofeat groundtruth`): landmarks -> robust thin-plate spline ->
-photometric refinement on a control-point grid -> the authors' TPS file layout.
+"""Every correspondence source in one place: `sources.GroundTruth` maps target pixels to reference
+pixels from the authors' TPS files, the simulator's exact truth (`simulator`) or a landmark spline
+(`tps`); and dense ground truth for annotated RGB-D sequences (`geofeat groundtruth`): landmarks ->
+robust thin-plate spline -> photometric refinement on a control-point grid -> the authors' TPS file
+layout.
 
 Names are loaded on first use, so that the CLI can read the defaults without importing torch."""
 
@@ -12,7 +13,7 @@ from .defaults import DEFAULT_DEPTH_MARGIN_M, DEFAULT_MARGIN_PX, DEFAULT_SPACING
 _WHERE = {
     "FrameReport": "pipeline", "GroundTruthConfig": "pipeline", "generate_ground_truth": "pipeline",
     "reference_mask": "pipeline", "RefineConfig": "photometric", "refine": "photometric", "TPS": "tps",
-    "RobustFit": "tps", "robust_landmark_tps": "tps", "GroundTruth": "sources", "correct_matches": "sources",
+    "RobustFit": "tps", "robust_landmark_tps": "tps",
 }
 
 __all__ = ["DEFAULT_DEPTH_MARGIN_M", "DEFAULT_MARGIN_PX", "DEFAULT_SPACING_PX", *_WHERE]

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import Delaunay
 
-from .sources import authors_tps_warp
+from .tps import authors_tps_warp
 from ..io import Sequence, read_sequence, write_landmarks
 from ..outputs import check_out_dir
 

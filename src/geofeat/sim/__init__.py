@@ -5,7 +5,7 @@
 """
 
 from .cloth import Cloth, ClothConfig
-from ..truth import correspondences, has_ground_truth, map_points
+from ..groundtruth.simulator import correspondences, has_ground_truth, map_points
 from .render import RenderOutput, render
 from .scenes import PRESETS, SCENARIOS, ClothScene, Preset, default_intrinsics
 from .textures import FABRIC_KINDS, fabric_texture, jitter_colours, packaged_texture_dir, procedural_texture

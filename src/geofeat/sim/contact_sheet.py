@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 
 from ..io import read_sequence
-from ..truth import correspondences
+from ..groundtruth.simulator import correspondences
 
 
 def contact_sheet(folder: str | Path, out_png: str | Path, n_frames: int = 6, n_tracks: int = 16,

@@ -7,7 +7,7 @@ A sequence folder gets, per frame `<name>` (`frame-000-master` is the reference,
     `<name>.csv`        the 100 best Harris corners of the reference tracked into this frame
                         (`id,x,y,valid`; pixels, OpenCV convention: the centre of the top-left
                         pixel is (0, 0); valid = 0 where occluded, off the cloth or off the image),
-    `<name>-gt.npz`     dense ground truth (see `geofeat.truth`),
+    `<name>-gt.npz`     dense ground truth (see `geofeat.groundtruth.simulator`),
 and `intrinsics.xml`, `groundtruth.json`.
 
 The folder is written under a temporary name next to OUT_DIR and moved into place at the end, so an
@@ -29,7 +29,7 @@ import numpy as np
 
 from ..io import write_intrinsics, write_landmarks
 from ..outputs import check_out_dir, replace_folder
-from ..truth import GT_JSON, GT_SUFFIX, FrameTruth, map_points
+from ..groundtruth.simulator import GT_JSON, GT_SUFFIX, FrameTruth, map_points
 from .scenes import SCENARIOS, ClothScene, SimFrame, default_intrinsics, get_preset
 from .textures import choose_texture
 

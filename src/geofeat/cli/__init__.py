@@ -1,123 +1,18 @@
-"""The `geofeat` command line: demo, extract, match (and the commands of later stages)."""
+"""The `geofeat` command line: the parser and the commands (the demo in `cli/demo.py`; `simulate` and
+`groundtruth` in `sim/command.py` and `groundtruth/command.py`, beside their modules)."""
 
 from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from .constants import DEFAULT_RADIUS_M, DEPTH_PROFILE_NAMES, DEPTH_SCALE_M, N_KEYPOINTS
-from .keypoints import KEYPOINT_SETS, check_detector_name
-
-
-def _profile_of(profile: str, frame) -> str:
-    """The concrete profile name for `frame` ("auto" measured on it)."""
-    from .depth import depth_profile
-
-    return depth_profile(frame) if profile == "auto" else profile
-
-
-def _demo_patches(out: Path, radius: float, profile: str) -> None:
-    from .depth import depth_noise
-    from .geodesic.mesh import build_mesh
-    from .geodesic.polar import polar_patches
-    from .io import demo_data_dir, read_demo_frame, read_landmarks
-    from .viz import draw_geodesic_support, patch_grid, side_by_side
-
-    frame = read_demo_frame()
-    _, landmarks, _ = read_landmarks(demo_data_dir() / "cloud_1.csv")
-    print(f"frame: {demo_data_dir() / 'cloud_1'} ({frame.shape[1]}x{frame.shape[0]}, "
-          f"{(frame.depth == 0).mean():.1%} missing depth), {len(landmarks)} annotated keypoints")
-    chosen = _profile_of(profile, frame)
-    print(f"depth profile: {chosen}" + (f" (auto: measured slope noise {depth_noise(frame.depth, frame.K).slope_noise:.2f})"
-                                        if profile == "auto" else ""))
-    t0 = time.perf_counter()
-    mesh = build_mesh(frame, chosen)
-    t1 = time.perf_counter()
-    patches = polar_patches(frame, landmarks, radius=radius, mesh=mesh)
-    t2 = time.perf_counter()
-    print(f"depth preprocessing + mesh ({mesh.points.shape[1]}x{mesh.points.shape[0]}): {t1 - t0:.3f} s")
-    print(f"geodesic polar patches: {len(patches)} keypoints, {patches.valid.sum()} valid, "
-          f"radius {radius * 1000:.0f} mm, {t2 - t1:.3f} s (the first run compiles the numba kernels)")
-    picture = side_by_side(draw_geodesic_support(frame, patches), patch_grid(patches, columns=8))
-    cv2.imwrite(str(out / "polar_patches.png"), picture)
-    print(f"wrote {out / 'polar_patches.png'} (geodesic rings at 18/37/75 mm, and the 32x32 polar patches)")
-
-
-def _demo_match_pair(out: Path, picture_name: str, frame0, frame1, k0, k1, truth: np.ndarray,
-                     names: list[str], profile: str) -> None:
-    """Match frame0 -> frame1 with each descriptor on the same keypoints, print how many matches
-    land within 3 px of `truth` (the true positions in frame 1 of k0, NaN = not visible), and save
-    the correct matches of the first two descriptors, one above the other."""
-    from .descriptors import make_descriptor
-    from .matching import match
-    from .viz import draw_matches
-
-    visible = np.isfinite(truth).all(axis=1)
-    pictures = []
-    for name in names:
-        descriptor = make_descriptor(name, depth_config=_profile_of(profile, frame0))
-        t = time.perf_counter()
-        m = match(descriptor.compute(frame0, k0), descriptor.compute(frame1, k1))
-        elapsed = time.perf_counter() - t
-        has = (m.matches0 >= 0) & visible
-        error = np.full(len(k0), np.inf)
-        error[has] = np.linalg.norm(k1.xy[m.matches0[has]] - truth[has], axis=1)
-        correct = error < 3.0
-        print(f"  {name:8s} {correct.sum():5d} correct matches (< 3 px) of {visible.sum()} keypoints with a true "
-              f"position ({correct.sum() / max(visible.sum(), 1):.1%}), {elapsed:.2f} s")
-        if len(pictures) < 2:
-            pictures.append(draw_matches(frame0, frame1, k0.xy, k1.xy, np.where(correct, m.matches0, -1),
-                                         np.ones(len(k0), bool), max_lines=200,
-                                         title=f"{name}: {correct.sum()} correct"))
-    path = out / picture_name
-    cv2.imwrite(str(path), np.concatenate(pictures, axis=0))
-    print(f"wrote {path} (correct matches of {names[0]}, top, and {names[1]}, bottom)")
-
-
-def _demo_rolled_pair(out: Path, angle: float, n: int, profile: str) -> None:
-    from .frame import roll_camera
-    from .io import read_demo_frame
-    from .keypoints import detect
-
-    frame0 = read_demo_frame()
-    frame1, A = roll_camera(frame0, angle)
-    k0, k1 = detect(frame0, n), detect(frame1, n)
-    truth = k0.xy @ A[:, :2].T + A[:, 2]  # where each reference keypoint really is in frame 1
-    print(f"\nrolled pair: the Kinect frame vs the camera rolled by {angle:g} deg; SIFT keypoints "
-          f"detected independently: {len(k0)} and {len(k1)}")
-    _demo_match_pair(out, "rolled_pair_matches.png", frame0, frame1, k0, k1, truth, ["geobit", "orb"], profile)
-
-
-def _demo_deformed_pair(out: Path, n: int, profile: str) -> None:
-    from .io import read_sequence
-    from .keypoints import detect
-    from .sim import simulate_sequence
-
-    folder = simulate_sequence(out / "simulated_cloth", scenario="rotate", n_frames=5, seed=7, progress=False,
-                               overwrite=True)
-    seq = read_sequence(folder)
-    target = seq.targets[-1]
-    frame0, frame1 = seq.frame(seq.reference), seq.frame(target)
-    k0, k1 = detect(frame0, n), detect(frame1, n)
-    truth, visible = seq.correspondences(seq.reference, target, k0.xy)
-    print(f"\nsimulated cloth: {folder} ({len(seq)} frames, wind-blown cloth and a rolling camera); "
-          f"{seq.reference} vs {target}, SIFT keypoints {len(k0)} and {len(k1)}")
-    _demo_match_pair(out, "simulated_pair_matches.png", frame0, frame1, k0, k1,
-                     np.where(visible[:, None], truth, np.nan), ["geopatch", "geobit", "orb", "sift"], profile)
-
-
-def _demo(args: argparse.Namespace) -> int:
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    _demo_patches(out, args.radius, args.depth_profile)
-    _demo_rolled_pair(out, args.angle, args.keypoints, args.depth_profile)
-    _demo_deformed_pair(out, args.keypoints, args.depth_profile)
-    return 0
+from ..constants import DEFAULT_RADIUS_M, DEPTH_PROFILE_NAMES, DEPTH_SCALE_M, N_KEYPOINTS
+from ..keypoints import KEYPOINT_SETS, check_detector_name
+from .demo import run as _demo
 
 
 def _file_label(descriptor: str) -> str:
@@ -153,7 +48,7 @@ def _finish_skipped(skipped: list[str], total: int, what: str) -> int:
 def _frame_and_keypoints(seq, name: str, args: argparse.Namespace):
     """(frame, keypoints) of frame `name` with the command's detector options; ValueError when the
     frame cannot be read or has no keypoints (extract and match skip such a frame by name)."""
-    from .keypoints import detect
+    from ..keypoints import detect
 
     frame = seq.frame(name)
     kps = detect(frame, args.keypoints, detector=args.detector, keypoint_set=args.keypoint_set)
@@ -167,12 +62,12 @@ def _extract(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    from .depth import PROFILES, sequence_depth_profile
-    from .descriptors import make_descriptor
-    from .features import save_features
-    from .inputs import resolve_radius
-    from .io import read_sequence
-    from .outputs import atomic_file, check_out_file, partial_name
+    from ..depth import PROFILES, sequence_depth_profile
+    from ..descriptors import make_descriptor
+    from ..features import save_features
+    from ..inputs import resolve_radius
+    from ..io import read_sequence
+    from ..outputs import atomic_file, check_out_file, partial_name
 
     seq = read_sequence(args.folder, depth_scale=args.depth_scale)
     radius = resolve_radius(args.radius, seq)
@@ -217,15 +112,15 @@ def _extract(args: argparse.Namespace) -> int:
 def _match(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from .groundtruth.sources import GroundTruth, correct_matches
-    from .depth import PROFILES, sequence_depth_profile
-    from .descriptors import make_descriptor
-    from .features import save_matches
-    from .inputs import resolve_radius
-    from .io import read_sequence
-    from .matching import match
-    from .outputs import check_out_dir, output_folder
-    from .viz import draw_matches
+    from ..groundtruth.sources import GroundTruth, correct_matches
+    from ..depth import PROFILES, sequence_depth_profile
+    from ..descriptors import make_descriptor
+    from ..features import save_matches
+    from ..inputs import resolve_radius
+    from ..io import read_sequence
+    from ..matching import match
+    from ..outputs import check_out_dir, output_folder
+    from ..viz import draw_matches
 
     seq = read_sequence(args.folder, depth_scale=args.depth_scale)
     if len(seq) < 2:
@@ -283,16 +178,16 @@ def _match(args: argparse.Namespace) -> int:
 def _train(args: argparse.Namespace) -> int:
     from functools import partial
 
-    from .descriptors.geopatch import GeoPatchConfig
-    from .train.dataset import PatchSet, build_patch_set, validation_pairs
-    from .train.loop import TrainConfig, train
+    from ..descriptors.geopatch import GeoPatchConfig
+    from ..train.dataset import PatchSet, build_patch_set, validation_pairs
+    from ..train.loop import TrainConfig, train
 
     net = None  # geodesic polar patches with the depth profile asked for (auto: per sequence)
     build = partial(build_patch_set, depth_config=args.depth_profile)
     make_validation = partial(validation_pairs, depth_config=args.depth_profile)
     if args.net != "geopatch":  # image-patch baselines (tfeat-sim, logpolar-sim) on the same data
-        from .descriptors.image_patch_nets import ImagePatchNet, default_config
-        from .train.imagepatches import build_image_patch_set, image_validation_pairs
+        from ..descriptors.image_patch_nets import ImagePatchNet, default_config
+        from ..train.imagepatches import build_image_patch_set, image_validation_pairs
 
         net = ImagePatchNet(default_config(args.net))
         build = partial(build_image_patch_set, arch=args.net)
@@ -321,12 +216,12 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from .bench.report import detail_table, markdown_table, plot_curves, read_results
-    from .bench.runner import BenchConfig, run_benchmark
-    from .bench.timing import timing_table
-    from .depth import sequence_depth_profile
-    from .io import find_sequences, read_sequence
-    from .outputs import add_to_manifest, atomic_file
+    from ..bench.report import detail_table, markdown_table, plot_curves, read_results
+    from ..bench.runner import BenchConfig, run_benchmark
+    from ..bench.timing import timing_table
+    from ..depth import sequence_depth_profile
+    from ..io import find_sequences, read_sequence
+    from ..outputs import add_to_manifest, atomic_file
 
     def write(path: Path, text: str) -> None:
         with atomic_file(path) as tmp:
@@ -365,7 +260,7 @@ def _bench(args: argparse.Namespace) -> int:
 
 
 def _train_detector(args: argparse.Namespace) -> int:
-    from .train.detector import train_detector
+    from ..train.detector import train_detector
 
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     model, results = train_detector(args.data, args.val, args.out, n=args.keypoints, hidden=tuple(args.hidden),
@@ -381,7 +276,7 @@ def _train_detector(args: argparse.Namespace) -> int:
 
 
 def _retrieval(args: argparse.Namespace) -> int:
-    from .retrieval import run_retrieval
+    from ..apps.retrieval import run_retrieval
 
     acc, db = run_retrieval(args.datasets, args.out, tuple(d for d in args.descriptors.split(",") if d),
                             words=args.words, n_samples=args.samples, seed=args.seed, classes_file=args.classes,
@@ -397,8 +292,8 @@ def _retrieval(args: argparse.Namespace) -> int:
 
 
 def _track(args: argparse.Namespace) -> int:
-    from .io import find_sequences
-    from .tracking import write_tracking
+    from ..io import find_sequences
+    from ..apps.tracking import write_tracking
 
     roi = None
     if args.roi is not None:
@@ -423,7 +318,7 @@ def _track(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .descriptors import available_descriptors, check_descriptor_name
+    from ..descriptors import available_descriptors, check_descriptor_name
 
     def descriptor_name(text: str) -> str:
         try:
@@ -583,11 +478,11 @@ def build_parser() -> argparse.ArgumentParser:
     trk.add_argument("--lpips", action="store_true", help="LPIPS (needs local pretrained weights; not supported here)")
     trk.set_defaults(func=_track)
 
-    from .sim import command as sim_command
+    from ..sim import command as sim_command
 
     sim_command.add_parser(sub).set_defaults(func=sim_command.run)
 
-    from .groundtruth import command as gt_command
+    from ..groundtruth import command as gt_command
 
     gt_command.add_parser(sub).set_defaults(func=gt_command.run)
     return parser
@@ -629,7 +524,3 @@ def main(argv: list[str] | None = None) -> int:
         text = " ".join(str(error).split()) or type(error).__name__
         print(f"geofeat {args.command}: error: {text}", file=sys.stderr)
         return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .io import Sequence
+from ..io import Sequence
 
 __all__ = ["object_mask", "foreground_from_depth", "MASK_SOURCES"]
 
@@ -59,14 +59,14 @@ def object_mask(seq: Sequence, name: str, tps_dir: str | Path | None = None) -> 
     Returns:
         mask (H, W) bool, and the source: "simulator", "objmask" or "depth" (see module docstring).
     """
-    from .truth import GT_SUFFIX
+    from ..groundtruth.simulator import GT_SUFFIX
 
     gt = seq.folder / f"{name}{GT_SUFFIX}"
     if gt.is_file():
         with np.load(gt) as data:
             return data["uv"][..., 0] >= 0, "simulator"
     if tps_dir is not None:
-        from .groundtruth.sources import tps_folder
+        from ..groundtruth.sources import tps_folder
 
         folder = tps_folder(str(tps_dir), seq.name)
         path = None if folder is None else folder / f"{name}_objmask.png"

@@ -1,7 +1,7 @@
 """Object retrieval with a bag of visual words (the paper's first application, its retrieval figure).
 
 1. SIFT keypoints (the 2048 strongest) are detected inside the object mask of every frame of every
-   sequence (`geofeat.objectmask.object_mask`) and described;
+   sequence (`geofeat.apps.objectmask.object_mask`) and described;
 2. `vocabulary`: K visual words (paper: 10) are the K-medoids (FasterPAM, `kmedoids` package) of
    10,000 descriptors sampled at random from all frames, under each descriptor's own distance
    (L2; Hamming; GeoBit: the minimum Hamming distance over its 16 rotations), the distance matrix
@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from .constants import N_KEYPOINTS
-from .features import Features
+from ..constants import N_KEYPOINTS
+from ..features import Features
 
 __all__ = [
     "Vocabulary", "vocabulary", "sample_descriptors", "histogram", "search", "accuracy_at_k", "read_classes",
@@ -63,7 +63,7 @@ class Vocabulary:
 
 
 def _metric_of(descriptors: np.ndarray) -> str:
-    from .matching import _default_metric
+    from ..matching import _default_metric
 
     return _default_metric(descriptors)
 
@@ -83,7 +83,7 @@ def sample_descriptors(features: list[Features], n: int = N_VOCABULARY_SAMPLES, 
 
 def sample_distances(descriptors: np.ndarray, metric: str | None = None) -> np.ndarray:
     """(N, N) float32 symmetrised distance matrix (D + D^T) / 2 of (N, ...) descriptors under `metric`."""
-    from .matching import distance_matrix
+    from ..matching import distance_matrix
 
     descriptors = np.asarray(descriptors)
     metric = _metric_of(descriptors) if metric is None else metric
@@ -121,7 +121,7 @@ def vocabulary(descriptors: np.ndarray, words: int = N_WORDS, metric: str | None
 def histogram(features: Features | np.ndarray, vocab: Vocabulary) -> np.ndarray:
     """(K,) float64 L1-normalised histogram of the nearest visual word of each valid descriptor
     (all zeros when there is none)."""
-    from .matching import match
+    from ..matching import match
 
     m = match(features, vocab.medoids, metric=vocab.metric)
     words = m.matches0[m.matches0 >= 0]
@@ -251,17 +251,17 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
                       progress: bool = True, detector: str = "sift") -> RetrievalDatabase:
     """Detect keypoints inside the object mask of every frame of every sequence and describe them
     (`detector` as in `geofeat.detect`)."""
-    from .descriptors.describer import Describer
-    from .depth import sequence_depth_profile
-    from .descriptors import check_descriptor_name
-    from .io import find_sequences, read_sequence
-    from .keypoints import detect
+    from ..descriptors.describer import Describer
+    from ..depth import sequence_depth_profile
+    from ..descriptors import check_descriptor_name
+    from ..io import find_sequences, read_sequence
+    from ..keypoints import detect
     from .objectmask import object_mask
 
     names = tuple(check_descriptor_name(d) for d in descriptors if d.strip())  # nothing built yet
     if not names:
         raise ValueError("descriptors: expected at least one descriptor name")
-    from .inputs import check_tps_dir, resolve_radius
+    from ..inputs import check_tps_dir, resolve_radius
 
     folders = find_sequences(datasets, unique_names=True)
     check_tps_dir(tps_dir)
@@ -309,7 +309,7 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
 def _thumbnail(folder: Path, name: str, size: tuple[int, int], colour) -> np.ndarray:
     import cv2
 
-    from .io import RGB_SUFFIX, read_image
+    from ..io import RGB_SUFFIX, read_image
 
     img = cv2.resize(read_image(folder / f"{name}{RGB_SUFFIX}"), size, interpolation=cv2.INTER_AREA)
     if colour is not None:
@@ -452,7 +452,7 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
         include_own_sequence: the database also holds the query's own sequence (the query frame
             itself excluded); by default the query's whole sequence is left out (the paper's setting).
     Returns ({descriptor: DescriptorResult}, the described database)."""
-    from .outputs import check_out_dir, output_folder
+    from ..outputs import check_out_dir, output_folder
 
     out = check_out_dir(out, overwrite)
     classes = read_classes(classes_file) if classes_file else None

@@ -36,8 +36,8 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from .constants import N_KEYPOINTS
-from .io import Sequence, read_sequence
+from ..constants import N_KEYPOINTS
+from ..io import Sequence, read_sequence
 
 __all__ = [
     "TPSWarp", "RansacResult", "TrackResult", "normalise_points", "fit_tps", "fit_tps_ransac", "warp_points",
@@ -295,7 +295,7 @@ def guided_matches(features0, features1, predicted0: np.ndarray, radius: float =
     Returns:
         (N0,) int64 index into image 1's keypoints, -1 = no match.
     """
-    from .matching import distance_matrix
+    from ..matching import distance_matrix
 
     n0, n1 = len(features0.keypoints), len(features1.keypoints)
     out = np.full(n0, -1, np.int64)
@@ -362,7 +362,7 @@ def ncc(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:
 
 def ssim(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:
     """Mean SSIM of two gray images in [0, 1] over `mask` (`geofeat.imagequality.mean_ssim`)."""
-    from .imagequality import mean_ssim
+    from ..imagequality import mean_ssim
 
     return mean_ssim(a, b, mask)
 
@@ -415,7 +415,7 @@ def refine_warp(template: np.ndarray, image: np.ndarray, mask: np.ndarray, splin
         photometric cost or folded the map over (Jacobian determinant <= 0 at more than
         MAX_FOLDED_FRACTION of the control points inside the ROI).
     """
-    from .groundtruth import refine
+    from ..groundtruth import refine
 
     r = refine(template, image, mask, lambda xy: warp_points(spline, xy), lm_template, lm_image, config)
     x0, y0, x1, y1 = roi
@@ -506,7 +506,7 @@ TRACK_COLUMNS = ["sequence", "descriptor", "frame", "n_template", "n_frame", "ma
 def sequence_radius(seq: Sequence, radius: float | None) -> float:
     """Geodesic radius in metres: `radius`, else the sequence's (geofeat.json, else 0.075), as the bench
     (`geofeat.inputs.resolve_radius`, the one rule)."""
-    from .inputs import resolve_radius
+    from ..inputs import resolve_radius
 
     return resolve_radius(radius, seq)
 
@@ -542,13 +542,13 @@ def track_sequence(
     """
     import time
 
-    from .descriptors.describer import Describer
-    from .groundtruth.sources import GroundTruth
-    from .scoring import GT_THRESHOLD_PX
-    from .depth import sequence_depth_profile
-    from .descriptors import check_descriptor_name
-    from .keypoints import detect
-    from .matching import match
+    from ..descriptors.describer import Describer
+    from ..groundtruth.sources import GroundTruth
+    from ..scoring import GT_THRESHOLD_PX
+    from ..depth import sequence_depth_profile
+    from ..descriptors import check_descriptor_name
+    from ..keypoints import detect
+    from ..matching import match
     from .objectmask import object_mask
 
     names = tuple(check_descriptor_name(d) for d in descriptors if d.strip())  # unknown names fail before any work
@@ -668,7 +668,7 @@ def _draw_grid(image: np.ndarray, pts: np.ndarray, side: int, colour, label: str
 def grid_frames(seq: Sequence, result: TrackResult, scale: float = 0.5) -> list[np.ndarray]:
     """(h, w, 3) uint8 RGB pictures of every frame with the tracked grid drawn, resized by `scale`
     (frames in `result.skipped` are left out)."""
-    from .viz import to_bgr
+    from ..viz import to_bgr
 
     pictures = []
     for k, name in enumerate(result.frames):
@@ -738,9 +738,9 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
 
     import imageio.v2 as imageio
 
-    from .inputs import check_tps_dir
-    from .io import find_sequences
-    from .outputs import check_out_dir, output_folder
+    from ..inputs import check_tps_dir
+    from ..io import find_sequences
+    from ..outputs import check_out_dir, output_folder
 
     out = check_out_dir(out, overwrite)
     sequences = find_sequences(sequences, unique_names=True)
