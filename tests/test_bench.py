@@ -218,3 +218,17 @@ def test_curves_have_one_line_per_detector_and_descriptor(tmp_path):
     one = curve_series([r for r in rows if r["detector"] == "sift"], key, kind, bins)
     assert set(one) == {"geopatch", "geobit"}
     assert [p.name for p in plot_curves(rows, tmp_path)] == ["ms_vs_rotate.png"]
+
+
+def test_detail_table_gives_the_denominator_of_ms():
+    """The protocol's denominator min(n_ref, n_tgt) must be readable from details.md: two detectors
+    with the same hits differ in MS only through the target keypoints the protocol keeps."""
+    from geofeat.bench.report import detail_table
+
+    row = dict(descriptor="geopatch", detector="geokey", sequence="a-deform", ms=0.4, mma=0.8,
+               repeatability=0.5, n_ref=1000, n_tgt=800, hits=320)
+    table = detail_table([row, dict(row, n_tgt=600, ms=320 / 600)])
+    header, _, first, total = table.strip().splitlines()[:4]
+    assert "target keypoints kept / pair" in header
+    cells = [c.strip() for c in first.split("|")[1:-1]]
+    assert cells[6:9] == ["1000", "700", "320"]  # per-sequence means: n_ref, n_tgt, hits

@@ -13,7 +13,7 @@ from .defaults import DEFAULT_DEPTH_MARGIN_M, DEFAULT_MARGIN_PX, DEFAULT_SPACING
 _WHERE = {
     "FrameReport": "pipeline", "GroundTruthConfig": "pipeline", "generate_ground_truth": "pipeline",
     "reference_mask": "pipeline", "RefineConfig": "photometric", "refine": "photometric", "TPS": "tps",
-    "RobustFit": "tps", "robust_landmark_tps": "tps",
+    "RobustFit": "tps", "robust_landmark_tps": "tps", "GroundTruth": "sources", "correct_matches": "sources",
 }
 
 __all__ = ["DEFAULT_DEPTH_MARGIN_M", "DEFAULT_MARGIN_PX", "DEFAULT_SPACING_PX", *_WHERE]
