@@ -30,6 +30,8 @@ import time
 
 import numpy as np
 
+from common import wall_times
+
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -89,13 +91,7 @@ def main() -> None:
         return statistics.median(ts) * 1e3, min(ts) * 1e3
 
     def t_cpu(fn, repeats=a.cpu_repeats, warm=1):
-        for _ in range(warm):
-            fn()
-        ts = []
-        for _ in range(repeats):
-            t = time.perf_counter()
-            fn()
-            ts.append(time.perf_counter() - t)
+        ts = wall_times(fn, repeats, warm)
         return statistics.median(ts) * 1e3, min(ts) * 1e3
 
     def fresh(frame):

@@ -16,11 +16,12 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import time
 
 import cv2
 import numba
 import numpy as np
+
+from common import wall_times
 
 import geofeat
 from geofeat.descriptors.geobit import GeoBit
@@ -31,13 +32,7 @@ N = 2048
 
 
 def median_time(fn, repeats: int) -> float:
-    fn()
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return float(np.median(times))
+    return float(np.median(wall_times(fn, repeats, warm=1)))
 
 
 def keypoints(frame, rng) -> np.ndarray:
