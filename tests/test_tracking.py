@@ -111,6 +111,7 @@ def test_track_simulated_sequence_outputs(sequence, tmp_path):
     assert len(imageio.mimread(tmp_path / "cloth" / "sift" / "track.gif")) == 3
     md = (tmp_path / "tracking.md").read_text()
     assert "| sift |" in md and "object mask from simulator" in md
+    assert "Table IV" not in md  # neither SIFT nor ORB is in the paper's tracking table
     # SIFT tracks a gently deforming cloth: the tracked grid is a few pixels from the truth
     import csv
 
@@ -194,7 +195,9 @@ def test_track_with_geokey_keypoints(sequence, tmp_path, capsys):
 
     assert main(["track", str(sequence), "--descriptors", "geobit", "--keypoints", "500", "--detector", "geokey",
                  "--refine", "none", "--out", str(tmp_path)]) == 0
-    assert "detector: geokey" in (tmp_path / "tracking.md").read_text()
+    md = (tmp_path / "tracking.md").read_text()
+    assert "detector: geokey" in md
+    assert "| geobit (paper) | 0.46 | 0.42 | 0.27 |" in md  # the paper's Table IV beside ours
     import csv
 
     rows = list(csv.DictReader(open(tmp_path / "track.csv")))
@@ -219,3 +222,12 @@ def test_guided_matches_follow_the_prediction_among_identical_descriptors():
     predicted[0] = np.nan
     assert guided_matches(f0, f1, predicted, radius=40.0)[0] == -1
     assert guided_matches(f0, f1, predicted + 100.0, radius=40.0).tolist() == [-1, -1, -1]  # nothing near
+
+
+def test_paper_table_iv_rows_follow_the_descriptors_tracked():
+    from geofeat.apps.tracking import paper_table_iv
+
+    text = paper_table_iv(["geopatch", "sift", "tfeat-sim"])
+    assert "| geopatch (paper) | 0.49 | 0.45 | 0.29 |" in text and "| tfeat-sim (paper) | 0.31 | 0.37 | 0.29 |" in text
+    assert "sift (paper)" not in text
+    assert paper_table_iv(["sift", "orb"]) == ""

@@ -714,6 +714,33 @@ def tracking_table(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: The paper's Table IV (Potje et al., CVIU 2022): inlier rate of RANSAC, matching score and LPIPS,
+#: averaged over its sequences DeSurT, Kinect 1 and Simulation (real data not shipped here). "*":
+#: the descriptor's own keypoints; None: not reported.
+PAPER_TABLE_IV = {
+    "dali": (0.32, 0.31, 0.45), "delf*": (0.25, None, 0.40), "logpolar": (0.36, 0.36, 0.33),
+    "r2d2*": (0.48, None, 0.36), "tfeat": (0.31, 0.37, 0.29), "geobit": (0.46, 0.42, 0.27),
+    "geopatch": (0.49, 0.45, 0.29),
+}
+
+
+def paper_table_iv(names) -> str:
+    """The rows of the paper's Table IV for the descriptors in `names` (its TFeat and Log-Polar for
+    ours trained on the simulator, "tfeat-sim" and "logpolar-sim"), Markdown; "" when none is there."""
+    def key(name: str) -> str:
+        return name.removesuffix("-sim")
+
+    rows = [(n, PAPER_TABLE_IV[key(n)]) for n in names if key(n) in PAPER_TABLE_IV]
+    if not rows:
+        return ""
+    fmt = lambda v: "–" if v is None else f"{v:.2f}"  # noqa: E731
+    lines = ["The paper's Table IV, for comparison (its sequences DeSurT, Kinect 1 and Simulation, not these; "
+             "LPIPS, lower is better, is not computed here):", "",
+             "| descriptor | inlier rate | matching score | LPIPS |", "|---|---|---|---|"]
+    lines += [f"| {n} (paper) | {fmt(a)} | {fmt(b)} | {fmt(c)} |" for n, (a, b, c) in rows]
+    return "\n".join(lines) + "\n"
+
+
 def _median(values) -> float:
     v = np.asarray([x for x in values], float)
     return float(np.nanmedian(v)) if np.isfinite(v).any() else float("nan")
@@ -779,5 +806,7 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
         notes.append(f"detector: {detector}; refine: {refine}; {n_frames} target frames in {seconds:.1f} s: "
                      f"{n_frames / max(seconds, 1e-9):.2f} frames/s (detection, description and every descriptor); "
                      f"per frame, matching + RANSAC{' + refinement' if refine != 'none' else ''}: {per}")
-        (tmp / "tracking.md").write_text(table + "\n" + "\n".join(f"- {n}" for n in notes) + "\n")
+        paper = paper_table_iv(dict.fromkeys(r["descriptor"] for r in rows))
+        (tmp / "tracking.md").write_text(table + ("\n" + paper if paper else "") + "\n"
+                                         + "\n".join(f"- {n}" for n in notes) + "\n")
     return out / "track.csv", table
