@@ -2,8 +2,11 @@
 
 A template region of interest (ROI) of the reference frame is followed in every frame of a sequence:
 
-1. SIFT keypoints (the 2048 strongest) in the reference frame, kept inside the ROI, are matched to the
-   keypoints of frame k by smallest descriptor distance (`geofeat.match`);
+1. keypoints (SIFT's 2048 strongest by default, or GeoKey's) of the reference frame, kept inside the
+   ROI, are matched to the keypoints of frame k by mutual nearest descriptor distance
+   (`geofeat.match`) and, once a frame has been fitted, also among the frame keypoints within
+   `GUIDE_RADIUS_PX` of where the last good warp puts them (`guided_matches`); the match set whose
+   fit keeps more RANSAC inliers is used;
 2. a deformable-affine thin-plate spline (TPS) from template pixels to frame-k pixels is fitted with
    RANSAC outlier rejection (`fit_tps_ransac`), the template registered to frame k directly (no drift
    through frames). As in Tran et al., "In defence of RANSAC for outlier rejection in deformable
@@ -295,6 +298,8 @@ def guided_matches(features0, features1, predicted0: np.ndarray, radius: float =
     Returns:
         (N0,) int64 index into image 1's keypoints, -1 = no match.
     """
+    from scipy.spatial.distance import cdist
+
     from ..matching import distance_matrix
 
     n0, n1 = len(features0.keypoints), len(features1.keypoints)
@@ -302,8 +307,8 @@ def guided_matches(features0, features1, predicted0: np.ndarray, radius: float =
     if n0 == 0 or n1 == 0:
         return out
     dist = distance_matrix(features0.descriptors, features1.descriptors).astype(np.float64)
-    near = _sq_dist(np.nan_to_num(np.asarray(predicted0, float), nan=np.inf),
-                    np.asarray(features1.keypoints, float)) < radius**2
+    # (N0, N1) squared pixel distances; NaN predictions compare False, so they never match
+    near = cdist(np.asarray(predicted0, float), np.asarray(features1.keypoints, float), "sqeuclidean") < radius**2
     allowed = near & features0.valid[:, None] & features1.valid[None, :]
     dist[~allowed] = np.inf
     best = np.argmin(dist, axis=1)
