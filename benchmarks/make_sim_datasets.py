@@ -3,9 +3,11 @@
 train/: sequences textured with the packaged training photographs (geofeat/data/textures, each in
 turn) and procedural / fabric textures (every fourth sequence), presets cycling through
 --train-presets (default paper, hard, mild);
-val/ and test/: sequences of --val-preset / --test-preset (default hard) textured with held-out
+val/ and test/: sequences of --val-presets / --test-preset (default hard) textured with held-out
 photographs that training never sees (from --heldout-dir, default shared/data/textures minus the
-packaged ones; val takes the first --val of them, test the next). Half of the sequences have
+packaged ones; val cycles through the first N_VAL_TEXTURES of them, whatever --val is, and test
+through the rest, so that no validation texture ever textures a test sequence of
+`sim_difficulty.py`, which skips the same N_VAL_TEXTURES). Half of the sequences have
 Kinect-like depth noise and holes. Scenarios cycle deform/rotate/scale.
 (`benchmarks/sim_difficulty.py` writes the per-preset test sequences with the test textures.)
 
@@ -21,6 +23,7 @@ import numpy as np
 from tqdm import tqdm
 
 from geofeat.sim import simulate_sequence
+from sim_difficulty import N_VAL_TEXTURES
 from geofeat.sim.textures import list_textures, packaged_texture_dir
 
 SCENARIOS = ("deform", "rotate", "scale")
@@ -65,15 +68,15 @@ def main() -> None:
                    if (p / "shared/data/textures").is_dir()), Path("shared/data/textures"))
     parser.add_argument("--heldout-dir", type=Path, default=shared)
     parser.add_argument("--train-presets", default="paper,hard,mild", help="comma-separated, cycled every 3 sequences")
-    parser.add_argument("--val-preset", default="hard")
+    parser.add_argument("--val-presets", default="hard", help="comma-separated, cycled every 3 sequences")
     parser.add_argument("--test-preset", default="hard")
     args = parser.parse_args()
     held = heldout_textures(args.heldout_dir)
-    if len(held) < args.val + min(args.test, 1):
-        raise SystemExit(f"need {args.val + 1} held-out textures in {args.heldout_dir}, found {len(held)}")
+    if len(held) <= N_VAL_TEXTURES:
+        raise SystemExit(f"need more than {N_VAL_TEXTURES} held-out textures in {args.heldout_dir}, found {len(held)}")
     make("train", args.train, args.out, args.frames, args.seed, None, tuple(args.train_presets.split(",")))
-    make("val", args.val, args.out, args.frames, args.seed + 1000, held[: args.val], (args.val_preset,))
-    make("test", args.test, args.out, args.frames, args.seed + 2000, held[args.val:], (args.test_preset,))
+    make("val", args.val, args.out, args.frames, args.seed + 1000, held[:N_VAL_TEXTURES], tuple(args.val_presets.split(",")))
+    make("test", args.test, args.out, args.frames, args.seed + 2000, held[N_VAL_TEXTURES:], (args.test_preset,))
     print(f"datasets in {args.out}: train {args.train}, val {args.val}, test {args.test} sequences of {args.frames} frames")
 
 

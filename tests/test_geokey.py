@@ -11,7 +11,7 @@ from geofeat.bench.report import read_results
 from geofeat.bench.runner import BenchConfig, run_benchmark
 from geofeat.detectors.geokey import GeoKeyModel, candidates, detect_geokey, load_geokey, suppress
 from geofeat.sim import simulate_sequence
-from geofeat.train.detector import fit, sequence_samples
+from geofeat.train.detector import choose_model, fit, mean_ms, sequence_samples
 
 from sheets import K_SHEET, make_texture, project_bent, project_flat, render_bent, render_flat
 
@@ -148,6 +148,22 @@ def test_training_labels_and_same_seed_same_weights(tiny, tmp_path):
     x_r, y_r = sequence_samples(seq, labels="repeatable", max_targets=1)
     np.testing.assert_array_equal(x_m, x_r)
     assert np.all(y_m <= y_r) and y_m.sum() > 0
+
+
+def test_the_suppression_radius_is_chosen_by_the_mean_score_over_keypoint_counts(tiny):
+    shipped = load_geokey()
+    model, results = choose_model({"shipped": shipped}, [tiny / "a-deform"], counts=(100, 300), radii=(2.0, 5.0),
+                                  progress=False)
+    assert set(results) == {("shipped", 2.0), ("shipped", 5.0)}
+    for per_count in results.values():
+        assert set(per_count) == {100, 300}
+        for r in per_count.values():
+            assert 0 <= r["ms"] <= r["repeatability"] <= 1
+    best = max(results, key=lambda key: mean_ms(results[key]))
+    assert model.nms_radius == best[1]
+    np.testing.assert_array_equal(model.linear, shipped.linear)
+    with pytest.raises(ValueError, match="keypoints"):
+        choose_model({"shipped": shipped}, [tiny / "a-deform"], counts=(0,), progress=False)
 
 
 def test_bench_runs_with_both_detectors(tiny, tmp_path):

@@ -33,7 +33,12 @@ from ..scoring import GT_THRESHOLD_PX, ground_truth_pairs
 #: A candidate is found again when another view's candidate lies within this many pixels.
 MATCH_PX = 1.0
 #: Suppression radii tried on the validation data, pixels.
-NMS_CHOICES = (2.0, 3.0, 4.0)
+NMS_CHOICES = (2.0, 3.0, 4.0, 5.0)
+#: Keypoints per frame at which the validation scores each (scorer, radius): the choice maximises the
+#: mean matching score over these counts, so that no radius wins by being good at one count only
+#: (at 1024 keypoints radii 2 and 4 tie; at 2048, 2 px packs the keypoints so densely that the
+#: descriptor confuses neighbours within the protocol's 3 px).
+VALIDATION_COUNTS = (1024, 2048)
 
 
 #: Training labels: "repeatable" (found again) or "matchable" (found again and matched by GeoPatch).
@@ -243,33 +248,47 @@ def repeatability(folders: list[Path], detector, n: int, progress: bool = False)
     return validation_scores(folders, detector, n, descriptor=None, progress=progress)
 
 
-def choose_model(models: dict[str, GeoKeyModel], folders: list[Path], n: int,
+def choose_model(models: dict[str, GeoKeyModel], folders: list[Path], counts: tuple[int, ...] = VALIDATION_COUNTS,
                  radii: tuple[float, ...] = NMS_CHOICES, progress: bool = True) -> tuple[GeoKeyModel, dict]:
     """The (model, suppression radius) with the best validation matching score of the shipped
-    GeoPatch at n keypoints (denser keypoints are more repeatable but harder to tell apart).
+    GeoPatch, averaged over the keypoint counts `counts` (denser keypoints are more repeatable but
+    harder to tell apart).
 
-    Returns the chosen model (its `nms_radius` set) and {(model name, radius): validation_scores}.
+    Returns the chosen model (its `nms_radius` set) and {(model name, radius): {count: validation_scores}}.
     """
-    results = {}
+    if isinstance(counts, int):
+        counts = (counts,)
+    if not counts or any(int(n) <= 0 for n in counts):
+        raise ValueError(f"keypoints: expected positive counts, got {counts}")
+    results: dict = {}
     for name, model in models.items():
         for radius in radii:
-            results[(name, radius)] = validation_scores(
-                folders, lambda f, k, m=model, r=radius: detect_geokey(f, k, m, nms_radius=r), n)
-            if progress:
-                r = results[(name, radius)]
-                tqdm.write(f"validation {name}, NMS {radius:g} px: MS {r['ms']:.3f}, MMA {r['mma']:.3f}, "
-                           f"repeatability {r['repeatability']:.3f}")
-    name, radius = max(results, key=lambda key: results[key]["ms"])
+            per_count = {}
+            for n in counts:
+                per_count[int(n)] = validation_scores(
+                    folders, lambda f, k, m=model, r=radius: detect_geokey(f, k, m, nms_radius=r), int(n))
+                if progress:
+                    r = per_count[int(n)]
+                    tqdm.write(f"validation {name}, NMS {radius:g} px, {n} keypoints: MS {r['ms']:.3f}, "
+                               f"MMA {r['mma']:.3f}, repeatability {r['repeatability']:.3f}")
+            results[(name, radius)] = per_count
+    name, radius = max(results, key=lambda key: mean_ms(results[key]))
     best = models[name]
     return GeoKeyModel(best.mean, best.std, best.linear, best.weights, best.biases, radius), results
 
 
-def train_detector(data, val, out: str | Path, n: int = 1024, hidden: tuple[int, ...] = (32, 32),
+def mean_ms(per_count: dict) -> float:
+    """Mean validation matching score over the keypoint counts of one (scorer, radius) entry."""
+    return float(np.mean([r["ms"] for r in per_count.values()]))
+
+
+def train_detector(data, val, out: str | Path, n: int | tuple[int, ...] = VALIDATION_COUNTS, hidden: tuple[int, ...] = (32, 32),
                    steps: int = 3000, seed: int = 0, labels: str = "repeatable",
                    radii: tuple[float, ...] = NMS_CHOICES, progress: bool = True) -> tuple[GeoKeyModel, dict]:
     """Collect candidates from `data`, fit two scorers (image cues only, and image + depth cues),
-    choose the scorer and the suppression radius on `val` by GeoPatch's matching score, and write
-    the weights to `out`. Returns the model and the validation figures per (scorer, radius)."""
+    choose the scorer and the suppression radius on `val` by GeoPatch's matching score (mean over the
+    keypoint counts `n`), and write the weights to `out`. Returns the model and the validation figures
+    per (scorer, radius) and count."""
     train_folders = find_sequences(data)
     val_folders = find_sequences(val)
     if not train_folders:
