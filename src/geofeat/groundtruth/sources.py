@@ -13,9 +13,10 @@ import numpy as np
 from ..inputs import check_tps_dir
 from ..io import Sequence
 from ..scoring import ground_truth_pairs
-from .tps import LandmarkTPS, authors_tps_warp
+from ..tps import ThinPlateSpline
+from .landmarks import MIN_LANDMARKS, inside_hull, landmark_spline
 
-__all__ = ["GroundTruth", "correct_matches", "tps_folder"]
+__all__ = ["GroundTruth", "correct_matches", "tps_folder", "load_authors_spline"]
 
 
 def _has_tps_files(folder: Path) -> bool:
@@ -41,9 +42,22 @@ def _on_mask(mask: np.ndarray | None, xy: np.ndarray) -> np.ndarray:
     return mask[y, x] > 0
 
 
+def load_authors_spline(folder: Path, frame: str, size: tuple[int, int]) -> ThinPlateSpline:
+    """The authors' target -> reference spline of `frame` (`<frame>_theta.npy`, `<frame>_ctrlpts.npy` in
+    `folder`); size: (W, H) of the frame, pixels."""
+    return ThinPlateSpline.from_authors_arrays(np.load(folder / f"{frame}_theta.npy"),
+                                               np.load(folder / f"{frame}_ctrlpts.npy"), size)
+
+
 class GroundTruth:
     """Target -> reference mapping of a pair, from (in this order) the authors' TPS files, the
-    simulator's exact correspondences, or a thin-plate spline on the csv landmarks."""
+    simulator's exact correspondences, or a thin-plate spline on the csv landmarks.
+
+    Attributes:
+        seq: the sequence.
+        tps: the folder of the authors' TPS files of the sequence, None when not used.
+        exact: True when the simulator's exact correspondences are used.
+    """
 
     def __init__(self, seq: Sequence, tps_dir: str | None) -> None:
         self.seq = seq
@@ -70,9 +84,10 @@ class GroundTruth:
         if self.exact:
             return self.seq.correspondences(self.seq.reference, self.seq.reference, xy)[1]
         keep = _on_mask(self._mask(self.seq.reference), xy)
-        if self.tps is None and not self.exact:
+        if self.tps is None:
             ids, lm, vis = self.seq.landmarks(self.seq.reference)
-            keep &= np.isfinite(LandmarkTPS(lm[vis], lm[vis])(xy)).all(axis=1)
+            _check_landmarks(int(vis.sum()))
+            keep &= inside_hull(lm[vis], xy)
         return keep
 
     def covers(self, target: str) -> bool:
@@ -83,9 +98,7 @@ class GroundTruth:
     def target_to_reference(self, target: str, xy: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         """(N, 2) target pixels -> reference pixels, NaN where the ground truth is unreliable."""
         if self.tps is not None:
-            theta = np.load(self.tps / f"{target}_theta.npy")
-            ctrl = np.load(self.tps / f"{target}_ctrlpts.npy")
-            out = authors_tps_warp(xy, theta, ctrl, (shape[1], shape[0]))
+            out = load_authors_spline(self.tps, target, (shape[1], shape[0]))(xy)
             ssim = cv2.imread(str(self.tps / f"{target}_SSIM.png"), cv2.IMREAD_GRAYSCALE)
             ok = _on_mask(self._mask(target), xy)
             if ssim is not None:
@@ -98,7 +111,16 @@ class GroundTruth:
         ids_r, xy_r, vis_r = self.seq.landmarks(self.seq.reference)
         ids_t, xy_t, vis_t = self.seq.landmarks(target)
         common, ir, it = np.intersect1d(ids_r[vis_r], ids_t[vis_t], return_indices=True)
-        return LandmarkTPS(xy_t[vis_t][it], xy_r[vis_r][ir])(xy)
+        _check_landmarks(len(common))
+        lm_t = xy_t[vis_t][it]
+        out = landmark_spline(lm_t, xy_r[vis_r][ir])(xy)
+        out[~inside_hull(lm_t, xy)] = np.nan
+        return out
+
+
+def _check_landmarks(n: int) -> None:
+    if n < MIN_LANDMARKS:
+        raise ValueError(f"landmarks: a thin-plate spline needs >= {MIN_LANDMARKS} landmarks visible in both frames, got {n}")
 
 
 def correct_matches(truth: GroundTruth, target: str, ref_xy: np.ndarray, tgt_xy: np.ndarray,
