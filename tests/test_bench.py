@@ -178,8 +178,8 @@ def test_match_command_counts_the_bench_hits(datasets, tmp_path, capsys):
     k_ref, k_tgt = geofeat.detect(ref, 300), geofeat.detect(tgt, 300)
     m = geofeat.match(d.compute(ref, k_ref), d.compute(tgt, k_tgt))
     truth = GroundTruth(seq, None)
-    correct = correct_matches(truth, target, k_ref.xy, k_tgt.xy, m.matches0, tgt.shape)
-    mapped = truth.target_to_reference(target, k_tgt.xy, tgt.shape)
+    correct = correct_matches(truth, target, k_ref.xy, k_tgt.xy, m.matches0)
+    mapped = truth.map(target, k_tgt.xy)[0]
     hits = score_detect(m.matches0, ground_truth_pairs(k_ref.xy, mapped), len(k_ref), len(k_tgt)).hits
     assert correct.sum() == hits > 20
     assert main(["match", str(seq.folder), "--descriptor", "orb", "--keypoints", "300", "--out", str(tmp_path)]) == 0

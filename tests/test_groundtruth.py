@@ -146,9 +146,9 @@ def test_bench_reads_the_generated_files(simulated):
     frame = seq.frame(target)
     rng = np.random.default_rng(0)
     xy = rng.uniform([0, 0], [frame.shape[1] - 1, frame.shape[0] - 1], (3000, 2))
-    mapped = truth.target_to_reference(target, xy, frame.shape)
+    mapped, kept = truth.map(target, xy)
     exact, visible = seq.correspondences(target, seq.reference, xy)
-    kept = np.isfinite(mapped).all(axis=1)
+    assert np.isfinite(mapped[kept]).all() and np.isnan(mapped[~kept]).all()
     assert kept.sum() > 0.5 * visible.sum()  # most of the visible cloth keeps a ground truth
     assert visible[kept].mean() > 0.95  # and almost nothing off the cloth or hidden does
     err = np.linalg.norm(mapped[kept & visible] - exact[kept & visible], axis=1)
@@ -239,3 +239,25 @@ def test_splines_keep_the_warps_they_gave_before_moving_to_groundtruth_tps():
     np.testing.assert_allclose(tps(q), [
         [106.50807496707982, 120.047050449649], [208.800077386238, 77.19344673423106],
         [159.03688765818063, 148.7969673534212]], rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("source", ["landmarks", "exact"])
+def test_map_is_one_interface_for_every_source(tmp_path, simulated, source):
+    """`GroundTruth.map(target, xy) -> (xy_ref, valid)`: NaN exactly where not valid, close to the
+    truth where valid (the TPS files' source: `test_bench_reads_the_generated_files`)."""
+    if source == "landmarks":
+        seq = read_sequence(_write_pair(tmp_path / "seq", _grid_landmarks(5)))
+        xy = np.array([[W / 2, H / 2], [W / 3, H / 3], [1.0, 1.0], [W - 2.0, 2.0]])  # the last two: outside the hull
+        expected_valid = [True, True, False, False]
+        truth_xy = _inverse(xy)
+    else:
+        seq = simulated[0]
+        xy = np.random.default_rng(1).uniform([0, 0], [319, 239], (500, 2))
+        truth_xy, expected_valid = seq.correspondences(seq.targets[-1], seq.reference, xy)
+    truth = GroundTruth(seq, None)
+    assert truth.exact == (source == "exact")
+    mapped, valid = truth.map(seq.targets[-1], xy)
+    assert mapped.shape == xy.shape and valid.shape == (len(xy),) and valid.dtype == bool
+    np.testing.assert_array_equal(valid, expected_valid)
+    assert np.isnan(mapped[~valid]).all() and np.isfinite(mapped[valid]).all()
+    assert np.abs(mapped[valid] - truth_xy[valid]).max() < 1.0

@@ -494,7 +494,7 @@ def track_sequence(
             for r in results.values():
                 r.skipped.append(target)
             continue
-        to_ref = truth.target_to_reference(target, k_tgt.xy, frame.shape) if truth is not None else None
+        to_ref = truth.map(target, k_tgt.xy)[0] if truth is not None else None
         for name in names:
             t0 = time.perf_counter()
             # mutual nearest neighbours; with a previous good warp, also matches searched near where
@@ -532,16 +532,16 @@ def track_sequence(
                     correct = int((err < GT_THRESHOLD_PX).sum())  # NaN (no ground truth): not correct
                     row["ms"] = correct / max(min(len(k_ref), len(k_tgt)), 1)
                     row["precision"] = correct / kept.sum() if kept.any() else 0.0
-                    row["grid_error_px"] = _grid_error(truth, target, pts, grid, frame.shape)
+                    row["grid_error_px"] = _grid_error(truth, target, pts, grid)
                     row["grid_error_tps_px"] = (row["grid_error_px"] if warp is fit.warp else
-                                                _grid_error(truth, target, fit.warp(grid), grid, frame.shape))
+                                                _grid_error(truth, target, fit.warp(grid), grid))
             results[name].rows.append(row)
     return results
 
 
-def _grid_error(truth, target: str, pts: np.ndarray, grid: np.ndarray, shape: tuple[int, int]) -> float:
+def _grid_error(truth, target: str, pts: np.ndarray, grid: np.ndarray) -> float:
     """Median over the (G, 2) grid of |ground truth(tracked (G, 2) frame pixels) - grid point|, pixels."""
-    g = np.linalg.norm(truth.target_to_reference(target, pts, shape) - grid, axis=1)
+    g = np.linalg.norm(truth.map(target, pts)[0] - grid, axis=1)
     return float(np.nanmedian(g)) if np.isfinite(g).any() else float("nan")
 
 

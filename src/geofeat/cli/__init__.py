@@ -162,7 +162,7 @@ def _match(args: argparse.Namespace) -> int:
             n_matches = int((m.matches0 >= 0).sum())
             total_matches += n_matches
             summary = f"{n_matches} matches"
-            correct = None if truth is None else correct_matches(truth, name, k_ref.xy, k_tgt.xy, m.matches0, tgt.shape)
+            correct = None if truth is None else correct_matches(truth, name, k_ref.xy, k_tgt.xy, m.matches0)
             if correct is not None:
                 total_correct += int(correct.sum())
                 summary += f", {int(correct.sum())} correct"

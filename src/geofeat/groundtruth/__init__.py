@@ -1,4 +1,4 @@
-"""Every correspondence source in one place: `sources.GroundTruth` maps target pixels to reference
+"""Every correspondence source in one place: `sources.GroundTruth.map` maps target pixels to reference
 pixels from the authors' TPS files, the simulator's exact truth (`simulator`) or a landmark spline
 (`landmarks`), all with the one spline of `geofeat.tps`; and dense ground truth for annotated RGB-D
 sequences (`geofeat groundtruth`): landmarks -> robust thin-plate spline -> photometric refinement on

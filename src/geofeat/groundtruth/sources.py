@@ -1,7 +1,8 @@
-"""Ground truth of a pair behind one interface: `GroundTruth.target_to_reference` maps target pixels to
-reference pixels from (in this order) the authors' TPS files (`<frame>_theta.npy`, written by
-`geofeat groundtruth`), the simulator's exact correspondences, or a thin-plate spline on the csv
-landmarks. The benchmark, `geofeat match`, tracking and the object mask use it."""
+"""Ground truth of a pair behind one interface: `GroundTruth.map(target, xy) -> (xy_ref, valid)` maps
+pixels of a target frame to reference pixels from (in this order) the authors' TPS files
+(`<frame>_theta.npy`, written by `geofeat groundtruth`), the simulator's exact correspondences, or a
+thin-plate spline on the csv landmarks. The benchmark, `geofeat match`, tracking and the object mask
+use it."""
 
 from __future__ import annotations
 
@@ -95,27 +96,37 @@ class GroundTruth:
         marked failed): the benchmark skips that pair and says so."""
         return self.tps is None or (self.tps / f"{target}_theta.npy").is_file()
 
-    def target_to_reference(self, target: str, xy: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-        """(N, 2) target pixels -> reference pixels, NaN where the ground truth is unreliable."""
+    def map(self, target: str, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Map pixels of frame `target` to the reference frame.
+
+        Args:
+            target: a target frame name of the sequence.
+            xy: (N, 2) pixels of the target frame.
+        Returns:
+            xy_ref: (N, 2) reference pixels, NaN where the ground truth is unknown or unreliable (off
+                the simulated surface or occluded; off the TPS files' object mask or below their SSIM
+                threshold; outside the landmarks' convex hull).
+            valid: (N,) bool, True where xy_ref is known.
+        """
+        xy = np.asarray(xy, float).reshape(-1, 2)
         if self.tps is not None:
-            out = load_authors_spline(self.tps, target, (shape[1], shape[0]))(xy)
+            mask = self._mask(target)
+            out = load_authors_spline(self.tps, target, (mask.shape[1], mask.shape[0]))(xy)
+            ok = _on_mask(mask, xy)
             ssim = cv2.imread(str(self.tps / f"{target}_SSIM.png"), cv2.IMREAD_GRAYSCALE)
-            ok = _on_mask(self._mask(target), xy)
             if ssim is not None:
                 ok &= _on_mask((ssim.astype(np.float32) / 255.0 > 0.25).astype(np.uint8), xy)
-            out[~ok] = np.nan
-            return out
-        if self.exact:
-            mapped, visible = self.seq.correspondences(target, self.seq.reference, xy)
-            return np.where(visible[:, None], mapped, np.nan)
-        ids_r, xy_r, vis_r = self.seq.landmarks(self.seq.reference)
-        ids_t, xy_t, vis_t = self.seq.landmarks(target)
-        common, ir, it = np.intersect1d(ids_r[vis_r], ids_t[vis_t], return_indices=True)
-        _check_landmarks(len(common))
-        lm_t = xy_t[vis_t][it]
-        out = landmark_spline(lm_t, xy_r[vis_r][ir])(xy)
-        out[~inside_hull(lm_t, xy)] = np.nan
-        return out
+        elif self.exact:
+            out, ok = self.seq.correspondences(target, self.seq.reference, xy)
+        else:
+            ids_r, xy_r, vis_r = self.seq.landmarks(self.seq.reference)
+            ids_t, xy_t, vis_t = self.seq.landmarks(target)
+            common, ir, it = np.intersect1d(ids_r[vis_r], ids_t[vis_t], return_indices=True)
+            _check_landmarks(len(common))
+            lm_t = xy_t[vis_t][it]
+            out, ok = landmark_spline(lm_t, xy_r[vis_r][ir])(xy), inside_hull(lm_t, xy)
+        valid = ok & np.isfinite(out).all(axis=1)
+        return np.where(valid[:, None], out, np.nan), valid
 
 
 def _check_landmarks(n: int) -> None:
@@ -124,11 +135,11 @@ def _check_landmarks(n: int) -> None:
 
 
 def correct_matches(truth: GroundTruth, target: str, ref_xy: np.ndarray, tgt_xy: np.ndarray,
-                    matches0: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+                    matches0: np.ndarray) -> np.ndarray:
     """(n_ref,) bool: is reference keypoint i's match (matches0[i], -1 = none) a ground-truth pair of the
     protocol (the target keypoint whose ground-truth position in the reference is within 3 px of i,
     first in target order)? The count of True equals the benchmark's hits on the same keypoints."""
-    mapped = truth.target_to_reference(target, np.asarray(tgt_xy, float).reshape(-1, 2), shape)
+    mapped = truth.map(target, tgt_xy)[0]
     pairs = ground_truth_pairs(np.asarray(ref_xy, float).reshape(-1, 2), mapped)
     partner = np.full(len(ref_xy), -2, np.int64)
     partner[pairs[:, 0]] = pairs[:, 1]
