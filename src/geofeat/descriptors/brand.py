@@ -101,9 +101,7 @@ class BRANDSettings:
 class BRAND:
     """BRAND descriptor: (N, 32) uint8 (256 bits), Hamming distance. See the module docstring.
 
-    Args:
-        settings: a `BRANDSettings` (or a dict of its fields); None: the defaults.
-        **kwargs: n_bits, seed, overriding `settings`.
+    Options: `BRANDSettings`, given and merged as `geofeat.descriptors.settings` says.
     """
 
     name = "brand"

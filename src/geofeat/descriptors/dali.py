@@ -180,9 +180,7 @@ class DaLISettings:
 class DaLI:
     """DaLI descriptor: (N, 576) float32 unit vectors, L2 distance. See the module docstring.
 
-    Args:
-        settings: a `DaLISettings` (or a dict of its fields); None: the defaults.
-        **kwargs: workers, progress, overriding `settings`.
+    Options: `DaLISettings`, given and merged as `geofeat.descriptors.settings` says.
     """
 
     name = "dali"

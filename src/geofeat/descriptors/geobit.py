@@ -179,10 +179,7 @@ class GeoBitSettings(PatchSettings):
 class GeoBit:
     """GeoBit descriptor extractor (a `geofeat.descriptors.base.Descriptor`).
 
-    Args:
-        settings: a `GeoBitSettings` (or a dict of its fields); None: the defaults.
-        **kwargs: any field of `GeoBitSettings` (n_bits, n_rotations, seed, sigma, n_rings, n_angles,
-            radius in metres, depth_config, blur_px in pixels), overriding `settings`.
+    Options: `GeoBitSettings`, given and merged as `geofeat.descriptors.settings` says.
     """
 
     Settings = GeoBitSettings

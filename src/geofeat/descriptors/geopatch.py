@@ -153,10 +153,7 @@ class GeoPatch:
     """GeoPatch descriptor extractor: polar patches -> GeoPatchNet -> (N, 128) float32 unit vectors
     (a `geofeat.descriptors.base.Descriptor`).
 
-    Args:
-        settings: a `GeoPatchSettings` (or a dict of its fields); None: the defaults.
-        **kwargs: any field of `GeoPatchSettings` (weights, device, batch_size, threads, backend,
-            radius in metres, depth_config, blur_px in pixels), overriding `settings`.
+    Options: `GeoPatchSettings`, given and merged as `geofeat.descriptors.settings` says.
     """
 
     Settings = GeoPatchSettings

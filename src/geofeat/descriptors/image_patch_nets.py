@@ -158,10 +158,8 @@ class ImagePatchSettings:
 class ImagePatchDescriptor:
     """`tfeat-sim` / `logpolar-sim`: image patches -> ImagePatchNet -> (N, 128) float32 unit vectors.
 
-    Args:
-        arch: "tfeat" or "logpolar" (which descriptor).
-        settings: an `ImagePatchSettings` (or a dict of its fields); None: the defaults.
-        **kwargs: weights, batch_size, overriding `settings`.
+    `arch` ("tfeat" or "logpolar") says which descriptor; options: `ImagePatchSettings`, given and
+    merged as `geofeat.descriptors.settings` says.
     """
 
     Settings = ImagePatchSettings

@@ -1,6 +1,9 @@
-"""One pattern for descriptor options: a frozen dataclass of settings per descriptor, merged with
-keyword arguments (LightGlue's `default_conf`): `GeoBit(settings, **kwargs)`, `GeoBit(radius=0.05)`
-and `GeoBit(GeoBitSettings(radius=0.05))` build the same descriptor.
+"""One pattern for descriptor options: a frozen dataclass of settings per descriptor (the class's
+`Settings`), merged with keyword arguments (LightGlue's `default_conf`). Every descriptor's
+constructor takes `(settings=None, **kwargs)`: `settings` is a `Settings` instance or a dict of its
+fields (None: the defaults), and keyword arguments, any of its fields, override it (`merge_settings`).
+`GeoBit(radius=0.05)`, `GeoBit({"radius": 0.05})` and `GeoBit(GeoBitSettings(radius=0.05))` build the
+same descriptor; the merged settings are the descriptor's `settings` attribute.
 
 The descriptors built on geodesic polar patches (GeoBit, GeoPatch) share `PatchSettings` (radius,
 depth preprocessing, sampling blur): `make_descriptor` passes the radius and depth settings to every
