@@ -55,7 +55,8 @@ RANSAC_THRESHOLD_PX = 3.0
 RANSAC_SAMPLE_SIZE = 4
 #: RANSAC hypotheses.
 RANSAC_ITERATIONS = 1000
-#: TPS smoothing of the refined warp, in normalised coordinates (0 = interpolate the inliers).
+#: TPS smoothing of the refined warp, in normalised coordinates (`geofeat.tps.fit_tps`'s
+#: regularisation; 0 = interpolate the inliers).
 TPS_REGULARISATION = 1e-3
 #: Most control points of the refined TPS (spread over the template).
 MAX_CENTRES = 256
@@ -121,9 +122,9 @@ def fit_tps_ransac(
 ) -> RansacResult:
     """Robust TPS fit: RANSAC on small samples, then refinement on the inliers.
 
-    Both point sets are normalised (`normalise_points`, as in Tran et al. ECCV 2012). Each of the
-    `iterations` hypotheses is the TPS through `sample_size` random correspondences (fitted and
-    scored in one batch, vectorised); the one with most inliers (destination residual below
+    Both point sets are normalised (`geofeat.tps.normalise_points`, as in Tran et al. ECCV 2012). Each
+    of the `iterations` hypotheses is the TPS through `sample_size` random correspondences (fitted and
+    scored in one batch by `geofeat.tps.solve_batch` / `evaluate_batch`); the one with most inliers (destination residual below
     `threshold_px` pixels) is refitted to its inliers with smoothing `regularisation` (through at
     most `max_centres` of them, spread over the template: one per cell of a grid), and inliers
     recomputed, up to `refinements` times or until they stop changing.
