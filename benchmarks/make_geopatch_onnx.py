@@ -42,9 +42,9 @@ def main() -> None:
 
     frame = geofeat.read_demo_frame()
     p = geofeat.polar_patches(frame, detect(frame, 2048))
-    ref = GeoPatch(args.weights, device="cpu", backend="torch").describe(p.values, p.valid)[p.valid]
+    ref = GeoPatch(weights=args.weights, device="cpu", backend="torch").describe(p.values, p.valid)[p.valid]
     for name, path in (("fp32", out), ("int8", out_int8)):
-        d = GeoPatch(str(path), backend="onnx").describe(p.values, p.valid)[p.valid]
+        d = GeoPatch(weights=str(path), backend="onnx").describe(p.values, p.valid)[p.valid]
         cos = (d * ref).sum(1)
         print(f"{name}: max |d - torch| {np.abs(d - ref).max():.2e}; cosine to torch mean {cos.mean():.4f} "
               f"min {cos.min():.4f} ({len(d)} Kinect patches)")

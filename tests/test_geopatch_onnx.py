@@ -123,13 +123,13 @@ def test_user_weights_use_torch_or_are_exported_on_the_fly(tmp_path):
         bn.running_var.uniform_(0.5, 2)
     path = tmp_path / "w.pt"
     save_checkpoint(path, net)
-    torch_g = GeoPatch(str(path), device="cpu")
+    torch_g = GeoPatch(weights=str(path), device="cpu")
     assert torch_g.backend == "torch"
-    onnx_g = GeoPatch(str(path), backend="onnx")
+    onnx_g = GeoPatch(weights=str(path), backend="onnx")
     x = np.random.default_rng(1).random((50, 32, 32)).astype(np.float32)
     np.testing.assert_allclose(onnx_g.describe(x), torch_g.describe(x), atol=1e-5, rtol=0)
     with pytest.raises(ValueError, match="int8"):
-        GeoPatch(str(path), backend="onnx-int8")
+        GeoPatch(weights=str(path), backend="onnx-int8")
 
 
 def test_onnx_backend_does_not_import_torch():

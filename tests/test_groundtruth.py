@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from geofeat.groundtruth.sources import GroundTruth
-from geofeat.groundtruth.tps import authors_tps_warp
+from geofeat.groundtruth.sources import load_authors_spline
+from geofeat.tps import ThinPlateSpline, authors_tps
 from geofeat.cli import main
-from geofeat.groundtruth import TPS, GroundTruthConfig, RefineConfig, generate_ground_truth, robust_landmark_tps
+from geofeat.groundtruth import GroundTruthConfig, RefineConfig, generate_ground_truth, robust_landmark_tps
 from geofeat.groundtruth.validate import keep_landmarks, mapping_errors
 from geofeat.io import read_sequence, write_frame, write_intrinsics, write_landmarks
 from geofeat.sim import simulate_sequence
@@ -73,11 +74,11 @@ def test_tps_is_the_authors_warp_and_interpolates():
     rng = np.random.default_rng(0)
     src = rng.uniform(0, 300, (30, 2))
     dst = src + rng.normal(0, 4, (30, 2))
-    tps = TPS(src, dst, (320, 240))
+    tps = authors_tps(src, dst, (320, 240))
     theta, ctrl = tps.authors_arrays()
     assert theta.shape == (1, 33, 2) and ctrl.shape == (30, 2)
     q = rng.uniform(0, 300, (50, 2))
-    np.testing.assert_allclose(authors_tps_warp(q, theta, ctrl, (320, 240)), tps(q), atol=1e-3)
+    np.testing.assert_allclose(ThinPlateSpline.from_authors_arrays(theta, ctrl, (320, 240))(q), tps(q), atol=1e-3)
     np.testing.assert_allclose(tps(src), dst, atol=1e-6)
 
 
@@ -103,7 +104,7 @@ def test_refinement_recovers_an_analytic_warp(tmp_path):
         reports = generate_ground_truth(seq, out, GroundTruthConfig(refine=refine, spacing=12, refine_config=FAST),
                                         progress=False)
         assert [r.status for r in reports] == ["ok"]
-        mapped = authors_tps_warp(q, np.load(out / "frame-001_theta.npy"), np.load(out / "frame-001_ctrlpts.npy"), (W, H))
+        mapped = load_authors_spline(out, "frame-001", (W, H))(q)
         errors[refine] = np.linalg.norm(mapped - truth, axis=1)
     assert np.percentile(errors[False], 90) > 1.0  # the landmark spline alone is visibly off
     assert np.median(errors[True]) < 0.3
@@ -145,9 +146,9 @@ def test_bench_reads_the_generated_files(simulated):
     frame = seq.frame(target)
     rng = np.random.default_rng(0)
     xy = rng.uniform([0, 0], [frame.shape[1] - 1, frame.shape[0] - 1], (3000, 2))
-    mapped = truth.target_to_reference(target, xy, frame.shape)
+    mapped, kept = truth.map(target, xy)
     exact, visible = seq.correspondences(target, seq.reference, xy)
-    kept = np.isfinite(mapped).all(axis=1)
+    assert np.isfinite(mapped[kept]).all() and np.isnan(mapped[~kept]).all()
     assert kept.sum() > 0.5 * visible.sum()  # most of the visible cloth keeps a ground truth
     assert visible[kept].mean() > 0.95  # and almost nothing off the cloth or hidden does
     err = np.linalg.norm(mapped[kept & visible] - exact[kept & visible], axis=1)
@@ -218,22 +219,45 @@ def test_a_frame_failing_a_divergence_test_gets_no_files(tmp_path, monkeypatch):
 
 
 def test_splines_keep_the_warps_they_gave_before_moving_to_groundtruth_tps():
-    """The splines moved from bench/protocol.py into groundtruth/tps.py (issue 24): the same warps as
-    the old module on a fixed example (values recorded with the code before the move)."""
-    from geofeat.groundtruth.tps import LandmarkTPS
+    """The splines moved from bench/protocol.py into groundtruth/tps.py, then became the one spline of
+    geofeat/tps.py (issue 24): the same warps as the old modules on a fixed example (values recorded
+    with the code before the moves; the landmark spline was scipy's RBFInterpolator then)."""
+    from geofeat.groundtruth.landmarks import landmark_spline
 
     rng = np.random.default_rng(24)
     src = rng.uniform(20, 300, (12, 2))
     dst = src + rng.normal(0, 6, (12, 2))
     q = np.array([[100.0, 120.0], [200.0, 80.0], [150.0, 150.0]])
-    tps = TPS(src, dst, (320, 240))
+    tps = authors_tps(src, dst, (320, 240))
     theta, ctrl = tps.authors_arrays()
-    np.testing.assert_allclose(authors_tps_warp(q, theta, ctrl, (320, 240)), [
+    np.testing.assert_allclose(ThinPlateSpline.from_authors_arrays(theta, ctrl, (320, 240))(q), [
         [106.50807229193813, 120.0470479555451], [208.80008236407267, 77.19345694113082],
         [159.0368820474872, 148.79696056072981]], rtol=0, atol=1e-9)
-    np.testing.assert_allclose(LandmarkTPS(src, dst)(q), [
+    np.testing.assert_allclose(landmark_spline(src, dst)(q), [
         [106.06287954378, 120.13740513577952], [211.4988546772442, 76.59430828145304],
         [159.139262678548, 147.6282292593429]], rtol=0, atol=1e-9)
     np.testing.assert_allclose(tps(q), [
         [106.50807496707982, 120.047050449649], [208.800077386238, 77.19344673423106],
         [159.03688765818063, 148.7969673534212]], rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("source", ["landmarks", "exact"])
+def test_map_is_one_interface_for_every_source(tmp_path, simulated, source):
+    """`GroundTruth.map(target, xy) -> (xy_ref, valid)`: NaN exactly where not valid, close to the
+    truth where valid (the TPS files' source: `test_bench_reads_the_generated_files`)."""
+    if source == "landmarks":
+        seq = read_sequence(_write_pair(tmp_path / "seq", _grid_landmarks(5)))
+        xy = np.array([[W / 2, H / 2], [W / 3, H / 3], [1.0, 1.0], [W - 2.0, 2.0]])  # the last two: outside the hull
+        expected_valid = [True, True, False, False]
+        truth_xy = _inverse(xy)
+    else:
+        seq = simulated[0]
+        xy = np.random.default_rng(1).uniform([0, 0], [319, 239], (500, 2))
+        truth_xy, expected_valid = seq.correspondences(seq.targets[-1], seq.reference, xy)
+    truth = GroundTruth(seq, None)
+    assert truth.exact == (source == "exact")
+    mapped, valid = truth.map(seq.targets[-1], xy)
+    assert mapped.shape == xy.shape and valid.shape == (len(xy),) and valid.dtype == bool
+    np.testing.assert_array_equal(valid, expected_valid)
+    assert np.isnan(mapped[~valid]).all() and np.isfinite(mapped[valid]).all()
+    assert np.abs(mapped[valid] - truth_xy[valid]).max() < 1.0

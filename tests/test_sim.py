@@ -11,7 +11,8 @@ import pytest
 from geofeat.io import read_sequence
 from geofeat.sim import ClothScene, correspondences, has_ground_truth, simulate_sequence
 from geofeat.sim import writer as writer_mod
-from geofeat.sim.command import add_parser, main
+from geofeat.cli import main
+from geofeat.cli.simulate import add_parser
 from geofeat.sim.cloth import Cloth, ClothConfig
 from geofeat.sim.noise import finish_image
 from geofeat.groundtruth.simulator import read_frame_truth, read_metadata, surface_coordinates, surface_to_points

@@ -8,7 +8,7 @@ import pytest
 
 from geofeat.io import read_sequence
 from geofeat.sim import simulate_sequence
-from geofeat.sim.command import main
+from geofeat.cli import main
 from geofeat.groundtruth.simulator import read_frame_truth, read_metadata, surface_coordinates, surface_to_points
 from geofeat.sim.scenes import PRESETS, default_intrinsics
 from geofeat.sim.textures import packaged_texture_dir

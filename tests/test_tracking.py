@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from geofeat.apps.tracking import (
-    check_roi, default_roi, fit_tps, fit_tps_ransac, ncc, normalise_points, roi_grid, ssim, track_sequence,
-    warp_points, write_tracking,
+    check_roi, default_roi, fit_tps_ransac, ncc, roi_grid, ssim, track_sequence, write_tracking,
 )
+from geofeat.tps import fit_tps, normalise_points
 
 
 def smooth_warp(p: np.ndarray) -> np.ndarray:
@@ -33,7 +33,7 @@ def test_tps_ransac_recovers_a_smooth_warp_with_half_outliers(seed):
     assert (fit.inliers & outlier).sum() <= 2
     assert (fit.inliers & ~outlier).sum() >= 0.95 * (~outlier).sum()
     # sub-pixel on the inliers, against the true (noise-free) warp
-    err = np.linalg.norm(warp_points(fit.warp, src[~outlier]) - smooth_warp(src[~outlier]), axis=1)
+    err = np.linalg.norm(fit.warp(src[~outlier]) - smooth_warp(src[~outlier]), axis=1)
     assert np.median(err) < 0.5 and np.percentile(err, 95) < 1.0
 
 
@@ -42,7 +42,7 @@ def test_tps_interpolates_and_normalisation_is_hartleys():
     src = rng.uniform(0, 500, (20, 2))
     dst = smooth_warp(src)
     warp = fit_tps(src, dst, regularisation=0.0)
-    np.testing.assert_allclose(warp_points(warp, src), dst, atol=1e-6)
+    np.testing.assert_allclose(warp(src), dst, atol=1e-6)
     T, p = normalise_points(src)
     np.testing.assert_allclose(p.mean(axis=0), 0, atol=1e-9)
     assert np.isclose(np.linalg.norm(p, axis=1).mean(), np.sqrt(2))
@@ -56,7 +56,7 @@ def test_affine_warp_is_reproduced_exactly():
     dst = src @ A[:, :2].T + A[:, 2]
     fit = fit_tps_ransac(src, dst)
     test = rng.uniform(0, 400, (100, 2))
-    np.testing.assert_allclose(warp_points(fit.warp, test), test @ A[:, :2].T + A[:, 2], atol=1e-3)
+    np.testing.assert_allclose(fit.warp(test), test @ A[:, :2].T + A[:, 2], atol=1e-3)
 
 
 def test_ransac_fails_cleanly_on_pure_noise_and_too_few_matches():

@@ -41,11 +41,12 @@ from tqdm import tqdm
 
 from ..constants import N_KEYPOINTS
 from ..io import Sequence, read_sequence
+from ..tps import ThinPlateSpline, check_pairs, evaluate_batch, normalise_points, solve_batch
 
 __all__ = [
-    "TPSWarp", "RansacResult", "TrackResult", "normalise_points", "fit_tps", "fit_tps_ransac", "warp_points",
+    "RansacResult", "TrackResult", "fit_tps_ransac",
     "default_roi", "roi_grid", "similarity", "ncc", "ssim", "track_sequence", "write_tracking", "RefinedWarp",
-    "refine_warp", "map_points", "REFINE_MODES", "guided_matches",
+    "refine_warp", "REFINE_MODES", "guided_matches",
 ]
 
 #: RANSAC inlier threshold, pixels in the frame (the bench's 3 px correctness radius).
@@ -54,7 +55,8 @@ RANSAC_THRESHOLD_PX = 3.0
 RANSAC_SAMPLE_SIZE = 4
 #: RANSAC hypotheses.
 RANSAC_ITERATIONS = 1000
-#: TPS smoothing of the refined warp, in normalised coordinates (0 = interpolate the inliers).
+#: TPS smoothing of the refined warp, in normalised coordinates (`geofeat.tps.fit_tps`'s
+#: regularisation; 0 = interpolate the inliers).
 TPS_REGULARISATION = 1e-3
 #: Most control points of the refined TPS (spread over the template).
 MAX_CENTRES = 256
@@ -77,125 +79,19 @@ GUIDE_RADIUS_PX = 40.0
 
 
 # ----------------------------------------------------------------------------------------------
-# Thin-plate spline
-
-
-@dataclass
-class TPSWarp:
-    """A deformable-affine thin-plate spline from source pixels to destination pixels.
-
-    In normalised coordinates (p_n = T_src p, see `normalise_points`) the warp is
-    f(p_n) = [1, x, y] @ affine + sum_i weights[i] * U(|p_n - centres[i]|), U(r) = r^2 log r^2,
-    and destination pixels are T_dst^-1 f(p_n).
-
-    Attributes:
-        centres: (C, 2) normalised source control points.
-        weights: (C, 2) kernel weights.
-        affine: (3, 2) affine part.
-        src_transform, dst_transform: (3, 3) pixel -> normalised similarity transforms.
-    """
-
-    centres: np.ndarray
-    weights: np.ndarray
-    affine: np.ndarray
-    src_transform: np.ndarray
-    dst_transform: np.ndarray
-
-
-def normalise_points(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Hartley normalisation of (N, 2) pixels: centroid to the origin, mean distance sqrt(2).
-
-    Returns the (3, 3) similarity transform T and the (N, 2) normalised points (T applied)."""
-    xy = np.asarray(xy, np.float64).reshape(-1, 2)
-    centre = xy.mean(axis=0)
-    spread = np.linalg.norm(xy - centre, axis=1).mean()
-    s = np.sqrt(2.0) / spread if spread > 1e-12 else 1.0
-    T = np.array([[s, 0, -s * centre[0]], [0, s, -s * centre[1]], [0, 0, 1.0]])
-    return T, (xy - centre) * s
-
-
-def _apply(T: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    return xy @ T[:2, :2].T + T[:2, 2]
-
-
-def _kernel(d2: np.ndarray) -> np.ndarray:
-    """TPS kernel U = r^2 log r^2 of squared distances (0 at r = 0)."""
-    return np.where(d2 > 0, d2 * np.log(np.maximum(d2, 1e-300)), 0.0)
-
-
-def _sq_dist(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(..., N, 2), (..., M, 2) -> (..., N, M) squared distances."""
-    return ((a[..., :, None, :] - b[..., None, :, :]) ** 2).sum(-1)
-
-
-def _solve_tps(src: np.ndarray, dst: np.ndarray, regularisation: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Batched TPS fit in normalised coordinates. src, dst: (B, n, 2).
-
-    Returns weights (B, n, 2), affine (B, 3, 2), ok (B,) (False for degenerate, e.g. collinear, samples)."""
-    B, n, _ = src.shape
-    P = np.concatenate([np.ones((B, n, 1)), src], axis=2)  # (B, n, 3)
-    L = np.zeros((B, n + 3, n + 3))
-    L[:, :n, :n] = _kernel(_sq_dist(src, src)) + regularisation * n * np.eye(n)
-    L[:, :n, n:] = P
-    L[:, n:, :n] = P.transpose(0, 2, 1)
-    rhs = np.zeros((B, n + 3, 2))
-    rhs[:, :n] = dst
-    # collinear (or repeated) points: the affine part is not determined
-    centred = src - src.mean(axis=1, keepdims=True)
-    ok = np.linalg.det(np.einsum("bni,bnj->bij", centred, centred)) > 1e-6 * n**2
-    L[~ok] = np.eye(n + 3)
-    sol = np.linalg.solve(L, rhs)
-    return sol[:, :n], sol[:, n:], ok
-
-
-def fit_tps(src: np.ndarray, dst: np.ndarray, regularisation: float = TPS_REGULARISATION) -> TPSWarp:
-    """Fit a TPS to all (N, 2) source -> (N, 2) destination pixel pairs (N >= 3, not collinear).
-
-    `regularisation` is the TPS smoothing in normalised coordinates (0 interpolates exactly)."""
-    src, dst = _check_pairs(src, dst, 3)
-    Ts, sn = normalise_points(src)
-    Td, dn = normalise_points(dst)
-    w, a, ok = _solve_tps(sn[None], dn[None], regularisation)
-    if not ok[0]:
-        raise ValueError("src: the points are collinear; a TPS needs points spanning the plane")
-    return TPSWarp(sn, w[0], a[0], Ts, Td)
-
-
-def warp_points(warp: TPSWarp, xy: np.ndarray) -> np.ndarray:
-    """Map (M, 2) source pixels through `warp`; returns (M, 2) destination pixels."""
-    xy = np.asarray(xy, np.float64).reshape(-1, 2)
-    p = _apply(warp.src_transform, xy)
-    out = np.concatenate([np.ones((len(p), 1)), p], axis=1) @ warp.affine
-    c2 = (warp.centres**2).sum(1)
-    for s in range(0, len(p), 4096):  # blocks keep the (M, C) kernel small
-        q = p[s : s + 4096]
-        d2 = np.maximum((q**2).sum(1)[:, None] + c2[None, :] - 2.0 * (q @ warp.centres.T), 0.0)
-        out[s : s + 4096] += _kernel(d2) @ warp.weights
-    return _apply(np.linalg.inv(warp.dst_transform), out)
+# Thin-plate spline + RANSAC (the spline itself: `geofeat.tps`)
 
 
 @dataclass
 class RansacResult:
     """Outcome of `fit_tps_ransac`: warp (None when the fit failed) and inliers (N,) bool."""
 
-    warp: TPSWarp | None
+    warp: ThinPlateSpline | None
     inliers: np.ndarray
 
     @property
     def ok(self) -> bool:
         return self.warp is not None
-
-
-def _check_pairs(src, dst, minimum: int) -> tuple[np.ndarray, np.ndarray]:
-    src = np.asarray(src, np.float64)
-    dst = np.asarray(dst, np.float64)
-    if src.ndim != 2 or src.shape[1] != 2 or dst.shape != src.shape:
-        raise ValueError(f"src, dst: expected two (N, 2) arrays of pixels, got shapes {src.shape} and {dst.shape}")
-    if not (np.isfinite(src).all() and np.isfinite(dst).all()):
-        raise ValueError("src, dst: pixel coordinates must be finite")
-    if len(src) < minimum:
-        raise ValueError(f"src, dst: expected at least {minimum} correspondences, got {len(src)}")
-    return src, dst
 
 
 def _spread(points: np.ndarray, keep: np.ndarray, max_points: int) -> np.ndarray:
@@ -226,9 +122,9 @@ def fit_tps_ransac(
 ) -> RansacResult:
     """Robust TPS fit: RANSAC on small samples, then refinement on the inliers.
 
-    Both point sets are normalised (`normalise_points`, as in Tran et al. ECCV 2012). Each of the
-    `iterations` hypotheses is the TPS through `sample_size` random correspondences (fitted and
-    scored in one batch, vectorised); the one with most inliers (destination residual below
+    Both point sets are normalised (`geofeat.tps.normalise_points`, as in Tran et al. ECCV 2012). Each
+    of the `iterations` hypotheses is the TPS through `sample_size` random correspondences (fitted and
+    scored in one batch by `geofeat.tps.solve_batch` / `evaluate_batch`); the one with most inliers (destination residual below
     `threshold_px` pixels) is refitted to its inliers with smoothing `regularisation` (through at
     most `max_centres` of them, spread over the template: one per cell of a grid), and inliers
     recomputed, up to `refinements` times or until they stop changing.
@@ -239,7 +135,7 @@ def fit_tps_ransac(
         `RansacResult`; warp is None (fit failed) when fewer than `min_inliers` inliers remain or
         N < max(sample_size, min_inliers).
     """
-    src, dst = _check_pairs(src, dst, 0)
+    src, dst = check_pairs(src, dst, 0)
     if sample_size < 3:
         raise ValueError(f"sample_size: expected >= 3 correspondences per hypothesis, got {sample_size}")
     if threshold_px <= 0:
@@ -257,9 +153,8 @@ def fit_tps_ransac(
         b = min(250, iterations - start)
         idx = np.argsort(rng.random((b, n)), axis=1)[:, :sample_size]  # (B, s) without replacement
         s_src, s_dst = sn[idx], dn[idx]
-        w, a, ok = _solve_tps(s_src, s_dst, 1e-9)
-        pred = np.einsum("ni,bij->bnj", np.concatenate([np.ones((n, 1)), sn], axis=1), a)
-        pred += np.einsum("bns,bsj->bnj", _kernel(_sq_dist(sn[None], s_src)), w)
+        w, a, ok = solve_batch(s_src, s_dst, 1e-9)
+        pred = evaluate_batch(sn, s_src, w, a)
         inl = (((pred - dn[None]) ** 2).sum(-1) < thr**2) & ok[:, None]
         counts = inl.sum(axis=1)
         if counts.max() > best.sum():
@@ -269,17 +164,17 @@ def fit_tps_ransac(
     warp = None
     for _ in range(refinements):
         use = _spread(sn, best, max_centres)
-        w, a, ok = _solve_tps(sn[use][None], dn[use][None], regularisation)
+        w, a, ok = solve_batch(sn[use][None], dn[use][None], regularisation)
         if not ok[0]:
             return failed
-        warp = TPSWarp(sn[use], w[0], a[0], Ts, Td)
-        inliers = np.linalg.norm(warp_points(warp, src) - dst, axis=1) < threshold_px
+        warp = ThinPlateSpline(sn[use], w[0], a[0], Ts, Td)
+        inliers = np.linalg.norm(warp(src) - dst, axis=1) < threshold_px
         if (inliers == best).all() or inliers.sum() < max(min_inliers, 3):
             break
         best = inliers
     if warp is None or best.sum() < min_inliers:
         return failed
-    return RansacResult(warp, np.linalg.norm(warp_points(warp, src) - dst, axis=1) < threshold_px)
+    return RansacResult(warp, np.linalg.norm(warp(src) - dst, axis=1) < threshold_px)
 
 
 def guided_matches(features0, features1, predicted0: np.ndarray, radius: float = GUIDE_RADIUS_PX) -> np.ndarray:
@@ -372,11 +267,6 @@ def ssim(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:
     return mean_ssim(a, b, mask)
 
 
-def map_points(warp: "TPSWarp | RefinedWarp", xy: np.ndarray) -> np.ndarray:
-    """(M, 2) template pixels -> (M, 2) frame pixels through a TPS or a refined warp."""
-    return warp_points(warp, xy) if isinstance(warp, TPSWarp) else warp(xy)
-
-
 @dataclass
 class RefinedWarp:
     """A spline refined by a dense displacement field: p -> spline(p) + D(p), template -> frame pixels.
@@ -388,7 +278,7 @@ class RefinedWarp:
             beyond the outermost nodes' neighbours).
     """
 
-    spline: TPSWarp
+    spline: ThinPlateSpline
     origin: np.ndarray
     spacing: float
     displacement: np.ndarray
@@ -400,12 +290,12 @@ class RefinedWarp:
         rc = ((xy - self.origin) / self.spacing)[:, ::-1].T  # (2, M) node rows, columns
         d = np.stack([map_coordinates(self.displacement[..., c], rc, order=1, mode="constant", cval=0.0)
                       for c in range(2)], axis=1)
-        return warp_points(self.spline, xy) + d
+        return self.spline(xy) + d
 
 
-def refine_warp(template: np.ndarray, image: np.ndarray, mask: np.ndarray, spline: TPSWarp,
+def refine_warp(template: np.ndarray, image: np.ndarray, mask: np.ndarray, spline: ThinPlateSpline,
                 lm_template: np.ndarray, lm_image: np.ndarray, roi: tuple[int, int, int, int],
-                config=None) -> tuple["TPSWarp | RefinedWarp", bool]:
+                config=None) -> tuple["ThinPlateSpline | RefinedWarp", bool]:
     """Refine `spline` photometrically with `geofeat.groundtruth.refine` (template as the anchor).
 
     Args:
@@ -422,7 +312,7 @@ def refine_warp(template: np.ndarray, image: np.ndarray, mask: np.ndarray, splin
     """
     from ..groundtruth import refine
 
-    r = refine(template, image, mask, lambda xy: warp_points(spline, xy), lm_template, lm_image, config)
+    r = refine(template, image, mask, spline, lm_template, lm_image, config)
     x0, y0, x1, y1 = roi
     n = r.nodes
     inside = (n[..., 0] >= x0) & (n[..., 0] <= x1) & (n[..., 1] >= y0) & (n[..., 1] <= y1)
@@ -430,11 +320,11 @@ def refine_warp(template: np.ndarray, image: np.ndarray, mask: np.ndarray, splin
     if not r.cost < r.init_cost or folded > MAX_FOLDED_FRACTION:
         return spline, False
     spacing = float(n[0, 1, 0] - n[0, 0, 0]) if n.shape[1] > 1 else float(n[1, 0, 1] - n[0, 0, 1])
-    disp = r.mapped - warp_points(spline, n.reshape(-1, 2)).reshape(n.shape)
+    disp = r.mapped - spline(n.reshape(-1, 2)).reshape(n.shape)
     return RefinedWarp(spline, n[0, 0].astype(np.float64), spacing, disp), True
 
 
-def warp_back(image: np.ndarray, warp: "TPSWarp | RefinedWarp", roi: tuple[int, int, int, int]
+def warp_back(image: np.ndarray, warp: "ThinPlateSpline | RefinedWarp", roi: tuple[int, int, int, int]
               ) -> tuple[np.ndarray, np.ndarray]:
     """Frame `image` (H, W) sampled at the warped template ROI pixels: returns the (h, w) float32
     image in template ROI coordinates and the (h, w) bool mask of pixels landing inside the frame."""
@@ -443,7 +333,7 @@ def warp_back(image: np.ndarray, warp: "TPSWarp | RefinedWarp", roi: tuple[int, 
     # the warp is smooth: evaluate it every `step` pixels and interpolate bilinearly in between
     step = 4
     gx, gy = np.meshgrid(x0 + step * np.arange((w - 1) // step + 2.0), y0 + step * np.arange((h - 1) // step + 2.0))
-    coarse = map_points(warp, np.stack([gx.ravel(), gy.ravel()], axis=1)).reshape(gx.shape + (2,)).astype(np.float32)
+    coarse = warp(np.stack([gx.ravel(), gy.ravel()], axis=1)).reshape(gx.shape + (2,)).astype(np.float32)
     fx, fy = np.meshgrid(np.arange(w, dtype=np.float32) / step, np.arange(h, dtype=np.float32) / step)
     p = cv2.remap(coarse, fx, fy, cv2.INTER_LINEAR)  # (h, w, 2) frame pixels of the template ROI pixels
     H, W = image.shape
@@ -452,7 +342,7 @@ def warp_back(image: np.ndarray, warp: "TPSWarp | RefinedWarp", roi: tuple[int, 
     return out, inside
 
 
-def similarity(template: np.ndarray, image: np.ndarray, warp: "TPSWarp | RefinedWarp | None",
+def similarity(template: np.ndarray, image: np.ndarray, warp: "ThinPlateSpline | RefinedWarp | None",
                roi: tuple[int, int, int, int]) -> tuple[float, float]:
     """(SSIM, NCC) inside the ROI of the template (H, W) gray image and `image` warped back onto it;
     NaN when there is no warp."""
@@ -605,14 +495,14 @@ def track_sequence(
             for r in results.values():
                 r.skipped.append(target)
             continue
-        to_ref = truth.target_to_reference(target, k_tgt.xy, frame.shape) if truth is not None else None
+        to_ref = truth.map(target, k_tgt.xy)[0] if truth is not None else None
         for name in names:
             t0 = time.perf_counter()
             # mutual nearest neighbours; with a previous good warp, also matches searched near where
             # it puts each template keypoint; the fit with more RANSAC inliers is kept
             options = [match(f_ref[name][0], f_tgt[name][0], mutual=True).matches0]
             if prior[name] is not None:
-                options.append(guided_matches(f_ref[name][0], f_tgt[name][0], map_points(prior[name], k_ref.xy)))
+                options.append(guided_matches(f_ref[name][0], f_tgt[name][0], prior[name](k_ref.xy)))
             best = None
             for matches0 in options:
                 j0 = np.flatnonzero(matches0 >= 0)
@@ -633,7 +523,7 @@ def track_sequence(
                     warp, row["refined"] = refine_warp(ref.image, frame.image, roi_mask, fit.warp,
                                                        k_ref.xy[i0[kept]], k_tgt.xy[i1[kept]], roi)
                 prior[name] = warp
-                pts = map_points(warp, grid)
+                pts = warp(grid)
                 results[name].points[k] = pts
                 row["ssim"], row["ncc"] = similarity(ref.image, frame.image, warp, roi)
                 row["seconds"] = time.perf_counter() - t0
@@ -643,17 +533,16 @@ def track_sequence(
                     correct = int((err < GT_THRESHOLD_PX).sum())  # NaN (no ground truth): not correct
                     row["ms"] = correct / max(min(len(k_ref), len(k_tgt)), 1)
                     row["precision"] = correct / kept.sum() if kept.any() else 0.0
-                    row["grid_error_px"] = _grid_error(truth, target, pts, grid, frame.shape)
+                    row["grid_error_px"] = _grid_error(truth, target, pts, grid)
                     row["grid_error_tps_px"] = (row["grid_error_px"] if warp is fit.warp else
-                                                _grid_error(truth, target, warp_points(fit.warp, grid), grid,
-                                                            frame.shape))
+                                                _grid_error(truth, target, fit.warp(grid), grid))
             results[name].rows.append(row)
     return results
 
 
-def _grid_error(truth, target: str, pts: np.ndarray, grid: np.ndarray, shape: tuple[int, int]) -> float:
+def _grid_error(truth, target: str, pts: np.ndarray, grid: np.ndarray) -> float:
     """Median over the (G, 2) grid of |ground truth(tracked (G, 2) frame pixels) - grid point|, pixels."""
-    g = np.linalg.norm(truth.target_to_reference(target, pts, shape) - grid, axis=1)
+    g = np.linalg.norm(truth.map(target, pts)[0] - grid, axis=1)
     return float(np.nanmedian(g)) if np.isfinite(g).any() else float("nan")
 
 

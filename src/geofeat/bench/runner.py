@@ -148,8 +148,7 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
             k_tgt = Keypoints(xy_t[vis_t], np.zeros(vis_t.sum()), np.full(vis_t.sum(), 8.0), np.zeros(vis_t.sum()))
         else:
             k_tgt = detect(frame, config.n_keypoints, detector=config.detector, keypoint_set=config.keypoint_set)
-            mapped = truth.target_to_reference(target, k_tgt.xy, frame.shape)
-            known = np.isfinite(mapped).all(axis=1)
+            mapped, known = truth.map(target, k_tgt.xy)
             k_tgt, mapped = k_tgt[known], mapped[known]
             gt = ground_truth_pairs(k_ref.xy, mapped)
         f_tgt = describe(frame, k_tgt) if len(k_tgt) and f_ref is not None else None
@@ -187,9 +186,7 @@ def evaluate_external(seq: Sequence, truth: GroundTruth, features: ExternalFeatu
         if not truth.covers(target):
             continue
         f_tgt = features.load(seq.name, target, config.n_keypoints)
-        shape = seq.frame(target).shape
-        mapped = truth.target_to_reference(target, f_tgt.keypoints, shape)
-        known = np.isfinite(mapped).all(axis=1)
+        mapped, known = truth.map(target, f_tgt.keypoints)
         f_tgt = Features(f_tgt.keypoints[known], f_tgt.descriptors[known], f_tgt.valid[known])
         gt = ground_truth_pairs(f_ref.keypoints, mapped[known])
         t = time.perf_counter()

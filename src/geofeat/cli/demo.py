@@ -10,6 +10,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..constants import DEFAULT_RADIUS_M
+from .options import depth_profile_option
+
 
 def _profile_of(profile: str, frame) -> str:
     """The concrete profile name for `frame` ("auto" measured on it)."""
@@ -106,6 +109,18 @@ def _demo_deformed_pair(out: Path, n: int, profile: str) -> None:
           f"{seq.reference} vs {target}, SIFT keypoints {len(k0)} and {len(k1)}")
     _demo_match_pair(out, "simulated_pair_matches.png", frame0, frame1, k0, k1,
                      np.where(visible[:, None], truth, np.nan), ["geopatch", "geobit", "orb", "sift"], profile)
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add `demo` to an argparse subparsers object; returns its parser."""
+    p = subparsers.add_parser("demo", help="run the demo on the shipped real Kinect frame")
+    p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
+    p.add_argument("--radius", type=float, default=DEFAULT_RADIUS_M, help="geodesic radius, metres (default 0.075)")
+    p.add_argument("--angle", type=float, default=60.0, help="camera roll of the rotated pair, degrees (default 60)")
+    p.add_argument("--keypoints", type=int, default=1000, help="SIFT keypoints per frame (default 1000)")
+    depth_profile_option(p, "auto")
+    p.set_defaults(func=run)
+    return p
 
 
 def run(args: argparse.Namespace) -> int:

@@ -2,18 +2,23 @@
 paper's other baselines (BRAND, DaLI, TFeat- and Log-Polar-style nets trained on our simulator).
 
 Every descriptor follows `Descriptor` (descriptors/base.py): `name`, `binary`, `metric`,
-`geodesic`, `compute(frame, keypoints) -> Features`. `make_descriptor(name)` builds one by name for
+`geodesic`, `compute(frame, keypoints) -> Features`. Options follow one pattern (`settings.py`): each
+class has a frozen `Settings` dataclass, and its constructor merges a settings object with keyword
+arguments (`GeoBit(radius=0.05)`). `make_descriptor(name)` builds one by name for
 the command line and the benchmark; `check_descriptor_name(name)` validates a name without
 building anything (no weights are loaded).
 """
 
 from __future__ import annotations
 
+from importlib import import_module
 from pathlib import Path
+from typing import Any
 
 from .base import Descriptor
 from .baselines import BASELINES, OpenCVDescriptor
-from .geobit import GeoBit, generate_pattern, load_pattern
+from .geobit import GeoBit, GeoBitSettings, generate_pattern, load_pattern
+from .settings import PatchSettings, takes_patch_settings
 
 GEODESIC_DESCRIPTORS = ("geobit", "geopatch")
 #: The paper's other baselines (brand.py, dali.py, image_patch_nets.py); "-sim": trained on our simulator.
@@ -46,42 +51,45 @@ def check_descriptor_name(name: str) -> str:
     return key.lower()
 
 
-def make_descriptor(name: str, radius: float | None = None, depth_config=None) -> Descriptor:
+#: Descriptor classes by name: (module, class); imported when asked for (GeoPatch and the image-patch
+#: nets import torch).
+_CLASSES = {"geobit": (".geobit", "GeoBit"), "geopatch": (".geopatch", "GeoPatch"), "brand": (".brand", "BRAND"),
+            "dali": (".dali", "DaLI"), "tfeat-sim": (".image_patch_nets", "ImagePatchDescriptor"),
+            "logpolar-sim": (".image_patch_nets", "ImagePatchDescriptor")}
+
+
+def _descriptor_class(base: str) -> tuple[type, tuple[str, ...]]:
+    """The class of descriptor `base` and the positional arguments naming the variant it builds (the
+    OpenCV baseline's name, the image-patch net's architecture)."""
+    if base in BASELINES:
+        return OpenCVDescriptor, (base,)
+    module, name = _CLASSES[base]
+    cls = getattr(import_module(module, __name__), name)
+    return cls, ((base.split("-", 1)[0],) if base.endswith("-sim") else ())
+
+
+def make_descriptor(name: str, radius: float | None = None, depth_config=None, **options: Any) -> Descriptor:
     """A descriptor by name: "geobit", "geopatch", "orb", "brisk", "freak", "daisy", "sift",
     "brand", "dali", "tfeat-sim", "logpolar-sim".
 
     "geopatch=PATH" (or "tfeat-sim=PATH", "logpolar-sim=PATH") uses the weights at PATH instead of
-    the shipped ones. `radius` (metres) and `depth_config` (a DepthConfig or a profile name) apply
-    to the geodesic descriptors only."""
+    the shipped ones. `radius` (metres) and `depth_config` (a DepthConfig or a profile name) go, by
+    those names, to every descriptor whose settings hold the polar patch settings
+    (`settings.PatchSettings`: GeoBit, GeoPatch); the others have none. `options` are further
+    settings of the descriptor (e.g. backend="torch" for GeoPatch), passed as keyword arguments."""
     key = check_descriptor_name(name)
     base, _, weights = key.partition("=")
-    kwargs = {}
-    if radius is not None:
-        kwargs["radius"] = radius
-    if depth_config is not None:
-        kwargs["depth_config"] = depth_config
-    if base == "geobit":
-        return GeoBit(**kwargs)
-    if base == "geopatch":
-        from .geopatch import GeoPatch  # imports torch: only when asked for
-
-        return GeoPatch(weights=weights or None, **kwargs)
-    if base in BASELINES:
-        return OpenCVDescriptor(base)
-    if base == "brand":
-        from .brand import BRAND
-
-        return BRAND()
-    if base == "dali":
-        from .dali import DaLI
-
-        return DaLI()
-    from .image_patch_nets import ImagePatchDescriptor  # tfeat-sim, logpolar-sim; imports torch
-
-    return ImagePatchDescriptor(base.split("-", 1)[0], weights=weights or None)
+    cls, variant = _descriptor_class(base)
+    if weights:
+        options["weights"] = weights
+    if takes_patch_settings(cls):
+        patch = {k: v for k, v in (("radius", radius), ("depth_config", depth_config)) if v is not None}
+        options = {**patch, **options}
+    return cls(*variant, **options)
 
 
 __all__ = [
-    "BASELINES", "Descriptor", "GeoBit", "OpenCVDescriptor", "PAPER_BASELINES", "available_descriptors",
+    "BASELINES", "Descriptor", "GeoBit", "GeoBitSettings", "OpenCVDescriptor", "PAPER_BASELINES", "PatchSettings",
+    "available_descriptors",
     "check_descriptor_name", "generate_pattern", "load_pattern", "make_descriptor",
 ]

@@ -29,6 +29,10 @@ default; BRAND needs no keypoint size).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
 import cv2
 import numpy as np
 
@@ -37,6 +41,7 @@ from ..depth import backproject
 from ..features import Features
 from ..frame import RGBDFrame
 from .patches import keypoint_arrays
+from .settings import merge_settings
 
 #: Number of binary tests (bits).
 N_BITS = 256
@@ -84,21 +89,30 @@ def _remap(channel: np.ndarray, mx: np.ndarray, my: np.ndarray, interpolation: i
                      borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan"))
 
 
+@dataclass(frozen=True)
+class BRANDSettings:
+    """BRAND's options. n_bits: number of tests (multiple of 8; the paper: 256 or 512); seed: seed of
+    the test pattern."""
+
+    n_bits: int = N_BITS
+    seed: int = 0
+
+
 class BRAND:
     """BRAND descriptor: (N, 32) uint8 (256 bits), Hamming distance. See the module docstring.
 
-    Args:
-        n_bits: number of tests (multiple of 8; the paper: 256 or 512).
-        seed: seed of the test pattern.
+    Options: `BRANDSettings`, given and merged as `geofeat.descriptors.settings` says.
     """
 
     name = "brand"
     binary, metric, geodesic = True, "hamming", False
+    Settings = BRANDSettings
 
-    def __init__(self, n_bits: int = N_BITS, seed: int = 0) -> None:
-        if n_bits <= 0 or n_bits % 8:
-            raise ValueError(f"n_bits: expected a positive multiple of 8, got {n_bits}")
-        self.pattern = brand_pattern(n_bits, seed)
+    def __init__(self, settings: BRANDSettings | Mapping[str, Any] | None = None, **kwargs: Any) -> None:
+        self.settings = s = merge_settings(BRANDSettings, settings, kwargs)
+        if s.n_bits <= 0 or s.n_bits % 8:
+            raise ValueError(f"n_bits: expected a positive multiple of 8, got {s.n_bits}")
+        self.pattern = brand_pattern(s.n_bits, s.seed)
 
     def compute(self, frame: RGBDFrame, keypoints) -> Features:
         """BRAND features of `keypoints` (Keypoints / cv2.KeyPoint list / (N, 2) pixels: angle 0)."""

@@ -41,7 +41,9 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -51,6 +53,7 @@ from tqdm import tqdm
 from ..features import Features
 from ..frame import RGBDFrame
 from .patches import cartesian_grid, keypoint_arrays, sample_patches
+from .settings import merge_settings
 
 #: Patch grid side (vertices); the mesh is the disc of radius (GRID - 1) / 2 grid units.
 GRID = 25
@@ -165,22 +168,31 @@ def _describe_one(w: np.ndarray, mass: np.ndarray, mesh: _Mesh) -> np.ndarray:
     return np.abs(np.fft.rfft(samples, axis=1)).ravel()
 
 
+@dataclass(frozen=True)
+class DaLISettings:
+    """DaLI's options. workers: threads running the per-patch eigensolver (None: all CPUs);
+    progress: show a tqdm bar over keypoints."""
+
+    workers: int | None = None
+    progress: bool = True
+
+
 class DaLI:
     """DaLI descriptor: (N, 576) float32 unit vectors, L2 distance. See the module docstring.
 
-    Args:
-        workers: threads running the per-patch eigensolver (default: all CPUs).
-        progress: show a tqdm bar over keypoints.
+    Options: `DaLISettings`, given and merged as `geofeat.descriptors.settings` says.
     """
 
     name = "dali"
     binary, metric, geodesic = False, "l2", False
     #: timed once, not best-of-3, in the bench's timing table
     slow = True
+    Settings = DaLISettings
 
-    def __init__(self, workers: int | None = None, progress: bool = True) -> None:
-        self.workers = int(workers or os.cpu_count() or 1)
-        self.progress = progress
+    def __init__(self, settings: DaLISettings | Mapping[str, Any] | None = None, **kwargs: Any) -> None:
+        self.settings = s = merge_settings(DaLISettings, settings, kwargs)
+        self.workers = int(s.workers or os.cpu_count() or 1)
+        self.progress = s.progress
 
     def describe_patches(self, patches: np.ndarray) -> np.ndarray:
         """(N, GRID, GRID) intensity patches -> (N, D) float32 unit descriptors."""

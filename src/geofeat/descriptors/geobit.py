@@ -56,20 +56,23 @@ real-data curve, and the authors' effective value, so results stay comparable wi
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 from importlib import resources
+from typing import Any
 
 import numpy as np
 from numba import njit, prange
 
-from ..constants import DEFAULT_RADIUS_M, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX
-from ..depth import DepthConfig, check_profile
+from ..constants import N_ANGLES, N_RINGS
 from ..features import Features
 from ..frame import RGBDFrame
 from ..keypoints import as_keypoints
 from ..geodesic.mesh import GridMesh
 from ..geodesic.polar import PolarPatches, polar_patches
+from .settings import PatchSettings, merge_settings
 
-__all__ = ["GeoBit", "generate_pattern", "load_pattern", "DEFAULT_SIGMA_ROWS", "PATTERN_SEED"]
+__all__ = ["GeoBit", "GeoBitSettings", "generate_pattern", "load_pattern", "DEFAULT_SIGMA_ROWS", "PATTERN_SEED"]
 
 #: Standard deviation (in rings) of the half-normal ring distribution of the default pattern.
 DEFAULT_SIGMA_ROWS = 10.24
@@ -152,47 +155,52 @@ def _binary_tests(values, valid, idx_x, idx_y, out):
                 out[i, r, b] = acc
 
 
-class GeoBit:
-    """GeoBit descriptor extractor (a `geofeat.descriptors.base.Descriptor`).
+@dataclass(frozen=True)
+class GeoBitSettings(PatchSettings):
+    """GeoBit's options (with the polar patch settings of `PatchSettings`: radius, depth_config, blur_px).
 
-    Args:
+    Attributes:
         n_bits: binary tests per rotation (a multiple of 8); 512 in the paper.
         n_rotations: rotated copies; must divide n_angles (16: steps of 2 columns = 22.5 degrees).
         seed: None uses the shipped pattern (when n_bits, sigma and the patch size are the defaults;
             otherwise a pattern drawn with PATTERN_SEED); an int draws a pattern from that seed.
-        radius: geodesic radius of the polar patch, metres.
         sigma: ring standard deviation of the pattern, rings; None = DEFAULT_SIGMA_ROWS.
         n_rings, n_angles: polar patch size (rows, columns).
-        depth_config, blur_px: passed to `polar_patches` when `compute` builds the patches.
     """
 
-    def __init__(
-        self,
-        n_bits: int = DEFAULT_N_BITS,
-        n_rotations: int = DEFAULT_N_ROTATIONS,
-        seed: int | None = None,
-        radius: float = DEFAULT_RADIUS_M,
-        sigma: float | None = None,
-        n_rings: int = N_RINGS,
-        n_angles: int = N_ANGLES,
-        depth_config: DepthConfig | str = "auto",
-        blur_px: float = SAMPLING_BLUR_PX,
-    ) -> None:
+    n_bits: int = DEFAULT_N_BITS
+    n_rotations: int = DEFAULT_N_ROTATIONS
+    seed: int | None = None
+    sigma: float | None = None
+    n_rings: int = N_RINGS
+    n_angles: int = N_ANGLES
+
+
+class GeoBit:
+    """GeoBit descriptor extractor (a `geofeat.descriptors.base.Descriptor`).
+
+    Options: `GeoBitSettings`, given and merged as `geofeat.descriptors.settings` says.
+    """
+
+    Settings = GeoBitSettings
+
+    def __init__(self, settings: GeoBitSettings | Mapping[str, Any] | None = None, **kwargs: Any) -> None:
+        self.settings = s = merge_settings(GeoBitSettings, settings, kwargs)
+        n_bits, n_rotations, seed, n_rings, n_angles = s.n_bits, s.n_rotations, s.seed, s.n_rings, s.n_angles
         if n_bits < 8 or n_bits % 8:
             raise ValueError(f"n_bits: expected a positive multiple of 8, got {n_bits}")
         if n_rotations < 1 or n_angles % n_rotations:
             raise ValueError(f"n_rotations: must divide n_angles={n_angles}, got {n_rotations}")
         self.n_bits = int(n_bits)
         self.n_rotations = int(n_rotations)
-        self.sigma = DEFAULT_SIGMA_ROWS if sigma is None else float(sigma)
+        self.sigma = DEFAULT_SIGMA_ROWS if s.sigma is None else float(s.sigma)
         self.seed = seed
-        self.radius = float(radius)
+        self.radius = s.radius
         self.n_rings = int(n_rings)
         self.n_angles = int(n_angles)
         self.name, self.binary, self.metric, self.geodesic = "geobit", True, "hamming-rot", True
-        self.depth_config = depth_config if isinstance(depth_config, DepthConfig) else check_profile(
-            depth_config, "depth_config")
-        self.blur_px = blur_px
+        self.depth_config = s.depth_config
+        self.blur_px = s.blur_px
         default = (n_bits, self.sigma, n_rings, n_angles) == (DEFAULT_N_BITS, DEFAULT_SIGMA_ROWS, N_RINGS, N_ANGLES)
         if seed is None and default:
             self.pattern = load_pattern()

@@ -30,22 +30,24 @@ BENCHMARKS.md). This module imports no torch; the torch names below load it on f
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import importlib.util
 import os
 
 import numpy as np
 
-from ..constants import DEFAULT_RADIUS_M, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX
-from ..depth import DepthConfig, check_profile
+from ..constants import N_ANGLES, N_RINGS
 from ..features import Features
 from ..frame import RGBDFrame
 from ..keypoints import as_keypoints
 from ..geodesic.mesh import GridMesh
 from ..geodesic.polar import PolarPatches, polar_patches
+from .settings import PatchSettings, merge_settings
 
 #: File name of the shipped weights inside geofeat/data.
 WEIGHTS_NAME = "geopatch.pt"
@@ -117,15 +119,15 @@ def resolve_backend(backend: str | None, weights: str | Path | None, device: str
     return DEFAULT_BACKEND
 
 
-class GeoPatch:
-    """GeoPatch descriptor extractor: polar patches -> GeoPatchNet -> (N, 128) float32 unit vectors
-    (a `geofeat.descriptors.base.Descriptor`).
+@dataclass(frozen=True)
+class GeoPatchSettings(PatchSettings):
+    """GeoPatch's options (with the polar patch settings of `PatchSettings`: radius, depth_config,
+    blur_px). The network's architecture is `GeoPatchConfig`, read from the weights.
 
-    Args:
+    Attributes:
         weights: checkpoint path (.pt, from `geofeat train`, or a .onnx file made from one by
             benchmarks/make_geopatch_onnx.py); None = the weights shipped with geofeat.
         device: "cpu", "cuda", ... (default: CUDA when available, through torch).
-        radius, depth_config, blur_px: polar patch settings (`geofeat.polar_patches`).
         batch_size: patches per forward pass on CPU (None: `DEFAULT_BATCH` of the backend; on CUDA
             at least 4096 patches go in one pass).
         threads: CPU threads for `describe`: torch threads (set for the call, then restored; None
@@ -140,14 +142,29 @@ class GeoPatch:
             "onnx" with user .pt weights exports them on the fly (needs torch and onnx).
     """
 
-    def __init__(self, weights: str | Path | None = None, device: str | None = None,
-                 radius: float = DEFAULT_RADIUS_M, depth_config: DepthConfig | str = "auto",
-                 blur_px: float = SAMPLING_BLUR_PX, batch_size: int | None = None, threads: int | None = None,
-                 backend: str | None = None) -> None:
+    weights: str | Path | None = None
+    device: str | None = None
+    batch_size: int | None = None
+    threads: int | None = None
+    backend: str | None = None
+
+
+class GeoPatch:
+    """GeoPatch descriptor extractor: polar patches -> GeoPatchNet -> (N, 128) float32 unit vectors
+    (a `geofeat.descriptors.base.Descriptor`).
+
+    Options: `GeoPatchSettings`, given and merged as `geofeat.descriptors.settings` says.
+    """
+
+    Settings = GeoPatchSettings
+
+    def __init__(self, settings: GeoPatchSettings | Mapping[str, Any] | None = None, **kwargs: Any) -> None:
+        self.settings = s = merge_settings(GeoPatchSettings, settings, kwargs)
+        weights, device, batch_size, threads = s.weights, s.device, s.batch_size, s.threads
         if threads is not None and int(threads) < 1:
             raise ValueError(f"threads: expected a positive number of CPU threads or None, got {threads}")
         self.threads = None if threads is None else int(threads)
-        self.backend = resolve_backend(backend, weights, device)
+        self.backend = resolve_backend(s.backend, weights, device)
         self.net = self.session = None
         self.checkpoint: dict = {}
         if self.backend == "torch":
@@ -168,12 +185,11 @@ class GeoPatch:
             cfg = dict(self.session.config)
             cfg["channels"] = tuple(cfg["channels"])
             self.config = GeoPatchConfig(**cfg)
-        self.radius = float(radius)
+        self.radius = s.radius
         self.name = "geopatch" if weights is None else f"geopatch={weights}"
         self.binary, self.metric, self.geodesic = False, "l2", True
-        self.depth_config = depth_config if isinstance(depth_config, DepthConfig) else check_profile(
-            depth_config, "depth_config")
-        self.blur_px = blur_px
+        self.depth_config = s.depth_config
+        self.blur_px = s.blur_px
         self.batch_size = int(DEFAULT_BATCH[self.backend] if batch_size is None else batch_size)
         if self.batch_size < 1:
             raise ValueError(f"batch_size: expected a positive number of patches, got {batch_size}")

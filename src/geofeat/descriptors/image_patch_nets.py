@@ -30,9 +30,11 @@ figures are in BENCHMARKS.md.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -43,6 +45,7 @@ from ..features import Features
 from ..frame import RGBDFrame
 from ..keypoints import Keypoints
 from .patches import cartesian_grid, keypoint_arrays, logpolar_grid, sample_patches
+from .settings import merge_settings
 
 #: Support radius of a TFeat patch = this x the keypoint diameter (pixels): a patch side of 6x
 #: SIFT's size, the factor at which BRISK/FREAK plateau under scale (BENCHMARKS.md).
@@ -142,17 +145,29 @@ def load_image_net(path: str | Path) -> ImagePatchNet:
     return net.eval()
 
 
+@dataclass(frozen=True)
+class ImagePatchSettings:
+    """Options of `ImagePatchDescriptor`. weights: checkpoint path; None = the shipped weights;
+    "random" = an untrained net (seeded; the reference the trained weights must beat). batch_size:
+    patches per forward pass."""
+
+    weights: str | Path | None = None
+    batch_size: int = 256
+
+
 class ImagePatchDescriptor:
     """`tfeat-sim` / `logpolar-sim`: image patches -> ImagePatchNet -> (N, 128) float32 unit vectors.
 
-    Args:
-        arch: "tfeat" or "logpolar".
-        weights: checkpoint path; None = the shipped weights; "random" = an untrained net (seeded;
-            the reference the trained weights must beat).
-        batch_size: patches per forward pass.
+    `arch` ("tfeat" or "logpolar") says which descriptor; options: `ImagePatchSettings`, given and
+    merged as `geofeat.descriptors.settings` says.
     """
 
-    def __init__(self, arch: str, weights: str | Path | None = None, batch_size: int = 256) -> None:
+    Settings = ImagePatchSettings
+
+    def __init__(self, arch: str, settings: ImagePatchSettings | Mapping[str, Any] | None = None,
+                 **kwargs: Any) -> None:
+        self.settings = s = merge_settings(ImagePatchSettings, settings, kwargs)
+        weights = s.weights
         if arch not in ARCHS:
             raise ValueError(f"arch: expected one of {ARCHS}, got {arch!r}")
         self.arch = arch
@@ -164,7 +179,7 @@ class ImagePatchDescriptor:
                 self.net = ImagePatchNet(default_config(arch)).eval()
         else:
             self.net = load_image_net(default_weights_path(arch) if weights is None else weights)
-        self.batch_size = int(batch_size)
+        self.batch_size = int(s.batch_size)
 
     def __repr__(self) -> str:
         return f"ImagePatchDescriptor({self.name}, config={self.net.config})"

@@ -1,8 +1,8 @@
-"""Every correspondence source in one place: `sources.GroundTruth` maps target pixels to reference
+"""Every correspondence source in one place: `sources.GroundTruth.map` maps target pixels to reference
 pixels from the authors' TPS files, the simulator's exact truth (`simulator`) or a landmark spline
-(`tps`); and dense ground truth for annotated RGB-D sequences (`geofeat groundtruth`): landmarks ->
-robust thin-plate spline -> photometric refinement on a control-point grid -> the authors' TPS file
-layout.
+(`landmarks`), all with the one spline of `geofeat.tps`; and dense ground truth for annotated RGB-D
+sequences (`geofeat groundtruth`): landmarks -> robust thin-plate spline -> photometric refinement on
+a control-point grid -> the authors' TPS file layout.
 
 Names are loaded on first use, so that the CLI can read the defaults without importing torch."""
 
@@ -12,8 +12,9 @@ from .defaults import DEFAULT_DEPTH_MARGIN_M, DEFAULT_MARGIN_PX, DEFAULT_SPACING
 
 _WHERE = {
     "FrameReport": "pipeline", "GroundTruthConfig": "pipeline", "generate_ground_truth": "pipeline",
-    "reference_mask": "pipeline", "RefineConfig": "photometric", "refine": "photometric", "TPS": "tps",
-    "RobustFit": "tps", "robust_landmark_tps": "tps", "GroundTruth": "sources", "correct_matches": "sources",
+    "reference_mask": "pipeline", "RefineConfig": "photometric", "refine": "photometric",
+    "RobustFit": "landmarks", "robust_landmark_tps": "landmarks", "landmark_spline": "landmarks",
+    "GroundTruth": "sources", "correct_matches": "sources", "load_authors_spline": "sources",
 }
 
 __all__ = ["DEFAULT_DEPTH_MARGIN_M", "DEFAULT_MARGIN_PX", "DEFAULT_SPACING_PX", *_WHERE]

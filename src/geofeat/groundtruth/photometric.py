@@ -16,6 +16,7 @@ warped position leaves the frame are masked out, as are flat windows (weight var
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -24,7 +25,9 @@ import torch
 import torch.nn.functional as F
 
 from .defaults import DEFAULT_SPACING_PX
-from .tps import TPS
+
+#: A map of (N, 2) pixels to (N, 2) pixels, e.g. a `geofeat.tps.ThinPlateSpline`.
+Warp = Callable[[np.ndarray], np.ndarray]
 
 
 @dataclass
@@ -110,7 +113,7 @@ class _Level:
     """Fixed tensors of one pyramid level: the reference crop, its mask and local moments (window k),
     f0 at the crop's pixels (full-resolution pixels) and the B-spline field on them."""
 
-    def __init__(self, ref, tgt, mask, f0: TPS, box, gx, gy, level: int, k: int, tau: float) -> None:
+    def __init__(self, ref, tgt, mask, f0: Warp, box, gx, gy, level: int, k: int, tau: float) -> None:
         x0, y0, x1, y1 = box
         s = 2**level
         ref_l = _level_image(ref, level)
@@ -157,7 +160,7 @@ def _bending(D: torch.Tensor) -> torch.Tensor:
     return sum(terms) if terms else D.sum() * 0
 
 
-def refine(ref: np.ndarray, tgt: np.ndarray, mask: np.ndarray, f0: TPS, lm_ref: np.ndarray, lm_tgt: np.ndarray,
+def refine(ref: np.ndarray, tgt: np.ndarray, mask: np.ndarray, f0: Warp, lm_ref: np.ndarray, lm_tgt: np.ndarray,
            config: RefineConfig | None = None) -> Refined:
     """Refine the reference -> frame map f0 photometrically (see the module docstring).
 

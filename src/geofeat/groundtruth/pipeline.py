@@ -4,7 +4,7 @@
 Output folder (one per sequence, read by `geofeat bench --tps-dir`):
     `<frame>_objmask.png`   every frame, reference included: 255 on the object, else 0,
     `<k>_theta.npy`         (1, T+3, 2) float32, `<k>_ctrlpts.npy` (T, 2) float32: the target -> reference
-                            spline of target frame k in the authors' parametrisation (`tps.TPS`),
+                            spline of target frame k in the authors' parametrisation (`geofeat.tps.authors_tps`),
     `<k>_SSIM.png`          SSIM (x 255) between frame k and the reference warped into it, 0 off the object;
                             the bench keeps target keypoints where it is > 0.25 (occluded or misregistered
                             parts fall below),
@@ -34,7 +34,8 @@ from ..io import Sequence, read_sequence
 from ..outputs import check_out_dir, output_folder
 from .defaults import DEFAULT_DEPTH_MARGIN_M, DEFAULT_MARGIN_PX, DEFAULT_SPACING_PX
 from .photometric import RefineConfig, refine
-from .tps import MIN_LANDMARKS, TPS, robust_landmark_tps
+from ..tps import ThinPlateSpline, authors_tps
+from .landmarks import MIN_LANDMARKS, robust_landmark_tps
 
 #: The bench keeps target keypoints where the SSIM map exceeds this.
 SSIM_KEEP = 0.25
@@ -139,7 +140,7 @@ def reference_mask(frame: RGBDFrame, landmarks: np.ndarray, margin_px: float, de
     return mask & _depth_ok(frame, zmin, zmax) if np.isfinite(zmax) else mask
 
 
-def _dense_map(tps: TPS, shape: tuple[int, int], stride: int = 4) -> tuple[np.ndarray, np.ndarray]:
+def _dense_map(tps: ThinPlateSpline, shape: tuple[int, int], stride: int = 4) -> tuple[np.ndarray, np.ndarray]:
     """The spline at every pixel (H, W) x 2 float32 maps, evaluated every `stride` pixels and
     interpolated bilinearly in between (the spline is smooth at that scale)."""
     H, W = shape
@@ -160,7 +161,7 @@ class _Warped:
     warped: np.ndarray  # (H, W) reference warped into the target
 
 
-def _evaluate(tps_inv: TPS, ref: RGBDFrame, ref_mask: np.ndarray, tgt: RGBDFrame, zrange) -> _Warped:
+def _evaluate(tps_inv: ThinPlateSpline, ref: RGBDFrame, ref_mask: np.ndarray, tgt: RGBDFrame, zrange) -> _Warped:
     mx, my = _dense_map(tps_inv, tgt.shape)
     warped = cv2.remap(ref.image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     on_ref = cv2.remap(ref_mask.astype(np.uint8), mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
@@ -215,7 +216,7 @@ def _nodes_near_object(refined, ref_mask: np.ndarray, spacing: float, shape) -> 
     return inside & near[iy, ix] & in_frame
 
 
-def _write_frame(out: Path, name: str, tps_inv: TPS, ev: _Warped) -> None:
+def _write_frame(out: Path, name: str, tps_inv: ThinPlateSpline, ev: _Warped) -> None:
     theta, ctrl = tps_inv.authors_arrays()
     np.save(out / f"{name}_theta.npy", theta)
     np.save(out / f"{name}_ctrlpts.npy", ctrl)
@@ -240,7 +241,7 @@ def _frame(seq: Sequence, name: str, ref: RGBDFrame, ref_mask, lms, config: Grou
     try:
         fit = robust_landmark_tps(p_ref, p_tgt, size)
         inl = fit.inliers
-        lm_inv = TPS(p_tgt[inl], p_ref[inl], size)
+        lm_inv = authors_tps(p_tgt[inl], p_ref[inl], size)
     except ValueError as error:
         rep.status, rep.reason = "failed", str(error)
         return rep
@@ -260,7 +261,7 @@ def _frame(seq: Sequence, name: str, ref: RGBDFrame, ref_mask, lms, config: Grou
         keep = near & (r.jac_det > 0.1)  # folded or crushed nodes would make the inverse ill-posed
         folded = float((near & (r.jac_det <= 0)).sum() / max(near.sum(), 1))
         try:
-            tps_inv = TPS(r.mapped[keep], r.nodes[keep], size)
+            tps_inv = authors_tps(r.mapped[keep], r.nodes[keep], size)
         except ValueError as error:
             rep.status, rep.reason = "failed", f"refinement diverged: {error}"
             return rep

@@ -1,7 +1,8 @@
-"""Ground truth of a pair behind one interface: `GroundTruth.target_to_reference` maps target pixels to
-reference pixels from (in this order) the authors' TPS files (`<frame>_theta.npy`, written by
-`geofeat groundtruth`), the simulator's exact correspondences, or a thin-plate spline on the csv
-landmarks. The benchmark, `geofeat match`, tracking and the object mask use it."""
+"""Ground truth of a pair behind one interface: `GroundTruth.map(target, xy) -> (xy_ref, valid)` maps
+pixels of a target frame to reference pixels from (in this order) the authors' TPS files
+(`<frame>_theta.npy`, written by `geofeat groundtruth`), the simulator's exact correspondences, or a
+thin-plate spline on the csv landmarks. The benchmark, `geofeat match`, tracking and the object mask
+use it."""
 
 from __future__ import annotations
 
@@ -13,9 +14,10 @@ import numpy as np
 from ..inputs import check_tps_dir
 from ..io import Sequence
 from ..scoring import ground_truth_pairs
-from .tps import LandmarkTPS, authors_tps_warp
+from ..tps import ThinPlateSpline
+from .landmarks import MIN_LANDMARKS, inside_hull, landmark_spline
 
-__all__ = ["GroundTruth", "correct_matches", "tps_folder"]
+__all__ = ["GroundTruth", "correct_matches", "tps_folder", "load_authors_spline"]
 
 
 def _has_tps_files(folder: Path) -> bool:
@@ -41,9 +43,22 @@ def _on_mask(mask: np.ndarray | None, xy: np.ndarray) -> np.ndarray:
     return mask[y, x] > 0
 
 
+def load_authors_spline(folder: Path, frame: str, size: tuple[int, int]) -> ThinPlateSpline:
+    """The authors' target -> reference spline of `frame` (`<frame>_theta.npy`, `<frame>_ctrlpts.npy` in
+    `folder`); size: (W, H) of the frame, pixels."""
+    return ThinPlateSpline.from_authors_arrays(np.load(folder / f"{frame}_theta.npy"),
+                                               np.load(folder / f"{frame}_ctrlpts.npy"), size)
+
+
 class GroundTruth:
     """Target -> reference mapping of a pair, from (in this order) the authors' TPS files, the
-    simulator's exact correspondences, or a thin-plate spline on the csv landmarks."""
+    simulator's exact correspondences, or a thin-plate spline on the csv landmarks.
+
+    Attributes:
+        seq: the sequence.
+        tps: the folder of the authors' TPS files of the sequence, None when not used.
+        exact: True when the simulator's exact correspondences are used.
+    """
 
     def __init__(self, seq: Sequence, tps_dir: str | None) -> None:
         self.seq = seq
@@ -70,9 +85,10 @@ class GroundTruth:
         if self.exact:
             return self.seq.correspondences(self.seq.reference, self.seq.reference, xy)[1]
         keep = _on_mask(self._mask(self.seq.reference), xy)
-        if self.tps is None and not self.exact:
+        if self.tps is None:
             ids, lm, vis = self.seq.landmarks(self.seq.reference)
-            keep &= np.isfinite(LandmarkTPS(lm[vis], lm[vis])(xy)).all(axis=1)
+            _check_landmarks(int(vis.sum()))
+            keep &= inside_hull(lm[vis], xy)
         return keep
 
     def covers(self, target: str) -> bool:
@@ -80,33 +96,50 @@ class GroundTruth:
         marked failed): the benchmark skips that pair and says so."""
         return self.tps is None or (self.tps / f"{target}_theta.npy").is_file()
 
-    def target_to_reference(self, target: str, xy: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-        """(N, 2) target pixels -> reference pixels, NaN where the ground truth is unreliable."""
+    def map(self, target: str, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Map pixels of frame `target` to the reference frame.
+
+        Args:
+            target: a target frame name of the sequence.
+            xy: (N, 2) pixels of the target frame.
+        Returns:
+            xy_ref: (N, 2) reference pixels, NaN where the ground truth is unknown or unreliable (off
+                the simulated surface or occluded; off the TPS files' object mask or below their SSIM
+                threshold; outside the landmarks' convex hull).
+            valid: (N,) bool, True where xy_ref is known.
+        """
+        xy = np.asarray(xy, float).reshape(-1, 2)
         if self.tps is not None:
-            theta = np.load(self.tps / f"{target}_theta.npy")
-            ctrl = np.load(self.tps / f"{target}_ctrlpts.npy")
-            out = authors_tps_warp(xy, theta, ctrl, (shape[1], shape[0]))
+            mask = self._mask(target)
+            out = load_authors_spline(self.tps, target, (mask.shape[1], mask.shape[0]))(xy)
+            ok = _on_mask(mask, xy)
             ssim = cv2.imread(str(self.tps / f"{target}_SSIM.png"), cv2.IMREAD_GRAYSCALE)
-            ok = _on_mask(self._mask(target), xy)
             if ssim is not None:
                 ok &= _on_mask((ssim.astype(np.float32) / 255.0 > 0.25).astype(np.uint8), xy)
-            out[~ok] = np.nan
-            return out
-        if self.exact:
-            mapped, visible = self.seq.correspondences(target, self.seq.reference, xy)
-            return np.where(visible[:, None], mapped, np.nan)
-        ids_r, xy_r, vis_r = self.seq.landmarks(self.seq.reference)
-        ids_t, xy_t, vis_t = self.seq.landmarks(target)
-        common, ir, it = np.intersect1d(ids_r[vis_r], ids_t[vis_t], return_indices=True)
-        return LandmarkTPS(xy_t[vis_t][it], xy_r[vis_r][ir])(xy)
+        elif self.exact:
+            out, ok = self.seq.correspondences(target, self.seq.reference, xy)
+        else:
+            ids_r, xy_r, vis_r = self.seq.landmarks(self.seq.reference)
+            ids_t, xy_t, vis_t = self.seq.landmarks(target)
+            common, ir, it = np.intersect1d(ids_r[vis_r], ids_t[vis_t], return_indices=True)
+            _check_landmarks(len(common))
+            lm_t = xy_t[vis_t][it]
+            out, ok = landmark_spline(lm_t, xy_r[vis_r][ir])(xy), inside_hull(lm_t, xy)
+        valid = ok & np.isfinite(out).all(axis=1)
+        return np.where(valid[:, None], out, np.nan), valid
+
+
+def _check_landmarks(n: int) -> None:
+    if n < MIN_LANDMARKS:
+        raise ValueError(f"landmarks: a thin-plate spline needs >= {MIN_LANDMARKS} landmarks visible in both frames, got {n}")
 
 
 def correct_matches(truth: GroundTruth, target: str, ref_xy: np.ndarray, tgt_xy: np.ndarray,
-                    matches0: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+                    matches0: np.ndarray) -> np.ndarray:
     """(n_ref,) bool: is reference keypoint i's match (matches0[i], -1 = none) a ground-truth pair of the
     protocol (the target keypoint whose ground-truth position in the reference is within 3 px of i,
     first in target order)? The count of True equals the benchmark's hits on the same keypoints."""
-    mapped = truth.target_to_reference(target, np.asarray(tgt_xy, float).reshape(-1, 2), shape)
+    mapped = truth.map(target, tgt_xy)[0]
     pairs = ground_truth_pairs(np.asarray(ref_xy, float).reshape(-1, 2), mapped)
     partner = np.full(len(ref_xy), -2, np.int64)
     partner[pairs[:, 0]] = pairs[:, 1]

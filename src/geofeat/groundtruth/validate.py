@@ -12,9 +12,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import Delaunay
 
-from .tps import authors_tps_warp
+from .landmarks import inside_hull
+from .sources import load_authors_spline
 from ..io import Sequence, read_sequence, write_landmarks
 from ..outputs import check_out_dir
 
@@ -59,11 +59,9 @@ def mapping_errors(seq: Sequence, tps_folder: str | Path, target: str, stride: i
     q = np.stack([gx.ravel(), gy.ravel()], 1)
     exact, visible = seq.correspondences(target, seq.reference, q)
     q, exact = q[visible], exact[visible]
-    theta = np.load(tps_folder / f"{target}_theta.npy")
-    ctrl = np.load(tps_folder / f"{target}_ctrlpts.npy")
-    err = np.linalg.norm(authors_tps_warp(q, theta, ctrl, (W, H)) - exact, axis=1)
+    err = np.linalg.norm(load_authors_spline(tps_folder, target, (W, H))(q) - exact, axis=1)
     ids_r, _, vis_r = seq.landmarks(seq.reference)
     ids_t, xy_t, vis_t = seq.landmarks(target)
     both = vis_t & np.isin(ids_t, ids_r[vis_r])
-    inside = Delaunay(xy_t[both]).find_simplex(q) >= 0
+    inside = inside_hull(xy_t[both], q)
     return MappingErrors(frame=target, inside=err[inside], outside=err[~inside])

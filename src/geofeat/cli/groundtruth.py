@@ -1,4 +1,4 @@
-"""The `geofeat groundtruth` subcommand."""
+"""`geofeat groundtruth`: dense ground truth (the authors' TPS files) for sequences annotated with landmarks."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from pathlib import Path
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    """Add `groundtruth` to an argparse subparsers object and return its parser."""
-    from .defaults import DEFAULT_DEPTH_MARGIN_M, DEFAULT_MARGIN_PX, DEFAULT_SPACING_PX
+    """Add `groundtruth` to an argparse subparsers object; returns its parser."""
+    from ..groundtruth.defaults import DEFAULT_DEPTH_MARGIN_M, DEFAULT_MARGIN_PX, DEFAULT_SPACING_PX
 
     p = subparsers.add_parser(
         "groundtruth",
@@ -30,6 +30,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--overwrite", action="store_true",
                    help="replace what geofeat wrote in existing OUT/<sequence> folders (other files stay)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
     return p
 
 
@@ -37,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     """Run `groundtruth`; ValueError on bad input. Returns 0, or 1 when a frame failed."""
     from ..io import find_sequences, read_sequence
     from ..outputs import check_out_dir
-    from .pipeline import GroundTruthConfig, check_config, generate_ground_truth
+    from ..groundtruth.pipeline import GroundTruthConfig, check_config, generate_ground_truth
 
     config = GroundTruthConfig(refine=not args.no_refine, spacing=args.spacing, margin_px=args.margin,
                                depth_margin_m=args.depth_margin)

@@ -1,15 +1,15 @@
-"""The `geofeat simulate` subcommand."""
+"""`geofeat simulate`: simulate a deforming cloth and write an RGB-D sequence with exact ground truth."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from .scenes import PRESETS, SCENARIOS
+from ..sim.scenes import PRESETS, SCENARIOS
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    """Add `simulate` to an argparse subparsers object and return its parser."""
+    """Add `simulate` to an argparse subparsers object; returns its parser."""
     p = subparsers.add_parser(
         "simulate",
         help="simulate a deforming cloth and write an RGB-D sequence with exact ground truth",
@@ -41,12 +41,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--overwrite", action="store_true", help="replace an earlier simulation in OUT_DIR (only files geofeat wrote; "
                    "a folder holding other files is refused)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
     return p
 
 
 def run(args: argparse.Namespace) -> int:
     """Run `simulate`; ValueError on bad input. Returns the exit code."""
-    from .writer import simulate_sequence
+    from ..sim.writer import simulate_sequence
 
     if args.steps_per_frame < 1:
         raise ValueError(f"--steps-per-frame: expected >= 1, got {args.steps_per_frame}")
@@ -69,26 +70,8 @@ def run(args: argparse.Namespace) -> int:
     )
     print(f"wrote {args.frames} frames to {folder}")
     if args.contact_sheet is not None:
-        from .contact_sheet import contact_sheet
+        from ..sim.contact_sheet import contact_sheet
 
         contact_sheet(folder, args.contact_sheet)
         print(f"wrote contact sheet {args.contact_sheet}")
     return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Stand-alone entry point (`python -m geofeat.sim.command`), same behaviour as the CLI."""
-    import sys
-
-    parser = argparse.ArgumentParser(prog="geofeat")
-    add_parser(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
-    try:
-        return run(args)
-    except ValueError as exc:
-        print(f"geofeat simulate: error: {exc}", file=sys.stderr)
-        return 2
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

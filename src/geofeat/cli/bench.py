@@ -1,0 +1,84 @@
+"""`geofeat bench`: matching score of descriptors on datasets in the public layout."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ..constants import DEFAULT_RADIUS_M, N_KEYPOINTS
+from ..descriptors import available_descriptors
+from ..keypoints import KEYPOINT_SETS
+from .options import depth_profile_option, detector_option, names
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add `bench` to an argparse subparsers object; returns its parser."""
+    p = subparsers.add_parser("bench", help="matching score of descriptors on datasets in the public layout")
+    p.add_argument("datasets", nargs="+", help="sequence folders, or folders of sequences")
+    p.add_argument("--descriptors", default="geobit,geopatch,orb,sift",
+                   help=f"comma-separated, from {','.join(available_descriptors())} (default geobit,geopatch,orb,sift)")
+    p.add_argument("--protocol", choices=("detect", "landmarks"), default="detect")
+    p.add_argument("--out", required=True, help="output folder: results.csv, table.md, plots, timing.md")
+    p.add_argument("--radius", type=float, default=None, help="geodesic radius, metres (default: geofeat.json or 0.075)")
+    p.add_argument("--depth-scale", type=float, default=None, help="metres per depth-PNG unit (default: geofeat.json or 0.001)")
+    p.add_argument("--keypoints", type=int, default=N_KEYPOINTS, help="keypoints per frame (default 2048)")
+    detector_option(p)
+    p.add_argument("--features", action="append", metavar="NAME=PATH",
+                   help="also score features computed elsewhere: an hloc-style .h5 (groups <sequence>/<frame>) "
+                        "or a folder of <frame>.npz with keypoints, descriptors and optional scores (repeatable)")
+    p.add_argument("--tps-dir", default=None, help="the authors' published TPS ground truth, one folder per sequence")
+    p.add_argument("--workers", type=int, default=1, help="local worker processes (sequences in parallel)")
+    p.add_argument("--scheduler", default=None, help="Dask scheduler address (e.g. tcp://host:8786); needs geofeat[dask]")
+    p.add_argument("--timing", action="store_true", help="also time f(.), extraction and matching for 250 and 2048 keypoints")
+    p.add_argument("--keypoint-set", choices=KEYPOINT_SETS, default="protocol",
+                   help="protocol: OpenCV SIFT's strongest exactly as returned, duplicates kept (default, the "
+                        "published protocol); unique: one keypoint per position")
+    depth_profile_option(p, None)
+    p.add_argument("--overwrite", action="store_true", help="redo every result (default: a rerun skips finished ones)")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the benchmark and write results.csv, table.md, details.md, plots (timing.md with --timing)."""
+    from ..bench.report import detail_table, markdown_table, plot_curves, read_results
+    from ..bench.runner import BenchConfig, run_benchmark
+    from ..bench.timing import timing_table
+    from ..depth import sequence_depth_profile
+    from ..io import find_sequences, read_sequence
+    from ..outputs import add_to_manifest, atomic_file
+
+    def write(path: Path, text: str) -> None:
+        with atomic_file(path) as tmp:
+            tmp.write_text(text)
+        add_to_manifest(path.parent, [path.name])
+
+    config = BenchConfig(descriptors=names(args.descriptors), protocol=args.protocol,
+                         radius=args.radius, depth_scale=args.depth_scale, n_keypoints=args.keypoints,
+                         tps_dir=args.tps_dir, keypoint_set=args.keypoint_set, depth_profile=args.depth_profile,
+                         detector=args.detector, features=tuple(args.features or ()))
+    out = Path(args.out)
+    csv_path, failed = run_benchmark(args.datasets, out, config, workers=args.workers, scheduler=args.scheduler,
+                                     overwrite=args.overwrite)
+    rows = read_results(csv_path)
+    if not rows:
+        raise ValueError(f"datasets: no sequence could be evaluated ({len(failed)} failed)")
+    table = markdown_table(rows)
+    write(out / "table.md", table)
+    print(table)
+    if config.protocol == "detect":
+        details = detail_table(rows)
+        write(out / "details.md", details)
+        print(details)
+    for path in plot_curves(rows, out):
+        add_to_manifest(out, [Path(path).name])
+        print(f"wrote {path}")
+    if args.timing:
+        seq = read_sequence(find_sequences(args.datasets)[0], depth_scale=args.depth_scale)
+        timing = timing_table(seq.frame(seq.reference), config.descriptors, args.radius or DEFAULT_RADIUS_M,
+                              depth_profile=sequence_depth_profile(seq, args.depth_profile))
+        write(out / "timing.md", timing)
+        print(timing)
+    print(f"wrote {csv_path} ({len(rows)} rows) and {out / 'table.md'}"
+          + (f"; FAILED sequences: {', '.join(failed)}" if failed else ""))
+    return 1 if failed else 0

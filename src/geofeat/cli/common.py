@@ -1,0 +1,50 @@
+"""Helpers shared by `extract` and `match`: file labels, skipped frames, a frame with its keypoints."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def file_label(descriptor: str) -> str:
+    """A descriptor name fit for a file name ("geopatch=runs/a.pt" -> "geopatch-a")."""
+    if "=" in descriptor:
+        name, path = descriptor.split("=", 1)
+        return f"{name}-{Path(path).stem}"
+    return descriptor
+
+
+def features_path(out: Path, descriptor: str) -> Path:
+    """`out` itself when it names a .h5 / .npz file, else `out/features-<descriptor>.h5`."""
+    return out if out.suffix in (".h5", ".npz") else out / f"features-{descriptor}.h5"
+
+
+def skip_frame(skipped: list[str], name: str, error: Exception) -> None:
+    """Report a frame that cannot be processed by name; the run goes on and exits 1 at the end."""
+    from tqdm import tqdm
+
+    skipped.append(name)
+    tqdm.write(f"SKIPPED frame {name}: {str(error).splitlines()[0] if str(error) else type(error).__name__}")
+
+
+def finish_skipped(skipped: list[str], total: int, what: str) -> int:
+    """Exit status after a run that skipped `skipped` of `total` frames (1 when any was skipped)."""
+    if skipped and len(skipped) >= total:
+        raise ValueError(f"{what}: every frame was skipped ({', '.join(skipped[:5])}); nothing written")
+    if skipped:
+        print(f"{len(skipped)} frame(s) SKIPPED: {', '.join(skipped)}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def frame_and_keypoints(seq, name: str, args: argparse.Namespace):
+    """(frame, keypoints) of frame `name` with the command's detector options; ValueError when the
+    frame cannot be read or has no keypoints (extract and match skip such a frame by name)."""
+    from ..keypoints import detect
+
+    frame = seq.frame(name)
+    kps = detect(frame, args.keypoints, detector=args.detector, keypoint_set=args.keypoint_set)
+    if len(kps) == 0:
+        raise ValueError("no keypoints detected")
+    return frame, kps

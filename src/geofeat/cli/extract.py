@@ -1,0 +1,72 @@
+"""`geofeat extract`: detect keypoints and describe every frame of a sequence."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from .common import features_path, file_label, finish_skipped, frame_and_keypoints, skip_frame
+from .options import frames_options
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add `extract` to an argparse subparsers object; returns its parser."""
+    p = subparsers.add_parser("extract", help="detect SIFT keypoints and describe every frame of a sequence")
+    frames_options(p)
+    p.add_argument("--out", required=True, help="features file (.h5 or .npz) or folder")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing features file")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    """Describe every frame of a sequence and write the features file(s); 1 when a frame was skipped."""
+    import os
+
+    from tqdm import tqdm
+
+    from ..depth import PROFILES, sequence_depth_profile
+    from ..descriptors import make_descriptor
+    from ..features import save_features
+    from ..inputs import resolve_radius
+    from ..io import read_sequence
+    from ..outputs import atomic_file, check_out_file, partial_name
+
+    seq = read_sequence(args.folder, depth_scale=args.depth_scale)
+    radius = resolve_radius(args.radius, seq)
+    path = features_path(Path(args.out), file_label(args.descriptor))
+    finals = [path] if path.suffix == ".h5" else [path.with_name(f"{path.stem}-{n}.npz") for n in seq.names]
+    for final in finals:
+        check_out_file(final, args.overwrite)
+    profile = sequence_depth_profile(seq, args.depth_profile)
+    descriptor = make_descriptor(args.descriptor, radius=radius, depth_config=PROFILES[profile])
+    print(f"{seq.name}: depth profile {profile}, detector {args.detector}, keypoints {args.keypoint_set}, "
+          f"radius {radius:g} m")
+    skipped: list[str] = []
+    written: list[tuple[Path, Path]] = []  # (temporary, final) of the .npz files
+    with atomic_file(path) as h5_tmp:
+        try:
+            for name in tqdm(seq.names, desc=f"extract {args.descriptor}", unit="frame"):
+                try:
+                    frame, kps = frame_and_keypoints(seq, name, args)
+                    features = descriptor.compute(frame, kps)
+                except ValueError as error:
+                    skip_frame(skipped, name, error)
+                    continue
+                if path.suffix == ".h5":
+                    save_features(h5_tmp, features, name=name)
+                else:
+                    final = path.with_name(f"{path.stem}-{name}.npz")
+                    tmp = partial_name(final)
+                    save_features(tmp, features)
+                    written.append((tmp, final))
+            status = finish_skipped(skipped, len(seq), "extract")
+            for tmp, final in written:
+                os.replace(tmp, final)
+            written.clear()
+        finally:
+            for tmp, _ in written:
+                tmp.unlink(missing_ok=True)
+    where = path if path.suffix == ".h5" else path.with_name(f"{path.stem}-<frame>.npz")
+    print(f"wrote {args.descriptor} features of {len(seq) - len(skipped)} frames of {seq.folder} to {where}")
+    return status

@@ -1,0 +1,88 @@
+"""`geofeat match`: match the reference frame of a sequence to every other frame."""
+
+from __future__ import annotations
+
+import argparse
+
+import cv2
+
+from .common import file_label, finish_skipped, frame_and_keypoints, skip_frame
+from .options import frames_options
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add `match` to an argparse subparsers object; returns its parser."""
+    p = subparsers.add_parser("match", help="match the reference frame of a sequence to every other frame")
+    frames_options(p)
+    p.add_argument("--out", required=True, help="output folder (matches .h5 + pictures)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace what geofeat wrote in an existing non-empty OUT (other files stay)")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    """Match the reference frame to every other frame, judged by the ground truth when there is one."""
+    from tqdm import tqdm
+
+    from ..groundtruth.sources import GroundTruth, correct_matches
+    from ..depth import PROFILES, sequence_depth_profile
+    from ..descriptors import make_descriptor
+    from ..features import save_matches
+    from ..inputs import resolve_radius
+    from ..io import read_sequence
+    from ..matching import match
+    from ..outputs import check_out_dir, output_folder
+    from ..viz import draw_matches
+
+    seq = read_sequence(args.folder, depth_scale=args.depth_scale)
+    if len(seq) < 2:
+        raise ValueError(f"folder: {seq.folder} has a single frame; matching needs a reference and a target")
+    out = check_out_dir(args.out, args.overwrite)
+    radius = resolve_radius(args.radius, seq)
+    profile = sequence_depth_profile(seq, args.depth_profile)
+    descriptor = make_descriptor(args.descriptor, radius=radius, depth_config=PROFILES[profile])
+    label = file_label(args.descriptor)
+    try:
+        truth = GroundTruth(seq, None)
+    except ValueError as error:
+        if "no ground truth" not in str(error):
+            raise
+        truth = None  # no ground truth: matches are written, not judged
+    print(f"{seq.name}: depth profile {profile}, detector {args.detector}, keypoints {args.keypoint_set}, "
+          f"radius {radius:g} m, ground truth: "
+          + ("none" if truth is None else "simulator (exact)" if truth.exact else "thin-plate spline on the landmarks"))
+    if truth is not None and not truth.exact:
+        for name in seq.names:  # the landmark validator, before any work
+            seq.landmarks(name)
+    try:
+        ref, k_ref = frame_and_keypoints(seq, seq.reference, args)
+    except ValueError as error:
+        raise ValueError(f"frame {seq.reference}: the reference frame cannot be used ({error}); nothing to match") from None
+    f_ref = descriptor.compute(ref, k_ref)
+    total_matches, total_correct = 0, 0
+    skipped: list[str] = []
+    with output_folder(out) as tmp:
+        matches_path = tmp / f"matches-{label}.h5"
+        for name in tqdm(seq.targets, desc=f"match {args.descriptor}", unit="pair"):
+            try:
+                tgt, k_tgt = frame_and_keypoints(seq, name, args)
+                m = match(f_ref, descriptor.compute(tgt, k_tgt))
+            except ValueError as error:
+                skip_frame(skipped, name, error)
+                continue
+            save_matches(matches_path, m, name=f"{seq.reference}/{name}")
+            n_matches = int((m.matches0 >= 0).sum())
+            total_matches += n_matches
+            summary = f"{n_matches} matches"
+            correct = None if truth is None else correct_matches(truth, name, k_ref.xy, k_tgt.xy, m.matches0)
+            if correct is not None:
+                total_correct += int(correct.sum())
+                summary += f", {int(correct.sum())} correct"
+            picture = draw_matches(ref, tgt, k_ref.xy, k_tgt.xy, m.matches0, correct, title=f"{args.descriptor}: {summary}")
+            cv2.imwrite(str(tmp / f"{seq.reference}__{name}__{label}.png"), picture)
+            tqdm.write(f"{seq.reference} -> {name}: {summary}")
+        status = finish_skipped(skipped, len(seq.targets), "match")
+    print(f"total: {total_matches} matches" + (f", {total_correct} correct" if truth is not None else " (no ground truth)"))
+    print(f"wrote {out / f'matches-{label}.h5'} and one match picture per pair in {out}")
+    return status

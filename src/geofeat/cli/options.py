@@ -1,0 +1,75 @@
+"""Options shared by several commands (descriptor and detector names, depth profile, the
+sequence-and-frames options of extract/match, the options of the applications)."""
+
+from __future__ import annotations
+
+import argparse
+
+from ..constants import DEPTH_PROFILE_NAMES, DEPTH_SCALE_M, N_KEYPOINTS
+from ..descriptors import available_descriptors, check_descriptor_name
+from ..keypoints import KEYPOINT_SETS, check_detector_name
+
+
+def descriptor_name(text: str) -> str:
+    """argparse type: a checked descriptor name (a usage error, exit 2, for an unknown one)."""
+    try:
+        return check_descriptor_name(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def depth_profile_option(p: argparse.ArgumentParser, default: str | None) -> None:
+    """--depth-profile (kinect, clean, auto) with `default`."""
+    p.add_argument("--depth-profile", choices=DEPTH_PROFILE_NAMES, default=default,
+                   help="depth preprocessing: kinect (hole filling, smoothing, half-resolution mesh), clean "
+                        "(raw depth, holes filled, full-resolution mesh) or auto (chosen from the measured "
+                        "depth noise; default, unless the sequence's geofeat.json names one)")
+
+
+def detector_name(text: str) -> str:
+    """argparse type: a checked detector name."""
+    try:
+        return check_detector_name(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def detector_option(p: argparse.ArgumentParser) -> None:
+    """--detector (sift, geokey, geokey=WEIGHTS)."""
+    p.add_argument("--detector", default="sift", type=detector_name,
+                   help="keypoint detector: sift (OpenCV, default), geokey (learned, image + depth cues) or "
+                        "geokey=WEIGHTS (from `geofeat train-detector`)")
+
+
+def frames_options(p: argparse.ArgumentParser) -> None:
+    """The options of `extract` and `match`: one sequence folder, one descriptor, detection and depth."""
+    p.add_argument("folder", help="a sequence folder in the public layout (<name>-rgb.png, <name>-depth.png, intrinsics.xml)")
+    p.add_argument("--descriptor", default="geobit", type=descriptor_name,
+                   help=f"one of {', '.join(available_descriptors())}, or geopatch=WEIGHTS.pt (default geobit)")
+    p.add_argument("--keypoints", type=int, default=N_KEYPOINTS, help="keypoints per frame (default 2048)")
+    detector_option(p)
+    p.add_argument("--keypoint-set", choices=KEYPOINT_SETS, default="unique",
+                   help="unique: one keypoint per position (default); protocol: SIFT's strongest as OpenCV returns them")
+    depth_profile_option(p, None)
+    p.add_argument("--radius", type=float, default=None, help="geodesic radius, metres (default 0.075)")
+    p.add_argument("--depth-scale", type=float, default=None,
+                   help=f"metres per depth-PNG unit (default: geofeat.json or {DEPTH_SCALE_M})")
+
+
+def app_options(p: argparse.ArgumentParser) -> None:
+    """The options of `retrieval` and `track`: descriptors, output folder, detection, ground truth, depth."""
+    p.add_argument("--descriptors", default="geopatch,geobit,sift",
+                   help=f"comma-separated, from {','.join(available_descriptors())} (default geopatch,geobit,sift)")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace what geofeat wrote in an existing non-empty OUT (other files stay)")
+    p.add_argument("--keypoints", type=int, default=N_KEYPOINTS, help="keypoints per frame (default 2048)")
+    detector_option(p)
+    p.add_argument("--tps-dir", default=None, help="the authors' TPS ground truth (objmask, warps), one folder per sequence")
+    p.add_argument("--radius", type=float, default=None, help="geodesic radius, metres (default: geofeat.json or 0.075)")
+    p.add_argument("--depth-scale", type=float, default=None, help="metres per depth-PNG unit (default: geofeat.json or 0.001)")
+
+
+def names(text: str) -> tuple[str, ...]:
+    """Comma-separated descriptor names ("geopatch,geobit") -> a tuple, empty entries dropped."""
+    return tuple(d for d in text.split(",") if d)

@@ -1,0 +1,51 @@
+"""`geofeat track`: track a template region through sequences (TPS + RANSAC)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from .options import app_options, names
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add `track` to an argparse subparsers object; returns its parser."""
+    p = subparsers.add_parser("track", help="track a template ROI through sequences (TPS + RANSAC)")
+    p.add_argument("sequences", nargs="+", help="sequence folders, or folders of sequences")
+    app_options(p)
+    p.add_argument("--roi", default=None, help="x0,y0,x1,y1 in reference pixels (default: object mask box shrunk by 10%%)")
+    p.add_argument("--threshold", type=float, default=3.0, help="RANSAC inlier threshold, pixels (default 3)")
+    p.add_argument("--refine", choices=("none", "photometric"), default="photometric",
+                   help="after RANSAC + TPS, refine the warp densely against the template: photometric (the "
+                        "refiner of 'geofeat groundtruth') or none (default photometric)")
+    p.add_argument("--lpips", action="store_true", help="LPIPS (needs local pretrained weights; not supported here)")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    """Track the template ROI through every sequence; writes track.csv, tracking.md, grids and GIFs."""
+    from ..io import find_sequences
+    from ..apps.tracking import write_tracking
+
+    roi = None
+    if args.roi is not None:
+        roi = [v for v in args.roi.split(",") if v.strip()]
+        if len(roi) != 4:
+            raise ValueError(f"--roi: expected x0,y0,x1,y1 (four numbers, pixels), got {args.roi!r}")
+    if args.lpips:
+        raise ValueError("--lpips: LPIPS needs pretrained backbone weights that geofeat never downloads; "
+                         "not supported in this build (SSIM and NCC are reported instead)")
+    skipped: list[str] = []
+    csv_path, table = write_tracking(find_sequences(args.sequences, unique_names=True), args.out,
+                                     names(args.descriptors), roi=roi,
+                                     n_keypoints=args.keypoints, tps_dir=args.tps_dir, radius=args.radius,
+                                     depth_scale=args.depth_scale, threshold_px=args.threshold,
+                                     overwrite=args.overwrite, skipped=skipped, refine=args.refine,
+                                     detector=args.detector)
+    print((Path(args.out) / "tracking.md").read_text())
+    print(f"wrote {csv_path}, {Path(args.out) / 'tracking.md'} and per sequence/descriptor grid.npz + track.gif")
+    if skipped:
+        print(f"{len(skipped)} frame(s) SKIPPED: {', '.join(skipped)}", file=sys.stderr)
+    return 1 if skipped else 0

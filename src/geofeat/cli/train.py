@@ -1,0 +1,80 @@
+"""`geofeat train`: train GeoPatch on simulated sequences."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from .options import depth_profile_option
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add `train` to an argparse subparsers object; returns its parser."""
+    p = subparsers.add_parser("train", help="train GeoPatch on simulated sequences (see `geofeat simulate`)")
+    p.add_argument("--data", nargs="+", required=True, help="simulated sequence folders, or folders of them")
+    p.add_argument("--val", nargs="*", default=None, help="held-out simulated sequences for the per-epoch matching score")
+    p.add_argument("--out", required=True, help="weights file to write (e.g. geopatch.pt)")
+    p.add_argument("--epochs", type=int, default=10)
+    p.add_argument("--steps", type=int, default=200, help="batches per epoch (default 200)")
+    p.add_argument("--batch-size", type=int, default=1000, help="triplets per batch (default 1000, the paper's)")
+    p.add_argument("--lr", type=float, default=0.1, help="SGD learning rate (default 0.1, the paper's)")
+    p.add_argument("--mining", choices=("random", "hardest"), default="random",
+                   help="negatives: random with anchor swap (the paper) or the hardest in the batch")
+    p.add_argument("--augment-shift", action="store_true", help="random circular shifts along the angle axis")
+    p.add_argument("--augment-photometric", action="store_true", help="random per-patch gamma and noise")
+    p.add_argument("--init", default=None, help="start from these GeoPatch weights ('shipped': geofeat's own)")
+    p.add_argument("--channels", type=int, nargs=3, default=(16, 32, 64), metavar=("C1", "C2", "C3"),
+                   help="channels of the three convolutions (default 16 32 64; the paper's: 32 64 128)")
+    p.add_argument("--no-angle-pool", action="store_true", help="flatten instead of max-pooling over angle (ablation)")
+    p.add_argument("--keypoints", type=int, default=512, help="SIFT keypoints per reference frame (default 512)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--net", choices=("geopatch", "tfeat", "logpolar"), default="geopatch",
+                   help="network: GeoPatch (geodesic patches) or an image-patch baseline (tfeat-sim, logpolar-sim)")
+    p.add_argument("--resume", action="store_true", help="continue from OUT.ckpt")
+    p.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
+    depth_profile_option(p, "auto")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    """Train GeoPatch (or an image-patch baseline) and write the weights, a loss plot and a log."""
+    from functools import partial
+
+    from ..descriptors.geopatch import GeoPatchConfig
+    from ..train.dataset import PatchSet, build_patch_set, validation_pairs
+    from ..train.loop import TrainConfig, train
+
+    net = None  # geodesic polar patches with the depth profile asked for (auto: per sequence)
+    build = partial(build_patch_set, depth_config=args.depth_profile)
+    make_validation = partial(validation_pairs, depth_config=args.depth_profile)
+    if args.net != "geopatch":  # image-patch baselines (tfeat-sim, logpolar-sim) on the same data
+        from ..descriptors.image_patch_nets import ImagePatchNet, default_config
+        from ..train.imagepatches import build_image_patch_set, image_validation_pairs
+
+        net = ImagePatchNet(default_config(args.net))
+        build = partial(build_image_patch_set, arch=args.net)
+        make_validation = partial(image_validation_pairs, arch=args.net)
+    cache = Path(str(args.out) + ".patches.npz")
+    if args.resume and cache.is_file():
+        data = PatchSet.load(cache)
+        print(f"training patches: {len(data)} from {cache}")
+    else:
+        data = build(args.data, n_keypoints=args.keypoints)
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        data.save(cache)
+        print(f"training patches: {len(data)} of {len(np.unique(data.ids))} surface points (cached in {cache})")
+    validation = make_validation(args.val) if args.val else None
+    config = TrainConfig(
+        epochs=args.epochs, steps_per_epoch=args.steps, batch_size=args.batch_size, lr=args.lr,
+        mining=args.mining, augment_shift=args.augment_shift, seed=args.seed,
+        augment_photometric=args.augment_photometric,
+        net=GeoPatchConfig(channels=tuple(args.channels), angle_pool=not args.no_angle_pool),
+    )
+    history = train(data, args.out, config, validation=validation, resume=args.resume, device=args.device, net=net,
+                    init=args.init)
+    print(f"wrote {args.out} (final loss {history['loss'][-1]:.4f}, validation MS {history['val_ms'][-1]:.3f}), "
+          f"{args.out}.png and {args.out}.json")
+    return 0

@@ -1,0 +1,44 @@
+"""Descriptor options follow one pattern: a frozen settings dataclass merged with keyword arguments,
+and `make_descriptor` hands radius and depth settings to every descriptor built on polar patches."""
+
+import pytest
+
+from geofeat.descriptors import GeoBit, GeoBitSettings, PatchSettings, make_descriptor
+from geofeat.descriptors.brand import BRAND
+from geofeat.descriptors.settings import merge_settings, takes_patch_settings
+
+
+def test_settings_object_dict_and_keywords_build_the_same_descriptor():
+    a = GeoBit(radius=0.05, n_bits=256, depth_config="clean")
+    b = GeoBit(GeoBitSettings(radius=0.05, n_bits=256, depth_config="clean"))
+    c = GeoBit({"radius": 0.05, "n_bits": 256}, depth_config="clean")
+    assert a.settings == b.settings == c.settings
+    assert (a.radius, a.n_bits, a.depth_config) == (0.05, 256, "clean")
+    assert (a.pattern == b.pattern).all()
+    # keywords override the settings object
+    assert GeoBit(GeoBitSettings(radius=0.05), radius=0.1).radius == 0.1
+
+
+def test_bad_settings_are_refused():
+    with pytest.raises(TypeError, match="unknown option.*radios"):
+        GeoBit(radios=0.05)
+    with pytest.raises(TypeError, match="settings"):
+        GeoBit("geobit.npz")  # a positional path is not a settings object
+    with pytest.raises(ValueError, match="depth_config"):
+        GeoBit(depth_config="kinnect")
+    with pytest.raises(ValueError, match="n_bits"):
+        BRAND(n_bits=12)
+    with pytest.raises(TypeError, match="unknown"):
+        merge_settings(PatchSettings, {"depth": 1}, {})
+
+
+def test_make_descriptor_passes_radius_and_depth_the_same_way():
+    for name in ("geobit", "geopatch"):
+        d = make_descriptor(name, radius=0.05, depth_config="clean")
+        assert isinstance(d.settings, PatchSettings) and takes_patch_settings(type(d))
+        assert (d.settings.radius, d.settings.depth_config) == (0.05, "clean")
+        assert (d.radius, d.depth_config) == (0.05, "clean")
+    orb = make_descriptor("orb", radius=0.05, depth_config="clean")  # no polar patches: nothing to set
+    assert orb.name == "orb" and not takes_patch_settings(type(orb))
+    brand = make_descriptor("brand", radius=0.05, n_bits=128)  # further options by name
+    assert brand.settings.n_bits == 128 and len(brand.pattern) == 128

@@ -1,0 +1,94 @@
+"""The one thin-plate spline (`geofeat.tps`): the authors' file layout, the batched fit, and agreement
+with independent references (the authors' formula written out here, scipy's RBFInterpolator)."""
+
+import numpy as np
+import pytest
+from scipy.interpolate import RBFInterpolator
+
+from geofeat.tps import (
+    ThinPlateSpline, authors_tps, evaluate_batch, fit_tps, hartley_transform, solve_batch,
+)
+
+
+def authors_formula(xy: np.ndarray, theta: np.ndarray, ctrl: np.ndarray, size) -> np.ndarray:
+    """The authors' published warp, term by term: p + [1, x, y] a + U w, U = d^2 log(d + 1e-6), in
+    coordinates divided by (W, H)."""
+    theta = theta.reshape(-1, 2).astype(float)
+    T = len(ctrl)
+    w, a = theta[:T], theta[T:]
+    p = xy / np.asarray(size, float)
+    d = np.linalg.norm(p[:, None] - ctrl[None].astype(float), axis=-1)
+    return (p + np.c_[np.ones(len(p)), p] @ a + (d**2 * np.log(d + 1e-6)) @ w) * np.asarray(size, float)
+
+
+def test_reading_the_authors_arrays_gives_their_warp():
+    rng = np.random.default_rng(0)
+    ctrl = rng.random((40, 2)).astype(np.float32)
+    theta = np.concatenate([rng.normal(0, 0.02, (40, 2)), [[0.01, -0.02], [0.05, 0.01], [-0.03, 0.02]]])[None]
+    xy = rng.uniform(-50, 700, (500, 2))
+    spline = ThinPlateSpline.from_authors_arrays(theta.astype(np.float32), ctrl, (640, 480))
+    np.testing.assert_allclose(spline(xy), authors_formula(xy, theta.astype(np.float32), ctrl, (640, 480)),
+                               rtol=0, atol=1e-9)
+    with pytest.raises(ValueError, match="theta"):
+        ThinPlateSpline.from_authors_arrays(theta[:, :-1], ctrl, (640, 480))
+
+
+def test_authors_fit_interpolates_and_round_trips_through_their_arrays():
+    rng = np.random.default_rng(1)
+    src = rng.uniform(0, 320, (25, 2))
+    dst = src + rng.normal(0, 5, (25, 2))
+    spline = authors_tps(src, dst, (320, 240))
+    np.testing.assert_allclose(spline(src), dst, atol=1e-6)
+    theta, ctrl = spline.authors_arrays()
+    q = rng.uniform(0, 320, (200, 2))
+    # float32 storage costs ~1e-4 px at most
+    np.testing.assert_allclose(authors_formula(q, theta, ctrl, (320, 240)), spline(q), atol=1e-3)
+    with pytest.raises(ValueError, match="authors"):
+        fit_tps(src, dst).authors_arrays()  # a Hartley-normalised spline has no such layout
+
+
+def test_interpolating_spline_is_scipys_thin_plate_rbf():
+    """Without smoothing the spline is the same function under any similarity normalisation: scipy's
+    agrees (the authors' division by (W, H) is a similarity only when W = H)."""
+    rng = np.random.default_rng(2)
+    src = rng.uniform(0, 640, (60, 2))
+    dst = src + 20 * np.sin(src[:, ::-1] / 100)
+    q = rng.uniform(0, 640, (300, 2))
+    expected = RBFInterpolator(src, dst, kernel="thin_plate_spline")(q)
+    np.testing.assert_allclose(fit_tps(src, dst)(q), expected, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(fit_tps(src, dst, normalisation="size", size=(640, 640))(q), expected, rtol=0, atol=1e-6)
+    assert np.abs(fit_tps(src, dst, normalisation="size", size=(640, 480))(q) - expected).max() > 0.1
+
+
+def test_regularisation_smooths_instead_of_interpolating():
+    rng = np.random.default_rng(3)
+    src = rng.uniform(0, 640, (80, 2))
+    dst = src + rng.normal(0, 3, (80, 2))  # pure noise around the identity
+    exact, smooth = fit_tps(src, dst), fit_tps(src, dst, regularisation=1.0)
+    np.testing.assert_allclose(exact(src), dst, atol=1e-6)
+    assert np.abs(smooth(src) - src).mean() < 0.5 * np.abs(dst - src).mean()
+
+
+def test_batched_fit_is_the_single_fit():
+    rng = np.random.default_rng(4)
+    src = rng.normal(0, 1, (7, 6, 2))
+    dst = src + rng.normal(0, 0.1, (7, 6, 2))
+    src[3, :, 1] = 2 * src[3, :, 0]  # collinear sample
+    w, a, ok = solve_batch(src, dst, 1e-3)
+    assert ok.tolist() == [True] * 3 + [False] + [True] * 3
+    p = rng.normal(0, 1, (50, 2))
+    batch = evaluate_batch(p, src, w, a)
+    I = np.eye(3)
+    for b in np.flatnonzero(ok):
+        single = ThinPlateSpline(src[b], w[b], a[b], I, I)
+        np.testing.assert_allclose(batch[b], single(p), atol=1e-10)
+    with pytest.raises(ValueError, match="collinear"):
+        fit_tps(src[3], dst[3])
+
+
+def test_hartley_transform():
+    xy = np.random.default_rng(5).uniform(0, 500, (30, 2))
+    T = hartley_transform(xy)
+    p = xy @ T[:2, :2].T + T[:2, 2]
+    np.testing.assert_allclose(p.mean(axis=0), 0, atol=1e-12)
+    assert np.linalg.norm(p, axis=1).mean() == pytest.approx(np.sqrt(2))
