@@ -197,3 +197,16 @@ def test_extract_is_detect_then_describe():
     assert f.descriptors.shape == (len(kps), 16, 64) and f.valid.mean() > 0.8
     with pytest.raises(ValueError, match="n:"):
         geofeat.extract(frame, n=0)
+
+
+def test_train_detector_command_writes_weights_chosen_over_both_counts(tiny, tmp_path, capsys):
+    from geofeat.cli import main
+
+    out = tmp_path / "gk.npz"
+    assert main(["train-detector", "--data", str(tiny), "--val", str(tiny), "--out", str(out),
+                 "--keypoints", "100", "200", "--steps", "20", "--hidden", "4"]) == 0
+    table = capsys.readouterr().out
+    assert "(chosen)" in table and "| 100 |" in table and "| 200 |" in table
+    model = load_geokey(out)
+    assert model.nms_radius in (2.0, 3.0, 4.0, 5.0)
+    assert len(geofeat.detect(geofeat.read_sequence(tiny / "a-deform").frame(0), 50, detector=f"geokey={out}")) > 0
