@@ -34,6 +34,10 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
 
     Returns:
         `Features`: keypoints (N, 2) pixels, descriptors ((N, 128) float32 for GeoPatch), valid (N,).
+
+    On the CPU, descriptors on geodesic patches (GeoPatch, GeoBit) have the frame's mesh built in a
+    background thread while the detector runs (`_mesh_prefetch`); the results are the same as
+    detecting first and describing after.
     """
     from .descriptors import make_descriptor
 
