@@ -4,9 +4,15 @@ Run: python benchmarks/bench_matching.py [--repeats 7] [--threads N]
 
 Prints, in one run (median of the repeats, after a warm-up call that compiles the numba kernels):
 - GeoBit `describe` time for 2048 keypoints given their polar patches (16 rotations x 512 tests);
-- `match` of 2048 x 2048 GeoBit descriptors with the min-over-16-rotations Hamming distance;
+- `match` of 2048 x 2048 GeoBit descriptors with the min-over-16-rotations Hamming distance, as
+  `match` runs it (method "auto") and through each search method: "blocked" (the one-pass pruned
+  kernel, the only one before issue 21) and "two-stage" (bounds for all pairs, then exact distances
+  only where they can matter), for plain nearest neighbours, the ratio test (0.8) and the mutual
+  check; each checked equal to "blocked";
 - OpenCV `cv2.BFMatcher(cv2.NORM_HAMMING).match` on 2048 x 2048 descriptors of 64 bytes (one
   rotation), and the ratio ours / OpenCV (goal: <= 2, although ours does 16 times the work).
+Each line carries the 1-minute load average; timings are the best of 3 interleaved rounds of
+the median of the repeats.
 Descriptors are the real GeoBit descriptors of the demo Kinect frame against its 90-degree rolled
 copy (SIFT keypoints, padded with random ones if fewer than 2048), and uniformly random bytes.
 """
@@ -26,7 +32,7 @@ from common import wall_times
 import geofeat
 from geofeat.descriptors.geobit import GeoBit
 from geofeat.keypoints import detect
-from geofeat.matching import match
+from geofeat.matching import _finish_matches, _hamming_search, match
 
 N = 2048
 
@@ -83,23 +89,40 @@ def main() -> None:
         a0, a1 = np.ascontiguousarray(d0[:, 0]), np.ascontiguousarray(d1[:, 0])
         F0 = geofeat.features.Features(np.zeros((N, 2)), d0, v0)
         F1 = geofeat.features.Features(np.zeros((N, 2)), d1, v1)
-        t_ours, t_cv, t_ours1 = [], [], []
-        for _ in range(3):  # interleave to share any background load fairly
-            t_ours.append(median_time(lambda: match(F0, F1), args.repeats))
+        print(f"\n{name}:")
+        for label, mutual, ratio in (("nearest neighbour", False, None), ("ratio test 0.8", False, 0.8),
+                                     ("mutual check", True, None)):
+            fns = {"match()": lambda: match(F0, F1, mutual=mutual, ratio=ratio),
+                   "OpenCV": lambda: bf.match(a0, a1)}
+            ref = _finish_matches(*_hamming_search(d0, d1, v0, v1, mutual, ratio, method="blocked"),
+                                  ratio=ratio, mutual=mutual).matches0
+            for method in ("blocked", "two-stage"):
+                got = _finish_matches(*_hamming_search(d0, d1, v0, v1, mutual, ratio, method=method),
+                                      ratio=ratio, mutual=mutual).matches0
+                assert np.array_equal(got, ref), method
+                fns[method] = (lambda method=method: _hamming_search(d0, d1, v0, v1, mutual, ratio, method=method))
+            assert np.array_equal(match(F0, F1, mutual=mutual, ratio=ratio).matches0, ref)
+            times = {k: [] for k in fns}
+            for _ in range(3):  # interleave to share any background load fairly
+                for k, fn in fns.items():
+                    times[k].append(median_time(fn, args.repeats))
+            best = {k: min(v) for k, v in times.items()}
+            print(f"  {label} (matches equal across methods), load average {os.getloadavg()[0]:.2f}:")
+            for k in ("blocked", "two-stage", "match()"):
+                print(f"    ours {k:10s} {N} x {N} x 16 rotations: {1e3 * best[k]:8.1f} ms  "
+                      f"ratio to OpenCV {best[k] / best['OpenCV']:5.2f}  (goal <= 2)")
+            print(f"    OpenCV BFMatcher NORM_HAMMING, 1 rotation: {1e3 * best['OpenCV']:8.1f} ms")
+        t_ours1, t_cv = [], []
+        for _ in range(3):
             t_ours1.append(median_time(lambda: match(a0, a1), args.repeats))
             t_cv.append(median_time(lambda: bf.match(a0, a1), args.repeats))
-        ours, ours1, cv = min(t_ours), min(t_ours1), min(t_cv)
+        ours1, cv = min(t_ours1), min(t_cv)
         # sanity: our single-rotation matcher agrees with OpenCV's
         cv_idx = np.array([m.trainIdx for m in bf.match(a0, a1)])
         agree = (match(a0, a1).matches0 == cv_idx).mean()
-        print(f"\n{name}:")
-        print(f"  ours, {N} x {N} x 16 rotations (hamming-rot):  {1e3 * ours:8.1f} ms")
-        print(f"  ours, {N} x {N} x 1 rotation (hamming):        {1e3 * ours1:8.1f} ms")
-        print(f"  OpenCV BFMatcher NORM_HAMMING, 1 rotation:     {1e3 * cv:8.1f} ms "
-              f"(agrees with ours on {100 * agree:.1f} % of queries)")
-        print(f"  ratio ours 16 rotations / OpenCV 1 rotation:   {ours / cv:8.2f}  (goal <= 2)")
-        print(f"  ratio ours 1 rotation / OpenCV 1 rotation:     {ours1 / cv:8.2f}")
-
+        print(f"  ours, {N} x {N} x 1 rotation (hamming):        {1e3 * ours1:8.1f} ms, OpenCV {1e3 * cv:8.1f} ms "
+              f"(agrees with ours on {100 * agree:.1f} % of queries), ratio {ours1 / cv:5.2f}, "
+              f"load average {os.getloadavg()[0]:.2f}")
 
 if __name__ == "__main__":
     main()

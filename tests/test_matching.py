@@ -207,3 +207,98 @@ def test_matrix_product_path_equals_brute_force(metric, n_rot, mutual, ratio):
     assert np.array_equal(got.distances0[m >= 0], dist[m >= 0])
     cpu = match(f[0], f[1], metric=metric, mutual=mutual, ratio=ratio)
     assert np.array_equal(cpu.matches0, m)
+
+
+def search_matches(f0, f1, method, mutual, ratio):
+    """match() through one method of the rotation search (`_hamming_search`)."""
+    from geofeat.matching import _finish_matches, _hamming_search
+
+    res = _hamming_search(f0.descriptors, f1.descriptors, f0.valid, f1.valid, mutual, ratio, method=method)
+    return _finish_matches(*res, ratio=ratio, mutual=mutual)
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    method=st.sampled_from(["two-stage", "blocked", "auto"]),
+    n0=st.integers(1, 40),
+    n1=st.integers(1, 40),
+    n_rot=st.sampled_from([2, 3, 16]),
+    n_bytes=st.sampled_from([1, 8, 33, 64]),
+    levels=st.sampled_from([2, 4, 256]),  # few byte values: many exact ties and distances above 127
+    valid_frac=st.sampled_from([0.0, 0.5, 1.0]),
+    mutual=st.booleans(),
+    ratio=st.sampled_from([None, 0.5, 0.8, 1.0]),
+    seed=st.integers(0, 2**31 - 1),
+)
+def test_rotation_search_methods_equal_brute_force(method, n0, n1, n_rot, n_bytes, levels, valid_frac, mutual,
+                                                   ratio, seed):
+    """Every rotation search method gives the brute-force matches and distances: tiny N, ties,
+    all-invalid sides, 2-16 rotations, descriptors shorter than the bound's 256 bits."""
+    rng = np.random.default_rng(seed)
+
+    def make(n):
+        desc = rng.integers(0, levels, size=(n, n_rot, n_bytes), dtype=np.uint8)
+        return Features(rng.random((n, 2)), desc, rng.random(n) < valid_frac)
+
+    f0, f1 = make(n0), make(n1)
+    got = search_matches(f0, f1, method, mutual, ratio)
+    m, dist = reference_match(f0, f1, "hamming-rot", mutual=mutual, ratio=ratio)
+    assert np.array_equal(got.matches0, m)
+    assert np.array_equal(got.distances0[m >= 0], dist[m >= 0])
+
+
+@pytest.mark.parametrize("method", ["two-stage", "blocked"])
+@pytest.mark.parametrize("mutual", [False, True])
+@pytest.mark.parametrize("ratio", [None, 0.8, 1.0])
+def test_rotation_search_methods_on_clustered_descriptors(method, mutual, ratio):
+    """Descriptors near a few patterns (tight bounds, many exact ties) across several target blocks
+    and more than one word of bounds per row: each method equals brute force."""
+    rng = np.random.default_rng(7 + mutual)
+    base = rng.integers(0, 256, size=(6, 16, 64), dtype=np.uint8)
+
+    def make(n):
+        desc = base[rng.integers(0, 6, n)].copy()
+        for b in range(4):
+            desc[np.arange(n), rng.integers(0, 16, n), rng.integers(0, 64, n)] ^= np.uint8(1 << b)
+        return Features(rng.random((n, 2)), desc, rng.random(n) < 0.9)
+
+    f0, f1 = make(203), make(301)
+    got = search_matches(f0, f1, method, mutual, ratio)
+    m, dist = reference_match(f0, f1, "hamming-rot", mutual=mutual, ratio=ratio)
+    assert np.array_equal(got.matches0, m)
+    assert np.array_equal(got.distances0[m >= 0], dist[m >= 0])
+
+
+@pytest.mark.parametrize("mutual", [False, True])
+@pytest.mark.parametrize("ratio", [None, 0.8])
+def test_two_stage_search_on_real_geobit(real_geobit, mutual, ratio):
+    f0, f1 = real_geobit
+    got = search_matches(f0, f1, "two-stage", mutual, ratio)
+    m, dist = reference_match(f0, f1, "hamming-rot", mutual=mutual, ratio=ratio)
+    assert (m >= 0).sum() > 0.3 * len(m)
+    assert np.array_equal(got.matches0, m)
+    assert np.array_equal(got.distances0[m >= 0], dist[m >= 0])
+
+
+def test_auto_method_choice(real_geobit):
+    """The automatic choice: two-stage on real GeoBit descriptors (bounds rule out most pairs),
+    blocked on uniformly random bits (they rule out none); invalid methods raise."""
+    from geofeat.matching import _as_words, _choose_method, _hamming_search
+
+    def words(f):
+        q = np.ascontiguousarray(_as_words(f.descriptors[:, 0]))
+        t = np.ascontiguousarray(_as_words(f.descriptors).transpose(0, 2, 1))
+        return q, t
+
+    f0, f1 = real_geobit
+    q, _ = words(f0)
+    _, t = words(f1)
+    assert _choose_method(q, t, f0.valid, f1.valid, None) == "two-stage"
+    rng = np.random.default_rng(3)
+    r, s = (Features(np.zeros((300, 2)), rng.integers(0, 256, (300, 16, 64), dtype=np.uint8), np.ones(300, bool))
+            for _ in range(2))
+    q, _ = words(r)
+    _, t = words(s)
+    assert _choose_method(q, t, r.valid, s.valid, None) == "blocked"
+    with pytest.raises(ValueError, match="method"):
+        _hamming_search(r.descriptors, r.descriptors, r.valid, r.valid, False, None, method="fast")

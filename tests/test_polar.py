@@ -288,3 +288,32 @@ def test_edge_swap_table_matches_grid_layout():
     from geofeat.geodesic import walk
 
     np.testing.assert_array_equal(walk._SWAP, walk._swap_table())
+
+
+def test_extract_prefetches_the_mesh_with_identical_results():
+    """`extract` builds the mesh in a background thread during detection: the descriptors equal
+    those of the serial path (detect, then describe) on a fresh copy of the frame, bit for bit,
+    and the mesh the thread built is the one cached on the frame."""
+    import geofeat
+    from geofeat.descriptors.geobit import GeoBit
+    from geofeat.frame import RGBDFrame
+    from geofeat.geodesic.mesh import _CACHE_ATTR
+    from geofeat.keypoints import detect
+
+    demo = geofeat.read_demo_frame()
+
+    def fresh():
+        return RGBDFrame(demo.color if demo.color is not None else demo.image, demo.depth.copy(), demo.K)
+
+    frame = fresh()
+    got = geofeat.extract(frame, n=150, detector="sift", descriptor="geobit")
+    assert any(isinstance(v, tuple) and hasattr(v[1], "walk_tables") for v in getattr(frame, _CACHE_ATTR).values())
+    serial = fresh()
+    want = GeoBit().compute(serial, detect(serial, 150, detector="sift"))
+    assert np.array_equal(got.keypoints, want.keypoints)
+    assert np.array_equal(got.valid, want.valid)
+    assert np.array_equal(got.descriptors, want.descriptors)
+    # a descriptor without geodesic patches prefetches nothing
+    plain = fresh()
+    geofeat.extract(plain, n=50, detector="sift", descriptor="orb")
+    assert not getattr(plain, _CACHE_ATTR, {})

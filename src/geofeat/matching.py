@@ -14,6 +14,10 @@ words (bytes padded with zeros to a multiple of 8), XORed, and bit-counted with 
 SWAR routine, which LLVM turns into the hardware popcount / vectorised nibble-lookup. Descriptors of
 up to 512 bits (GeoBit, ORB, BRIEF) use a kernel unrolled over 8 words with the query in registers;
 longer ones a generic kernel with targets laid out (N1, words, R), vectorised over rotations.
+With 2-16 rotations of up to 512 bits (GeoBit), `_hamming_search` picks one of two exact pruned
+searches (`_choose_method`): "two-stage" (a 256-bit lower bound of every pair, then exact distances
+only for the pairs that the bound cannot rule out; for descriptors of real images) or "blocked"
+(one pass with per-block bounds; for data whose bounds rule out little, such as random bits).
 
 Rules: keypoints with ``valid == False`` on either side never match; among equal distances the
 lowest target index wins; ``matches0 == -1`` means no match and its distance is inf.
@@ -40,6 +44,8 @@ _S2 = np.uint64(2)
 _S4 = np.uint64(4)
 _S56 = np.uint64(56)
 _BIG = np.uint64(1 << 62)
+_BYTES1 = np.uint64(0x0101010101010101)
+_H80 = np.uint64(0x8080808080808080)
 #: Rotations per vector in the min-over-rotations kernel (GeoBit has 16).
 _LANES = 16
 
@@ -264,6 +270,205 @@ def _rot_nn8(q, t, valid0, valid1, n_chunks, block, need_second, want_cols, best
                 best_j[i] = bj
 
 
+@njit(inline="always", cache=True)
+def _rot_exact8(q0, q1, q2, q3, q4, q5, q6, q7, t, j):
+    """min over rotations k of the 512-bit Hamming distance between the query words (registers)
+    and target j of t (N1, 8, R) uint64, rotations last (one vector of popcounts per word)."""
+    m = _BIG
+    for k in range(t.shape[2]):
+        m = min(m, _pc4(q0, q1, q2, q3, t, j, 0, k) + _pc4(q4, q5, q6, q7, t, j, 4, k))
+    return m
+
+
+@njit(parallel=True, cache=True)
+def _rot_bounds8(q, t, valid0, valid1, n_chunks, block, lb, seeds):
+    """Stage 1 of the two-stage search: a lower bound of every (query, target) distance.
+
+    q: (N0, 8) uint64 query words (rotation 0); t: (N1, W, R) uint64 target words (W >= 4),
+    rotations last. lb: (N0, N1) uint8 output, min over rotations of the Hamming distance of the
+    first 4 words (256 bits), clipped to 127 (still a lower bound of the full min-over-rotations
+    distance, since every further word only adds bits); rows of invalid queries are left unset.
+    seeds: (N0, 2) int64 output, the valid targets with the smallest and second smallest bound
+    (lowest index among ties; -1 when there are fewer valid targets). Queries in `n_chunks` chunks
+    (one thread each); targets in blocks of `block` that stay in cache while the chunk visits them.
+    """
+    n0 = q.shape[0]
+    n1, _, R = t.shape
+    for c in prange(n_chunks):
+        i_start = (c * n0) // n_chunks
+        i_stop = ((c + 1) * n0) // n_chunks
+        lows = np.full((i_stop - i_start, 2), _BIG, np.uint64)
+        for i in range(i_start, i_stop):
+            seeds[i, 0] = -1
+            seeds[i, 1] = -1
+        for j_start in range(0, n1, block):
+            j_stop = min(n1, j_start + block)
+            for i in range(i_start, i_stop):
+                if not valid0[i]:
+                    continue
+                q0, q1, q2, q3 = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
+                low0 = lows[i - i_start, 0]
+                low1 = lows[i - i_start, 1]
+                s0 = seeds[i, 0]
+                s1 = seeds[i, 1]
+                for j in range(j_start, j_stop):
+                    m = _BIG
+                    for k in range(R):  # over rotations: one vector per word
+                        m = min(m, _pc4(q0, q1, q2, q3, t, j, 0, k))
+                    lb[i, j] = np.uint8(min(m, np.uint64(127)))
+                    if m < low1 and valid1[j]:
+                        if m < low0:
+                            low1, s1 = low0, s0
+                            low0, s0 = m, j
+                        else:
+                            low1, s1 = m, j
+                lows[i - i_start, 0] = low0
+                lows[i - i_start, 1] = low1
+                seeds[i, 0] = s0
+                seeds[i, 1] = s1
+
+
+@njit(inline="always", cache=True)
+def _byte_fill(v):
+    """uint64 with every byte equal to v (0 <= v <= 127)."""
+    return np.uint64(v) * _BYTES1
+
+
+@njit(inline="always", cache=True)
+def _consider(m, i, j, c, best, second, bj, want_cols, colb, col_d, col_i, colthr):
+    """Update a query's (best, second, best index) and, with want_cols, target j's column state
+    with the exact distance m of pair (i, j), under the brute-force rules: rows ordered by
+    (distance, index); columns by strict improvement (queries arrive in ascending order)."""
+    if m < best or (m == best and j < bj):
+        second = best
+        best = m
+        bj = j
+    elif m < second:
+        second = m
+    if want_cols and m < col_d[c, j]:
+        col_d[c, j] = m
+        col_i[c, j] = i
+        below = m - np.uint64(1) if m > 0 else np.uint64(0)
+        colthr[j] = np.uint8(min(min(colb[j], below), np.uint64(127)))
+    return best, second, bj
+
+
+@njit(inline="always", cache=True)
+def _row_bound(best, second, ratio):
+    """The largest distance bound of a pair that may still change a query's output: its running
+    best distance; with a ratio test (ratio > 0) also every distance that can bring the second
+    best to at most best / ratio (the test fails iff best >= ratio * second), capped by the running
+    second best. best / ratio is rounded up with a margin of one bit (integer distances)."""
+    if ratio <= 0.0:
+        return best
+    if best >= _BIG:
+        return second
+    return min(second, np.uint64(np.float64(best) / ratio) + np.uint64(1))
+
+
+@njit(parallel=True, cache=True)
+def _rot_finish8(q, t, valid0, valid1, lb, seeds, colb, n_chunks, ratio, want_cols,
+                 best_d, best_j, second_d, col_d, col_i, n_exact):
+    """Stage 2 of the two-stage search: exact distances only where the bound of `_rot_bounds8`
+    leaves a pair able to change an output.
+
+    Per query (chunks of consecutive queries, one thread each, ascending within a chunk): the exact
+    distances to its two seeds first (tight running bounds at once), then every other valid target
+    j whose bound lb[i, j] is at most the running best (with a ratio test, `_row_bound`) or,
+    with `want_cols`, at most colb[j] (an exact distance from some query to j, hence at least the
+    column's minimum) and below the chunk's best distance to j so far. Skipped pairs have
+    d >= lb > every bound that matters, so they can neither win nor tie; evaluated pairs update the
+    outputs under the brute-force rules (`_consider`), so the visiting order changes no output.
+
+    The bounds are scanned 8 at a time: lb's rows are read as uint64 words, and one subtraction
+    per word flags every byte at or below its threshold (bytes and thresholds <= 127, so no borrow
+    crosses a byte); a word without a flag skips 8 targets at once. Flagged bytes are checked
+    again against the current bounds (which only tighten) before an exact distance.
+
+    q (N0, 8), t (N1, 8, R) uint64, valid0, valid1 as `_rot_bounds8`; lb (N0, N1p) uint8 (N1p a
+    multiple of 8; bounds clipped to 127, padding ignored) and seeds (N0, 2) its outputs; colb
+    (N1,) uint64 (ignored without want_cols). ratio: Lowe's ratio in (0, 1], or 0 for none.
+    Outputs as `_hamming_nn`, except second_d: without a ratio it is not computed; with one it is
+    exact wherever the ratio test can fail (second <= best / ratio) and otherwise some distance
+    above best / ratio, so the ratio test decides as with the exact value.
+    n_exact (n_chunks,) int64: exact distances computed per chunk.
+    """
+    n0 = q.shape[0]
+    n1 = t.shape[0]
+    n1p = lb.shape[1]
+    words = lb.view(np.uint64)  # (N0, N1p / 8)
+    for c in prange(n_chunks):
+        count = 0
+        # per target, the largest bound that may still change the column's output (<= 127)
+        colthr = np.zeros(n1p, np.uint8)
+        if want_cols:
+            for j in range(n1):
+                colthr[j] = np.uint8(min(colb[j], np.uint64(127)))
+        colw = colthr.view(np.uint64)
+        for i in range((c * n0) // n_chunks, ((c + 1) * n0) // n_chunks):
+            best = _BIG
+            second = _BIG
+            bj = -1
+            if valid0[i]:
+                q0, q1, q2, q3 = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
+                q4, q5, q6, q7 = q[i, 4], q[i, 5], q[i, 6], q[i, 7]
+                s0 = seeds[i, 0]
+                s1 = seeds[i, 1]
+                for j in (s0, s1):  # valid targets (or -1)
+                    if j >= 0:
+                        m = _rot_exact8(q0, q1, q2, q3, q4, q5, q6, q7, t, j)
+                        count += 1
+                        best, second, bj = _consider(m, i, j, c, best, second, bj, want_cols, colb, col_d,
+                                                     col_i, colthr)
+                for w in range(n1p // 8):
+                    rb = _row_bound(best, second, ratio)
+                    x = words[i, w]
+                    flags = (_byte_fill(min(rb, np.uint64(127))) | _H80) - x
+                    if want_cols:
+                        flags |= (colw[w] | _H80) - x
+                    if flags & _H80 == 0:
+                        continue
+                    for j in range(8 * w, min(8 * w + 8, n1)):
+                        if j == s0 or j == s1 or not valid1[j]:
+                            continue
+                        bound = np.uint64(lb[i, j])
+                        if bound > _row_bound(best, second, ratio):
+                            if not want_cols or bound > colb[j] or bound >= col_d[c, j]:
+                                continue
+                        m = _rot_exact8(q0, q1, q2, q3, q4, q5, q6, q7, t, j)
+                        count += 1
+                        best, second, bj = _consider(m, i, j, c, best, second, bj, want_cols, colb, col_d,
+                                                     col_i, colthr)
+            best_d[i] = best
+            second_d[i] = second
+            best_j[i] = bj
+        n_exact[c] = count
+
+
+@njit(cache=True)
+def _column_argmin(lb, valid0, out):
+    """out[j] = the first valid row i with the smallest lb[i, j], for j < len(out) (0 when no row
+    is valid). lb: (N0, N1p) uint8; valid0 (N0,) bool; out (N1,) int64."""
+    n1 = len(out)
+    low = np.full(n1, 255, np.uint8)
+    for i in range(lb.shape[0]):
+        if valid0[i]:
+            for j in range(n1):
+                v = lb[i, j]
+                if v < low[j]:
+                    low[j] = v
+                    out[j] = i
+
+
+@njit(parallel=True, cache=True)
+def _rot_pairs8(q, t, ii, jj, out):
+    """Exact min-over-rotations distances of the pairs (ii[p], jj[p]). q (N0, 8), t (N1, 8, R)
+    uint64; ii, jj (P,) int64; out (P,) uint64."""
+    for p in prange(len(ii)):
+        i = ii[p]
+        out[p] = _rot_exact8(q[i, 0], q[i, 1], q[i, 2], q[i, 3], q[i, 4], q[i, 5], q[i, 6], q[i, 7], t, jj[p])
+
+
 def _as_words(desc: np.ndarray) -> np.ndarray:
     """(N, ..., B) uint8 -> (N, ..., ceil(B / 8)) uint64 (zero padded; bit counts are unchanged)."""
     B = desc.shape[-1]
@@ -273,9 +478,78 @@ def _as_words(desc: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(desc).view(np.uint64)
 
 
-def _hamming_search(d0, d1, valid0, valid1, want_cols, need_second=True):
-    """d0, d1: (N, R, B) uint8. Returns best_d, best_j, second_d (N0,), col_j (N1,) or None;
-    second_d is exact only with need_second (R > 1 prunes against the best distance otherwise)."""
+def _two_stage(q, t, valid0, valid1, n_chunks, ratio, want_cols, best_d, best_j, second_d, col_d, col_i):
+    """The two-stage exact search (`_rot_bounds8` then `_rot_finish8`) on padded words
+    q (N0, 8), t (N1, 8, R) uint64; ratio: Lowe's ratio or None. Fills the outputs like `_rot_nn8`
+    (second_d as `_rot_finish8` says); returns the number of exact distances computed (the pairs
+    that the bounds could not rule out)."""
+    n0, n1 = len(q), len(t)
+    t4 = np.ascontiguousarray(t[:, :4])  # (N1, 4, R): the words of the bound, compact in cache
+    block = max(16, (64 * 1024) // t4[0].nbytes)
+    n1p = -(-n1 // 8) * 8  # rows padded to whole uint64 words; invalid rows stay 127
+    lb = np.full((n0, n1p), 127, np.uint8)
+    seeds = np.empty((n0, 2), np.int64)
+    _rot_bounds8(q, t4, valid0, valid1, n_chunks, block, lb, seeds)
+    colb = np.full(n1 if want_cols else 1, _BIG, np.uint64)
+    if want_cols:
+        # an exact distance from the query with the smallest bound of each column: an upper bound
+        # of the column's minimum, so that stage 2 skips most pairs of the column too
+        i_star = np.zeros(n1, np.int64)
+        _column_argmin(lb, valid0, i_star)
+        ok = valid0[i_star] & valid1
+        js = np.flatnonzero(ok)
+        d = np.empty(len(js), np.uint64)
+        _rot_pairs8(q, t, i_star[js].astype(np.int64), js.astype(np.int64), d)
+        colb[js] = d
+    n_exact = np.zeros(n_chunks, np.int64)
+    _rot_finish8(q, t, valid0, valid1, lb, seeds, colb, n_chunks, float(ratio or 0.0), bool(want_cols),
+                 best_d, best_j, second_d, col_d, col_i, n_exact)
+    return int(n_exact.sum())
+
+
+#: Largest bound matrix (bytes) of the two-stage search; larger problems use the blocked search.
+_TWO_STAGE_MAX_BYTES = 256 * 2**20
+#: The two-stage search is chosen when at most this fraction of sampled pairs needs an exact distance.
+_TWO_STAGE_MAX_EXACT = 0.3
+#: Queries sampled by `_choose_method`.
+_SAMPLE_QUERIES = 16
+
+
+def _choose_method(q, t, valid0, valid1, ratio) -> str:
+    """"two-stage" or "blocked" for padded words q (N0, 8), t (N1, 8, R) uint64: the two-stage
+    search computes bounds for every pair (about half the work of brute force) and then exact
+    distances for the pairs they do not rule out, so it wins when those are few (descriptors of
+    real images: about 4 % of the pairs; uniformly random bits: all of them). Runs it on
+    `_SAMPLE_QUERIES` evenly spaced valid queries and compares the fraction of exact distances with
+    `_TWO_STAGE_MAX_EXACT`. Speed only: both methods give the same matches."""
+    n0, n1 = len(q), len(t)
+    n_valid1 = int(np.count_nonzero(valid1))
+    if n0 * (n1 + 8) > _TWO_STAGE_MAX_BYTES or n_valid1 == 0:
+        return "blocked"
+    rows = np.flatnonzero(valid0)
+    if len(rows) == 0:
+        return "blocked"
+    rows = rows[np.linspace(0, len(rows) - 1, min(_SAMPLE_QUERIES, len(rows))).astype(np.int64)]
+    rows = np.unique(rows)
+    k = len(rows)
+    out_d, out_s = np.empty(k, np.uint64), np.empty(k, np.uint64)
+    out_j = np.empty(k, np.int64)
+    dummy_d, dummy_i = np.full((1, 1), _BIG, np.uint64), np.full((1, 1), -1, np.int64)
+    n_chunks = max(1, min(numba.get_num_threads(), k))
+    n_exact = _two_stage(np.ascontiguousarray(q[rows]), t, np.ones(k, bool), valid1, n_chunks, ratio, False,
+                         out_d, out_j, out_s, dummy_d, dummy_i)
+    return "two-stage" if n_exact <= _TWO_STAGE_MAX_EXACT * k * n_valid1 else "blocked"
+
+
+def _hamming_search(d0, d1, valid0, valid1, want_cols, ratio=None, method="auto"):
+    """d0, d1: (N, R, B) uint8. Returns best_d, best_j, second_d (N0,), col_j (N1,) or None.
+    second_d is exact for one rotation, and otherwise only where the ratio test needs it: with
+    R > 1 the searches prune against the best distance (no ratio) or the second best
+    ("blocked"), or against min(second best, best / ratio) ("two-stage"), so the ratio test
+    `best < ratio * second` decides as with the exact value.
+    method, for R in 2..16 rotations of at most 512 bits: "two-stage" (`_two_stage`), "blocked"
+    (`_rot_nn8`) or "auto" (`_choose_method`); every method gives the same matches."""
+    need_second = ratio is not None
     words = _as_words(d1)  # (N1, R, W)
     n0, n1, R, W = d0.shape[0], d1.shape[0], words.shape[1], words.shape[2]
     q = np.ascontiguousarray(_as_words(d0[:, 0, :]))  # (N0, W)
@@ -303,8 +577,16 @@ def _hamming_search(d0, d1, valid0, valid1, want_cols, need_second=True):
     if rotations:
         # a block of targets stays in the L2 cache: about 128 KiB of words
         block = max(16, (128 * 1024) // t[0].nbytes)
-        _rot_nn8(q, t, valid0, valid1, n_chunks, block, bool(need_second), bool(want_cols), best_d, best_j,
-                second_d, col_d, col_i)
+        if method == "auto":
+            method = _choose_method(q, t, valid0, valid1, ratio)
+        if method == "two-stage":
+            _two_stage(q, t, valid0, valid1, n_chunks, ratio, want_cols, best_d, best_j, second_d,
+                       col_d, col_i)
+        elif method != "blocked":
+            raise ValueError(f"method: expected 'auto', 'two-stage' or 'blocked', got {method!r}")
+        else:
+            _rot_nn8(q, t, valid0, valid1, n_chunks, block, bool(need_second), bool(want_cols), best_d,
+                     best_j, second_d, col_d, col_i)
     else:
         kernel(q, t, valid0, valid1, n_chunks, bool(want_cols), best_d, best_j, second_d, col_d, col_i)
     bd = best_d.astype(np.float64)
@@ -549,7 +831,7 @@ def match(
         if device is not None:
             best_d, best_j, second_d, col_j = _hamming_search_torch(d0, d1, valid0, valid1, mutual, device)
         else:
-            best_d, best_j, second_d, col_j = _hamming_search(d0, d1, valid0, valid1, mutual, ratio is not None)
+            best_d, best_j, second_d, col_j = _hamming_search(d0, d1, valid0, valid1, mutual, ratio)
 
     return _finish_matches(best_d, best_j, second_d, col_j, ratio=ratio, mutual=mutual)
 

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import threading
+from contextlib import contextmanager
+
 from .constants import N_KEYPOINTS
 from .features import Features
 from .frame import RGBDFrame
@@ -31,6 +34,10 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
 
     Returns:
         `Features`: keypoints (N, 2) pixels, descriptors ((N, 128) float32 for GeoPatch), valid (N,).
+
+    On the CPU, descriptors on geodesic patches (GeoPatch, GeoBit) have the frame's mesh built in a
+    background thread while the detector runs (`_mesh_prefetch`); the results are the same as
+    detecting first and describing after.
     """
     from .descriptors import make_descriptor
 
@@ -50,5 +57,34 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
         return net.compute_cuda(frame, keypoints).to_host()
     if device is not None and str(device) != "cpu":
         raise ValueError(f"device: expected None, 'cpu' or 'cuda[:N]', got {device!r}")
-    keypoints = detect(frame, n, detector=detector or BEST_DETECTOR)
-    return make_descriptor(descriptor, radius=radius, depth_config=depth_config).compute(frame, keypoints)
+    describer = make_descriptor(descriptor, radius=radius, depth_config=depth_config)
+    with _mesh_prefetch(frame, getattr(describer, "depth_config", None)):
+        keypoints = detect(frame, n, detector=detector or BEST_DETECTOR)
+    return describer.compute(frame, keypoints)
+
+
+@contextmanager
+def _mesh_prefetch(frame: RGBDFrame, depth_config):
+    """Build the frame's mesh and walk tables (`geofeat.geodesic.mesh.frame_mesh`, cached on the
+    frame) in a background thread while the body runs (detection, which does not need them), and
+    wait for it on exit; the descriptor's `polar_patches` then finds them cached. The depth
+    preprocessing is mostly serial numpy and OpenCV work, and the detector leaves a core free
+    often enough, so this hides part of it. The same mesh is built either way: results are
+    unchanged. depth_config None (a descriptor without geodesic patches): nothing is prefetched."""
+    if depth_config is None:
+        yield
+        return
+    from .geodesic.mesh import frame_mesh
+
+    def build() -> None:
+        try:
+            frame_mesh(frame, depth_config).walk_tables
+        except Exception:  # noqa: BLE001 - the describer's own frame_mesh call raises it again, in the caller's thread
+            pass
+
+    worker = threading.Thread(target=build, name="geofeat-mesh", daemon=True)
+    worker.start()
+    try:
+        yield
+    finally:
+        worker.join()

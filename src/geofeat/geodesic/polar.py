@@ -93,15 +93,19 @@ def sample_bilinear(image: np.ndarray, coords: np.ndarray) -> np.ndarray:
     """Bilinear intensities of an (H, W) float32 image at (..., 2) pixel coordinates (x, y);
     coordinates off the image take the nearest border value."""
     shape = coords.shape[:-1]
-    flat = coords.reshape(-1, 2).astype(np.float32)
+    flat = np.ascontiguousarray(coords.reshape(-1, 2), dtype=np.float32)  # no copy for float32 patches
     if flat.shape[0] == 0:
         return np.zeros(shape, np.float32)
-    # cv2.remap needs maps under 32767 rows and columns: lay the points out 1024 per row
+    # cv2.remap needs maps under 32767 rows and columns: lay the points out 1024 per row (a view
+    # when the count is a multiple of 1024, as for 32 x 32 patches; zero padded otherwise)
     width = 1024
     rows = -(-flat.shape[0] // width)
-    padded = np.zeros((rows * width, 2), np.float32)
-    padded[: flat.shape[0]] = flat
-    maps = padded.reshape(rows, width, 2)
+    if rows * width == flat.shape[0]:
+        maps = flat.reshape(rows, width, 2)
+    else:
+        padded = np.zeros((rows * width, 2), np.float32)
+        padded[: flat.shape[0]] = flat
+        maps = padded.reshape(rows, width, 2)
     out = cv2.remap(image, maps, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     out = out.reshape(-1)[: flat.shape[0]]
     return out.reshape(shape)
@@ -147,7 +151,7 @@ def polar_patches(
     values[valid] = sample_bilinear(sampling_image(frame, blur_px), coords[valid])
     return PolarPatches(
         keypoints=kp,
-        values=values.astype(np.float32),
+        values=values,
         coords=coords,
         valid=valid,
         rings_reached=reached,
