@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["GT_THRESHOLD_PX", "PairScore", "ground_truth_pairs", "score_detect", "score_landmarks"]
+__all__ = ["GT_THRESHOLD_PX", "PairScore", "correct_matches", "ground_truth_pairs", "score_detect", "score_landmarks"]
 
 #: Ground-truth partner distance threshold, pixels (strictly less than).
 GT_THRESHOLD_PX = 3.0
@@ -57,6 +57,26 @@ def ground_truth_pairs(ref_xy: np.ndarray, tgt_in_ref: np.ndarray, threshold: fl
     _, first = np.unique(r, return_index=True)  # first target (in target order) for each r
     keep = np.sort(first)
     return np.stack([r[keep], t[keep]], axis=1).astype(np.int64)
+
+
+def correct_matches(ref_xy: np.ndarray, tgt_in_ref: np.ndarray, threshold: float = GT_THRESHOLD_PX) -> np.ndarray:
+    """Which of M given matches are correct: the target keypoint, mapped into the reference with the
+    ground truth, lies closer than `threshold` pixels to the reference keypoint it was matched to.
+
+    The per-match form of the 3 px rule of `ground_truth_pairs`, for matches that were filtered
+    after matching (tracking's RANSAC inliers); it does not ask that the reference keypoint be the
+    nearest one.
+
+    Args:
+        ref_xy: (M, 2) reference keypoints of the matches, pixels.
+        tgt_in_ref: (M, 2) their target keypoints mapped into the reference image, pixels (NaN rows
+            = no ground truth, never correct).
+    Returns:
+        (M,) bool.
+    """
+    ref_xy = np.asarray(ref_xy, float).reshape(-1, 2)
+    tgt_in_ref = np.asarray(tgt_in_ref, float).reshape(-1, 2)
+    return np.linalg.norm(tgt_in_ref - ref_xy, axis=1) < threshold
 
 
 def score_detect(matches0: np.ndarray, gt_pairs: np.ndarray, n_ref: int, n_tgt: int) -> PairScore:

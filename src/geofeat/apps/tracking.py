@@ -32,8 +32,10 @@ Pixels follow the OpenCV convention (the centre of the top-left pixel is (0, 0))
 from __future__ import annotations
 
 import csv
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -42,6 +44,13 @@ from tqdm import tqdm
 from ..constants import N_KEYPOINTS
 from ..io import Sequence, read_sequence
 from ..tps import ThinPlateSpline, check_pairs, evaluate_batch, normalise_points, solve_batch
+
+if TYPE_CHECKING:
+    from ..descriptors.describer import Describer
+    from ..features import Features
+    from ..frame import RGBDFrame
+    from ..groundtruth.sources import GroundTruth
+    from ..keypoints import Keypoints
 
 __all__ = [
     "RansacResult", "TrackResult", "fit_tps_ransac",
@@ -293,6 +302,10 @@ class RefinedWarp:
         return self.spline(xy) + d
 
 
+#: A fitted template -> frame warp: the RANSAC spline, or that spline refined photometrically.
+Warp = ThinPlateSpline | RefinedWarp
+
+
 def refine_warp(template: np.ndarray, image: np.ndarray, mask: np.ndarray, spline: ThinPlateSpline,
                 lm_template: np.ndarray, lm_image: np.ndarray, roi: tuple[int, int, int, int],
                 config=None) -> tuple["ThinPlateSpline | RefinedWarp", bool]:
@@ -388,7 +401,7 @@ class TrackResult:
 #: Columns of track.csv. n_template / n_frame: keypoints in the template ROI / in the frame; matches:
 #: template keypoints with a nearest neighbour; inliers: RANSAC inliers among them; ms: correct
 #: inliers / min(n_template, n_frame) (the bench's matching score applied to the kept matches);
-#: precision: correct inliers / inliers (correct: the bench's ground truth within 3 px);
+#: precision: correct inliers / inliers (correct: the bench's ground truth within 3 px, `geofeat.scoring.correct_matches`);
 #: grid_error_px: median over the grid of |ground truth(tracked point) - grid point|, reference pixels;
 #: grid_error_tps_px: the same for the RANSAC spline alone (before refinement); refined: the refined
 #: warp was kept; ssim, ncc: the frame's confidence, template vs frame warped back inside the ROI;
@@ -422,6 +435,10 @@ def track_sequence(
 ) -> dict[str, TrackResult]:
     """Track the template ROI of a sequence's reference frame through all its frames.
 
+    The outline: `_Template.build` (the sequence, ROI, template keypoints and descriptors, ground
+    truth); per target frame, its keypoints and descriptors (`_Template.describe_frame`) and, per
+    descriptor, `_track_frame` (matching, RANSAC spline, optional refinement, the frame's row).
+
     Args:
         folder: a sequence in the public layout (reference frame + targets).
         descriptors: names known to `geofeat.make_descriptor`.
@@ -435,109 +452,231 @@ def track_sequence(
     Returns:
         {descriptor: TrackResult}. Frames whose fit fails are recorded as failed; the run goes on.
     """
-    import time
-
-    from ..descriptors.describer import Describer
-    from ..groundtruth.sources import GroundTruth
-    from ..scoring import GT_THRESHOLD_PX
-    from ..depth import sequence_depth_profile
     from ..descriptors import check_descriptor_name
-    from ..keypoints import detect
-    from ..matching import match
-    from .objectmask import object_mask
 
     names = tuple(check_descriptor_name(d) for d in descriptors if d.strip())  # unknown names fail before any work
     if not names:
         raise ValueError("descriptors: expected at least one descriptor name")
     if refine not in REFINE_MODES:
         raise ValueError(f"refine: expected one of {', '.join(REFINE_MODES)}, got {refine!r}")
-    seq = read_sequence(folder, depth_scale=depth_scale)
-    if len(seq) < 2:
-        raise ValueError(f"sequence {seq.name}: needs a reference frame and at least one other frame, got {len(seq)} frame(s)")
-    ref = seq.frame(seq.reference)
-    mask, mask_source = object_mask(seq, seq.reference, tps_dir)
-    roi = check_roi(default_roi(mask) if roi is None else roi, ref.shape)
-    x0, y0, x1, y1 = roi
-    k_ref = detect(ref, n_keypoints, detector=detector)
-    inside = (k_ref.xy[:, 0] >= x0) & (k_ref.xy[:, 0] <= x1) & (k_ref.xy[:, 1] >= y0) & (k_ref.xy[:, 1] <= y1)
-    k_ref = k_ref[inside]
-    if len(k_ref) < MIN_ROI_KEYPOINTS:
-        raise ValueError(f"roi: {roi} holds {len(k_ref)} keypoints of {seq.reference}; expected at least {MIN_ROI_KEYPOINTS}")
-    try:
-        truth = GroundTruth(seq, tps_dir)
-    except ValueError:
-        truth = None
-    describe = Describer(names, sequence_radius(seq, radius), sequence_depth_profile(seq, None, ref))
-    f_ref = describe(ref, k_ref)
-    grid = roi_grid(roi)
-    roi_mask = np.zeros(ref.shape, bool)
-    roi_mask[y0 : y1 + 1, x0 : x1 + 1] = True
-    if (roi_mask & mask).sum() >= 0.25 * roi_mask.sum():  # the object's pixels, unless the mask misses the ROI
-        roi_mask &= mask
-    results = {
-        n: TrackResult(seq.name, n, roi, list(seq.names), grid, np.full((len(seq), len(grid), 2), np.nan),
-                       mask_source=mask_source)
-        for n in names
-    }
-    for r in results.values():
-        r.points[0] = grid
-    prior: dict = {n: None for n in names}  # each descriptor's last successful warp (guides matching)
+    template = _Template.build(folder, names, roi, n_keypoints, tps_dir, radius, depth_scale, detector)
+    seq = template.seq
+    results = {name: template.new_result(name) for name in names}
+    prior: dict[str, Warp | None] = {name: None for name in names}  # each descriptor's last good warp
     bar = tqdm(list(enumerate(seq.targets, start=1)), desc=f"track {seq.name}", unit="frame", disable=not progress)
-    for k, target in bar:
+    for k, frame_name in bar:
         try:
-            frame = seq.frame(target)
-            k_tgt = detect(frame, n_keypoints, detector=detector)
-            if len(k_tgt) == 0:
-                raise ValueError("no keypoints detected")
-            f_tgt = describe(frame, k_tgt)
+            frame, keypoints, features = template.describe_frame(frame_name, n_keypoints, detector)
         except ValueError as error:  # reported by name; the other frames go on
-            tqdm.write(f"SKIPPED frame {target} of {seq.name}: {str(error).splitlines()[0]}")
+            tqdm.write(f"SKIPPED frame {frame_name} of {seq.name}: {str(error).splitlines()[0]}")
             for r in results.values():
-                r.skipped.append(target)
+                r.skipped.append(frame_name)
             continue
-        to_ref = truth.map(target, k_tgt.xy)[0] if truth is not None else None
+        target = _Target(frame_name, frame, keypoints, features, template.to_reference(frame_name, keypoints.xy))
         for name in names:
-            t0 = time.perf_counter()
-            # mutual nearest neighbours; with a previous good warp, also matches searched near where
-            # it puts each template keypoint; the fit with more RANSAC inliers is kept
-            options = [match(f_ref[name][0], f_tgt[name][0], mutual=True).matches0]
-            if prior[name] is not None:
-                options.append(guided_matches(f_ref[name][0], f_tgt[name][0], prior[name](k_ref.xy)))
-            best = None
-            for matches0 in options:
-                j0 = np.flatnonzero(matches0 >= 0)
-                j1 = matches0[j0]
-                candidate = fit_tps_ransac(k_ref.xy[j0], k_tgt.xy[j1], threshold_px=threshold_px, seed=seed)
-                if best is None or candidate.inliers.sum() > best[2].inliers.sum():
-                    best = (j0, j1, candidate)
-            i0, i1, fit = best
-            row = dict(sequence=seq.name, descriptor=name, frame=target, n_template=len(k_ref), n_frame=len(k_tgt),
-                       matches=len(i0), inliers=int(fit.inliers.sum()),
-                       inlier_rate=fit.inliers.sum() / len(i0) if len(i0) else 0.0, ms=float("nan"),
-                       precision=float("nan"), ssim=float("nan"), ncc=float("nan"), grid_error_px=float("nan"),
-                       grid_error_tps_px=float("nan"), refined=False, seconds=float("nan"), failed=not fit.ok)
-            if fit.ok:
-                warp = fit.warp
-                if refine == "photometric":
-                    kept = fit.inliers
-                    warp, row["refined"] = refine_warp(ref.image, frame.image, roi_mask, fit.warp,
-                                                       k_ref.xy[i0[kept]], k_tgt.xy[i1[kept]], roi)
+            row, warp, points = _track_frame(template, target, name, prior[name], refine, threshold_px, seed)
+            if warp is not None:
                 prior[name] = warp
-                pts = warp(grid)
-                results[name].points[k] = pts
-                row["ssim"], row["ncc"] = similarity(ref.image, frame.image, warp, roi)
-                row["seconds"] = time.perf_counter() - t0
-                if to_ref is not None:
-                    kept = fit.inliers
-                    err = np.linalg.norm(to_ref[i1[kept]] - k_ref.xy[i0[kept]], axis=1)
-                    correct = int((err < GT_THRESHOLD_PX).sum())  # NaN (no ground truth): not correct
-                    row["ms"] = correct / max(min(len(k_ref), len(k_tgt)), 1)
-                    row["precision"] = correct / kept.sum() if kept.any() else 0.0
-                    row["grid_error_px"] = _grid_error(truth, target, pts, grid)
-                    row["grid_error_tps_px"] = (row["grid_error_px"] if warp is fit.warp else
-                                                _grid_error(truth, target, fit.warp(grid), grid))
+                results[name].points[k] = points
             results[name].rows.append(row)
     return results
+
+
+@dataclass
+class _Template:
+    """What stays fixed while one sequence is tracked.
+
+    Attributes:
+        seq: the sequence.
+        frame: its reference frame (the template).
+        roi: (x0, y0, x1, y1) template ROI, reference pixels.
+        roi_mask: (H, W) bool pixels the photometric refinement registers: the ROI's object pixels
+            (the whole ROI when the object mask misses most of it).
+        mask_source: where the object mask came from ("simulator", "objmask", "depth").
+        keypoints: the N template keypoints (inside the ROI).
+        features: {descriptor: `Features` of the N template keypoints}.
+        describe: the `Describer` of every frame (one mesh and one set of patches for all descriptors).
+        grid: (G, 2) regular grid over the ROI, reference pixels.
+        truth: the sequence's `GroundTruth`, None when it has none (no scores then).
+    """
+
+    seq: Sequence
+    frame: "RGBDFrame"
+    roi: tuple[int, int, int, int]
+    roi_mask: np.ndarray
+    mask_source: str
+    keypoints: "Keypoints"
+    features: dict[str, "Features"]
+    describe: "Describer"
+    grid: np.ndarray
+    truth: "GroundTruth | None"
+
+    @classmethod
+    def build(cls, folder: str | Path, names: tuple[str, ...], roi: tuple[int, int, int, int] | None,
+              n_keypoints: int, tps_dir: str | None, radius: float | None, depth_scale: float | None,
+              detector: str) -> "_Template":
+        """Read the sequence, choose and check the ROI, detect and describe the template keypoints
+        inside it, and load the ground truth (arguments as `track_sequence`'s)."""
+        from ..depth import sequence_depth_profile
+        from ..descriptors.describer import Describer
+        from ..groundtruth.sources import GroundTruth
+        from ..keypoints import detect
+        from .objectmask import object_mask
+
+        seq = read_sequence(folder, depth_scale=depth_scale)
+        if len(seq) < 2:
+            raise ValueError(f"sequence {seq.name}: needs a reference frame and at least one other frame, got {len(seq)} frame(s)")
+        ref = seq.frame(seq.reference)
+        mask, mask_source = object_mask(seq, seq.reference, tps_dir)
+        roi = check_roi(default_roi(mask) if roi is None else roi, ref.shape)
+        x0, y0, x1, y1 = roi
+        keypoints = detect(ref, n_keypoints, detector=detector)
+        inside = ((keypoints.xy[:, 0] >= x0) & (keypoints.xy[:, 0] <= x1)
+                  & (keypoints.xy[:, 1] >= y0) & (keypoints.xy[:, 1] <= y1))
+        keypoints = keypoints[inside]
+        if len(keypoints) < MIN_ROI_KEYPOINTS:
+            raise ValueError(f"roi: {roi} holds {len(keypoints)} keypoints of {seq.reference}; expected at least {MIN_ROI_KEYPOINTS}")
+        try:
+            truth = GroundTruth(seq, tps_dir)
+        except ValueError:
+            truth = None
+        describe = Describer(names, sequence_radius(seq, radius), sequence_depth_profile(seq, None, ref))
+        features = {name: f for name, (f, _) in describe(ref, keypoints).items()}
+        roi_mask = np.zeros(ref.shape, bool)
+        roi_mask[y0 : y1 + 1, x0 : x1 + 1] = True
+        if (roi_mask & mask).sum() >= 0.25 * roi_mask.sum():  # the object's pixels, unless the mask misses the ROI
+            roi_mask &= mask
+        return cls(seq, ref, roi, roi_mask, mask_source, keypoints, features, describe, roi_grid(roi), truth)
+
+    def describe_frame(self, name: str, n_keypoints: int, detector: str) -> tuple["RGBDFrame", "Keypoints", dict[str, "Features"]]:
+        """Read frame `name`, detect its N1 keypoints and describe them with every descriptor:
+        (frame, keypoints, {descriptor: Features}). ValueError when the frame cannot be read or
+        described or holds no keypoint (the caller skips it)."""
+        from ..keypoints import detect
+
+        frame = self.seq.frame(name)
+        keypoints = detect(frame, n_keypoints, detector=detector)
+        if len(keypoints) == 0:
+            raise ValueError("no keypoints detected")
+        return frame, keypoints, {d: f for d, (f, _) in self.describe(frame, keypoints).items()}
+
+    def to_reference(self, name: str, xy: np.ndarray) -> np.ndarray | None:
+        """(N, 2) pixels of frame `name` mapped into the reference by the ground truth, NaN rows where
+        it is unknown; None when the sequence has no ground truth."""
+        return self.truth.map(name, xy)[0] if self.truth is not None else None
+
+    def new_result(self, descriptor: str) -> TrackResult:
+        """An empty `TrackResult`: the grid in the reference frame, NaN points elsewhere, no rows."""
+        points = np.full((len(self.seq), len(self.grid), 2), np.nan)
+        points[0] = self.grid
+        return TrackResult(self.seq.name, descriptor, self.roi, list(self.seq.names), self.grid, points,
+                           mask_source=self.mask_source)
+
+
+@dataclass
+class _Target:
+    """One target frame, described once for all descriptors.
+
+    Attributes:
+        name: the frame's name in the sequence.
+        frame: the frame.
+        keypoints: its N1 keypoints.
+        features: {descriptor: `Features` of the N1 keypoints}.
+        to_ref: (N1, 2) the keypoints mapped into the reference by the ground truth, pixels (NaN rows
+            where it is unknown); None when the sequence has no ground truth.
+    """
+
+    name: str
+    frame: "RGBDFrame"
+    keypoints: "Keypoints"
+    features: dict[str, "Features"]
+    to_ref: np.ndarray | None
+
+
+@dataclass
+class _Fit:
+    """The matches of one frame that were kept and their RANSAC spline.
+
+    Attributes:
+        i0, i1: (M,) int64 template and frame keypoint indices of the M matches.
+        ransac: the RANSAC fit to them (`ransac.inliers`: (M,) bool).
+    """
+
+    i0: np.ndarray
+    i1: np.ndarray
+    ransac: RansacResult
+
+
+def _match_and_fit(template: _Template, target: _Target, name: str, prior: Warp | None,
+                   threshold_px: float, seed: int) -> _Fit:
+    """Match the template to the frame with descriptor `name` and fit a RANSAC spline: mutual nearest
+    neighbours and, once a previous frame was fitted (`prior`), also matches searched near where that
+    warp puts each template keypoint (`guided_matches`); the fit with more RANSAC inliers is kept (the
+    first on a tie)."""
+    from ..matching import match
+
+    f0, f1 = template.features[name], target.features[name]
+    options = [match(f0, f1, mutual=True).matches0]
+    if prior is not None:
+        options.append(guided_matches(f0, f1, prior(template.keypoints.xy)))
+    best = None
+    for matches0 in options:
+        i0 = np.flatnonzero(matches0 >= 0)
+        i1 = matches0[i0]
+        ransac = fit_tps_ransac(template.keypoints.xy[i0], target.keypoints.xy[i1], threshold_px=threshold_px, seed=seed)
+        if best is None or ransac.inliers.sum() > best.ransac.inliers.sum():
+            best = _Fit(i0, i1, ransac)
+    return best
+
+
+def _track_frame(template: _Template, target: _Target, name: str, prior: Warp | None, refine: str,
+                 threshold_px: float, seed: int) -> tuple[dict, Warp | None, np.ndarray | None]:
+    """One descriptor on one target frame: match, fit, optionally refine, and measure.
+
+    Returns:
+        (row, warp, points): the frame's row of track.csv (`TRACK_COLUMNS`); the warp, template ->
+        frame pixels, and (G, 2) where it puts the grid, frame pixels; both None when the fit failed.
+    """
+    t0 = time.perf_counter()
+    fit = _match_and_fit(template, target, name, prior, threshold_px, seed)
+    n_inliers = fit.ransac.inliers.sum()
+    row = dict(sequence=template.seq.name, descriptor=name, frame=target.name, n_template=len(template.keypoints),
+               n_frame=len(target.keypoints), matches=len(fit.i0), inliers=int(n_inliers),
+               inlier_rate=n_inliers / len(fit.i0) if len(fit.i0) else 0.0, ms=float("nan"),
+               precision=float("nan"), ssim=float("nan"), ncc=float("nan"), grid_error_px=float("nan"),
+               grid_error_tps_px=float("nan"), refined=False, seconds=float("nan"), failed=not fit.ransac.ok)
+    if not fit.ransac.ok:
+        return row, None, None
+    kept0, kept1 = fit.i0[fit.ransac.inliers], fit.i1[fit.ransac.inliers]  # the inliers' keypoint indices
+    warp = fit.ransac.warp
+    if refine == "photometric":
+        warp, row["refined"] = refine_warp(template.frame.image, target.frame.image, template.roi_mask, warp,
+                                           template.keypoints.xy[kept0], target.keypoints.xy[kept1], template.roi)
+    points = warp(template.grid)
+    row["ssim"], row["ncc"] = similarity(template.frame.image, target.frame.image, warp, template.roi)
+    row["seconds"] = time.perf_counter() - t0
+    if target.to_ref is not None:
+        row.update(_truth_figures(template, target, fit, warp, points))
+    return row, warp, points
+
+
+def _truth_figures(template: _Template, target: _Target, fit: _Fit, warp: Warp, points: np.ndarray) -> dict:
+    """The ground-truth columns of a fitted frame's row: ms and precision of the RANSAC inliers
+    (correct: `geofeat.scoring.correct_matches`, the bench's 3 px rule), and the grid errors of the
+    final warp (`points`: (G, 2) frame pixels) and of the RANSAC spline alone, reference pixels."""
+    from ..scoring import correct_matches
+
+    kept = fit.ransac.inliers
+    correct = int(correct_matches(template.keypoints.xy[fit.i0[kept]], target.to_ref[fit.i1[kept]]).sum())
+    truth, grid = template.truth, template.grid
+    grid_error = _grid_error(truth, target.name, points, grid)
+    return dict(
+        ms=correct / max(min(len(template.keypoints), len(target.keypoints)), 1),
+        precision=correct / kept.sum() if kept.any() else 0.0,
+        grid_error_px=grid_error,
+        grid_error_tps_px=(grid_error if warp is fit.ransac.warp
+                           else _grid_error(truth, target.name, fit.ransac.warp(grid), grid)),
+    )
 
 
 def _grid_error(truth, target: str, pts: np.ndarray, grid: np.ndarray) -> float:
@@ -655,8 +794,6 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
     non-empty `out` needs `overwrite`. Frames that could not be described are listed in
     `tracking.md` and appended as "sequence/frame" to `skipped` when a list is given. Returns the csv
     path and the table."""
-    import time
-
     import imageio.v2 as imageio
 
     from ..inputs import check_tps_dir

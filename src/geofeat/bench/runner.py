@@ -21,6 +21,7 @@ import json
 import multiprocessing
 import time
 import traceback
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -300,14 +301,45 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
     reasons printed)."""
     out = Path(out)
     csv_path = out / "results.csv"
-    config_path = out / "config.json"
-    resume = csv_path.is_file() and not overwrite
     if not csv_path.is_file():
         check_out_dir(out, overwrite)  # a non-empty folder without results.csv is not a bench to resume
     elif out.exists() and not out.is_dir():
         raise ValueError(f"out: {out} is a file, not a folder")
     folders = [str(f) for f in find_sequences(datasets, unique_names=True)]
     check_tps_dir(config.tps_dir)
+    done = _open_results(out, config, overwrite, progress)
+    work = []
+    for folder in folders:
+        name = Path(folder).name
+        todo = tuple(d for d in config.methods if (name, d) not in done)
+        if todo:
+            work.append((folder, todo))
+    skipped = len(folders) - len(work)
+    if skipped and progress:
+        tqdm.write(f"bench: {skipped} sequence(s) already in {csv_path}, skipped (--overwrite to redo)")
+    failed = []
+    bar = tqdm(total=len(work), desc="bench", unit="seq", disable=not progress)
+
+    def record(folder: str, rows: list[dict] | None, error: str | None) -> None:
+        if error is not None:
+            failed.append(Path(folder).name)
+            tqdm.write(f"FAILED {Path(folder).name}: {error.splitlines()[0]}")
+        else:
+            _append_rows(csv_path, rows)
+        bar.update(1)
+
+    _run_all(work, config, workers, scheduler, record)
+    bar.close()
+    return csv_path, failed
+
+
+def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: bool) -> set[tuple[str, str]]:
+    """Make OUT/results.csv ready for `run_benchmark`: resume it (same settings and columns; a row cut
+    short is dropped) unless `overwrite`, else start it with its header; write OUT/config.json and
+    record both files in the manifest. Returns the (sequence, descriptor) results already there."""
+    csv_path = out / "results.csv"
+    config_path = out / "config.json"
+    resume = csv_path.is_file() and not overwrite
     header = None
     if csv_path.is_file():
         with open(csv_path, newline="") as fh:
@@ -338,41 +370,26 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
     with atomic_file(config_path) as tmp:
         tmp.write_text(json.dumps(asdict(config), indent=1))
     add_to_manifest(out, ["results.csv", "config.json"])
-    work = []
-    for folder in folders:
-        name = Path(folder).name
-        todo = tuple(d for d in config.methods if (name, d) not in done)
-        if todo:
-            work.append((folder, todo))
-    skipped = len(folders) - len(work)
-    if skipped and progress:
-        tqdm.write(f"bench: {skipped} sequence(s) already in {csv_path}, skipped (--overwrite to redo)")
-    failed = []
+    return done
 
-    def record(folder, rows, error, bar):
-        if error is not None:
-            failed.append(Path(folder).name)
-            tqdm.write(f"FAILED {Path(folder).name}: {error.splitlines()[0]}")
-        else:
-            _append_rows(csv_path, rows)
-        bar.update(1)
 
-    bar = tqdm(total=len(work), desc="bench", unit="seq", disable=not progress)
+def _run_all(work: list[tuple[str, tuple[str, ...]]], config: BenchConfig, workers: int, scheduler: str | None,
+             record: Callable[[str, list[dict] | None, str | None], None]) -> None:
+    """`_run_one` on every (sequence folder, descriptors) of `work`, on a dask scheduler, in `workers`
+    processes, or here; `record(folder, rows, error)` is called with each result as it finishes."""
     if scheduler:
         from dask.distributed import Client, as_completed as dask_completed
 
         with Client(scheduler) as client:
             futures = [client.submit(_run_one, f, config, todo, pure=False) for f, todo in work]
             for fut in dask_completed(futures):
-                record(*fut.result(), bar)
+                record(*fut.result())
     elif workers > 1:
         # spawn, not fork: the numba/OpenMP thread pool of this process must not be forked
         with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
             futures = [pool.submit(_run_one, f, config, todo) for f, todo in work]
             for fut in as_completed(futures):
-                record(*fut.result(), bar)
+                record(*fut.result())
     else:
         for f, todo in work:
-            record(*_run_one(f, config, todo), bar)
-    bar.close()
-    return csv_path, failed
+            record(*_run_one(f, config, todo))

@@ -224,8 +224,18 @@ def _write_frame(out: Path, name: str, tps_inv: ThinPlateSpline, ev: _Warped) ->
     cv2.imwrite(str(out / f"{name}_SSIM.png"), np.rint(ev.ssim * 255).astype(np.uint8))
 
 
-def _frame(seq: Sequence, name: str, ref: RGBDFrame, ref_mask, lms, config: GroundTruthConfig, out: Path,
-           zrange) -> FrameReport:
+def _frame(seq: Sequence, name: str, ref: RGBDFrame, ref_mask: np.ndarray, lms: dict, config: GroundTruthConfig,
+           out: Path) -> FrameReport:
+    """Ground truth of target frame `name`: a robust spline through the landmarks both frames see,
+    optionally refined photometrically, judged (`_refinement_failures`, `_not_finite`) and, when
+    good, written to `out` (`_write_frame`, and `<name>_overlay.png`).
+
+    Args:
+        ref: the reference frame; ref_mask: its (H, W) bool object mask.
+        lms: {frame name: (ids (L,), xy (L, 2) pixels, visible (L,) bool)} of every frame.
+    Returns:
+        the frame's `FrameReport` (status "failed" with a reason when no ground truth was written).
+    """
     t0 = time.perf_counter()
     rep = FrameReport(frame=name)
     ids_r, xy_r, vis_r = lms[seq.reference]
@@ -279,24 +289,12 @@ def _frame(seq: Sequence, name: str, ref: RGBDFrame, ref_mask, lms, config: Grou
         return rep
     rep.ssim_before = float(before.ssim[common_mask].mean())
     rep.ssim_after = float(ev.ssim[common_mask].mean())
-    if config.refine:
-        reasons = []
-        if rep.cost_after > rep.cost_before + MAX_COST_RISE:
-            reasons.append(f"photometric cost rose {rep.cost_before:.3f} -> {rep.cost_after:.3f}")
-        if rep.ssim_after < rep.ssim_before - MAX_SSIM_DROP:
-            reasons.append(f"SSIM fell {rep.ssim_before:.3f} -> {rep.ssim_after:.3f}")
-        if folded > MAX_FOLDED_FRACTION:
-            reasons.append(f"the map folds over at {folded:.0%} of the control points")
-        if rep.landmark_median_px > MAX_LANDMARK_MEDIAN_PX:
-            reasons.append(f"landmark residuals median {rep.landmark_median_px:.1f} px > {MAX_LANDMARK_MEDIAN_PX} px")
-        if reasons:
-            rep.status, rep.reason = "failed", "refinement diverged: " + "; ".join(reasons)
-            rep.seconds = time.perf_counter() - t0
-            return rep
-    numbers = {k: v for k, v in asdict(rep).items() if isinstance(v, float) and k not in ("cost_before", "cost_after")}
-    if config.refine:
-        numbers.update(cost_before=rep.cost_before, cost_after=rep.cost_after)
-    not_finite = [k for k, v in numbers.items() if not np.isfinite(v)]
+    reasons = _refinement_failures(rep, folded) if config.refine else []
+    if reasons:
+        rep.status, rep.reason = "failed", "refinement diverged: " + "; ".join(reasons)
+        rep.seconds = time.perf_counter() - t0
+        return rep
+    not_finite = _not_finite(rep, config.refine)
     if not_finite:  # a NaN in a report is a failure, never "ok"
         rep.status, rep.reason = "failed", f"not finite: {', '.join(not_finite)}"
         rep.seconds = time.perf_counter() - t0
@@ -305,6 +303,32 @@ def _frame(seq: Sequence, name: str, ref: RGBDFrame, ref_mask, lms, config: Grou
     cv2.imwrite(str(out / f"{name}_overlay.png"), _overlay(tgt, ev, lines, p_tgt[inl], p_tgt[~inl]))
     rep.seconds = time.perf_counter() - t0
     return rep
+
+
+def _refinement_failures(rep: FrameReport, folded: float) -> list[str]:
+    """Why a refined frame is rejected ([] when it is kept): the photometric cost rose by more than
+    MAX_COST_RISE, SSIM fell by more than MAX_SSIM_DROP, the map folds over at more than
+    MAX_FOLDED_FRACTION of the control points near the object (`folded`, a fraction), or the landmark
+    residuals' median exceeds MAX_LANDMARK_MEDIAN_PX pixels."""
+    reasons = []
+    if rep.cost_after > rep.cost_before + MAX_COST_RISE:
+        reasons.append(f"photometric cost rose {rep.cost_before:.3f} -> {rep.cost_after:.3f}")
+    if rep.ssim_after < rep.ssim_before - MAX_SSIM_DROP:
+        reasons.append(f"SSIM fell {rep.ssim_before:.3f} -> {rep.ssim_after:.3f}")
+    if folded > MAX_FOLDED_FRACTION:
+        reasons.append(f"the map folds over at {folded:.0%} of the control points")
+    if rep.landmark_median_px > MAX_LANDMARK_MEDIAN_PX:
+        reasons.append(f"landmark residuals median {rep.landmark_median_px:.1f} px > {MAX_LANDMARK_MEDIAN_PX} px")
+    return reasons
+
+
+def _not_finite(rep: FrameReport, refined: bool) -> list[str]:
+    """Names of the report's float figures that are NaN or infinite (the photometric costs only when
+    the frame was `refined`)."""
+    numbers = {k: v for k, v in asdict(rep).items() if isinstance(v, float) and k not in ("cost_before", "cost_after")}
+    if refined:
+        numbers.update(cost_before=rep.cost_before, cost_after=rep.cost_after)
+    return [k for k, v in numbers.items() if not np.isfinite(v)]
 
 
 def generate_ground_truth(sequence: str | Path | Sequence, out: str | Path, config: GroundTruthConfig | None = None,
@@ -337,7 +361,6 @@ def generate_ground_truth(sequence: str | Path | Sequence, out: str | Path, conf
     if not ref_mask.any():
         raise ValueError(f"sequence {seq.name}: the reference object mask is empty (landmarks without depth in "
                          f"range, or --margin {config.margin_px:g} too small)")
-    zrange = _depth_range(ref, xy_r[vis_r], config.depth_margin_m)
     names = seq.targets
     if progress:
         from tqdm import tqdm
@@ -345,7 +368,7 @@ def generate_ground_truth(sequence: str | Path | Sequence, out: str | Path, conf
         names = tqdm(names, desc=f"groundtruth {seq.name}", unit="frame")
     with output_folder(out) as tmp:
         cv2.imwrite(str(tmp / f"{seq.reference}_objmask.png"), ref_mask.astype(np.uint8) * 255)
-        reports = [_frame(seq, name, ref, ref_mask, lms, config, tmp, zrange) for name in names]
+        reports = [_frame(seq, name, ref, ref_mask, lms, config, tmp) for name in names]
         _write_report(tmp, seq, config, reports)
     return reports
 
