@@ -2,6 +2,7 @@
 chosen and named clearly, and the ONNX path does not import torch. No timings (see
 benchmarks/bench_pipeline.py)."""
 
+import importlib.util
 import json
 import os
 import subprocess
@@ -63,10 +64,17 @@ def test_fp32_equals_torch(kinect_pair, torch_net):
         assert (got[~valid] == 0).all()
 
 
-def test_int8_is_close_and_matches_like_torch(kinect_pair, torch_net):
+def _needs(backend: str) -> None:
+    if backend.startswith("openvino"):
+        pytest.importorskip("openvino")
+
+
+@pytest.mark.parametrize("backend", ["onnx-int8", "openvino-int8"])
+def test_int8_is_close_and_matches_like_torch(kinect_pair, torch_net, backend):
+    _needs(backend)
     a, b = kinect_pair
     assert len(a) >= 1500
-    int8 = GeoPatch(backend="onnx-int8")
+    int8 = GeoPatch(backend=backend)
     ref_a, ref_b = torch_net.describe(a), torch_net.describe(b)
     got_a, got_b = int8.describe(a), int8.describe(b)
     cosine = np.concatenate([(got_a * ref_a).sum(1), (got_b * ref_b).sum(1)])
@@ -79,11 +87,12 @@ def test_int8_is_close_and_matches_like_torch(kinect_pair, torch_net):
     assert agree >= 0.95, agree
 
 
-@pytest.mark.parametrize("backend", ["onnx", "onnx-int8"])
+@pytest.mark.parametrize("backend", ["onnx", "onnx-int8", "openvino-int8"])
 def test_rotated_frame_gives_the_same_descriptors(kinect_pair, backend):
     """The same points seen in the frame and in its 90-degree roll get descriptors nearer to each
     other than to other points' (as with torch), and column shifts by multiples of 4 (the two
     pooling strides) leave the fp32 descriptors unchanged."""
+    _needs(backend)
     a, b = kinect_pair
     g = GeoPatch(backend=backend)
     da, db = g.describe(a), g.describe(b)
@@ -105,9 +114,28 @@ def test_backend_names_and_the_environment_variable(monkeypatch, tmp_path):
     with pytest.raises(ValueError, match=BACKEND_ENV):
         GeoPatch()
     monkeypatch.delenv(BACKEND_ENV)
-    assert GeoPatch(device="cpu").backend in ("onnx", "onnx-int8")
+    expected = "openvino-int8" if importlib.util.find_spec("openvino") else "onnx-int8"
+    assert GeoPatch(device="cpu").backend == expected
     with pytest.raises(ValueError, match="CPU"):
         GeoPatch(backend="onnx", device="cuda")
+
+
+def test_openvino_runs_the_int8_model_like_onnxruntime(kinect_pair):
+    """OpenVINO and ONNX Runtime run the same int8 model: descriptors within 0.03, cosine > 0.99, and
+    the same nearest neighbour (frame -> roll) for nearly every point."""
+    pytest.importorskip("openvino")
+    a, b = kinect_pair
+    ort, ov = GeoPatch(backend="onnx-int8"), GeoPatch(backend="openvino-int8", batch_size=100)
+    assert ov.config == ort.config
+    da_ort, db_ort = ort.describe(a), ort.describe(b)
+    da_ov, db_ov = ov.describe(a), ov.describe(b)
+    assert np.abs(da_ov - da_ort).max() < 0.03
+    assert (da_ov * da_ort).sum(1).min() > 0.99
+
+    def nearest(d0, d1):
+        return np.argmin(((d0[:, None] - d1[None]) ** 2).sum(-1), axis=1)
+
+    assert (nearest(da_ov, db_ov) == nearest(da_ort, db_ort)).mean() >= 0.99
 
 
 def test_user_weights_use_torch_or_are_exported_on_the_fly(tmp_path):
@@ -136,7 +164,7 @@ def test_onnx_backend_does_not_import_torch():
     code = ("import sys, numpy as np, geofeat\n"
             "g = geofeat.make_descriptor('geopatch')\n"
             "f = g.compute(geofeat.read_demo_frame(), np.array([[320.0, 240.0], [300.0, 200.0]]))\n"
-            "assert g.backend.startswith('onnx') and f.descriptors.shape == (2, 128)\n"
+            "assert g.backend in ('onnx-int8', 'openvino-int8') and f.descriptors.shape == (2, 128)\n"
             "assert 'torch' not in sys.modules, 'torch was imported'\n")
     env = {k: v for k, v in os.environ.items() if k != BACKEND_ENV}
     result = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
