@@ -11,7 +11,7 @@ from geofeat.bench.report import read_results
 from geofeat.bench.runner import BenchConfig, run_benchmark
 from geofeat.detectors.geokey import GeoKeyModel, candidates, detect_geokey, load_geokey, suppress
 from geofeat.sim import simulate_sequence
-from geofeat.train.detector import choose_model, fit, mean_ms, sequence_samples
+from geofeat.train.detector import choose_model, fit, mean_ms, sequence_samples, with_level_bias
 
 from sheets import K_SHEET, make_texture, project_bent, project_flat, render_bent, render_flat
 
@@ -150,20 +150,36 @@ def test_training_labels_and_same_seed_same_weights(tiny, tmp_path):
     assert np.all(y_m <= y_r) and y_m.sum() > 0
 
 
-def test_the_suppression_radius_is_chosen_by_the_mean_score_over_keypoint_counts(tiny):
+def test_the_suppression_radius_and_level_bias_are_chosen_by_the_mean_score_over_keypoint_counts(tiny):
     shipped = load_geokey()
     model, results = choose_model({"shipped": shipped}, [tiny / "a-deform"], counts=(100, 300), radii=(2.0, 5.0),
-                                  progress=False)
-    assert set(results) == {("shipped", 2.0), ("shipped", 5.0)}
+                                  level_biases=(0.0, -3.0), progress=False)
+    stage1 = max([("shipped", 2.0), ("shipped", 5.0)], key=lambda key: mean_ms(results[key]))
+    assert set(results) == {("shipped", 2.0), ("shipped", 5.0), ("shipped, level 1 -3", stage1[1])}
     for per_count in results.values():
         assert set(per_count) == {100, 300}
         for r in per_count.values():
             assert 0 <= r["ms"] <= r["repeatability"] <= 1
     best = max(results, key=lambda key: mean_ms(results[key]))
     assert model.nms_radius == best[1]
-    np.testing.assert_array_equal(model.linear, shipped.linear)
+    expected = with_level_bias(shipped, -3.0) if best[0].endswith("-3") else shipped
+    np.testing.assert_array_equal(model.linear, expected.linear)
     with pytest.raises(ValueError, match="keypoints"):
         choose_model({"shipped": shipped}, [tiny / "a-deform"], counts=(0,), progress=False)
+
+
+def test_a_level_bias_moves_half_resolution_candidates_only(tiny):
+    frame = geofeat.read_sequence(tiny / "a-deform").frame(0)
+    shipped = load_geokey()
+    cands = candidates(frame)
+    from geofeat.detectors.geokey import candidate_features
+
+    x = candidate_features(frame, cands, depth_cues=shipped.uses_depth_cues)
+    delta = with_level_bias(shipped, -1.0).score(x) - shipped.score(x)
+    d0, d1 = delta[cands.level == 0], delta[cands.level == 1]
+    assert len(d0) and len(d1)
+    np.testing.assert_allclose(d0, d0[0], atol=1e-4)  # one shift per level: the ranking within a level stays
+    np.testing.assert_allclose(d1 - d0[0], -1.0, atol=1e-4)
 
 
 def test_bench_runs_with_both_detectors(tiny, tmp_path):

@@ -26,7 +26,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Train GeoKey and print its validation table."""
-    from ..train.detector import train_detector
+    from ..train.detector import mean_ms, train_detector
 
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     counts = tuple(args.keypoints)
@@ -34,8 +34,9 @@ def run(args: argparse.Namespace) -> int:
                                     steps=args.steps, seed=args.seed, labels=args.labels)
     print("| scorer | NMS radius (px) | keypoints | GeoPatch MS | MMA | repeatability | correct matches / pair |")
     print("|---|---|---|---|---|---|---|")
+    best = max(results, key=lambda key: mean_ms(results[key]))  # what choose_model kept
     for (name, radius), per_count in results.items():
-        chosen = name == ("image + depth cues" if model.uses_depth_cues else "image cues") and radius == model.nms_radius
+        chosen = (name, radius) == best
         for n, r in per_count.items():
             print(f"| {name}{' (chosen)' if chosen else ''} | {radius:g} | {n} | {r['ms']:.3f} | {r['mma']:.3f} | "
                   f"{r['repeatability']:.3f} | {r['hits']:.0f} |")

@@ -39,6 +39,10 @@ NMS_CHOICES = (2.0, 3.0, 4.0, 5.0)
 #: (at 1024 keypoints radii 2 and 4 tie; at 2048, 2 px packs the keypoints so densely that the
 #: descriptor confuses neighbours within the protocol's 3 px).
 VALIDATION_COUNTS = (1024, 2048)
+#: Logit offsets tried on validation for the half-resolution candidates, after the radius: the
+#: training label (found again within 1 px among the other view's candidates) does not say how
+#: much less often half-resolution corners end up matched within the protocol's 3 px.
+LEVEL_BIASES = (0.0, -0.5, -1.0, -1.5)
 
 
 #: Training labels: "repeatable" (found again) or "matchable" (found again and matched by GeoPatch).
@@ -249,32 +253,58 @@ def repeatability(folders: list[Path], detector, n: int, progress: bool = False)
 
 
 def choose_model(models: dict[str, GeoKeyModel], folders: list[Path], counts: tuple[int, ...] = VALIDATION_COUNTS,
-                 radii: tuple[float, ...] = NMS_CHOICES, progress: bool = True) -> tuple[GeoKeyModel, dict]:
-    """The (model, suppression radius) with the best validation matching score of the shipped
-    GeoPatch, averaged over the keypoint counts `counts` (denser keypoints are more repeatable but
-    harder to tell apart).
+                 radii: tuple[float, ...] = NMS_CHOICES, level_biases: tuple[float, ...] = LEVEL_BIASES,
+                 progress: bool = True) -> tuple[GeoKeyModel, dict]:
+    """The scorer, suppression radius and level-1 bias with the best validation matching score of
+    the shipped GeoPatch, averaged over the keypoint counts `counts` (denser keypoints are more
+    repeatable but harder to tell apart).
 
-    Returns the chosen model (its `nms_radius` set) and {(model name, radius): {count: validation_scores}}.
+    Two stages: every (scorer, radius); then, for the best of those, each logit offset of
+    `level_biases` on the half-resolution candidates (`with_level_bias`). The entry with the best
+    mean MS over both stages is kept.
+
+    Returns the chosen model (its `nms_radius` and bias set) and {(label, radius): {count:
+    validation_scores}}, label = the scorer's name, plus ", level 1 <bias>" for the second stage.
     """
     if isinstance(counts, int):
         counts = (counts,)
     if not counts or any(int(n) <= 0 for n in counts):
         raise ValueError(f"keypoints: expected positive counts, got {counts}")
     results: dict = {}
+    candidates_by_key: dict = {}
+
+    def score(label: str, model: GeoKeyModel, radius: float) -> None:
+        per_count = {}
+        for n in counts:
+            per_count[int(n)] = validation_scores(
+                folders, lambda f, k, m=model, r=radius: detect_geokey(f, k, m, nms_radius=r), int(n))
+            if progress:
+                r = per_count[int(n)]
+                tqdm.write(f"validation {label}, NMS {radius:g} px, {n} keypoints: MS {r['ms']:.3f}, "
+                           f"MMA {r['mma']:.3f}, repeatability {r['repeatability']:.3f}")
+        results[(label, radius)] = per_count
+        candidates_by_key[(label, radius)] = model
+
     for name, model in models.items():
         for radius in radii:
-            per_count = {}
-            for n in counts:
-                per_count[int(n)] = validation_scores(
-                    folders, lambda f, k, m=model, r=radius: detect_geokey(f, k, m, nms_radius=r), int(n))
-                if progress:
-                    r = per_count[int(n)]
-                    tqdm.write(f"validation {name}, NMS {radius:g} px, {n} keypoints: MS {r['ms']:.3f}, "
-                               f"MMA {r['mma']:.3f}, repeatability {r['repeatability']:.3f}")
-            results[(name, radius)] = per_count
+            score(name, model, radius)
     name, radius = max(results, key=lambda key: mean_ms(results[key]))
-    best = models[name]
+    for bias in level_biases:
+        if bias != 0.0:
+            score(f"{name}, level 1 {bias:+g}", with_level_bias(models[name], bias), radius)
+    label, radius = max(results, key=lambda key: mean_ms(results[key]))
+    best = candidates_by_key[(label, radius)]
     return GeoKeyModel(best.mean, best.std, best.linear, best.weights, best.biases, radius), results
+
+
+def with_level_bias(model: GeoKeyModel, bias: float) -> GeoKeyModel:
+    """`model` with `bias` added to the logit of every half-resolution (level 1) candidate,
+    relative to the full-resolution ones (a change of the linear weight of the standardised
+    "level" cue)."""
+    k = CUE_NAMES.index("level")
+    linear = model.linear.copy()
+    linear[k] += np.float32(bias) * model.std[k]
+    return GeoKeyModel(model.mean, model.std, linear, model.weights, model.biases, model.nms_radius)
 
 
 def mean_ms(per_count: dict) -> float:
@@ -301,6 +331,6 @@ def train_detector(data, val, out: str | Path, n: int | tuple[int, ...] = VALIDA
                    f"{y.mean():.3f} positive ({labels})")
     models = {"image cues": fit(x, y, hidden=None, steps=steps, seed=seed, progress=progress),
               "image + depth cues": fit(x, y, hidden=hidden, steps=steps, seed=seed, progress=progress)}
-    model, results = choose_model(models, val_folders, n, radii, progress)
+    model, results = choose_model(models, val_folders, n, radii, progress=progress)
     model.save(out)
     return model, results
