@@ -277,8 +277,14 @@ class OnnxGeoPatch:
         self.config = json.loads(meta["config"])
 
     def run(self, x: np.ndarray, batch_size: int = 256) -> np.ndarray:
-        x = np.ascontiguousarray(x, dtype=np.float32)
-        if len(x) <= batch_size:
-            return self.session.run([OUTPUT], {INPUT: x})[0]
-        return np.concatenate([self.session.run([OUTPUT], {INPUT: x[s:s + batch_size]})[0]
-                               for s in range(0, len(x), batch_size)])
+        """(N, R, A) float32 patches -> (N, dim) float32 unit descriptors, `batch_size` at a time."""
+        return run_in_batches(lambda b: self.session.run([OUTPUT], {INPUT: b})[0], x, batch_size)
+
+
+def run_in_batches(infer, x: np.ndarray, batch_size: int) -> np.ndarray:
+    """`infer` ((B, R, A) float32 -> (B, dim)) over (N, R, A) patches, `batch_size` at a time, the
+    outputs stacked into one (N, dim) float32 array (the runtimes' `run`)."""
+    x = np.ascontiguousarray(x, dtype=np.float32)
+    if len(x) <= batch_size:
+        return np.asarray(infer(x), np.float32)
+    return np.concatenate([np.asarray(infer(x[s:s + batch_size]), np.float32) for s in range(0, len(x), batch_size)])

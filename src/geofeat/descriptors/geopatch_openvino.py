@@ -7,7 +7,7 @@ and keeps everything else in float32 (`INFERENCE_PRECISION_HINT = f32`: on CPUs 
 its default would run the float parts, the input z-score included, in bf16, which moved the
 descriptors by up to 0.19 in tests). On the 2-core development machine it describes the Kinect
 frame's 2030 patches in 49 ms with 2 threads against 121 ms for ONNX Runtime on the same model
-(BENCHMARKS.md, "GeoPatch through OpenVINO").
+(idle machine, load 0.3; BENCHMARKS.md, "GeoPatch through OpenVINO").
 
 Needs the `openvino` package (`pip install 'geofeat[fast]'`); without it GeoPatch falls back to
 ONNX Runtime.
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .geopatch_onnx import default_threads
+from .geopatch_onnx import default_threads, run_in_batches
 
 
 def openvino_available() -> bool:
@@ -58,7 +58,5 @@ class OpenVinoGeoPatch:
 
     def run(self, x: np.ndarray, batch_size: int = 256) -> np.ndarray:
         """(N, R, A) float32 patches -> (N, dim) float32 unit descriptors, `batch_size` at a time."""
-        x = np.ascontiguousarray(x, dtype=np.float32)
-        out = [np.array(self.request.infer({0: x[s:s + batch_size]})[0], dtype=np.float32, copy=True)
-               for s in range(0, len(x), batch_size)]
-        return np.concatenate(out) if out else np.zeros((0, int(self.config["dim"])), np.float32)
+        # the request reuses its output buffer: copy each batch's descriptors out of it
+        return run_in_batches(lambda b: np.array(self.request.infer({0: b})[0], copy=True), x, batch_size)
