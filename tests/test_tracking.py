@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
+from geofeat.apps.localfit import locally_consistent
 from geofeat.apps.tracking import (
-    check_roi, default_roi, fit_tps_ransac, ncc, roi_grid, ssim, track_sequence, write_tracking,
+    check_roi, default_roi, fit_tps_local, fit_tps_ransac, ncc, roi_grid, ssim, track_sequence, write_tracking,
 )
 from geofeat.tps import fit_tps, normalise_points
 
@@ -35,6 +36,42 @@ def test_tps_ransac_recovers_a_smooth_warp_with_half_outliers(seed):
     # sub-pixel on the inliers, against the true (noise-free) warp
     err = np.linalg.norm(fit.warp(src[~outlier]) - smooth_warp(src[~outlier]), axis=1)
     assert np.median(err) < 0.5 and np.percentile(err, 95) < 1.0
+
+
+def crumple_warp(p: np.ndarray) -> np.ndarray:
+    """A cloth shrunk to 0.55x and rippled (14 px waves, 250 px long) in both directions: smooth, but
+    no thin-plate spline through 4 matches explains more than a small part of it."""
+    x, y = p[:, 0], p[:, 1]
+    return np.stack([150 + 0.55 * x + 14 * np.sin(y / 40), 100 + 0.55 * y + 14 * np.sin(x / 40)], 1)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_local_fit_keeps_the_matches_of_a_crumpled_surface_that_global_ransac_loses(seed):
+    rng = np.random.default_rng(seed)
+    src = rng.uniform([40, 40], [600, 440], (600, 2))
+    dst = crumple_warp(src) + rng.normal(0, 0.3, (600, 2))
+    outlier = rng.permutation(600) < 300
+    dst[outlier] = rng.uniform([100, 50], [550, 400], (300, 2))  # wrong matches land on the same region
+    grid = np.stack(np.meshgrid(np.linspace(60, 580, 10), np.linspace(60, 420, 10)), -1).reshape(-1, 2)
+    local, ransac = fit_tps_local(src, dst, seed=seed), fit_tps_ransac(src, dst, seed=seed)
+    assert local.ok
+    assert (local.inliers & ~outlier).sum() >= 0.85 * 300 and (local.inliers & outlier).sum() <= 2
+    local_error = np.median(np.linalg.norm(local.warp(grid) - crumple_warp(grid), axis=1))
+    assert local_error < 1.5
+    # the global model keeps a fraction of the correct matches and misplaces the grid
+    assert (ransac.inliers & ~outlier).sum() < 0.5 * (local.inliers & ~outlier).sum()
+    assert not ransac.ok or np.median(np.linalg.norm(ransac.warp(grid) - crumple_warp(grid), axis=1)) > 5 * local_error
+
+
+def test_local_consistency_rejects_random_matches_and_checks_its_input():
+    rng = np.random.default_rng(3)
+    src, dst = rng.uniform(0, 640, (500, 2)), rng.uniform(0, 640, (500, 2))
+    assert locally_consistent(src, dst).sum() <= 5
+    assert not fit_tps_local(src, dst).ok
+    assert not locally_consistent(src[:7], src[:7] + 1).any()  # too few matches to vote
+    assert locally_consistent(src[:40], src[:40] * 0.5 + 3).all()  # an affine map: every match agrees
+    with pytest.raises(ValueError, match="same number"):
+        locally_consistent(src, dst[:10])
 
 
 def test_tps_interpolates_and_normalisation_is_hartleys():

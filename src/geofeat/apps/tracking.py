@@ -12,7 +12,10 @@ A template region of interest (ROI) of the reference frame is followed in every 
    through frames). As in Tran et al., "In defence of RANSAC for outlier rejection in deformable
    registration" (ECCV 2012), both point sets are normalised first (centroid at the origin, mean
    distance sqrt(2)), hypotheses are TPS warps fitted to small random samples, and the best is refined
-   on its inliers;
+   on its inliers. A second fit starts instead from the matches that the local affine map of their
+   template neighbours confirms (`fit_tps_local`, `geofeat.apps.localfit`), which keeps the correct
+   matches of a crumpled cloth that no single global hypothesis explains; the fit with more inliers
+   is used;
 3. per frame: matches, RANSAC inliers, inlier rate, the matching score of the kept matches (inliers
    that the bench's ground truth calls correct, over min(template, frame) keypoints as the bench's
    MS; and their precision, correct over inliers), and the photometric
@@ -53,7 +56,7 @@ if TYPE_CHECKING:
     from ..keypoints import Keypoints
 
 __all__ = [
-    "RansacResult", "TrackResult", "fit_tps_ransac",
+    "RansacResult", "TrackResult", "fit_tps_ransac", "fit_tps_local", "refit_on_inliers",
     "default_roi", "roi_grid", "similarity", "ncc", "ssim", "track_sequence", "write_tracking", "RefinedWarp",
     "refine_warp", "REFINE_MODES", "guided_matches",
 ]
@@ -154,7 +157,7 @@ def fit_tps_ransac(
     if n < max(sample_size, min_inliers, 3):
         return failed
     rng = np.random.default_rng(seed)
-    Ts, sn = normalise_points(src)
+    _, sn = normalise_points(src)
     Td, dn = normalise_points(dst)
     thr = threshold_px * Td[0, 0]  # the threshold in normalised destination units
     best = np.zeros(n, bool)
@@ -168,8 +171,34 @@ def fit_tps_ransac(
         counts = inl.sum(axis=1)
         if counts.max() > best.sum():
             best = inl[np.argmax(counts)]
+    return refit_on_inliers(src, dst, best, threshold_px, regularisation, min_inliers, refinements, max_centres)
+
+
+def refit_on_inliers(
+    src: np.ndarray,
+    dst: np.ndarray,
+    start: np.ndarray,
+    threshold_px: float = RANSAC_THRESHOLD_PX,
+    regularisation: float = TPS_REGULARISATION,
+    min_inliers: int = MIN_INLIERS,
+    refinements: int = 20,
+    max_centres: int = MAX_CENTRES,
+) -> RansacResult:
+    """Fit the smoothing TPS to a first set of inliers and grow it: refit on the matches within
+    `threshold_px` of the last fit, up to `refinements` times or until the set stops changing.
+
+    Args:
+        src, dst: (N, 2) matched pixels, template and frame.
+        start: (N,) bool first inliers (RANSAC's best hypothesis, or `locally_consistent`'s matches).
+    Returns:
+        `RansacResult`; warp None when fewer than `min_inliers` inliers remain.
+    """
+    failed = RansacResult(None, np.zeros(len(src), bool))
+    best = np.asarray(start, bool)
     if best.sum() < max(min_inliers, 3):
         return failed
+    Ts, sn = normalise_points(src)
+    Td, dn = normalise_points(dst)
     warp = None
     for _ in range(refinements):
         use = _spread(sn, best, max_centres)
@@ -184,6 +213,30 @@ def fit_tps_ransac(
     if warp is None or best.sum() < min_inliers:
         return failed
     return RansacResult(warp, np.linalg.norm(warp(src) - dst, axis=1) < threshold_px)
+
+
+def fit_tps_local(
+    src: np.ndarray,
+    dst: np.ndarray,
+    threshold_px: float = RANSAC_THRESHOLD_PX,
+    min_inliers: int = MIN_INLIERS,
+    seed: int | np.random.Generator = 0,
+) -> RansacResult:
+    """Robust TPS fit for surfaces that one global RANSAC model cannot explain (a crumpled cloth):
+    the matches that their template neighbours' local affine map confirms
+    (`geofeat.apps.localfit.locally_consistent`) are the first inliers, then `refit_on_inliers`.
+
+    Args:
+        src, dst: (N, 2) matched pixels, template and frame.
+    Returns:
+        `RansacResult` (warp None when too few matches are confirmed).
+    """
+    from .localfit import locally_consistent
+
+    src, dst = check_pairs(src, dst, 0)
+    if len(src) < max(min_inliers, 3):
+        return RansacResult(None, np.zeros(len(src), bool))
+    return refit_on_inliers(src, dst, locally_consistent(src, dst, seed=seed), threshold_px, min_inliers=min_inliers)
 
 
 def guided_matches(features0, features1, predicted0: np.ndarray, radius: float = GUIDE_RADIUS_PX) -> np.ndarray:
@@ -403,12 +456,17 @@ class TrackResult:
 #: inliers / min(n_template, n_frame) (the bench's matching score applied to the kept matches);
 #: precision: correct inliers / inliers (correct: the bench's ground truth within 3 px, `geofeat.scoring.correct_matches`);
 #: grid_error_px: median over the grid of |ground truth(tracked point) - grid point|, reference pixels;
-#: grid_error_tps_px: the same for the RANSAC spline alone (before refinement); refined: the refined
+#: grid_error_tps_px: the same for the RANSAC spline alone (before refinement); grid_error_visible_px:
+#: median over the grid points seen in the frame of |tracked point - true position|, frame pixels
+#: (simulated sequences only: the forward ground truth); visible_grid: the fraction of the grid seen
+#: in the frame. grid_error_px maps the tracked point back through the ground truth, so a grid point
+#: hidden under a fold is scored at the surface that covers it, however well it is tracked;
+#: grid_error_visible_px leaves hidden points out. refined: the refined
 #: warp was kept; ssim, ncc: the frame's confidence, template vs frame warped back inside the ROI;
 #: seconds: this descriptor's matching, RANSAC, refinement and confidence for the frame.
 TRACK_COLUMNS = ["sequence", "descriptor", "frame", "n_template", "n_frame", "matches", "inliers", "inlier_rate",
-                 "ms", "precision", "ssim", "ncc", "grid_error_px", "grid_error_tps_px", "refined", "seconds",
-                 "failed"]
+                 "ms", "precision", "ssim", "ncc", "grid_error_px", "grid_error_tps_px", "grid_error_visible_px",
+                 "visible_grid", "refined", "seconds", "failed"]
 
 
 def sequence_radius(seq: Sequence, radius: float | None) -> float:
@@ -609,10 +667,11 @@ class _Fit:
 
 def _match_and_fit(template: _Template, target: _Target, name: str, prior: Warp | None,
                    threshold_px: float, seed: int) -> _Fit:
-    """Match the template to the frame with descriptor `name` and fit a RANSAC spline: mutual nearest
+    """Match the template to the frame with descriptor `name` and fit a robust spline: mutual nearest
     neighbours and, once a previous frame was fitted (`prior`), also matches searched near where that
-    warp puts each template keypoint (`guided_matches`); the fit with more RANSAC inliers is kept (the
-    first on a tie)."""
+    warp puts each template keypoint (`guided_matches`); each match set is fitted by global RANSAC
+    (`fit_tps_ransac`) and by local affine consistency (`fit_tps_local`), and the fit with most
+    inliers is kept (the first on a tie)."""
     from ..matching import match
 
     f0, f1 = template.features[name], target.features[name]
@@ -623,9 +682,11 @@ def _match_and_fit(template: _Template, target: _Target, name: str, prior: Warp 
     for matches0 in options:
         i0 = np.flatnonzero(matches0 >= 0)
         i1 = matches0[i0]
-        ransac = fit_tps_ransac(template.keypoints.xy[i0], target.keypoints.xy[i1], threshold_px=threshold_px, seed=seed)
-        if best is None or ransac.inliers.sum() > best.ransac.inliers.sum():
-            best = _Fit(i0, i1, ransac)
+        src, dst = template.keypoints.xy[i0], target.keypoints.xy[i1]
+        for fit in (fit_tps_ransac(src, dst, threshold_px=threshold_px, seed=seed),
+                    fit_tps_local(src, dst, threshold_px=threshold_px, seed=seed)):
+            if best is None or fit.inliers.sum() > best.ransac.inliers.sum():
+                best = _Fit(i0, i1, fit)
     return best
 
 
@@ -644,7 +705,8 @@ def _track_frame(template: _Template, target: _Target, name: str, prior: Warp | 
                n_frame=len(target.keypoints), matches=len(fit.i0), inliers=int(n_inliers),
                inlier_rate=n_inliers / len(fit.i0) if len(fit.i0) else 0.0, ms=float("nan"),
                precision=float("nan"), ssim=float("nan"), ncc=float("nan"), grid_error_px=float("nan"),
-               grid_error_tps_px=float("nan"), refined=False, seconds=float("nan"), failed=not fit.ransac.ok)
+               grid_error_tps_px=float("nan"), grid_error_visible_px=float("nan"), visible_grid=float("nan"),
+               refined=False, seconds=float("nan"), failed=not fit.ransac.ok)
     if not fit.ransac.ok:
         return row, None, None
     kept0, kept1 = fit.i0[fit.ransac.inliers], fit.i1[fit.ransac.inliers]  # the inliers' keypoint indices
@@ -670,12 +732,15 @@ def _truth_figures(template: _Template, target: _Target, fit: _Fit, warp: Warp, 
     correct = int(correct_matches(template.keypoints.xy[fit.i0[kept]], target.to_ref[fit.i1[kept]]).sum())
     truth, grid = template.truth, template.grid
     grid_error = _grid_error(truth, target.name, points, grid)
+    visible_error, visible_fraction = _visible_grid_error(truth, target.name, points, grid)
     return dict(
         ms=correct / max(min(len(template.keypoints), len(target.keypoints)), 1),
         precision=correct / kept.sum() if kept.any() else 0.0,
         grid_error_px=grid_error,
         grid_error_tps_px=(grid_error if warp is fit.ransac.warp
                            else _grid_error(truth, target.name, fit.ransac.warp(grid), grid)),
+        grid_error_visible_px=visible_error,
+        visible_grid=visible_fraction,
     )
 
 
@@ -683,6 +748,18 @@ def _grid_error(truth, target: str, pts: np.ndarray, grid: np.ndarray) -> float:
     """Median over the (G, 2) grid of |ground truth(tracked (G, 2) frame pixels) - grid point|, pixels."""
     g = np.linalg.norm(truth.map(target, pts)[0] - grid, axis=1)
     return float(np.nanmedian(g)) if np.isfinite(g).any() else float("nan")
+
+
+def _visible_grid_error(truth, target: str, pts: np.ndarray, grid: np.ndarray) -> tuple[float, float]:
+    """(error, fraction): the median over the grid points seen in frame `target` of |tracked point -
+    where the point truly is|, frame pixels, and the fraction of the (G, 2) grid seen there; NaN for
+    both without the simulator's exact forward ground truth (`GroundTruth.project`)."""
+    projected = truth.project(target, grid)
+    if projected is None:
+        return float("nan"), float("nan")
+    xy, visible = projected
+    error = np.linalg.norm(pts[visible] - xy[visible], axis=1)
+    return (float(np.median(error)) if len(error) else float("nan")), float(visible.mean())
 
 
 def _draw_grid(image: np.ndarray, pts: np.ndarray, side: int, colour, label: str) -> np.ndarray:
@@ -726,10 +803,11 @@ def tracking_table(rows: list[dict]) -> str:
     (over its target frames; failed frames count 0 inliers and no SSIM), then over sequences."""
     names = list(dict.fromkeys(r["descriptor"] for r in rows))
     seqs = list(dict.fromkeys(r["sequence"] for r in rows))
-    lines = ["| descriptor | inlier rate | matching score | precision | SSIM | NCC | grid error (px, median) | failed frames |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = ["| descriptor | inlier rate | matching score | precision | SSIM | NCC | grid error (px, median) "
+             "| grid error, visible points (frame px, median) | failed frames |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for name in names:
-        per = {key: [] for key in ("inlier_rate", "ms", "precision", "ssim", "ncc", "grid_error_px")}
+        per = {key: [] for key in ("inlier_rate", "ms", "precision", "ssim", "ncc", "grid_error_px", "grid_error_visible_px")}
         failed = total = 0
         for s in seqs:
             sel = [r for r in rows if r["descriptor"] == name and r["sequence"] == s]
@@ -737,12 +815,14 @@ def tracking_table(rows: list[dict]) -> str:
                 continue
             for key in ("inlier_rate", "ms", "precision", "ssim", "ncc"):
                 per[key].append(_mean(float(r[key]) for r in sel))
-            per["grid_error_px"].append(_median(float(r["grid_error_px"]) for r in sel))
+            for key in ("grid_error_px", "grid_error_visible_px"):
+                per[key].append(_median(float(r.get(key, "nan")) for r in sel))
             failed += sum(str(r["failed"]) in ("True", "1") for r in sel)
             total += len(sel)
         fmt = lambda v, d=2: "–" if not np.isfinite(v) else f"{v:.{d}f}"  # noqa: E731
         lines.append(f"| {name} | {fmt(_mean(per['inlier_rate']))} | {fmt(_mean(per['ms']))} | {fmt(_mean(per['precision']))} | "
                      f"{fmt(_mean(per['ssim']))} | {fmt(_mean(per['ncc']))} | {fmt(_mean(per['grid_error_px']), 1)} | "
+                     f"{fmt(_mean(per['grid_error_visible_px']), 1)} | "
                      f"{failed}/{total} |")
     return "\n".join(lines) + "\n"
 

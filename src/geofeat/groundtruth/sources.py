@@ -129,6 +129,23 @@ class GroundTruth:
         return np.where(valid[:, None], out, np.nan), valid
 
 
+    def project(self, target: str, xy_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Where reference pixels lie in frame `target`, seen or hidden (simulated sequences only).
+
+        Args:
+            target: a target frame name of the sequence.
+            xy_ref: (N, 2) reference pixels.
+        Returns:
+            (xy, visible): (N, 2) frame pixels where the surface point under each reference pixel
+            projects (NaN off the surface), and (N,) bool, True where that point is seen in the frame
+            (not hidden under a fold, facing the camera, inside the image); None without the
+            simulator's exact correspondences (TPS files and landmarks only map frame -> reference).
+        """
+        if not self.exact:
+            return None
+        return self.seq.correspondences(self.seq.reference, target, np.asarray(xy_ref, float).reshape(-1, 2))
+
+
 def _check_landmarks(n: int) -> None:
     if n < MIN_LANDMARKS:
         raise ValueError(f"landmarks: a thin-plate spline needs >= {MIN_LANDMARKS} landmarks visible in both frames, got {n}")
