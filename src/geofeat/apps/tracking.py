@@ -14,8 +14,8 @@ A template region of interest (ROI) of the reference frame is followed in every 
    distance sqrt(2)), hypotheses are TPS warps fitted to small random samples, and the best is refined
    on its inliers. A second fit starts instead from the matches that the local affine map of their
    template neighbours confirms (`fit_tps_local`, `geofeat.apps.localfit`), which keeps the correct
-   matches of a crumpled cloth that no single global hypothesis explains; the fit with more inliers
-   is used;
+   matches of a crumpled cloth that no single global hypothesis explains; it replaces the RANSAC fit
+   when it keeps at least 10 % more inliers;
 3. per frame: matches, RANSAC inliers, inlier rate, the matching score of the kept matches (inliers
    that the bench's ground truth calls correct, over min(template, frame) keypoints as the bench's
    MS; and their precision, correct over inliers), and the photometric
@@ -85,6 +85,9 @@ REFINE_MODES = ("none", "photometric")
 MAX_FOLDED_FRACTION = 0.05
 #: `geofeat track --refine` default (chosen by grid error on simulated sequences, see BENCHMARKS.md).
 DEFAULT_REFINE = "photometric"
+#: The local-consistency fit (`fit_tps_local`) replaces the global RANSAC fit of a match set only when
+#: it keeps this many times RANSAC's inliers: on a near tie the global, smoother model stays.
+LOCAL_FIT_MARGIN = 1.1
 #: Guided matching: a template keypoint's partner is searched among the frame's keypoints within
 #: this many pixels of where the last successful warp puts it, pixels.
 GUIDE_RADIUS_PX = 40.0
@@ -670,8 +673,9 @@ def _match_and_fit(template: _Template, target: _Target, name: str, prior: Warp 
     """Match the template to the frame with descriptor `name` and fit a robust spline: mutual nearest
     neighbours and, once a previous frame was fitted (`prior`), also matches searched near where that
     warp puts each template keypoint (`guided_matches`); each match set is fitted by global RANSAC
-    (`fit_tps_ransac`) and by local affine consistency (`fit_tps_local`), and the fit with most
-    inliers is kept (the first on a tie)."""
+    (`fit_tps_ransac`) and by local affine consistency (`fit_tps_local`; used when it keeps
+    `LOCAL_FIT_MARGIN` times RANSAC's inliers), and the match set whose fit keeps more inliers wins
+    (the first on a tie)."""
     from ..matching import match
 
     f0, f1 = template.features[name], target.features[name]
@@ -683,10 +687,12 @@ def _match_and_fit(template: _Template, target: _Target, name: str, prior: Warp 
         i0 = np.flatnonzero(matches0 >= 0)
         i1 = matches0[i0]
         src, dst = template.keypoints.xy[i0], target.keypoints.xy[i1]
-        for fit in (fit_tps_ransac(src, dst, threshold_px=threshold_px, seed=seed),
-                    fit_tps_local(src, dst, threshold_px=threshold_px, seed=seed)):
-            if best is None or fit.inliers.sum() > best.ransac.inliers.sum():
-                best = _Fit(i0, i1, fit)
+        fit = fit_tps_ransac(src, dst, threshold_px=threshold_px, seed=seed)
+        local = fit_tps_local(src, dst, threshold_px=threshold_px, seed=seed)
+        if local.inliers.sum() > LOCAL_FIT_MARGIN * fit.inliers.sum():
+            fit = local
+        if best is None or fit.inliers.sum() > best.ransac.inliers.sum():
+            best = _Fit(i0, i1, fit)
     return best
 
 
