@@ -81,8 +81,11 @@ GRID_SIDE = 10
 #: Dense refinement after RANSAC + TPS (`track_sequence(refine=...)`).
 REFINE_MODES = ("none", "photometric")
 #: A refined map is rejected when it folds over (Jacobian determinant <= 0) at more than this fraction
-#: of the control points inside the ROI (as `geofeat groundtruth` rejects a refined frame).
-MAX_FOLDED_FRACTION = 0.05
+#: of the control points inside the ROI. A crumpled cloth hides parts of itself, so its true template ->
+#: frame map does fold; 0.25 instead of `geofeat groundtruth`'s 0.05 let the refinement follow the
+#: `hard` zoom-out sequences (visible-grid error 2.52 -> 1.38 px on scale-0) and changed nothing on
+#: the other sequences (BENCHMARKS.md, "Crumpled cloth").
+MAX_FOLDED_FRACTION = 0.25
 #: `geofeat track --refine` default (chosen by grid error on simulated sequences, see BENCHMARKS.md).
 DEFAULT_REFINE = "photometric"
 #: The local-consistency fit (`fit_tps_local`) replaces the global RANSAC fit of a match set only when
