@@ -136,6 +136,25 @@ def sequence(tmp_path_factory):
                              width=320, height=240, progress=False)
 
 
+def test_visible_grid_error_scores_true_positions_zero_and_a_shift_by_its_length(sequence):
+    from geofeat.apps.tracking import _visible_grid_error
+    from geofeat.groundtruth.sources import GroundTruth
+    from geofeat.io import read_sequence
+
+    seq = read_sequence(sequence)
+    truth = GroundTruth(seq, None)
+    grid = roi_grid((100, 70, 220, 170))
+    target = seq.targets[-1]
+    xy, visible = truth.project(target, grid)
+    assert visible.mean() > 0.5
+    error, fraction = _visible_grid_error(truth, target, xy, grid)
+    assert error == pytest.approx(0.0, abs=1e-9) and fraction == pytest.approx(visible.mean())
+    assert _visible_grid_error(truth, target, xy + [3.0, 4.0], grid)[0] == pytest.approx(5.0)
+    # the reference frame maps onto itself
+    same, seen = truth.project(seq.reference, grid)
+    np.testing.assert_allclose(same[seen], grid[seen], atol=0.05)
+
+
 def test_track_simulated_sequence_outputs(sequence, tmp_path):
     import imageio.v2 as imageio
 
