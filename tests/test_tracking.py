@@ -287,3 +287,22 @@ def test_paper_table_iv_rows_follow_the_descriptors_tracked():
     assert "| geopatch (paper) | 0.49 | 0.45 | 0.29 |" in text and "| tfeat-sim (paper) | 0.31 | 0.37 | 0.29 |" in text
     assert "sift (paper)" not in text
     assert paper_table_iv(["sift", "orb"]) == ""
+
+
+def test_tracking_table_counts_a_failed_frame_as_lost_not_as_missing():
+    from geofeat.apps.tracking import TRACK_COLUMNS, tracking_table
+
+    def row(descriptor, error, failed=False):
+        r = {c: "nan" for c in TRACK_COLUMNS}
+        r.update(sequence="s", descriptor=descriptor, frame="f", failed=str(failed), grid_error_px=str(error),
+                 grid_error_visible_px=str(error))
+        return r
+
+    rows = [row("fails", 0.5), row("fails", 0.5), row("fails", "nan", failed=True),
+            row("poor", 0.5), row("poor", 30.0), row("poor", 30.0),
+            row("lost", 0.5), row("lost", "nan", True), row("lost", "nan", True)]
+    table = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[1:-1]] for line in tracking_table(rows).splitlines()[2:]}
+    # median of (0.5, 0.5, lost) = 0.5; of (0.5, 30, 30) = 30; two frames of three lost: the sequence is lost
+    assert table["fails"][6:9] == ["0.5", "0.5", "1/3"]
+    assert table["poor"][6:8] == ["30.0", "30.0"]
+    assert table["lost"][6:8] == ["lost", "lost"]

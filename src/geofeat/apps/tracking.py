@@ -803,13 +803,22 @@ def grid_frames(seq: Sequence, result: TrackResult, scale: float = 0.5) -> list[
 
 
 def _mean(values) -> float:
+    """Mean of the non-NaN values (an inf, a lost sequence, makes it inf), NaN when there is none."""
     v = np.asarray([x for x in values], float)
-    return float(np.nanmean(v)) if np.isfinite(v).any() else float("nan")
+    v = v[~np.isnan(v)]
+    return float(v.mean()) if len(v) else float("nan")
+
+
+def _failed(row: dict) -> bool:
+    return str(row["failed"]) in ("True", "1")
 
 
 def tracking_table(rows: list[dict]) -> str:
     """Markdown table like the paper's Table IV: per descriptor, each metric averaged per sequence
-    (over its target frames; failed frames count 0 inliers and no SSIM), then over sequences."""
+    (over its target frames; failed frames count 0 inliers and no SSIM), then over sequences. The
+    grid errors are medians per sequence in which a failed frame counts as lost (an infinite error,
+    so that failing never scores better than a poor fit), then averaged over sequences ("lost" when
+    a sequence lost half of its frames or more)."""
     names = list(dict.fromkeys(r["descriptor"] for r in rows))
     seqs = list(dict.fromkeys(r["sequence"] for r in rows))
     lines = ["| descriptor | inlier rate | matching score | precision | SSIM | NCC | grid error (px, median) "
@@ -824,11 +833,11 @@ def tracking_table(rows: list[dict]) -> str:
                 continue
             for key in ("inlier_rate", "ms", "precision", "ssim", "ncc"):
                 per[key].append(_mean(float(r[key]) for r in sel))
-            for key in ("grid_error_px", "grid_error_visible_px"):
-                per[key].append(_median(float(r.get(key, "nan")) for r in sel))
-            failed += sum(str(r["failed"]) in ("True", "1") for r in sel)
+            for key in ("grid_error_px", "grid_error_visible_px"):  # a failed frame is lost: an infinite error
+                per[key].append(_median(np.inf if _failed(r) else float(r.get(key, "nan")) for r in sel))
+            failed += sum(_failed(r) for r in sel)
             total += len(sel)
-        fmt = lambda v, d=2: "–" if not np.isfinite(v) else f"{v:.{d}f}"  # noqa: E731
+        fmt = lambda v, d=2: "lost" if v == np.inf else "–" if not np.isfinite(v) else f"{v:.{d}f}"  # noqa: E731
         lines.append(f"| {name} | {fmt(_mean(per['inlier_rate']))} | {fmt(_mean(per['ms']))} | {fmt(_mean(per['precision']))} | "
                      f"{fmt(_mean(per['ssim']))} | {fmt(_mean(per['ncc']))} | {fmt(_mean(per['grid_error_px']), 1)} | "
                      f"{fmt(_mean(per['grid_error_visible_px']), 1)} | "
@@ -864,8 +873,10 @@ def paper_table_iv(names) -> str:
 
 
 def _median(values) -> float:
+    """Median of the non-NaN values (inf counts: a lost frame), NaN when there is none."""
     v = np.asarray([x for x in values], float)
-    return float(np.nanmedian(v)) if np.isfinite(v).any() else float("nan")
+    v = v[~np.isnan(v)]
+    return float(np.median(v)) if len(v) else float("nan")
 
 
 def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi=None, n_keypoints: int = N_KEYPOINTS,
