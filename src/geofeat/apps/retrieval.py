@@ -23,7 +23,7 @@
    Acc@K is the fraction of the top K results of the query's class, averaged over queries, with a
    95 % bootstrap interval over queries (`bootstrap_interval`).
 6. `evaluate_descriptor`: unless K is given, it is chosen per descriptor by validation: the queries
-   are split at random in two halves; the K of `WORD_CANDIDATES` (5 to 1280 words, those below the
+   are split at random in two halves; the K of `WORD_CANDIDATES` (5 to 2560 words, those below the
    number of sampled descriptors) with the best mean Acc@1..10 on the validation half is kept, and
    Acc@K is reported on the other (test) half only.
 """
@@ -55,7 +55,7 @@ N_VOCABULARY_SAMPLES = 10_000
 #: Largest K of Acc@K.
 MAX_K = 10
 #: Vocabulary sizes tried by validation when K is not given.
-WORD_CANDIDATES = (5, 10, 20, 40, 80, 160, 320, 640, 1280)
+WORD_CANDIDATES = (5, 10, 20, 40, 80, 160, 320, 640, 1280, 2560)
 #: Word weightings of `weight_histograms`, and the distance `search` compares their vectors with.
 WEIGHTINGS = {"none": "l2", "hellinger": "l2", "tfidf": "l2", "tfidf-sqrt": "l2", "tfidf-l1": "l1"}
 #: The weighting used unless one is given (chosen on validation queries, see BENCHMARKS.md).
