@@ -9,8 +9,9 @@ import pytest
 from geofeat.features import Features
 from geofeat.matching import distance_matrix, match
 from geofeat.apps.retrieval import (
-    accuracy_at_k, bootstrap_interval, exclusion_mask, histogram, read_classes, run_retrieval, search, split_queries,
-    vocabulary,
+    DEFAULT_WEIGHTING, WEIGHTINGS, accuracy_at_k, bootstrap_interval, exclusion_mask, histogram,
+    inverse_document_frequency, read_classes, run_retrieval, search, split_queries, vocabulary, weight_histograms,
+    word_counts,
 )
 
 
@@ -41,19 +42,70 @@ def objects(kind: str, seed: int = 0):
     return images, classes
 
 
+@pytest.mark.parametrize("weighting", list(WEIGHTINGS))
 @pytest.mark.parametrize("kind", ["l2", "hamming", "hamming-rot"])
-def test_every_query_finds_its_class_first(kind):
+def test_every_query_finds_its_class_first(kind, weighting):
     images, classes = objects(kind)
     vocab = vocabulary(np.concatenate(images), words=9, seed=0)
     assert vocab.metric == kind and len(vocab) == 9
     hist = np.stack([histogram(d, vocab) for d in images])
     np.testing.assert_allclose(hist.sum(axis=1), 1.0)
+    counts = np.stack([word_counts(d, vocab) for d in images])
+    assert (counts.sum(axis=1) == 60).all()
+    np.testing.assert_allclose(counts / 60.0, hist)
+    vectors = weight_histograms(counts, weighting)
     queries = np.array([0, 4, 8])  # the first image of each object
-    nn, dist = search(hist[queries], hist, k=3, exclude=queries)
+    nn, dist = search(vectors[queries], vectors, k=3, exclude=queries, distance=WEIGHTINGS[weighting])
     assert all(q not in row for q, row in zip(queries, nn))  # the query itself is excluded
     acc = accuracy_at_k(nn, classes, np.asarray(classes)[queries])
     assert acc[0] == 1.0 and acc[2] == 1.0
     assert (np.diff(dist, axis=1) >= 0).all()
+
+
+def test_tfidf_weights_and_normalisation():
+    counts = np.array([[5, 2, 0, 0],
+                       [3, 0, 4, 0],
+                       [1, 2, 0, 0],
+                       [7, 0, 1, 0],
+                       [0, 0, 0, 0]])  # word 0 in 4 of 5 frames, word 1 in 2, word 2 in 2, word 3 in none
+    idf = inverse_document_frequency(counts[:4])
+    assert idf[0] == 0.0 and idf[3] == 0.0  # a word in every frame (or in none) weighs nothing
+    np.testing.assert_allclose(idf[1:3], np.log(2))
+    for weighting in ("tfidf", "tfidf-sqrt", "tfidf-l1"):
+        v = weight_histograms(counts[:4], weighting)
+        np.testing.assert_array_equal(v[:, 0], 0.0)  # the word in every database frame adds nothing
+        order = 1 if weighting == "tfidf-l1" else 2
+        np.testing.assert_allclose(np.linalg.norm(v, ord=order, axis=1), 1.0)
+    # idf from the database (the 5 frames): word 0 is then informative, and a frame of no words stays zero
+    v = weight_histograms(counts, "tfidf")
+    assert (v[:4, 0] > 0).all() and (v[4] == 0).all()
+    tf = counts[:4] / counts[:4].sum(1, keepdims=True)
+    np.testing.assert_allclose(weight_histograms(counts[:4], "none"), tf)
+    np.testing.assert_allclose(weight_histograms(counts[:4], "hellinger"), np.sqrt(tf))
+    np.testing.assert_allclose(np.linalg.norm(weight_histograms(counts[:4], "hellinger"), axis=1), 1.0)
+    # the same counts scaled (a frame with more keypoints) give the same vector
+    np.testing.assert_allclose(weight_histograms(3 * counts[:4], DEFAULT_WEIGHTING, idf),
+                               weight_histograms(counts[:4], DEFAULT_WEIGHTING, idf))
+    with pytest.raises(ValueError, match="weighting"):
+        weight_histograms(counts, "bm25")
+    with pytest.raises(ValueError, match="idf"):
+        weight_histograms(counts, "tfidf", idf[:2])
+
+
+def test_search_distances_agree_with_brute_force():
+    rng = np.random.default_rng(4)
+    q, db = rng.random((7, 5)), rng.random((11, 5))
+    for distance, order in (("l2", 2), ("l1", 1)):
+        nn, d = search(q, db, k=11, distance=distance)
+        brute = np.linalg.norm(q[:, None] - db[None], ord=order, axis=-1)
+        np.testing.assert_array_equal(nn, np.argsort(brute, axis=1, kind="stable"))
+        np.testing.assert_allclose(d, np.sort(brute, axis=1))
+    # on L2-normalised vectors the L2 ranking is the cosine-similarity ranking
+    u, w = q / np.linalg.norm(q, axis=1, keepdims=True), db / np.linalg.norm(db, axis=1, keepdims=True)
+    nn, _ = search(u, w, k=11)
+    np.testing.assert_array_equal(np.take_along_axis(u @ w.T, nn, axis=1), -np.sort(-(u @ w.T), axis=1))
+    with pytest.raises(ValueError, match="distance"):
+        search(q, db, distance="cosine")
 
 
 def test_distance_matrix_agrees_with_match():
@@ -121,7 +173,9 @@ def three_objects(tmp_path_factory):
 
 
 def test_retrieval_on_three_simulated_objects(three_objects, tmp_path):
-    res, db = run_retrieval([three_objects], tmp_path, ("sift", "orb"), words=10, n_samples=2000, n_keypoints=300,
+    # 40 words: with tf-idf weighting a word found in every one of the 9 frames weighs nothing, and with
+    # 10 words nearly all of them are (then every vector is zero: validation rejects such small K)
+    res, db = run_retrieval([three_objects], tmp_path, ("sift", "orb"), words=40, n_samples=2000, n_keypoints=300,
                             max_k=2, include_own_sequence=True, progress=False)
     assert db.is_query.sum() == 3 and len(db.frames) == 9
     for name in ("sift", "orb"):
@@ -129,6 +183,7 @@ def test_retrieval_on_three_simulated_objects(three_objects, tmp_path):
         assert (res[name].low <= res[name].accuracy).all() and (res[name].accuracy <= res[name].high).all()
     rows = list(csv.DictReader(open(tmp_path / "retrieval.csv")))
     assert [r["descriptor"] for r in rows] == ["sift", "sift", "orb", "orb"]
+    assert {r["weighting"] for r in rows} == {DEFAULT_WEIGHTING} and {r["words"] for r in rows} == {"40"}
     assert (tmp_path / "acc_at_k.png").is_file() and cv2.imread(str(tmp_path / "top6.png")) is not None
     assert "blobs: simulator" in (tmp_path / "retrieval.md").read_text()
 
@@ -156,11 +211,15 @@ def test_retrieval_command(three_objects, tmp_path, capsys):
     assert main(args) == 0
     out = capsys.readouterr().out
     assert "Acc@1" in out and "object masks" in out and "chosen by validation" in out
+    assert f"word weighting {DEFAULT_WEIGHTING}" in out
+    assert "640:" in out and "1280:" not in out  # candidates below the 1000 sampled descriptors only
     assert main(args[:-2] + ["--words", "100000", "--out", str(tmp_path)]) == 2  # non-empty OUT refused
     assert "--overwrite" in capsys.readouterr().err
     assert main(args[:-2] + ["--words", "100000", "--out", str(tmp_path), "--overwrite"]) == 2
     assert "too few" in capsys.readouterr().err
     assert (tmp_path / "retrieval.csv").is_file()  # the failed run left the earlier results in place
+    assert main(args[:-2] + ["--words", "10", "--weighting", "none", "--out", str(tmp_path), "--overwrite"]) == 0
+    assert "word weighting none (l2 distance)" in capsys.readouterr().out
 
 
 def test_object_mask_sources(three_objects, tmp_path):
@@ -213,12 +272,14 @@ def deformed_copy(tmp_path_factory):
     return root
 
 
+@pytest.mark.parametrize("weighting, words", [("none", 10), (DEFAULT_WEIGHTING, 40)])
 def test_retrieval_leaves_out_the_query_sequence_and_ranks_the_deformed_copy_first(three_objects, deformed_copy,
-                                                                                   tmp_path):
+                                                                                   tmp_path, weighting, words):
     classes = tmp_path / "classes.csv"
     classes.write_text("sequence,class\nblobs,blobs\nblobs_folded,blobs\ncheckers,checkers\nlines,lines\n")
-    res, db = run_retrieval([three_objects, deformed_copy], tmp_path / "out", ("geopatch",), words=10,
-                            n_samples=2000, n_keypoints=300, max_k=10, classes_file=str(classes), progress=False)
+    res, db = run_retrieval([three_objects, deformed_copy], tmp_path / "out", ("geopatch",), words=words,
+                            n_samples=2000, n_keypoints=300, max_k=10, classes_file=str(classes), progress=False,
+                            weighting=weighting)
     r = res["geopatch"]
     seqs = np.asarray(db.sequences)
     # only the two 'blobs' sequences have a class mate; checkers and lines are reported and skipped

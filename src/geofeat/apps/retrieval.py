@@ -6,17 +6,26 @@
    10,000 descriptors sampled at random from all frames, under each descriptor's own distance
    (L2; Hamming; GeoBit: the minimum Hamming distance over its 16 rotations), the distance matrix
    symmetrised as (D + D^T) / 2;
-3. `histogram`: each frame becomes the L1-normalised histogram of its descriptors' nearest words;
-4. `search`: k-nearest neighbours of a query histogram among the database histograms (L2);
+3. `word_counts`: each frame becomes the counts of its descriptors' nearest words (`histogram`: the
+   same L1-normalised, the paper's), and `weight_histograms` turns the (N, K) counts of the N
+   database frames into vectors: by default (DEFAULT_WEIGHTING, "tfidf-l1", Nister & Stewenius)
+   the term frequencies times the inverse document frequency over the database frames
+   (`inverse_document_frequency`: a word in every frame weighs nothing), L1-normalised; also
+   "none" (the paper's histograms), "hellinger", "tfidf" and "tfidf-sqrt" (WEIGHTINGS; the
+   comparison on 20 objects, which chose the default on validation queries, is in BENCHMARKS.md);
+4. `search`: k-nearest neighbours of the query vectors among the database vectors under the
+   weighting's distance: L1 for "tfidf-l1", else L2 (which on the L2-normalised tf-idf vectors
+   ranks as cosine similarity);
 5. `accuracy_at_k`: queries are the reference frames; as in the paper the database holds the frames of
    the *other* sequences (`exclusion_mask`; the query's own sequence is left out unless
    `include_own_sequence`, and then only the query itself is), so that a query must find its object
    under another deformation. A query whose class has no other sequence is reported and skipped.
    Acc@K is the fraction of the top K results of the query's class, averaged over queries, with a
    95 % bootstrap interval over queries (`bootstrap_interval`).
-6. `choose_words`: unless K is given, it is chosen per descriptor by validation: the queries are split
-   at random in two halves; the K of `WORD_CANDIDATES` with the best mean Acc@1..10 on the validation
-   half is kept, and Acc@K is reported on the other (test) half only.
+6. `evaluate_descriptor`: unless K is given, it is chosen per descriptor by validation: the queries
+   are split at random in two halves; the K of `WORD_CANDIDATES` (5 to 2560 words, those below the
+   number of sampled descriptors) with the best mean Acc@1..10 on the validation half is kept, and
+   Acc@K is reported on the other (test) half only.
 """
 
 from __future__ import annotations
@@ -35,7 +44,8 @@ __all__ = [
     "Vocabulary", "vocabulary", "sample_descriptors", "histogram", "search", "accuracy_at_k", "read_classes",
     "RetrievalDatabase", "describe_datasets", "run_retrieval", "exclusion_mask", "per_query_accuracy",
     "bootstrap_interval", "split_queries", "WORD_CANDIDATES", "DescriptorResult", "evaluate_descriptor",
-    "sample_distances",
+    "sample_distances", "word_counts", "inverse_document_frequency", "weight_histograms", "WEIGHTINGS",
+    "DEFAULT_WEIGHTING",
 ]
 
 #: Visual words (the paper's K).
@@ -45,7 +55,11 @@ N_VOCABULARY_SAMPLES = 10_000
 #: Largest K of Acc@K.
 MAX_K = 10
 #: Vocabulary sizes tried by validation when K is not given.
-WORD_CANDIDATES = (5, 10, 20, 40, 80)
+WORD_CANDIDATES = (5, 10, 20, 40, 80, 160, 320, 640, 1280, 2560)
+#: Word weightings of `weight_histograms`, and the distance `search` compares their vectors with.
+WEIGHTINGS = {"none": "l2", "hellinger": "l2", "tfidf": "l2", "tfidf-sqrt": "l2", "tfidf-l1": "l1"}
+#: The weighting used unless one is given (chosen on validation queries, see BENCHMARKS.md).
+DEFAULT_WEIGHTING = "tfidf-l1"
 #: Bootstrap resamples of the queries for the 95 % intervals.
 N_BOOTSTRAP = 2000
 
@@ -118,24 +132,85 @@ def vocabulary(descriptors: np.ndarray, words: int = N_WORDS, metric: str | None
     return Vocabulary(descriptors[medoids].copy(), metric)
 
 
-def histogram(features: Features | np.ndarray, vocab: Vocabulary) -> np.ndarray:
-    """(K,) float64 L1-normalised histogram of the nearest visual word of each valid descriptor
-    (all zeros when there is none)."""
+def word_counts(features: Features | np.ndarray, vocab: Vocabulary) -> np.ndarray:
+    """(K,) int64 number of valid descriptors of `features` whose nearest visual word is each word."""
     from ..matching import match
 
     m = match(features, vocab.medoids, metric=vocab.metric)
-    words = m.matches0[m.matches0 >= 0]
-    h = np.bincount(words, minlength=len(vocab)).astype(np.float64)
+    return np.bincount(m.matches0[m.matches0 >= 0], minlength=len(vocab)).astype(np.int64)
+
+
+def histogram(features: Features | np.ndarray, vocab: Vocabulary) -> np.ndarray:
+    """(K,) float64 L1-normalised histogram of the nearest visual word of each valid descriptor
+    (all zeros when there is none)."""
+    h = word_counts(features, vocab).astype(np.float64)
     return h / h.sum() if h.sum() > 0 else h
 
 
-def search(queries: np.ndarray, database: np.ndarray, k: int = MAX_K, exclude: np.ndarray | None = None
-           ) -> tuple[np.ndarray, np.ndarray]:
-    """k-nearest neighbours (L2) of (Q, K) query histograms among (N, K) database histograms.
+def inverse_document_frequency(counts: np.ndarray) -> np.ndarray:
+    """(K,) float64 idf of each word over the (N, K) word counts of N database frames:
+    log(N / n_w), n_w the number of frames holding word w (0 for a word in every frame or in none)."""
+    counts = np.atleast_2d(np.asarray(counts))
+    frames_with = (counts > 0).sum(axis=0)
+    return np.log(len(counts) / np.maximum(frames_with, 1)) * (frames_with > 0)
+
+
+def _normalise(v: np.ndarray, order: int) -> np.ndarray:
+    """Rows of (N, K) `v` divided by their L1 or L2 norm (rows of zeros stay zero)."""
+    norm = np.linalg.norm(v, ord=order, axis=1, keepdims=True)
+    return np.divide(v, norm, out=np.zeros_like(v), where=norm > 0)
+
+
+def weight_histograms(counts: np.ndarray, weighting: str = DEFAULT_WEIGHTING, idf: np.ndarray | None = None
+                      ) -> np.ndarray:
+    """(N, K) float64 vectors of (N, K) word counts, compared by `search` under WEIGHTINGS[weighting].
+
+    With tf the L1-normalised counts (the term frequencies of `histogram`):
+      - "none": tf (the paper's histograms; L2 distance);
+      - "hellinger": sqrt(tf) (L2 distance between them is the Hellinger distance, up to sqrt 2);
+      - "tfidf": tf * idf, L2-normalised (L2 distance ranks as cosine similarity; Sivic & Zisserman);
+      - "tfidf-sqrt": sqrt(tf) * idf, L2-normalised (square roots damp repeated words, burstiness);
+      - "tfidf-l1": tf * idf, L1-normalised, compared by L1 distance (Nister & Stewenius).
+    idf: (K,) `inverse_document_frequency`; None computes it from `counts` (all of them the database).
+    """
+    if weighting not in WEIGHTINGS:
+        raise ValueError(f"weighting: expected one of {', '.join(WEIGHTINGS)}, got {weighting!r}")
+    counts = np.atleast_2d(np.asarray(counts, np.float64))
+    tf = _normalise(counts, 1)
+    if weighting == "none":
+        return tf
+    if weighting == "hellinger":
+        return np.sqrt(tf)
+    idf = inverse_document_frequency(counts) if idf is None else np.asarray(idf, np.float64)
+    if idf.shape != counts.shape[1:]:
+        raise ValueError(f"idf: expected shape {counts.shape[1:]}, got {idf.shape}")
+    if weighting == "tfidf-l1":
+        return _normalise(tf * idf, 1)
+    return _normalise((np.sqrt(tf) if weighting == "tfidf-sqrt" else tf) * idf, 2)
+
+
+def _distances(queries: np.ndarray, database: np.ndarray, distance: str) -> np.ndarray:
+    """(Q, N) float64 L2 or L1 distances between (Q, K) and (N, K) vectors, from the differences
+    themselves (exact for equal vectors), in blocks of queries of at most ~2**24 differences."""
+    if distance not in ("l2", "l1"):
+        raise ValueError(f"distance: expected 'l2' or 'l1', got {distance!r}")
+    step = max(1, 2 ** 24 // max(database.size, 1))
+    out = np.empty((len(queries), len(database)))
+    for i in range(0, len(queries), step):
+        diff = queries[i:i + step, None, :] - database[None, :, :]  # (step, N, K)
+        out[i:i + step] = np.sqrt((diff ** 2).sum(-1)) if distance == "l2" else np.abs(diff).sum(-1)
+    return out
+
+
+def search(queries: np.ndarray, database: np.ndarray, k: int = MAX_K, exclude: np.ndarray | None = None,
+           distance: str = "l2") -> tuple[np.ndarray, np.ndarray]:
+    """k-nearest neighbours of (Q, K) query vectors among (N, K) database vectors (histograms or
+    `weight_histograms`).
 
     Args:
         exclude: optional database entries never returned: (Q,) one index per query (the query
             itself; -1 = none), or a (Q, N) bool mask (True = excluded, see `exclusion_mask`).
+        distance: "l2" (Euclidean; on L2-normalised vectors it ranks as cosine similarity) or "l1".
     Returns:
         indices (Q, k) int64 and distances (Q, k) float64, nearest first (ties: lowest index first);
         k is lowered to the fewest database entries any query may return.
@@ -144,7 +219,7 @@ def search(queries: np.ndarray, database: np.ndarray, k: int = MAX_K, exclude: n
     database = np.atleast_2d(np.asarray(database, np.float64))
     if queries.shape[1] != database.shape[1]:
         raise ValueError(f"queries, database: histograms of different lengths {queries.shape} and {database.shape}")
-    d = np.sqrt(np.maximum(((queries[:, None, :] - database[None, :, :]) ** 2).sum(-1), 0.0))
+    d = _distances(queries, database, distance)
     allowed = database.shape[0]
     if exclude is not None:
         exclude = np.asarray(exclude)
@@ -377,6 +452,7 @@ class DescriptorResult:
         neighbours: (Q, k) their results, database indices, nearest first.
         per_query: (Q, k) each query's Acc@1..k.
         accuracy, low, high: (k,) Acc@K and its 95 % bootstrap interval over the queries.
+        weighting: the word weighting of `weight_histograms`.
     """
 
     words: int
@@ -387,20 +463,25 @@ class DescriptorResult:
     accuracy: np.ndarray
     low: np.ndarray
     high: np.ndarray
+    weighting: str = DEFAULT_WEIGHTING
 
 
 def evaluate_descriptor(features: list[Features], db: RetrievalDatabase, queries: np.ndarray,
                         exclude: np.ndarray, words: int | None = None, n_samples: int = N_VOCABULARY_SAMPLES,
-                        seed: int = 0, max_k: int = MAX_K, candidates: tuple[int, ...] = WORD_CANDIDATES
-                        ) -> DescriptorResult:
-    """Vocabulary, histograms, search and Acc@K of one descriptor.
+                        seed: int = 0, max_k: int = MAX_K, candidates: tuple[int, ...] = WORD_CANDIDATES,
+                        weighting: str = DEFAULT_WEIGHTING) -> DescriptorResult:
+    """Vocabulary, word counts, weighted vectors, search and Acc@K of one descriptor.
 
     Args:
-        features: one Features record per database frame.
+        features: one Features record per database frame (N frames, the whole database).
         queries: (Q,) database indices of the eligible queries; exclude: their (Q, N) `exclusion_mask`.
-        words: K; None chooses it among `candidates` by validation on a random half of the queries
-            (`split_queries`) and reports Acc@K on the other half.
+        words: K; None chooses it among `candidates` (those below the number of sampled descriptors)
+            by validation on a random half of the queries (`split_queries`) and reports Acc@K on the
+            other half.
+        weighting: see `weight_histograms`; the idf comes from the N database frames.
     """
+    if weighting not in WEIGHTINGS:
+        raise ValueError(f"weighting: expected one of {', '.join(WEIGHTINGS)}, got {weighting!r}")
     sample = sample_descriptors(features, n_samples, seed)
     ks = [int(words)] if words is not None else [k for k in candidates if k < len(sample)]
     if not ks or len(sample) <= min(ks):
@@ -408,11 +489,16 @@ def evaluate_descriptor(features: list[Features], db: RetrievalDatabase, queries
                          f"{words if words is not None else min(candidates)} visual words")
     D = sample_distances(sample)
 
+    runs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
     def run(k: int) -> tuple[np.ndarray, np.ndarray]:
-        vocab = vocabulary(sample, k, seed=seed, distances=D)
-        hist = np.stack([histogram(f, vocab) for f in features])
-        neighbours, _ = search(hist[queries], hist, max_k, exclude=exclude)
-        return neighbours, per_query_accuracy(neighbours, db.classes, np.asarray(db.classes)[queries])
+        """(Q, max_k) neighbours and (Q, max_k) per-query Acc@K with K visual words (memoised)."""
+        if k not in runs:
+            vocab = vocabulary(sample, k, seed=seed, distances=D)
+            vectors = weight_histograms(np.stack([word_counts(f, vocab) for f in features]), weighting)  # (N, K)
+            neighbours, _ = search(vectors[queries], vectors, max_k, exclude=exclude, distance=WEIGHTINGS[weighting])
+            runs[k] = neighbours, per_query_accuracy(neighbours, db.classes, np.asarray(db.classes)[queries])
+        return runs[k]
 
     validation: dict[int, float] = {}
     test = np.arange(len(queries))
@@ -430,7 +516,7 @@ def evaluate_descriptor(features: list[Features], db: RetrievalDatabase, queries
     neighbours, acc = run(ks[0])
     neighbours, acc = neighbours[test], acc[test]
     low, high = bootstrap_interval(acc, seed=seed)
-    return DescriptorResult(ks[0], validation, queries[test], neighbours, acc, acc.mean(axis=0), low, high)
+    return DescriptorResult(ks[0], validation, queries[test], neighbours, acc, acc.mean(axis=0), low, high, weighting)
 
 
 def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("geopatch", "geobit", "sift"),
@@ -438,9 +524,10 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
                   classes_file: str | None = None, n_keypoints: int = N_KEYPOINTS, tps_dir: str | None = None,
                   radius: float | None = None, depth_scale: float | None = None, max_k: int = MAX_K,
                   include_own_sequence: bool = False, progress: bool = True, overwrite: bool = False,
-                  detector: str = "sift") -> tuple[dict[str, DescriptorResult], RetrievalDatabase]:
-    """The whole retrieval experiment; writes into `out`: `retrieval.csv` (descriptor, words, k,
-    accuracy, low, high: Acc@K and its 95 % bootstrap interval), `acc_at_k.png`, `top6.png` (two
+                  detector: str = "sift", weighting: str = DEFAULT_WEIGHTING
+                  ) -> tuple[dict[str, DescriptorResult], RetrievalDatabase]:
+    """The whole retrieval experiment; writes into `out`: `retrieval.csv` (descriptor, words, weighting,
+    k, accuracy, low, high: Acc@K and its 95 % bootstrap interval), `acc_at_k.png`, `top6.png` (two
     queries per descriptor) and `retrieval.md` (table, chosen K, skipped queries and frames, mask sources).
 
     The folder is built aside and moved into place at the end; an existing non-empty `out` needs
@@ -451,9 +538,12 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
         words: K; None = chosen per descriptor by validation (see `evaluate_descriptor`).
         include_own_sequence: the database also holds the query's own sequence (the query frame
             itself excluded); by default the query's whole sequence is left out (the paper's setting).
+        weighting: the word weighting and distance (`weight_histograms`, WEIGHTINGS).
     Returns ({descriptor: DescriptorResult}, the described database)."""
     from ..outputs import check_out_dir, output_folder
 
+    if weighting not in WEIGHTINGS:
+        raise ValueError(f"weighting: expected one of {', '.join(WEIGHTINGS)}, got {weighting!r}")
     out = check_out_dir(out, overwrite)
     classes = read_classes(classes_file) if classes_file else None
     db = describe_datasets(datasets, descriptors, n_keypoints, classes, tps_dir, radius, depth_scale, progress, detector)
@@ -475,7 +565,8 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
     res: dict[str, DescriptorResult] = {}
     for name, feats in db.features.items():
         try:
-            res[name] = evaluate_descriptor(feats, db, q_idx, exclude, words, n_samples, seed, max_k)
+            res[name] = evaluate_descriptor(feats, db, q_idx, exclude, words, n_samples, seed, max_k,
+                                            weighting=weighting)
         except ValueError as e:
             raise ValueError(f"{e} (descriptor {name})") from None
     with output_folder(out) as tmp:
@@ -488,9 +579,9 @@ def _write_retrieval(out: Path, db: RetrievalDatabase, res: dict[str, Descriptor
     """The result files of `run_retrieval`, into `out`."""
     with open(out / "retrieval.csv", "w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["descriptor", "words", "k", "accuracy", "low", "high"])
+        w.writerow(["descriptor", "words", "weighting", "k", "accuracy", "low", "high"])
         for name, r in res.items():
-            w.writerows([name, r.words, k + 1, f"{v:.4f}", f"{lo:.4f}", f"{hi:.4f}"]
+            w.writerows([name, r.words, r.weighting, k + 1, f"{v:.4f}", f"{lo:.4f}", f"{hi:.4f}"]
                         for k, (v, lo, hi) in enumerate(zip(r.accuracy, r.low, r.high)))
     _plot({n: r.accuracy for n, r in res.items()}, out / "acc_at_k.png")
     _top6_picture(db, {n: (r.queries, r.neighbours) for n, r in res.items()}, out / "top6.png")
@@ -514,7 +605,8 @@ def _report(db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: li
     notes = [f"{len(db.frames)} frames of {len(set(db.sequences))} sequences, {n_cls} classes; database: "
              + ("every frame but the query" if include_own_sequence else "the frames of the other sequences")
              + "; [95 % bootstrap interval over queries]",
-             f"vocabulary from {min(n_samples, n_desc)} sampled descriptors"]
+             f"vocabulary from {min(n_samples, n_desc)} sampled descriptors; word weighting "
+             f"{next(iter(res.values())).weighting} ({WEIGHTINGS[next(iter(res.values())).weighting]} distance)"]
     if words is None:
         for n, r in res.items():
             scores = ", ".join(f"{k}: {v:.3f}" for k, v in r.validation.items())

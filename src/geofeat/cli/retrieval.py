@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..apps.retrieval import DEFAULT_WEIGHTING, WEIGHTINGS, WORD_CANDIDATES
 from .options import app_options, names
 
 
@@ -15,8 +16,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("datasets", nargs="+", help="sequence folders, or folders of sequences")
     app_options(p)
     p.add_argument("--words", type=int, default=None,
-                   help="visual words K (default: chosen per descriptor among 5,10,20,40,80 by validation on a "
-                        "random half of the queries; Acc@K is then reported on the other half)")
+                   help="visual words K (default: chosen per descriptor among "
+                        f"{','.join(map(str, WORD_CANDIDATES))} (those below --samples) by validation on a random "
+                        "half of the queries; Acc@K is then reported on the other half)")
+    p.add_argument("--weighting", choices=tuple(WEIGHTINGS), default=DEFAULT_WEIGHTING,
+                   help="word weighting and distance: none (L1-normalised histograms, L2: the paper's), hellinger "
+                        "(square roots, L2), tfidf (tf-idf, cosine), tfidf-sqrt (square-root tf times idf, cosine), "
+                        "tfidf-l1 (tf-idf, L1-normalised, L1 distance); idf from the database frames "
+                        f"(default {DEFAULT_WEIGHTING})")
     p.add_argument("--include-own-sequence", action="store_true",
                    help="the database also holds the query's own sequence (default: only the other sequences, "
                         "the paper's setting)")
@@ -35,7 +42,8 @@ def run(args: argparse.Namespace) -> int:
                             words=args.words, n_samples=args.samples, seed=args.seed, classes_file=args.classes,
                             n_keypoints=args.keypoints, tps_dir=args.tps_dir, radius=args.radius,
                             depth_scale=args.depth_scale, include_own_sequence=args.include_own_sequence,
-                            overwrite=args.overwrite, detector=args.detector)
+                            overwrite=args.overwrite, detector=args.detector,
+                            weighting=args.weighting)
     out = Path(args.out)
     print((out / "retrieval.md").read_text())
     print(f"wrote {out / 'retrieval.csv'}, {out / 'acc_at_k.png'}, {out / 'top6.png'}")
