@@ -70,8 +70,10 @@ def test_local_consistency_rejects_random_matches_and_checks_its_input():
     assert not fit_tps_local(src, dst).ok
     assert not locally_consistent(src[:7], src[:7] + 1).any()  # too few matches to vote
     assert locally_consistent(src[:40], src[:40] * 0.5 + 3).all()  # an affine map: every match agrees
-    with pytest.raises(ValueError, match="same number"):
+    with pytest.raises(ValueError, match="shapes"):
         locally_consistent(src, dst[:10])
+    with pytest.raises(ValueError, match="finite"):
+        locally_consistent(np.where(np.arange(500)[:, None] == 3, np.nan, src), dst)
 
 
 def test_tps_interpolates_and_normalisation_is_hartleys():

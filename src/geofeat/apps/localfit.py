@@ -16,6 +16,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..tps import check_pairs
+
 __all__ = ["locally_consistent", "NEIGHBOURS", "TRIALS", "LOCAL_TOLERANCE_PX"]
 
 #: Template neighbours that vote on each match.
@@ -49,11 +51,10 @@ def locally_consistent(
         seed: random seed or generator (the result is deterministic for a given seed).
     Returns:
         (N,) bool, True for the matches that their neighbourhood confirms; all False when N < 8.
+    Raises:
+        ValueError: src and dst are not two (N, 2) arrays of finite pixels.
     """
-    src = np.asarray(src, np.float64).reshape(-1, 2)
-    dst = np.asarray(dst, np.float64).reshape(-1, 2)
-    if len(src) != len(dst):
-        raise ValueError(f"src and dst: expected the same number of matches, got {len(src)} and {len(dst)}")
+    src, dst = check_pairs(src, dst, 0)  # (N, 2) finite pixels each, or ValueError
     n = len(src)
     if n < 8:
         return np.zeros(n, bool)
