@@ -1,4 +1,5 @@
-"""`geofeat track`: track a template region through sequences (TPS + RANSAC)."""
+"""`geofeat track`: track a template region through sequences (TPS fitted by RANSAC or by local
+consistency, then optionally refined photometrically)."""
 
 from __future__ import annotations
 
@@ -11,13 +12,13 @@ from .options import app_options, names
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add `track` to an argparse subparsers object; returns its parser."""
-    p = subparsers.add_parser("track", help="track a template ROI through sequences (TPS + RANSAC)")
+    p = subparsers.add_parser("track", help="track a template ROI through sequences (robust TPS, photometric refinement)")
     p.add_argument("sequences", nargs="+", help="sequence folders, or folders of sequences")
     app_options(p)
     p.add_argument("--roi", default=None, help="x0,y0,x1,y1 in reference pixels (default: object mask box shrunk by 10%%)")
-    p.add_argument("--threshold", type=float, default=3.0, help="RANSAC inlier threshold, pixels (default 3)")
+    p.add_argument("--threshold", type=float, default=3.0, help="inlier threshold of the spline fits (RANSAC and local consistency), pixels (default 3)")
     p.add_argument("--refine", choices=("none", "photometric"), default="photometric",
-                   help="after RANSAC + TPS, refine the warp densely against the template: photometric (the "
+                   help="after the robust TPS fit, refine the warp densely against the template: photometric (the "
                         "refiner of 'geofeat groundtruth') or none (default photometric)")
     p.add_argument("--lpips", action="store_true", help="LPIPS (needs local pretrained weights; not supported here)")
     p.set_defaults(func=run)
