@@ -19,10 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from geofeat.apps.retrieval import DEFAULT_WEIGHTING, bootstrap_interval, evaluate_descriptor, split_queries
+from geofeat.apps.retrieval import (
+    DEFAULT_WEIGHTING, bootstrap_interval, eligible_queries, evaluate_descriptor, split_queries,
+)
 from geofeat.sim.textures import FABRIC_KINDS
 
-from retrieval_weightings import eligible_queries
 
 
 def fabric_families(classes: list[str], objects: int, seed: int) -> dict[str, str]:
@@ -60,7 +61,7 @@ def main() -> None:
         first = first or db
         if db.sequences != first.sequences or db.frames != first.frames:
             raise SystemExit("--cache: the pickles hold different frames")
-        queries, exclude = eligible_queries(db)
+        queries, exclude, _ = eligible_queries(db)
         r = evaluate_descriptor(db.features[name], db, queries, exclude, words=args.words, weighting=args.weighting)
         per_query[name] = r.per_query.mean(axis=1)  # (Q,) all queries: K is given
         cls = np.asarray(db.classes)

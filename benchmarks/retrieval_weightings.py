@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from geofeat.apps.retrieval import (
-    N_VOCABULARY_SAMPLES, WEIGHTINGS, WORD_CANDIDATES, RetrievalDatabase, describe_datasets, exclusion_mask,
+    N_VOCABULARY_SAMPLES, WEIGHTINGS, WORD_CANDIDATES, RetrievalDatabase, describe_datasets, eligible_queries,
     per_query_accuracy, read_classes, sample_descriptors, sample_distances, search, split_queries, vocabulary,
     weight_histograms, word_counts,
 )
@@ -46,19 +46,9 @@ def load_or_describe(datasets: list[str], classes: str | None, descriptors: tupl
     return db
 
 
-def eligible_queries(db: RetrievalDatabase) -> tuple[np.ndarray, np.ndarray]:
-    """(Q,) database indices of the queries that have another sequence of their class, and their
-    (Q, N) exclusion mask (the query's own sequence), as `run_retrieval` makes them."""
-    q_all = np.flatnonzero(db.is_query)
-    exclude = exclusion_mask(db.sequences, q_all)
-    cls = np.asarray(db.classes)
-    eligible = ((cls[q_all][:, None] == cls[None, :]) & ~exclude).any(axis=1)
-    return q_all[eligible], exclude[eligible]
-
-
 def score(db: RetrievalDatabase, name: str, words: list[int], seed: int, n_samples: int) -> list[dict]:
     """One row per (K, weighting): mean Acc@1-10 on the validation and the test half."""
-    queries, exclude = eligible_queries(db)
+    queries, exclude, _ = eligible_queries(db)
     val, test = split_queries(len(queries), 0)
     features = db.features[name]
     sample = sample_descriptors(features, n_samples, seed)

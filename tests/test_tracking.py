@@ -149,9 +149,9 @@ def test_visible_grid_error_scores_true_positions_zero_and_a_shift_by_its_length
     target = seq.targets[-1]
     xy, visible = truth.project(target, grid)
     assert visible.mean() > 0.5
-    error, fraction = _visible_grid_error(truth, target, xy, grid)
+    error, fraction = _visible_grid_error(truth.project(target, grid), xy)
     assert error == pytest.approx(0.0, abs=1e-9) and fraction == pytest.approx(visible.mean())
-    assert _visible_grid_error(truth, target, xy + [3.0, 4.0], grid)[0] == pytest.approx(5.0)
+    assert _visible_grid_error((xy, visible), xy + [3.0, 4.0])[0] == pytest.approx(5.0)
     # the reference frame maps onto itself
     same, seen = truth.project(seq.reference, grid)
     np.testing.assert_allclose(same[seen], grid[seen], atol=0.05)

@@ -44,7 +44,7 @@ __all__ = [
     "Vocabulary", "vocabulary", "sample_descriptors", "histogram", "search", "accuracy_at_k", "read_classes",
     "RetrievalDatabase", "describe_datasets", "run_retrieval", "exclusion_mask", "per_query_accuracy",
     "bootstrap_interval", "split_queries", "WORD_CANDIDATES", "DescriptorResult", "evaluate_descriptor",
-    "sample_distances", "word_counts", "inverse_document_frequency", "weight_histograms", "WEIGHTINGS",
+    "sample_distances", "eligible_queries", "word_counts", "inverse_document_frequency", "weight_histograms", "WEIGHTINGS",
     "DEFAULT_WEIGHTING",
 ]
 
@@ -155,6 +155,12 @@ def inverse_document_frequency(counts: np.ndarray) -> np.ndarray:
     return np.log(len(counts) / np.maximum(frames_with, 1)) * (frames_with > 0)
 
 
+def _check_weighting(weighting: str) -> None:
+    """ValueError unless `weighting` is one of WEIGHTINGS (checked before any costly work)."""
+    if weighting not in WEIGHTINGS:
+        raise ValueError(f"weighting: expected one of {', '.join(WEIGHTINGS)}, got {weighting!r}")
+
+
 def _normalise(v: np.ndarray, order: int) -> np.ndarray:
     """Rows of (N, K) `v` divided by their L1 or L2 norm (rows of zeros stay zero)."""
     norm = np.linalg.norm(v, ord=order, axis=1, keepdims=True)
@@ -173,8 +179,7 @@ def weight_histograms(counts: np.ndarray, weighting: str = DEFAULT_WEIGHTING, id
       - "tfidf-l1": tf * idf, L1-normalised, compared by L1 distance (Nister & Stewenius).
     idf: (K,) `inverse_document_frequency`; None computes it from `counts` (all of them the database).
     """
-    if weighting not in WEIGHTINGS:
-        raise ValueError(f"weighting: expected one of {', '.join(WEIGHTINGS)}, got {weighting!r}")
+    _check_weighting(weighting)
     counts = np.atleast_2d(np.asarray(counts, np.float64))
     tf = _normalise(counts, 1)
     if weighting == "none":
@@ -279,6 +284,24 @@ def exclusion_mask(sequences, queries: np.ndarray, include_own_sequence: bool = 
         mask[np.arange(len(queries)), queries] = True
         return mask
     return seqs[queries][:, None] == seqs[None, :]
+
+
+def eligible_queries(db: "RetrievalDatabase", include_own_sequence: bool = False
+                     ) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """The queries (reference frames) that still have a frame of their class in the database.
+
+    Returns:
+        queries: (Q,) database indices of the eligible queries;
+        exclude: their (Q, N) `exclusion_mask` (the query's own sequence, or the query alone with
+            `include_own_sequence`);
+        skipped: "sequence/frame (class c)" of each query left out (no other sequence of its class).
+    """
+    q_all = np.flatnonzero(db.is_query)
+    exclude = exclusion_mask(db.sequences, q_all, include_own_sequence)
+    cls = np.asarray(db.classes)
+    eligible = ((cls[q_all][:, None] == cls[None, :]) & ~exclude).any(axis=1)  # a frame of its class remains
+    skipped = [f"{db.sequences[i]}/{db.frames[i]} (class {db.classes[i]})" for i in q_all[~eligible]]
+    return q_all[eligible], exclude[eligible], skipped
 
 
 def split_queries(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -480,8 +503,7 @@ def evaluate_descriptor(features: list[Features], db: RetrievalDatabase, queries
             other half.
         weighting: see `weight_histograms`; the idf comes from the N database frames.
     """
-    if weighting not in WEIGHTINGS:
-        raise ValueError(f"weighting: expected one of {', '.join(WEIGHTINGS)}, got {weighting!r}")
+    _check_weighting(weighting)
     sample = sample_descriptors(features, n_samples, seed)
     ks = [int(words)] if words is not None else [k for k in candidates if k < len(sample)]
     if not ks or len(sample) <= min(ks):
@@ -542,8 +564,7 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
     Returns ({descriptor: DescriptorResult}, the described database)."""
     from ..outputs import check_out_dir, output_folder
 
-    if weighting not in WEIGHTINGS:
-        raise ValueError(f"weighting: expected one of {', '.join(WEIGHTINGS)}, got {weighting!r}")
+    _check_weighting(weighting)
     out = check_out_dir(out, overwrite)
     classes = read_classes(classes_file) if classes_file else None
     db = describe_datasets(datasets, descriptors, n_keypoints, classes, tps_dir, radius, depth_scale, progress, detector)
@@ -552,12 +573,7 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
     if db.is_query.all():
         raise ValueError(f"datasets: {len(db.frames)} frame(s), all of them reference frames (queries); retrieval "
                          "needs other frames to search among")
-    q_all = np.flatnonzero(db.is_query)
-    exclude = exclusion_mask(db.sequences, q_all, include_own_sequence)
-    cls = np.asarray(db.classes)
-    eligible = ((cls[q_all][:, None] == cls[None, :]) & ~exclude).any(axis=1)  # a frame of its class remains
-    skipped = [f"{db.sequences[i]}/{db.frames[i]} (class {db.classes[i]})" for i in q_all[~eligible]]
-    q_idx, exclude = q_all[eligible], exclude[eligible]
+    q_idx, exclude, skipped = eligible_queries(db, include_own_sequence)
     if len(q_idx) == 0:
         raise ValueError("datasets: no query has another sequence of its class in the database (classes default to "
                          "the sequence folder name); pass --classes with a 'sequence,class' CSV, or "

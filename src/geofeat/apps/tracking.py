@@ -47,6 +47,7 @@ from tqdm import tqdm
 from ..constants import N_KEYPOINTS
 from ..io import Sequence, read_sequence
 from ..tps import ThinPlateSpline, check_pairs, evaluate_batch, normalise_points, solve_batch
+from .localfit import locally_consistent
 
 if TYPE_CHECKING:
     from ..descriptors.describer import Describer
@@ -237,11 +238,7 @@ def fit_tps_local(
     Returns:
         `RansacResult` (warp None when too few matches are confirmed).
     """
-    from .localfit import locally_consistent
-
     src, dst = check_pairs(src, dst, 0)
-    if len(src) < max(min_inliers, 3):
-        return RansacResult(None, np.zeros(len(src), bool))
     return refit_on_inliers(src, dst, locally_consistent(src, dst, seed=seed), threshold_px, min_inliers=min_inliers)
 
 
@@ -536,7 +533,8 @@ def track_sequence(
             for r in results.values():
                 r.skipped.append(frame_name)
             continue
-        target = _Target(frame_name, frame, keypoints, features, template.to_reference(frame_name, keypoints.xy))
+        target = _Target(frame_name, frame, keypoints, features, template.to_reference(frame_name, keypoints.xy),
+                         template.truth.project(frame_name, template.grid) if template.truth is not None else None)
         for name in names:
             row, warp, points = _track_frame(template, target, name, prior[name], refine, threshold_px, seed)
             if warp is not None:
@@ -648,6 +646,9 @@ class _Target:
         features: {descriptor: `Features` of the N1 keypoints}.
         to_ref: (N1, 2) the keypoints mapped into the reference by the ground truth, pixels (NaN rows
             where it is unknown); None when the sequence has no ground truth.
+        grid_truth: (xy (G, 2), visible (G,)) where the template grid truly lies in this frame and
+            which of its points are seen there (`GroundTruth.project`); None without the simulator's
+            forward ground truth.
     """
 
     name: str
@@ -655,6 +656,7 @@ class _Target:
     keypoints: "Keypoints"
     features: dict[str, "Features"]
     to_ref: np.ndarray | None
+    grid_truth: tuple[np.ndarray, np.ndarray] | None = None
 
 
 @dataclass
@@ -741,7 +743,7 @@ def _truth_figures(template: _Template, target: _Target, fit: _Fit, warp: Warp, 
     correct = int(correct_matches(template.keypoints.xy[fit.i0[kept]], target.to_ref[fit.i1[kept]]).sum())
     truth, grid = template.truth, template.grid
     grid_error = _grid_error(truth, target.name, points, grid)
-    visible_error, visible_fraction = _visible_grid_error(truth, target.name, points, grid)
+    visible_error, visible_fraction = _visible_grid_error(target.grid_truth, points)
     return dict(
         ms=correct / max(min(len(template.keypoints), len(target.keypoints)), 1),
         precision=correct / kept.sum() if kept.any() else 0.0,
@@ -759,14 +761,13 @@ def _grid_error(truth, target: str, pts: np.ndarray, grid: np.ndarray) -> float:
     return float(np.nanmedian(g)) if np.isfinite(g).any() else float("nan")
 
 
-def _visible_grid_error(truth, target: str, pts: np.ndarray, grid: np.ndarray) -> tuple[float, float]:
-    """(error, fraction): the median over the grid points seen in frame `target` of |tracked point -
-    where the point truly is|, frame pixels, and the fraction of the (G, 2) grid seen there; NaN for
-    both without the simulator's exact forward ground truth (`GroundTruth.project`)."""
-    projected = truth.project(target, grid)
-    if projected is None:
+def _visible_grid_error(grid_truth: tuple[np.ndarray, np.ndarray] | None, pts: np.ndarray) -> tuple[float, float]:
+    """(error, fraction): the median over the grid points seen in the frame of |tracked point (G, 2)
+    - where the point truly is|, frame pixels, and the fraction of the grid seen there; NaN for both
+    without the forward ground truth (`grid_truth`: `_Target.grid_truth`)."""
+    if grid_truth is None:
         return float("nan"), float("nan")
-    xy, visible = projected
+    xy, visible = grid_truth
     error = np.linalg.norm(pts[visible] - xy[visible], axis=1)
     return (float(np.median(error)) if len(error) else float("nan")), float(visible.mean())
 

@@ -128,7 +128,6 @@ class GroundTruth:
         valid = ok & np.isfinite(out).all(axis=1)
         return np.where(valid[:, None], out, np.nan), valid
 
-
     def project(self, target: str, xy_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """Where reference pixels lie in frame `target`, seen or hidden (simulated sequences only).
 
