@@ -47,7 +47,6 @@ from tqdm import tqdm
 from ..constants import N_KEYPOINTS
 from ..io import Sequence, read_sequence
 from ..tps import ThinPlateSpline, check_pairs, evaluate_batch, normalise_points, solve_batch
-from .localfit import locally_consistent
 
 if TYPE_CHECKING:
     from ..descriptors.describer import Describer
@@ -238,6 +237,8 @@ def fit_tps_local(
     Returns:
         `RansacResult` (warp None when too few matches are confirmed).
     """
+    from .localfit import locally_consistent  # scipy.spatial: imported when a frame is first fitted
+
     src, dst = check_pairs(src, dst, 0)
     return refit_on_inliers(src, dst, locally_consistent(src, dst, seed=seed), threshold_px, min_inliers=min_inliers)
 

@@ -7,6 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..apps.tracking import DEFAULT_REFINE, RANSAC_THRESHOLD_PX, REFINE_MODES
 from .options import app_options, names
 
 
@@ -16,10 +17,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("sequences", nargs="+", help="sequence folders, or folders of sequences")
     app_options(p)
     p.add_argument("--roi", default=None, help="x0,y0,x1,y1 in reference pixels (default: object mask box shrunk by 10%%)")
-    p.add_argument("--threshold", type=float, default=3.0, help="inlier threshold of the spline fits (RANSAC and local consistency), pixels (default 3)")
-    p.add_argument("--refine", choices=("none", "photometric"), default="photometric",
+    p.add_argument("--threshold", type=float, default=RANSAC_THRESHOLD_PX,
+                   help=f"inlier threshold of the spline fits (RANSAC and local consistency), pixels (default {RANSAC_THRESHOLD_PX:g})")
+    p.add_argument("--refine", choices=REFINE_MODES, default=DEFAULT_REFINE,
                    help="after the robust TPS fit, refine the warp densely against the template: photometric (the "
-                        "refiner of 'geofeat groundtruth') or none (default photometric)")
+                        f"refiner of 'geofeat groundtruth') or none (default {DEFAULT_REFINE})")
     p.add_argument("--lpips", action="store_true", help="LPIPS (needs local pretrained weights; not supported here)")
     p.set_defaults(func=run)
     return p
