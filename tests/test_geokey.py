@@ -11,7 +11,8 @@ from geofeat.bench.report import read_results
 from geofeat.bench.runner import BenchConfig, run_benchmark
 from geofeat.detectors.geokey import GeoKeyModel, candidates, detect_geokey, load_geokey, suppress
 from geofeat.sim import simulate_sequence
-from geofeat.train.detector import choose_model, fit, mean_ms, sequence_samples, with_level_bias
+from geofeat.train.detector import (SIFT_KEY, admissible_threshold, choose_model, fit, mean_ms, sequence_samples,
+                                    with_level_bias)
 
 from sheets import K_SHEET, make_texture, project_bent, project_flat, render_bent, render_flat
 
@@ -152,8 +153,8 @@ def test_training_labels_and_same_seed_same_weights(tiny, tmp_path):
 
 def test_the_suppression_radius_and_level_bias_are_chosen_by_the_mean_score_over_keypoint_counts(tiny):
     shipped = load_geokey()
-    model, results = choose_model({"shipped": shipped}, [tiny / "a-deform"], counts=(100, 300), radii=(2.0, 5.0),
-                                  level_biases=(0.0, -3.0), progress=False)
+    model, results, chosen = choose_model({"shipped": shipped}, [tiny / "a-deform"], counts=(100, 300),
+                                          radii=(2.0, 5.0), level_biases=(0.0, -3.0), thresholds=(), progress=False)
     stage1 = max([("shipped", 2.0), ("shipped", 5.0)], key=lambda key: mean_ms(results[key]))
     assert set(results) == {("shipped", 2.0), ("shipped", 5.0), ("shipped, level 1 -3", stage1[1])}
     for per_count in results.values():
@@ -161,11 +162,55 @@ def test_the_suppression_radius_and_level_bias_are_chosen_by_the_mean_score_over
         for r in per_count.values():
             assert 0 <= r["ms"] <= r["repeatability"] <= 1
     best = max(results, key=lambda key: mean_ms(results[key]))
-    assert model.nms_radius == best[1]
+    assert chosen == best and model.nms_radius == best[1]
     expected = with_level_bias(shipped, -3.0) if best[0].endswith("-3") else shipped
     np.testing.assert_array_equal(model.linear, expected.linear)
     with pytest.raises(ValueError, match="keypoints"):
         choose_model({"shipped": shipped}, [tiny / "a-deform"], counts=(0,), progress=False)
+
+
+def test_a_score_threshold_is_kept_only_when_it_leaves_sifts_keypoints_and_correct_matches(tiny):
+    sift = {100: {"n_ref": 90.0, "hits": 30.0}, 300: {"n_ref": 200.0, "hits": 50.0}}
+    ok = {100: {"n_ref": 95.0, "hits": 40.0}, 300: {"n_ref": 210.0, "hits": 60.0}}
+    assert admissible_threshold(ok, sift, min_keypoints=150)
+    assert not admissible_threshold(ok, sift, min_keypoints=250)  # too few at the largest count
+    assert not admissible_threshold({**ok, 100: {"n_ref": 80.0, "hits": 40.0}}, sift, 150)  # fewer keypoints than SIFT
+    assert not admissible_threshold({**ok, 300: {"n_ref": 210.0, "hits": 45.0}}, sift, 150)  # fewer correct matches
+    shipped = load_geokey()
+    model, results, chosen = choose_model({"shipped": shipped}, [tiny / "a-deform"], counts=(150,), radii=(3.0,),
+                                          level_biases=(0.0,), thresholds=(-np.inf, 0.5, 99.0), progress=False)
+    assert SIFT_KEY in results and ("shipped, threshold 99", 3.0) in results
+    assert results[("shipped, threshold 99", 3.0)][150]["n_ref"] == 0
+    assert chosen != ("shipped, threshold 99", 3.0)  # keeps no keypoint: never admissible
+    admissible = [key for key in results if key != SIFT_KEY
+                  and (key == ("shipped", 3.0) or admissible_threshold(results[key], results[SIFT_KEY]))]
+    assert chosen == max(admissible, key=lambda key: mean_ms(results[key]))
+    assert model.threshold == (0.5 if chosen[0].endswith("0.5") else -np.inf)
+
+
+def test_the_score_threshold_drops_low_scores_and_travels_with_the_weights(tmp_path):
+    frame = geofeat.read_demo_frame()
+    shipped = load_geokey()
+    everything = detect_geokey(frame, 0, shipped, threshold=-np.inf)
+    t = float(np.median(everything.responses))
+    kept = detect_geokey(frame, 0, shipped, threshold=t)
+    assert len(kept) == int(np.sum(everything.responses >= t)) and kept.responses.min() >= t
+    np.testing.assert_array_equal(kept.xy, everything.xy[: len(kept)])  # the same ranking, cut at t
+    assert len(detect_geokey(frame, 50, shipped, threshold=-np.inf)) == 50
+    model = GeoKeyModel(shipped.mean, shipped.std, shipped.linear, shipped.weights, shipped.biases,
+                        shipped.nms_radius, t)
+    model.save(tmp_path / "t.npz")
+    assert load_geokey(tmp_path / "t.npz").threshold == pytest.approx(t)
+    np.testing.assert_array_equal(geofeat.detect(frame, None, detector=f"geokey={tmp_path / 't.npz'}").xy, kept.xy)
+    np.testing.assert_array_equal(geofeat.detect(frame, None, detector="geokey", threshold=t).xy, kept.xy)
+    with pytest.warns(UserWarning, match="threshold"):
+        assert len(detect_geokey(frame, 10, shipped, threshold=1e6)) == 0
+    with pytest.raises(ValueError, match="threshold"):
+        detect_geokey(frame, 10, shipped, threshold=float("nan"))
+    old = dict(np.load(tmp_path / "t.npz"))
+    del old["threshold"]  # weights written before the threshold existed
+    np.savez(open(tmp_path / "old.npz", "wb"), **old)
+    assert load_geokey(tmp_path / "old.npz").threshold == -np.inf
 
 
 def test_a_level_bias_moves_half_resolution_candidates_only(tiny):

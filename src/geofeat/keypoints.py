@@ -156,10 +156,13 @@ def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = "sift"
             (the learned deformation-aware detector with the shipped weights: corner candidates on
             pixels with depth, scored by image cues, plus depth cues when the weights use them;
             `geofeat.detectors.geokey`) or "geokey=WEIGHTS" (weights from `geofeat train-detector`).
-        **sift_options: options of `detect_sift` (keypoint_set, contrast_threshold, mask, ...).
+        **sift_options: options of `detect_sift` (keypoint_set, contrast_threshold, mask, ...); GeoKey
+            takes `mask` and `threshold` (its minimum logit; default the weights' own, chosen on
+            validation; -inf returns the `n` best whatever their score).
 
     Returns:
-        `Keypoints` sorted best first. GeoKey's have angle 0 and a size of 8 px per pyramid level.
+        `Keypoints` sorted best first; fewer than `n` when the detector's threshold stops it (SIFT's
+        contrast threshold, GeoKey's score threshold). GeoKey's have angle 0 and a size of 8 px per pyramid level.
     """
     if not isinstance(frame, RGBDFrame):
         raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
@@ -170,10 +173,11 @@ def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = "sift"
     from .detectors.geokey import detect_geokey, load_geokey
 
     mask = sift_options.pop("mask", None)
+    threshold = sift_options.pop("threshold", None)
     sift_options.pop("keypoint_set", None)  # GeoKey has one keypoint per position by construction
     if sift_options:
         raise TypeError(f"detector: options {sorted(sift_options)} apply to 'sift' only")
-    return detect_geokey(frame, n, load_geokey(weights or None), mask=mask)
+    return detect_geokey(frame, n, load_geokey(weights or None), mask=mask, threshold=threshold)
 
 
 def detect_sift(

@@ -10,7 +10,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add `train-detector` to an argparse subparsers object; returns its parser."""
     p = subparsers.add_parser("train-detector", help="train GeoKey, the learned keypoint detector, on simulated sequences")
     p.add_argument("--data", nargs="+", required=True, help="simulated sequence folders, or folders of them")
-    p.add_argument("--val", nargs="+", required=True, help="held-out simulated sequences (choose the NMS radius)")
+    p.add_argument("--val", nargs="+", required=True, help="held-out simulated sequences (choose the NMS radius, level bias and score threshold)")
     p.add_argument("--out", required=True, help="weights file to write (e.g. geokey.pt; an .npz archive)")
     p.add_argument("--keypoints", type=int, nargs="+", default=(1024, 2048),
                    help="keypoints per frame for validation; the scorer and NMS radius with the best mean MS "
@@ -26,19 +26,21 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Train GeoKey and print its validation table."""
-    from ..train.detector import mean_ms, train_detector
+    from ..train.detector import SIFT_KEY, train_detector
 
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     counts = tuple(args.keypoints)
-    model, results = train_detector(args.data, args.val, args.out, n=counts, hidden=tuple(args.hidden),
+    model, results, chosen = train_detector(args.data, args.val, args.out, n=counts, hidden=tuple(args.hidden),
                                     steps=args.steps, seed=args.seed, labels=args.labels)
-    print("| scorer | NMS radius (px) | keypoints | GeoPatch MS | MMA | repeatability | correct matches / pair |")
-    print("|---|---|---|---|---|---|---|")
-    best = max(results, key=lambda key: mean_ms(results[key]))  # what choose_model kept
-    for (name, radius), per_count in results.items():
-        chosen = (name, radius) == best
+    print("| scorer | NMS radius (px) | keypoints | GeoPatch MS | MMA | repeatability | correct matches / pair "
+          "| reference keypoints / frame |")
+    print("|---|---|---|---|---|---|---|---|")
+    for key, per_count in results.items():
+        name, radius = key
+        mark = " (chosen)" if key == chosen else ""
         for n, r in per_count.items():
-            print(f"| {name}{' (chosen)' if chosen else ''} | {radius:g} | {n} | {r['ms']:.3f} | {r['mma']:.3f} | "
-                  f"{r['repeatability']:.3f} | {r['hits']:.0f} |")
-    print(f"wrote {args.out} (chosen by the mean validation MS at {', '.join(map(str, counts))} keypoints per frame)")
+            print(f"| {name}{mark} | {'-' if key == SIFT_KEY else f'{radius:g}'} | {n} | {r['ms']:.3f} | "
+                  f"{r['mma']:.3f} | {r['repeatability']:.3f} | {r['hits']:.0f} | {r['n_ref']:.0f} |")
+    print(f"wrote {args.out} (chosen by the mean validation MS at {', '.join(map(str, counts))} keypoints per frame; "
+          f"a score threshold only where it keeps at least SIFT's keypoints and correct matches)")
     return 0

@@ -13,8 +13,9 @@ Three steps, all vectorised:
    part is linear on purpose: the ranking of two corners by contrast and cornerness then stays the
    same in every view, which a free non-linear mix learned on renders did not do. It is trained on simulated sequences with exact
    correspondences (`geofeat train-detector`, `geofeat.train.detector`).
-3. **Selection.** Non-maximum suppression of the scores within `nms_radius` pixels, then the `n`
-   best.
+3. **Selection.** Non-maximum suppression of the scores within `nms_radius` pixels; candidates whose
+   logit is below the model's `threshold` are dropped (like SIFT's contrast threshold, so a frame
+   with little good surface gives fewer keypoints); then the `n` best.
 
 The weights are a small `.npz` archive (whatever the file's extension) of numpy arrays: inference
 needs neither torch nor a GPU.
@@ -61,6 +62,8 @@ class GeoKeyModel:
             when training found that the depth cues do not help (the score is then linear).
         biases: [(H1,), ..., (1,)] its biases.
         nms_radius: suppression radius chosen on validation data, pixels.
+        threshold: keypoints whose logit is below this are not returned (-inf: none dropped; weights
+            files written before the threshold existed load with -inf). Chosen on validation data.
     """
 
     mean: np.ndarray
@@ -69,6 +72,7 @@ class GeoKeyModel:
     weights: tuple[np.ndarray, ...]
     biases: tuple[np.ndarray, ...]
     nms_radius: float = NMS_RADIUS_PX
+    threshold: float = -np.inf
 
     def score(self, features: np.ndarray) -> np.ndarray:
         """(N, D) cue features -> (N,) float32 logits (higher = more likely found again and matched)."""
@@ -92,7 +96,8 @@ class GeoKeyModel:
     def save(self, path: str | Path) -> None:
         """Write the model to `path` as an .npz archive (the extension is kept as given)."""
         arrays = {"mean": self.mean, "std": self.std, "linear": self.linear,
-                  "nms_radius": np.float32(self.nms_radius), "cue_names": np.array(CUE_NAMES)}
+                  "nms_radius": np.float32(self.nms_radius), "threshold": np.float32(self.threshold),
+                  "cue_names": np.array(CUE_NAMES)}
         for k, (w, b) in enumerate(zip(self.weights, self.biases)):
             arrays[f"w{k}"], arrays[f"b{k}"] = w, b
         with open(path, "wb") as fh:
@@ -126,7 +131,8 @@ def _load(path: str) -> GeoKeyModel:
     weights = tuple(arrays[f"w{i}"].astype(np.float32) for i in range(k))
     biases = tuple(arrays[f"b{i}"].astype(np.float32) for i in range(k))
     return GeoKeyModel(arrays["mean"].astype(np.float32), arrays["std"].astype(np.float32),
-                       arrays["linear"].astype(np.float32), weights, biases, float(arrays["nms_radius"]))
+                       arrays["linear"].astype(np.float32), weights, biases, float(arrays["nms_radius"]),
+                       float(arrays.get("threshold", -np.inf)))
 
 
 @dataclass
@@ -231,16 +237,27 @@ def suppress(xy: np.ndarray, score: np.ndarray, radius: float, shape: tuple[int,
 
 
 def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
-                  nms_radius: float | None = None, mask: np.ndarray | None = None) -> Keypoints:
-    """The `n` best GeoKey keypoints of `frame`, best first (0 = all that survive suppression).
+                  nms_radius: float | None = None, mask: np.ndarray | None = None,
+                  threshold: float | None = None) -> Keypoints:
+    """At most `n` GeoKey keypoints of `frame`, best first (0 = all that survive suppression and the
+    threshold).
 
-    `mask` (H, W), nonzero = allowed, restricts the keypoints like OpenCV's detection masks.
+    Args:
+        n: maximum number of keypoints; fewer come back when fewer candidates reach `threshold`.
+        model: the scorer (default: the shipped weights).
+        nms_radius: suppression radius, pixels (default: the model's).
+        mask: (H, W), nonzero = allowed; restricts the keypoints like OpenCV's detection masks.
+        threshold: minimum logit (default: the model's, chosen on validation; -inf keeps the `n` best
+            whatever their score).
 
     Returns `Keypoints` with angles 0 (GeoKey gives no orientation: geodesic descriptors are
     rotation-invariant), sizes 2^level x 8 px, and responses = the learned score (logit).
     A frame without depth or texture gives fewer keypoints, or none, with a warning.
     """
     model = model or load_geokey()
+    threshold = model.threshold if threshold is None else float(threshold)
+    if np.isnan(threshold):
+        raise ValueError("threshold: expected a number or -inf, got nan")
     cands = candidates(frame)
     if mask is not None:
         mask = np.asarray(mask)
@@ -253,6 +270,10 @@ def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
         return Keypoints(np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0))
     score = model.score(candidate_features(frame, cands, depth_cues=model.uses_depth_cues))
     keep = suppress(cands.xy, score, model.nms_radius if nms_radius is None else nms_radius, frame.shape)
+    keep &= score >= threshold
+    if not keep.any():
+        warnings.warn(f"geokey: no candidate reaches the score threshold {threshold:g} in this frame "
+                      "(little texture, or a view the detector does not trust)", stacklevel=2)
     cands, score = cands[keep], score[keep]
     order = np.argsort(-score, kind="stable")
     if n:

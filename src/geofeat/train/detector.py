@@ -43,6 +43,15 @@ VALIDATION_COUNTS = (1024, 2048)
 #: training label (found again within 1 px among the other view's candidates) does not say how
 #: much less often half-resolution corners end up matched within the protocol's 3 px.
 LEVEL_BIASES = (0.0, -0.5, -1.0, -1.5)
+#: Score thresholds (logits) tried on validation last: a detector that stops at a score, as SIFT stops
+#: at a contrast, returns fewer keypoints on a frame with little good surface (a far or crumpled
+#: cloth). -inf keeps the n best whatever their score.
+THRESHOLDS = (-np.inf, 0.0, 0.25, 0.5, 0.75, 1.0)
+#: A threshold is admissible only when, at every validation count, it leaves at least as many
+#: reference keypoints per frame as SIFT (the protocol's detector, which stops at its contrast
+#: threshold) and gives at least SIFT + GeoPatch's correct matches per pair; and, at the largest
+#: count, at least this many reference keypoints per frame. So no threshold wins by keeping few points.
+MIN_KEYPOINTS = 1000
 
 
 #: Training labels: "repeatable" (found again) or "matchable" (found again and matched by GeoPatch).
@@ -254,17 +263,20 @@ def repeatability(folders: list[Path], detector, n: int, progress: bool = False)
 
 def choose_model(models: dict[str, GeoKeyModel], folders: list[Path], counts: tuple[int, ...] = VALIDATION_COUNTS,
                  radii: tuple[float, ...] = NMS_CHOICES, level_biases: tuple[float, ...] = LEVEL_BIASES,
-                 progress: bool = True) -> tuple[GeoKeyModel, dict]:
-    """The scorer, suppression radius and level-1 bias with the best validation matching score of
-    the shipped GeoPatch, averaged over the keypoint counts `counts` (denser keypoints are more
-    repeatable but harder to tell apart).
+                 thresholds: tuple[float, ...] = THRESHOLDS, progress: bool = True) -> tuple[GeoKeyModel, dict, tuple]:
+    """The scorer, suppression radius, level-1 bias and score threshold with the best validation
+    matching score of the shipped GeoPatch, averaged over the keypoint counts `counts` (denser
+    keypoints are more repeatable but harder to tell apart).
 
-    Two stages: every (scorer, radius); then, for the best of those, each logit offset of
-    `level_biases` on the half-resolution candidates (`with_level_bias`). The entry with the best
-    mean MS over both stages is kept.
+    Three stages: every (scorer, radius) with no threshold; then, for the best of those, each logit
+    offset of `level_biases` on the half-resolution candidates (`with_level_bias`); then, for the
+    best so far, each score threshold of `thresholds` that is admissible against SIFT on the same
+    sequences (`admissible_threshold`; SIFT's own figures are in the results as
+    ("SIFT (reference)", 0.0)). The admissible entry with the best mean MS is kept.
 
-    Returns the chosen model (its `nms_radius` and bias set) and {(label, radius): {count:
-    validation_scores}}, label = the scorer's name, plus ", level 1 <bias>" for the second stage.
+    Returns the chosen model (its `nms_radius`, bias and `threshold` set), {(label, radius): {count:
+    validation_scores}}, label = the scorer's name, plus ", level 1 <bias>" for the second stage and
+    ", threshold <t>" for the third, and the chosen (label, radius).
     """
     if isinstance(counts, int):
         counts = (counts,)
@@ -272,6 +284,8 @@ def choose_model(models: dict[str, GeoKeyModel], folders: list[Path], counts: tu
         raise ValueError(f"keypoints: expected positive counts, got {counts}")
     results: dict = {}
     candidates_by_key: dict = {}
+    models = {name: GeoKeyModel(m.mean, m.std, m.linear, m.weights, m.biases, m.nms_radius)  # no threshold yet
+              for name, m in models.items()}
 
     def score(label: str, model: GeoKeyModel, radius: float) -> None:
         per_count = {}
@@ -294,7 +308,39 @@ def choose_model(models: dict[str, GeoKeyModel], folders: list[Path], counts: tu
             score(f"{name}, level 1 {bias:+g}", with_level_bias(models[name], bias), radius)
     label, radius = max(results, key=lambda key: mean_ms(results[key]))
     best = candidates_by_key[(label, radius)]
-    return GeoKeyModel(best.mean, best.std, best.linear, best.weights, best.biases, radius), results
+    best = GeoKeyModel(best.mean, best.std, best.linear, best.weights, best.biases, radius)
+    chosen = (label, radius)
+    finite = [t for t in thresholds if np.isfinite(t)]
+    if finite:
+        from ..keypoints import detect_sift
+
+        sift = {int(n): validation_scores(folders, detect_sift, int(n)) for n in counts}
+        results[SIFT_KEY] = sift
+        admissible = [chosen]
+        for t in finite:
+            key = (f"{label}, threshold {t:g}", radius)
+            model = GeoKeyModel(best.mean, best.std, best.linear, best.weights, best.biases, radius, float(t))
+            score(key[0], model, radius)
+            if admissible_threshold(results[key], sift):
+                admissible.append(key)
+        chosen = max(admissible, key=lambda key: mean_ms(results[key]))
+        if chosen != admissible[0]:
+            best = candidates_by_key[chosen]
+    return best, results, chosen
+
+
+#: The key of SIFT's own validation figures in `choose_model`'s results.
+SIFT_KEY = ("SIFT (reference)", 0.0)
+
+
+def admissible_threshold(per_count: dict, sift: dict, min_keypoints: int = MIN_KEYPOINTS) -> bool:
+    """True when a thresholded detector's validation figures (`{count: validation_scores}`) keep, at
+    every count, at least SIFT's reference keypoints per frame and SIFT + GeoPatch's correct matches
+    per pair (`sift`, same form), and at least `min_keypoints` reference keypoints at the largest count."""
+    largest = max(per_count)
+    return (all(per_count[n]["n_ref"] >= sift[n]["n_ref"] and per_count[n]["hits"] >= sift[n]["hits"]
+                for n in per_count)
+            and per_count[largest]["n_ref"] >= min(min_keypoints, largest))
 
 
 def with_level_bias(model: GeoKeyModel, bias: float) -> GeoKeyModel:
@@ -304,7 +350,7 @@ def with_level_bias(model: GeoKeyModel, bias: float) -> GeoKeyModel:
     k = CUE_NAMES.index("level")
     linear = model.linear.copy()
     linear[k] += np.float32(bias) * model.std[k]
-    return GeoKeyModel(model.mean, model.std, linear, model.weights, model.biases, model.nms_radius)
+    return GeoKeyModel(model.mean, model.std, linear, model.weights, model.biases, model.nms_radius, model.threshold)
 
 
 def mean_ms(per_count: dict) -> float:
@@ -314,11 +360,12 @@ def mean_ms(per_count: dict) -> float:
 
 def train_detector(data, val, out: str | Path, n: int | tuple[int, ...] = VALIDATION_COUNTS, hidden: tuple[int, ...] = (32, 32),
                    steps: int = 3000, seed: int = 0, labels: str = "repeatable",
-                   radii: tuple[float, ...] = NMS_CHOICES, progress: bool = True) -> tuple[GeoKeyModel, dict]:
+                   radii: tuple[float, ...] = NMS_CHOICES, progress: bool = True) -> tuple[GeoKeyModel, dict, tuple]:
     """Collect candidates from `data`, fit two scorers (image cues only, and image + depth cues),
-    choose the scorer and the suppression radius on `val` by GeoPatch's matching score (mean over the
-    keypoint counts `n`), and write the weights to `out`. Returns the model and the validation figures
-    per (scorer, radius) and count."""
+    choose the scorer, the suppression radius, the level-1 bias and the score threshold on `val` by
+    GeoPatch's matching score (mean over the keypoint counts `n`; `choose_model`), and write the
+    weights to `out`. Returns the model, the validation figures per (scorer, radius) and count, and
+    the chosen (scorer, radius) key."""
     train_folders = find_sequences(data)
     val_folders = find_sequences(val)
     if not train_folders:
@@ -331,6 +378,6 @@ def train_detector(data, val, out: str | Path, n: int | tuple[int, ...] = VALIDA
                    f"{y.mean():.3f} positive ({labels})")
     models = {"image cues": fit(x, y, hidden=None, steps=steps, seed=seed, progress=progress),
               "image + depth cues": fit(x, y, hidden=hidden, steps=steps, seed=seed, progress=progress)}
-    model, results = choose_model(models, val_folders, n, radii, progress=progress)
+    model, results, chosen = choose_model(models, val_folders, n, radii, progress=progress)
     model.save(out)
-    return model, results
+    return model, results, chosen
