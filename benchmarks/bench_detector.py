@@ -37,7 +37,7 @@ def main() -> None:
     print("|---|---|---|---|---|---|")
     for name, frame in frames.items():
         detect_geokey(frame, args.n, model)
-        t_sift = best_of(lambda: geofeat.detect(frame, args.n, keypoint_set="protocol"), 7)
+        t_sift = best_of(lambda: geofeat.detect(frame, args.n, detector="sift", keypoint_set="protocol"), 7)
         t_geokey = best_of(lambda: detect_geokey(frame, args.n, model), 7)
         t_cand = best_of(lambda: candidates(frame), 7)
         t_maps = best_of(lambda: cue_maps(frame, model.uses_depth_cues), 7)

@@ -24,7 +24,7 @@ def rotated_pair(angle_deg: float = 45.0):
 @pytest.fixture(scope="module")
 def pair():
     f0, f1, A = rotated_pair(45.0)
-    k0 = detect(f0, 400, require_depth=False, border_px=40)
+    k0 = detect(f0, 400, detector="sift", require_depth=False, border_px=40)
     # the same physical points in the rotated image, with SIFT's angle rotated consistently
     xy1 = k0.xy @ A[:, :2].T + A[:, 2]
     inside = (xy1[:, 0] > 40) & (xy1[:, 0] < 600) & (xy1[:, 1] > 40) & (xy1[:, 1] < 440)

@@ -60,7 +60,7 @@ def test_identical_frames_score_one(datasets, tmp_path):
     config = BenchConfig(descriptors=("sift",), n_keypoints=300)
     rows = read_rows(run_benchmark(datasets / "same", tmp_path / "protocol", config, progress=False)[0])
     seq = geofeat.read_sequence(next((datasets / "same").iterdir()))
-    kps = geofeat.detect(seq.frame(seq.reference), 300, keypoint_set="protocol")
+    kps = geofeat.detect(seq.frame(seq.reference), 300, detector="sift", keypoint_set="protocol")
     kps = kps[GroundTruth(seq, None).reference_keep(kps.xy)]  # on the cloth, as the bench keeps them
     duplicates = len(kps) - len(np.unique(np.round(kps.xy, 2), axis=0))
     assert duplicates > 0
@@ -175,7 +175,7 @@ def test_match_command_counts_the_bench_hits(datasets, tmp_path, capsys):
     ref, target = seq.frame(seq.reference), seq.targets[-1]
     tgt = seq.frame(target)
     d = geofeat.make_descriptor("orb")
-    k_ref, k_tgt = geofeat.detect(ref, 300), geofeat.detect(tgt, 300)
+    k_ref, k_tgt = geofeat.detect(ref, 300, detector="sift"), geofeat.detect(tgt, 300, detector="sift")
     m = geofeat.match(d.compute(ref, k_ref), d.compute(tgt, k_tgt))
     truth = GroundTruth(seq, None)
     correct = correct_matches(truth, target, k_ref.xy, k_tgt.xy, m.matches0)

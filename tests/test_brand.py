@@ -42,7 +42,7 @@ def test_bits_change_under_a_bend_that_keeps_the_image():
 
 def test_hamming_matching_through_the_descriptor_interface():
     flat, _ = _frames()
-    kps = geofeat.detect(flat, 100, require_depth=False, border_px=30)
+    kps = geofeat.detect(flat, 100, detector="sift", require_depth=False, border_px=30)
     f = geofeat.make_descriptor("brand").compute(flat, kps)
     m = match(f, f)
     assert (m.matches0[f.valid] == np.flatnonzero(f.valid)).mean() > 0.95

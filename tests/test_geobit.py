@@ -101,7 +101,7 @@ def test_kinect_frame_against_its_rotation(kinect, k):
     fk = frame.rotated90(k)
     truth = rotate_points90(xy, frame.shape, k)
     # targets: the rotated landmarks among 300 SIFT keypoints of the rotated frame (distractors)
-    targets = np.concatenate([detect(fk, n=300).xy, truth])
+    targets = np.concatenate([detect(fk, n=300, detector="sift").xy, truth])
     f1 = gb.compute(fk, targets)
     m = match(f0, f1).matches0
     err = np.full(len(xy), np.inf)
@@ -119,7 +119,7 @@ def test_kinect_frame_against_a_camera_roll_between_the_rotation_steps(kinect, a
     frame, xy = kinect
     rolled, A = roll_camera(frame, angle)
     truth = xy @ A[:, :2].T + A[:, 2]
-    targets = np.concatenate([detect(rolled, n=300).xy, truth])
+    targets = np.concatenate([detect(rolled, n=300, detector="sift").xy, truth])
     rates = []
     for n_rotations in (16, 1):
         gb = GeoBit(n_rotations=n_rotations)

@@ -26,7 +26,7 @@ def kinect_pair():
     """Polar patches of the Kinect frame's keypoints and of the same points in its 90-degree roll."""
     frame = geofeat.read_demo_frame()
     rolled = frame.rotated90(1)
-    xy = detect(frame, 2048).xy
+    xy = detect(frame, 2048, detector="sift").xy
     a = geofeat.polar_patches(frame, xy)
     b = geofeat.polar_patches(rolled, rotate_points90(xy, frame.shape, 1))
     ok = a.valid & b.valid

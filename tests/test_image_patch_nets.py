@@ -22,7 +22,7 @@ def pair(tmp_path_factory):
                       width=320, height=240, progress=False)
     seq = geofeat.read_sequence(folder)
     ref, tgt = seq.frame(seq.reference), seq.frame(seq.targets[-1])
-    k_ref, k_tgt = detect(ref, 400), detect(tgt, 400)
+    k_ref, k_tgt = detect(ref, 400, detector="sift"), detect(tgt, 400, detector="sift")
     mapped, visible = seq.correspondences(seq.targets[-1], seq.reference, k_tgt.xy)
     k_tgt, mapped = k_tgt[visible], mapped[visible]
     return ref, tgt, k_ref, k_tgt, ground_truth_pairs(k_ref.xy, mapped), folder

@@ -1,13 +1,19 @@
-"""SIFT keypoint detection on RGB-D frames."""
+"""SIFT keypoint detection on RGB-D frames (`geofeat.detect(..., detector="sift")`), and the default
+detector."""
 
 from __future__ import annotations
+
+from functools import partial
 
 import cv2
 import numpy as np
 import pytest
 
 import geofeat
-from geofeat.keypoints import Keypoints, detect
+from geofeat.keypoints import DEFAULT_DETECTOR, Keypoints
+from geofeat.keypoints import detect as detect_any
+
+detect = partial(detect_any, detector="sift")
 
 
 @pytest.fixture(scope="module")
@@ -47,6 +53,15 @@ def test_to_cv_round_trip_and_compute(frame):
 
     f = GeoBit().compute(frame, kp)
     assert f.descriptors.shape == (50, 16, 64) and np.allclose(f.angles, kp.angles)
+
+
+def test_the_default_detector_is_geokey_and_sift_options_need_sift(frame):
+    assert DEFAULT_DETECTOR == "geokey"
+    default = detect_any(frame, 300)
+    np.testing.assert_array_equal(default.xy, detect_any(frame, 300, detector="geokey").xy)
+    assert np.all(default.angles == 0)  # GeoKey gives no orientation; SIFT's keypoints have one
+    with pytest.raises(TypeError, match="sift"):
+        detect_any(frame, 300, contrast_threshold=0.01)
 
 
 def test_bad_arguments(frame):

@@ -186,7 +186,7 @@ def real_geobit():
     frame = geofeat.read_demo_frame()
     rolled = frame.rotated90(1)
     gb = GeoBit()
-    return gb.compute(frame, detect(frame, 300)), gb.compute(rolled, detect(rolled, 300))
+    return gb.compute(frame, detect(frame, 300, detector="sift")), gb.compute(rolled, detect(rolled, 300, detector="sift"))
 
 
 @pytest.mark.parametrize("mutual", [False, True])

@@ -10,7 +10,7 @@ import numpy as np
 from .constants import N_KEYPOINTS
 from .frame import RGBDFrame
 
-__all__ = ["DETECTORS", "KEYPOINT_SETS", "Keypoints", "as_keypoints", "check_detector_name", "detect", "detect_sift"]
+__all__ = ["DEFAULT_DETECTOR", "DETECTORS", "KEYPOINT_SETS", "Keypoints", "as_keypoints", "check_detector_name", "detect", "detect_sift"]
 
 #: SIFT contrast threshold used by `detect` (OpenCV's default is 0.04; lower finds more keypoints).
 DEFAULT_CONTRAST_THRESHOLD = 0.004
@@ -20,6 +20,12 @@ KEYPOINT_SETS = ("protocol", "unique")
 #: Detector names of `detect`: "sift" (OpenCV) and "geokey" (learned, `geofeat.detectors.geokey`);
 #: "geokey=PATH" uses weights made by `geofeat train-detector`.
 DETECTORS = ("sift", "geokey")
+#: The detector of `detect` (and `geofeat.extract`, `geofeat extract|match`) when none is named: GeoKey,
+#: which scores above SIFT with both geodesic descriptors on every held-out simulated test set
+#: measured (`mild`, `paper`, `hard`, at 1024 and 2048 keypoints; BENCHMARKS.md, "GeoKey v3.3").
+#: The benchmark (`geofeat bench`) keeps SIFT, the published protocol's detector, as its default, and
+#: so do `track` and `retrieval`, which compare descriptors with SIFT's own (it needs SIFT's orientation).
+DEFAULT_DETECTOR = "geokey"
 
 
 @dataclass
@@ -146,7 +152,7 @@ def check_detector_name(detector: str) -> str:
     return detector
 
 
-def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = "sift", **sift_options) -> Keypoints:
+def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = DEFAULT_DETECTOR, **sift_options) -> Keypoints:
     """Detect keypoints on `frame`, best first.
 
     Args:

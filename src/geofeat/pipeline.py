@@ -8,11 +8,7 @@ from contextlib import contextmanager
 from .constants import N_KEYPOINTS
 from .features import Features
 from .frame import RGBDFrame
-from .keypoints import detect
-
-#: The detector `extract` uses when none is named: the one that scores best with GeoPatch on every
-#: held-out simulated test set measured (BENCHMARKS.md, "GeoKey").
-BEST_DETECTOR = "geokey"
+from .keypoints import DEFAULT_DETECTOR, detect
 
 
 def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None, descriptor: str = "geopatch",
@@ -22,7 +18,7 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
     Args:
         frame: the RGB-D frame.
         n: keypoints wanted (>= 1).
-        detector: "sift", "geokey" or "geokey=WEIGHTS"; None = `BEST_DETECTOR`.
+        detector: "sift", "geokey" or "geokey=WEIGHTS"; None = `geofeat.keypoints.DEFAULT_DETECTOR` (GeoKey).
         descriptor: a `geofeat.make_descriptor` name (default the shipped GeoPatch).
         radius: geodesic radius, metres (None: the descriptor's default, 0.075).
         depth_config: depth profile name or `DepthConfig` (default "auto").
@@ -53,13 +49,13 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
 
         kwargs = {} if radius is None else {"radius": radius}
         net = GeoPatch(weights=weights or None, device=device, backend="torch", depth_config=depth_config, **kwargs)
-        keypoints = detect(frame, n, detector=detector or BEST_DETECTOR)
+        keypoints = detect(frame, n, detector=detector or DEFAULT_DETECTOR)
         return net.compute_cuda(frame, keypoints).to_host()
     if device is not None and str(device) != "cpu":
         raise ValueError(f"device: expected None, 'cpu' or 'cuda[:N]', got {device!r}")
     describer = make_descriptor(descriptor, radius=radius, depth_config=depth_config)
     with _mesh_prefetch(frame, getattr(describer, "depth_config", None)):
-        keypoints = detect(frame, n, detector=detector or BEST_DETECTOR)
+        keypoints = detect(frame, n, detector=detector or DEFAULT_DETECTOR)
     return describer.compute(frame, keypoints)
 
 

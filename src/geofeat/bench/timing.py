@@ -27,7 +27,7 @@ def timing_table(frame, descriptors: tuple[str, ...], radius: float, counts=(250
             times.append(time.perf_counter() - t)
         return min(times), result
 
-    kps_all = detect(frame, max(counts))
+    kps_all = detect(frame, max(counts), detector="sift")
     counts = sorted({min(n, len(kps_all)) for n in counts})  # a frame may have fewer keypoints
     lines = ["| step | " + " | ".join(f"{n} kps (s)" for n in counts) + " |", "|---|" + "---|" * len(counts)]
     cells: dict[str, list[str]] = {}

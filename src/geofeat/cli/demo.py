@@ -86,7 +86,7 @@ def _demo_rolled_pair(out: Path, angle: float, n: int, profile: str) -> None:
 
     frame0 = read_demo_frame()
     frame1, A = roll_camera(frame0, angle)
-    k0, k1 = detect(frame0, n), detect(frame1, n)
+    k0, k1 = detect(frame0, n, detector="sift"), detect(frame1, n, detector="sift")
     truth = k0.xy @ A[:, :2].T + A[:, 2]  # where each reference keypoint really is in frame 1
     print(f"\nrolled pair: the Kinect frame vs the camera rolled by {angle:g} deg; SIFT keypoints "
           f"detected independently: {len(k0)} and {len(k1)}")
@@ -103,7 +103,7 @@ def _demo_deformed_pair(out: Path, n: int, profile: str) -> None:
     seq = read_sequence(folder)
     target = seq.targets[-1]
     frame0, frame1 = seq.frame(seq.reference), seq.frame(target)
-    k0, k1 = detect(frame0, n), detect(frame1, n)
+    k0, k1 = detect(frame0, n, detector="sift"), detect(frame1, n, detector="sift")
     truth, visible = seq.correspondences(seq.reference, target, k0.xy)
     print(f"\nsimulated cloth: {folder} ({len(seq)} frames, wind-blown cloth and a rolling camera); "
           f"{seq.reference} vs {target}, SIFT keypoints {len(k0)} and {len(k1)}")

@@ -7,7 +7,7 @@ import argparse
 import cv2
 
 from .common import file_label, finish_skipped, frame_and_keypoints, skip_frame
-from .options import frames_options
+from .options import detector_for, frames_options
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
         if "no ground truth" not in str(error):
             raise
         truth = None  # no ground truth: matches are written, not judged
-    print(f"{seq.name}: depth profile {profile}, detector {args.detector}, keypoints {args.keypoint_set}, "
+    print(f"{seq.name}: depth profile {profile}, detector {detector_for(args.descriptor, args.detector)}, keypoints {args.keypoint_set}, "
           f"radius {radius:g} m, ground truth: "
           + ("none" if truth is None else "simulator (exact)" if truth.exact else "thin-plate spline on the landmarks"))
     if truth is not None and not truth.exact:

@@ -6,8 +6,8 @@ from __future__ import annotations
 import argparse
 
 from ..constants import DEPTH_PROFILE_NAMES, DEPTH_SCALE_M, N_KEYPOINTS
-from ..descriptors import available_descriptors, check_descriptor_name
-from ..keypoints import KEYPOINT_SETS, check_detector_name
+from ..descriptors import GEODESIC_DESCRIPTORS, available_descriptors, check_descriptor_name
+from ..keypoints import DEFAULT_DETECTOR, KEYPOINT_SETS, check_detector_name
 
 
 def descriptor_name(text: str) -> str:
@@ -34,11 +34,24 @@ def detector_name(text: str) -> str:
         raise argparse.ArgumentTypeError(str(error)) from None
 
 
-def detector_option(p: argparse.ArgumentParser) -> None:
-    """--detector (sift, geokey, geokey=WEIGHTS)."""
-    p.add_argument("--detector", default="sift", type=detector_name,
-                   help="keypoint detector: sift (OpenCV, default), geokey (learned, image + depth cues) or "
-                        "geokey=WEIGHTS (from `geofeat train-detector`)")
+def detector_option(p: argparse.ArgumentParser, default: str | None = "sift") -> None:
+    """--detector (sift, geokey, geokey=WEIGHTS). `bench`, `track` and `retrieval` default to SIFT (the
+    published protocol's detector, and the one the baselines' descriptors need); `extract` and `match`
+    to None, resolved by `detector_for` from the descriptor."""
+    what = default or (f"{DEFAULT_DETECTOR} for the geodesic descriptors, sift for the others "
+                       "(they need SIFT's orientation)")
+    p.add_argument("--detector", default=default, type=detector_name,
+                   help=f"keypoint detector: sift (OpenCV), geokey (learned, image + depth cues) or "
+                        f"geokey=WEIGHTS (from `geofeat train-detector`); default {what}")
+
+
+def detector_for(descriptor: str, detector: str | None) -> str:
+    """The detector to use: `detector` when named; else `DEFAULT_DETECTOR` (GeoKey) for a geodesic
+    descriptor (rotation-invariant, sized from depth) and SIFT for the others, which take their
+    orientation and scale from SIFT's keypoints."""
+    if detector:
+        return detector
+    return DEFAULT_DETECTOR if descriptor.partition("=")[0] in GEODESIC_DESCRIPTORS else "sift"
 
 
 def frames_options(p: argparse.ArgumentParser) -> None:
@@ -47,7 +60,7 @@ def frames_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--descriptor", default="geobit", type=descriptor_name,
                    help=f"one of {', '.join(available_descriptors())}, or geopatch=WEIGHTS.pt (default geobit)")
     p.add_argument("--keypoints", type=int, default=N_KEYPOINTS, help="keypoints per frame (default 2048)")
-    detector_option(p)
+    detector_option(p, None)
     p.add_argument("--keypoint-set", choices=KEYPOINT_SETS, default="unique",
                    help="unique: one keypoint per position (default); protocol: SIFT's strongest as OpenCV returns them")
     depth_profile_option(p, None)

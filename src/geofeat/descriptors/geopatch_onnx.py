@@ -200,7 +200,7 @@ def calibration_patches(n_sequences: int = 4, n_frames: int = 3, n_keypoints: in
             seq = read_sequence(folder)
             for name in seq.names:
                 frame = seq.frame(name)
-                kps = detect(frame, n_keypoints)
+                kps = detect(frame, n_keypoints, detector="sift")
                 p = polar_patches(frame, kps)
                 out.append(p.values[p.valid])
     return np.concatenate(out).astype(np.float32)

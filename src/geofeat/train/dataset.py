@@ -61,7 +61,7 @@ def sequence_patches(seq: Sequence, n_keypoints: int = 512, radius: float = DEFA
     `depth_config`: a DepthConfig or a profile name, resolved once for the sequence (as the bench does)."""
     ref = seq.frame(seq.reference)
     depth_config = _sequence_config(seq, depth_config, ref)
-    kps = detect(ref, n_keypoints)
+    kps = detect(ref, n_keypoints, detector="sift")
     if not len(kps):
         return PatchSet(np.zeros((0, 32, 32), np.uint8), np.zeros(0, np.int64))
     p_ref = polar_patches(ref, kps.xy, radius=radius, depth_config=depth_config)
@@ -116,11 +116,11 @@ def validation_keypoints(paths, n_keypoints: int = 1024, max_pairs_per_sequence:
         step = max(1, len(seq.targets) // max_pairs_per_sequence)
         for name in seq.targets[::step][:max_pairs_per_sequence]:
             tgt = seq.frame(name)
-            k_tgt = detect(tgt, n_keypoints)
+            k_tgt = detect(tgt, n_keypoints, detector="sift")
             mapped, visible = seq.correspondences(name, seq.reference, k_tgt.xy)
             if visible.any():
                 targets.append((tgt, k_tgt[visible], mapped[visible]))
-        yield seq, ref, detect(ref, n_keypoints), targets
+        yield seq, ref, detect(ref, n_keypoints, detector="sift"), targets
 
 
 def validation_pairs(paths, n_keypoints: int = 1024, radius: float = DEFAULT_RADIUS_M,

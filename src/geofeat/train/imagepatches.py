@@ -27,11 +27,11 @@ def _to_uint8(values: np.ndarray) -> np.ndarray:
 def sequence_image_patches(seq: Sequence, arch: str, n_keypoints: int = 512, first_id: int = 0) -> PatchSet:
     """(M, 32, 32) uint8 patches of `arch` with surface-point ids for one sequence."""
     ref = seq.frame(seq.reference)
-    k_ref = detect(ref, n_keypoints)
+    k_ref = detect(ref, n_keypoints, detector="sift")
     patches, ids = [_to_uint8(image_patches(ref.image, k_ref, arch))], [np.arange(len(k_ref))]
     for name in seq.targets:
         tgt = seq.frame(name)
-        k_tgt = detect(tgt, 2 * n_keypoints)
+        k_tgt = detect(tgt, 2 * n_keypoints, detector="sift")
         mapped, visible = seq.correspondences(name, seq.reference, k_tgt.xy)
         gt = ground_truth_pairs(k_ref.xy, np.where(visible[:, None], mapped, np.nan))
         if not len(gt):
