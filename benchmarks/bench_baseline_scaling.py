@@ -22,7 +22,7 @@ def warped_pair(angle_deg: float, scale: float):
     img = cv2.warpAffine(frame.image, A, (W, H), flags=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
     depth = np.ones((H, W), np.float32)
     f0, f1 = geofeat.RGBDFrame(frame.image, depth, frame.K), geofeat.RGBDFrame(img, depth, frame.K)
-    k0 = detect(f0, 500, require_depth=False, border_px=40)
+    k0 = detect(f0, 500, detector="sift", require_depth=False, border_px=40)
     xy1 = k0.xy @ A[:, :2].T + A[:, 2]
     inside = (xy1[:, 0] > 40) & (xy1[:, 0] < W - 40) & (xy1[:, 1] > 40) & (xy1[:, 1] < H - 40)
     k0 = k0[inside]

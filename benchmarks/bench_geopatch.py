@@ -19,7 +19,7 @@ from geofeat.keypoints import detect, to_uint8
 
 def main() -> None:
     frame = geofeat.read_demo_frame()
-    kps = detect(frame, 2048, require_depth=False, contrast_threshold=0.001)
+    kps = detect(frame, 2048, detector="sift", require_depth=False, contrast_threshold=0.001)
     patches = geofeat.polar_patches(frame, kps.xy)
     sift = cv2.SIFT_create()
     gray = to_uint8(frame.image)

@@ -42,7 +42,7 @@ def median_time(fn, repeats: int) -> float:
 
 
 def keypoints(frame, rng) -> np.ndarray:
-    kp = detect(frame, n=N).xy
+    kp = detect(frame, n=N, detector="sift").xy
     if len(kp) < N:
         H, W = frame.shape
         ys, xs = np.nonzero(frame.depth[8:-8, 8:-8] > 0)

@@ -33,7 +33,7 @@ depth[500:540, 900:960] = 0  # a hole to fill
 frame = geofeat.RGBDFrame(image, depth, K)
 rolled = frame.rotated90(1)
 desc = geofeat.make_descriptor(sys.argv[1])
-k0, k1 = geofeat.detect(frame, 2048), geofeat.detect(rolled, 2048)
+k0, k1 = geofeat.detect(frame, 2048, detector="sift"), geofeat.detect(rolled, 2048, detector="sift")
 f0, f1 = desc.compute(frame, k0), desc.compute(rolled, k1)
 m = geofeat.match(f0, f1)
 peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024

@@ -34,7 +34,7 @@ def main() -> None:
     seq = geofeat.read_sequence(root / "data" / "seq0-deform")
     t = time.perf_counter()
     for name in seq.names:
-        detect(seq.frame(name))
+        detect(seq.frame(name), detector="sift")
     t_detect_io = time.perf_counter() - t
     rows0 = [r for r in rows if r["sequence"] == "seq0-deform"]
     print("one sequence (10 frames, 9 pairs), single worker, seconds:")

@@ -39,13 +39,13 @@ N_SIFT = 1000
 def kinect_tasks():
     frame = geofeat.read_demo_frame()
     _, xy, _ = read_landmarks(demo_data_dir() / "cloud_1.csv")
-    kp = detect(frame, n=N_SIFT).xy
+    kp = detect(frame, n=N_SIFT, detector="sift").xy
     sources = np.concatenate([xy, kp])
     src = geofeat.polar_patches(frame, sources)
     tasks = []
     for k in (1, 2, 3):
         fk = frame.rotated90(k)
-        targets = detect(fk, n=N_SIFT).xy
+        targets = detect(fk, n=N_SIFT, detector="sift").xy
         truth = rotate_points90(sources, frame.shape, k)
         # keep sources with a detected counterpart within 2 px (all landmarks are kept: added below)
         d = np.linalg.norm(truth[:, None] - targets[None], axis=2).min(axis=1)
@@ -66,7 +66,7 @@ def sheet_tasks(z0=1.0, bend_radius=0.04, u_max=0.035):
         flat, bent = sheets.render_flat(tex, z0=z0), sheets.render_bent(tex, z0=z0, bend_radius=bend_radius)
         uv = sheets.sample_material_points(100, seed=tex_seed, u_max=u_max)
         p0, p1 = sheets.project_flat(uv, z0=z0), sheets.project_bent(uv, z0=z0, bend_radius=bend_radius)
-        distract = detect(bent, n=N_SIFT).xy
+        distract = detect(bent, n=N_SIFT, detector="sift").xy
         targets = np.concatenate([p1, distract])
         tasks.append((geofeat.polar_patches(flat, p0), geofeat.polar_patches(bent, targets), p1, targets))
     return tasks

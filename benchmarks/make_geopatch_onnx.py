@@ -41,7 +41,7 @@ def main() -> None:
     print(f"wrote {out} ({out.stat().st_size / 1e3:.0f} kB) and {out_int8} ({out_int8.stat().st_size / 1e3:.0f} kB)")
 
     frame = geofeat.read_demo_frame()
-    p = geofeat.polar_patches(frame, detect(frame, 2048))
+    p = geofeat.polar_patches(frame, detect(frame, 2048, detector="sift"))
     ref = GeoPatch(weights=args.weights, device="cpu", backend="torch").describe(p.values, p.valid)[p.valid]
     for name, path in (("fp32", out), ("int8", out_int8)):
         d = GeoPatch(weights=str(path), backend="onnx").describe(p.values, p.valid)[p.valid]
