@@ -178,14 +178,18 @@ def test_a_score_threshold_is_kept_only_when_it_leaves_sifts_keypoints_and_corre
     assert not admissible_threshold({**ok, 300: {"n_ref": 210.0, "hits": 45.0}}, sift, 150)  # fewer correct matches
     shipped = load_geokey()
     model, results, chosen = choose_model({"shipped": shipped}, [tiny / "a-deform"], counts=(150,), radii=(3.0,),
-                                          level_biases=(0.0,), thresholds=(-np.inf, 0.5, 99.0), progress=False)
+                                          level_biases=(0.0,), thresholds=(-np.inf, 0.5, 99.0), keep_fraction=0.2,
+                                          progress=False)
     assert SIFT_KEY in results and ("shipped, threshold 99", 3.0) in results
-    assert results[("shipped, threshold 99", 3.0)][150]["n_ref"] == 0
+    assert results[("shipped, threshold 99", 3.0)][150]["n_ref"] == 0  # evaluated without the floor
     assert chosen != ("shipped, threshold 99", 3.0)  # keeps no keypoint: never admissible
     admissible = [key for key in results if key != SIFT_KEY
                   and (key == ("shipped", 3.0) or admissible_threshold(results[key], results[SIFT_KEY]))]
     assert chosen == max(admissible, key=lambda key: mean_ms(results[key]))
-    assert model.threshold == (0.5 if chosen[0].endswith("0.5") else -np.inf)
+    if chosen == ("shipped, threshold 0.5", 3.0):  # a chosen threshold comes with the floor
+        assert (model.threshold, model.min_fraction) == pytest.approx((0.5, 0.2))
+    else:
+        assert (model.threshold, model.min_fraction) == (-np.inf, 0.0)
 
 
 def test_the_score_threshold_drops_low_scores_and_travels_with_the_weights(tmp_path):
@@ -193,24 +197,40 @@ def test_the_score_threshold_drops_low_scores_and_travels_with_the_weights(tmp_p
     shipped = load_geokey()
     everything = detect_geokey(frame, 0, shipped, threshold=-np.inf)
     t = float(np.median(everything.responses))
-    kept = detect_geokey(frame, 0, shipped, threshold=t)
+    kept = detect_geokey(frame, 0, shipped, threshold=t, min_fraction=0.0)
     assert len(kept) == int(np.sum(everything.responses >= t)) and kept.responses.min() >= t
     np.testing.assert_array_equal(kept.xy, everything.xy[: len(kept)])  # the same ranking, cut at t
     assert len(detect_geokey(frame, 50, shipped, threshold=-np.inf)) == 50
     model = GeoKeyModel(shipped.mean, shipped.std, shipped.linear, shipped.weights, shipped.biases,
-                        shipped.nms_radius, t)
+                        shipped.nms_radius, t, 0.1)
     model.save(tmp_path / "t.npz")
     assert load_geokey(tmp_path / "t.npz").threshold == pytest.approx(t)
+    assert load_geokey(tmp_path / "t.npz").min_fraction == pytest.approx(0.1)
     np.testing.assert_array_equal(geofeat.detect(frame, None, detector=f"geokey={tmp_path / 't.npz'}").xy, kept.xy)
-    np.testing.assert_array_equal(geofeat.detect(frame, None, detector="geokey", threshold=t).xy, kept.xy)
+    np.testing.assert_array_equal(geofeat.detect(frame, None, detector="geokey", threshold=t, min_fraction=0).xy, kept.xy)
     with pytest.warns(UserWarning, match="threshold"):
-        assert len(detect_geokey(frame, 10, shipped, threshold=1e6)) == 0
+        assert len(detect_geokey(frame, 10, shipped, threshold=1e6, min_fraction=0.0)) == 0
     with pytest.raises(ValueError, match="threshold"):
         detect_geokey(frame, 10, shipped, threshold=float("nan"))
     old = dict(np.load(tmp_path / "t.npz"))
-    del old["threshold"]  # weights written before the threshold existed
+    del old["threshold"], old["min_fraction"]  # weights written before the selection rule existed
     np.savez(open(tmp_path / "old.npz", "wb"), **old)
-    assert load_geokey(tmp_path / "old.npz").threshold == -np.inf
+    assert (load_geokey(tmp_path / "old.npz").threshold, load_geokey(tmp_path / "old.npz").min_fraction) == (-np.inf, 0.0)
+
+
+def test_a_fraction_of_the_candidates_is_kept_whatever_the_threshold():
+    frame = geofeat.read_demo_frame()
+    shipped = load_geokey()
+    everything = detect_geokey(frame, 0, shipped, threshold=-np.inf)
+    quarter = detect_geokey(frame, 0, shipped, threshold=np.inf, min_fraction=0.25)
+    assert len(quarter) == int(0.25 * len(everything))
+    np.testing.assert_array_equal(quarter.xy, everything.xy[: len(quarter)])
+    t = float(everything.responses[len(everything) // 2])  # half of them reach t
+    either = detect_geokey(frame, 0, shipped, threshold=t, min_fraction=0.25)
+    assert len(either) == int(np.sum(everything.responses >= t))  # the larger of the two
+    assert len(detect_geokey(frame, 100, shipped, threshold=np.inf, min_fraction=0.25)) == 100  # at most n
+    with pytest.raises(ValueError, match="min_fraction"):
+        detect_geokey(frame, 10, shipped, min_fraction=1.5)
 
 
 def test_a_level_bias_moves_half_resolution_candidates_only(tiny):

@@ -163,8 +163,10 @@ def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = DEFAUL
             pixels with depth, scored by image cues, plus depth cues when the weights use them;
             `geofeat.detectors.geokey`) or "geokey=WEIGHTS" (weights from `geofeat train-detector`).
         **sift_options: options of `detect_sift` (keypoint_set, contrast_threshold, mask, ...); GeoKey
-            takes `mask` and `threshold` (its minimum logit; default the weights' own, chosen on
-            validation; -inf returns the `n` best whatever their score).
+            takes `mask`, `threshold` (its minimum logit; default the weights' own, chosen on
+            validation; -inf returns the `n` best whatever their score) and `min_fraction` (the best
+            this fraction of the frame's candidates are kept whatever the threshold; default the
+            weights' own).
 
     Returns:
         `Keypoints` sorted best first; fewer than `n` when the detector's threshold stops it (SIFT's
@@ -180,10 +182,12 @@ def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = DEFAUL
 
     mask = sift_options.pop("mask", None)
     threshold = sift_options.pop("threshold", None)
+    min_fraction = sift_options.pop("min_fraction", None)
     sift_options.pop("keypoint_set", None)  # GeoKey has one keypoint per position by construction
     if sift_options:
         raise TypeError(f"detector: options {sorted(sift_options)} apply to 'sift' only")
-    return detect_geokey(frame, n, load_geokey(weights or None), mask=mask, threshold=threshold)
+    return detect_geokey(frame, n, load_geokey(weights or None), mask=mask, threshold=threshold,
+                         min_fraction=min_fraction)
 
 
 def detect_sift(

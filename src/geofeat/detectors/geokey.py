@@ -15,7 +15,8 @@ Three steps, all vectorised:
    correspondences (`geofeat train-detector`, `geofeat.train.detector`).
 3. **Selection.** Non-maximum suppression of the scores within `nms_radius` pixels; candidates whose
    logit is below the model's `threshold` are dropped (like SIFT's contrast threshold, so a frame
-   with little good surface gives fewer keypoints); then the `n` best.
+   with little good surface gives fewer keypoints), except the best `min_fraction` of the frame's
+   candidates, which are always kept; then the `n` best.
 
 The weights are a small `.npz` archive (whatever the file's extension) of numpy arrays: inference
 needs neither torch nor a GPU.
@@ -64,6 +65,9 @@ class GeoKeyModel:
         nms_radius: suppression radius chosen on validation data, pixels.
         threshold: keypoints whose logit is below this are not returned (-inf: none dropped; weights
             files written before the threshold existed load with -inf). Chosen on validation data.
+        min_fraction: the best this fraction of the frame's candidates (after suppression) are kept
+            whatever their logit. The threshold is calibrated on renders, and real images score
+            lower overall; this floor keeps their keypoint count (0: no floor).
     """
 
     mean: np.ndarray
@@ -73,6 +77,7 @@ class GeoKeyModel:
     biases: tuple[np.ndarray, ...]
     nms_radius: float = NMS_RADIUS_PX
     threshold: float = -np.inf
+    min_fraction: float = 0.0
 
     def score(self, features: np.ndarray) -> np.ndarray:
         """(N, D) cue features -> (N,) float32 logits (higher = more likely found again and matched)."""
@@ -97,6 +102,7 @@ class GeoKeyModel:
         """Write the model to `path` as an .npz archive (the extension is kept as given)."""
         arrays = {"mean": self.mean, "std": self.std, "linear": self.linear,
                   "nms_radius": np.float32(self.nms_radius), "threshold": np.float32(self.threshold),
+                  "min_fraction": np.float32(self.min_fraction),
                   "cue_names": np.array(CUE_NAMES)}
         for k, (w, b) in enumerate(zip(self.weights, self.biases)):
             arrays[f"w{k}"], arrays[f"b{k}"] = w, b
@@ -132,7 +138,7 @@ def _load(path: str) -> GeoKeyModel:
     biases = tuple(arrays[f"b{i}"].astype(np.float32) for i in range(k))
     return GeoKeyModel(arrays["mean"].astype(np.float32), arrays["std"].astype(np.float32),
                        arrays["linear"].astype(np.float32), weights, biases, float(arrays["nms_radius"]),
-                       float(arrays.get("threshold", -np.inf)))
+                       float(arrays.get("threshold", -np.inf)), float(arrays.get("min_fraction", 0.0)))
 
 
 @dataclass
@@ -238,7 +244,7 @@ def suppress(xy: np.ndarray, score: np.ndarray, radius: float, shape: tuple[int,
 
 def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
                   nms_radius: float | None = None, mask: np.ndarray | None = None,
-                  threshold: float | None = None) -> Keypoints:
+                  threshold: float | None = None, min_fraction: float | None = None) -> Keypoints:
     """At most `n` GeoKey keypoints of `frame`, best first (0 = all that survive suppression and the
     threshold).
 
@@ -249,6 +255,8 @@ def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
         mask: (H, W), nonzero = allowed; restricts the keypoints like OpenCV's detection masks.
         threshold: minimum logit (default: the model's, chosen on validation; -inf keeps the `n` best
             whatever their score).
+        min_fraction: the best this fraction of the candidates that survive suppression are kept
+            whatever the threshold (default: the model's; 0 = none).
 
     Returns `Keypoints` with angles 0 (GeoKey gives no orientation: geodesic descriptors are
     rotation-invariant), sizes 2^level x 8 px, and responses = the learned score (logit).
@@ -258,6 +266,9 @@ def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
     threshold = model.threshold if threshold is None else float(threshold)
     if np.isnan(threshold):
         raise ValueError("threshold: expected a number or -inf, got nan")
+    min_fraction = model.min_fraction if min_fraction is None else float(min_fraction)
+    if not 0.0 <= min_fraction <= 1.0:
+        raise ValueError(f"min_fraction: expected a fraction in [0, 1], got {min_fraction}")
     cands = candidates(frame)
     if mask is not None:
         mask = np.asarray(mask)
@@ -270,12 +281,13 @@ def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
         return Keypoints(np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0))
     score = model.score(candidate_features(frame, cands, depth_cues=model.uses_depth_cues))
     keep = suppress(cands.xy, score, model.nms_radius if nms_radius is None else nms_radius, frame.shape)
-    keep &= score >= threshold
-    if not keep.any():
-        warnings.warn(f"geokey: no candidate reaches the score threshold {threshold:g} in this frame "
-                      "(little texture, or a view the detector does not trust)", stacklevel=2)
     cands, score = cands[keep], score[keep]
     order = np.argsort(-score, kind="stable")
+    floor = int(min_fraction * len(order))
+    order = order[(np.arange(len(order)) < floor) | (score[order] >= threshold)]
+    if len(order) == 0:
+        warnings.warn(f"geokey: no candidate reaches the score threshold {threshold:g} in this frame "
+                      "(little texture, or a view the detector does not trust)", stacklevel=2)
     if n:
         order = order[:n]
     m = len(order)
