@@ -308,3 +308,9 @@ def test_tracking_table_counts_a_failed_frame_as_lost_not_as_missing():
     assert table["fails"][6:9] == ["0.5", "0.5", "1/3"]
     assert table["poor"][6:8] == ["30.0", "30.0"]
     assert table["lost"][6:8] == ["lost", "lost"]
+    from geofeat.apps.tracking import sequence_error_table
+
+    per_sequence = sequence_error_table(rows + [dict(row("poor", 2.0), sequence="t")]).splitlines()
+    assert per_sequence[0] == "| sequence | fails | poor | lost |"
+    assert per_sequence[2] == "| s | 0.50 | 30.00 | lost |" and per_sequence[3] == "| t | – | 2.00 | – |"
+    assert sequence_error_table([row("x", "nan")]) == ""  # no simulator truth: no table

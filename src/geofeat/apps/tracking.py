@@ -847,6 +847,26 @@ def tracking_table(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def sequence_error_table(rows: list[dict], key: str = "grid_error_visible_px") -> str:
+    """Markdown table of the median grid error per sequence (rows) and descriptor (columns), pixels,
+    a failed frame counted as lost (infinite), as in `tracking_table`; "" when `rows` has no `key`
+    (a sequence without simulator ground truth)."""
+    names = list(dict.fromkeys(r["descriptor"] for r in rows))
+    seqs = list(dict.fromkeys(r["sequence"] for r in rows))
+    if not any(np.isfinite(float(r.get(key, "nan") or "nan")) for r in rows):
+        return ""
+    fmt = lambda v: "lost" if v == np.inf else "–" if not np.isfinite(v) else f"{v:.2f}"  # noqa: E731
+    lines = ["| sequence | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+    for s in seqs:
+        cells = []
+        for name in names:
+            sel = [r for r in rows if r["descriptor"] == name and r["sequence"] == s]
+            cells.append(fmt(_median(np.inf if _failed(r) else float(r.get(key, "nan") or "nan") for r in sel))
+                         if sel else "–")
+        lines.append(f"| {s} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 #: The paper's Table IV (Potje et al., CVIU 2022): inlier rate of RANSAC, matching score and LPIPS,
 #: averaged over its sequences DeSurT, Kinect 1 and Simulation (real data not shipped here). "*":
 #: the descriptor's own keypoints; None: not reported.
@@ -940,6 +960,11 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
                      f"{n_frames / max(seconds, 1e-9):.2f} frames/s (detection, description and every descriptor); "
                      f"per frame, matching + RANSAC{' + refinement' if refine != 'none' else ''}: {per}")
         paper = paper_table_iv(dict.fromkeys(r["descriptor"] for r in rows))
-        (tmp / "tracking.md").write_text(table + ("\n" + paper if paper else "") + "\n"
+        per_sequence = sequence_error_table(rows)
+        if per_sequence:
+            per_sequence = ("Grid error of the visible points per sequence (median over target frames, frame "
+                            "pixels; a failed frame is lost):\n\n" + per_sequence)
+        (tmp / "tracking.md").write_text(table + ("\n" + paper if paper else "")
+                                         + ("\n" + per_sequence if per_sequence else "") + "\n"
                                          + "\n".join(f"- {n}" for n in notes) + "\n")
     return out / "track.csv", table
