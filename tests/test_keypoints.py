@@ -135,3 +135,12 @@ def test_geopatch_is_a_lazy_top_level_name():
     code = ("import sys, geofeat; assert 'torch' not in sys.modules; G = geofeat.GeoPatch; "
             "assert 'torch' not in sys.modules  # the ONNX backend needs none (tests/test_geopatch_onnx.py)")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_extract_and_match_pick_geokey_for_geodesic_descriptors_and_sift_for_the_baselines():
+    from geofeat.cli.options import detector_for
+
+    assert detector_for("geopatch", None) == detector_for("geobit", None) == "geokey"
+    assert detector_for("geopatch=my.pt", None) == "geokey"
+    assert detector_for("orb", None) == detector_for("sift", None) == "sift"  # they take SIFT's orientation
+    assert detector_for("orb", "geokey") == "geokey" and detector_for("geopatch", "sift") == "sift"  # named wins
