@@ -75,3 +75,16 @@ def test_own_orientation_baselines_are_rotation_invariant(name, pair):
 def test_unknown_baseline():
     with pytest.raises(ValueError, match="unknown"):
         OpenCVDescriptor("surf3000")
+
+
+def test_baselines_that_use_the_given_angle_warn_on_unoriented_keypoints():
+    import warnings
+
+    frame = geofeat.read_demo_frame()
+    geokey = geofeat.detect(frame, 50)  # the default detector gives no orientation
+    with pytest.warns(UserWarning, match="angle 0"):
+        geofeat.make_descriptor("orb").compute(frame, geokey)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        geofeat.make_descriptor("orb").compute(frame, geofeat.detect(frame, 50, detector="sift"))  # oriented: quiet
+        geofeat.make_descriptor("freak").compute(frame, geokey)  # FREAK estimates its own orientation

@@ -18,6 +18,7 @@ OpenCV drops keypoints it cannot describe (too close to the border); those come 
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import cv2
@@ -45,6 +46,10 @@ def _make_extractor(name: str):
     if name == "sift":
         return cv2.SIFT_create()
     raise ValueError(f"descriptor: unknown OpenCV baseline {name!r}; expected one of {sorted(SIZE_FACTORS)}")
+
+
+#: The baselines that describe at the given keypoint angle (BRISK and FREAK estimate their own).
+USES_GIVEN_ANGLE = ("orb", "daisy", "sift")
 
 
 @dataclass
@@ -77,6 +82,10 @@ class OpenCVDescriptor:
         with (N, D) descriptors (uint8 for the binary ones, float32 for SIFT and DAISY)."""
         kps = as_keypoints(keypoints, frame.shape)
         n = len(kps)
+        if self.use_angle and self.name in USES_GIVEN_ANGLE and n > 1 and not np.any(kps.angles):
+            warnings.warn(f"{self.name}: every keypoint has angle 0 (GeoKey's keypoints and (N, 2) arrays carry "
+                          f"no orientation), so the descriptor is not rotation-invariant; detect with "
+                          f"detector='sift' to use SIFT's orientation", stacklevel=2)
         sizes = np.where(np.isfinite(kps.sizes), kps.sizes, DEFAULT_SIZE_PX)
         cv_kps = [
             cv2.KeyPoint(float(x), float(y), float(max(s * self.size_factor, 1.0)),
