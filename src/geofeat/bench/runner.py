@@ -21,6 +21,7 @@ import json
 import multiprocessing
 import time
 import traceback
+import warnings
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
@@ -107,6 +108,18 @@ def _pose_change(seq: Sequence, target: str) -> tuple[float, float]:
         return float("nan"), float("nan")
 
 
+def _unoriented(describe: Callable) -> Callable:
+    """`describe` without the baselines' warning about keypoints at angle 0: the landmark protocol
+    describes annotated positions, which have no orientation: every descriptor sees them at angle 0
+    by design."""
+    def run(frame, kps):
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=".*every keypoint has angle 0")
+            return describe(frame, kps)
+
+    return run
+
+
 def _empty_row_score(n_ref: int, n_tgt: int):
     from ..scoring import PairScore
 
@@ -126,6 +139,8 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
     ref = seq.frame(seq.reference)
     profile = sequence_depth_profile(seq, config.depth_profile, ref) if names else ""
     describe = Describer(names, resolve_radius(config.radius, seq), profile or "kinect")
+    if config.protocol == "landmarks":
+        describe = _unoriented(describe)
     rows = []
     if config.protocol == "landmarks":
         ids_r, xy_r, vis_r = seq.landmarks(seq.reference)
