@@ -42,5 +42,6 @@ def run(args: argparse.Namespace) -> int:
             print(f"| {name}{mark} | {'-' if key == SIFT_KEY else f'{radius:g}'} | {n} | {r['ms']:.3f} | "
                   f"{r['mma']:.3f} | {r['repeatability']:.3f} | {r['hits']:.0f} | {r['n_ref']:.0f} |")
     print(f"wrote {args.out} (chosen by the mean validation MS at {', '.join(map(str, counts))} keypoints per frame; "
-          f"a score threshold only where it keeps at least SIFT's keypoints and correct matches)")
+          f"a score threshold only where it keeps at least SIFT's keypoints and correct matches; "
+          f"threshold {model.threshold:g}, floor: the best {100 * model.min_fraction:.0f} % of each frame's candidates)")
     return 0
