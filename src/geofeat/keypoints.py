@@ -152,7 +152,7 @@ def check_detector_name(detector: str) -> str:
     return detector
 
 
-def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = DEFAULT_DETECTOR, **sift_options) -> Keypoints:
+def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = DEFAULT_DETECTOR, **options) -> Keypoints:
     """Detect keypoints on `frame`, best first.
 
     Args:
@@ -162,7 +162,7 @@ def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = DEFAUL
             (the learned deformation-aware detector with the shipped weights: corner candidates on
             pixels with depth, scored by image cues, plus depth cues when the weights use them;
             `geofeat.detectors.geokey`) or "geokey=WEIGHTS" (weights from `geofeat train-detector`).
-        **sift_options: options of `detect_sift` (keypoint_set, contrast_threshold, mask, ...); GeoKey
+        **options: options of `detect_sift` (keypoint_set, contrast_threshold, mask, ...); GeoKey
             takes `mask`, `threshold` (its minimum logit; default the weights' own, chosen on
             validation; -inf returns the `n` best whatever their score) and `min_fraction` (the best
             this fraction of the frame's candidates are kept whatever the threshold; default the
@@ -176,16 +176,16 @@ def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = DEFAUL
         raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
     name, _, weights = check_detector_name(detector).partition("=")
     if name == "sift":
-        return detect_sift(frame, n, **sift_options)
+        return detect_sift(frame, n, **options)
     n = _check_n(n)
     from .detectors.geokey import detect_geokey, load_geokey
 
-    mask = sift_options.pop("mask", None)
-    threshold = sift_options.pop("threshold", None)
-    min_fraction = sift_options.pop("min_fraction", None)
-    sift_options.pop("keypoint_set", None)  # GeoKey has one keypoint per position by construction
-    if sift_options:
-        raise TypeError(f"detector: options {sorted(sift_options)} apply to 'sift' only")
+    mask = options.pop("mask", None)
+    threshold = options.pop("threshold", None)
+    min_fraction = options.pop("min_fraction", None)
+    options.pop("keypoint_set", None)  # GeoKey has one keypoint per position by construction
+    if options:
+        raise TypeError(f"detector: options {sorted(options)} apply to 'sift' only")
     return detect_geokey(frame, n, load_geokey(weights or None), mask=mask, threshold=threshold,
                          min_fraction=min_fraction)
 

@@ -815,6 +815,23 @@ def _failed(row: dict) -> bool:
     return str(row["failed"]) in ("True", "1")
 
 
+def _lost_median(rows: list[dict], key: str) -> float:
+    """Median of column `key` over `rows` (one sequence and descriptor), a failed frame counted as
+    lost (an infinite error, so that failing never scores better than a poor fit)."""
+    return _median(np.inf if _failed(r) else _value(r, key) for r in rows)
+
+
+def _value(row: dict, key: str) -> float:
+    """Column `key` of a track row as a float; NaN when absent or empty."""
+    v = row.get(key)
+    return float("nan") if v is None or v == "" else float(v)
+
+
+def _cell(value: float, digits: int = 2) -> str:
+    """A table cell: "lost" for inf, "–" for NaN, else the value."""
+    return "lost" if value == np.inf else "–" if not np.isfinite(value) else f"{value:.{digits}f}"
+
+
 def tracking_table(rows: list[dict]) -> str:
     """Markdown table like the paper's Table IV: per descriptor, each metric averaged per sequence
     (over its target frames; failed frames count 0 inliers and no SSIM), then over sequences. The
@@ -835,14 +852,13 @@ def tracking_table(rows: list[dict]) -> str:
                 continue
             for key in ("inlier_rate", "ms", "precision", "ssim", "ncc"):
                 per[key].append(_mean(float(r[key]) for r in sel))
-            for key in ("grid_error_px", "grid_error_visible_px"):  # a failed frame is lost: an infinite error
-                per[key].append(_median(np.inf if _failed(r) else float(r.get(key, "nan")) for r in sel))
+            for key in ("grid_error_px", "grid_error_visible_px"):
+                per[key].append(_lost_median(sel, key))
             failed += sum(_failed(r) for r in sel)
             total += len(sel)
-        fmt = lambda v, d=2: "lost" if v == np.inf else "–" if not np.isfinite(v) else f"{v:.{d}f}"  # noqa: E731
-        lines.append(f"| {name} | {fmt(_mean(per['inlier_rate']))} | {fmt(_mean(per['ms']))} | {fmt(_mean(per['precision']))} | "
-                     f"{fmt(_mean(per['ssim']))} | {fmt(_mean(per['ncc']))} | {fmt(_mean(per['grid_error_px']), 1)} | "
-                     f"{fmt(_mean(per['grid_error_visible_px']), 1)} | "
+        lines.append(f"| {name} | {_cell(_mean(per['inlier_rate']))} | {_cell(_mean(per['ms']))} | {_cell(_mean(per['precision']))} | "
+                     f"{_cell(_mean(per['ssim']))} | {_cell(_mean(per['ncc']))} | {_cell(_mean(per['grid_error_px']), 1)} | "
+                     f"{_cell(_mean(per['grid_error_visible_px']), 1)} | "
                      f"{failed}/{total} |")
     return "\n".join(lines) + "\n"
 
@@ -853,16 +869,14 @@ def sequence_error_table(rows: list[dict], key: str = "grid_error_visible_px") -
     (a sequence without simulator ground truth)."""
     names = list(dict.fromkeys(r["descriptor"] for r in rows))
     seqs = list(dict.fromkeys(r["sequence"] for r in rows))
-    if not any(np.isfinite(float(r.get(key, "nan") or "nan")) for r in rows):
+    if not any(np.isfinite(_value(r, key)) for r in rows):
         return ""
-    fmt = lambda v: "lost" if v == np.inf else "–" if not np.isfinite(v) else f"{v:.2f}"  # noqa: E731
     lines = ["| sequence | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
     for s in seqs:
         cells = []
         for name in names:
             sel = [r for r in rows if r["descriptor"] == name and r["sequence"] == s]
-            cells.append(fmt(_median(np.inf if _failed(r) else float(r.get(key, "nan") or "nan") for r in sel))
-                         if sel else "–")
+            cells.append(_cell(_lost_median(sel, key)) if sel else "–")
         lines.append(f"| {s} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 

@@ -139,10 +139,9 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
     ref = seq.frame(seq.reference)
     profile = sequence_depth_profile(seq, config.depth_profile, ref) if names else ""
     describe = Describer(names, resolve_radius(config.radius, seq), profile or "kinect")
-    if config.protocol == "landmarks":
-        describe = _unoriented(describe)
     rows = []
     if config.protocol == "landmarks":
+        describe = _unoriented(describe)
         ids_r, xy_r, vis_r = seq.landmarks(seq.reference)
         k_ref = Keypoints(xy_r[vis_r], np.zeros(vis_r.sum()), np.full(vis_r.sum(), 8.0), np.zeros(vis_r.sum()))
     else:

@@ -42,11 +42,9 @@ def frame_and_keypoints(seq, name: str, args: argparse.Namespace):
     """(frame, keypoints) of frame `name` with the command's detector options; ValueError when the
     frame cannot be read or has no keypoints (extract and match skip such a frame by name)."""
     from ..keypoints import detect
-    from .options import detector_for
 
     frame = seq.frame(name)
-    detector = detector_for(args.descriptor, args.detector)
-    kps = detect(frame, args.keypoints, detector=detector, keypoint_set=args.keypoint_set)
+    kps = detect(frame, args.keypoints, detector=args.detector, keypoint_set=args.keypoint_set)
     if len(kps) == 0:
         raise ValueError("no keypoints detected")
     return frame, kps

@@ -18,7 +18,7 @@ each deformation, scale change and roll.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -296,8 +296,7 @@ def choose_model(models: dict[str, GeoKeyModel], folders: list[Path], counts: tu
         raise ValueError(f"keypoints: expected positive counts, got {counts}")
     results: dict = {}
     candidates_by_key: dict = {}
-    models = {name: GeoKeyModel(m.mean, m.std, m.linear, m.weights, m.biases, m.nms_radius)  # no threshold, no floor
-              for name, m in models.items()}
+    models = {name: replace(m, threshold=-np.inf, min_fraction=0.0) for name, m in models.items()}  # no rule yet
 
     def score(label: str, model: GeoKeyModel, radius: float) -> None:
         per_count = {}
@@ -319,8 +318,7 @@ def choose_model(models: dict[str, GeoKeyModel], folders: list[Path], counts: tu
         if bias != 0.0:
             score(f"{name}, level 1 {bias:+g}", with_level_bias(models[name], bias), radius)
     label, radius = max(results, key=lambda key: mean_ms(results[key]))
-    best = candidates_by_key[(label, radius)]
-    best = GeoKeyModel(best.mean, best.std, best.linear, best.weights, best.biases, radius)
+    best = replace(candidates_by_key[(label, radius)], nms_radius=radius)
     chosen = (label, radius)
     finite = [t for t in thresholds if np.isfinite(t)]
     if finite:
@@ -331,14 +329,12 @@ def choose_model(models: dict[str, GeoKeyModel], folders: list[Path], counts: tu
         admissible = [chosen]
         for t in finite:
             key = (f"{label}, threshold {t:g}", radius)
-            score(key[0], GeoKeyModel(best.mean, best.std, best.linear, best.weights, best.biases, radius, float(t)),
-                  radius)
+            score(key[0], replace(best, threshold=float(t)), radius)
             if admissible_threshold(results[key], sift):
                 admissible.append(key)
         chosen = max(admissible, key=lambda key: mean_ms(results[key]))
         if chosen != admissible[0]:
-            t = candidates_by_key[chosen].threshold
-            best = GeoKeyModel(best.mean, best.std, best.linear, best.weights, best.biases, radius, t, keep_fraction)
+            best = replace(candidates_by_key[chosen], min_fraction=keep_fraction)
     return best, results, chosen
 
 
@@ -363,8 +359,7 @@ def with_level_bias(model: GeoKeyModel, bias: float) -> GeoKeyModel:
     k = CUE_NAMES.index("level")
     linear = model.linear.copy()
     linear[k] += np.float32(bias) * model.std[k]
-    return GeoKeyModel(model.mean, model.std, linear, model.weights, model.biases, model.nms_radius, model.threshold,
-                       model.min_fraction)
+    return replace(model, linear=linear)
 
 
 def mean_ms(per_count: dict) -> float:
