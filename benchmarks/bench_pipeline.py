@@ -1,7 +1,7 @@
 """The whole geofeat pipeline on a pair, per stage, against OpenCV SIFT in the same process.
 
 Run: PYTHONPATH=src .venv/bin/python benchmarks/bench_pipeline.py [--repeats 5] [--rounds 3]
-     [--detector sift|geokey] [--backends torch,onnx,onnx-int8,openvino-int8] [--keypoints 2048]
+     [--detector sift|geokey] [--backends torch,onnx,onnx-int8,openvino-int8,openvino-bf16] [--keypoints 2048]
 
 The pair is the shipped Kinect frame and its 90-degree roll, 2048 keypoints each. Stages:
 - detect (`geofeat.detect`, per frame);
@@ -63,7 +63,7 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--keypoints", type=int, default=2048)
     ap.add_argument("--detector", default="sift", help="geofeat.detect detector (default sift)")
-    ap.add_argument("--backends", default="torch:1,torch:2,onnx:1,onnx:2,onnx-int8:1,onnx-int8:2,openvino-int8:1,openvino-int8:2",
+    ap.add_argument("--backends", default="torch:1,torch:2,onnx:1,onnx:2,onnx-int8:1,onnx-int8:2,openvino-int8:1,openvino-int8:2,openvino-bf16:1,openvino-bf16:2",
                     help="GeoPatch backends to time, each BACKEND or BACKEND:THREADS (torch threads or ORT "
                          "intra-op threads; without: the backend's default)")
     a = ap.parse_args()

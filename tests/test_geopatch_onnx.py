@@ -87,7 +87,7 @@ def test_int8_is_close_and_matches_like_torch(kinect_pair, torch_net, backend):
     assert agree >= 0.95, agree
 
 
-@pytest.mark.parametrize("backend", ["onnx", "onnx-int8", "openvino-int8"])
+@pytest.mark.parametrize("backend", ["onnx", "onnx-int8", "openvino-int8", "openvino-bf16"])
 def test_rotated_frame_gives_the_same_descriptors(kinect_pair, backend):
     """The same points seen in the frame and in its 90-degree roll get descriptors nearer to each
     other than to other points' (as with torch), and column shifts by multiples of 4 (the two
@@ -114,7 +114,12 @@ def test_backend_names_and_the_environment_variable(monkeypatch, tmp_path):
     with pytest.raises(ValueError, match=BACKEND_ENV):
         GeoPatch()
     monkeypatch.delenv(BACKEND_ENV)
-    expected = "openvino-int8" if importlib.util.find_spec("openvino") else "onnx-int8"
+    if importlib.util.find_spec("openvino"):
+        from geofeat.descriptors.geopatch_openvino import cpu_has_bf16
+
+        expected = "openvino-bf16" if cpu_has_bf16() else "openvino-int8"
+    else:
+        expected = "onnx-int8"
     assert GeoPatch(device="cpu").backend == expected
     with pytest.raises(ValueError, match="CPU"):
         GeoPatch(backend="onnx", device="cuda")
@@ -136,6 +141,44 @@ def test_openvino_runs_the_int8_model_like_onnxruntime(kinect_pair):
         return np.argmin(((d0[:, None] - d1[None]) ** 2).sum(-1), axis=1)
 
     assert (nearest(da_ov, db_ov) == nearest(da_ort, db_ort)).mean() >= 0.99
+
+
+def test_bf16_is_within_cosine_0999_of_torch_and_matches_alike(kinect_pair, torch_net):
+    """bfloat16 on float32-z-scored patches stays close to torch's float32 descriptors (where the CPU
+    has no bfloat16, OpenVINO runs float32 and this holds a fortiori); a flat patch stays finite."""
+    pytest.importorskip("openvino")
+    a, b = kinect_pair
+    g = GeoPatch(backend="openvino-bf16", batch_size=100)
+    flat = np.full((1, 32, 32), 0.5, np.float32)
+    got_a, got_b = g.describe(np.concatenate([a, flat])), g.describe(b)
+    assert np.isfinite(got_a).all()
+    got_a = got_a[:-1]
+    ref_a, ref_b = torch_net.describe(a), torch_net.describe(b)
+    cosine = np.concatenate([(got_a * ref_a).sum(1), (got_b * ref_b).sum(1)])
+    assert cosine.min() > 0.999, cosine.min()
+
+    def nearest(d0, d1):
+        return np.argmin(((d0[:, None] - d1[None]) ** 2).sum(-1), axis=1)
+
+    assert (nearest(got_a, got_b) == nearest(ref_a, ref_b)).mean() >= 0.99
+    with pytest.raises(ValueError, match="onnx"):
+        GeoPatch(weights=str(default_weights_path()), backend="openvino-bf16")
+
+
+def test_zscore_matches_the_networks_normalisation():
+    pytest.importorskip("openvino")
+    import torch
+
+    from geofeat.descriptors.geopatch_net import GeoPatchNet
+    from geofeat.descriptors.geopatch_openvino import zscore_patches
+
+    x = (np.random.default_rng(2).random((7, 32, 32)) * 255).astype(np.float32)
+    x[3] = 17.0  # flat: 0, not NaN
+    expected = GeoPatchNet.normalise(torch.from_numpy(x)[:, None])[:, 0].numpy()
+    got = zscore_patches(x)
+    np.testing.assert_allclose(got, expected, atol=1e-5, rtol=0)
+    assert (got[3] == 0).all()
+    assert zscore_patches(np.zeros((0, 32, 32), np.float32)).shape == (0, 32, 32)
 
 
 def test_user_weights_use_torch_or_are_exported_on_the_fly(tmp_path):
@@ -164,7 +207,7 @@ def test_onnx_backend_does_not_import_torch():
     code = ("import sys, numpy as np, geofeat\n"
             "g = geofeat.make_descriptor('geopatch')\n"
             "f = g.compute(geofeat.read_demo_frame(), np.array([[320.0, 240.0], [300.0, 200.0]]))\n"
-            "assert g.backend in ('onnx-int8', 'openvino-int8') and f.descriptors.shape == (2, 128)\n"
+            "assert g.backend in ('onnx-int8', 'openvino-int8', 'openvino-bf16') and f.descriptors.shape == (2, 128)\n"
             "assert 'torch' not in sys.modules, 'torch was imported'\n")
     env = {k: v for k, v in os.environ.items() if k != BACKEND_ENV}
     result = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)

@@ -23,9 +23,10 @@ sequences; see the training notes in BENCHMARKS.md) and load offline.
 
 Backends (`GeoPatch(backend=...)`, or the environment variable GEOFEAT_GEOPATCH_BACKEND): "torch"
 (`geopatch_net.GeoPatchNet`; training, CUDA, user .pt weights), "onnx" (ONNX Runtime fp32, the
-torch descriptors within 1e-4) and "onnx-int8" (static int8, the default for the shipped weights on
-CPU: the same `geofeat bench` scores at about 2.3x less CPU than torch; `geopatch_onnx`,
-BENCHMARKS.md). This module imports no torch; the torch names below load it on first use.
+torch descriptors within 1e-4), "onnx-int8" (static int8: the same `geofeat bench` scores at about
+2.3x less CPU than torch; `geopatch_onnx`), and through OpenVINO "openvino-int8" (the int8 model)
+and "openvino-bf16" (the fp32 model in bfloat16; `geopatch_openvino`). The default for the shipped
+weights on CPU is the fastest of these that the machine has (`resolve_backend`; BENCHMARKS.md). This module imports no torch; the torch names below load it on first use.
 """
 
 from __future__ import annotations
@@ -84,7 +85,7 @@ def __getattr__(name: str):
 #: descriptors are equivalent to torch's; BENCHMARKS.md, "GeoPatch through ONNX Runtime").
 DEFAULT_BACKEND = "onnx-int8"
 #: Patches per forward pass on CPU, per backend (BENCHMARKS.md).
-DEFAULT_BATCH = {"torch": 128, "onnx": 256, "onnx-int8": 256, "openvino-int8": 256}
+DEFAULT_BATCH = {"torch": 128, "onnx": 256, "onnx-int8": 256, "openvino-int8": 256, "openvino-bf16": 256}
 
 
 def _cuda_visible() -> bool:
@@ -99,8 +100,8 @@ def _cuda_visible() -> bool:
 def resolve_backend(backend: str | None, weights: str | Path | None, device: str | None) -> str:
     """The backend GeoPatch uses: `backend` if given, else $GEOFEAT_GEOPATCH_BACKEND, else torch
     on a CUDA device, for user .pt weights, or without onnxruntime; "onnx" for .onnx weights;
-    for the shipped weights on CPU "openvino-int8" when openvino is installed, else
-    `DEFAULT_BACKEND`."""
+    for the shipped weights on CPU "openvino-bf16" when openvino is installed and the CPU has
+    bfloat16 support, "openvino-int8" when openvino is installed, else `DEFAULT_BACKEND`."""
     from .geopatch_onnx import BACKEND_ENV, check_backend, onnx_available
 
     if backend is None and os.environ.get(BACKEND_ENV, "").strip():
@@ -117,9 +118,11 @@ def resolve_backend(backend: str | None, weights: str | Path | None, device: str
         return "torch"
     if weights is not None or not onnx_available():
         return "torch"
-    from .geopatch_openvino import openvino_available
+    from .geopatch_openvino import cpu_has_bf16, openvino_available
 
-    return "openvino-int8" if openvino_available() else DEFAULT_BACKEND
+    if not openvino_available():
+        return DEFAULT_BACKEND
+    return "openvino-bf16" if cpu_has_bf16() else "openvino-int8"
 
 
 @dataclass(frozen=True)
@@ -139,11 +142,14 @@ class GeoPatchSettings(PatchSettings):
             faster than 2 with torch (its OpenMP threads wait on each other; see BENCHMARKS.md).
         backend: "torch", "onnx" (ONNX Runtime, fp32: the torch descriptors within 1e-4),
             "onnx-int8" (ONNX Runtime, static int8 quantisation: close to torch's, the same
-            matching scores; shipped weights only, or an int8 .onnx file) or "openvino-int8" (the
-            same int8 model run by OpenVINO, 2-2.5x faster on CPU; needs `geofeat[fast]`). None:
-            the environment variable GEOFEAT_GEOPATCH_BACKEND, else `resolve_backend`'s choice
-            ("openvino-int8" for the shipped weights on CPU when openvino is installed, else
-            "onnx-int8"). These backends run on CPU and do not import torch; "onnx" with user .pt
+            matching scores; shipped weights only, or an int8 .onnx file), "openvino-int8" (the
+            same int8 model run by OpenVINO, 2-2.5x faster on CPU; needs `geofeat[fast]`) or
+            "openvino-bf16" (the fp32 model run by OpenVINO in bfloat16 on the float32-z-scored
+            patches: within cosine 0.9999 of torch, faster than int8 on CPUs with AMX; shipped
+            weights or an fp32 .onnx file). None: the environment variable
+            GEOFEAT_GEOPATCH_BACKEND, else `resolve_backend`'s choice ("openvino-bf16" for the
+            shipped weights on a CPU with bfloat16 support when openvino is installed,
+            "openvino-int8" on other CPUs, "onnx-int8" without openvino). These backends run on CPU and do not import torch; "onnx" with user .pt
             weights exports them on the fly (needs torch and onnx).
     """
 
@@ -204,10 +210,16 @@ class GeoPatch:
         from .geopatch_openvino import OpenVinoGeoPatch, openvino_available
 
         int8 = self.backend in ("onnx-int8", "openvino-int8")
-        if self.backend == "openvino-int8" and not openvino_available():
-            raise ValueError("backend: openvino-int8 needs the openvino package (pip install 'geofeat[fast]'); "
-                             "or use backend='onnx-int8'")
-        runtime = OpenVinoGeoPatch if self.backend == "openvino-int8" else OnnxGeoPatch
+        if self.backend.startswith("openvino"):
+            if not openvino_available():
+                raise ValueError(f"backend: {self.backend} needs the openvino package (pip install 'geofeat[fast]'); "
+                                 "or use backend='onnx-int8'")
+            bf16 = self.backend == "openvino-bf16"
+
+            def runtime(model, threads):
+                return OpenVinoGeoPatch(model, threads=threads, bf16=bf16)
+        else:
+            runtime = OnnxGeoPatch
         if weights is None:
             path = data_path(ONNX_INT8_NAME if int8 else ONNX_NAME)
             if not path.is_file():
@@ -218,6 +230,10 @@ class GeoPatch:
             if not Path(weights).is_file():
                 raise ValueError(f"weights: no GeoPatch ONNX model at {weights}")
             return runtime(weights, threads=self.threads)
+        if self.backend == "openvino-bf16":
+            raise ValueError(f"backend: openvino-bf16 runs an .onnx model; export {weights} with "
+                             "benchmarks/make_geopatch_onnx.py --weights and pass the .onnx file, or use "
+                             "backend='onnx' or 'torch'")
         if int8:
             raise ValueError(f"backend: {self.backend} needs a calibrated int8 model; make one from "
                              f"{weights} with benchmarks/make_geopatch_onnx.py --weights and pass the "

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 #: Backends of `GeoPatch(backend=...)`.
-BACKENDS = ("torch", "onnx", "onnx-int8", "openvino-int8")
+BACKENDS = ("torch", "onnx", "onnx-int8", "openvino-int8", "openvino-bf16")
 #: Environment variable that overrides the default backend.
 BACKEND_ENV = "GEOFEAT_GEOPATCH_BACKEND"
 #: File names inside geofeat/data.
