@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +41,7 @@ def openvino_available() -> bool:
     return importlib.util.find_spec("openvino") is not None
 
 
+@lru_cache(maxsize=1)
 def cpu_has_bf16() -> bool:
     """True when openvino is installed and its CPU plugin reports bfloat16 support."""
     if not openvino_available():
@@ -77,6 +79,28 @@ def zscore_patches(x: np.ndarray) -> np.ndarray:
     return out
 
 
+@lru_cache(maxsize=8)
+def _compile(path: str, mtime_ns: int, size: int, threads: int, bf16: bool):
+    """(compiled model, ONNX metadata) of a GeoPatch .onnx file; cached, since compiling takes
+    30-60 ms and `geofeat.extract` makes a new GeoPatch for every frame (the file's time and size
+    are in the key, so a rewritten file is compiled again)."""
+    import openvino as ov
+
+    core = ov.Core()
+    network = core.read_model(path)
+    # the ONNX metadata written by make_geopatch_onnx.py, which OpenVINO keeps under "framework"
+    metadata = {key: network.get_rt_info(["framework", key]).astype(str)
+                for key in ("config", "source_sha256") if network.has_rt_info(["framework", key])}
+    if "config" not in metadata:
+        raise ValueError(f"weights: {path} is not a GeoPatch ONNX model (no 'config' metadata)")
+    compiled = core.compile_model(network, "CPU", {
+        "INFERENCE_NUM_THREADS": threads,
+        "PERFORMANCE_HINT": "LATENCY",
+        "INFERENCE_PRECISION_HINT": "bf16" if bf16 else "f32",
+    })
+    return compiled, metadata
+
+
 class OpenVinoGeoPatch:
     """A GeoPatch ONNX model compiled by OpenVINO for the CPU: `run((N, R, A) float32) -> (N, dim)`.
 
@@ -88,24 +112,14 @@ class OpenVinoGeoPatch:
     """
 
     def __init__(self, model: str | Path, threads: int | None = None, bf16: bool = False) -> None:
-        import openvino as ov
-
         self.bf16 = bool(bf16)
         self.threads = default_threads() if threads is None else int(threads)
-        core = ov.Core()
-        network = core.read_model(str(model))
-        # the ONNX metadata written by make_geopatch_onnx.py, which OpenVINO keeps under "framework"
-        self.metadata = {key: network.get_rt_info(["framework", key]).astype(str)
-                         for key in ("config", "source_sha256") if network.has_rt_info(["framework", key])}
-        if "config" not in self.metadata:
-            raise ValueError(f"weights: {model} is not a GeoPatch ONNX model (no 'config' metadata)")
-        self.config = json.loads(self.metadata["config"])
-        self.compiled = core.compile_model(network, "CPU", {
-            "INFERENCE_NUM_THREADS": self.threads,
-            "PERFORMANCE_HINT": "LATENCY",
-            "INFERENCE_PRECISION_HINT": "bf16" if self.bf16 else "f32",
-        })
-        self.request = self.compiled.create_infer_request()
+        path = Path(model).resolve()
+        stat = path.stat()
+        self.compiled, metadata = _compile(str(path), stat.st_mtime_ns, stat.st_size, self.threads, self.bf16)
+        self.metadata = dict(metadata)
+        self.config = json.loads(metadata["config"])
+        self.request = self.compiled.create_infer_request()  # one per instance: requests are not shared
 
     def run(self, x: np.ndarray, batch_size: int = 256) -> np.ndarray:
         """(N, R, A) float32 patches -> (N, dim) float32 unit descriptors, `batch_size` at a time."""
