@@ -10,7 +10,9 @@ The pair is the shipped Kinect frame and its 90-degree roll, 2048 keypoints each
 - the GeoPatch CNN per backend (torch, ONNX Runtime fp32, ONNX Runtime int8), per frame;
 - GeoPatch match (L2, 2048 x 2048) and GeoBit match (2048 x 2048 x 16 rotations);
 - the whole pipeline for the pair (two fresh frames: detect + f(.) + CNN, then the GeoPatch
-  match), per CNN backend, timed end to end;
+  match), per CNN backend, timed end to end; and the same through the public one-call API
+  (`geofeat.extract` on each fresh frame, which builds the mesh while detecting, with its default
+  backend; then `match`);
 against OpenCV SIFT detect + compute, compute alone, and detectAndCompute x 2 + BFMatcher L2.
 
 Each stage is timed `repeats` times in each of `rounds` interleaved rounds; the best wall time and
@@ -113,6 +115,8 @@ def main() -> None:
         "GeoPatch match L2 (pair)": lambda: match(feats[0], feats[1]),
         "GeoBit match 16 rot. (pair)": lambda: match(bits[0], bits[1]),
         **{f"pipeline {b} (pair)": (lambda net=net: pipeline(net)) for b, net in nets.items()},
+        "geofeat.extract x2 + match (pair)": lambda: match(*[geofeat.extract(fresh(f), n, detector=a.detector)
+                                                             for f in frames]),
         "SIFT detect+compute (1 frame)": lambda: sift.detectAndCompute(grays[0], None),
         "SIFT compute (1 frame)": lambda: sift.compute(grays[0], cv_kps[0]),
         "SIFT detectAndCompute x2 + BF L2 (pair)": sift_pair,
@@ -139,6 +143,7 @@ def main() -> None:
     print("\nratios (wall from best wall times, CPU from best process CPU times):")
     for b in backends:
         ratio(f"pipeline {b} (pair)", "SIFT detectAndCompute x2 + BF L2 (pair)", "<= 1.5")
+    ratio("geofeat.extract x2 + match (pair)", "SIFT detectAndCompute x2 + BF L2 (pair)", "<= 1.5")
     ratio("f(.) mesh reused (1 frame)", "SIFT detect+compute (1 frame)", "<= 0.5")
     ratio("f(.) fresh frame (1 frame)", "SIFT detect+compute (1 frame)", "<= 1.0")
     for b in backends:
