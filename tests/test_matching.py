@@ -302,3 +302,20 @@ def test_auto_method_choice(real_geobit):
     assert _choose_method(q, t, r.valid, s.valid, None) == "blocked"
     with pytest.raises(ValueError, match="method"):
         _hamming_search(r.descriptors, r.descriptors, r.valid, r.valid, False, None, method="fast")
+
+
+def test_l2_search_in_blocks_equals_brute_force():
+    """Queries split into blocks (the column minimum then spans blocks) give the brute-force matches,
+    ties included (quantised descriptors), with the mutual check and the ratio test."""
+    from geofeat.matching import _finish_matches, _l2_search
+
+    rng = np.random.default_rng(5)
+    for dtype in (np.float32, np.float64):
+        f0 = Features(np.zeros((37, 2)), rng.integers(0, 3, (37, 5)).astype(dtype), rng.random(37) < 0.9)
+        f1 = Features(np.zeros((23, 2)), rng.integers(0, 3, (23, 5)).astype(dtype), rng.random(23) < 0.9)
+        for mutual, ratio in ((False, None), (True, None), (True, 0.9)):
+            got = _finish_matches(*_l2_search(f0.descriptors, f1.descriptors, f0.valid, f1.valid, mutual, block=4),
+                                  ratio=ratio, mutual=mutual)
+            m, dist = reference_match(f0, f1, "l2", mutual=mutual, ratio=ratio)
+            assert np.array_equal(got.matches0, m), (dtype, mutual, ratio)
+            assert np.allclose(got.distances0[m >= 0], dist[m >= 0], rtol=1e-6)

@@ -3,7 +3,8 @@
 Metrics (chosen from the descriptor type when ``metric=None``):
 
 - ``"l2"``: float descriptors (N, D); Euclidean distance via a matrix product (numpy, float64 for
-  float64 input, float32 otherwise), computed in blocks of queries.
+  float64 input, float32 otherwise), computed in blocks of queries; one numba pass per block finds
+  the best and second-best target of each query and the best query of each target.
 - ``"hamming"``: uint8 descriptors (N, B) of B bytes = 8 B bits; distance in bits.
 - ``"hamming-rot"``: uint8 descriptors (N, R, B), R rotated copies of each descriptor (GeoBit:
   R = 16, B = 64). d(i, j) = min over k of Hamming(query i rotation 0, target j rotation k).
@@ -697,40 +698,86 @@ def _l2_search_torch(d0, d1, valid0, valid1, want_cols):
             None if col_j is None else col_j.cpu().numpy())
 
 
+@njit(parallel=True, cache=True)
+def _l2_block_rows(ab, aa, bb, two, zero, valid0, valid1, dist, best_d, best_j, second_d):
+    """One block of queries: dist[i, j] = sqrt(max(aa[i] + bb[j] - two * ab[i, j], 0)) in the
+    descriptors' float type (inf where either side is invalid), and per row the first minimum
+    (best_d, best_j; -1 where none is finite) and the minimum of the other entries (second_d).
+    `two` and `zero` are 2 and 0 of that type (numba would promote a float32 times a Python
+    number to float64)."""
+    n, n1 = ab.shape
+    inf = np.inf
+    for i in prange(n):
+        b1 = inf
+        b2 = inf
+        j1 = -1
+        if valid0[i]:
+            for j in range(n1):
+                if valid1[j]:
+                    d2 = (aa[i] + bb[j]) - two * ab[i, j]
+                    d = np.sqrt(max(d2, zero))
+                else:
+                    d = inf
+                dist[i, j] = d
+                if d < b1:
+                    b2 = b1
+                    b1 = d
+                    j1 = j
+                elif d < b2:
+                    b2 = d
+        else:
+            for j in range(n1):
+                dist[i, j] = inf
+        best_d[i] = b1
+        best_j[i] = j1
+        second_d[i] = b2
+
+
+@njit(parallel=True, cache=True)
+def _l2_block_cols(dist, offset, col_best, col_j):
+    """Fold one block's distances into the per-column minimum: the first row of the block with the
+    column's smallest distance replaces the running one only when strictly smaller."""
+    n, n1 = dist.shape
+    chunk = 64
+    for c in prange((n1 + chunk - 1) // chunk):
+        lo = c * chunk
+        hi = min(lo + chunk, n1)
+        for i in range(n):
+            for j in range(lo, hi):
+                if dist[i, j] < col_best[j]:
+                    col_best[j] = dist[i, j]
+                    col_j[j] = i + offset
+
+
 def _l2_search(d0, d1, valid0, valid1, want_cols, block: int = 1024):
-    """d0 (N0, D), d1 (N1, D) float. Returns best_d, best_j, second_d (N0,), col_j (N1,) or None."""
+    """d0 (N0, D), d1 (N1, D) float. Returns best_d, best_j, second_d (N0,), col_j (N1,) or None.
+
+    Distances are sqrt(|a|^2 + |b|^2 - 2 a.b) in float32 (float64 for float64 input), the matrix
+    product in blocks of `block` queries; one numba pass per block finds each row's best and second
+    distance, another the columns' best (first row among equals)."""
     dtype = np.float64 if (d0.dtype == np.float64 or d1.dtype == np.float64) else np.float32
     a = np.ascontiguousarray(d0, dtype=dtype)
     b = np.ascontiguousarray(d1, dtype=dtype)
     n0, n1 = len(a), len(b)
     bb = np.einsum("ij,ij->i", b, b)
-    best_d = np.full(n0, np.inf)
-    second_d = np.full(n0, np.inf)
-    best_j = np.full(n0, -1, np.int64)
-    col_best = np.full(n1, np.inf)
+    two = dtype(2.0)
+    v0 = np.ascontiguousarray(valid0, dtype=np.bool_)
+    v1 = np.ascontiguousarray(valid1, dtype=np.bool_)
+    best_d = np.empty(n0, dtype)
+    second_d = np.empty(n0, dtype)
+    best_j = np.empty(n0, np.int64)
+    col_best = np.full(n1, np.inf, dtype)
     col_j = np.full(n1, -1, np.int64)
+    dist = np.empty((min(block, n0), n1), dtype)
     for s in range(0, n0, block):
         ab = a[s : s + block]
-        dist2 = np.einsum("ij,ij->i", ab, ab)[:, None] + bb[None, :] - 2.0 * (ab @ b.T)
-        dist = np.sqrt(np.maximum(dist2, 0.0)).astype(np.float64)
-        dist[:, ~valid1] = np.inf
-        dist[~valid0[s : s + block]] = np.inf
-        j = np.argmin(dist, axis=1)
-        rows = np.arange(len(ab))
-        bd = dist[rows, j]
-        best_d[s : s + block] = bd
-        best_j[s : s + block] = np.where(np.isfinite(bd), j, -1)
-        if n1 > 1:
-            dist[rows, j] = np.inf
-            second_d[s : s + block] = dist.min(axis=1)
-            dist[rows, j] = bd
+        aa = np.einsum("ij,ij->i", ab, ab)
+        rows = dist[: len(ab)]
+        _l2_block_rows(ab @ b.T, aa, bb, two, dtype(0.0), v0[s : s + block], v1, rows, best_d[s : s + block],
+                       best_j[s : s + block], second_d[s : s + block])
         if want_cols:
-            ci = np.argmin(dist, axis=0)
-            cd = dist[ci, np.arange(n1)]
-            better = cd < col_best  # strict: an earlier block keeps ties
-            col_best[better] = cd[better]
-            col_j[better] = ci[better] + s
-    return best_d, best_j, second_d, (col_j if want_cols else None)
+            _l2_block_cols(rows, s, col_best, col_j)
+    return best_d.astype(np.float64), best_j, second_d.astype(np.float64), (col_j if want_cols else None)
 
 
 def _unpack(x, which: str) -> tuple[np.ndarray, np.ndarray]:
