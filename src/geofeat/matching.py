@@ -17,8 +17,10 @@ up to 512 bits (GeoBit, ORB, BRIEF) use a kernel unrolled over 8 words with the 
 longer ones a generic kernel with targets laid out (N1, words, R), vectorised over rotations.
 With 2-16 rotations of up to 512 bits (GeoBit), `_hamming_search` picks one of two exact pruned
 searches (`_choose_method`): "two-stage" (a 256-bit lower bound of every pair, then exact distances
-only for the pairs that the bound cannot rule out; for descriptors of real images) or "blocked"
-(one pass with per-block bounds; for data whose bounds rule out little, such as random bits).
+only for the pairs that the bound cannot rule out; for descriptors of real images; the mutual check
+then asks each query's nearest target whether the query is its nearest, from the same bounds) or
+"blocked" (one pass with per-block bounds; for data whose bounds rule out little, such as random
+bits).
 
 Rules: keypoints with ``valid == False`` on either side never match; among equal distances the
 lowest target index wins; ``matches0 == -1`` means no match and its distance is inf.
@@ -336,21 +338,15 @@ def _byte_fill(v):
 
 
 @njit(inline="always", cache=True)
-def _consider(m, i, j, c, best, second, bj, want_cols, colb, col_d, col_i, colthr):
-    """Update a query's (best, second, best index) and, with want_cols, target j's column state
-    with the exact distance m of pair (i, j), under the brute-force rules: rows ordered by
-    (distance, index); columns by strict improvement (queries arrive in ascending order)."""
+def _consider(m, j, best, second, bj):
+    """A query's (best, second, best index) updated with the exact distance m of its pair with
+    target j, under the brute-force order (distance, index)."""
     if m < best or (m == best and j < bj):
         second = best
         best = m
         bj = j
     elif m < second:
         second = m
-    if want_cols and m < col_d[c, j]:
-        col_d[c, j] = m
-        col_i[c, j] = i
-        below = m - np.uint64(1) if m > 0 else np.uint64(0)
-        colthr[j] = np.uint8(min(min(colb[j], below), np.uint64(127)))
     return best, second, bj
 
 
@@ -368,31 +364,27 @@ def _row_bound(best, second, ratio):
 
 
 @njit(parallel=True, cache=True)
-def _rot_finish8(q, t, valid0, valid1, lb, seeds, colb, n_chunks, ratio, want_cols,
-                 best_d, best_j, second_d, col_d, col_i, n_exact):
+def _rot_finish8(q, t, valid0, valid1, lb, seeds, n_chunks, ratio, best_d, best_j, second_d, n_exact):
     """Stage 2 of the two-stage search: exact distances only where the bound of `_rot_bounds8`
-    leaves a pair able to change an output.
+    leaves a pair able to change a query's output.
 
-    Per query (chunks of consecutive queries, one thread each, ascending within a chunk): the exact
-    distances to its two seeds first (tight running bounds at once), then every other valid target
-    j whose bound lb[i, j] is at most the running best (with a ratio test, `_row_bound`) or,
-    with `want_cols`, at most colb[j] (an exact distance from some query to j, hence at least the
-    column's minimum) and below the chunk's best distance to j so far. Skipped pairs have
+    Per query (chunks of consecutive queries, one thread each): the exact distances to its two
+    seeds first (tight running bounds at once), then every other valid target j whose bound
+    lb[i, j] is at most the running best (with a ratio test, `_row_bound`). Skipped pairs have
     d >= lb > every bound that matters, so they can neither win nor tie; evaluated pairs update the
     outputs under the brute-force rules (`_consider`), so the visiting order changes no output.
 
     The bounds are scanned 8 at a time: lb's rows are read as uint64 words, and one subtraction
     per word flags every byte at or below its threshold (bytes and thresholds <= 127, so no borrow
     crosses a byte); a word without a flag skips 8 targets at once. Flagged bytes are checked
-    again against the current bounds (which only tighten) before an exact distance.
+    again against the current bound (which only tightens) before an exact distance.
 
     q (N0, 8), t (N1, 8, R) uint64, valid0, valid1 as `_rot_bounds8`; lb (N0, N1p) uint8 (N1p a
-    multiple of 8; bounds clipped to 127, padding ignored) and seeds (N0, 2) its outputs; colb
-    (N1,) uint64 (ignored without want_cols). ratio: Lowe's ratio in (0, 1], or 0 for none.
-    Outputs as `_hamming_nn`, except second_d: without a ratio it is not computed; with one it is
-    exact wherever the ratio test can fail (second <= best / ratio) and otherwise some distance
-    above best / ratio, so the ratio test decides as with the exact value.
-    n_exact (n_chunks,) int64: exact distances computed per chunk.
+    multiple of 8; bounds clipped to 127, padding ignored) and seeds (N0, 2) its outputs.
+    ratio: Lowe's ratio in (0, 1], or 0 for none. Outputs as `_hamming_nn` without columns, except
+    second_d: without a ratio it is not computed; with one it is exact wherever the ratio test can
+    fail (second <= best / ratio) and otherwise some distance above best / ratio, so the ratio test
+    decides as with the exact value. n_exact (n_chunks,) int64: exact distances computed per chunk.
     """
     n0 = q.shape[0]
     n1 = t.shape[0]
@@ -400,12 +392,6 @@ def _rot_finish8(q, t, valid0, valid1, lb, seeds, colb, n_chunks, ratio, want_co
     words = lb.view(np.uint64)  # (N0, N1p / 8)
     for c in prange(n_chunks):
         count = 0
-        # per target, the largest bound that may still change the column's output (<= 127)
-        colthr = np.zeros(n1p, np.uint8)
-        if want_cols:
-            for j in range(n1):
-                colthr[j] = np.uint8(min(colb[j], np.uint64(127)))
-        colw = colthr.view(np.uint64)
         for i in range((c * n0) // n_chunks, ((c + 1) * n0) // n_chunks):
             best = _BIG
             second = _BIG
@@ -419,55 +405,69 @@ def _rot_finish8(q, t, valid0, valid1, lb, seeds, colb, n_chunks, ratio, want_co
                     if j >= 0:
                         m = _rot_exact8(q0, q1, q2, q3, q4, q5, q6, q7, t, j)
                         count += 1
-                        best, second, bj = _consider(m, i, j, c, best, second, bj, want_cols, colb, col_d,
-                                                     col_i, colthr)
+                        best, second, bj = _consider(m, j, best, second, bj)
                 for w in range(n1p // 8):
                     rb = _row_bound(best, second, ratio)
                     x = words[i, w]
-                    flags = (_byte_fill(min(rb, np.uint64(127))) | _H80) - x
-                    if want_cols:
-                        flags |= (colw[w] | _H80) - x
-                    if flags & _H80 == 0:
+                    if ((_byte_fill(min(rb, np.uint64(127))) | _H80) - x) & _H80 == 0:
                         continue
                     for j in range(8 * w, min(8 * w + 8, n1)):
                         if j == s0 or j == s1 or not valid1[j]:
                             continue
-                        bound = np.uint64(lb[i, j])
-                        if bound > _row_bound(best, second, ratio):
-                            if not want_cols or bound > colb[j] or bound >= col_d[c, j]:
-                                continue
+                        if np.uint64(lb[i, j]) > _row_bound(best, second, ratio):
+                            continue
                         m = _rot_exact8(q0, q1, q2, q3, q4, q5, q6, q7, t, j)
                         count += 1
-                        best, second, bj = _consider(m, i, j, c, best, second, bj, want_cols, colb, col_d,
-                                                     col_i, colthr)
+                        best, second, bj = _consider(m, j, best, second, bj)
             best_d[i] = best
             second_d[i] = second
             best_j[i] = bj
         n_exact[c] = count
 
 
-@njit(cache=True)
-def _column_argmin(lb, valid0, out):
-    """out[j] = the first valid row i with the smallest lb[i, j], for j < len(out) (0 when no row
-    is valid). lb: (N0, N1p) uint8; valid0 (N0,) bool; out (N1,) int64."""
-    n1 = len(out)
-    low = np.full(n1, 255, np.uint8)
-    for i in range(lb.shape[0]):
-        if valid0[i]:
-            for j in range(n1):
-                v = lb[i, j]
-                if v < low[j]:
-                    low[j] = v
-                    out[j] = i
+@njit(parallel=True, cache=True)
+def _transpose_bounds(lb, n0, n1, out):
+    """out[j, i] = lb[i, j] for i < n0, j < n1, in 64 x 64 tiles. lb (N0, N1p), out (N1, N0p) uint8."""
+    tile = 64
+    for bj in prange((n1 + tile - 1) // tile):
+        j_stop = min(n1, (bj + 1) * tile)
+        for i_start in range(0, n0, tile):
+            i_stop = min(n0, i_start + tile)
+            for j in range(bj * tile, j_stop):
+                for i in range(i_start, i_stop):
+                    out[j, i] = lb[i, j]
 
 
 @njit(parallel=True, cache=True)
-def _rot_pairs8(q, t, ii, jj, out):
-    """Exact min-over-rotations distances of the pairs (ii[p], jj[p]). q (N0, 8), t (N1, 8, R)
-    uint64; ii, jj (P,) int64; out (P,) uint64."""
-    for p in prange(len(ii)):
-        i = ii[p]
-        out[p] = _rot_exact8(q[i, 0], q[i, 1], q[i, 2], q[i, 3], q[i, 4], q[i, 5], q[i, 6], q[i, 7], t, jj[p])
+def _verify_mutual(q, t, valid0, lbt, best_d, best_j, owner):
+    """owner[i] = True when query i is its nearest target's nearest query: no other valid query i'
+    has a smaller exact distance to j = best_j[i], or the same distance and a lower index (the
+    brute-force column rule). Only the queries whose bound lbt[j, i'] (the transposed bounds of
+    `_rot_bounds8`) is at most best_d[i] can break it, so only they get an exact distance (the
+    column's bytes scanned 8 at a time, as in `_rot_finish8`); the scan stops at the first that does.
+    q (N0, 8), t (N1, 8, R) uint64; lbt (N1, N0p) uint8, N0p a multiple of 8."""
+    n0 = q.shape[0]
+    n0p = lbt.shape[1]
+    words = lbt.view(np.uint64)  # (N1, N0p / 8)
+    for i in prange(n0):
+        j = best_j[i]
+        ok = j >= 0
+        if ok:
+            d = best_d[i]
+            flag_all = (_byte_fill(min(d, np.uint64(127))) | _H80)
+            for w in range(n0p // 8):
+                if (flag_all - words[j, w]) & _H80 == 0:
+                    continue
+                for k in range(8 * w, min(8 * w + 8, n0)):
+                    if k == i or not valid0[k] or np.uint64(lbt[j, k]) > d:
+                        continue
+                    m = _rot_exact8(q[k, 0], q[k, 1], q[k, 2], q[k, 3], q[k, 4], q[k, 5], q[k, 6], q[k, 7], t, j)
+                    if m < d or (m == d and k < i):
+                        ok = False
+                        break
+                if not ok:
+                    break
+        owner[i] = ok
 
 
 def _as_words(desc: np.ndarray) -> np.ndarray:
@@ -482,8 +482,11 @@ def _as_words(desc: np.ndarray) -> np.ndarray:
 def _two_stage(q, t, valid0, valid1, n_chunks, ratio, want_cols, best_d, best_j, second_d, col_d, col_i):
     """The two-stage exact search (`_rot_bounds8` then `_rot_finish8`) on padded words
     q (N0, 8), t (N1, 8, R) uint64; ratio: Lowe's ratio or None. Fills the outputs like `_rot_nn8`
-    (second_d as `_rot_finish8` says); returns the number of exact distances computed (the pairs
-    that the bounds could not rule out)."""
+    (second_d as `_rot_finish8` says), except the columns: with want_cols, a target j that is the
+    nearest neighbour of a query i which is also j's nearest query gets col_d[0, j] = 0 and
+    col_i[0, j] = i, and every other column stays empty (all the mutual check needs;
+    `_verify_mutual`). Returns the number of exact distances computed in stage 2 (the pairs that the
+    bounds could not rule out)."""
     n0, n1 = len(q), len(t)
     t4 = np.ascontiguousarray(t[:, :4])  # (N1, 4, R): the words of the bound, compact in cache
     block = max(16, (64 * 1024) // t4[0].nbytes)
@@ -491,20 +494,19 @@ def _two_stage(q, t, valid0, valid1, n_chunks, ratio, want_cols, best_d, best_j,
     lb = np.full((n0, n1p), 127, np.uint8)
     seeds = np.empty((n0, 2), np.int64)
     _rot_bounds8(q, t4, valid0, valid1, n_chunks, block, lb, seeds)
-    colb = np.full(n1 if want_cols else 1, _BIG, np.uint64)
-    if want_cols:
-        # an exact distance from the query with the smallest bound of each column: an upper bound
-        # of the column's minimum, so that stage 2 skips most pairs of the column too
-        i_star = np.zeros(n1, np.int64)
-        _column_argmin(lb, valid0, i_star)
-        ok = valid0[i_star] & valid1
-        js = np.flatnonzero(ok)
-        d = np.empty(len(js), np.uint64)
-        _rot_pairs8(q, t, i_star[js].astype(np.int64), js.astype(np.int64), d)
-        colb[js] = d
     n_exact = np.zeros(n_chunks, np.int64)
-    _rot_finish8(q, t, valid0, valid1, lb, seeds, colb, n_chunks, float(ratio or 0.0), bool(want_cols),
-                 best_d, best_j, second_d, col_d, col_i, n_exact)
+    _rot_finish8(q, t, valid0, valid1, lb, seeds, n_chunks, float(ratio or 0.0), best_d, best_j, second_d,
+                 n_exact)
+    if want_cols:
+        # the mutual check asks one question per query: is it its nearest target's nearest query?
+        # Answered from the column's bounds, after the rows are done (`_verify_mutual`)
+        lbt = np.full((n1, -(-n0 // 8) * 8), 127, np.uint8)
+        _transpose_bounds(lb, n0, n1, lbt)
+        owner = np.zeros(n0, np.bool_)
+        _verify_mutual(q, t, valid0, lbt, best_d, best_j, owner)
+        mine = np.flatnonzero(owner)
+        col_d[0, best_j[mine]] = 0
+        col_i[0, best_j[mine]] = mine
     return int(n_exact.sum())
 
 
