@@ -350,41 +350,26 @@ def _consider(m, j, best, second, bj):
     return best, second, bj
 
 
-@njit(inline="always", cache=True)
-def _row_bound(best, second, ratio):
-    """The largest distance bound of a pair that may still change a query's output: its running
-    best distance; with a ratio test (ratio > 0) also every distance that can bring the second
-    best to at most best / ratio (the test fails iff best >= ratio * second), capped by the running
-    second best. best / ratio is rounded up with a margin of one bit (integer distances)."""
-    if ratio <= 0.0:
-        return best
-    if best >= _BIG:
-        return second
-    return min(second, np.uint64(np.float64(best) / ratio) + np.uint64(1))
-
-
 @njit(parallel=True, cache=True)
-def _rot_finish8(q, t, valid0, valid1, lb, seeds, n_chunks, ratio, best_d, best_j, second_d, n_exact):
+def _rot_finish8(q, t, valid0, valid1, lb, seeds, n_chunks, best_d, best_j, second_d, n_exact):
     """Stage 2 of the two-stage search: exact distances only where the bound of `_rot_bounds8`
     leaves a pair able to change a query's output.
 
     Per query (chunks of consecutive queries, one thread each): the exact distances to its two
     seeds first (tight running bounds at once), then every other valid target j whose bound
-    lb[i, j] is at most the running best (with a ratio test, `_row_bound`). Skipped pairs have
+    lb[i, j] is at most the running best. Skipped pairs have
     d >= lb > every bound that matters, so they can neither win nor tie; evaluated pairs update the
     outputs under the brute-force rules (`_consider`), so the visiting order changes no output.
 
     The bounds are scanned 8 at a time: lb's rows are read as uint64 words, and one subtraction
     per word flags every byte at or below its threshold (bytes and thresholds <= 127, so no borrow
     crosses a byte); a word without a flag skips 8 targets at once. Flagged bytes are checked
-    again against the current bound (which only tightens) before an exact distance.
+    again against the running best (which only falls) before an exact distance.
 
     q (N0, 8), t (N1, 8, R) uint64, valid0, valid1 as `_rot_bounds8`; lb (N0, N1p) uint8 (N1p a
     multiple of 8; bounds clipped to 127, padding ignored) and seeds (N0, 2) its outputs.
-    ratio: Lowe's ratio in (0, 1], or 0 for none. Outputs as `_hamming_nn` without columns, except
-    second_d: without a ratio it is not computed; with one it is exact wherever the ratio test can
-    fail (second <= best / ratio) and otherwise some distance above best / ratio, so the ratio test
-    decides as with the exact value. n_exact (n_chunks,) int64: exact distances computed per chunk.
+    Outputs best_d, best_j as `_hamming_nn`; second_d is not exact (the ratio test is
+    `_verify_ratio`'s). n_exact (n_chunks,) int64: exact distances computed per chunk.
     """
     n0 = q.shape[0]
     n1 = t.shape[0]
@@ -407,14 +392,11 @@ def _rot_finish8(q, t, valid0, valid1, lb, seeds, n_chunks, ratio, best_d, best_
                         count += 1
                         best, second, bj = _consider(m, j, best, second, bj)
                 for w in range(n1p // 8):
-                    rb = _row_bound(best, second, ratio)
                     x = words[i, w]
-                    if ((_byte_fill(min(rb, np.uint64(127))) | _H80) - x) & _H80 == 0:
+                    if ((_byte_fill(min(best, np.uint64(127))) | _H80) - x) & _H80 == 0:
                         continue
                     for j in range(8 * w, min(8 * w + 8, n1)):
-                        if j == s0 or j == s1 or not valid1[j]:
-                            continue
-                        if np.uint64(lb[i, j]) > _row_bound(best, second, ratio):
+                        if j == s0 or j == s1 or not valid1[j] or np.uint64(lb[i, j]) > best:
                             continue
                         m = _rot_exact8(q0, q1, q2, q3, q4, q5, q6, q7, t, j)
                         count += 1
@@ -470,6 +452,45 @@ def _verify_mutual(q, t, valid0, lbt, best_d, best_j, owner):
         owner[i] = ok
 
 
+@njit(parallel=True, cache=True)
+def _verify_ratio(q, t, valid1, lb, seeds, best_d, best_j, ratio, second_d):
+    """The ratio test after the rows are done: second_d[i] = the exact distance of some other valid
+    target j that fails query i's test (best_d[i] >= ratio * d(i, j)), else _BIG (the test passes,
+    as with the true second best). Only targets whose bound lb[i, j] is at most best / ratio (+ one
+    bit) can fail it, so only they get an exact distance: first the row's seeds (its two smallest
+    bounds, the likeliest to fail it), then the row's other bytes, 8 at a time (as in
+    `_rot_finish8`); the search stops at the first failure. ratio in (0, 1]."""
+    n0 = q.shape[0]
+    n1 = t.shape[0]
+    n1p = lb.shape[1]
+    words = lb.view(np.uint64)
+    for i in prange(n0):
+        second = _BIG
+        bj = best_j[i]
+        if bj >= 0:
+            best = best_d[i]
+            thr = min(np.uint64(np.float64(best) / ratio) + np.uint64(1), np.uint64(127))
+            flag_all = _byte_fill(thr) | _H80
+            for j in (seeds[i, 0], seeds[i, 1]):  # valid targets (or -1)
+                if j >= 0 and j != bj and second == _BIG:
+                    m = _rot_exact8(q[i, 0], q[i, 1], q[i, 2], q[i, 3], q[i, 4], q[i, 5], q[i, 6], q[i, 7], t, j)
+                    if np.float64(best) >= ratio * np.float64(m):
+                        second = m
+            for w in range(n1p // 8):
+                if second != _BIG:
+                    break
+                if (flag_all - words[i, w]) & _H80 == 0:
+                    continue
+                for j in range(8 * w, min(8 * w + 8, n1)):
+                    if j == bj or not valid1[j] or np.uint64(lb[i, j]) > thr:
+                        continue
+                    m = _rot_exact8(q[i, 0], q[i, 1], q[i, 2], q[i, 3], q[i, 4], q[i, 5], q[i, 6], q[i, 7], t, j)
+                    if np.float64(best) >= ratio * np.float64(m):
+                        second = m
+                        break
+        second_d[i] = second
+
+
 def _as_words(desc: np.ndarray) -> np.ndarray:
     """(N, ..., B) uint8 -> (N, ..., ceil(B / 8)) uint64 (zero padded; bit counts are unchanged)."""
     B = desc.shape[-1]
@@ -495,8 +516,11 @@ def _two_stage(q, t, valid0, valid1, n_chunks, ratio, want_cols, best_d, best_j,
     seeds = np.empty((n0, 2), np.int64)
     _rot_bounds8(q, t4, valid0, valid1, n_chunks, block, lb, seeds)
     n_exact = np.zeros(n_chunks, np.int64)
-    _rot_finish8(q, t, valid0, valid1, lb, seeds, n_chunks, float(ratio or 0.0), best_d, best_j, second_d,
-                 n_exact)
+    _rot_finish8(q, t, valid0, valid1, lb, seeds, n_chunks, best_d, best_j, second_d, n_exact)
+    if ratio is not None:
+        # the ratio test asks one question per query once its best is known: does another target
+        # come within best / ratio? Answered from the row's bounds (`_verify_ratio`)
+        _verify_ratio(q, t, valid1, lb, seeds, best_d, best_j, float(ratio), second_d)
     if want_cols:
         # the mutual check asks one question per query: is it its nearest target's nearest query?
         # Answered from the column's bounds, after the rows are done (`_verify_mutual`)
@@ -546,10 +570,11 @@ def _choose_method(q, t, valid0, valid1, ratio) -> str:
 
 def _hamming_search(d0, d1, valid0, valid1, want_cols, ratio=None, method="auto"):
     """d0, d1: (N, R, B) uint8. Returns best_d, best_j, second_d (N0,), col_j (N1,) or None.
-    second_d is exact for one rotation, and otherwise only where the ratio test needs it: with
-    R > 1 the searches prune against the best distance (no ratio) or the second best
-    ("blocked"), or against min(second best, best / ratio) ("two-stage"), so the ratio test
-    `best < ratio * second` decides as with the exact value.
+    second_d is exact for one rotation, and otherwise only as far as the ratio test needs it: with
+    R > 1 the searches prune against the best distance (no ratio) or the second best ("blocked"),
+    or, for "two-stage", second_d is a distance of another target that fails the test, or _BIG
+    when none does (`_verify_ratio`), so the ratio test `best < ratio * second` decides as with
+    the exact value.
     method, for R in 2..16 rotations of at most 512 bits: "two-stage" (`_two_stage`), "blocked"
     (`_rot_nn8`) or "auto" (`_choose_method`); every method gives the same matches."""
     need_second = ratio is not None
