@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import os
 from functools import lru_cache
 from pathlib import Path
 
@@ -80,10 +81,12 @@ def zscore_patches(x: np.ndarray) -> np.ndarray:
 
 
 @lru_cache(maxsize=8)
-def _compile(path: str, mtime_ns: int, size: int, threads: int, bf16: bool):
+def _compile(path: str, mtime_ns: int, size: int, threads: int, bf16: bool, pid: int):
     """(compiled model, ONNX metadata) of a GeoPatch .onnx file; cached, since compiling takes
-    30-60 ms and `geofeat.extract` makes a new GeoPatch for every frame (the file's time and size
-    are in the key, so a rewritten file is compiled again)."""
+    30-60 ms and `geofeat.extract` makes a new GeoPatch for every frame. The file's time and size are
+    in the key, so a rewritten file is compiled again, and so is the process id: a forked worker
+    (the bench's process pool) compiles its own instead of using its parent's, whose inference
+    threads it does not have."""
     import openvino as ov
 
     core = ov.Core()
@@ -116,7 +119,8 @@ class OpenVinoGeoPatch:
         self.threads = default_threads() if threads is None else int(threads)
         path = Path(model).resolve()
         stat = path.stat()
-        self.compiled, metadata = _compile(str(path), stat.st_mtime_ns, stat.st_size, self.threads, self.bf16)
+        self.compiled, metadata = _compile(str(path), stat.st_mtime_ns, stat.st_size, self.threads, self.bf16,
+                                           os.getpid())
         self.metadata = dict(metadata)
         self.config = json.loads(metadata["config"])
         self.request = self.compiled.create_infer_request()  # one per instance: requests are not shared
