@@ -26,7 +26,8 @@ Backends (`GeoPatch(backend=...)`, or the environment variable GEOFEAT_GEOPATCH_
 torch descriptors within 1e-4), "onnx-int8" (static int8: the same `geofeat bench` scores at about
 2.3x less CPU than torch; `geopatch_onnx`), and through OpenVINO "openvino-int8" (the int8 model)
 and "openvino-bf16" (the fp32 model in bfloat16; `geopatch_openvino`). The default for the shipped
-weights on CPU is the fastest of these that the machine has (`resolve_backend`; BENCHMARKS.md). This module imports no torch; the torch names below load it on first use.
+weights on CPU is the fastest of these that the machine has (`resolve_backend`; BENCHMARKS.md).
+This module imports no torch; the torch names below load it on first use.
 """
 
 from __future__ import annotations
@@ -149,8 +150,9 @@ class GeoPatchSettings(PatchSettings):
             weights or an fp32 .onnx file). None: the environment variable
             GEOFEAT_GEOPATCH_BACKEND, else `resolve_backend`'s choice ("openvino-bf16" for the
             shipped weights on a CPU with bfloat16 support when openvino is installed,
-            "openvino-int8" on other CPUs, "onnx-int8" without openvino). These backends run on CPU and do not import torch; "onnx" with user .pt
-            weights exports them on the fly (needs torch and onnx).
+            "openvino-int8" on other CPUs, "onnx-int8" without openvino). These backends run on
+            CPU and do not import torch; "onnx" with user .pt weights exports them on the fly
+            (needs torch and onnx).
     """
 
     weights: str | Path | None = None
