@@ -212,3 +212,14 @@ def test_onnx_backend_does_not_import_torch():
     env = {k: v for k, v in os.environ.items() if k != BACKEND_ENV}
     result = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
+
+
+def test_openvino_compiles_each_model_once_per_process():
+    """GeoPatch objects made one after another (as `geofeat.extract` does per frame) share the
+    compiled model and keep their own inference request."""
+    pytest.importorskip("openvino")
+    for backend in ("openvino-int8", "openvino-bf16"):
+        a, b = GeoPatch(backend=backend), GeoPatch(backend=backend)
+        assert a.session.compiled is b.session.compiled
+        assert a.session.request is not b.session.request
+    assert GeoPatch(backend="openvino-int8").session.compiled is not GeoPatch(backend="openvino-bf16").session.compiled
