@@ -94,3 +94,20 @@ def test_constant_mode_and_config_checks():
         DepthConfig(fill="magic")
     with pytest.raises(ValueError, match="mesh_scale"):
         DepthConfig(mesh_scale=2.0)
+
+
+def test_halving_is_the_mean_of_the_valid_pixels_of_each_block():
+    """Each output pixel is the mean of the valid pixels of its 2 x 2 block, and missing where fewer
+    than 2 of them are valid; odd sizes drop their last row / column."""
+    from geofeat.depth import _halve
+
+    rng = np.random.default_rng(4)
+    depth = rng.uniform(0.5, 2.0, (9, 13)).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.35] = 0.0
+    blocks = depth[:8, :12].reshape(4, 2, 6, 2).transpose(0, 2, 1, 3).reshape(4, 6, 4).astype(np.float64)
+    count = (blocks > 0).sum(-1)
+    expected = np.where(count >= 2, blocks.sum(-1) / np.maximum(count, 1), 0.0)
+    got = _halve(depth)
+    assert got.shape == (4, 6) and got.dtype == np.float32
+    np.testing.assert_allclose(got, expected, rtol=1e-6, atol=0)
+    assert ((got == 0) == (count < 2)).all()
