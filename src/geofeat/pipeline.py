@@ -31,9 +31,9 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
     Returns:
         `Features`: keypoints (N, 2) pixels, descriptors ((N, 128) float32 for GeoPatch), valid (N,).
 
-    On the CPU, descriptors on geodesic patches (GeoPatch, GeoBit) have the frame's mesh built in a
-    background thread while the detector runs (`_mesh_prefetch`); the results are the same as
-    detecting first and describing after.
+    Descriptors on geodesic patches (GeoPatch, GeoBit; on the CPU and with device="cuda") have the
+    frame's mesh built in a background thread while the detector runs (`_mesh_prefetch`); the
+    results are the same as detecting first and describing after.
     """
     from .descriptors import make_descriptor
 
@@ -49,7 +49,8 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
 
         kwargs = {} if radius is None else {"radius": radius}
         net = GeoPatch(weights=weights or None, device=device, backend="torch", depth_config=depth_config, **kwargs)
-        keypoints = detect(frame, n, detector=detector or DEFAULT_DETECTOR)
+        with _mesh_prefetch(frame, net.depth_config):  # the host builds the mesh while it detects
+            keypoints = detect(frame, n, detector=detector or DEFAULT_DETECTOR)
         return net.compute_cuda(frame, keypoints).to_host()
     if device is not None and str(device) != "cpu":
         raise ValueError(f"device: expected None, 'cpu' or 'cuda[:N]', got {device!r}")
