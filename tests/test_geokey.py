@@ -2,6 +2,9 @@
 than the same network with random weights), deterministic, clear errors, and the bench with both
 detectors on a tiny simulated sequence."""
 
+import hashlib
+import json
+
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -9,7 +12,7 @@ from scipy.spatial import cKDTree
 import geofeat
 from geofeat.bench.report import read_results
 from geofeat.bench.runner import BenchConfig, run_benchmark
-from geofeat.detectors.geokey import GeoKeyModel, candidates, detect_geokey, load_geokey, suppress
+from geofeat.detectors.geokey import SHIPPED_WEIGHTS, GeoKeyModel, candidates, detect_geokey, load_geokey, suppress
 from geofeat.sim import simulate_sequence
 from geofeat.train.detector import (SIFT_KEY, admissible_threshold, choose_model, fit, mean_ms, sequence_samples,
                                     with_level_bias)
@@ -257,6 +260,13 @@ def test_bench_runs_with_both_detectors(tiny, tmp_path):
             assert r["detector"] == detector
             assert 0 <= r["ms"] <= r["repeatability"] <= 1
             assert r["hits"] <= r["n_gt"] <= min(r["n_ref"], r["n_tgt"])
+        # config.json says what made the numbers: the version and, for GeoKey, which weights
+        made = json.loads((tmp_path / detector / "config.json").read_text())["provenance"]
+        assert made["geofeat"] == geofeat.__version__ and "geopatch_backend" not in made
+        if detector == "geokey":
+            assert made["detector_weights_sha256"] == hashlib.sha256(SHIPPED_WEIGHTS.read_bytes()).hexdigest()
+        else:
+            assert "detector_weights_sha256" not in made
 
 
 def test_candidates_lie_on_depth_inside_the_image():
