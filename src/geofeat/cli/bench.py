@@ -30,9 +30,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=1, help="local worker processes (sequences in parallel)")
     p.add_argument("--scheduler", default=None, help="Dask scheduler address (e.g. tcp://host:8786); needs geofeat[dask]")
     p.add_argument("--timing", action="store_true", help="also time f(.), extraction and matching for 250 and 2048 keypoints")
-    p.add_argument("--keypoint-set", choices=KEYPOINT_SETS, default="protocol",
-                   help="protocol: OpenCV SIFT's strongest exactly as returned, duplicates kept (default, the "
-                        "published protocol); unique: one keypoint per position")
+    p.add_argument("--keypoint-set", choices=KEYPOINT_SETS, default=None,
+                   help="SIFT keypoints only. protocol: OpenCV SIFT's strongest exactly as returned, duplicates "
+                        "kept (default, the published protocol); unique: one keypoint per position")
     depth_profile_option(p, None)
     p.add_argument("--overwrite", action="store_true", help="redo every result (default: a rerun skips finished ones)")
     p.set_defaults(func=run)
@@ -53,9 +53,13 @@ def run(args: argparse.Namespace) -> int:
             tmp.write_text(text)
         add_to_manifest(path.parent, [path.name])
 
+    if args.keypoint_set is not None and not args.detector.startswith("sift"):
+        raise ValueError(f"--keypoint-set: chooses among SIFT's keypoints, not {args.detector}'s (GeoKey has one "
+                         "keypoint per position); leave it out")
     config = BenchConfig(descriptors=names(args.descriptors), protocol=args.protocol,
                          radius=args.radius, depth_scale=args.depth_scale, n_keypoints=args.keypoints,
-                         tps_dir=args.tps_dir, keypoint_set=args.keypoint_set, depth_profile=args.depth_profile,
+                         tps_dir=args.tps_dir, keypoint_set=args.keypoint_set or "protocol",
+                         depth_profile=args.depth_profile,
                          detector=args.detector, features=tuple(args.features or ()))
     out = Path(args.out)
     csv_path, failed = run_benchmark(args.datasets, out, config, workers=args.workers, scheduler=args.scheduler,
