@@ -257,6 +257,12 @@ def bench_keypoint_set_with_geokey(tmp):
     return _bench_args(tmp, _seq(tmp), extra=["--detector", "geokey", "--keypoint-set", "unique"])
 
 
+def extract_keypoint_set_with_geokey(tmp):
+    # geobit's detector is GeoKey unless --detector sift: a SIFT-only option must not be ignored
+    return ["extract", str(_seq(tmp)), "--descriptor", "geobit", "--keypoint-set", "protocol",
+            "--out", str(tmp / "f.h5")]
+
+
 def bench_empty_tps_folder(tmp):
     (tmp / "gt" / "seq").mkdir(parents=True)  # named like the sequence, no TPS files in it
     return _bench_args(tmp, _seq(tmp), extra=["--tps-dir", str(tmp / "gt")])
@@ -521,6 +527,7 @@ CASES = [
     Case("bench-tps-dir-missing", bench_missing_tps_dir, 2, "tps-dir: not a directory"),
     Case("bench-tps-folder-without-files", bench_empty_tps_folder, 2, "no TPS files"),
     Case("bench-keypoint-set-with-geokey", bench_keypoint_set_with_geokey, 2, "keypoint-set: chooses among SIFT"),
+    Case("extract-keypoint-set-with-geokey", extract_keypoint_set_with_geokey, 2, "keypoint-set: chooses among SIFT"),
     Case("bench-nested-tps-folder", nested_tps_folder, 0, "", _bench_scored),
     Case("extract-honours-json-radius", extract_json_radius, 0, "radius 0.04 m", _same_descriptors_as_explicit_radius),
     Case("match-off-image-landmark", lambda t: _off_image_landmark(t, "match"), 2, "off the 160x120 image"),

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from .common import features_path, file_label, finish_skipped, frame_and_keypoints, skip_frame
-from .options import detector_for, frames_options
+from .options import frames_options, resolve_detection
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -21,7 +21,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Describe every frame of a sequence and write the features file(s); 1 when a frame was skipped."""
-    args.detector = detector_for(args.descriptor, args.detector)  # resolved once, for every frame
+    detection = resolve_detection(args)  # resolved once, for every frame
     import os
 
     from tqdm import tqdm
@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
         check_out_file(final, args.overwrite)
     profile = sequence_depth_profile(seq, args.depth_profile)
     descriptor = make_descriptor(args.descriptor, radius=radius, depth_config=PROFILES[profile])
-    print(f"{seq.name}: depth profile {profile}, detector {args.detector}, keypoints {args.keypoint_set}, "
+    print(f"{seq.name}: depth profile {profile}, {detection}, "
           f"radius {radius:g} m")
     skipped: list[str] = []
     written: list[tuple[Path, Path]] = []  # (temporary, final) of the .npz files

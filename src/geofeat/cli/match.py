@@ -7,7 +7,7 @@ import argparse
 import cv2
 
 from .common import file_label, finish_skipped, frame_and_keypoints, skip_frame
-from .options import detector_for, frames_options
+from .options import frames_options, resolve_detection
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -23,7 +23,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Match the reference frame to every other frame, judged by the ground truth when there is one."""
-    args.detector = detector_for(args.descriptor, args.detector)  # resolved once, for every frame
+    detection = resolve_detection(args)  # resolved once, for every frame
     from tqdm import tqdm
 
     from ..groundtruth.sources import GroundTruth, correct_matches
@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
         if "no ground truth" not in str(error):
             raise
         truth = None  # no ground truth: matches are written, not judged
-    print(f"{seq.name}: depth profile {profile}, detector {args.detector}, keypoints {args.keypoint_set}, "
+    print(f"{seq.name}: depth profile {profile}, {detection}, "
           f"radius {radius:g} m, ground truth: "
           + ("none" if truth is None else "simulator (exact)" if truth.exact else "thin-plate spline on the landmarks"))
     if truth is not None and not truth.exact:

@@ -54,6 +54,20 @@ def detector_for(descriptor: str, detector: str | None) -> str:
     return DEFAULT_DETECTOR if descriptor.partition("=")[0] in GEODESIC_DESCRIPTORS else "sift"
 
 
+def resolve_detection(args: argparse.Namespace) -> str:
+    """Resolve `args.detector` for `args.descriptor` (`detector_for`) and check `args.keypoint_set`
+    against it: SIFT's choice ("unique" unless given); an error when given with GeoKey, which has one
+    keypoint per position. Returns the detection's words for the command's first line."""
+    args.detector = detector_for(args.descriptor, args.detector)
+    if args.detector.startswith("sift"):
+        args.keypoint_set = args.keypoint_set or "unique"
+        return f"detector {args.detector}, keypoints {args.keypoint_set}"
+    if args.keypoint_set is not None:
+        raise ValueError(f"--keypoint-set: chooses among SIFT's keypoints, not {args.detector}'s (GeoKey has one "
+                         "keypoint per position); leave it out, or add --detector sift")
+    return f"detector {args.detector}"
+
+
 def frames_options(p: argparse.ArgumentParser) -> None:
     """The options of `extract` and `match`: one sequence folder, one descriptor, detection and depth."""
     p.add_argument("folder", help="a sequence folder in the public layout (<name>-rgb.png, <name>-depth.png, intrinsics.xml)")
@@ -61,8 +75,9 @@ def frames_options(p: argparse.ArgumentParser) -> None:
                    help=f"one of {', '.join(available_descriptors())}, or geopatch=WEIGHTS.pt (default geobit)")
     p.add_argument("--keypoints", type=int, default=N_KEYPOINTS, help="keypoints per frame (default 2048)")
     detector_option(p, None)
-    p.add_argument("--keypoint-set", choices=KEYPOINT_SETS, default="unique",
-                   help="unique: one keypoint per position (default); protocol: SIFT's strongest as OpenCV returns them")
+    p.add_argument("--keypoint-set", choices=KEYPOINT_SETS, default=None,
+                   help="SIFT keypoints only. unique: one keypoint per position (default); protocol: SIFT's "
+                        "strongest as OpenCV returns them")
     depth_profile_option(p, None)
     p.add_argument("--radius", type=float, default=None, help="geodesic radius, metres (default 0.075)")
     p.add_argument("--depth-scale", type=float, default=None,
