@@ -57,6 +57,7 @@ def cpu_has_bf16() -> bool:
 
 @njit(parallel=True, cache=True)
 def _zscore_rows(x, out):
+    """out[i] = (x[i] - mean) / (unbiased std + 1e-6) per row of x (N, M), sums in float64."""
     n, m = x.shape
     for i in prange(n):
         s = 0.0
@@ -130,7 +131,7 @@ class OpenVinoGeoPatch:
 
     def run(self, x: np.ndarray, batch_size: int = 256) -> np.ndarray:
         """(N, R, A) float32 patches -> (N, dim) float32 unit descriptors, `batch_size` at a time."""
-        # the request reuses its output buffer: copy each batch's descriptors out of it
         if self.bf16:
             x = zscore_patches(x)
+        # the request reuses its output buffer: copy each batch's descriptors out of it
         return run_in_batches(lambda b: np.array(self.request.infer({0: b})[0], copy=True), x, batch_size)
