@@ -223,3 +223,18 @@ def test_openvino_compiles_each_model_once_per_process():
         assert a.session.compiled is b.session.compiled
         assert a.session.request is not b.session.request
     assert GeoPatch(backend="openvino-int8").session.compiled is not GeoPatch(backend="openvino-bf16").session.compiled
+
+
+@pytest.mark.parametrize("backend", ["openvino-int8", "openvino-bf16"])
+def test_openvino_streams_give_the_one_thread_descriptors(kinect_pair, backend):
+    """With 2 threads the batches run on two streams (one thread each) and come back in order: the
+    same descriptors as one thread, for a count that is not a multiple of the batch, and for one
+    batch."""
+    pytest.importorskip("openvino")
+    a, _ = kinect_pair
+    x = a[:1000]
+    one, two = GeoPatch(backend=backend, threads=1), GeoPatch(backend=backend, threads=2, batch_size=96)
+    assert two.session.queue is not None and one.session.queue is None
+    ref = one.describe(x)
+    np.testing.assert_allclose(two.describe(x), ref, atol=1e-6, rtol=0)
+    np.testing.assert_allclose(two.describe(x[:50]), ref[:50], atol=1e-6, rtol=0)

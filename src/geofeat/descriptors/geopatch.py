@@ -86,7 +86,7 @@ def __getattr__(name: str):
 #: descriptors are equivalent to torch's; BENCHMARKS.md, "GeoPatch through ONNX Runtime").
 DEFAULT_BACKEND = "onnx-int8"
 #: Patches per forward pass on CPU, per backend (BENCHMARKS.md).
-DEFAULT_BATCH = {"torch": 128, "onnx": 256, "onnx-int8": 256, "openvino-int8": 256, "openvino-bf16": 256}
+DEFAULT_BATCH = {"torch": 128, "onnx": 256, "onnx-int8": 256, "openvino-int8": 128, "openvino-bf16": 128}
 
 
 def _cuda_visible() -> bool:
