@@ -8,7 +8,7 @@ from pathlib import Path
 from ..constants import DEFAULT_RADIUS_M, N_KEYPOINTS
 from ..descriptors import available_descriptors
 from ..keypoints import KEYPOINT_SETS
-from .options import depth_profile_option, detector_option, names
+from .options import depth_profile_option, detector_option, keypoint_set_for, names
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -53,12 +53,9 @@ def run(args: argparse.Namespace) -> int:
             tmp.write_text(text)
         add_to_manifest(path.parent, [path.name])
 
-    if args.keypoint_set is not None and not args.detector.startswith("sift"):
-        raise ValueError(f"--keypoint-set: chooses among SIFT's keypoints, not {args.detector}'s (GeoKey has one "
-                         "keypoint per position); leave it out")
     config = BenchConfig(descriptors=names(args.descriptors), protocol=args.protocol,
                          radius=args.radius, depth_scale=args.depth_scale, n_keypoints=args.keypoints,
-                         tps_dir=args.tps_dir, keypoint_set=args.keypoint_set or "protocol",
+                         tps_dir=args.tps_dir, keypoint_set=keypoint_set_for(args.detector, args.keypoint_set, "protocol"),
                          depth_profile=args.depth_profile,
                          detector=args.detector, features=tuple(args.features or ()))
     out = Path(args.out)

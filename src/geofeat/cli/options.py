@@ -54,17 +54,23 @@ def detector_for(descriptor: str, detector: str | None) -> str:
     return DEFAULT_DETECTOR if descriptor.partition("=")[0] in GEODESIC_DESCRIPTORS else "sift"
 
 
-def resolve_detection(args: argparse.Namespace) -> str:
-    """Resolve `args.detector` for `args.descriptor` (`detector_for`) and check `args.keypoint_set`
-    against it: SIFT's choice ("unique" unless given); an error when given with GeoKey, which has one
-    keypoint per position. Returns the detection's words for the command's first line."""
-    args.detector = detector_for(args.descriptor, args.detector)
-    if args.detector.startswith("sift"):
-        args.keypoint_set = args.keypoint_set or "unique"
-        return f"detector {args.detector}, keypoints {args.keypoint_set}"
-    if args.keypoint_set is not None:
-        raise ValueError(f"--keypoint-set: chooses among SIFT's keypoints, not {args.detector}'s (GeoKey has one "
+def keypoint_set_for(detector: str, keypoint_set: str | None, default: str) -> str:
+    """--keypoint-set checked against the detector: `keypoint_set`, else `default`. It chooses among
+    SIFT's keypoints, so naming it with another detector (GeoKey has one keypoint per position) is an
+    error rather than an option silently ignored."""
+    if keypoint_set is not None and detector != "sift":
+        raise ValueError(f"--keypoint-set: chooses among SIFT's keypoints, not {detector}'s (GeoKey has one "
                          "keypoint per position); leave it out, or add --detector sift")
+    return keypoint_set or default
+
+
+def resolve_detection(args: argparse.Namespace) -> str:
+    """Resolve `args.detector` for `args.descriptor` (`detector_for`) and `args.keypoint_set` for it
+    (`keypoint_set_for`, default "unique"). Returns the detection's words for the command's first line."""
+    args.detector = detector_for(args.descriptor, args.detector)
+    args.keypoint_set = keypoint_set_for(args.detector, args.keypoint_set, "unique")
+    if args.detector == "sift":
+        return f"detector {args.detector}, keypoints {args.keypoint_set}"
     return f"detector {args.detector}"
 
 
