@@ -338,6 +338,19 @@ def _byte_fill(v):
 
 
 @njit(inline="always", cache=True)
+def _flags_at_most(word, threshold):
+    """Nonzero when some byte of `word` is at most `threshold` (bytes and threshold <= 127, so one
+    subtraction tests all eight: no borrow crosses a byte)."""
+    return ((_byte_fill(threshold) | _H80) - word) & _H80
+
+
+@njit(inline="always", cache=True)
+def _rot_exact_row(q, i, t, j):
+    """`_rot_exact8` of query row i of q (N0, 8) and target j."""
+    return _rot_exact8(q[i, 0], q[i, 1], q[i, 2], q[i, 3], q[i, 4], q[i, 5], q[i, 6], q[i, 7], t, j)
+
+
+@njit(inline="always", cache=True)
 def _consider(m, j, best, second, bj):
     """A query's (best, second, best index) updated with the exact distance m of its pair with
     target j, under the brute-force order (distance, index)."""
@@ -392,8 +405,7 @@ def _rot_finish8(q, t, valid0, valid1, lb, seeds, n_chunks, best_d, best_j, seco
                         count += 1
                         best, second, bj = _consider(m, j, best, second, bj)
                 for w in range(n1p // 8):
-                    x = words[i, w]
-                    if ((_byte_fill(min(best, np.uint64(127))) | _H80) - x) & _H80 == 0:
+                    if _flags_at_most(words[i, w], min(best, np.uint64(127))) == 0:
                         continue
                     for j in range(8 * w, min(8 * w + 8, n1)):
                         if j == s0 or j == s1 or not valid1[j] or np.uint64(lb[i, j]) > best:
@@ -426,7 +438,7 @@ def _verify_mutual(q, t, valid0, lbt, best_d, best_j, owner):
     has a smaller exact distance to j = best_j[i], or the same distance and a lower index (the
     brute-force column rule). Only the queries whose bound lbt[j, i'] (the transposed bounds of
     `_rot_bounds8`) is at most best_d[i] can break it, so only they get an exact distance (the
-    column's bytes scanned 8 at a time, as in `_rot_finish8`); the scan stops at the first that does.
+    column's bytes scanned 8 at a time, `_flags_at_most`); the scan stops at the first that does.
     q (N0, 8), t (N1, 8, R) uint64; lbt (N1, N0p) uint8, N0p a multiple of 8."""
     n0 = q.shape[0]
     n0p = lbt.shape[1]
@@ -436,14 +448,13 @@ def _verify_mutual(q, t, valid0, lbt, best_d, best_j, owner):
         ok = j >= 0
         if ok:
             d = best_d[i]
-            flag_all = (_byte_fill(min(d, np.uint64(127))) | _H80)
             for w in range(n0p // 8):
-                if (flag_all - words[j, w]) & _H80 == 0:
+                if _flags_at_most(words[j, w], min(d, np.uint64(127))) == 0:
                     continue
                 for k in range(8 * w, min(8 * w + 8, n0)):
                     if k == i or not valid0[k] or np.uint64(lbt[j, k]) > d:
                         continue
-                    m = _rot_exact8(q[k, 0], q[k, 1], q[k, 2], q[k, 3], q[k, 4], q[k, 5], q[k, 6], q[k, 7], t, j)
+                    m = _rot_exact_row(q, k, t, j)
                     if m < d or (m == d and k < i):
                         ok = False
                         break
@@ -458,8 +469,8 @@ def _verify_ratio(q, t, valid1, lb, seeds, best_d, best_j, ratio, second_d):
     target j that fails query i's test (best_d[i] >= ratio * d(i, j)), else _BIG (the test passes,
     as with the true second best). Only targets whose bound lb[i, j] is at most best / ratio (+ one
     bit) can fail it, so only they get an exact distance: first the row's seeds (its two smallest
-    bounds, the likeliest to fail it), then the row's other bytes, 8 at a time (as in
-    `_rot_finish8`); the search stops at the first failure. ratio in (0, 1]."""
+    bounds, the likeliest to fail it), then the row's other flagged bytes (`_flags_at_most`); the
+    search stops at the first failure. ratio in (0, 1]."""
     n0 = q.shape[0]
     n1 = t.shape[0]
     n1p = lb.shape[1]
@@ -470,21 +481,21 @@ def _verify_ratio(q, t, valid1, lb, seeds, best_d, best_j, ratio, second_d):
         if bj >= 0:
             best = best_d[i]
             thr = min(np.uint64(np.float64(best) / ratio) + np.uint64(1), np.uint64(127))
-            flag_all = _byte_fill(thr) | _H80
-            for j in (seeds[i, 0], seeds[i, 1]):  # valid targets (or -1)
+            s0, s1 = seeds[i, 0], seeds[i, 1]
+            for j in (s0, s1):  # valid targets (or -1)
                 if j >= 0 and j != bj and second == _BIG:
-                    m = _rot_exact8(q[i, 0], q[i, 1], q[i, 2], q[i, 3], q[i, 4], q[i, 5], q[i, 6], q[i, 7], t, j)
+                    m = _rot_exact_row(q, i, t, j)
                     if np.float64(best) >= ratio * np.float64(m):
                         second = m
             for w in range(n1p // 8):
                 if second != _BIG:
                     break
-                if (flag_all - words[i, w]) & _H80 == 0:
+                if _flags_at_most(words[i, w], thr) == 0:
                     continue
                 for j in range(8 * w, min(8 * w + 8, n1)):
-                    if j == bj or not valid1[j] or np.uint64(lb[i, j]) > thr:
+                    if j == bj or j == s0 or j == s1 or not valid1[j] or np.uint64(lb[i, j]) > thr:
                         continue
-                    m = _rot_exact8(q[i, 0], q[i, 1], q[i, 2], q[i, 3], q[i, 4], q[i, 5], q[i, 6], q[i, 7], t, j)
+                    m = _rot_exact_row(q, i, t, j)
                     if np.float64(best) >= ratio * np.float64(m):
                         second = m
                         break
@@ -726,10 +737,11 @@ def _l2_search_torch(d0, d1, valid0, valid1, want_cols):
 
 
 @njit(parallel=True, cache=True)
-def _l2_block_rows(ab, aa, bb, two, zero, valid0, valid1, dist, best_d, best_j, second_d):
-    """One block of queries: dist[i, j] = sqrt(max(aa[i] + bb[j] - two * ab[i, j], 0)) in the
-    descriptors' float type (inf where either side is invalid), and per row the first minimum
-    (best_d, best_j; -1 where none is finite) and the minimum of the other entries (second_d).
+def _l2_block_rows(ab, aa, bb, two, zero, valid0, valid1, keep, dist, best_d, best_j, second_d):
+    """One block of queries: the distances sqrt(max(aa[i] + bb[j] - two * ab[i, j], 0)) in the
+    descriptors' float type (inf where either side is invalid), stored in dist when `keep` (for the
+    columns' pass), and per row the first minimum (best_d, best_j; -1 where none is finite) and the
+    minimum of the other entries (second_d).
     `two` and `zero` are 2 and 0 of that type (numba would promote a float32 times a Python
     number to float64)."""
     n, n1 = ab.shape
@@ -745,14 +757,15 @@ def _l2_block_rows(ab, aa, bb, two, zero, valid0, valid1, dist, best_d, best_j, 
                     d = np.sqrt(max(d2, zero))
                 else:
                     d = inf
-                dist[i, j] = d
+                if keep:
+                    dist[i, j] = d
                 if d < b1:
                     b2 = b1
                     b1 = d
                     j1 = j
                 elif d < b2:
                     b2 = d
-        else:
+        elif keep:
             for j in range(n1):
                 dist[i, j] = inf
         best_d[i] = b1
@@ -795,13 +808,13 @@ def _l2_search(d0, d1, valid0, valid1, want_cols, block: int = 1024):
     best_j = np.empty(n0, np.int64)
     col_best = np.full(n1, np.inf, dtype)
     col_j = np.full(n1, -1, np.int64)
-    dist = np.empty((min(block, n0), n1), dtype)
+    dist = np.empty((min(block, n0), n1) if want_cols else (1, 1), dtype)  # kept for the columns only
     for s in range(0, n0, block):
         ab = a[s : s + block]
         aa = np.einsum("ij,ij->i", ab, ab)
         rows = dist[: len(ab)]
-        _l2_block_rows(ab @ b.T, aa, bb, two, dtype(0.0), v0[s : s + block], v1, rows, best_d[s : s + block],
-                       best_j[s : s + block], second_d[s : s + block])
+        _l2_block_rows(ab @ b.T, aa, bb, two, dtype(0.0), v0[s : s + block], v1, bool(want_cols), rows,
+                       best_d[s : s + block], best_j[s : s + block], second_d[s : s + block])
         if want_cols:
             _l2_block_cols(rows, s, col_best, col_j)
     return best_d.astype(np.float64), best_j, second_d.astype(np.float64), (col_j if want_cols else None)
