@@ -34,6 +34,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import partial
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -216,10 +217,7 @@ class GeoPatch:
             if not openvino_available():
                 raise ValueError(f"backend: {self.backend} needs the openvino package (pip install 'geofeat[fast]'); "
                                  "or use backend='onnx-int8'")
-            bf16 = self.backend == "openvino-bf16"
-
-            def runtime(model, threads):
-                return OpenVinoGeoPatch(model, threads=threads, bf16=bf16)
+            runtime = partial(OpenVinoGeoPatch, bf16=self.backend == "openvino-bf16")
         else:
             runtime = OnnxGeoPatch
         if weights is None:

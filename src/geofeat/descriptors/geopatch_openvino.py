@@ -6,8 +6,9 @@
   their precision (x - mean with 8 mantissa bits), and moved descriptors by up to 0.25 (minimum
   cosine to float32 0.75). On z-scored input the model's z-score is an identity, and the
   descriptors stay within cosine 0.9999 of torch's float32. On the 2-core development machine
-  (Sapphire Rapids, AMX) it describes the Kinect frame's 2030 patches in about 43 ms with 2 threads,
-  z-score included, against 52 ms for "openvino-int8" (BENCHMARKS.md, "GeoPatch in bfloat16").
+  (Sapphire Rapids, AMX) it describes the Kinect frame's 1916 GeoKey patches in about 35 ms with 2
+  threads (two streams), z-score included, against about 50 ms for "openvino-int8"
+  (BENCHMARKS.md, "GeoPatch in bfloat16").
 - "openvino-int8": the same int8 ONNX model as the "onnx-int8" backend.
 
 OpenVINO reads `geofeat/data/geopatch_int8.onnx` (QDQ: int8 weights, uint8 activations) directly,
