@@ -21,7 +21,6 @@ import json
 import multiprocessing
 import time
 import traceback
-import warnings
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
@@ -32,7 +31,7 @@ from tqdm import tqdm
 
 from ..constants import N_KEYPOINTS
 from ..depth import check_profile, sequence_depth_profile
-from ..descriptors import check_descriptor_name
+from ..descriptors import OpenCVDescriptor, check_descriptor_name
 from ..inputs import check_tps_dir, resolve_radius
 from ..io import Sequence, find_sequences, read_sequence
 from ..outputs import add_to_manifest, append_line_durably, atomic_file, check_out_dir, read_manifest
@@ -108,18 +107,6 @@ def _pose_change(seq: Sequence, target: str) -> tuple[float, float]:
         return float("nan"), float("nan")
 
 
-def _unoriented(describe: Callable) -> Callable:
-    """`describe` without the baselines' warning about keypoints at angle 0: the landmark protocol
-    describes annotated positions, which have no orientation: every descriptor sees them at angle 0
-    by design."""
-    def run(frame, kps):
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message=".*every keypoint has angle 0")
-            return describe(frame, kps)
-
-    return run
-
-
 def _empty_row_score(n_ref: int, n_tgt: int):
     from ..scoring import PairScore
 
@@ -141,7 +128,11 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
     describe = Describer(names, resolve_radius(config.radius, seq), profile or "kinect")
     rows = []
     if config.protocol == "landmarks":
-        describe = _unoriented(describe)
+        # annotated positions have no orientation: every descriptor describes them at angle 0 by
+        # design, so the OpenCV baselines are told so (and do not warn about unoriented keypoints)
+        for descriptor in describe.descriptors.values():
+            if isinstance(descriptor, OpenCVDescriptor):
+                descriptor.use_angle = False
         ids_r, xy_r, vis_r = seq.landmarks(seq.reference)
         k_ref = Keypoints(xy_r[vis_r], np.zeros(vis_r.sum()), np.full(vis_r.sum(), 8.0), np.zeros(vis_r.sum()))
     else:
