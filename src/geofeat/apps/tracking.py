@@ -88,6 +88,12 @@ REFINE_MODES = ("none", "photometric")
 MAX_FOLDED_FRACTION = 0.25
 #: `geofeat track --refine` default (chosen by grid error on simulated sequences, see BENCHMARKS.md).
 DEFAULT_REFINE = "photometric"
+#: L-BFGS iterations per pyramid level (finest first) of the tracking refinement: three times
+#: `geofeat groundtruth`'s default, which stopped short of the optimum. Chosen on the four small
+#: simulated sequences of BENCHMARKS.md ("More refinement iterations"); (10, 20, 30) / (20, 40, 60) /
+#: (30, 60, 90) / (60, 120, 180) gave a mean visible-grid error of 0.59 / 0.56 / 0.55 / 0.55 px with
+#: GeoKey + GeoPatch and 1.28 / 1.24 / 1.24 / 1.41 px with SIFT.
+REFINE_ITERATIONS = (30, 60, 90)
 #: The local-consistency fit (`fit_tps_local`) replaces the global RANSAC fit of a match set only when
 #: it keeps this many times RANSAC's inliers: on a near tie the global, smoother model stays.
 LOCAL_FIT_MARGIN = 1.1
@@ -374,14 +380,15 @@ def refine_warp(template: np.ndarray, image: np.ndarray, mask: np.ndarray, splin
         spline: the RANSAC TPS, template -> frame pixels.
         lm_template, lm_image: (L, 2) RANSAC inlier pixels (soft landmarks).
         roi: (x0, y0, x1, y1): the fold-over test looks at the control points inside it.
-        config: a `geofeat.groundtruth.RefineConfig` (default settings when None).
+        config: a `geofeat.groundtruth.RefineConfig` (None: its defaults with `REFINE_ITERATIONS`).
     Returns:
         (warp, accepted): the `RefinedWarp`, or `spline` itself when the refinement did not lower the
         photometric cost or folded the map over (Jacobian determinant <= 0 at more than
         MAX_FOLDED_FRACTION of the control points inside the ROI).
     """
-    from ..groundtruth import refine
+    from ..groundtruth import RefineConfig, refine
 
+    config = config if config is not None else RefineConfig(iterations=REFINE_ITERATIONS)
     r = refine(template, image, mask, spline, lm_template, lm_image, config)
     x0, y0, x1, y1 = roi
     n = r.nodes
