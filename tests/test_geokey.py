@@ -108,6 +108,19 @@ def test_bad_n_is_an_error(n):
         geofeat.detect(frame, n, detector="geokey")
 
 
+def test_a_sift_keypoint_set_with_geokey_is_an_error():
+    """'protocol' picks among SIFT's duplicate keypoints; GeoKey's are unique, so only 'unique' is accepted."""
+    frame = geofeat.read_demo_frame()
+    with pytest.raises(ValueError, match="keypoint_set"):
+        geofeat.detect(frame, 50, detector="geokey", keypoint_set="protocol")
+    with pytest.raises(ValueError, match="keypoint_set"):
+        BenchConfig(descriptors=("geobit",), detector="geokey", keypoint_set="protocol")
+    unique = geofeat.detect(frame, 50, detector="geokey", keypoint_set="unique")
+    np.testing.assert_array_equal(unique.xy, geofeat.detect(frame, 50, detector="geokey").xy)
+    assert BenchConfig(descriptors=("geobit",), detector="geokey").keypoint_set == "unique"
+    assert BenchConfig(descriptors=("geobit",)).keypoint_set == "protocol"
+
+
 def test_bad_detector_names_and_weights_files(tmp_path):
     frame = geofeat.read_demo_frame()
     with pytest.raises(ValueError, match="detector"):

@@ -163,7 +163,7 @@ def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = DEFAUL
             pixels with depth, scored by image cues, plus depth cues when the weights use them;
             `geofeat.detectors.geokey`) or "geokey=WEIGHTS" (weights from `geofeat train-detector`).
         **options: options of `detect_sift` (keypoint_set, contrast_threshold, mask, ...); GeoKey
-            takes `mask`, `threshold` (its minimum logit; default the weights' own, chosen on
+            takes `keypoint_set` only as "unique" (what its keypoints are), `mask`, `threshold` (its minimum logit; default the weights' own, chosen on
             validation; -inf returns the `n` best whatever their score) and `min_fraction` (the best
             this fraction of the frame's candidates are kept whatever the threshold; default the
             weights' own).
@@ -183,7 +183,10 @@ def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = DEFAUL
     mask = options.pop("mask", None)
     threshold = options.pop("threshold", None)
     min_fraction = options.pop("min_fraction", None)
-    options.pop("keypoint_set", None)  # GeoKey has one keypoint per position by construction
+    keypoint_set = options.pop("keypoint_set", None)
+    if keypoint_set not in (None, "unique"):  # GeoKey has one keypoint per position by construction
+        raise ValueError(f"keypoint_set: {keypoint_set!r} chooses among SIFT's keypoints; GeoKey's are one per "
+                         "position ('unique'): leave it out, or use detector='sift'")
     if options:
         raise TypeError(f"detector: options {sorted(options)} apply to 'sift' only")
     return detect_geokey(frame, n, load_geokey(weights or None), mask=mask, threshold=threshold,

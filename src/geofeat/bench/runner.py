@@ -61,7 +61,8 @@ class BenchConfig:
     depth_scale: float | None = None
     n_keypoints: int = N_KEYPOINTS
     tps_dir: str | None = None
-    keypoint_set: str = "protocol"
+    #: None: "protocol" with SIFT; GeoKey's keypoints are one per position, "unique" (the only set it takes)
+    keypoint_set: str | None = None
     depth_profile: str | None = None
     detector: str = "sift"
     #: "NAME=PATH" feature sets computed elsewhere (`geofeat.bench.external`), scored beside the descriptors
@@ -77,6 +78,11 @@ class BenchConfig:
             raise ValueError("features: external features are scored with protocol 'detect' only")
         if self.protocol not in ("detect", "landmarks"):
             raise ValueError(f"protocol: expected 'detect' or 'landmarks', got {self.protocol!r}")
+        if self.keypoint_set is None:
+            self.keypoint_set = "protocol" if self.detector == "sift" else "unique"
+        if self.detector != "sift" and self.keypoint_set != "unique":
+            raise ValueError(f"keypoint_set: {self.keypoint_set!r} chooses among SIFT's keypoints; {self.detector}'s "
+                             "are one per position ('unique')")
         if self.keypoint_set not in KEYPOINT_SETS:
             raise ValueError(f"keypoint_set: expected one of {', '.join(KEYPOINT_SETS)}, got {self.keypoint_set!r}")
         if self.depth_profile is not None:

@@ -57,11 +57,11 @@ def detector_for(descriptor: str, detector: str | None) -> str:
 def keypoint_set_for(detector: str, keypoint_set: str | None, default: str) -> str:
     """--keypoint-set checked against the detector: `keypoint_set`, else `default`. It chooses among
     SIFT's keypoints, so naming it with another detector (GeoKey has one keypoint per position) is an
-    error rather than an option silently ignored."""
+    error rather than an option silently ignored. Other detectors' keypoints are "unique"."""
     if keypoint_set is not None and detector != "sift":
         raise ValueError(f"--keypoint-set: chooses among SIFT's keypoints, not {detector}'s (GeoKey has one "
                          "keypoint per position); leave it out, or add --detector sift")
-    return keypoint_set or default
+    return keypoint_set or (default if detector == "sift" else "unique")
 
 
 def resolve_detection(args: argparse.Namespace) -> str:
