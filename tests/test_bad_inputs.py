@@ -346,6 +346,11 @@ def retrieval_single_frame(tmp):
     return ["retrieval", str(tmp / "seq"), "--descriptors", "sift", "--out", str(tmp / "r")]
 
 
+def retrieval_negative_rerank(tmp):
+    make_sequence(tmp / "seq")
+    return ["retrieval", str(tmp / "seq"), "--descriptors", "sift", "--rerank", "-1", "--out", str(tmp / "r")]
+
+
 def _out_is_file(command: str) -> Callable[[Path], list[str]]:
     def setup(tmp):
         seq = _seq(tmp)
@@ -541,6 +546,7 @@ CASES = [
     Case("groundtruth-negative-margin", lambda t: _gt(t, "--margin", "-5"), 2, "margin"),
     Case("groundtruth-object-moves-back", groundtruth_object_moves_back, 0, "", _report_finite_ok),
     Case("retrieval-single-frame", retrieval_single_frame, 2, "reference frames"),
+    Case("retrieval-negative-rerank", retrieval_negative_rerank, 2, "rerank: expected"),
     # tracebacks (issue)
     *[Case(f"{c}-out-is-a-file", _out_is_file(c), 2, "taken", _file_kept)
       for c in ("bench", "match", "track", "retrieval", "groundtruth", "extract")],

@@ -10,8 +10,8 @@ from geofeat.features import Features
 from geofeat.matching import distance_matrix, match
 from geofeat.apps.retrieval import (
     DEFAULT_WEIGHTING, WEIGHTINGS, accuracy_at_k, bootstrap_interval, exclusion_mask, histogram,
-    inverse_document_frequency, read_classes, run_retrieval, search, split_queries, vocabulary, weight_histograms,
-    word_counts,
+    inverse_document_frequency, read_classes, rerank, run_retrieval, search, split_queries, verified_matches,
+    vocabulary, weight_histograms, word_counts,
 )
 
 
@@ -131,6 +131,33 @@ def test_histogram_ignores_invalid_and_vocabulary_bad_input():
         vocabulary(images[0][:10], words=10)
     with pytest.raises(ValueError, match="words"):
         vocabulary(images[0], words=1)
+
+
+def test_rerank_puts_the_frame_with_verified_matches_first():
+    """A bent copy of the query's surface (same descriptors, keypoints moved by a smooth bend) has many
+    verified matches; the same descriptors at shuffled positions match but fail the local affine
+    check; unrelated descriptors do not match."""
+    rng = np.random.default_rng(0)
+    n = 150
+    xy = rng.uniform(0, 300, (n, 2))
+    desc = rng.normal(size=(n, 32)).astype(np.float32)
+    query = Features(xy, desc, np.ones(n, bool))
+    bent_xy = np.stack([xy[:, 0] + 6 * np.sin(xy[:, 1] / 50), xy[:, 1] + 4 * np.cos(xy[:, 0] / 60)], axis=1)
+    noisy = (desc + 0.05 * rng.normal(size=desc.shape)).astype(np.float32)
+    bent = Features(bent_xy, noisy, np.ones(n, bool))
+    shuffled = Features(rng.permutation(bent_xy), noisy, np.ones(n, bool))
+    unrelated = Features(rng.uniform(0, 300, (n, 2)), rng.normal(size=(n, 32)).astype(np.float32), np.ones(n, bool))
+    features = [query, unrelated, shuffled, bent]
+    counts = [verified_matches(query, f) for f in features[1:]]
+    assert counts[2] > 0.8 * n and counts[1] < 0.1 * counts[2] and counts[0] < 0.1 * counts[2], counts
+    words_order = np.array([[1, 2, 3]])
+    np.testing.assert_array_equal(rerank(words_order, np.array([0]), features, top=3)[0, 0], 3)
+    np.testing.assert_array_equal(rerank(words_order, np.array([0]), features, top=2), [[1, 2, 3]])  # 3 not in reach
+    np.testing.assert_array_equal(rerank(words_order, np.array([0]), features, top=0), words_order)
+    with pytest.raises(ValueError, match="top"):
+        rerank(words_order, np.array([0]), features, top=-1)
+    with pytest.raises(ValueError, match="neighbours"):
+        rerank(words_order, np.array([0, 1]), features)
 
 
 def test_read_classes(tmp_path):
@@ -272,14 +299,16 @@ def deformed_copy(tmp_path_factory):
     return root
 
 
-@pytest.mark.parametrize("weighting, words", [("none", 10), (DEFAULT_WEIGHTING, 40)])
+@pytest.mark.parametrize("weighting, words, rerank_top", [("none", 10, 0), (DEFAULT_WEIGHTING, 40, 0),
+                                                        (DEFAULT_WEIGHTING, 40, 5)])
 def test_retrieval_leaves_out_the_query_sequence_and_ranks_the_deformed_copy_first(three_objects, deformed_copy,
-                                                                                   tmp_path, weighting, words):
+                                                                                   tmp_path, weighting, words,
+                                                                                   rerank_top):
     classes = tmp_path / "classes.csv"
     classes.write_text("sequence,class\nblobs,blobs\nblobs_folded,blobs\ncheckers,checkers\nlines,lines\n")
     res, db = run_retrieval([three_objects, deformed_copy], tmp_path / "out", ("geopatch",), words=words,
                             n_samples=2000, n_keypoints=300, max_k=10, classes_file=str(classes), progress=False,
-                            weighting=weighting)
+                            weighting=weighting, rerank_top=rerank_top)
     r = res["geopatch"]
     seqs = np.asarray(db.sequences)
     # only the two 'blobs' sequences have a class mate; checkers and lines are reported and skipped

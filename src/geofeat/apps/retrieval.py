@@ -26,6 +26,12 @@
    are split at random in two halves; the K of `WORD_CANDIDATES` (5 to 2560 words, those below the
    number of sampled descriptors) with the best mean Acc@1..10 on the validation half is kept, and
    Acc@K is reported on the other (test) half only.
+7. `rerank`: each test query's best RERANK database frames by the words are then reordered by
+   `verified_matches`, the number of its keypoints' matches to the frame (mutual nearest
+   neighbours passing Lowe's ratio test) that the local affine map of their neighbours confirms
+   (`geofeat.apps.localfit.locally_consistent`): the words say which frames look alike, the
+   matches which show the same surface, however it deforms. `rerank=0` keeps the words' order (the
+   paper's setting). The measured gain is in BENCHMARKS.md ("Re-ranking by verified matches").
 """
 
 from __future__ import annotations
@@ -45,9 +51,14 @@ __all__ = [
     "RetrievalDatabase", "describe_datasets", "run_retrieval", "exclusion_mask", "per_query_accuracy",
     "bootstrap_interval", "split_queries", "WORD_CANDIDATES", "DescriptorResult", "evaluate_descriptor",
     "sample_distances", "eligible_queries", "word_counts", "inverse_document_frequency", "weight_histograms", "WEIGHTINGS",
-    "DEFAULT_WEIGHTING",
+    "DEFAULT_WEIGHTING", "rerank", "verified_matches", "RERANK", "RERANK_RATIO",
 ]
 
+#: Database frames per query that `rerank` reorders (0: none, the paper's setting); chosen on the
+#: validation queries of the 60-object set (BENCHMARKS.md, "Re-ranking by verified matches").
+RERANK = 40
+#: Lowe's ratio test of `verified_matches` (chosen with RERANK).
+RERANK_RATIO = 0.9
 #: Visual words (the paper's K).
 N_WORDS = 10
 #: Descriptors sampled for the vocabulary (the paper's).
@@ -464,6 +475,51 @@ def _plot(acc: dict[str, np.ndarray], path: Path) -> None:
     plt.close(fig)
 
 
+def verified_matches(features0: Features, features1: Features, ratio: float = RERANK_RATIO) -> int:
+    """How many keypoints of frame 0 match frame 1 (mutual nearest neighbours passing Lowe's ratio
+    test `ratio`, `geofeat.match`) where the local affine map of their neighbours agrees
+    (`geofeat.apps.localfit.locally_consistent`, which needs at least 8 matches): a count of
+    correspondences that a surface keeps when it bends."""
+    from ..matching import match
+    from .localfit import locally_consistent
+
+    m = match(features0, features1, mutual=True, ratio=ratio).matches0
+    i0 = np.flatnonzero(m >= 0)
+    if len(i0) < 8:
+        return 0
+    return int(locally_consistent(features0.keypoints[i0], features1.keypoints[m[i0]]).sum())
+
+
+def rerank(neighbours: np.ndarray, queries: np.ndarray, features: list[Features], top: int = RERANK,
+           ratio: float = RERANK_RATIO, progress: bool = False) -> np.ndarray:
+    """Reorder each query's best `top` results by `verified_matches`, most first.
+
+    Args:
+        neighbours: (Q, k) database indices of each query's results, best first (`search`).
+        queries: (Q,) database indices of the queries.
+        features: one `Features` per database frame.
+        top: results reordered per query (the first min(top, k)); 0 returns `neighbours` unchanged.
+    Returns:
+        (Q, k) int64: the first `top` of each row sorted by verified matches (ties keep the order
+        of `neighbours`), the rest unchanged.
+    """
+    neighbours = np.asarray(neighbours, np.int64)
+    queries = np.asarray(queries, np.int64).reshape(-1)
+    if top < 0:
+        raise ValueError(f"top: expected >= 0 results to re-rank, got {top}")
+    if neighbours.ndim != 2 or len(neighbours) != len(queries):
+        raise ValueError(f"neighbours: expected ({len(queries)}, k) database indices, got shape {neighbours.shape}")
+    top = min(top, neighbours.shape[1])
+    out = neighbours.copy()
+    if top < 2:
+        return out
+    for row in tqdm(range(len(queries)), desc="retrieval: re-rank", unit="query", disable=not progress):
+        q = queries[row]
+        counts = np.array([verified_matches(features[q], features[j], ratio) for j in neighbours[row, :top]])
+        out[row, :top] = neighbours[row, :top][np.argsort(-counts, kind="stable")]
+    return out
+
+
 @dataclass
 class DescriptorResult:
     """Retrieval outcome of one descriptor.
@@ -476,6 +532,8 @@ class DescriptorResult:
         per_query: (Q, k) each query's Acc@1..k.
         accuracy, low, high: (k,) Acc@K and its 95 % bootstrap interval over the queries.
         weighting: the word weighting of `weight_histograms`.
+        rerank: results per query reordered by `rerank` (0: the words' order).
+        per_query_words: (Q, k) each query's Acc@1..k in the words' order, before `rerank`.
     """
 
     words: int
@@ -487,12 +545,15 @@ class DescriptorResult:
     low: np.ndarray
     high: np.ndarray
     weighting: str = DEFAULT_WEIGHTING
+    rerank: int = 0
+    per_query_words: np.ndarray | None = None
 
 
 def evaluate_descriptor(features: list[Features], db: RetrievalDatabase, queries: np.ndarray,
                         exclude: np.ndarray, words: int | None = None, n_samples: int = N_VOCABULARY_SAMPLES,
                         seed: int = 0, max_k: int = MAX_K, candidates: tuple[int, ...] = WORD_CANDIDATES,
-                        weighting: str = DEFAULT_WEIGHTING) -> DescriptorResult:
+                        weighting: str = DEFAULT_WEIGHTING, rerank_top: int = RERANK,
+                        progress: bool = False) -> DescriptorResult:
     """Vocabulary, word counts, weighted vectors, search and Acc@K of one descriptor.
 
     Args:
@@ -502,6 +563,8 @@ def evaluate_descriptor(features: list[Features], db: RetrievalDatabase, queries
             by validation on a random half of the queries (`split_queries`) and reports Acc@K on the
             other half.
         weighting: see `weight_histograms`; the idf comes from the N database frames.
+        rerank_top: each test query's best `rerank_top` results by the words are reordered by
+            `rerank` (K is chosen on the words' order); 0 keeps the words' order.
     """
     _check_weighting(weighting)
     sample = sample_descriptors(features, n_samples, seed)
@@ -513,13 +576,15 @@ def evaluate_descriptor(features: list[Features], db: RetrievalDatabase, queries
 
     runs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
+    depth = max(max_k, rerank_top)  # results kept per query: enough for `rerank`
+
     def run(k: int) -> tuple[np.ndarray, np.ndarray]:
-        """(Q, max_k) neighbours and (Q, max_k) per-query Acc@K with K visual words (memoised)."""
+        """(Q, depth) neighbours and (Q, max_k) per-query Acc@K with K visual words (memoised)."""
         if k not in runs:
             vocab = vocabulary(sample, k, seed=seed, distances=D)
             vectors = weight_histograms(np.stack([word_counts(f, vocab) for f in features]), weighting)  # (N, K)
-            neighbours, _ = search(vectors[queries], vectors, max_k, exclude=exclude, distance=WEIGHTINGS[weighting])
-            runs[k] = neighbours, per_query_accuracy(neighbours, db.classes, np.asarray(db.classes)[queries])
+            neighbours, _ = search(vectors[queries], vectors, depth, exclude=exclude, distance=WEIGHTINGS[weighting])
+            runs[k] = neighbours, per_query_accuracy(neighbours[:, :max_k], db.classes, np.asarray(db.classes)[queries])
         return runs[k]
 
     validation: dict[int, float] = {}
@@ -536,9 +601,15 @@ def evaluate_descriptor(features: list[Features], db: RetrievalDatabase, queries
                 best = k
         ks = [best]
     neighbours, acc = run(ks[0])
-    neighbours, acc = neighbours[test], acc[test]
+    neighbours, acc_words = neighbours[test], acc[test]
+    acc = acc_words
+    if rerank_top > 0:
+        neighbours = rerank(neighbours, queries[test], features, rerank_top, progress=progress)
+        acc = per_query_accuracy(neighbours[:, :max_k], db.classes, np.asarray(db.classes)[queries[test]])
+    neighbours = neighbours[:, :max_k]
     low, high = bootstrap_interval(acc, seed=seed)
-    return DescriptorResult(ks[0], validation, queries[test], neighbours, acc, acc.mean(axis=0), low, high, weighting)
+    return DescriptorResult(ks[0], validation, queries[test], neighbours, acc, acc.mean(axis=0), low, high, weighting,
+                            rerank_top, acc_words)
 
 
 def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("geopatch", "geobit", "sift"),
@@ -546,7 +617,7 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
                   classes_file: str | None = None, n_keypoints: int = N_KEYPOINTS, tps_dir: str | None = None,
                   radius: float | None = None, depth_scale: float | None = None, max_k: int = MAX_K,
                   include_own_sequence: bool = False, progress: bool = True, overwrite: bool = False,
-                  detector: str = "sift", weighting: str = DEFAULT_WEIGHTING
+                  detector: str = "sift", weighting: str = DEFAULT_WEIGHTING, rerank_top: int = RERANK,
                   ) -> tuple[dict[str, DescriptorResult], RetrievalDatabase]:
     """The whole retrieval experiment; writes into `out`: `retrieval.csv` (descriptor, words, weighting,
     k, accuracy, low, high: Acc@K and its 95 % bootstrap interval), `acc_at_k.png`, `top6.png` (two
@@ -561,10 +632,13 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
         include_own_sequence: the database also holds the query's own sequence (the query frame
             itself excluded); by default the query's whole sequence is left out (the paper's setting).
         weighting: the word weighting and distance (`weight_histograms`, WEIGHTINGS).
+        rerank_top: results per query reordered by verified matches (`rerank`; 0: none).
     Returns ({descriptor: DescriptorResult}, the described database)."""
     from ..outputs import check_out_dir, output_folder
 
     _check_weighting(weighting)
+    if isinstance(rerank_top, bool) or not isinstance(rerank_top, (int, np.integer)) or rerank_top < 0:
+        raise ValueError(f"rerank: expected a whole number of results >= 0 (0 = the words' order), got {rerank_top!r}")
     out = check_out_dir(out, overwrite)
     classes = read_classes(classes_file) if classes_file else None
     db = describe_datasets(datasets, descriptors, n_keypoints, classes, tps_dir, radius, depth_scale, progress, detector)
@@ -582,7 +656,7 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
     for name, feats in db.features.items():
         try:
             res[name] = evaluate_descriptor(feats, db, q_idx, exclude, words, n_samples, seed, max_k,
-                                            weighting=weighting)
+                                            weighting=weighting, rerank_top=rerank_top, progress=progress)
         except ValueError as e:
             raise ValueError(f"{e} (descriptor {name})") from None
     with output_folder(out) as tmp:
@@ -609,12 +683,17 @@ def _report(db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: li
     """retrieval.md: Acc@K [95 % interval] per descriptor, then notes."""
     k_max = max(len(r.accuracy) for r in res.values())
     ks = [k for k in (1, 3, 5, 10) if k <= k_max]
+    reranked = any(r.rerank > 0 for r in res.values())
     head = "| descriptor | K (words) | queries | " + " | ".join(f"Acc@{k}" for k in ks) + f" | mean Acc@1–{k_max} |"
-    lines = [head, "|---" * (len(ks) + 4) + "|"]
+    head += f" mean Acc@1–{k_max}, words only |" if reranked else ""
+    lines = [head, "|---" * (len(ks) + 4 + reranked) + "|"]
     for n, r in res.items():
         cells = [f"{r.accuracy[k - 1]:.3f} [{r.low[k - 1]:.2f}, {r.high[k - 1]:.2f}]" for k in ks]
         mlo, mhi = bootstrap_interval(r.per_query.mean(axis=1, keepdims=True))
         cells.append(f"{r.per_query.mean():.3f} [{mlo[0]:.2f}, {mhi[0]:.2f}]")
+        if reranked:
+            wlo, whi = bootstrap_interval(r.per_query_words.mean(axis=1, keepdims=True))
+            cells.append(f"{r.per_query_words.mean():.3f} [{wlo[0]:.2f}, {whi[0]:.2f}]")
         lines.append(f"| {n} | {r.words} | {len(r.queries)} | " + " | ".join(cells) + " |")
     n_cls = len(set(db.classes))
     n_desc = sum(int(f.valid.sum()) for f in next(iter(db.features.values())))
@@ -623,6 +702,11 @@ def _report(db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: li
              + "; [95 % bootstrap interval over queries]",
              f"vocabulary from {min(n_samples, n_desc)} sampled descriptors; word weighting "
              f"{next(iter(res.values())).weighting} ({WEIGHTINGS[next(iter(res.values())).weighting]} distance)"]
+    if reranked:
+        top = next(r.rerank for r in res.values())
+        notes.append(f"each query's best {top} frames by the words reordered by verified matches (mutual nearest "
+                     f"neighbours, ratio test {RERANK_RATIO}, confirmed by their neighbours' local affine map); "
+                     "K chosen on the words' order")
     if words is None:
         for n, r in res.items():
             scores = ", ".join(f"{k}: {v:.3f}" for k, v in r.validation.items())

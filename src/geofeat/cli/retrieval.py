@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..apps.retrieval import DEFAULT_WEIGHTING, WEIGHTINGS, WORD_CANDIDATES
+from ..apps.retrieval import DEFAULT_WEIGHTING, RERANK, WEIGHTINGS, WORD_CANDIDATES
 from .options import app_options, names
 
 
@@ -24,6 +24,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "(square roots, L2), tfidf (tf-idf, cosine), tfidf-sqrt (square-root tf times idf, cosine), "
                         "tfidf-l1 (tf-idf, L1-normalised, L1 distance); idf from the database frames "
                         f"(default {DEFAULT_WEIGHTING})")
+    p.add_argument("--rerank", type=int, default=RERANK, metavar="N",
+                   help="reorder each query's best N results by the words by verified matches (mutual nearest "
+                        "neighbours passing the ratio test that their neighbours' local affine map confirms); 0 keeps "
+                        f"the words' order, the paper's setting (default {RERANK})")
     p.add_argument("--include-own-sequence", action="store_true",
                    help="the database also holds the query's own sequence (default: only the other sequences, "
                         "the paper's setting)")
@@ -43,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
                             n_keypoints=args.keypoints, tps_dir=args.tps_dir, radius=args.radius,
                             depth_scale=args.depth_scale, include_own_sequence=args.include_own_sequence,
                             overwrite=args.overwrite, detector=args.detector,
-                            weighting=args.weighting)
+                            weighting=args.weighting, rerank_top=args.rerank)
     out = Path(args.out)
     print((out / "retrieval.md").read_text())
     print(f"wrote {out / 'retrieval.csv'}, {out / 'acc_at_k.png'}, {out / 'top6.png'}")
