@@ -13,6 +13,9 @@ import numpy as np
 
 from ..frame import RGBDFrame
 
+#: A depth discontinuity: a raw-depth step of more than this many pixel footprints between neighbours.
+DEPTH_STEP_FOOTPRINTS = 4.0
+
 #: Image cues: the scorer combines them linearly, so that its ranking of corners follows their
 #: contrast and cornerness the same way in every view (a non-linear mix of image cues learned on
 #: simulated renders ranked the same corner differently in two views of a bent sheet).
@@ -92,14 +95,30 @@ def cue_maps(frame: RGBDFrame, depth_cues: bool = True) -> dict[str, np.ndarray]
     maps["log_curv_2"] = cv2.Laplacian(z2, cv2.CV_32F, ksize=3) / footprint
     z6 = smooth_depth(6.0)
     maps["log_curv_6"] = cv2.Laplacian(z6, cv2.CV_32F, ksize=3) / footprint
-    # depth discontinuities: a raw-depth step of more than 4 footprints between neighbours, or a hole
-    raw_fp = np.where(depth > 0, depth / fx, 1.0)
-    step_x = np.abs(np.diff(depth, axis=1, append=depth[:, -1:])) / raw_fp
-    step_y = np.abs(np.diff(depth, axis=0, append=depth[-1:, :])) / raw_fp
-    edge = (valid == 0) | (step_x > 4.0) | (step_y > 4.0)
-    dist = cv2.distanceTransform((~edge).astype(np.uint8), cv2.DIST_L2, 3)
-    maps["log_edge_dist"] = dist
+    maps["log_edge_dist"] = depth_edge_distance(depth, fx)
     return maps
+
+
+def depth_edge_distance(depth: np.ndarray, fx: float, step_footprints: float = DEPTH_STEP_FOOTPRINTS) -> np.ndarray:
+    """(H, W) float32 distance, pixels, to the nearest depth discontinuity or hole.
+
+    A discontinuity is a raw-depth step between 4-neighbouring pixels of more than
+    `step_footprints` pixel footprints (depth / fx, metres per pixel): a silhouette or a fold that
+    hides part of the surface. A surface inclined by an angle a to the image plane steps by tan(a)
+    footprints per pixel, so 4 footprints also flags slopes steeper than 76 degrees, 10 only those
+    steeper than 84. A hole is depth 0.
+
+    Args:
+        depth: (H, W) depth, metres; 0 = no depth.
+        fx: focal length, pixels.
+        step_footprints: the smallest step that makes a discontinuity, pixel footprints.
+    """
+    depth = np.asarray(depth, np.float32)
+    footprint = np.where(depth > 0, depth / fx, 1.0)
+    step_x = np.abs(np.diff(depth, axis=1, append=depth[:, -1:])) / footprint
+    step_y = np.abs(np.diff(depth, axis=0, append=depth[-1:, :])) / footprint
+    edge = (depth <= 0) | (step_x > step_footprints) | (step_y > step_footprints)
+    return cv2.distanceTransform((~edge).astype(np.uint8), cv2.DIST_L2, 3)
 
 
 def cue_features(maps: dict[str, np.ndarray], xy: np.ndarray, level: np.ndarray) -> np.ndarray:
