@@ -88,6 +88,30 @@ def test_suppression_keeps_the_local_maximum_only():
     assert keep.tolist() == [False, True, True]
 
 
+def test_no_candidate_on_an_occlusion_contour_but_on_a_steep_slope():
+    """A textured scene whose right part stands 30 cm behind (an occlusion contour at column 80) and
+    whose bottom rows slope at 80 degrees: candidates stay DEPTH_EDGE_MARGIN_PX off the contour and
+    off the holes, and are still found on the slope and elsewhere."""
+    from geofeat.detectors.cues import depth_edge_distance
+    from geofeat.detectors.geokey import DEPTH_EDGE_MARGIN_PX
+
+    tex = make_texture(3, 256)[:120, :160].astype(np.float32)
+    depth = np.full((120, 160), 1.0, np.float32)
+    depth[:, 80:] = 1.3
+    fx = float(K_SHEET[0, 0])
+    rows = np.arange(80, 120)
+    depth[80:, :80] = (1.0 + np.tan(np.radians(80)) * (rows - 79) / fx)[:, None]  # 80-degree slope
+    depth[10:20, 10:20] = 0.0  # a hole
+    frame = geofeat.RGBDFrame(tex, depth, K_SHEET)
+    xy = candidates(frame).xy
+    dist = depth_edge_distance(depth, fx, 10.0)
+    assert len(xy) > 50
+    assert (dist[np.rint(xy[:, 1]).astype(int), np.rint(xy[:, 0]).astype(int)] >= DEPTH_EDGE_MARGIN_PX).all()
+    assert not (np.abs(xy[:, 0] - 79.5) < 2.5).any()  # the contour between columns 79 and 80
+    assert not ((xy[:, 0] > 7) & (xy[:, 0] < 22) & (xy[:, 1] > 7) & (xy[:, 1] < 22)).any()  # around the hole
+    assert ((xy[:, 1] > 83) & (xy[:, 1] < 115) & (xy[:, 0] < 75)).sum() > 5  # the steep slope keeps its corners
+
+
 def test_frame_without_texture_or_depth_gives_no_keypoints_and_a_warning():
     K = K_SHEET
     blank = geofeat.RGBDFrame(np.full((120, 160), 0.5, np.float32), np.full((120, 160), 1.0, np.float32), K)

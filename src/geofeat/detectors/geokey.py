@@ -4,8 +4,9 @@ Three steps, all vectorised:
 
 1. **Candidates.** Well-localised corners (the structure tensor's smaller eigenvalue, Shi-Tomasi)
    at full and half resolution, refined to sub-pixel by a parabola through the cornerness peak, on
-   pixels with depth, away from depth discontinuities (occlusion contours slide as the cloth moves). They are dense (several thousand per 640 x 480 frame), so the detector can
-   afford to be choosy.
+   pixels with depth, away from depth discontinuities (occlusion contours slide as the cloth
+   moves). They are dense (several thousand per 640 x 480 frame), so the detector can afford to be
+   choosy.
 2. **Learned score.** logit = a linear function of image cues (cornerness, gradient, contrast at
    a few scales) + a small MLP of depth cues (slope, curvature, distance to a depth edge, depth
    coverage; `geofeat.detectors.cues`). It predicts the probability that the point is found again,
@@ -53,7 +54,7 @@ BORDER_PX = 4
 #: Candidates closer than this to a depth discontinuity or a hole are dropped, pixels
 #: (`cues.depth_edge_distance`). There the corner is an occlusion contour, a T-junction of two
 #: surfaces that slides as the cloth moves, and the geodesic patch around it is cut. Chosen on
-#: validation (BENCHMARKS.md, "GeoKey v3.4"): GeoPatch MS +5 to +9 %, correct matches unchanged.
+#: validation (BENCHMARKS.md, "GeoKey v3.4"): GeoPatch MS +5 to +9 %, correct matches within 4 %.
 DEPTH_EDGE_MARGIN_PX = 3.0
 #: A depth discontinuity for DEPTH_EDGE_MARGIN_PX: a step of more than this many pixel footprints between
 #: neighbours (slopes up to 84 degrees pass). `cues`' 4 footprints also cut steep slopes of the cloth,
