@@ -45,6 +45,9 @@ def main() -> None:
     p.add_argument("--descriptors", default="geopatch,sift")
     p.add_argument("--words", type=int, default=2560)
     p.add_argument("--weighting", default=DEFAULT_WEIGHTING)
+    p.add_argument("--rerank", type=int, default=0,
+                   help="results re-ranked by verified matches (default 0: the words' order, as the figures in "
+                        "BENCHMARKS.md that this script made before `geofeat retrieval` re-ranked)")
     p.add_argument("--objects", type=int, default=20, help="make_retrieval_set.py --objects")
     p.add_argument("--set-seed", type=int, default=5000, help="make_retrieval_set.py --seed")
     args = p.parse_args()
@@ -62,7 +65,8 @@ def main() -> None:
         if db.sequences != first.sequences or db.frames != first.frames:
             raise SystemExit("--cache: the pickles hold different frames")
         queries, exclude, _ = eligible_queries(db)
-        r = evaluate_descriptor(db.features[name], db, queries, exclude, words=args.words, weighting=args.weighting)
+        r = evaluate_descriptor(db.features[name], db, queries, exclude, words=args.words, weighting=args.weighting,
+                                rerank_top=args.rerank)
         per_query[name] = r.per_query.mean(axis=1)  # (Q,) all queries: K is given
         cls = np.asarray(db.classes)
         family = fabric_families(db.classes, args.objects, args.set_seed)
