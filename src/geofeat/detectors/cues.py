@@ -114,11 +114,16 @@ def depth_edge_distance(depth: np.ndarray, fx: float, step_footprints: float = D
         step_footprints: the smallest step that makes a discontinuity, pixel footprints.
     """
     depth = np.asarray(depth, np.float32)
-    footprint = np.where(depth > 0, depth / fx, 1.0)
-    step_x = np.abs(np.diff(depth, axis=1, append=depth[:, -1:])) / footprint
-    step_y = np.abs(np.diff(depth, axis=0, append=depth[-1:, :])) / footprint
-    edge = (depth <= 0) | (step_x > step_footprints) | (step_y > step_footprints)
-    return cv2.distanceTransform((~edge).astype(np.uint8), cv2.DIST_L2, 3)
+    footprint = np.where(depth > 0, depth / np.float32(fx), np.float32(1.0))  # metres per pixel
+    edge = depth <= 0
+    step = np.abs(depth[:, 1:] - depth[:, :-1])  # to the right-hand neighbour, metres
+    step /= footprint[:, :-1]
+    edge[:, :-1] |= step > step_footprints
+    step = np.abs(depth[1:] - depth[:-1])  # to the neighbour below
+    step /= footprint[:-1]
+    edge[:-1] |= step > step_footprints
+    np.logical_not(edge, out=edge)  # now: not an edge
+    return cv2.distanceTransform(edge.view(np.uint8), cv2.DIST_L2, 3)
 
 
 def cue_features(maps: dict[str, np.ndarray], xy: np.ndarray, level: np.ndarray) -> np.ndarray:
