@@ -152,6 +152,21 @@ def check_detector_name(detector: str) -> str:
     return detector
 
 
+def resolve_keypoint_set(detector: str, keypoint_set: str | None, default: str = "unique") -> str:
+    """The keypoint set a `detector` ("sift", "geokey", "geokey=WEIGHTS") gives: `keypoint_set`, or
+    when None `default` for SIFT and "unique" for GeoKey, whose keypoints are one per position by
+    construction. ValueError for a set that is not in KEYPOINT_SETS, or that chooses among SIFT's
+    keypoints ("protocol") with another detector."""
+    sift = detector.partition("=")[0] == "sift"
+    chosen = keypoint_set if keypoint_set is not None else (default if sift else "unique")
+    if chosen not in KEYPOINT_SETS:
+        raise ValueError(f"keypoint_set: expected one of {', '.join(KEYPOINT_SETS)}, got {chosen!r}")
+    if not sift and chosen != "unique":
+        raise ValueError(f"keypoint_set: {chosen!r} chooses among SIFT's keypoints; {detector}'s are one per "
+                         "position ('unique'): leave it out, or use detector='sift'")
+    return chosen
+
+
 def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = DEFAULT_DETECTOR, **options) -> Keypoints:
     """Detect keypoints on `frame`, best first.
 
@@ -163,10 +178,10 @@ def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = DEFAUL
             pixels with depth, scored by image cues, plus depth cues when the weights use them;
             `geofeat.detectors.geokey`) or "geokey=WEIGHTS" (weights from `geofeat train-detector`).
         **options: options of `detect_sift` (keypoint_set, contrast_threshold, mask, ...); GeoKey
-            takes `keypoint_set` only as "unique" (what its keypoints are), `mask`, `threshold` (its minimum logit; default the weights' own, chosen on
-            validation; -inf returns the `n` best whatever their score) and `min_fraction` (the best
-            this fraction of the frame's candidates are kept whatever the threshold; default the
-            weights' own).
+            takes `keypoint_set` only as "unique" (what its keypoints are), `mask`, `threshold`
+            (its minimum logit; default the weights' own, chosen on validation; -inf returns the
+            `n` best whatever their score) and `min_fraction` (the best this fraction of the
+            frame's candidates are kept whatever the threshold; default the weights' own).
 
     Returns:
         `Keypoints` sorted best first; fewer than `n` when the detector's threshold stops it (SIFT's
@@ -183,10 +198,7 @@ def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = DEFAUL
     mask = options.pop("mask", None)
     threshold = options.pop("threshold", None)
     min_fraction = options.pop("min_fraction", None)
-    keypoint_set = options.pop("keypoint_set", None)
-    if keypoint_set not in (None, "unique"):  # GeoKey has one keypoint per position by construction
-        raise ValueError(f"keypoint_set: {keypoint_set!r} chooses among SIFT's keypoints; GeoKey's are one per "
-                         "position ('unique'): leave it out, or use detector='sift'")
+    resolve_keypoint_set(name, options.pop("keypoint_set", None))  # only "unique" applies to GeoKey
     if options:
         raise TypeError(f"detector: options {sorted(options)} apply to 'sift' only")
     return detect_geokey(frame, n, load_geokey(weights or None), mask=mask, threshold=threshold,

@@ -35,7 +35,7 @@ from ..descriptors import OpenCVDescriptor, check_descriptor_name
 from ..inputs import check_tps_dir, resolve_radius
 from ..io import Sequence, find_sequences, read_sequence
 from ..outputs import add_to_manifest, append_line_durably, atomic_file, check_out_dir, read_manifest
-from ..keypoints import KEYPOINT_SETS, Keypoints, check_detector_name, detect
+from ..keypoints import Keypoints, check_detector_name, detect, resolve_keypoint_set
 from ..matching import match
 from ..features import Features
 from .external import ExternalFeatures, parse_features_option
@@ -78,13 +78,7 @@ class BenchConfig:
             raise ValueError("features: external features are scored with protocol 'detect' only")
         if self.protocol not in ("detect", "landmarks"):
             raise ValueError(f"protocol: expected 'detect' or 'landmarks', got {self.protocol!r}")
-        if self.keypoint_set is None:
-            self.keypoint_set = "protocol" if self.detector == "sift" else "unique"
-        if self.detector != "sift" and self.keypoint_set != "unique":
-            raise ValueError(f"keypoint_set: {self.keypoint_set!r} chooses among SIFT's keypoints; {self.detector}'s "
-                             "are one per position ('unique')")
-        if self.keypoint_set not in KEYPOINT_SETS:
-            raise ValueError(f"keypoint_set: expected one of {', '.join(KEYPOINT_SETS)}, got {self.keypoint_set!r}")
+        self.keypoint_set = resolve_keypoint_set(self.detector, self.keypoint_set, "protocol")
         if self.depth_profile is not None:
             self.depth_profile = check_profile(self.depth_profile)
         if not self.descriptors and not self.features:

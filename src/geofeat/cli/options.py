@@ -7,7 +7,7 @@ import argparse
 
 from ..constants import DEPTH_PROFILE_NAMES, DEPTH_SCALE_M, N_KEYPOINTS
 from ..descriptors import GEODESIC_DESCRIPTORS, available_descriptors, check_descriptor_name
-from ..keypoints import DEFAULT_DETECTOR, KEYPOINT_SETS, check_detector_name
+from ..keypoints import DEFAULT_DETECTOR, KEYPOINT_SETS, check_detector_name, resolve_keypoint_set
 
 
 def descriptor_name(text: str) -> str:
@@ -61,7 +61,7 @@ def keypoint_set_for(detector: str, keypoint_set: str | None, default: str) -> s
     if keypoint_set is not None and detector != "sift":
         raise ValueError(f"--keypoint-set: chooses among SIFT's keypoints, not {detector}'s (GeoKey has one "
                          "keypoint per position); leave it out, or add --detector sift")
-    return keypoint_set or (default if detector == "sift" else "unique")
+    return resolve_keypoint_set(detector, keypoint_set, default)
 
 
 def resolve_detection(args: argparse.Namespace) -> str:
