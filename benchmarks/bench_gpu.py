@@ -8,13 +8,18 @@ not timed: both paths get the same keypoints). Per frame:
 - walk: the geodesic walk alone (GPU: `walk_cuda.walk_polar_cuda` on device inputs; CPU: `walk_polar`);
 - f(.) with the mesh reused: walk + blur + patch sampling (`gpu.polar_patches_cuda` /
   `geofeat.polar_patches(..., mesh=mesh)`);
-- f(.) on a fresh frame: depth preprocessing + mesh + walk tables on the host, their upload, then
-  the above (GPU) / `polar_patches` on a new RGBDFrame (CPU);
+- depth + mesh + walk tables of a fresh frame: on the GPU (`gpu.build_mesh_cuda`: hole filling on
+  the host, the smoothing pyramid, back-projection and one thread per face on the GPU) and on the
+  host (`geodesic.mesh.build_mesh` + `walk_tables`); hole filling alone (host, `depth.fill_holes`);
+- f(.) on a fresh frame: the above, then the walk, blur and sampling (GPU) / `polar_patches` on a
+  new RGBDFrame (CPU). The depth profile is resolved once for the stream (as `geofeat bench` does
+  per sequence); one row also shows the GPU path with depth_config="auto", which measures every
+  frame's depth noise on the host;
 - CNN: GeoPatch on 2048 patches (GPU: torch fp32, TF32 off; CPU: the default onnx-int8 backend and torch);
 - match: GeoPatch L2 2048 x 2048 and GeoBit Hamming 2048 x 2048 x 16 rotations (GPU: matrix products,
   descriptors already on the device; CPU: `geofeat.match`);
 - total per frame: f(.) + CNN + one L2 match against the previous frame's features (the streaming
-  case: every new frame is described and matched once), mesh reused and fresh.
+  case: every new frame is described and matched once), mesh reused and fresh (fp32 and fp16 CNN).
 GPU times are wall times with torch.cuda.synchronize() before and after each call, after warm-up;
 the median and the best of `repeats` calls are printed. The same run checks that the GPU results
 equal the CPU ones (walk coordinates, patch values, descriptors, matches).
@@ -48,9 +53,10 @@ def main() -> None:
     from geofeat.descriptors.geobit import GeoBit
     from geofeat.descriptors.geopatch import GeoPatch
     from geofeat.frame import RGBDFrame
-    from geofeat.geodesic.mesh import frame_mesh
+    from geofeat.depth import depth_profile, fill_holes
+    from geofeat.geodesic.mesh import build_mesh, frame_mesh
     from geofeat.geodesic.walk import MAX_CROSSINGS, walk_polar
-    from geofeat.gpu import (_as_numba, _MESH_ATTR, compute_cuda, device_mesh_tables, match_cuda,
+    from geofeat.gpu import (_as_numba, _MESH_ATTR, build_mesh_cuda, compute_cuda, device_mesh_tables, match_cuda,
                              polar_patches_cuda, require_cuda, simulated)
     from geofeat.geodesic.walk_cuda import walk_polar_cuda
     from geofeat.keypoints import detect
@@ -67,7 +73,10 @@ def main() -> None:
     frames.append(frames[0].rotated90(1))
     kps = [detect(f, n, detector="sift") for f in frames]
     meshes = [frame_mesh(f) for f in frames]
+    profile = depth_profile(frames[0])  # once per stream
     gp_gpu = GeoPatch(device="cpu" if sim else "cuda", backend="torch")
+    gp_stream = GeoPatch(device="cpu" if sim else "cuda", backend="torch", depth_config=profile)
+    gp_cpu_stream = GeoPatch(device="cpu", depth_config=profile)
     gp_cpu = GeoPatch(device="cpu")  # the CPU default backend (onnx-int8)
     gp_cpu_torch = GeoPatch(device="cpu", backend="torch")
     gb = GeoBit()
@@ -160,9 +169,29 @@ def main() -> None:
     report("mesh tables upload (once per mesh)", "host->GPU", t_gpu(upload_tables))
     report("f(.) mesh reused: walk + blur + sampling", "GPU", t_gpu(lambda: polar_patches_cuda(f0, k0, mesh=m0)))
     report("f(.) mesh reused: walk + blur + sampling", "CPU", t_cpu(lambda: geofeat.polar_patches(f0, k0, mesh=m0)))
-    report("f(.) fresh frame (+ host depth/mesh/tables)", "host + GPU",
+    # the GPU-built mesh against the host's, on the timed frame
+    mh, mg = build_mesh(f0, profile), build_mesh_cuda(f0, profile, device=dev).to_host()
+    checks["device_mesh"] = dict(
+        face_ok_equal=bool(np.array_equal(mh.face_ok, mg.face_ok)),
+        points_max_m=float(np.nanmax(np.abs(mh.points - mg.points))),
+        normals_max=float(np.abs(mh.normals - mg.normals).max()),
+        local_max_m=float(np.abs(mh.walk_tables[0] - mg.walk_tables[0]).max()))
+    print(f"  GPU-built mesh against the host's ({profile} profile): {checks['device_mesh']}", flush=True)
+    report("hole filling (host, part of the next row)", "CPU", t_cpu(lambda: fill_holes(f0.depth)))
+    report("depth + mesh + walk tables, fresh frame", "host fill + GPU",
+           t_gpu(lambda: build_mesh_cuda(fresh(f0), profile, device=dev)))
+    report("depth + mesh + walk tables, fresh frame", "CPU",
+           t_cpu(lambda: build_mesh(fresh(f0), profile).walk_tables))
+    report("f(.) fresh frame", "GPU (fill on host)",
+           t_gpu(lambda: polar_patches_cuda(fresh(f0), k0, depth_config=profile)))
+
+    def host_mesh_path(frame):  # the previous release's GPU path: mesh on the host, then uploaded
+        return polar_patches_cuda(frame, k0, mesh=frame_mesh(frame, profile))
+
+    report("f(.) fresh frame, host mesh uploaded", "host + GPU (before)", t_gpu(lambda: host_mesh_path(fresh(f0))))
+    report("f(.) fresh frame, depth_config='auto'", "GPU (+ host noise check)",
            t_gpu(lambda: polar_patches_cuda(fresh(f0), k0), repeats=max(5, a.repeats // 2)))
-    report("f(.) fresh frame", "CPU", t_cpu(lambda: geofeat.polar_patches(fresh(f0), k0)))
+    report("f(.) fresh frame", "CPU", t_cpu(lambda: geofeat.polar_patches(fresh(f0), k0, depth_config=profile)))
     pg = polar_patches_cuda(f0, k0, mesh=m0)
     report("GeoPatch CNN", "GPU torch fp32", t_gpu(lambda: gp_gpu.describe_tensor(pg.values, pg.valid)))
     ref32 = gp_gpu.describe_tensor(pg.values, pg.valid)
@@ -192,10 +221,13 @@ def main() -> None:
                t_gpu(lambda: match_cuda(prev_g, compute_cuda(gp_gpu, f0, k0, mesh=m0, half=True))))
     report("total: f(.) + CNN + match, mesh reused", "CPU",
            t_cpu(lambda: match(prev_c, gp_cpu.compute(f0, k0, mesh=m0))))
-    report("total: f(.) + CNN + match, fresh frame", "host + GPU",
-           t_gpu(lambda: match_cuda(prev_g, compute_cuda(gp_gpu, fresh(f0), k0)), repeats=max(5, a.repeats // 2)))
+    report("total: f(.) + CNN + match, fresh frame", "GPU (fill on host)",
+           t_gpu(lambda: match_cuda(prev_g, compute_cuda(gp_stream, fresh(f0), k0))))
+    if not sim:
+        report("total: f(.) + CNN + match, fresh frame", "GPU, CNN fp16",
+               t_gpu(lambda: match_cuda(prev_g, compute_cuda(gp_stream, fresh(f0), k0, half=True))))
     report("total: f(.) + CNN + match, fresh frame", "CPU",
-           t_cpu(lambda: match(prev_c, gp_cpu.compute(fresh(f0), k0))))
+           t_cpu(lambda: match(prev_c, gp_cpu_stream.compute(fresh(f0), k0))))
     print(f"load average after: {os.getloadavg()[0]:.2f}", flush=True)
     if a.json:
         with open(a.json, "w") as fd:

@@ -52,6 +52,26 @@ def test_blur_and_sampling_equal_opencv(pair):
     assert (nan == 0).all()
 
 
+def test_depth_smoothing_on_tensors_equals_opencv(pair):
+    """The GPU path's depth preprocessing (`smooth_depth_torch`, `backproject_torch`) on CPU tensors
+    against `depth.smooth` / `depth.backproject`, on the real Kinect frame (holes filled first, as
+    both paths do) for both profiles: the same missing pixels, depths within two float32 ulp."""
+    from geofeat.depth import PROFILES, backproject, fill_holes, smooth
+    from geofeat.gpu import backproject_torch, smooth_depth_torch
+
+    frame = pair[0][0]
+    depth = fill_holes(frame.depth)
+    for cfg in PROFILES.values():
+        ref = smooth(depth, cfg.smooth_levels, cfg.mesh_scale)
+        got = smooth_depth_torch(torch.from_numpy(depth), cfg.smooth_levels, cfg.mesh_scale).numpy()
+        assert got.shape == ref.shape and got.dtype == np.float32
+        np.testing.assert_array_equal(got > 0, ref > 0)
+        assert (ref == 0).any() and (ref > 0).mean() > 0.5
+        np.testing.assert_allclose(got, ref, rtol=0, atol=2 * np.spacing(np.float32(ref.max())))
+        np.testing.assert_array_equal(backproject_torch(torch.from_numpy(ref), frame.K).numpy(),
+                                      backproject(ref, frame.K))
+
+
 def test_describe_tensor_equals_describe(pair):
     frame, kps = pair[0]
     p = geofeat.polar_patches(frame, kps)
@@ -94,6 +114,23 @@ def test_cuda_requests_fail_clearly_without_gpu(pair):
         match_cuda(GeoBit().compute(frame, kps[:8]), GeoBit().compute(frame, kps[:8]))
     with pytest.raises(ValueError, match="GeoPatch"):
         geofeat.extract(frame, 64, detector="sift", descriptor="geobit", device="cuda")
+
+
+@pytest.mark.skipif(not CUDA, reason="no CUDA GPU")
+def test_gpu_mesh_equals_cpu_mesh(pair):
+    """`build_mesh_cuda` on the GPU against the host mesh, on the Kinect pair (its "kinect" profile
+    smooths the depth): the same faces but for a stated few (float32 smoothing), points within one
+    float32 ulp, walk tables close."""
+    from geofeat.geodesic.mesh import build_mesh
+    from geofeat.gpu import build_mesh_cuda
+
+    for frame, _ in pair:
+        ref = build_mesh(frame, "auto")
+        got = build_mesh_cuda(frame, "auto").to_host()
+        assert (got.face_ok != ref.face_ok).mean() <= 1e-4
+        np.testing.assert_allclose(got.points, ref.points, rtol=0, atol=5e-7, equal_nan=True)
+        both = got.face_ok & ref.face_ok
+        assert np.abs(got.walk_tables[0] - ref.walk_tables[0])[both].max() <= 1e-5
 
 
 @pytest.mark.skipif(not CUDA, reason="no CUDA GPU")

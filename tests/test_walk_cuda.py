@@ -154,6 +154,67 @@ def test_gpu_path_equals_cpu_path_in_cuda_simulator():
     assert proc.returncode == 0 and "ok" in proc.stdout, proc.stderr[-3000:]
 
 
+MESH_SCRIPT = r'''
+import cv2, numpy as np
+import geofeat
+from geofeat.depth import PROFILES
+from geofeat.frame import RGBDFrame
+from geofeat.geodesic.mesh import build_mesh, frame_mesh
+from geofeat.gpu import DeviceMesh, build_mesh_cuda, polar_patches_cuda, simulated
+assert simulated()
+H, W = 64, 80
+K = np.array([[200.0, 0, 39.5], [0, 200.0, 31.5], [0, 0, 1]])
+v, u = np.mgrid[0:H, 0:W].astype(float)
+rng = np.random.default_rng(1)
+depth = (1.0 + 0.05 * np.sin(u / 5.0) * np.cos(v / 6.0) + 0.002 * u
+         + 0.002 * rng.standard_normal((H, W))).astype(np.float32)
+depth[20:23, 30:34] = 0  # a small hole: filled
+depth[:, 60:] += 0.4  # a depth step: no faces across it
+depth[50:, :10] = 0  # a hole on the border: kept
+img = cv2.GaussianBlur(rng.random((H, W)).astype(np.float32), (0, 0), 1.5)
+frame = RGBDFrame((img - img.min()) / (img.max() - img.min()), depth, K)
+for name, cfg in PROFILES.items():
+    ref = build_mesh(frame, cfg)
+    got = build_mesh_cuda(frame, cfg).to_host()
+    assert 0.9 < ref.face_ok.mean() < 1.0
+    np.testing.assert_array_equal(got.face_ok, ref.face_ok)
+    np.testing.assert_allclose(got.K, ref.K, rtol=0, atol=1e-12)
+    assert got.scale == ref.scale and got.image_shape == ref.image_shape
+    # "clean" keeps the depth: bit-identical. "kinect" smooths it in float32 on the device, within
+    # one float32 ulp of OpenCV's; the normals and tables follow within the surface's sensitivity
+    tol = 0.0 if name == "clean" else 3e-7
+    np.testing.assert_allclose(got.points, ref.points, rtol=0, atol=tol, equal_nan=True)
+    for a, b in zip(got.walk_tables + (got.normals,), ref.walk_tables + (ref.normals,)):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e3 * tol)
+    kps = np.array([[40.2, 30.3], [20.7, 17.1], [47.4, 42.6], [30.5, 21.5], [58.5, 30.2]])
+    cpu = geofeat.polar_patches(frame, kps, depth_config=name, radius=0.05)
+    dev = polar_patches_cuda(frame, kps, depth_config=name, radius=0.05)  # builds the mesh on the device
+    assert isinstance(frame_mesh(frame, name, device="cuda"), DeviceMesh)
+    dev = dev.to_host()
+    assert cpu.valid.all()
+    np.testing.assert_array_equal(dev.rings_reached, cpu.rings_reached)
+    np.testing.assert_allclose(dev.coords, cpu.coords, rtol=0, atol=1e-4, equal_nan=True)
+    np.testing.assert_allclose(dev.values, cpu.values, rtol=0, atol=1e-5)
+m = frame_mesh(frame, "kinect", device="cuda")
+assert frame_mesh(frame, "kinect", device="cuda") is m  # cached on the frame
+frame.depth[10, 10] += 0.01
+assert frame_mesh(frame, "kinect", device="cuda") is not m  # an edited depth is noticed
+print("ok")
+'''
+
+
+def test_gpu_mesh_equals_cpu_mesh_in_cuda_simulator():
+    """The fresh-frame part of the GPU path (`gpu.build_mesh_cuda`: smoothing pyramid on tensors,
+    faces / normals / walk tables by the CPU's kernel sources, one thread per face) against the host
+    mesh, with a filled hole, a kept border hole and a depth step, for both depth profiles; then the
+    patches it gives against the CPU path's."""
+    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
+    src = str(Path(__file__).resolve().parents[1] / "src")
+    env["PYTHONPATH"] = src + os.pathsep + env.get("PYTHONPATH", "")
+    proc = subprocess.run([sys.executable, "-c", MESH_SCRIPT], env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0 and "ok" in proc.stdout, proc.stderr[-3000:]
+
+
 def _real_gpu() -> bool:
     try:
         from numba import cuda

@@ -10,7 +10,6 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
 from .constants import DEPTH_PROFILE_NAMES, HOLE_MAX_PERIMETER_PX, IDW_POWER, MESH_SCALE, SMOOTH_LEVELS, SMOOTH_WINDOW_PX
 
@@ -218,20 +217,19 @@ def fill_holes(
     if method == "none":
         return out
     missing = out <= 0
-    labels, n = ndimage.label(missing)
-    if n == 0:
-        return out
+    # 4-connected regions of missing pixels and their bounding boxes (the components that
+    # scipy.ndimage.label gives; OpenCV's labelling also returns the boxes)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(missing.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
     H, W = out.shape
-    eight = np.ones((3, 3), bool)
-    for index, sl in enumerate(ndimage.find_objects(labels), start=1):
-        if sl is None:
-            continue
-        y0, y1, x0, x1 = sl[0].start, sl[0].stop, sl[1].start, sl[1].stop
+    eight = np.ones((3, 3), np.uint8)
+    for index in range(1, n):  # label 0: the pixels with depth
+        x0, y0, w, h = (int(v) for v in stats[index, :4])
+        y1, x1 = y0 + h, x0 + w
         if y0 == 0 or x0 == 0 or y1 == H or x1 == W:
             continue  # touches the border: not an enclosed hole
         ys, xs = slice(y0 - 1, y1 + 1), slice(x0 - 1, x1 + 1)
         hole = labels[ys, xs] == index
-        border = ndimage.binary_dilation(hole, eight) & ~missing[ys, xs]
+        border = (cv2.dilate(hole.view(np.uint8), eight) > 0) & ~missing[ys, xs]
         if border.sum() >= max_perimeter:
             continue
         by, bx = np.nonzero(border)

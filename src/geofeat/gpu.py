@@ -1,10 +1,14 @@
 """The GPU path from frame to matches (`device="cuda"`): geodesic walk -> patch sampling -> GeoPatch
 CNN -> matching, every intermediate array staying on the GPU.
 
-Per frame, the host does what it does on the CPU path up to the mesh (depth preprocessing, mesh and
-its walk tables, keypoint detection) and uploads the mesh tables (cached on the mesh), the gray
-image and the keypoints once. Then on the GPU:
+Per frame, the host detects the keypoints and fills the depth's small holes (`depth.fill_holes`, a
+connected-component labelling) and uploads the filled depth, the gray image and the keypoints once.
+Then on the GPU:
 
+0. the mesh (`build_mesh_cuda`, cached on the frame like the host's `frame_mesh`): the depth's
+   smoothing pyramid on tensors, back-projection, and one thread per face for the faces, normals
+   and the walk's tables (the CPU's kernel sources, `walk_cuda.mesh_faces_cuda`); a host
+   `GridMesh` passed as `mesh=` is uploaded instead (its tables cached on it);
 1. the walk (`geodesic.walk_cuda`: the CPU walk's kernel source compiled by numba.cuda), writing
    into torch tensors;
 2. the sampling blur (separable Gaussian, OpenCV's kernel) and the bilinear read of the patches
@@ -14,6 +18,8 @@ image and the keypoints once. Then on the GPU:
    (`matching._hamming_search_torch`); only the (N0,) matches and distances come back.
 
 Results equal the CPU path's within stated tolerances (tests/test_gpu.py, tests/test_walk_cuda.py):
+the smoothed depth within two float32 ulp of OpenCV's (the same depth, bit for bit, in the "clean"
+profile, which does not smooth), the same faces on the tested frames,
 walk coordinates within 1e-4 px (the GPU's cos/sin and fused multiply-adds may differ from the CPU's
 in the last bits of float64; on an H100 the Kinect pair's coordinates and rings reached were
 identical), patch values within 1e-5 where the coordinates agree, descriptors within 1e-4, the
@@ -31,11 +37,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .constants import DEFAULT_RADIUS_M, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX
+from .constants import DEFAULT_RADIUS_M, MAX_EDGE_STRETCH, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX, SMOOTH_WINDOW_PX
 from .depth import DepthConfig
 from .features import Features, Matches
 from .frame import RGBDFrame
-from .geodesic.mesh import GridMesh, frame_mesh
+from .geodesic.mesh import GridMesh, frame_mesh, image_to_mesh
 from .geodesic.polar import check_patch_request
 
 #: Attribute of a GridMesh under which its device tables are kept, per device.
@@ -83,6 +89,13 @@ def require_cuda(device="cuda"):
     return dev
 
 
+def mesh_device(device="cuda") -> str:
+    """The device under which `frame_mesh` keeps the GPU path's mesh for `device`: "cuda:N" (the
+    index resolved, so that "cuda" and "cuda:0" share it), "cuda" under the simulator."""
+    dev = require_cuda(device)
+    return str(dev) if dev.type == "cuda" else "cuda"
+
+
 def _as_numba(t):
     """A numba device array viewing torch CUDA tensor `t` (no copy, no synchronisation)."""
     if simulated():
@@ -101,11 +114,145 @@ def _numba_stream(dev):
     return cuda.external_stream(torch.cuda.current_stream(dev).cuda_stream)
 
 
-def device_mesh_tables(mesh: GridMesh, dev) -> tuple:
-    """The walk's per-mesh arrays on device `dev` as numba device arrays (points, face_ok, normals,
-    local, edges), uploaded on first use and kept with the mesh (the tensors that own them too)."""
+def smooth_depth_torch(depth, levels: int, out_scale: float, window: int = SMOOTH_WINDOW_PX):
+    """`geofeat.depth.smooth` of an (H, W) float32 depth tensor (metres, 0 = missing) on its device:
+    `levels` rounds of masked `window` box mean and 2x2 halving, then the masked bilinear resize to
+    `out_scale` times the input size. Equal to the OpenCV version within float32 rounding (box sums
+    in float64 as OpenCV's, the resize in float32 with the same half-pixel convention): tested.
+
+    Returns (round(H * out_scale), round(W * out_scale)) float32 metres, 0 = missing."""
+    import torch
+    import torch.nn.functional as F
+
+    H, W = depth.shape
+    size = (max(2, int(round(H * out_scale))), max(2, int(round(W * out_scale))))
+    d = depth.float()
+    area = float(window * window)
+    for _ in range(levels):
+        if min(d.shape) < 2 * window:
+            break
+        valid = d > 0
+        v = valid.double()
+        both = torch.stack([d.double() * v, v])[:, None]  # (2, 1, H, W): depth sum and count
+        sums = F.avg_pool2d(both, window, stride=1, padding=window // 2, count_include_pad=True)[:, 0] * area
+        num, den = sums[0].float(), torch.round(sums[1]).float()
+        d = torch.where(valid, num / torch.clamp(den, min=1e-12), torch.zeros((), device=d.device))
+        h, w = d.shape[0] // 2 * 2, d.shape[1] // 2 * 2
+        a, b, c, e = d[0:h:2, 0:w:2], d[0:h:2, 1:w:2], d[1:h:2, 0:w:2], d[1:h:2, 1:w:2]
+        count = (a > 0).double() + (b > 0).double() + (c > 0).double() + (e > 0).double()
+        total = (a + b) + (c + e)
+        d = torch.where(count >= 2, total.double() / torch.clamp(count, min=1.0), torch.zeros((), dtype=torch.float64,
+                                                                                            device=d.device)).float()
+    if tuple(d.shape) == size:
+        return d
+    valid = (d > 0).float()
+    both = torch.stack([d * valid, valid])[:, None]
+    num, den = F.interpolate(both, size=size, mode="bilinear", align_corners=False)[:, 0]
+    return torch.where(den >= 0.5, num / torch.clamp(den, min=1e-12), torch.zeros((), device=d.device))
+
+
+def backproject_torch(depth, K: np.ndarray):
+    """`geofeat.depth.backproject` on a tensor: (H, W) depth (metres) -> (H, W, 3) float64 points,
+    NaN where depth is missing."""
     import torch
 
+    H, W = depth.shape
+    dev = depth.device
+    z = torch.where(depth > 0, depth.double(), torch.full((), float("nan"), dtype=torch.float64, device=dev))
+    u = torch.arange(W, dtype=torch.float64, device=dev)[None, :]
+    v = torch.arange(H, dtype=torch.float64, device=dev)[:, None]
+    x = (u - float(K[0, 2])) / float(K[0, 0]) * z
+    y = (v - float(K[1, 2])) / float(K[1, 1]) * z
+    return torch.stack([x, y, z], dim=-1)
+
+
+@dataclass
+class DeviceMesh:
+    """A `GridMesh` with its walk tables, built and kept on a GPU (`build_mesh_cuda`).
+
+    Attributes:
+        tensors: torch tensors on the device: points (Hm, Wm, 3) float64 metres (NaN = missing),
+            face_ok (Hm-1, Wm-1, 2) bool, normals (Hm-1, Wm-1, 2, 3) float64, local (Hm-1, Wm-1, 2, 3)
+            and edges (Hm-1, Wm-1, 2, 3, 2) float64 (`GridMesh.walk_tables`).
+        tables: the same five as numba device arrays (views, no copy), the walk kernel's inputs.
+        K: (3, 3) intrinsics of the mesh grid. scale: (sx, sy) mesh pixels per image pixel.
+        image_shape: (H, W) of the frame. device: the torch device.
+    """
+
+    tensors: tuple
+    tables: tuple
+    K: np.ndarray
+    scale: tuple[float, float]
+    image_shape: tuple[int, int]
+    device: object
+
+    def image_to_mesh(self, xy: np.ndarray) -> np.ndarray:
+        """(N, 2) image pixel coordinates -> (N, 2) mesh pixel coordinates."""
+        return image_to_mesh(xy, self.scale)
+
+    def to_host(self) -> GridMesh:
+        """The `GridMesh` (walk tables included) on the host."""
+        points, face_ok, normals, local, edges = (t.cpu().numpy() for t in self.tensors)
+        mesh = GridMesh(points=points, face_ok=face_ok, normals=normals, K=self.K, scale=self.scale,
+                        image_shape=self.image_shape)
+        mesh.__dict__["walk_tables"] = (local, edges)
+        return mesh
+
+
+def build_mesh_cuda(frame: RGBDFrame, config: DepthConfig | str = "auto", max_edge_stretch: float = MAX_EDGE_STRETCH,
+                    device="cuda") -> DeviceMesh:
+    """`geodesic.mesh.build_mesh` and its walk tables on the GPU. The host fills the depth's small
+    holes (`depth.fill_holes`: a connected-component labelling, serial work) and uploads the filled
+    (H, W) float32 depth; then on the GPU: the smoothing pyramid (`smooth_depth_torch`), the
+    back-projection, and one thread per face for the faces, normals and walk tables (the CPU's
+    kernel sources, `walk_cuda.mesh_faces_cuda`). Equal to the host mesh within float rounding
+    (tested): the same faces exist on the tested frames.
+
+    `config`: a DepthConfig or a profile name; "auto" measures the frame on the host each call
+    (`depth.depth_noise`, about 10 ms on a Kinect frame), so a stream should resolve it once
+    (`depth.sequence_depth_profile`) and pass the profile."""
+    import torch
+
+    from .depth import fill_holes, resolve_depth_config, scale_intrinsics
+    from .geodesic.walk_cuda import mesh_faces_cuda
+
+    dev = require_cuda(device)
+    config = resolve_depth_config(config, frame)
+    depth = np.asarray(frame.depth, np.float32)
+    if config.constant:  # the ablation: the median depth everywhere, as `preprocess_depth`
+        valid = depth > 0
+        depth = np.full_like(depth, np.median(depth[valid]) if valid.any() else 0.0)
+    else:
+        depth = fill_holes(depth, config.max_perimeter, config.fill)
+    smoothed = smooth_depth_torch(torch.from_numpy(depth).to(dev, non_blocking=False), config.smooth_levels,
+                                  config.mesh_scale)
+    H, W = frame.shape
+    Hm, Wm = smoothed.shape
+    scale = (Wm / W, Hm / H)
+    K = scale_intrinsics(frame.K, *scale)
+    points = backproject_torch(smoothed, K).contiguous()
+    cells = (Hm - 1, Wm - 1, 2)
+    face_ok = torch.zeros(cells, dtype=torch.bool, device=dev)
+    normals = torch.zeros(cells + (3,), dtype=torch.float64, device=dev)
+    local = torch.zeros(cells + (3,), dtype=torch.float64, device=dev)
+    edges = torch.zeros(cells + (3, 2), dtype=torch.float64, device=dev)
+    tensors = (points, face_ok, normals, local, edges)
+    tables = tuple(_as_numba(t) for t in tensors)
+    mesh_faces_cuda(tables[0], 0.5 * (K[0, 0] + K[1, 1]), float(max_edge_stretch), out=tables[1:],
+                    stream=_numba_stream(dev))
+    return DeviceMesh(tensors, tables, K, scale, (H, W), dev)
+
+
+def device_mesh_tables(mesh, dev) -> tuple:
+    """The walk's per-mesh arrays on device `dev` as numba device arrays (points, face_ok, normals,
+    local, edges): a `DeviceMesh`'s own, or a host `GridMesh`'s, uploaded on first use and kept with
+    the mesh (the tensors that own them too)."""
+    import torch
+
+    if isinstance(mesh, DeviceMesh):
+        if str(mesh.device) != str(dev):
+            raise ValueError(f"mesh: built on {mesh.device}, not on {dev}")
+        return mesh.tables
     cache = mesh.__dict__.setdefault(_MESH_ATTR, {})
     hit = cache.get(str(dev))
     if hit is None:
@@ -197,7 +344,7 @@ class DevicePatches:
 
 
 def polar_patches_cuda(frame: RGBDFrame, keypoints, radius: float = DEFAULT_RADIUS_M, n_angles: int = N_ANGLES,
-                       n_rings: int = N_RINGS, depth_config: DepthConfig | str = "auto", mesh: GridMesh | None = None,
+                       n_rings: int = N_RINGS, depth_config: DepthConfig | str = "auto", mesh: GridMesh | DeviceMesh | None = None,
                        blur_px: float = SAMPLING_BLUR_PX, device="cuda", image=None) -> DevicePatches:
     """`geofeat.polar_patches` on the GPU: same arguments (plus `device`), same results within the
     tolerances of the module docstring, as `DevicePatches` (torch tensors on `device`).
@@ -211,8 +358,8 @@ def polar_patches_cuda(frame: RGBDFrame, keypoints, radius: float = DEFAULT_RADI
 
     dev = require_cuda(device)
     kp = check_patch_request(frame, keypoints, radius, n_angles, n_rings)
-    if mesh is None:
-        mesh = frame_mesh(frame, depth_config)
+    if mesh is None:  # built on the GPU (the simulator's "GPU" is the CPU), cached on the frame
+        mesh = frame_mesh(frame, depth_config, device=mesh_device(dev))
     elif tuple(mesh.image_shape) != tuple(frame.shape):
         raise ValueError(f"mesh: built for a {mesh.image_shape} frame, not this {frame.shape} one")
     points, face_ok, normals, local, edges = device_mesh_tables(mesh, dev)
@@ -258,7 +405,7 @@ class DeviceFeatures:
                         self.sizes)
 
 
-def compute_cuda(descriptor, frame: RGBDFrame, keypoints, mesh: GridMesh | None = None,
+def compute_cuda(descriptor, frame: RGBDFrame, keypoints, mesh: GridMesh | DeviceMesh | None = None,
                  half: bool = False) -> DeviceFeatures:
     """GeoPatch features of `keypoints` on the GPU: `GeoPatch.compute` with the walk, the sampling
     and the CNN on `descriptor.device` (a GeoPatch with the torch backend on CUDA). `half`: the CNN

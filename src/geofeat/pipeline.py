@@ -39,7 +39,7 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
 
     if device is not None and str(device).split(":")[0] == "cuda":
         from .descriptors import check_descriptor_name
-        from .gpu import require_cuda
+        from .gpu import mesh_device, require_cuda
 
         base, _, weights = check_descriptor_name(descriptor).partition("=")
         if base != "geopatch":
@@ -49,7 +49,8 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
 
         kwargs = {} if radius is None else {"radius": radius}
         net = GeoPatch(weights=weights or None, device=device, backend="torch", depth_config=depth_config, **kwargs)
-        with _mesh_prefetch(frame, net.depth_config):  # the host builds the mesh while it detects
+        # the mesh is built on the GPU (its hole filling on the host) while the host detects
+        with _mesh_prefetch(frame, net.depth_config, device=mesh_device(device)):
             keypoints = detect(frame, n, detector=detector or DEFAULT_DETECTOR)
         return net.compute_cuda(frame, keypoints).to_host()
     if device is not None and str(device) != "cpu":
@@ -61,13 +62,14 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
 
 
 @contextmanager
-def _mesh_prefetch(frame: RGBDFrame, depth_config):
+def _mesh_prefetch(frame: RGBDFrame, depth_config, device=None):
     """Build the frame's mesh and walk tables (`geofeat.geodesic.mesh.frame_mesh`, cached on the
     frame) in a background thread while the body runs (detection, which does not need them), and
     wait for it on exit; the descriptor's `polar_patches` then finds them cached. The depth
     preprocessing is mostly serial numpy and OpenCV work, and the detector leaves a core free
     often enough, so this hides part of it. The same mesh is built either way: results are
-    unchanged. depth_config None (a descriptor without geodesic patches): nothing is prefetched."""
+    unchanged. depth_config None (a descriptor without geodesic patches): nothing is prefetched.
+    `device` "cuda[:N]": the GPU path's mesh (`frame_mesh(..., device=device)`) is built instead."""
     if depth_config is None:
         yield
         return
@@ -75,7 +77,9 @@ def _mesh_prefetch(frame: RGBDFrame, depth_config):
 
     def build() -> None:
         try:
-            frame_mesh(frame, depth_config).walk_tables
+            mesh = frame_mesh(frame, depth_config, device=device)
+            if device is None:
+                mesh.walk_tables
         except Exception:  # noqa: BLE001 - the describer's own frame_mesh call raises it again, in the caller's thread
             pass
 

@@ -13,6 +13,7 @@ Normals point towards the camera.
 
 from __future__ import annotations
 
+import math
 import zlib
 from dataclasses import dataclass
 from functools import cached_property
@@ -23,6 +24,7 @@ from numba import njit, prange
 from ..constants import MAX_EDGE_STRETCH
 from ..depth import DepthConfig, backproject, preprocess_depth, resolve_depth_config, scale_intrinsics
 from ..frame import RGBDFrame
+from .walk import _shared
 
 
 @dataclass(frozen=True)
@@ -57,9 +59,7 @@ class GridMesh:
 
     def image_to_mesh(self, xy: np.ndarray) -> np.ndarray:
         """(N, 2) image pixel coordinates -> (N, 2) mesh pixel coordinates."""
-        xy = np.asarray(xy, dtype=np.float64)
-        sx, sy = self.scale
-        return np.stack([(xy[:, 0] + 0.5) * sx - 0.5, (xy[:, 1] + 0.5) * sy - 0.5], axis=1)
+        return image_to_mesh(xy, self.scale)
 
     def vertices_faces(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Explicit mesh of the existing faces.
@@ -81,6 +81,47 @@ class GridMesh:
         return V, index[faces], index.reshape(Hm, Wm)
 
 
+def image_to_mesh(xy: np.ndarray, scale: tuple[float, float]) -> np.ndarray:
+    """(N, 2) image pixel coordinates -> (N, 2) coordinates on a mesh grid of `scale` = (sx, sy)
+    mesh pixels per image pixel (pixel centres kept consistent, as `depth.scale_intrinsics`)."""
+    xy = np.asarray(xy, dtype=np.float64)
+    sx, sy = scale
+    return np.stack([(xy[:, 0] + 0.5) * sx - 0.5, (xy[:, 1] + 0.5) * sy - 0.5], axis=1)
+
+
+@_shared()
+def _face_one(points, fx, max_edge_stretch, ok, normals, x, y, t):
+    """Decide whether face (x, y, t) exists and write ok[y, x, t] and its unit normal towards the
+    camera into normals[y, x, t] (both left untouched, False / 0, when it does not). One face of
+    `_faces`; the same source runs as a CUDA thread (`walk_cuda.mesh_faces_cuda`)."""
+    # corners: face 0 = (a, b, c), face 1 = (d, b, c); a=(x,y) b=(x+1,y) c=(x,y+1) d=(x+1,y+1)
+    py, px = (y, x) if t == 0 else (y + 1, x + 1)
+    p0, p1, p2 = points[py, px, 0], points[py, px, 1], points[py, px, 2]
+    q0, q1, q2 = points[y, x + 1, 0], points[y, x + 1, 1], points[y, x + 1, 2]
+    r0, r1, r2 = points[y + 1, x, 0], points[y + 1, x, 1], points[y + 1, x, 2]
+    if not (math.isfinite(p2) and math.isfinite(q2) and math.isfinite(r2)):
+        return
+    ux, uy, uz = q0 - p0, q1 - p1, q2 - p2
+    vx, vy, vz = r0 - p0, r1 - p1, r2 - p2
+    wx, wy, wz = r0 - q0, r1 - q1, r2 - q2
+    nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    length = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if not length > 0:
+        return
+    cz = (p2 + q2 + r2) / 3.0
+    longest = max(ux * ux + uy * uy + uz * uz, vx * vx + vy * vy + vz * vz, wx * wx + wy * wy + wz * wz)
+    footprint = cz / fx  # lateral size of one mesh pixel, metres
+    if longest > (max_edge_stretch * footprint) ** 2:
+        return  # a depth discontinuity, not surface
+    cx, cy = (p0 + q0 + r0) / 3.0, (p1 + q1 + r1) / 3.0
+    if nx * cx + ny * cy + nz * cz > 0:
+        length = -length
+    ok[y, x, t] = True
+    normals[y, x, t, 0] = nx / length
+    normals[y, x, t, 1] = ny / length
+    normals[y, x, t, 2] = nz / length
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
 def _faces(points, fx, max_edge_stretch):
     """face_ok (Hm-1, Wm-1, 2) and unit normals (Hm-1, Wm-1, 2, 3) towards the camera, see GridMesh."""
@@ -91,31 +132,7 @@ def _faces(points, fx, max_edge_stretch):
         y = np.int64(row)
         for x in range(Wm - 1):
             for t in range(2):
-                # corners: face 0 = (a, b, c), face 1 = (d, b, c); a=(x,y) b=(x+1,y) c=(x,y+1) d=(x+1,y+1)
-                p = points[y, x] if t == 0 else points[y + 1, x + 1]
-                q = points[y, x + 1]
-                r = points[y + 1, x]
-                if not (np.isfinite(p[2]) and np.isfinite(q[2]) and np.isfinite(r[2])):
-                    continue
-                ux, uy, uz = q[0] - p[0], q[1] - p[1], q[2] - p[2]
-                vx, vy, vz = r[0] - p[0], r[1] - p[1], r[2] - p[2]
-                wx, wy, wz = r[0] - q[0], r[1] - q[1], r[2] - q[2]
-                nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
-                length = np.sqrt(nx * nx + ny * ny + nz * nz)
-                if not length > 0:
-                    continue
-                cz = (p[2] + q[2] + r[2]) / 3.0
-                longest = max(ux * ux + uy * uy + uz * uz, vx * vx + vy * vy + vz * vz, wx * wx + wy * wy + wz * wz)
-                footprint = cz / fx  # lateral size of one mesh pixel, metres
-                if longest > (max_edge_stretch * footprint) ** 2:
-                    continue  # a depth discontinuity, not surface
-                cx, cy = (p[0] + q[0] + r[0]) / 3.0, (p[1] + q[1] + r[1]) / 3.0
-                if nx * cx + ny * cy + nz * cz > 0:
-                    length = -length
-                ok[y, x, t] = True
-                normals[y, x, t, 0] = nx / length
-                normals[y, x, t, 1] = ny / length
-                normals[y, x, t, 2] = nz / length
+                _face_one(points, fx, max_edge_stretch, ok, normals, x, y, t)
     return ok, normals
 
 
@@ -153,11 +170,14 @@ def _depth_fingerprint(frame: RGBDFrame) -> tuple:
 
 
 def frame_mesh(frame: RGBDFrame, config: DepthConfig | str = "auto",
-               max_edge_stretch: float = MAX_EDGE_STRETCH) -> GridMesh:
+               max_edge_stretch: float = MAX_EDGE_STRETCH, device=None):
     """`build_mesh(frame, config, max_edge_stretch)`, cached on the frame: a second call with the
     same depth config (e.g. a second `polar_patches` on the same frame) reuses the mesh and its walk
     tables; a changed depth (checked by checksum), intrinsics or config builds a new one. A profile
-    name is resolved first ("auto" measures the frame), so "auto" and the profile it picks share."""
+    name is resolved first ("auto" measures the frame), so "auto" and the profile it picks share.
+
+    `device`: None or "cpu" for the host `GridMesh`; "cuda[:N]" for a `geofeat.gpu.DeviceMesh`, the
+    same mesh and walk tables built on that GPU (`geofeat.gpu.build_mesh_cuda`), cached the same way."""
     cache = frame.__dict__.setdefault(_CACHE_ATTR, {})
     fingerprint = _depth_fingerprint(frame)
     if isinstance(config, str):  # the profile "auto" picks is cached with the mesh
@@ -168,10 +188,16 @@ def frame_mesh(frame: RGBDFrame, config: DepthConfig | str = "auto",
             resolved = resolve_depth_config(config, frame)
             cache[("profile", config)] = (fingerprint, resolved)
             config = resolved
-    key = (config, float(max_edge_stretch))
+    on_gpu = device is not None and str(device).split(":")[0] == "cuda"
+    key = (config, float(max_edge_stretch)) + ((str(device),) if on_gpu else ())
     hit = cache.get(key)
     if hit is not None and hit[0] == fingerprint:
         return hit[1]
-    mesh = build_mesh(frame, config, max_edge_stretch)
+    if on_gpu:
+        from ..gpu import build_mesh_cuda
+
+        mesh = build_mesh_cuda(frame, config, max_edge_stretch, device=device)
+    else:
+        mesh = build_mesh(frame, config, max_edge_stretch)
     cache[key] = (fingerprint, mesh)
     return mesh

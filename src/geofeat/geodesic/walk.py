@@ -114,6 +114,19 @@ def _face_axes(points, normals, x, y, t):
     return ax, ay, az, ex, ey, ez, fx, fy, fz, length
 
 
+@_shared()
+def _face_frame_one(points, face_ok, normals, out, x, y, t):
+    """out[y, x, t] = [|v1 - v0|, v2.x, v2.y] of face (x, y, t) (see `face_frames`); nothing for a
+    missing face. The same source runs as a CUDA thread (`walk_cuda.mesh_faces_cuda`)."""
+    if not face_ok[y, x, t]:
+        return
+    ax, ay, az, ex, ey, ez, fx, fy, fz, length = _face_axes(points, normals, x, y, t)
+    wx, wy, wz = points[y + 1, x, 0] - ax, points[y + 1, x, 1] - ay, points[y + 1, x, 2] - az
+    out[y, x, t, 0] = length
+    out[y, x, t, 1] = wx * ex + wy * ey + wz * ez
+    out[y, x, t, 2] = wx * fx + wy * fy + wz * fz
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
 def face_frames(points, face_ok, normals):
     """Intrinsic 2D coordinates of every face: local vertex 0 at the origin, vertex 1 on the +x
@@ -124,14 +137,24 @@ def face_frames(points, face_ok, normals):
         y = np.int64(row)
         for x in range(Wc):
             for t in range(2):
-                if not face_ok[y, x, t]:
-                    continue
-                ax, ay, az, ex, ey, ez, fx, fy, fz, length = _face_axes(points, normals, x, y, t)
-                wx, wy, wz = points[y + 1, x, 0] - ax, points[y + 1, x, 1] - ay, points[y + 1, x, 2] - az
-                out[y, x, t, 0] = length
-                out[y, x, t, 1] = wx * ex + wy * ey + wz * ez
-                out[y, x, t, 2] = wx * fx + wy * fy + wz * fz
+                _face_frame_one(points, face_ok, normals, out, x, y, t)
     return out
+
+
+@_shared()
+def _edge_directions_one(frames, face_ok, out, x, y, t):
+    """out[y, x, t, e] = unit direction of local edge e of face (x, y, t) for e = 0, 1, 2 (see
+    `edge_directions`); nothing for a missing face."""
+    if not face_ok[y, x, t]:
+        return
+    for e in range(3):
+        i0, i1 = _edge_vertices(e)
+        ax, ay = _local(frames, x, y, t, i0)
+        bx, by = _local(frames, x, y, t, i1)
+        ex, ey = bx - ax, by - ay
+        norm = math.sqrt(ex * ex + ey * ey)
+        out[y, x, t, e, 0] = ex / norm
+        out[y, x, t, e, 1] = ey / norm
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
@@ -146,16 +169,7 @@ def edge_directions(frames, face_ok):
         y = np.int64(row)
         for x in range(Wc):
             for t in range(2):
-                if not face_ok[y, x, t]:
-                    continue
-                for e in range(3):
-                    i0, i1 = _edge_vertices(e)
-                    ax, ay = _local(frames, x, y, t, i0)
-                    bx, by = _local(frames, x, y, t, i1)
-                    ex, ey = bx - ax, by - ay
-                    norm = np.sqrt(ex * ex + ey * ey)
-                    out[y, x, t, e, 0] = ex / norm
-                    out[y, x, t, e, 1] = ey / norm
+                _edge_directions_one(frames, face_ok, out, x, y, t)
     return out
 
 

@@ -29,6 +29,7 @@ if not hasattr(np, "row_stack"):  # pragma: no cover - depends on the installed 
 
 from numba import cuda  # noqa: E402
 
+from . import mesh as _mesh  # noqa: F401  (registers the mesh's shared source, `_face_one`)
 from . import walk as _walk
 
 #: Threads per block of both kernels.
@@ -48,6 +49,9 @@ def _compile_device_functions() -> dict:
 _DEVICE = _compile_device_functions()
 _tangent_frame_one = _DEVICE["_tangent_frame_one"]
 _ray_one = _DEVICE["_ray_one"]
+_face_one = _DEVICE["_face_one"]
+_face_frame_one = _DEVICE["_face_frame_one"]
+_edge_directions_one = _DEVICE["_edge_directions_one"]
 
 
 @cuda.jit
@@ -76,6 +80,47 @@ def _walk_kernel(points, face_ok, normals, local, edges, faces, centre, frames, 
         reached[k, a] = 0
     else:
         reached[k, a] = r
+
+
+@cuda.jit
+def _faces_kernel(points, fx, max_edge_stretch, ok, normals):
+    job = cuda.grid(1)
+    Wc = points.shape[1] - 1
+    if job < (points.shape[0] - 1) * Wc * 2:
+        cell, t = job // 2, job % 2
+        _face_one(points, fx, max_edge_stretch, ok, normals, cell % Wc, cell // Wc, t)
+
+
+@cuda.jit
+def _face_frames_kernel(points, face_ok, normals, local):
+    job = cuda.grid(1)
+    Wc = face_ok.shape[1]
+    if job < face_ok.shape[0] * Wc * 2:
+        cell, t = job // 2, job % 2
+        _face_frame_one(points, face_ok, normals, local, cell % Wc, cell // Wc, t)
+
+
+@cuda.jit
+def _edge_directions_kernel(local, face_ok, edges):
+    job = cuda.grid(1)
+    Wc = face_ok.shape[1]
+    if job < face_ok.shape[0] * Wc * 2:
+        cell, t = job // 2, job % 2
+        _edge_directions_one(local, face_ok, edges, cell % Wc, cell // Wc, t)
+
+
+def mesh_faces_cuda(points, fx: float, max_edge_stretch: float, out, stream=0) -> None:
+    """`mesh._faces`, `walk.face_frames` and `walk.edge_directions` on the GPU, one thread per face:
+    the mesh's faces and normals and the walk's tables from the (Hm, Wm, 3) float64 grid points
+    (NaN = missing), written into `out` = (face_ok (Hm-1, Wm-1, 2) bool, normals (Hm-1, Wm-1, 2, 3),
+    local (Hm-1, Wm-1, 2, 3), edges (Hm-1, Wm-1, 2, 3, 2) float64), all zero on entry."""
+    ok, normals, local, edges = out
+    n = max(0, (points.shape[0] - 1) * (points.shape[1] - 1) * 2)
+    if n == 0:
+        return
+    _faces_kernel[_blocks(n), THREADS, stream](points, float(fx), float(max_edge_stretch), ok, normals)
+    _face_frames_kernel[_blocks(n), THREADS, stream](points, ok, normals, local)
+    _edge_directions_kernel[_blocks(n), THREADS, stream](local, ok, edges)
 
 
 def _blocks(n: int) -> int:
