@@ -4,8 +4,8 @@ Three steps, all vectorised:
 
 1. **Candidates.** Well-localised corners (the structure tensor's smaller eigenvalue, Shi-Tomasi)
    at full and half resolution, refined to sub-pixel by a parabola through the cornerness peak, on
-   pixels with depth, away from depth discontinuities and from the holes that the mesh does not
-   fill (occlusion contours slide as the cloth moves). They are dense (several thousand per 640 x 480 frame), so the detector can afford to be
+   pixels with depth, away from depth discontinuities (occlusion contours slide as the cloth
+   moves). They are dense (several thousand per 640 x 480 frame), so the detector can afford to be
    choosy.
 2. **Learned score.** logit = a linear function of image cues (cornerness, gradient, contrast at
    a few scales) + a small MLP of depth cues (slope, curvature, distance to a depth edge, depth
@@ -34,7 +34,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..depth import fill_holes
 from ..frame import RGBDFrame
 from ..keypoints import Keypoints
 from .cues import CUE_NAMES, IMAGE_CUES, cue_features, cue_maps, depth_edge_distance
@@ -53,11 +52,9 @@ NMS_RADIUS_PX = 3
 #: Candidates closer than this to the image border are dropped, pixels.
 BORDER_PX = 4
 #: Candidates closer than this to a depth discontinuity or a hole are dropped, pixels
-#: (`cues.depth_edge_distance` of the hole-filled depth, `depth.fill_holes`). There the corner is an
-#: occlusion contour, a T-junction of two surfaces that slides as the cloth moves, and the geodesic
-#: patch around it is cut. Small enclosed holes (border < `HOLE_MAX_PERIMETER_PX` pixels) do not
-#: count: the mesh fills them too, so the patch is not cut there. Chosen on validation
-#: (BENCHMARKS.md, "GeoKey v3.4"): GeoPatch MS +5 to +9 %, correct matches within 4 %.
+#: (`cues.depth_edge_distance`). There the corner is an occlusion contour, a T-junction of two
+#: surfaces that slides as the cloth moves, and the geodesic patch around it is cut. Chosen on
+#: validation (BENCHMARKS.md, "GeoKey v3.4"): GeoPatch MS +5 to +9 %, correct matches within 4 %.
 DEPTH_EDGE_MARGIN_PX = 3.0
 #: A depth discontinuity for DEPTH_EDGE_MARGIN_PX: a step of more than this many pixel footprints between
 #: neighbours (slopes up to 84 degrees pass). `cues`' 4 footprints also cut steep slopes of the cloth,
@@ -175,22 +172,8 @@ class Candidates:
 
 
 def candidates(frame: RGBDFrame, max_candidates: tuple[int, ...] = MAX_CANDIDATES) -> Candidates:
-    """Corner candidates of `frame`: on pixels with measured depth (`frame.depth > 0` at the
-    rounded position), at least BORDER_PX from the image border and at least DEPTH_EDGE_MARGIN_PX
-    from a depth discontinuity or a hole.
-
-    Holes are those left by `depth.fill_holes` (default `max_perimeter`, as the geodesic mesh
-    fills them): large holes and holes touching the image border count, small enclosed holes
-    (dropout speckles inside a surface) do not. A discontinuity is a step of more than
-    DEPTH_EDGE_STEP_FOOTPRINTS pixel footprints between 4-neighbours of the filled depth, so an
-    occlusion contour that runs through a filled hole still counts.
-
-    Args:
-        frame: the RGB-D frame, (H, W) image and (H, W) depth in metres (0 = missing).
-        max_candidates: candidates per pyramid level (level 0 = full resolution, 1 = half, ...).
-    Returns:
-        `Candidates`, positions in full-resolution pixels.
-    """
+    """Corner candidates of `frame`, on pixels with depth, away from the border and at least
+    DEPTH_EDGE_MARGIN_PX from a depth discontinuity or hole."""
     g = frame.image.astype(np.float32)
     H, W = g.shape
     has_depth = (frame.depth > 0).astype(np.uint8)
@@ -217,8 +200,8 @@ def candidates(frame: RGBDFrame, max_candidates: tuple[int, ...] = MAX_CANDIDATE
               & (xy[:, 1] >= BORDER_PX) & (xy[:, 1] <= H - 1 - BORDER_PX))
     cands = cands[inside]
     xi, yi = np.rint(cands.xy[:, 0]).astype(np.int64), np.rint(cands.xy[:, 1]).astype(np.int64)
-    edge_distance = depth_edge_distance(fill_holes(frame.depth), float(frame.K[0, 0]), DEPTH_EDGE_STEP_FOOTPRINTS)
-    keep = (edge_distance[yi, xi] >= DEPTH_EDGE_MARGIN_PX) & (frame.depth[yi, xi] > 0)
+    edge_distance = depth_edge_distance(frame.depth, float(frame.K[0, 0]), DEPTH_EDGE_STEP_FOOTPRINTS)
+    keep = edge_distance[yi, xi] >= DEPTH_EDGE_MARGIN_PX  # on a pixel with depth, too
     return cands[keep]
 
 
