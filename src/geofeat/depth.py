@@ -324,13 +324,18 @@ def backproject(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     return np.stack([x, y, z], axis=-1)
 
 
-def preprocess_depth(depth: np.ndarray, config: DepthConfig = DepthConfig()) -> np.ndarray:
-    """Full depth preprocessing of an (H, W) metre depth map into the mesh-resolution depth map
-    (see `DepthConfig`). Returns (Hm, Wm) float32 metres, 0 = missing."""
+def filled_depth(depth: np.ndarray, config: DepthConfig = DepthConfig()) -> np.ndarray:
+    """The first step of `preprocess_depth`, at the frame's resolution: small holes filled
+    (`fill_holes`), or for `config.constant` the median depth everywhere. (H, W) float32 metres."""
     depth = np.asarray(depth, dtype=np.float32)
     if config.constant:
         valid = depth > 0
-        depth = np.full_like(depth, np.median(depth[valid]) if valid.any() else 0.0)
-    else:
-        depth = fill_holes(depth, config.max_perimeter, config.fill)
-    return smooth(depth, config.smooth_levels, config.mesh_scale)
+        return np.full_like(depth, np.median(depth[valid]) if valid.any() else 0.0)
+    return fill_holes(depth, config.max_perimeter, config.fill)
+
+
+def preprocess_depth(depth: np.ndarray, config: DepthConfig = DepthConfig()) -> np.ndarray:
+    """Full depth preprocessing of an (H, W) metre depth map into the mesh-resolution depth map
+    (see `DepthConfig`): `filled_depth`, then the smoothing pyramid (`smooth`). Returns (Hm, Wm)
+    float32 metres, 0 = missing."""
+    return smooth(filled_depth(depth, config), config.smooth_levels, config.mesh_scale)

@@ -213,17 +213,12 @@ def build_mesh_cuda(frame: RGBDFrame, config: DepthConfig | str = "auto", max_ed
     (`depth.sequence_depth_profile`) and pass the profile."""
     import torch
 
-    from .depth import fill_holes, resolve_depth_config, scale_intrinsics
+    from .depth import filled_depth, resolve_depth_config, scale_intrinsics
     from .geodesic.walk_cuda import mesh_faces_cuda
 
     dev = require_cuda(device)
     config = resolve_depth_config(config, frame)
-    depth = np.asarray(frame.depth, np.float32)
-    if config.constant:  # the ablation: the median depth everywhere, as `preprocess_depth`
-        valid = depth > 0
-        depth = np.full_like(depth, np.median(depth[valid]) if valid.any() else 0.0)
-    else:
-        depth = fill_holes(depth, config.max_perimeter, config.fill)
+    depth = filled_depth(frame.depth, config)  # on the host
     smoothed = smooth_depth_torch(torch.from_numpy(depth).to(dev, non_blocking=False), config.smooth_levels,
                                   config.mesh_scale)
     H, W = frame.shape

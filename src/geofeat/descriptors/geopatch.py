@@ -293,8 +293,9 @@ class GeoPatch:
         finally:
             torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32 = flags
 
-    def compute_cuda(self, frame: RGBDFrame, keypoints, mesh: GridMesh | None = None):
-        """`compute` with the walk, patch sampling and CNN on the GPU (`geofeat.gpu.compute_cuda`):
+    def compute_cuda(self, frame: RGBDFrame, keypoints, mesh=None):
+        """`compute` with the mesh (unless `mesh`, a host GridMesh or a `geofeat.gpu.DeviceMesh`, is
+        given), walk, patch sampling and CNN on the GPU (`geofeat.gpu.compute_cuda`):
         `geofeat.gpu.DeviceFeatures` whose descriptors stay on the device."""
         from ..gpu import compute_cuda
 
