@@ -20,3 +20,25 @@ def wall_times(fn, repeat: int = 5, warm: int = 0) -> list[float]:
 def best_of(fn, repeat: int = 5) -> float:
     """Best wall time of `repeat` calls of fn(), seconds."""
     return min(wall_times(fn, repeat))
+
+
+def roll_pair_scores(f0, f1, A, describe, detector: str, n: int, tolerance_px: float = 3.0) -> list[float]:
+    """One frame against its roll (`geofeat.frame.roll_camera`: f1 and the (2, 3) affine map A of
+    f0's pixels onto f1's): keypoints from `detector` (n per frame), descriptors from `describe`
+    (frame, keypoints) -> Features, nearest-neighbour matches. Returns [MS, correct matches (within
+    `tolerance_px` of the truth), keypoints in f0, keypoints in f1]; the MS divides the correct
+    matches by min(keypoints of f0 that land inside f1, keypoints of f1)."""
+    import numpy as np
+
+    import geofeat
+    from geofeat.matching import match
+
+    k0, k1 = geofeat.detect(f0, n, detector=detector), geofeat.detect(f1, n, detector=detector)
+    truth = k0.xy @ A[:, :2].T + A[:, 2]
+    H, W = f1.shape
+    inside = (truth[:, 0] >= 0) & (truth[:, 0] < W) & (truth[:, 1] >= 0) & (truth[:, 1] < H)
+    m = match(describe(f0, k0), describe(f1, k1)).matches0
+    ok = (m >= 0) & inside
+    correct = np.zeros(len(k0), bool)
+    correct[ok] = np.linalg.norm(k1.xy[m[ok]] - truth[ok], axis=1) < tolerance_px
+    return [correct.sum() / min(inside.sum(), len(k1)), correct.sum(), len(k0), len(k1)]

@@ -13,11 +13,11 @@ import cv2
 import numpy as np
 
 import geofeat
+from common import roll_pair_scores
 from geofeat.depth import fill_holes
 from geofeat.detectors import geokey
 from geofeat.detectors.cues import depth_edge_distance
 from geofeat.frame import roll_camera
-from geofeat.matching import match
 
 N = 2048
 
@@ -57,17 +57,7 @@ def main() -> None:
         for name, distance in VARIANTS.items():
             # 0 on pixels without measured depth: no candidate there, whatever the variant
             geokey.depth_edge_distance = lambda d, fx, k, g=distance: np.where(d > 0, g(d, fx, k), 0.0)
-            rows = []
-            for f1, A in rolls:
-                k0, k1 = geofeat.detect(f0, N, detector="geokey"), geofeat.detect(f1, N, detector="geokey")
-                truth = k0.xy @ A[:, :2].T + A[:, 2]
-                H, W = f1.shape
-                inside = (truth[:, 0] >= 0) & (truth[:, 0] < W) & (truth[:, 1] >= 0) & (truth[:, 1] < H)
-                m = match(describe(f0, k0), describe(f1, k1)).matches0
-                ok = (m >= 0) & inside
-                correct = np.zeros(len(k0), bool)
-                correct[ok] = np.linalg.norm(k1.xy[m[ok]] - truth[ok], axis=1) < 3
-                rows.append([correct.sum() / min(inside.sum(), len(k1)), correct.sum(), len(k0), len(k1)])
+            rows = [roll_pair_scores(f0, f1, A, describe, "geokey", N) for f1, A in rolls]
             r = np.mean(rows, axis=0)
             print(f"{name}: MS {r[0]:.3f} correct {r[1]:.0f} kps {r[2]:.0f}/{r[3]:.0f}", flush=True)
     finally:
