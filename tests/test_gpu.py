@@ -114,6 +114,12 @@ def test_cuda_requests_fail_clearly_without_gpu(pair):
         match_cuda(GeoBit().compute(frame, kps[:8]), GeoBit().compute(frame, kps[:8]))
     with pytest.raises(ValueError, match="GeoPatch"):
         geofeat.extract(frame, 64, detector="sift", descriptor="geobit", device="cuda")
+    from geofeat.geodesic.mesh import frame_mesh
+
+    with pytest.raises(ValueError, match="device"):  # a typo is not the host mesh
+        frame_mesh(frame, device="gpu")
+    with pytest.raises(RuntimeError, match="CUDA"):
+        frame_mesh(frame, device="cuda")
 
 
 @pytest.mark.skipif(not CUDA, reason="no CUDA GPU")

@@ -189,6 +189,8 @@ def frame_mesh(frame: RGBDFrame, config: DepthConfig | str = "auto",
             cache[("profile", config)] = (fingerprint, resolved)
             config = resolved
     on_gpu = device is not None and str(device).split(":")[0] == "cuda"
+    if device is not None and not on_gpu and str(device) != "cpu":
+        raise ValueError(f"device: expected None, 'cpu' or 'cuda[:N]', got {device!r}")
     key = (config, float(max_edge_stretch)) + ((str(device),) if on_gpu else ())
     hit = cache.get(key)
     if hit is not None and hit[0] == fingerprint:
