@@ -330,3 +330,27 @@ def test_retrieval_with_geokey_keypoints(three_objects, tmp_path):
     # every frame described with GeoKey's keypoints (inside the object mask), each query answered
     assert all(len(f) > 0 for f in db.features["geobit"])
     assert res["geobit"].accuracy[0] > 0.5
+
+
+def test_each_descriptor_gets_its_own_detector_by_default(three_objects):
+    """Without a detector, GeoBit is described on GeoKey's keypoints and ORB on SIFT's (it needs their
+    orientation), each as `geofeat.detect` gives them inside the object mask; a named detector is
+    used for both."""
+    from geofeat.apps.objectmask import object_mask
+    from geofeat.apps.retrieval import describe_datasets
+    from geofeat.io import read_sequence
+    from geofeat.keypoints import detect
+
+    db = describe_datasets([three_objects / "blobs"], ("geobit", "orb"), n_keypoints=200, progress=False)
+    assert db.detectors == {"geobit": "geokey", "orb": "sift"}
+    seq = read_sequence(three_objects / "blobs")
+    name = db.frames[0]
+    frame, (mask, _) = seq.frame(name), object_mask(seq, name, None)
+    for descriptor, detector in db.detectors.items():
+        expected = detect(frame, 200, detector=detector, mask=mask).xy
+        np.testing.assert_array_equal(db.features[descriptor][0].keypoints, expected)
+    assert not np.array_equal(db.features["geobit"][0].keypoints, db.features["orb"][0].keypoints)
+    named = describe_datasets([three_objects / "blobs"], ("geobit", "orb"), n_keypoints=200, progress=False,
+                              detector="sift")
+    assert named.detectors == {"geobit": "sift", "orb": "sift"}
+    np.testing.assert_array_equal(named.features["geobit"][0].keypoints, named.features["orb"][0].keypoints)

@@ -167,6 +167,17 @@ def resolve_keypoint_set(detector: str, keypoint_set: str | None, default: str =
     return chosen
 
 
+def detector_for(descriptor: str, detector: str | None = None) -> str:
+    """The detector that goes with `descriptor`: `detector` when named; else `DEFAULT_DETECTOR`
+    (GeoKey) for a geodesic descriptor (GeoPatch, GeoBit: rotation-invariant, sized from depth) and
+    SIFT for the others, which take their orientation and scale from SIFT's keypoints."""
+    from .descriptors import GEODESIC_DESCRIPTORS
+
+    if detector:
+        return detector
+    return DEFAULT_DETECTOR if str(descriptor).partition("=")[0] in GEODESIC_DESCRIPTORS else "sift"
+
+
 def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = DEFAULT_DETECTOR, **options) -> Keypoints:
     """Detect keypoints on `frame`, best first.
 

@@ -8,7 +8,7 @@ from contextlib import contextmanager
 from .constants import N_KEYPOINTS
 from .features import Features
 from .frame import RGBDFrame
-from .keypoints import DEFAULT_DETECTOR, detect
+from .keypoints import detect, detector_for
 
 
 def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None, descriptor: str = "geopatch",
@@ -18,7 +18,8 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
     Args:
         frame: the RGB-D frame.
         n: keypoints wanted (>= 1).
-        detector: "sift", "geokey" or "geokey=WEIGHTS"; None = `geofeat.keypoints.DEFAULT_DETECTOR` (GeoKey).
+        detector: "sift", "geokey" or "geokey=WEIGHTS"; None = the descriptor's own
+            (`geofeat.keypoints.detector_for`: GeoKey for GeoPatch and GeoBit, SIFT for the others).
         descriptor: a `geofeat.make_descriptor` name (default the shipped GeoPatch).
         radius: geodesic radius, metres (None: the descriptor's default, 0.075).
         depth_config: depth profile name or `DepthConfig` (default "auto").
@@ -51,13 +52,13 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
         net = GeoPatch(weights=weights or None, device=device, backend="torch", depth_config=depth_config, **kwargs)
         # the mesh is built on the GPU (its hole filling on the host) while the host detects
         with _mesh_prefetch(frame, net.depth_config, device=mesh_device(device)):
-            keypoints = detect(frame, n, detector=detector or DEFAULT_DETECTOR)
+            keypoints = detect(frame, n, detector=detector_for(descriptor, detector))
         return net.compute_cuda(frame, keypoints).to_host()
     if device is not None and str(device) != "cpu":
         raise ValueError(f"device: expected None, 'cpu' or 'cuda[:N]', got {device!r}")
     describer = make_descriptor(descriptor, radius=radius, depth_config=depth_config)
     with _mesh_prefetch(frame, getattr(describer, "depth_config", None)):
-        keypoints = detect(frame, n, detector=detector or DEFAULT_DETECTOR)
+        keypoints = detect(frame, n, detector=detector_for(descriptor, detector))
     return describer.compute(frame, keypoints)
 
 

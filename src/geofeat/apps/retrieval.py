@@ -342,8 +342,9 @@ def read_classes(path: str | Path) -> dict[str, str]:
 @dataclass
 class RetrievalDatabase:
     """Described frames: per frame (sequence, frame name, class, is reference), the masks' sources
-    per sequence, and per descriptor the list of Features (one per frame, same order). `skipped`
-    names ("sequence/frame") the frames that could not be read or described (left out)."""
+    per sequence, and per descriptor the list of Features (one per frame, same order) and the
+    detector of its keypoints (`detectors`). `skipped` names ("sequence/frame") the frames that
+    could not be read or described (left out)."""
 
     sequences: list[str]
     frames: list[str]
@@ -353,19 +354,22 @@ class RetrievalDatabase:
     mask_sources: dict[str, str]
     features: dict[str, list[Features]]
     skipped: list[str] = field(default_factory=list)
+    detectors: dict[str, str] = field(default_factory=dict)
 
 
 def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int = N_KEYPOINTS,
                       classes: dict[str, str] | None = None, tps_dir: str | None = None,
                       radius: float | None = None, depth_scale: float | None = None,
-                      progress: bool = True, detector: str = "sift") -> RetrievalDatabase:
-    """Detect keypoints inside the object mask of every frame of every sequence and describe them
-    (`detector` as in `geofeat.detect`)."""
+                      progress: bool = True, detector: str | None = None) -> RetrievalDatabase:
+    """Detect keypoints inside the object mask of every frame of every sequence and describe them.
+    `detector` (as in `geofeat.detect`) for every descriptor, or None for each descriptor's own
+    (`keypoints.detector_for`: GeoKey for GeoPatch and GeoBit, SIFT for the others); descriptors
+    with the same detector share its keypoints (and the geodesic ones one mesh and set of patches)."""
     from ..descriptors.describer import Describer
     from ..depth import sequence_depth_profile
     from ..descriptors import check_descriptor_name
     from ..io import find_sequences, read_sequence
-    from ..keypoints import detect
+    from ..keypoints import detect, detector_for
     from .objectmask import object_mask
 
     names = tuple(check_descriptor_name(d) for d in descriptors if d.strip())  # nothing built yet
@@ -375,7 +379,11 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
 
     folders = find_sequences(datasets, unique_names=True)
     check_tps_dir(tps_dir)
-    db = RetrievalDatabase([], [], [], np.zeros(0, bool), [], {}, {n: [] for n in names})
+    groups: dict[str, tuple[str, ...]] = {}  # detector -> the descriptors of its keypoints
+    for n in names:
+        groups[detector_for(n, detector)] = groups.get(detector_for(n, detector), ()) + (n,)
+    db = RetrievalDatabase([], [], [], np.zeros(0, bool), [], {}, {n: [] for n in names},
+                           detectors={n: detector_for(n, detector) for n in names})
     is_query = []
     seqs = [read_sequence(f, depth_scale=depth_scale) for f in folders]
     if classes is not None:
@@ -386,16 +394,19 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
     bar = tqdm(total=total, desc="retrieval: describe", unit="frame", disable=not progress)
     for seq in seqs:
         # the bench's rules for the radius and the depth profile
-        describe = Describer(names, resolve_radius(radius, seq), sequence_depth_profile(seq))
+        radius_m, profile = resolve_radius(radius, seq), sequence_depth_profile(seq)
+        describers = {det: Describer(group, radius_m, profile) for det, group in groups.items()}
         sources = set()
         for name in seq.names:
             try:
                 frame = seq.frame(name)
                 mask, source = object_mask(seq, name, tps_dir)
-                kps = detect(frame, n_keypoints, detector=detector, mask=mask)
-                if len(kps) == 0:
-                    raise ValueError("no keypoints detected")
-                described = describe(frame, kps)
+                described = {}
+                for det, describe in describers.items():
+                    kps = detect(frame, n_keypoints, detector=det, mask=mask)
+                    if len(kps) == 0:
+                        raise ValueError(f"no keypoints detected ({det})")
+                    described.update(describe(frame, kps))
             except ValueError as error:  # reported by name; the other frames go on
                 tqdm.write(f"SKIPPED frame {name} of {seq.name}: {str(error).splitlines()[0]}")
                 db.skipped.append(f"{seq.name}/{name}")
@@ -618,7 +629,7 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
                   classes_file: str | None = None, n_keypoints: int = N_KEYPOINTS, tps_dir: str | None = None,
                   radius: float | None = None, depth_scale: float | None = None, max_k: int = MAX_K,
                   include_own_sequence: bool = False, progress: bool = True, overwrite: bool = False,
-                  detector: str = "sift", weighting: str = DEFAULT_WEIGHTING, rerank_top: int = RERANK,
+                  detector: str | None = None, weighting: str = DEFAULT_WEIGHTING, rerank_top: int = RERANK,
                   ) -> tuple[dict[str, DescriptorResult], RetrievalDatabase]:
     """The whole retrieval experiment; writes into `out`: `retrieval.csv` (descriptor, words, weighting,
     k, accuracy, low, high: Acc@K and its 95 % bootstrap interval), `acc_at_k.png`, `top6.png` (two
@@ -634,6 +645,7 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
             itself excluded); by default the query's whole sequence is left out (the paper's setting).
         weighting: the word weighting and distance (`weight_histograms`, WEIGHTINGS).
         rerank_top: results per query reordered by verified matches (`rerank`; 0: none).
+        detector: the keypoints of every descriptor; None: each descriptor's own (`describe_datasets`).
     Returns ({descriptor: DescriptorResult}, the described database)."""
     from ..outputs import check_out_dir, output_folder
 
@@ -719,6 +731,9 @@ def _report(db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: li
     if skipped:
         notes.append(f"skipped {len(skipped)} quer{'y' if len(skipped) == 1 else 'ies'} whose class has no other "
                      f"sequence: " + ", ".join(skipped))
+    detectors = getattr(db, "detectors", {})
+    if detectors:
+        notes.append("keypoints (inside the object mask) from: " + ", ".join(f"{d}: {det}" for d, det in detectors.items()))
     sources = set(db.mask_sources.values())
     if len(sources) == 1:  # one line, not one entry per sequence
         notes.append(f"object masks: {sources.pop()}, for all {len(db.mask_sources)} sequences")

@@ -6,8 +6,8 @@ from __future__ import annotations
 import argparse
 
 from ..constants import DEPTH_PROFILE_NAMES, DEPTH_SCALE_M, N_KEYPOINTS
-from ..descriptors import GEODESIC_DESCRIPTORS, available_descriptors, check_descriptor_name
-from ..keypoints import DEFAULT_DETECTOR, KEYPOINT_SETS, check_detector_name, resolve_keypoint_set
+from ..descriptors import available_descriptors, check_descriptor_name
+from ..keypoints import DEFAULT_DETECTOR, KEYPOINT_SETS, check_detector_name, detector_for, resolve_keypoint_set
 
 
 def descriptor_name(text: str) -> str:
@@ -35,23 +35,14 @@ def detector_name(text: str) -> str:
 
 
 def detector_option(p: argparse.ArgumentParser, default: str | None = "sift") -> None:
-    """--detector (sift, geokey, geokey=WEIGHTS). `bench`, `track` and `retrieval` default to SIFT (the
-    published protocol's detector, and the one the baselines' descriptors need); `extract` and `match`
-    to None, resolved by `detector_for` from the descriptor."""
+    """--detector (sift, geokey, geokey=WEIGHTS). `bench` and `track` default to SIFT (the published
+    protocol's detector, and the one the baselines' descriptors need; `track` detects once for all
+    descriptors); `extract`, `match` and `retrieval` to None, resolved by `detector_for` per descriptor."""
     what = default or (f"{DEFAULT_DETECTOR} for the geodesic descriptors, sift for the others "
                        "(they need SIFT's orientation)")
     p.add_argument("--detector", default=default, type=detector_name,
                    help=f"keypoint detector: sift (OpenCV), geokey (learned, image + depth cues) or "
                         f"geokey=WEIGHTS (from `geofeat train-detector`); default {what}")
-
-
-def detector_for(descriptor: str, detector: str | None) -> str:
-    """The detector to use: `detector` when named; else `DEFAULT_DETECTOR` (GeoKey) for a geodesic
-    descriptor (rotation-invariant, sized from depth) and SIFT for the others, which take their
-    orientation and scale from SIFT's keypoints."""
-    if detector:
-        return detector
-    return DEFAULT_DETECTOR if descriptor.partition("=")[0] in GEODESIC_DESCRIPTORS else "sift"
 
 
 def keypoint_set_for(detector: str, keypoint_set: str | None, default: str) -> str:
@@ -90,15 +81,16 @@ def frames_options(p: argparse.ArgumentParser) -> None:
                    help=f"metres per depth-PNG unit (default: geofeat.json or {DEPTH_SCALE_M})")
 
 
-def app_options(p: argparse.ArgumentParser) -> None:
-    """The options of `retrieval` and `track`: descriptors, output folder, detection, ground truth, depth."""
+def app_options(p: argparse.ArgumentParser, detector_default: str | None = "sift") -> None:
+    """The options of `retrieval` and `track`: descriptors, output folder, detection (--detector's
+    default: `detector_default`; None = each descriptor's own), ground truth, depth."""
     p.add_argument("--descriptors", default="geopatch,geobit,sift",
                    help=f"comma-separated, from {','.join(available_descriptors())} (default geopatch,geobit,sift)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true",
                    help="replace what geofeat wrote in an existing non-empty OUT (other files stay)")
     p.add_argument("--keypoints", type=int, default=N_KEYPOINTS, help="keypoints per frame (default 2048)")
-    detector_option(p)
+    detector_option(p, detector_default)
     p.add_argument("--tps-dir", default=None, help="the authors' TPS ground truth (objmask, warps), one folder per sequence")
     p.add_argument("--radius", type=float, default=None, help="geodesic radius, metres (default: geofeat.json or 0.075)")
     p.add_argument("--depth-scale", type=float, default=None, help="metres per depth-PNG unit (default: geofeat.json or 0.001)")
