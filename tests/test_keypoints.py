@@ -138,9 +138,13 @@ def test_geopatch_is_a_lazy_top_level_name():
 
 
 def test_extract_and_match_pick_geokey_for_geodesic_descriptors_and_sift_for_the_baselines():
-    from geofeat.cli.options import detector_for
+    from geofeat.keypoints import detector_for
 
     assert detector_for("geopatch", None) == detector_for("geobit", None) == "geokey"
     assert detector_for("geopatch=my.pt", None) == "geokey"
     assert detector_for("orb", None) == detector_for("sift", None) == "sift"  # they take SIFT's orientation
     assert detector_for("orb", "geokey") == "geokey" and detector_for("geopatch", "sift") == "sift"  # named wins
+    # geofeat.extract follows the same rule: ORB on SIFT's keypoints (it needs their orientation)
+    frame = geofeat.read_demo_frame()
+    orb = geofeat.extract(frame, 64, descriptor="orb")
+    np.testing.assert_array_equal(orb.keypoints, geofeat.detect(frame, 64, detector="sift").xy)
