@@ -254,7 +254,7 @@ def test_track_with_geokey_keypoints(sequence, tmp_path, capsys):
     assert main(["track", str(sequence), "--descriptors", "geobit", "--keypoints", "500", "--detector", "geokey",
                  "--refine", "none", "--out", str(tmp_path)]) == 0
     md = (tmp_path / "tracking.md").read_text()
-    assert "detector: geokey" in md
+    assert "detector: geobit: geokey" in md
     assert "| geobit (paper) | 0.46 | 0.42 | 0.27 |" in md  # the paper's Table IV beside ours
     import csv
 
@@ -262,6 +262,26 @@ def test_track_with_geokey_keypoints(sequence, tmp_path, capsys):
     # GeoKey's keypoints, described by GeoBit, track a gently deforming cloth within a few pixels
     assert rows and all(r["failed"] == "False" for r in rows)
     assert max(float(r["grid_error_px"]) for r in rows) < 5.0
+
+
+def test_each_descriptor_is_tracked_on_its_own_detector_by_default(sequence, tmp_path):
+    """Without --detector, GeoBit tracks GeoKey's keypoints and ORB SIFT's (the template keypoints
+    differ); --detector names one for both."""
+    import csv
+
+    from geofeat.cli import main
+
+    args = ["track", str(sequence), "--descriptors", "geobit,orb", "--keypoints", "300", "--refine", "none"]
+    assert main(args + ["--out", str(tmp_path / "own")]) == 0
+    assert "detector: geobit: geokey, orb: sift" in (tmp_path / "own" / "tracking.md").read_text()
+    rows = list(csv.DictReader(open(tmp_path / "own" / "track.csv")))
+    assert [r["descriptor"] for r in rows] == ["geobit", "geobit", "orb", "orb"]  # the order asked for
+    template = {r["descriptor"]: r["n_template"] for r in rows}
+    assert template["geobit"] != template["orb"]
+    assert main(args + ["--detector", "sift", "--out", str(tmp_path / "named")]) == 0
+    assert "detector: geobit: sift, orb: sift" in (tmp_path / "named" / "tracking.md").read_text()
+    rows = list(csv.DictReader(open(tmp_path / "named" / "track.csv")))
+    assert len({r["n_template"] for r in rows}) == 1
 
 
 def test_guided_matches_follow_the_prediction_among_identical_descriptors():

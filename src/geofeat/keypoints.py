@@ -178,6 +178,17 @@ def detector_for(descriptor: str, detector: str | None = None) -> str:
     return DEFAULT_DETECTOR if str(descriptor).partition("=")[0] in GEODESIC_DESCRIPTORS else "sift"
 
 
+def group_by_detector(descriptors, detector: str | None = None) -> dict[str, tuple[str, ...]]:
+    """{detector: the descriptors described on its keypoints}, each descriptor with
+    `detector_for(descriptor, detector)`, in the order given: descriptors of one group share one
+    detection (and the geodesic ones one mesh and one set of polar patches)."""
+    groups: dict[str, tuple[str, ...]] = {}
+    for name in descriptors:
+        det = detector_for(name, detector)
+        groups[det] = groups.get(det, ()) + (name,)
+    return groups
+
+
 def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = DEFAULT_DETECTOR, **options) -> Keypoints:
     """Detect keypoints on `frame`, best first.
 

@@ -369,7 +369,7 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
     from ..depth import sequence_depth_profile
     from ..descriptors import check_descriptor_name
     from ..io import find_sequences, read_sequence
-    from ..keypoints import detect, detector_for
+    from ..keypoints import detect, detector_for, group_by_detector
     from .objectmask import object_mask
 
     names = tuple(check_descriptor_name(d) for d in descriptors if d.strip())  # nothing built yet
@@ -379,9 +379,7 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
 
     folders = find_sequences(datasets, unique_names=True)
     check_tps_dir(tps_dir)
-    groups: dict[str, tuple[str, ...]] = {}  # detector -> the descriptors of its keypoints
-    for n in names:
-        groups[detector_for(n, detector)] = groups.get(detector_for(n, detector), ()) + (n,)
+    groups = group_by_detector(names, detector)
     db = RetrievalDatabase([], [], [], np.zeros(0, bool), [], {}, {n: [] for n in names},
                            detectors={n: detector_for(n, detector) for n in names})
     is_query = []

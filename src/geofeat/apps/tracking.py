@@ -926,7 +926,7 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
                    tps_dir: str | None = None, radius: float | None = None, depth_scale: float | None = None,
                    threshold_px: float = RANSAC_THRESHOLD_PX, progress: bool = True,
                    overwrite: bool = False, skipped: list[str] | None = None,
-                   refine: str = DEFAULT_REFINE, detector: str = "sift") -> tuple[Path, str]:
+                   refine: str = DEFAULT_REFINE, detector: str | None = None) -> tuple[Path, str]:
     """Track every sequence with every descriptor and write into `out`:
     `track.csv` (one row per sequence, descriptor and target frame), per sequence and descriptor
     `<sequence>/<descriptor>/grid.npz` (reference_points (G, 2), points (F, G, 2), frames (F,),
@@ -935,14 +935,24 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
     descriptor's mean seconds per frame for matching, RANSAC and refinement).
     The folder is built aside and moved into place at the end (`geofeat.outputs`); an existing
     non-empty `out` needs `overwrite`. Frames that could not be described are listed in
-    `tracking.md` and appended as "sequence/frame" to `skipped` when a list is given. Returns the csv
-    path and the table."""
+    `tracking.md` and appended as "sequence/frame" to `skipped` when a list is given. `detector`:
+    the keypoints of every descriptor, or None for each descriptor's own (`keypoints.detector_for`:
+    GeoKey for GeoPatch and GeoBit, SIFT for the others); descriptors with the same detector are
+    tracked together (`track_sequence`). Returns the csv path and the table."""
     import imageio.v2 as imageio
+
+    from ..keypoints import detector_for, group_by_detector
 
     from ..inputs import check_tps_dir
     from ..io import find_sequences
     from ..outputs import check_out_dir, output_folder
 
+    from ..descriptors import check_descriptor_name
+
+    names = tuple(check_descriptor_name(d) for d in descriptors if d.strip())  # unknown names fail before any work
+    if not names:
+        raise ValueError("descriptors: expected at least one descriptor name")
+    groups = group_by_detector(names, detector)
     out = check_out_dir(out, overwrite)
     sequences = find_sequences(sequences, unique_names=True)
     check_tps_dir(tps_dir)
@@ -955,9 +965,14 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
             writer.writeheader()
             for folder in sequences:
                 t0 = time.perf_counter()
-                results = track_sequence(folder, descriptors, roi=roi, n_keypoints=n_keypoints, tps_dir=tps_dir,
-                                         radius=radius, depth_scale=depth_scale, threshold_px=threshold_px,
-                                         progress=progress, refine=refine, detector=detector)
+                results, skipped_here = {}, []
+                for det, group in groups.items():
+                    part = track_sequence(folder, group, roi=roi, n_keypoints=n_keypoints, tps_dir=tps_dir,
+                                          radius=radius, depth_scale=depth_scale, threshold_px=threshold_px,
+                                          progress=progress, refine=refine, detector=det)
+                    results.update(part)
+                    skipped_here += [f for f in next(iter(part.values())).skipped if f not in skipped_here]
+                results = {name: results[name] for name in names}  # the order asked for
                 seconds += time.perf_counter() - t0
                 seq = read_sequence(folder, depth_scale=depth_scale)
                 for name, r in results.items():
@@ -970,14 +985,15 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
                     imageio.mimsave(sub / "track.gif", grid_frames(seq, r), duration=400, loop=0)
                 first = next(iter(results.values()))
                 if skipped is not None:
-                    skipped.extend(f"{first.sequence}/{f}" for f in first.skipped)
+                    skipped.extend(f"{first.sequence}/{f}" for f in skipped_here)
                 notes.append(f"{first.sequence}: ROI {first.roi}, object mask from {first.mask_source}"
-                             + (f"; SKIPPED frames: {', '.join(first.skipped)}" if first.skipped else ""))
+                             + (f"; SKIPPED frames: {', '.join(skipped_here)}" if skipped_here else ""))
         table = tracking_table(rows)
         n_frames = len({(r["sequence"], r["frame"]) for r in rows})
         per = ", ".join(f"{n} {_mean(float(r['seconds']) for r in rows if r['descriptor'] == n):.3f} s"
                         for n in dict.fromkeys(r["descriptor"] for r in rows))
-        notes.append(f"detector: {detector}; refine: {refine}; {n_frames} target frames in {seconds:.1f} s: "
+        detectors = ", ".join(f"{name}: {detector_for(name, detector)}" for name in names)
+        notes.append(f"detector: {detectors}; refine: {refine}; {n_frames} target frames in {seconds:.1f} s: "
                      f"{n_frames / max(seconds, 1e-9):.2f} frames/s (detection, description and every descriptor); "
                      f"per frame, matching + RANSAC{' + refinement' if refine != 'none' else ''}: {per}")
         paper = paper_table_iv(dict.fromkeys(r["descriptor"] for r in rows))

@@ -35,9 +35,9 @@ def detector_name(text: str) -> str:
 
 
 def detector_option(p: argparse.ArgumentParser, default: str | None = "sift") -> None:
-    """--detector (sift, geokey, geokey=WEIGHTS). `bench` and `track` default to SIFT (the published
-    protocol's detector, and the one the baselines' descriptors need; `track` detects once for all
-    descriptors); `extract`, `match` and `retrieval` to None, resolved by `detector_for` per descriptor."""
+    """--detector (sift, geokey, geokey=WEIGHTS). `bench` defaults to SIFT (the published protocol's
+    detector); `extract`, `match`, `track` and `retrieval` to None, resolved by `detector_for` per
+    descriptor."""
     what = default or (f"{DEFAULT_DETECTOR} for the geodesic descriptors, sift for the others "
                        "(they need SIFT's orientation)")
     p.add_argument("--detector", default=default, type=detector_name,
@@ -81,16 +81,16 @@ def frames_options(p: argparse.ArgumentParser) -> None:
                    help=f"metres per depth-PNG unit (default: geofeat.json or {DEPTH_SCALE_M})")
 
 
-def app_options(p: argparse.ArgumentParser, detector_default: str | None = "sift") -> None:
-    """The options of `retrieval` and `track`: descriptors, output folder, detection (--detector's
-    default: `detector_default`; None = each descriptor's own), ground truth, depth."""
+def app_options(p: argparse.ArgumentParser) -> None:
+    """The options of `retrieval` and `track`: descriptors, output folder, detection (by default each
+    descriptor on its own detector, `detector_for`), ground truth, depth."""
     p.add_argument("--descriptors", default="geopatch,geobit,sift",
                    help=f"comma-separated, from {','.join(available_descriptors())} (default geopatch,geobit,sift)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true",
                    help="replace what geofeat wrote in an existing non-empty OUT (other files stay)")
     p.add_argument("--keypoints", type=int, default=N_KEYPOINTS, help="keypoints per frame (default 2048)")
-    detector_option(p, detector_default)
+    detector_option(p, None)
     p.add_argument("--tps-dir", default=None, help="the authors' TPS ground truth (objmask, warps), one folder per sequence")
     p.add_argument("--radius", type=float, default=None, help="geodesic radius, metres (default: geofeat.json or 0.075)")
     p.add_argument("--depth-scale", type=float, default=None, help="metres per depth-PNG unit (default: geofeat.json or 0.001)")

@@ -14,7 +14,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add `retrieval` to an argparse subparsers object; returns its parser."""
     p = subparsers.add_parser("retrieval", help="object retrieval with a bag of visual words (Acc@K)")
     p.add_argument("datasets", nargs="+", help="sequence folders, or folders of sequences")
-    app_options(p, detector_default=None)  # each descriptor with its own detector
+    app_options(p)
     p.add_argument("--words", type=int, default=None,
                    help="visual words K (default: chosen per descriptor among "
                         f"{','.join(map(str, WORD_CANDIDATES))} (those below --samples) by validation on a random "
