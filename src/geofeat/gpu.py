@@ -118,7 +118,9 @@ def smooth_depth_torch(depth, levels: int, out_scale: float, window: int = SMOOT
     """`geofeat.depth.smooth` of an (H, W) float32 depth tensor (metres, 0 = missing) on its device:
     `levels` rounds of masked `window` box mean and 2x2 halving, then the masked bilinear resize to
     `out_scale` times the input size. Equal to the OpenCV version within float32 rounding (box sums
-    in float64 as OpenCV's, the resize in float32 with the same half-pixel convention): tested.
+    in float64 as OpenCV's, the resize in float32 with the same half-pixel convention; two ulp on the
+    Kinect frame with the shipped profiles: tested). A resize by a factor that is not a power of two
+    differs a little more (measured: up to 5.7e-6 m at a factor of 0.37 on that frame).
 
     Returns (round(H * out_scale), round(W * out_scale)) float32 metres, 0 = missing."""
     import torch
