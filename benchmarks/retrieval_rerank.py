@@ -20,12 +20,10 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from geofeat.apps.localfit import locally_consistent
 from geofeat.apps.retrieval import (
-    N_VOCABULARY_SAMPLES, WEIGHTINGS, eligible_queries, per_query_accuracy, sample_descriptors, sample_distances,
-    search, split_queries, vocabulary, weight_histograms, word_counts,
+    N_VOCABULARY_SAMPLES, WEIGHTINGS, eligible_queries, match_counts, per_query_accuracy, sample_descriptors,
+    sample_distances, search, split_queries, vocabulary, weight_histograms, word_counts,
 )
-from geofeat.matching import match
 
 RATIOS = {"mutual": None, "ratio 0.9": 0.9, "ratio 0.8": 0.8}
 
@@ -34,10 +32,7 @@ def pair_scores(fq, fc) -> dict[str, int]:
     """{score name: count} for one (query, frame) pair."""
     out = {}
     for name, ratio in RATIOS.items():
-        m = match(fq, fc, mutual=True, ratio=ratio).matches0
-        i0 = np.flatnonzero(m >= 0)
-        out[name] = len(i0)
-        out[name + ", verified"] = int(locally_consistent(fq.keypoints[i0], fc.keypoints[m[i0]]).sum()) if len(i0) >= 8 else 0
+        out[name], out[name + ", verified"] = match_counts(fq, fc, ratio)
     return out
 
 

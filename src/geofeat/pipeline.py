@@ -38,7 +38,9 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
     """
     from .descriptors import make_descriptor
 
-    if device is not None and str(device).split(":")[0] == "cuda":
+    from .gpu import is_cuda_device  # a light module: torch and numba.cuda load only on use
+
+    if is_cuda_device(device):
         from .descriptors import check_descriptor_name
         from .gpu import mesh_device, require_cuda
 

@@ -51,7 +51,7 @@ __all__ = [
     "RetrievalDatabase", "describe_datasets", "run_retrieval", "exclusion_mask", "per_query_accuracy",
     "bootstrap_interval", "split_queries", "WORD_CANDIDATES", "DescriptorResult", "evaluate_descriptor",
     "sample_distances", "eligible_queries", "word_counts", "inverse_document_frequency", "weight_histograms", "WEIGHTINGS",
-    "DEFAULT_WEIGHTING", "rerank", "verified_matches", "RERANK", "RERANK_RATIO",
+    "DEFAULT_WEIGHTING", "rerank", "verified_matches", "match_counts", "RERANK", "RERANK_RATIO",
 ]
 
 #: Database frames per query that `rerank` reorders (0: none, the paper's setting); chosen on the
@@ -367,21 +367,19 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
     with the same detector share its keypoints (and the geodesic ones one mesh and set of patches)."""
     from ..descriptors.describer import Describer
     from ..depth import sequence_depth_profile
-    from ..descriptors import check_descriptor_name
+    from ..descriptors import check_descriptor_names
     from ..io import find_sequences, read_sequence
-    from ..keypoints import detect, detector_for, group_by_detector
+    from ..keypoints import detect, group_by_detector
     from .objectmask import object_mask
 
-    names = tuple(check_descriptor_name(d) for d in descriptors if d.strip())  # nothing built yet
-    if not names:
-        raise ValueError("descriptors: expected at least one descriptor name")
+    names = check_descriptor_names(descriptors)
     from ..inputs import check_tps_dir, resolve_radius
 
     folders = find_sequences(datasets, unique_names=True)
     check_tps_dir(tps_dir)
     groups = group_by_detector(names, detector)
     db = RetrievalDatabase([], [], [], np.zeros(0, bool), [], {}, {n: [] for n in names},
-                           detectors={n: detector_for(n, detector) for n in names})
+                           detectors={n: det for det, group in groups.items() for n in group})
     is_query = []
     seqs = [read_sequence(f, depth_scale=depth_scale) for f in folders]
     if classes is not None:
@@ -485,19 +483,26 @@ def _plot(acc: dict[str, np.ndarray], path: Path) -> None:
     plt.close(fig)
 
 
-def verified_matches(features0: Features, features1: Features, ratio: float = RERANK_RATIO) -> int:
-    """How many keypoints of frame 0 match frame 1 (mutual nearest neighbours passing Lowe's ratio
-    test `ratio`, `geofeat.match`) where the local affine map of their neighbours agrees
-    (`geofeat.apps.localfit.locally_consistent`, which needs at least 8 matches): a count of
-    correspondences that a surface keeps when it bends."""
+def match_counts(features0: Features, features1: Features, ratio: float | None = RERANK_RATIO) -> tuple[int, int]:
+    """(matches, verified): how many keypoints of frame 0 match frame 1 (mutual nearest neighbours
+    passing Lowe's ratio test `ratio`, None for none; `geofeat.match`), and how many of them the
+    local affine map of their neighbours confirms (`geofeat.apps.localfit.locally_consistent`, which
+    needs at least 8 matches; 0 below)."""
     from ..matching import match
     from .localfit import locally_consistent
 
     m = match(features0, features1, mutual=True, ratio=ratio).matches0
     i0 = np.flatnonzero(m >= 0)
     if len(i0) < 8:
-        return 0
-    return int(locally_consistent(features0.keypoints[i0], features1.keypoints[m[i0]]).sum())
+        return len(i0), 0
+    return len(i0), int(locally_consistent(features0.keypoints[i0], features1.keypoints[m[i0]]).sum())
+
+
+def verified_matches(features0: Features, features1: Features, ratio: float = RERANK_RATIO) -> int:
+    """How many keypoints of frame 0 match frame 1 where the local affine map of their neighbours
+    agrees (`match_counts`' second count): a count of correspondences that a surface keeps when it
+    bends."""
+    return match_counts(features0, features1, ratio)[1]
 
 
 def rerank(neighbours: np.ndarray, queries: np.ndarray, features: list[Features], top: int = RERANK,

@@ -521,11 +521,9 @@ def track_sequence(
     Returns:
         {descriptor: TrackResult}. Frames whose fit fails are recorded as failed; the run goes on.
     """
-    from ..descriptors import check_descriptor_name
+    from ..descriptors import check_descriptor_names
 
-    names = tuple(check_descriptor_name(d) for d in descriptors if d.strip())  # unknown names fail before any work
-    if not names:
-        raise ValueError("descriptors: expected at least one descriptor name")
+    names = check_descriptor_names(descriptors)  # unknown names fail before any work
     if refine not in REFINE_MODES:
         raise ValueError(f"refine: expected one of {', '.join(REFINE_MODES)}, got {refine!r}")
     template = _Template.build(folder, names, roi, n_keypoints, tps_dir, radius, depth_scale, detector)
@@ -941,17 +939,13 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
     tracked together (`track_sequence`). Returns the csv path and the table."""
     import imageio.v2 as imageio
 
-    from ..keypoints import detector_for, group_by_detector
-
+    from ..descriptors import check_descriptor_names
     from ..inputs import check_tps_dir
     from ..io import find_sequences
+    from ..keypoints import group_by_detector
     from ..outputs import check_out_dir, output_folder
 
-    from ..descriptors import check_descriptor_name
-
-    names = tuple(check_descriptor_name(d) for d in descriptors if d.strip())  # unknown names fail before any work
-    if not names:
-        raise ValueError("descriptors: expected at least one descriptor name")
+    names = check_descriptor_names(descriptors)  # unknown names fail before any work
     groups = group_by_detector(names, detector)
     out = check_out_dir(out, overwrite)
     sequences = find_sequences(sequences, unique_names=True)
@@ -992,7 +986,8 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
         n_frames = len({(r["sequence"], r["frame"]) for r in rows})
         per = ", ".join(f"{n} {_mean(float(r['seconds']) for r in rows if r['descriptor'] == n):.3f} s"
                         for n in dict.fromkeys(r["descriptor"] for r in rows))
-        detectors = ", ".join(f"{name}: {detector_for(name, detector)}" for name in names)
+        of = {name: det for det, group in groups.items() for name in group}
+        detectors = ", ".join(f"{name}: {of[name]}" for name in names)
         notes.append(f"detector: {detectors}; refine: {refine}; {n_frames} target frames in {seconds:.1f} s: "
                      f"{n_frames / max(seconds, 1e-9):.2f} frames/s (detection, description and every descriptor); "
                      f"per frame, matching + RANSAC{' + refinement' if refine != 'none' else ''}: {per}")

@@ -51,6 +51,15 @@ def check_descriptor_name(name: str) -> str:
     return key.lower()
 
 
+def check_descriptor_names(names) -> tuple[str, ...]:
+    """`check_descriptor_name` of each of `names` (empty entries dropped), as a tuple; ValueError for
+    an unknown one or for none at all. Builds nothing, so a bad name fails before any work."""
+    checked = tuple(check_descriptor_name(d) for d in names if not isinstance(d, str) or d.strip())
+    if not checked:
+        raise ValueError("descriptors: expected at least one descriptor name")
+    return checked
+
+
 #: Descriptor classes by name: (module, class); imported when asked for (GeoPatch and the image-patch
 #: nets import torch).
 _CLASSES = {"geobit": (".geobit", "GeoBit"), "geopatch": (".geopatch", "GeoPatch"), "brand": (".brand", "BRAND"),

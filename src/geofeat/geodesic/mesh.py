@@ -178,6 +178,11 @@ def frame_mesh(frame: RGBDFrame, config: DepthConfig | str = "auto",
 
     `device`: None or "cpu" for the host `GridMesh`; "cuda[:N]" for a `geofeat.gpu.DeviceMesh`, the
     same mesh and walk tables built on that GPU (`geofeat.gpu.build_mesh_cuda`), cached the same way."""
+    from ..gpu import is_cuda_device  # a light module: torch and numba.cuda load only on use
+
+    on_gpu = is_cuda_device(device)
+    if device is not None and not on_gpu and str(device) != "cpu":
+        raise ValueError(f"device: expected None, 'cpu' or 'cuda[:N]', got {device!r}")
     cache = frame.__dict__.setdefault(_CACHE_ATTR, {})
     fingerprint = _depth_fingerprint(frame)
     if isinstance(config, str):  # the profile "auto" picks is cached with the mesh
@@ -188,9 +193,6 @@ def frame_mesh(frame: RGBDFrame, config: DepthConfig | str = "auto",
             resolved = resolve_depth_config(config, frame)
             cache[("profile", config)] = (fingerprint, resolved)
             config = resolved
-    on_gpu = device is not None and str(device).split(":")[0] == "cuda"
-    if device is not None and not on_gpu and str(device) != "cpu":
-        raise ValueError(f"device: expected None, 'cpu' or 'cuda[:N]', got {device!r}")
     key = (config, float(max_edge_stretch)) + ((str(device),) if on_gpu else ())
     hit = cache.get(key)
     if hit is not None and hit[0] == fingerprint:
