@@ -146,9 +146,13 @@ def polar_patches(
         int(n_rings), MAX_CROSSINGS,
     )
     valid = patch_validity(reached)
-    coords[~valid] = np.nan
-    values = np.zeros(coords.shape[:-1], np.float32)
-    values[valid] = sample_bilinear(sampling_image(frame, blur_px), coords[valid])
+    invalid = ~valid
+    # sample every patch in one call (boolean-indexed copies of the (N, R, A, 2) coordinates cost
+    # more than the sampling itself), with finite stand-ins for the invalid ones, then blank those
+    coords[invalid] = -1.0
+    values = sample_bilinear(sampling_image(frame, blur_px), coords)
+    values[invalid] = 0.0
+    coords[invalid] = np.nan
     return PolarPatches(
         keypoints=kp,
         values=values,

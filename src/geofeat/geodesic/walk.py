@@ -219,7 +219,7 @@ def _edge_hit(frames, x, y, t, e, px, py, dx, dy):
     return (wx * ey - wy * ex) / denom, (wx * dy - wy * dx) / denom, ex, ey, ax, ay
 
 
-@_shared(inline=False)
+@_shared()
 def _walk_one(points, face_ok, frames, edges, x, y, t, px, py, dx, dy, ring_step, n_rings, max_crossings,
               K, samples, coords, k, a):
     """Walk one ray on the mesh in intrinsic 2D coordinates.
@@ -369,7 +369,7 @@ def _tangent_frame_one(points, face_ok, normals, sx, sy, faces, centre, frames, 
     faces[k, 0], faces[k, 1], faces[k, 2] = x, y, t
 
 
-@_shared(inline=False)
+@_shared()
 def _ray_one(points, face_ok, normals, local, edges, faces, centre, frames, K, ring_step, n_angles, n_rings,
              max_crossings, samples, coords, k, a):
     """The ray of keypoint k at direction a (`walk_polar`, one job): returns the rings reached, -1
