@@ -513,6 +513,107 @@ def _bench_scored(tmp):
     assert len(rows) == 1 and float(rows[0]["ms"]) > 0.3
 
 
+def _bench_features(edit: Callable[[dict], None], npz: bool = False) -> Callable[[Path], list[str]]:
+    """bench --features ext=PATH with the sequence's SIFT features (from `extract`), each frame's arrays
+    ({frame: {name: array}}) changed by `edit` and stored as an .h5 file or a folder of .npz files."""
+    def setup(tmp):
+        import h5py
+
+        seq = _seq(tmp)
+        assert main(["extract", str(seq), "--descriptor", "sift", "--keypoints", "200", "--out", str(tmp / "f.h5")]) == 0
+        with h5py.File(tmp / "f.h5", "r") as fd:
+            groups = {g: {k: v[()] for k, v in fd[g].items()} for g in fd}
+        edit(groups)
+        path = tmp / ("npz" if npz else "ext.h5")
+        if npz:
+            path.mkdir()
+            for g, arrays in groups.items():
+                np.savez(path / f"{g}.npz", **arrays)
+        else:
+            with h5py.File(path, "w") as fd:
+                for g, arrays in groups.items():
+                    for k, v in arrays.items():
+                        fd[f"{g}/{k}"] = v
+        return _bench_args(tmp, seq, extra=["--features", f"ext={path}"])
+
+    return setup
+
+
+def _drop_descriptor_rows(groups):
+    groups["frame-001"]["descriptors"] = groups["frame-001"]["descriptors"][:-5]
+
+
+def _nan_descriptor(groups):
+    groups["frame-001"]["descriptors"][3] = np.nan
+
+
+def _keypoints_off_image(groups):
+    groups["frame-001"]["keypoints"][:5] += 1000
+
+
+def _scores_of_other_length(groups):
+    for arrays in groups.values():
+        arrays["scores"] = np.linspace(1, 0, len(arrays["keypoints"]) + 3)
+
+
+def _cosine_metric(groups):
+    for arrays in groups.values():
+        arrays["metric"] = np.array("cosine")
+
+
+def _noisy_sift(groups, as_uint8: bool = False):
+    """The target's SIFT descriptors with integer noise (so that metrics rank differently), as float32
+    or as uint8 with metric 'l2' (SIFT's values are integers 0-255)."""
+    d = groups["frame-001"]["descriptors"]
+    groups["frame-001"]["descriptors"] = np.clip(d + np.random.default_rng(0).integers(0, 60, d.shape), 0, 255)
+    for arrays in groups.values():
+        arrays["descriptors"] = arrays["descriptors"].astype(np.uint8 if as_uint8 else np.float32)
+        if as_uint8:
+            arrays["metric"] = np.array("l2")
+
+
+def bench_uint8_sift_with_l2_metric(tmp):
+    """SIFT's features stored as float32 (tmp/float) and as uint8 with metric 'l2' (tmp) must score alike."""
+    assert main(_bench_features(_noisy_sift)(tmp / "float")) == 0
+    return _bench_features(lambda groups: _noisy_sift(groups, as_uint8=True), npz=True)(tmp)
+
+
+def _ext_scores_as_float_sift(tmp):
+    import csv
+
+    def ext_ms(path):
+        return [r["ms"] for r in csv.DictReader(open(path)) if r["descriptor"] == "ext"]
+
+    assert ext_ms(tmp / "b" / "results.csv") == ext_ms(tmp / "float" / "b" / "results.csv") != ["0.0"]
+
+
+def bench_landmarks_pair_without_common_ids(tmp):
+    seq = make_sequence(tmp / "seq", names=("frame-000-master", "frame-001", "frame-002"))
+    ids, xy, vis = read_landmarks(seq / "frame-002.csv")
+    write_landmarks(seq / "frame-002.csv", ids + 1000, xy, vis)  # another numbering: no id in common
+    return _bench_args(tmp, seq, extra=["--protocol", "landmarks"])
+
+
+def _pair_without_common_ids_not_scored(tmp):
+    import csv
+
+    rows = list(csv.DictReader(open(tmp / "b" / "results.csv")))
+    assert [r["target"] for r in rows] == ["frame-001"] and float(rows[0]["ms"]) > 0.5
+
+
+def _simulate_contact_sheet(name: str) -> Callable[[Path], list[str]]:
+    def setup(tmp):
+        (tmp / "mine.png").write_text("a file")
+        return ["simulate", str(tmp / "out"), "--frames", "2", "--width", "64", "--height", "48", "--no-progress",
+                "--texture", "procedural", "--contact-sheet", str(tmp / name)]
+
+    return setup
+
+
+def _sheet_kept_nothing_simulated(tmp):
+    assert (tmp / "mine.png").read_text() == "a file" and not (tmp / "out").exists()
+
+
 CASES = [
     # data loss (issue)
     Case("simulate-overwrite-user-files", simulate_over_user_files, 2, "did not write",
@@ -596,6 +697,24 @@ CASES = [
     Case("groundtruth-negative-depth-margin", lambda t: _gt(t, "--depth-margin", "-1"), 2, "depth-margin"),
     Case("groundtruth-nan-spacing", lambda t: _gt(t, "--spacing", "nan"), 2, "spacing"),
     Case("track-tps-dir-missing", _app_with_missing_tps("track"), 2, "tps-dir"),
+    Case("bench-features-count-mismatch", _bench_features(_drop_descriptor_rows), 2,
+         r"features ext: seq/frame-001 \(.*ext.h5.*\): descriptors: expected first axis"),
+    Case("bench-features-nan-descriptors", _bench_features(_nan_descriptor), 2,
+         "features ext: seq/frame-001 .*NaN"),
+    Case("bench-features-keypoints-off-image", _bench_features(_keypoints_off_image), 2,
+         "features ext: seq/frame-001 .*5 keypoint.s. off the 160x120 image"),
+    Case("bench-features-scores-length", _bench_features(_scores_of_other_length), 2,
+         "features ext: seq/frame-000-master .*scores: expected"),
+    Case("bench-features-cosine-metric", _bench_features(_cosine_metric, npz=True), 2,
+         r"frame-000-master.npz\): metric: 'cosine'"),
+    Case("bench-features-uint8-l2-metric", bench_uint8_sift_with_l2_metric, 0, "", _ext_scores_as_float_sift),
+    Case("bench-landmarks-pair-without-common-ids", bench_landmarks_pair_without_common_ids, 0,
+         "no landmark id visible in both frame-000-master and frame-002; pair skipped",
+         _pair_without_common_ids_not_scored),
+    Case("simulate-contact-sheet-exists", _simulate_contact_sheet("mine.png"), 2, "contact-sheet.*exists",
+         _sheet_kept_nothing_simulated),
+    Case("simulate-contact-sheet-not-an-image", _simulate_contact_sheet("sheet.txt"), 2, "contact-sheet.*png",
+         _sheet_kept_nothing_simulated),
     Case("retrieval-tps-dir-missing", _app_with_missing_tps("retrieval"), 2, "tps-dir"),
 ]
 

@@ -52,3 +52,11 @@ def test_errors_are_one_line_and_exit_2(tmp_path, capsys):
     assert len(err) == 1 and "not a directory" in err[0]
     with pytest.raises(SystemExit):
         main(["extract", str(tmp_path), "--descriptor", "nope", "--out", "x"])
+
+
+@pytest.mark.parametrize("command", ["extract", "match", "bench"])
+def test_keypoints_must_be_positive(tmp_path, capsys, command):
+    """--keypoints 0 is a usage error naming the option, not every frame skipped or the dataset blamed."""
+    with pytest.raises(SystemExit) as stop:
+        main([command, str(tmp_path), "--keypoints", "0", "--out", str(tmp_path / "out")])
+    assert stop.value.code == 2 and "--keypoints: expected a positive number" in capsys.readouterr().err

@@ -87,3 +87,11 @@ def test_unknown_profiles_are_clear_errors(tmp_path):
     (tmp_path / "geofeat.json").write_text(json.dumps({"depth_profile": "clean", "radius": 0.05}))
     seq = read_sequence(tmp_path)
     assert seq.depth_profile == "clean" and seq.radius == 0.05  # the bench and the applications use seq.radius
+
+
+@pytest.mark.parametrize("K", [np.eye(2), np.array([[np.nan, 0, 80], [0, 150, 60], [0, 0, 1]]),
+                               np.array([[-150.0, 0, 80], [0, 150, 60], [0, 0, 1]])])
+def test_depth_noise_refuses_a_bad_camera_matrix(K):
+    """depth_noise divides by fx: a matrix that is not a pinhole K is an error, not a number."""
+    with pytest.raises(ValueError, match="K: "):
+        depth_noise(np.ones((40, 40)), K)

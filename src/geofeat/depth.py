@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 
 from .constants import DEPTH_PROFILE_NAMES, HOLE_MAX_PERIMETER_PX, IDW_POWER, MESH_SCALE, SMOOTH_LEVELS, SMOOTH_WINDOW_PX
+from .frame import check_intrinsics
 
 FILL_METHODS = ("idw", "simple", "none")
 
@@ -133,6 +134,7 @@ def depth_noise(depth: np.ndarray, K: np.ndarray) -> DepthNoise:
     raw = np.asarray(depth)
     if raw.ndim != 2:
         raise ValueError(f"depth: expected an (H, W) map, got shape {raw.shape}")
+    K = check_intrinsics(K)
     depth = raw.astype(np.float64)
     valid = depth > 0
     inner = cv2.erode(valid.astype(np.uint8), np.ones((5, 5), np.uint8), borderType=cv2.BORDER_CONSTANT,

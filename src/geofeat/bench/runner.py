@@ -147,10 +147,14 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
         if config.protocol == "detect" and not truth.covers(target):
             tqdm.write(f"{seq.name}: no ground truth for {target} in the TPS files; pair skipped")
             continue
+        if config.protocol == "landmarks":
+            ids_t, xy_t, vis_t = seq.landmarks(target)
+            if not np.isin(ids_t[vis_t], ids_r[vis_r]).any():  # no query: a score of 0 would mean nothing
+                tqdm.write(f"{seq.name}: no landmark id visible in both {seq.reference} and {target}; pair skipped")
+                continue
         frame = seq.frame(target)
         angle, scale = _pose_change(seq, target)
         if config.protocol == "landmarks":
-            ids_t, xy_t, vis_t = seq.landmarks(target)
             k_tgt = Keypoints(xy_t[vis_t], np.zeros(vis_t.sum()), np.full(vis_t.sum(), 8.0), np.zeros(vis_t.sum()))
         else:
             k_tgt = detect(frame, config.n_keypoints, detector=config.detector, keypoint_set=config.keypoint_set)
@@ -184,20 +188,23 @@ def evaluate_external(seq: Sequence, truth: GroundTruth, features: ExternalFeatu
     """Rows of one external feature set on every pair of `seq`: its own keypoints and descriptors,
     filtered and scored exactly as geofeat's (reference keypoints on the object, target keypoints
     with a reliable ground truth, one-way nearest neighbour, hits within 3 px)."""
-    f_ref = features.load(seq.name, seq.reference, config.n_keypoints)
+    f_ref = features.load(seq.name, seq.reference, config.n_keypoints, seq.shape)
     keep = truth.reference_keep(f_ref.keypoints)
     f_ref = Features(f_ref.keypoints[keep], f_ref.descriptors[keep], f_ref.valid[keep])
     rows = []
     for target in seq.targets:
         if not truth.covers(target):
             continue
-        f_tgt = features.load(seq.name, target, config.n_keypoints)
+        f_tgt = features.load(seq.name, target, config.n_keypoints, seq.shape)
+        if f_tgt.descriptors.shape[1:] != f_ref.descriptors.shape[1:]:
+            raise ValueError(f"features {features.name}: {seq.name}/{target} has descriptors of shape "
+                             f"{f_tgt.descriptors.shape[1:]}, {seq.reference} of {f_ref.descriptors.shape[1:]}")
         mapped, known = truth.map(target, f_tgt.keypoints)
         f_tgt = Features(f_tgt.keypoints[known], f_tgt.descriptors[known], f_tgt.valid[known])
         gt = ground_truth_pairs(f_ref.keypoints, mapped[known])
         t = time.perf_counter()
         if len(f_ref) and len(f_tgt):
-            s = score_detect(match(f_ref, f_tgt).matches0, gt, len(f_ref), len(f_tgt))
+            s = score_detect(match(f_ref, f_tgt, metric=features.metric).matches0, gt, len(f_ref), len(f_tgt))
         else:
             s = _empty_row_score(len(f_ref), len(f_tgt))
         angle, scale = _pose_change(seq, target)

@@ -8,7 +8,7 @@ from pathlib import Path
 from ..constants import DEFAULT_RADIUS_M, N_KEYPOINTS
 from ..descriptors import available_descriptors
 from ..keypoints import KEYPOINT_SETS
-from .options import depth_profile_option, detector_option, keypoint_set_for, names
+from .options import depth_profile_option, detector_option, keypoint_count, keypoint_set_for, names
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -21,7 +21,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output folder: results.csv, table.md, plots, timing.md")
     p.add_argument("--radius", type=float, default=None, help="geodesic radius, metres (default: geofeat.json or 0.075)")
     p.add_argument("--depth-scale", type=float, default=None, help="metres per depth-PNG unit (default: geofeat.json or 0.001)")
-    p.add_argument("--keypoints", type=int, default=N_KEYPOINTS, help="keypoints per frame (default 2048)")
+    p.add_argument("--keypoints", type=keypoint_count, default=N_KEYPOINTS, help="keypoints per frame (default 2048)")
     detector_option(p)
     p.add_argument("--features", action="append", metavar="NAME=PATH",
                    help="also score features computed elsewhere: an hloc-style .h5 (groups <sequence>/<frame>) "

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from ..constants import DEFAULT_RADIUS_M
-from .options import depth_profile_option
+from .options import depth_profile_option, keypoint_count
 
 
 def _profile_of(profile: str, frame) -> str:
@@ -117,7 +117,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     p.add_argument("--radius", type=float, default=DEFAULT_RADIUS_M, help="geodesic radius, metres (default 0.075)")
     p.add_argument("--angle", type=float, default=60.0, help="camera roll of the rotated pair, degrees (default 60)")
-    p.add_argument("--keypoints", type=int, default=1000, help="SIFT keypoints per frame (default 1000)")
+    p.add_argument("--keypoints", type=keypoint_count, default=1000, help="SIFT keypoints per frame (default 1000)")
     depth_profile_option(p, "auto")
     p.set_defaults(func=run)
     return p

@@ -18,6 +18,17 @@ def descriptor_name(text: str) -> str:
         raise argparse.ArgumentTypeError(str(error)) from None
 
 
+def keypoint_count(text: str) -> int:
+    """argparse type: a positive number of keypoints per frame (a usage error, exit 2, otherwise)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive number of keypoints per frame, got {text!r}")
+    return value
+
+
 def depth_profile_option(p: argparse.ArgumentParser, default: str | None) -> None:
     """--depth-profile (kinect, clean, auto) with `default`."""
     p.add_argument("--depth-profile", choices=DEPTH_PROFILE_NAMES, default=default,
@@ -70,7 +81,7 @@ def frames_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("folder", help="a sequence folder in the public layout (<name>-rgb.png, <name>-depth.png, intrinsics.xml)")
     p.add_argument("--descriptor", default="geobit", type=descriptor_name,
                    help=f"one of {', '.join(available_descriptors())}, or geopatch=WEIGHTS.pt (default geobit)")
-    p.add_argument("--keypoints", type=int, default=N_KEYPOINTS, help="keypoints per frame (default 2048)")
+    p.add_argument("--keypoints", type=keypoint_count, default=N_KEYPOINTS, help="keypoints per frame (default 2048)")
     detector_option(p, None)
     p.add_argument("--keypoint-set", choices=KEYPOINT_SETS, default=None,
                    help="SIFT keypoints only. unique: one keypoint per position (default); protocol: SIFT's "
@@ -89,7 +100,7 @@ def app_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true",
                    help="replace what geofeat wrote in an existing non-empty OUT (other files stay)")
-    p.add_argument("--keypoints", type=int, default=N_KEYPOINTS, help="keypoints per frame (default 2048)")
+    p.add_argument("--keypoints", type=keypoint_count, default=N_KEYPOINTS, help="keypoints per frame (default 2048)")
     detector_option(p, None)
     p.add_argument("--tps-dir", default=None, help="the authors' TPS ground truth (objmask, warps), one folder per sequence")
     p.add_argument("--radius", type=float, default=None, help="geodesic radius, metres (default: geofeat.json or 0.075)")

@@ -39,7 +39,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--kinect-noise", action="store_true", help="Kinect-like depth noise and holes")
     p.add_argument("--contact-sheet", type=Path, help="also write a contact sheet PNG with ground-truth tracks")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier simulation in OUT_DIR (only files geofeat wrote; "
-                   "a folder holding other files is refused)")
+                   "a folder holding other files is refused) and an existing --contact-sheet file")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
     return p
@@ -51,6 +51,14 @@ def run(args: argparse.Namespace) -> int:
 
     if args.steps_per_frame < 1:
         raise ValueError(f"--steps-per-frame: expected >= 1, got {args.steps_per_frame}")
+    if args.contact_sheet is not None:  # checked before the simulation, which takes minutes
+        import cv2
+
+        from ..outputs import check_out_file
+
+        check_out_file(args.contact_sheet, args.overwrite, "--contact-sheet")
+        if not cv2.haveImageWriter(str(args.contact_sheet)):
+            raise ValueError(f"--contact-sheet: cannot write an image named {args.contact_sheet}; name a .png file")
     folder = simulate_sequence(
         args.out_dir,
         scenario=args.scenario,
