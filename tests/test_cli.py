@@ -6,6 +6,7 @@ import pytest
 
 import geofeat
 from geofeat.cli import main
+from geofeat.cli.demo import _check_demo_folder
 from geofeat.frame import roll_camera
 from geofeat.io import demo_data_dir, read_landmarks, write_frame, write_intrinsics, write_landmarks
 
@@ -31,6 +32,14 @@ def test_demo_writes_pictures_and_reports(tmp_path, capsys):
     assert "51 valid" in out and "geobit" in out and "orb" in out
     assert (tmp_path / "polar_patches.png").stat().st_size > 10_000
     assert (tmp_path / "rolled_pair_matches.png").stat().st_size > 10_000
+    # a rerun into the demo's own folder replaces its pictures; a user's picture of the same name elsewhere stays
+    _check_demo_folder(tmp_path)
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "polar_patches.png").write_bytes(b"my own picture")
+    assert main(["demo", "--out", str(mine)]) == 2
+    assert "polar_patches.png" in capsys.readouterr().err
+    assert (mine / "polar_patches.png").read_bytes() == b"my own picture"
 
 
 def test_extract_and_match_on_a_sequence(rolled_sequence, tmp_path, capsys):

@@ -123,10 +123,31 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
+#: The pictures `geofeat demo` writes into its folder (beside the sequence folder "simulated_cloth").
+DEMO_PICTURES = ("polar_patches.png", "rolled_pair_matches.png", "simulated_pair_matches.png")
+
+
+def _check_demo_folder(out: Path) -> None:
+    """The demo reruns into its own folder freely, but never replaces a picture of the same name that
+    geofeat did not write there (one not in the folder's manifest)."""
+    from ..outputs import check_out_dir, read_manifest
+
+    check_out_dir(out, overwrite=True)  # not a file, not under a file
+    ours = set(read_manifest(out))
+    theirs = [name for name in DEMO_PICTURES if (out / name).exists() and name not in ours]
+    if theirs:
+        raise ValueError(f"--out: {out} already holds {', '.join(theirs)}, which geofeat did not write; "
+                         "choose another folder")
+
+
 def run(args: argparse.Namespace) -> int:
     """`geofeat demo`: geodesic patches of the shipped Kinect frame, a rolled pair and a simulated cloth pair."""
+    from ..outputs import add_to_manifest
+
     out = Path(args.out)
+    _check_demo_folder(out)
     out.mkdir(parents=True, exist_ok=True)
+    add_to_manifest(out, DEMO_PICTURES)  # before writing, so that an interrupted demo can be rerun
     _demo_patches(out, args.radius, args.depth_profile)
     _demo_rolled_pair(out, args.angle, args.keypoints, args.depth_profile)
     _demo_deformed_pair(out, args.keypoints, args.depth_profile)
