@@ -150,6 +150,7 @@ def test_rays_stop_at_depth_discontinuities():
         (dict(depth=np.full((480, 640), 950.0)), "millimetres"),
         (dict(K=np.eye(2)), "K"),
         (dict(K=np.diag([-1.0, 525, 1])), "focal"),
+        (dict(K=np.array([[0.82, 0, 0.5], [0, 1.09, 0.5], [0, 0, 1]])), "normalised intrinsics"),  # not pixels
         (dict(image=np.zeros((480, 640, 4))), "image"),
     ],
 )

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 
 from .constants import MAX_PLAUSIBLE_DEPTH_M
+from .inputs import check_focal_lengths
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
@@ -110,7 +111,9 @@ class RGBDFrame:
         color = image if (image.ndim == 3 and image.dtype == np.uint8) else None
         object.__setattr__(self, "image", gray)
         object.__setattr__(self, "depth", check_depth(depth, gray.shape))
-        object.__setattr__(self, "K", check_intrinsics(K))
+        K = check_intrinsics(K)
+        check_focal_lengths(K, gray.shape, "K")
+        object.__setattr__(self, "K", K)
         object.__setattr__(self, "color", color)
 
     @property

@@ -94,6 +94,17 @@ def check_depth_plausible(depth_m: np.ndarray, depth_scale: float, where: str) -
                          "geofeat.json) to the metres per unit of the depth PNGs")
 
 
+def check_focal_lengths(K: np.ndarray, shape: tuple[int, int], where: str) -> None:
+    """fx and fy of a 3x3 camera matrix between 0.1 and 20 times the larger side of an (H, W) image,
+    in pixels: normalised intrinsics (fx about 1) are refused, not used as pixels."""
+    H, W = shape
+    fx, fy = K[0, 0], K[1, 1]
+    lo, hi = (f * max(H, W) for f in PLAUSIBLE_FOCAL_SIDES)
+    if not (lo <= fx <= hi and lo <= fy <= hi):
+        raise ValueError(f"{where}: focal lengths fx={fx:g}, fy={fy:g} are implausible for a {W}x{H} image "
+                         f"(expected {lo:g}-{hi:g} pixels; normalised intrinsics must be multiplied by the image size)")
+
+
 def check_intrinsics_for_image(K: np.ndarray, shape: tuple[int, int], where: str) -> np.ndarray:
     """A 3x3 pinhole matrix in pixels plausible for an (H, W) image: finite, last row [0, 0, 1],
     fx and fy between 0.1 and 20 times the larger side, principal point inside the image."""
@@ -103,11 +114,8 @@ def check_intrinsics_for_image(K: np.ndarray, shape: tuple[int, int], where: str
         raise ValueError(f"{where}: expected a finite 3x3 camera matrix")
     if abs(K[2, 2] - 1.0) > 1e-6 or abs(K[2, 0]) > 1e-6 or abs(K[2, 1]) > 1e-6 or abs(K[1, 0]) > 1e-6:
         raise ValueError(f"{where}: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got rows {K[1:].tolist()}")
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    lo, hi = (f * max(H, W) for f in PLAUSIBLE_FOCAL_SIDES)
-    if not (lo <= fx <= hi and lo <= fy <= hi):
-        raise ValueError(f"{where}: focal lengths fx={fx:g}, fy={fy:g} are implausible for a {W}x{H} image "
-                         f"(expected {lo:g}-{hi:g} pixels; normalised intrinsics must be multiplied by the image size)")
+    check_focal_lengths(K, shape, where)
+    cx, cy = K[0, 2], K[1, 2]
     if not (0 <= cx <= W and 0 <= cy <= H):
         raise ValueError(f"{where}: principal point ({cx:g}, {cy:g}) lies outside the {W}x{H} image")
     return K
