@@ -95,3 +95,9 @@ def test_depth_noise_refuses_a_bad_camera_matrix(K):
     """depth_noise divides by fx: a matrix that is not a pinhole K is an error, not a number."""
     with pytest.raises(ValueError, match="K: "):
         depth_noise(np.ones((40, 40)), K)
+
+
+def test_depth_profile_of_a_bare_depth_map_is_a_type_error():
+    depth, _ = _sphere_cap()
+    with pytest.raises(TypeError, match="RGBDFrame.*depth_noise"):
+        depth_profile(depth)

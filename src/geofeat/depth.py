@@ -163,6 +163,9 @@ def depth_profile(frame) -> str:
     """The depth profile for `frame` (an RGBDFrame): "kinect" when its measured slope noise
     (`depth_noise`) exceeds `SLOPE_NOISE_THRESHOLD`, when its depth is stored in steps coarser than
     `STEP_THRESHOLD` pixel footprints, or when too little surface can be measured; else "clean"."""
+    if not (hasattr(frame, "depth") and hasattr(frame, "K")):
+        raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__} (for a bare depth map, "
+                        "use geofeat.depth_noise(depth, K))")
     noise = depth_noise(frame.depth, frame.K)
     if (noise.windows < MIN_NOISE_WINDOWS or noise.slope_noise > SLOPE_NOISE_THRESHOLD
             or noise.step_per_footprint > STEP_THRESHOLD):
