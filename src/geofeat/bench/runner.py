@@ -194,6 +194,7 @@ def evaluate_external(seq: Sequence, truth: GroundTruth, features: ExternalFeatu
     rows = []
     for target in seq.targets:
         if not truth.covers(target):
+            tqdm.write(f"{seq.name}: no ground truth for {target} in the TPS files; pair skipped for {features.name}")
             continue
         f_tgt = features.load(seq.name, target, config.n_keypoints, seq.shape)
         if f_tgt.descriptors.shape[1:] != f_ref.descriptors.shape[1:]:
