@@ -614,6 +614,64 @@ def _sheet_kept_nothing_simulated(tmp):
     assert (tmp / "mine.png").read_text() == "a file" and not (tmp / "out").exists()
 
 
+def _retrieval(tmp, *extra):
+    make_sequence(tmp / "ds" / "s1")
+    make_sequence(tmp / "ds" / "s2")
+    return ["retrieval", str(tmp / "ds"), "--descriptors", "sift", "--keypoints", "200", "--samples", "200",
+            "--words", "3", "--rerank", "0", "--out", str(tmp / "r"), *extra]
+
+
+def retrieval_overwrite_user_file_named_like_a_result(tmp):
+    (tmp / "r").mkdir()
+    (tmp / "r" / "retrieval.md").write_text("my own notes")
+    return _retrieval(tmp, "--overwrite")
+
+
+def retrieval_conflicting_classes(tmp):
+    (tmp / "classes.csv").write_text("sequence,class\ns1,cloth\ns2,paper\ns2,cloth\n")
+    return _retrieval(tmp, "--classes", str(tmp / "classes.csv"))
+
+
+def _track(tmp, *extra, seq=None):
+    return ["track", str(seq or _seq(tmp)), "--descriptors", "sift", "--keypoints", "300", "--refine", "none",
+            "--out", str(tmp / "t"), *extra]
+
+
+def track_overwrite_user_file_in_a_result_folder(tmp):
+    (tmp / "t" / "seq" / "sift").mkdir(parents=True)
+    (tmp / "t" / "seq" / "sift" / "track.gif").write_text("my own animation")
+    return _track(tmp, "--overwrite")
+
+
+def track_reference_without_depth(tmp):
+    seq = _seq(tmp)
+    cv2.imwrite(str(seq / "frame-000-master-depth.png"), np.zeros((H, W), np.uint16))
+    return _track(tmp, seq=seq)
+
+
+def _no_training(monkeypatch):
+    import geofeat.train.detector as detector
+
+    def trained(*args, **kwargs):
+        raise AssertionError("trained before the bad option was reported")
+
+    monkeypatch.setattr(detector, "fit", trained)
+
+
+def _train_detector(tmp, *extra, val=None):
+    sim = tmp / "sim"
+    if not sim.is_dir():
+        assert main(["simulate", str(sim), "--frames", "2", "--width", "64", "--height", "48", "--no-progress",
+                     "--texture", "procedural"]) == 0
+    return ["train-detector", "--data", str(sim), "--val", str(val or sim), "--out", str(tmp / "gk.npz"),
+            "--steps", "5", "--keypoints", "50", *extra]
+
+
+def train_detector_over_user_file(tmp):
+    (tmp / "gk.npz").write_text("my own weights")
+    return _train_detector(tmp)
+
+
 CASES = [
     # data loss (issue)
     Case("simulate-overwrite-user-files", simulate_over_user_files, 2, "did not write",
@@ -716,6 +774,31 @@ CASES = [
     Case("simulate-contact-sheet-not-an-image", _simulate_contact_sheet("sheet.txt"), 2, "contact-sheet.*png",
          _sheet_kept_nothing_simulated),
     Case("retrieval-tps-dir-missing", _app_with_missing_tps("retrieval"), 2, "tps-dir"),
+    # audit of retrieval, track, train-detector
+    Case("retrieval-overwrite-keeps-user-file-named-like-a-result", retrieval_overwrite_user_file_named_like_a_result,
+         2, "retrieval.md, which geofeat did not write",
+         lambda t: (t / "r" / "retrieval.md").read_text() == "my own notes" or pytest.fail("overwritten")),
+    Case("track-overwrite-keeps-user-file-in-a-result-folder", track_overwrite_user_file_in_a_result_folder, 2,
+         "did not write", lambda t: (t / "t" / "seq" / "sift" / "track.gif").read_text() == "my own animation"
+         or pytest.fail("overwritten")),
+    Case("retrieval-negative-samples", lambda t: _retrieval(t, "--samples", "-3"), 2, "samples.*expected"),
+    Case("retrieval-samples-not-above-words", lambda t: _retrieval(t, "--samples", "3"), 2, "samples.*expected"),
+    Case("retrieval-negative-seed", lambda t: _retrieval(t, "--seed", "-1"), 2, "seed: expected"),
+    Case("retrieval-conflicting-class-rows", retrieval_conflicting_classes, 2, "'s2' has class 'paper'"),
+    Case("track-nan-threshold", lambda t: _track(t, "--threshold", "nan"), 2, "threshold: expected"),
+    Case("track-infinite-threshold", lambda t: _track(t, "--threshold", "inf"), 2, "threshold: expected"),
+    Case("track-reference-without-depth", track_reference_without_depth, 2,
+         "sequence seq: the reference frame frame-000-master cannot be used"),
+    Case("train-detector-over-user-file", train_detector_over_user_file, 2, "exists.*--overwrite",
+         lambda t: (t / "gk.npz").read_text() == "my own weights" or pytest.fail("overwritten"), _no_training),
+    Case("train-detector-zero-keypoints", lambda t: _train_detector(t, "--keypoints", "0"), 2, "keypoints: expected",
+         None, _no_training),
+    Case("train-detector-zero-steps", lambda t: _train_detector(t, "--steps", "0"), 2, "steps: expected",
+         None, _no_training),
+    Case("train-detector-zero-width", lambda t: _train_detector(t, "--hidden", "0"), 2, "hidden: expected",
+         None, _no_training),
+    Case("train-detector-val-without-ground-truth", lambda t: _train_detector(t, val=_seq(t)), 2,
+         "val: .*no simulator ground truth", None, _no_training),
 ]
 
 
@@ -777,6 +860,61 @@ def test_a_torn_bench_block_is_dropped_whole(tmp_path: Path) -> None:
     assert repair_results(path) == 2  # the cut row and the complete row of b before it
     assert _finished(path) == {("a", "sift")}
     assert path.read_text().endswith("\n")
+
+
+DATA = Path(geofeat.__file__).parent / "data"
+
+
+@pytest.mark.parametrize("name, weights, message", [
+    ("geopatch", "corrupt.pt", "corrupt.pt is not a GeoPatch checkpoint"),
+    ("geopatch", DATA / "logpolar_sim.pt", "logpolar_sim.pt is not a GeoPatch checkpoint"),
+    ("geopatch", DATA / "geokey.npz", "geokey.npz is not a GeoPatch checkpoint"),
+    ("geopatch", "corrupt.onnx", "corrupt.onnx is not a GeoPatch ONNX model"),
+    ("tfeat-sim", DATA / "geopatch.pt", "geopatch.pt is not a tfeat-sim checkpoint"),
+    ("tfeat-sim", DATA / "logpolar_sim.pt", "holds a logpolar-sim network, not tfeat-sim"),
+])
+def test_descriptor_weights_of_another_network_are_one_error(name: str, weights, message: str, tmp_path: Path) -> None:
+    """A corrupt weights file, or one of another network, is a ValueError naming it (no traceback of
+    torch or ONNX Runtime, and never a net of the wrong architecture run silently)."""
+    if isinstance(weights, str):
+        weights = tmp_path / weights
+        weights.write_bytes(b"not weights at all")
+    frame = geofeat.RGBDFrame(_texture(), np.ones((H, W)), K)
+    with pytest.raises(ValueError, match=message):
+        geofeat.extract(frame, 10, descriptor=f"{name}={weights}")
+
+
+def _geokey_arrays(**change) -> dict:
+    arrays = dict(np.load(DATA / "geokey.npz"))
+    arrays.update(change)
+    return {k: v for k, v in arrays.items() if v is not None}
+
+
+@pytest.mark.parametrize("change", [dict(mean=None), dict(mean=np.zeros(3, np.float32)),
+                                    dict(w0=np.zeros((5, 4), np.float32), b0=np.zeros(4, np.float32))],
+                         ids=["missing-array", "wrong-shape", "layers-not-ending-in-one-logit"])
+def test_incomplete_geokey_weights_are_one_error(change: dict, tmp_path: Path) -> None:
+    path = tmp_path / "gk.npz"
+    np.savez(path, **_geokey_arrays(**change))
+    with pytest.raises(ValueError, match="gk.npz is not a complete GeoKey weights file"):
+        geofeat.detect(geofeat.RGBDFrame(_texture(), np.ones((H, W)), K), 10, detector=f"geokey={path}")
+
+
+def test_bad_geokey_weights_fail_before_any_frame_is_described(tmp_path: Path, capsys) -> None:
+    """Retrieval used to skip every frame with the weights' error and end on "no reference frame";
+    the weights are read once, before any work, by the library and by the command line."""
+    from geofeat.apps.retrieval import run_retrieval
+
+    make_sequence(tmp_path / "ds" / "s1")
+    corrupt = tmp_path / "corrupt.npz"
+    corrupt.write_bytes(b"not weights")
+    with pytest.raises(ValueError, match="corrupt.npz is not a GeoKey weights file"):
+        run_retrieval([tmp_path / "ds"], tmp_path / "r", ("sift",), detector=f"geokey={corrupt}", progress=False)
+    assert not (tmp_path / "r").exists()
+    for command in ("retrieval", "track", "extract"):
+        with pytest.raises(SystemExit) as stop:
+            main([command, str(tmp_path / "ds" / "s1"), "--detector", f"geokey={corrupt}", "--out", str(tmp_path / "o")])
+        assert stop.value.code == 2 and "corrupt.npz is not a GeoKey weights file" in capsys.readouterr().err
 
 
 # ---------------------------------------------------------------- property test of polar_patches

@@ -63,7 +63,7 @@ def test_errors_are_one_line_and_exit_2(tmp_path, capsys):
         main(["extract", str(tmp_path), "--descriptor", "nope", "--out", "x"])
 
 
-@pytest.mark.parametrize("command", ["extract", "match", "bench"])
+@pytest.mark.parametrize("command", ["extract", "match", "bench", "retrieval", "track"])
 def test_keypoints_must_be_positive(tmp_path, capsys, command):
     """--keypoints 0 is a usage error naming the option, not every frame skipped or the dataset blamed."""
     with pytest.raises(SystemExit) as stop:

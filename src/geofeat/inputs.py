@@ -79,6 +79,11 @@ def check_depth_scale(depth_scale: float, what: str = "--depth-scale") -> float:
     return _positive_number(depth_scale, what)
 
 
+def check_positive(value: float, what: str) -> float:
+    """A positive finite number (a threshold, a size): ValueError naming `what` otherwise (NaN and inf too)."""
+    return _positive_number(value, what)
+
+
 def check_depth_plausible(depth_m: np.ndarray, depth_scale: float, where: str) -> None:
     """The median of the valid depths (metres, after scaling) must be plausible, else the depth scale is
     wrong (metres stored where millimetres are expected, or the other way round)."""

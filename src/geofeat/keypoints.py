@@ -137,8 +137,9 @@ def _check_n(n) -> int:
 
 
 def check_detector_name(detector: str) -> str:
-    """Validate a detector name ("sift", "geokey", "geokey=WEIGHTS") without loading anything;
-    a weights file must exist. Returns the name unchanged."""
+    """Validate a detector name ("sift", "geokey", "geokey=WEIGHTS"); a weights file must be GeoKey
+    weights (`load_geokey`, which keeps them for the detection), so that a missing, corrupt or wrong
+    file fails before any work. Returns the name unchanged."""
     if not isinstance(detector, str):
         raise TypeError(f"detector: expected a name such as 'sift' or 'geokey', got {type(detector).__name__}")
     name, _, weights = detector.partition("=")
@@ -149,6 +150,9 @@ def check_detector_name(detector: str) -> str:
 
         if not Path(weights).is_file():
             raise ValueError(f"detector: weights file {weights} does not exist")
+        from .detectors.geokey import load_geokey
+
+        load_geokey(weights)
     return detector
 
 
@@ -181,10 +185,11 @@ def detector_for(descriptor: str, detector: str | None = None) -> str:
 def group_by_detector(descriptors, detector: str | None = None) -> dict[str, tuple[str, ...]]:
     """{detector: the descriptors described on its keypoints}, each descriptor with
     `detector_for(descriptor, detector)`, in the order given: descriptors of one group share one
-    detection (and the geodesic ones one mesh and one set of polar patches)."""
+    detection (and the geodesic ones one mesh and one set of polar patches). Each detector is checked
+    (`check_detector_name`) before any work."""
     groups: dict[str, tuple[str, ...]] = {}
     for name in descriptors:
-        det = detector_for(name, detector)
+        det = check_detector_name(detector_for(name, detector))
         groups[det] = groups.get(det, ()) + (name,)
     return groups
 

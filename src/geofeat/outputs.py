@@ -77,10 +77,35 @@ def check_out_file(path: str | Path, overwrite: bool = False, what: str = "--out
     return path
 
 
-def check_out_dir(path: str | Path, overwrite: bool = False, what: str = "--out", strict: bool = False) -> Path:
+def foreign_clashes(folder: str | Path, files: Iterable[str]) -> list[str]:
+    """Those of `files` (paths relative to `folder` that a result will be written to) that would
+    replace something geofeat did not write there: an existing file its manifest does not list, or a
+    file where a folder of the path must go."""
+    folder = Path(folder)
+    ours = set(read_manifest(folder))
+    clashes = []
+    for rel in files:
+        target = folder / rel
+        blocked = [p for p in target.parents if folder in p.parents and p.exists() and not p.is_dir()]
+        if (rel not in ours and (target.exists() or target.is_symlink())) or blocked:
+            clashes.append(rel)
+    return clashes
+
+
+def _refuse_clashes(folder: Path, clashes: list[str], what: str) -> None:
+    if clashes:
+        raise ValueError(f"{what}: {folder} holds {', '.join(clashes[:5])}{', ...' if len(clashes) > 5 else ''}, "
+                         "which geofeat did not write; --overwrite never replaces those: move them away or choose "
+                         "another folder")
+
+
+def check_out_dir(path: str | Path, overwrite: bool = False, what: str = "--out", strict: bool = False,
+                  files: Iterable[str] = ()) -> Path:
     """Check an output folder before any work: it must not be a file, and an existing non-empty folder
     needs `overwrite`. With `strict`, a folder holding files geofeat did not write (not in its
-    manifest) is refused even with `overwrite`, because leftovers would mix with the new output."""
+    manifest) is refused even with `overwrite`, because leftovers would mix with the new output.
+    `files`: the result files the command writes at fixed names (relative paths); with `overwrite`,
+    one of them that geofeat did not write is refused (`foreign_clashes`) rather than replaced."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise ValueError(f"{what}: {path} is a file, not a folder")
@@ -96,6 +121,7 @@ def check_out_dir(path: str | Path, overwrite: bool = False, what: str = "--out"
             raise ValueError(f"{what}: {path} holds files geofeat did not write ({', '.join(foreign[:5])}"
                              f"{', ...' if len(foreign) > 5 else ''}); --overwrite never deletes those: move them "
                              "away or choose another folder")
+        _refuse_clashes(path, foreign_clashes(path, files), what)
     return path
 
 
@@ -152,13 +178,15 @@ def remove_written(folder: str | Path) -> None:
 
 def replace_folder(tmp: str | Path, out: str | Path) -> Path:
     """Move the finished folder `tmp` into `out`. Files geofeat wrote earlier into `out` (its manifest)
-    are removed first; every other file there stays. The new manifest lists the files moved in."""
+    are removed first; every other file there stays, and a result that would replace one of them is
+    refused (ValueError, `out` untouched). The new manifest lists the files moved in."""
     tmp, out = Path(tmp), Path(out)
     files = [str(p.relative_to(tmp)) for p in sorted(tmp.rglob("*")) if p.is_file() and p.name != MANIFEST]
     if not out.exists():
         write_manifest(tmp, files)
         os.replace(tmp, out)
         return out
+    _refuse_clashes(out, foreign_clashes(out, files), "--out")  # before anything is removed
     remove_written(out)
     for rel in files:
         target = out / rel

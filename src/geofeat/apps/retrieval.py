@@ -74,6 +74,8 @@ WEIGHTINGS = {"none": "l2", "hellinger": "l2", "tfidf": "l2", "tfidf-sqrt": "l2"
 DEFAULT_WEIGHTING = "tfidf-l1"
 #: Bootstrap resamples of the queries for the 95 % intervals.
 N_BOOTSTRAP = 2000
+#: The files `run_retrieval` writes into its output folder.
+RESULT_FILES = ("retrieval.csv", "retrieval.md", "acc_at_k.png", "top6.png")
 
 
 @dataclass
@@ -171,6 +173,12 @@ def _check_weighting(weighting: str) -> None:
     """ValueError unless `weighting` is one of WEIGHTINGS (checked before any costly work)."""
     if weighting not in WEIGHTINGS:
         raise ValueError(f"weighting: expected one of {', '.join(WEIGHTINGS)}, got {weighting!r}")
+
+
+def _check_whole(value, what: str, minimum: int) -> None:
+    """ValueError naming `what` unless `value` is a whole number >= `minimum` (checked before any costly work)."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"{what}: expected a whole number >= {minimum}, got {value!r}")
 
 
 def _normalise(v: np.ndarray, order: int) -> np.ndarray:
@@ -323,7 +331,8 @@ def split_queries(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
 
 
 def read_classes(path: str | Path) -> dict[str, str]:
-    """A CSV of `sequence,class` lines (an optional header `sequence,class`) -> {sequence: class}."""
+    """A CSV of `sequence,class` lines (an optional header `sequence,class`) -> {sequence: class}; a
+    sequence given two different classes is refused (a repeated identical line is harmless)."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"classes: file not found: {path}")
@@ -335,7 +344,9 @@ def read_classes(path: str | Path) -> dict[str, str]:
                 continue
             if len(row) < 2 or not row[0] or not row[1]:
                 raise ValueError(f"classes: {path} line {i + 1}: expected 'sequence,class', got {','.join(row)!r}")
-            out[row[0]] = row[1]
+            if out.setdefault(row[0], row[1]) != row[1]:
+                raise ValueError(f"classes: {path} line {i + 1}: sequence {row[0]!r} has class {out[row[0]]!r} "
+                                 f"on an earlier line and {row[1]!r} here; give each sequence one class")
     return out
 
 
@@ -655,9 +666,22 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
     _check_weighting(weighting)
     if isinstance(rerank_top, bool) or not isinstance(rerank_top, (int, np.integer)) or rerank_top < 0:
         raise ValueError(f"rerank: expected a whole number of results >= 0 (0 = the words' order), got {rerank_top!r}")
-    out = check_out_dir(out, overwrite)
+    out = check_out_dir(out, overwrite, files=RESULT_FILES)
+    if n_keypoints is not None:
+        _check_whole(n_keypoints, "keypoints", 1)
+    _check_whole(seed, "seed", 0)
+    if words is not None:
+        _check_whole(words, "words", 2)
+    _check_whole(n_samples, "samples", 1)
+    fewest = words or min(WORD_CANDIDATES)
+    if n_samples <= fewest:
+        raise ValueError(f"samples: {n_samples} sampled descriptors are too few for {fewest} visual words; "
+                         f"expected more than {fewest}")
     classes = read_classes(classes_file) if classes_file else None
     db = describe_datasets(datasets, descriptors, n_keypoints, classes, tps_dir, radius, depth_scale, progress, detector)
+    if not db.frames:
+        raise ValueError(f"datasets: every frame was skipped ({', '.join(db.skipped[:5])}"
+                         f"{', ...' if len(db.skipped) > 5 else ''}; see the SKIPPED lines); nothing written")
     if db.is_query.sum() == 0:
         raise ValueError("datasets: no reference frame to query")
     if db.is_query.all():

@@ -45,6 +45,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..constants import N_KEYPOINTS
+from ..inputs import check_positive
 from ..io import Sequence, read_sequence
 from ..tps import ThinPlateSpline, check_pairs, evaluate_batch, normalise_points, solve_batch
 
@@ -162,8 +163,7 @@ def fit_tps_ransac(
     src, dst = check_pairs(src, dst, 0)
     if sample_size < 3:
         raise ValueError(f"sample_size: expected >= 3 correspondences per hypothesis, got {sample_size}")
-    if threshold_px <= 0:
-        raise ValueError(f"threshold_px: expected a positive number of pixels, got {threshold_px}")
+    check_positive(threshold_px, "threshold_px")
     n = len(src)
     failed = RansacResult(None, np.zeros(n, bool))
     if n < max(sample_size, min_inliers, 3):
@@ -526,6 +526,7 @@ def track_sequence(
     names = check_descriptor_names(descriptors)  # unknown names fail before any work
     if refine not in REFINE_MODES:
         raise ValueError(f"refine: expected one of {', '.join(REFINE_MODES)}, got {refine!r}")
+    check_positive(threshold_px, "threshold")  # NaN or inf would fail every frame, or pass every match
     template = _Template.build(folder, names, roi, n_keypoints, tps_dir, radius, depth_scale, detector)
     seq = template.seq
     results = {name: template.new_result(name) for name in names}
@@ -594,7 +595,11 @@ class _Template:
         seq = read_sequence(folder, depth_scale=depth_scale)
         if len(seq) < 2:
             raise ValueError(f"sequence {seq.name}: needs a reference frame and at least one other frame, got {len(seq)} frame(s)")
-        ref = seq.frame(seq.reference)
+        try:
+            ref = seq.frame(seq.reference)
+        except ValueError as error:  # named: a run over several sequences stops at this one
+            raise ValueError(f"sequence {seq.name}: the reference frame {seq.reference} cannot be used "
+                             f"({str(error).splitlines()[0]})") from None
         mask, mask_source = object_mask(seq, seq.reference, tps_dir)
         roi = check_roi(default_roi(mask) if roi is None else roi, ref.shape)
         x0, y0, x1, y1 = roi
@@ -947,7 +952,7 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
 
     names = check_descriptor_names(descriptors)  # unknown names fail before any work
     groups = group_by_detector(names, detector)
-    out = check_out_dir(out, overwrite)
+    out = check_out_dir(out, overwrite, files=("track.csv", "tracking.md"))
     sequences = find_sequences(sequences, unique_names=True)
     check_tps_dir(tps_dir)
     rows: list[dict] = []

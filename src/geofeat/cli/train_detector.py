@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -12,6 +11,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--data", nargs="+", required=True, help="simulated sequence folders, or folders of them")
     p.add_argument("--val", nargs="+", required=True, help="held-out simulated sequences (choose the NMS radius, level bias and score threshold)")
     p.add_argument("--out", required=True, help="weights file to write (e.g. geokey.pt; an .npz archive)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing OUT file")
     p.add_argument("--keypoints", type=int, nargs="+", default=(1024, 2048),
                    help="keypoints per frame for validation; the scorer and NMS radius with the best mean MS "
                         "over these counts are kept (default 1024 2048)")
@@ -28,10 +28,10 @@ def run(args: argparse.Namespace) -> int:
     """Train GeoKey and print its validation table."""
     from ..train.detector import SIFT_KEY, train_detector
 
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     counts = tuple(args.keypoints)
     model, results, chosen = train_detector(args.data, args.val, args.out, n=counts, hidden=tuple(args.hidden),
-                                    steps=args.steps, seed=args.seed, labels=args.labels)
+                                    steps=args.steps, seed=args.seed, labels=args.labels,
+                                    overwrite=args.overwrite)
     print("| scorer | NMS radius (px) | keypoints | GeoPatch MS | MMA | repeatability | correct matches / pair "
           "| reference keypoints / frame |")
     print("|---|---|---|---|---|---|---|---|")

@@ -90,16 +90,32 @@ def save_checkpoint(path: str | Path, net: GeoPatchNet, **meta) -> None:
     torch.save({"config": asdict(net.config), "state_dict": net.state_dict(), **meta}, str(path))
 
 
+def load_checkpoint(path: str | Path, build, what: str) -> tuple[nn.Module, dict]:
+    """(network, checkpoint) of a checkpoint written by `geofeat train`: `build(config)` makes the
+    network from the checkpoint's config, which then takes its state dict. ValueError naming the file
+    when it is corrupt, not a checkpoint, or holds another network's weights (`what` names the one
+    expected, e.g. "GeoPatch")."""
+    try:
+        ckpt = torch.load(str(path), map_location="cpu", weights_only=False)
+        net = build(dict(ckpt["config"]))
+        net.load_state_dict(ckpt["state_dict"])
+    except Exception as error:  # noqa: BLE001 - unpickling, a missing key, another architecture: all one user error
+        text = str(error).splitlines()[0] if str(error) else ""
+        raise ValueError(f"weights: {path} is not a {what} checkpoint of `geofeat train` "
+                         f"({type(error).__name__}: {text[:200]})") from None
+    return net, ckpt
+
+
 def load_network(path: str | Path | None = None, device: str | torch.device | None = None) -> tuple[GeoPatchNet, dict]:
     """Load a GeoPatchNet (eval mode) from a checkpoint; None = the shipped weights. Offline only."""
     path = default_weights_path() if path is None else Path(path)
     if not path.is_file():
         raise ValueError(f"weights: no GeoPatch checkpoint at {path}")
-    ckpt = torch.load(str(path), map_location="cpu", weights_only=False)
-    config = dict(ckpt["config"])
-    config["channels"] = tuple(config["channels"])
-    net = GeoPatchNet(GeoPatchConfig(**config))
-    net.load_state_dict(ckpt["state_dict"])
+
+    def build(config: dict) -> GeoPatchNet:
+        return GeoPatchNet(GeoPatchConfig(**dict(config, channels=tuple(config["channels"]))))
+
+    net, ckpt = load_checkpoint(path, build, "GeoPatch")
     net.eval()
     if device is not None:
         net.to(device)

@@ -270,11 +270,17 @@ class OnnxGeoPatch:
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         opts.add_session_config_entry("session.intra_op.allow_spinning", "1" if spin else "0")
         self.threads = opts.intra_op_num_threads
-        self.session = ort.InferenceSession(model if isinstance(model, bytes) else str(model), opts,
-                                            providers=["CPUExecutionProvider"])
-        meta = self.session.get_modelmeta().custom_metadata_map
-        self.metadata = dict(meta)
-        self.config = json.loads(meta["config"])
+        try:
+            self.session = ort.InferenceSession(model if isinstance(model, bytes) else str(model), opts,
+                                                providers=["CPUExecutionProvider"])
+            meta = self.session.get_modelmeta().custom_metadata_map
+            self.metadata = dict(meta)
+            self.config = json.loads(meta["config"])
+        except Exception as error:  # noqa: BLE001 - a corrupt file or another network: one user error
+            where = "the exported model" if isinstance(model, bytes) else str(model)
+            text = str(error).splitlines()[0] if str(error) else ""
+            raise ValueError(f"weights: {where} is not a GeoPatch ONNX model ({type(error).__name__}: "
+                             f"{text[:200]})") from None
 
     def run(self, x: np.ndarray, batch_size: int = 256) -> np.ndarray:
         """(N, R, A) float32 patches -> (N, dim) float32 unit descriptors, `batch_size` at a time."""

@@ -134,14 +134,18 @@ def default_weights_path(arch: str) -> Path:
     return Path(str(resources.files("geofeat") / "data" / WEIGHTS[arch]))
 
 
-def load_image_net(path: str | Path) -> ImagePatchNet:
-    """An ImagePatchNet (eval mode) from a checkpoint written by the training loop. Offline only."""
+def load_image_net(path: str | Path, arch: str | None = None) -> ImagePatchNet:
+    """An ImagePatchNet (eval mode) from a checkpoint written by the training loop. Offline only.
+    `arch`: the architecture the checkpoint must hold ("tfeat" or "logpolar"; None: any)."""
+    from .geopatch_net import load_checkpoint
+
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"weights: no image-patch network checkpoint at {path}")
-    ckpt = torch.load(str(path), map_location="cpu", weights_only=False)
-    net = ImagePatchNet(ImageNetConfig(**ckpt["config"]))
-    net.load_state_dict(ckpt["state_dict"])
+    what = f"{arch}-sim" if arch else "tfeat-sim or logpolar-sim"
+    net, _ = load_checkpoint(path, lambda config: ImagePatchNet(ImageNetConfig(**config)), what)
+    if arch is not None and net.config.arch != arch:
+        raise ValueError(f"weights: {path} holds a {net.config.arch}-sim network, not {arch}-sim")
     return net.eval()
 
 
@@ -178,7 +182,7 @@ class ImagePatchDescriptor:
                 torch.manual_seed(0)
                 self.net = ImagePatchNet(default_config(arch)).eval()
         else:
-            self.net = load_image_net(default_weights_path(arch) if weights is None else weights)
+            self.net = load_image_net(default_weights_path(arch) if weights is None else weights, arch)
         self.batch_size = int(s.batch_size)
 
     def __repr__(self) -> str:

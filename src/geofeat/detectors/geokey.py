@@ -143,12 +143,22 @@ def _load(path: str) -> GeoKeyModel:
     if names != CUE_NAMES or "linear" not in arrays:
         raise ValueError(f"detector weights: {path} is not a GeoKey weights file for this version "
                          f"(cues {names[:3]}..., expected {CUE_NAMES[:3]}...)")
-    k = sum(1 for name in arrays if name.startswith("w"))
-    weights = tuple(arrays[f"w{i}"].astype(np.float32) for i in range(k))
-    biases = tuple(arrays[f"b{i}"].astype(np.float32) for i in range(k))
-    return GeoKeyModel(arrays["mean"].astype(np.float32), arrays["std"].astype(np.float32),
-                       arrays["linear"].astype(np.float32), weights, biases, float(arrays["nms_radius"]),
-                       float(arrays.get("threshold", -np.inf)), float(arrays.get("min_fraction", 0.0)))
+    try:
+        k = sum(1 for name in arrays if name.startswith("w"))
+        weights = tuple(arrays[f"w{i}"].astype(np.float32) for i in range(k))
+        biases = tuple(arrays[f"b{i}"].astype(np.float32) for i in range(k))
+        model = GeoKeyModel(arrays["mean"].astype(np.float32), arrays["std"].astype(np.float32),
+                            arrays["linear"].astype(np.float32), weights, biases, float(arrays["nms_radius"]),
+                            float(arrays.get("threshold", -np.inf)), float(arrays.get("min_fraction", 0.0)))
+        shapes = (model.mean.shape, model.std.shape, model.linear.shape)
+        if shapes != ((len(CUE_NAMES),),) * 2 + ((len(IMAGE_CUES),),):
+            raise ValueError(f"mean, std, linear of shapes {shapes}")
+        if model.weights and model.weights[-1].shape[-1:] != (1,):
+            raise ValueError(f"the depth-cue layers end in {model.weights[-1].shape[-1:]} values, not one logit")
+        model.score(np.zeros((1, len(CUE_NAMES)), np.float32))  # the layers chain (a ValueError otherwise)
+    except (KeyError, TypeError, ValueError) as error:  # a missing array, or arrays of the wrong shapes
+        raise ValueError(f"detector weights: {path} is not a complete GeoKey weights file ({error})") from None
+    return model
 
 
 @dataclass

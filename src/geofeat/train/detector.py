@@ -290,10 +290,7 @@ def choose_model(models: dict[str, GeoKeyModel], folders: list[Path], counts: tu
     radius): {count: validation_scores}}, label = the scorer's name, plus ", level 1 <bias>" for the
     second stage and ", threshold <t>" for the third, and the chosen (label, radius).
     """
-    if isinstance(counts, int):
-        counts = (counts,)
-    if not counts or any(int(n) <= 0 for n in counts):
-        raise ValueError(f"keypoints: expected positive counts, got {counts}")
+    counts = check_counts(counts)
     results: dict = {}
     candidates_by_key: dict = {}
     models = {name: replace(m, threshold=-np.inf, min_fraction=0.0) for name, m in models.items()}  # no rule yet
@@ -338,6 +335,15 @@ def choose_model(models: dict[str, GeoKeyModel], folders: list[Path], counts: tu
     return best, results, chosen
 
 
+def check_counts(counts: int | tuple[int, ...]) -> tuple[int, ...]:
+    """Validation keypoint counts as a tuple: one or more positive whole numbers."""
+    if isinstance(counts, int):
+        counts = (counts,)
+    if not counts or any(isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n <= 0 for n in counts):
+        raise ValueError(f"keypoints: expected positive counts, got {counts}")
+    return tuple(counts)
+
+
 #: The key of SIFT's own validation figures in `choose_model`'s results.
 SIFT_KEY = ("SIFT (reference)", 0.0)
 
@@ -369,18 +375,32 @@ def mean_ms(per_count: dict) -> float:
 
 def train_detector(data, val, out: str | Path, n: int | tuple[int, ...] = VALIDATION_COUNTS, hidden: tuple[int, ...] = (32, 32),
                    steps: int = 3000, seed: int = 0, labels: str = "repeatable",
-                   radii: tuple[float, ...] = NMS_CHOICES, progress: bool = True) -> tuple[GeoKeyModel, dict, tuple]:
+                   radii: tuple[float, ...] = NMS_CHOICES, progress: bool = True,
+                   overwrite: bool = False) -> tuple[GeoKeyModel, dict, tuple]:
     """Collect candidates from `data`, fit two scorers (image cues only, and image + depth cues),
     choose the scorer, the suppression radius, the level-1 bias and the score threshold on `val` by
     GeoPatch's matching score (mean over the keypoint counts `n`; `choose_model`), and write the
-    weights to `out`. Returns the model, the validation figures per (scorer, radius) and count, and
-    the chosen (scorer, radius) key."""
+    weights to `out` (written whole or not at all; an existing file only with `overwrite`). The
+    options are checked before any work. Returns the model, the validation figures per (scorer,
+    radius) and count, and the chosen (scorer, radius) key."""
+    from ..outputs import atomic_file, check_out_file
+
+    out = check_out_file(out, overwrite)
+    n = check_counts(n)
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+        raise ValueError(f"steps: expected a positive number of Adam steps, got {steps!r}")
+    if hidden is not None and (not hidden or any(int(h) < 1 for h in hidden)):
+        raise ValueError(f"hidden: expected positive layer widths, got {hidden!r}")
     train_folders = find_sequences(data)
     val_folders = find_sequences(val)
     if not train_folders:
         raise ValueError(f"data: no sequences under {data}")
     if not val_folders:
         raise ValueError(f"val: no sequences under {val}")
+    for what, folders in (("data", train_folders), ("val", val_folders)):  # before training, not after
+        for folder in folders:
+            if not read_sequence(folder).has_ground_truth():
+                raise ValueError(f"{what}: {folder} has no simulator ground truth (geofeat simulate writes it)")
     x, y = collect(train_folders, labels, progress=progress)
     if progress:
         tqdm.write(f"train-detector: {len(x)} candidates from {len(train_folders)} sequences, "
@@ -388,5 +408,6 @@ def train_detector(data, val, out: str | Path, n: int | tuple[int, ...] = VALIDA
     models = {"image cues": fit(x, y, hidden=None, steps=steps, seed=seed, progress=progress),
               "image + depth cues": fit(x, y, hidden=hidden, steps=steps, seed=seed, progress=progress)}
     model, results, chosen = choose_model(models, val_folders, n, radii, progress=progress)
-    model.save(out)
+    with atomic_file(out) as tmp:
+        model.save(tmp)
     return model, results, chosen
