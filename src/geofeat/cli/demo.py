@@ -130,11 +130,10 @@ DEMO_PICTURES = ("polar_patches.png", "rolled_pair_matches.png", "simulated_pair
 def _check_demo_folder(out: Path) -> None:
     """The demo reruns into its own folder freely, but never replaces a picture of the same name that
     geofeat did not write there (one not in the folder's manifest)."""
-    from ..outputs import check_out_dir, read_manifest
+    from ..outputs import check_out_dir, foreign_clashes
 
     check_out_dir(out, overwrite=True)  # not a file, not under a file
-    ours = set(read_manifest(out))
-    theirs = [name for name in DEMO_PICTURES if (out / name).exists() and name not in ours]
+    theirs = foreign_clashes(out, DEMO_PICTURES)
     if theirs:
         raise ValueError(f"--out: {out} already holds {', '.join(theirs)}, which geofeat did not write; "
                          "choose another folder")
