@@ -142,6 +142,17 @@ def test_mismatched_descriptors_raise():
         match(np.zeros((2, 8), np.uint8), np.zeros((2, 8), np.uint8), ratio=1.5)
 
 
+def test_nan_descriptors_at_valid_keypoints_raise_but_invalid_ones_are_ignored():
+    d = np.random.default_rng(0).normal(size=(4, 8)).astype(np.float32)
+    bad = d.copy()
+    bad[2, 3] = np.nan
+    with pytest.raises(ValueError, match=r"features1 has NaN.*\[2\]"):
+        match(d, bad)
+    valid = np.array([True, True, False, True])  # a NaN row marked invalid is not looked at
+    m = match(d, Features(np.zeros((4, 2)), bad, valid)).matches0
+    assert m[[0, 1, 3]].tolist() == [0, 1, 3] and m[2] in (0, 1, 3)
+
+
 @pytest.mark.parametrize("mutual", [False, True])
 @pytest.mark.parametrize("ratio", [None, 0.9])
 @pytest.mark.parametrize("n_rot", [3, 16])

@@ -890,6 +890,11 @@ def match(
             raise ValueError(f"descriptors: metric 'l2' expects (N, D) arrays, got shape {d0.shape}")
         if d0.dtype.kind not in "fiu" or d1.dtype.kind not in "fiu":
             raise TypeError(f"descriptors: metric 'l2' expects numeric arrays, got {d0.dtype} and {d1.dtype}")
+        for d, valid, name in ((d0, valid0, "features0"), (d1, valid1, "features1")):
+            if d.dtype.kind == "f" and not np.isfinite(d[valid]).all():  # NaN would match nothing, or anything
+                bad = np.flatnonzero(valid & ~np.isfinite(d).all(axis=1))
+                raise ValueError(f"descriptors: {name} has NaN or infinite values at valid keypoints "
+                                 f"{bad[:5].tolist()}{' ...' if len(bad) > 5 else ''}; mark them invalid or drop them")
     else:
         if d0.dtype != np.uint8 or d1.dtype != np.uint8:
             raise TypeError(
