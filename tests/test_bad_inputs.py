@@ -672,6 +672,64 @@ def train_detector_over_user_file(tmp):
     return _train_detector(tmp)
 
 
+# ---------------------------------------------------------------- audit of groundtruth
+def _gt_three(tmp):
+    return make_sequence(tmp / "seq", names=("frame-000-master", "frame-001", "frame-002"))
+
+
+def groundtruth_target_without_depth(tmp):
+    seq = _gt_three(tmp)
+    cv2.imwrite(str(seq / "frame-001-depth.png"), np.zeros((H, W), np.uint16))
+    return _gt(tmp, seq=seq)
+
+
+def groundtruth_target_of_another_size(tmp):
+    """A target frame at half the reference's size: its landmarks lie on the reference's image."""
+    seq = _gt_three(tmp)
+    write_frame(seq, "frame-001", np.zeros((H // 2, W // 2, 3), np.uint8), np.ones((H // 2, W // 2)))
+    return _gt(tmp, seq=seq)
+
+
+def _gt_other_frames_written(tmp):
+    import csv
+
+    out = tmp / "gt" / "seq"
+    assert (out / "frame-002_theta.npy").is_file() and not (out / "frame-001_theta.npy").exists()
+    rows = {r["frame"]: r["status"] for r in csv.DictReader(open(out / "report.csv"))}
+    assert rows == {"frame-001": "failed", "frame-002": "ok"}
+
+
+def groundtruth_reference_without_depth(tmp):
+    seq = _seq(tmp)
+    cv2.imwrite(str(seq / "frame-000-master-depth.png"), np.zeros((H, W), np.uint16))
+    return _gt(tmp, seq=seq)
+
+
+def _groundtruth_second_sequence(breakage: Callable[[Path], None]) -> Callable[[Path], list[str]]:
+    """Two sequences, the second one bad: refused before the first is worked on."""
+    def setup(tmp):
+        make_sequence(tmp / "data" / "a")
+        breakage(make_sequence(tmp / "data" / "b", names=("frame-000-master", "frame-001")))
+        return ["groundtruth", str(tmp / "data"), "--out", str(tmp / "gt"), "--no-progress", "--no-refine"]
+
+    return setup
+
+
+def _single_frame(seq: Path) -> None:
+    for suffix in ("-rgb.png", "-depth.png", ".csv"):
+        (seq / f"frame-001{suffix}").unlink()
+
+
+def _nothing_in_gt(tmp):
+    assert not (tmp / "gt" / "a").exists()
+
+
+def groundtruth_binary_csv(tmp):
+    seq = _seq(tmp)
+    (seq / "frame-001.csv").write_bytes(b"\xff\xfe\x00 not text")
+    return _gt(tmp, seq=seq)
+
+
 CASES = [
     # data loss (issue)
     Case("simulate-overwrite-user-files", simulate_over_user_files, 2, "did not write",
@@ -799,6 +857,19 @@ CASES = [
          None, _no_training),
     Case("train-detector-val-without-ground-truth", lambda t: _train_detector(t, val=_seq(t)), 2,
          "val: .*no simulator ground truth", None, _no_training),
+    # audit of groundtruth
+    Case("groundtruth-target-without-depth", groundtruth_target_without_depth, 1,
+         "FAILED frame frame-001: .*every pixel is 0", _gt_other_frames_written),
+    Case("groundtruth-target-of-another-size", groundtruth_target_of_another_size, 1,
+         "FAILED frame frame-001: .*80x60.*160x120", _gt_other_frames_written),
+    Case("groundtruth-reference-without-depth", groundtruth_reference_without_depth, 2,
+         "reference frame frame-000-master cannot be used.*every pixel is 0"),
+    Case("groundtruth-second-sequence-single-frame", _groundtruth_second_sequence(_single_frame), 2,
+         "sequence b: needs a reference", _nothing_in_gt),
+    Case("groundtruth-second-sequence-missing-csv",
+         _groundtruth_second_sequence(lambda s: (s / "frame-001.csv").unlink()), 2,
+         "sequence b: frame frame-001 has no landmark csv", _nothing_in_gt),
+    Case("groundtruth-landmark-csv-not-text", groundtruth_binary_csv, 2, "frame-001.csv: not a text"),
 ]
 
 

@@ -117,8 +117,12 @@ def read_landmarks(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
         ids (N,) int64, xy (N, 2) float64 pixels, visible (N,) bool (valid flag set and x, y >= 0).
     """
     path = _existing(path, "landmarks")
+    try:
+        text = Path(path).read_text()
+    except UnicodeDecodeError:
+        raise ValueError(f"landmarks: {path}: not a text csv ('id, x, y, valid' after one header line)") from None
     rows = []
-    for line in Path(path).read_text().splitlines()[1:]:
+    for line in text.splitlines()[1:]:
         tokens = [t for t in re.split(r"[,\s]+", line.strip()) if t]
         if not tokens:
             continue

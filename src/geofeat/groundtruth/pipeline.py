@@ -12,7 +12,8 @@ Output folder (one per sequence, read by `geofeat bench --tps-dir`):
                             checkerboard of frame k and the warped reference,
     `report.csv`, `report.json`  per frame: status, landmarks (used, rejected, residuals), SSIM before and
                             after refinement, photometric cost, control points, seconds.
-A frame that fails (too few landmarks, refinement diverged) gets no TPS files and status `failed` with
+A frame that fails (too few landmarks, unreadable, another size than the reference, refinement
+diverged) gets no TPS files and status `failed` with
 the reason; the others are written.
 """
 
@@ -246,7 +247,15 @@ def _frame(seq: Sequence, name: str, ref: RGBDFrame, ref_mask: np.ndarray, lms: 
         rep.status, rep.reason = "failed", f"{len(common)} landmarks visible in both frames, a spline needs >= {MIN_LANDMARKS}"
         return rep
     p_ref, p_tgt = xy_r[vis_r][ir], xy_t[vis_t][it]
-    tgt = seq.frame(name)
+    try:
+        tgt = seq.frame(name)
+    except ValueError as error:  # unreadable colour, no usable depth: this frame fails, the others go on
+        rep.status, rep.reason = "failed", f"the frame cannot be read ({' '.join(str(error).split())})"
+        return rep
+    if tgt.shape != ref.shape:  # the spline and the landmark check assume the reference's image size
+        rep.status, rep.reason = "failed", (f"the frame is {tgt.shape[1]}x{tgt.shape[0]}, the reference "
+                                            f"{ref.shape[1]}x{ref.shape[0]}")
+        return rep
     size = (ref.shape[1], ref.shape[0])
     try:
         fit = robust_landmark_tps(p_ref, p_tgt, size)
@@ -344,23 +353,16 @@ def generate_ground_truth(sequence: str | Path | Sequence, out: str | Path, conf
     Returns:
         one FrameReport per target frame (also in out/report.csv and out/report.json).
     Raises:
-        ValueError: bad landmark files (missing, repeated ids, visible rows off the image, ids unknown
-            to the reference, fewer than 4 visible in the reference), bad settings, an existing output.
+        ValueError: `check_sequence` (a single frame, an unreadable reference, bad landmark files:
+            missing, repeated ids, visible rows off the image, ids unknown to the reference, fewer than 4
+            visible in the reference), bad settings, an existing output. A target frame that cannot be
+            read or differs from the reference in size is a failed frame, not an error.
     """
     config = config or GroundTruthConfig()
     check_config(config)
     seq = sequence if isinstance(sequence, Sequence) else read_sequence(sequence)
-    if len(seq) < 2:
-        raise ValueError(f"sequence {seq.name}: needs a reference and at least one target frame")
-    ref = seq.frame(seq.reference)
-    check_config(config, ref.shape)
-    lms = _valid_landmarks(seq, ref.shape)
+    ref, lms, ref_mask = check_sequence(seq, config)
     out = check_out_dir(out, overwrite)
-    ids_r, xy_r, vis_r = lms[seq.reference]
-    ref_mask = reference_mask(ref, xy_r[vis_r], config.margin_px, config.depth_margin_m)
-    if not ref_mask.any():
-        raise ValueError(f"sequence {seq.name}: the reference object mask is empty (landmarks without depth in "
-                         f"range, or --margin {config.margin_px:g} too small)")
     names = seq.targets
     if progress:
         from tqdm import tqdm
@@ -371,6 +373,28 @@ def generate_ground_truth(sequence: str | Path | Sequence, out: str | Path, conf
         reports = [_frame(seq, name, ref, ref_mask, lms, config, tmp) for name in names]
         _write_report(tmp, seq, config, reports)
     return reports
+
+
+def check_sequence(seq: Sequence, config: GroundTruthConfig) -> tuple[RGBDFrame, dict, np.ndarray]:
+    """Every input check of one sequence, before any work: a reference and at least one target, a
+    usable reference frame, settings that fit its size, valid landmark files (`_valid_landmarks`) and
+    a non-empty reference object mask. Returns (reference frame, {frame: (ids, xy, visible)}, mask);
+    ValueError naming the sequence (or file) otherwise."""
+    if len(seq) < 2:
+        raise ValueError(f"sequence {seq.name}: needs a reference and at least one target frame")
+    try:
+        ref = seq.frame(seq.reference)
+    except ValueError as error:
+        raise ValueError(f"sequence {seq.name}: the reference frame {seq.reference} cannot be used "
+                         f"({' '.join(str(error).split())})") from None
+    check_config(config, ref.shape)
+    lms = _valid_landmarks(seq, ref.shape)
+    ids_r, xy_r, vis_r = lms[seq.reference]
+    ref_mask = reference_mask(ref, xy_r[vis_r], config.margin_px, config.depth_margin_m)
+    if not ref_mask.any():
+        raise ValueError(f"sequence {seq.name}: the reference object mask is empty (landmarks without depth in "
+                         f"range, or --margin {config.margin_px:g} too small)")
+    return ref, lms, ref_mask
 
 
 def check_config(config: GroundTruthConfig, shape: tuple[int, int] | None = None) -> None:
