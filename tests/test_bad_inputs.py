@@ -730,6 +730,23 @@ def groundtruth_binary_csv(tmp):
     return _gt(tmp, seq=seq)
 
 
+def bench_timing_json_radius(tmp):
+    """`bench --timing` times f(.) at the sequence's radius (geofeat.json), as the scores use it."""
+    seq = _seq(tmp)
+    (seq / "geofeat.json").write_text(json.dumps({"radius": 0.04}))
+    return _bench_args(tmp, seq, extra=["--timing"])
+
+
+def _record_timing_radius(monkeypatch):
+    from geofeat.bench import timing
+
+    monkeypatch.setattr(timing, "timing_table", lambda frame, descriptors, radius, **kw: f"timing at radius {radius:g}\n")
+
+
+def _timed_at_json_radius(tmp):
+    assert (tmp / "b" / "timing.md").read_text() == "timing at radius 0.04\n"
+
+
 CASES = [
     # data loss (issue)
     Case("simulate-overwrite-user-files", simulate_over_user_files, 2, "did not write",
@@ -870,6 +887,9 @@ CASES = [
          _groundtruth_second_sequence(lambda s: (s / "frame-001.csv").unlink()), 2,
          "sequence b: frame frame-001 has no landmark csv", _nothing_in_gt),
     Case("groundtruth-landmark-csv-not-text", groundtruth_binary_csv, 2, "frame-001.csv: not a text"),
+    # audit of the docs: the one radius rule in every command
+    Case("bench-timing-honours-json-radius", bench_timing_json_radius, 0, "", _timed_at_json_radius,
+         _record_timing_radius),
 ]
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..constants import DEFAULT_RADIUS_M, N_KEYPOINTS
+from ..constants import N_KEYPOINTS
 from ..descriptors import available_descriptors
 from ..keypoints import KEYPOINT_SETS
 from .options import depth_profile_option, detector_option, keypoint_count, keypoint_set_for, names
@@ -45,6 +45,7 @@ def run(args: argparse.Namespace) -> int:
     from ..bench.runner import BenchConfig, run_benchmark
     from ..bench.timing import timing_table
     from ..depth import sequence_depth_profile
+    from ..inputs import resolve_radius
     from ..io import find_sequences, read_sequence
     from ..outputs import add_to_manifest, atomic_file
 
@@ -76,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {path}")
     if args.timing:
         seq = read_sequence(find_sequences(args.datasets)[0], depth_scale=args.depth_scale)
-        timing = timing_table(seq.frame(seq.reference), config.descriptors, args.radius or DEFAULT_RADIUS_M,
+        timing = timing_table(seq.frame(seq.reference), config.descriptors, resolve_radius(args.radius, seq),
                               depth_profile=sequence_depth_profile(seq, args.depth_profile))
         write(out / "timing.md", timing)
         print(timing)

@@ -11,7 +11,7 @@ from .options import frames_options, resolve_detection
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add `extract` to an argparse subparsers object; returns its parser."""
-    p = subparsers.add_parser("extract", help="detect SIFT keypoints and describe every frame of a sequence")
+    p = subparsers.add_parser("extract", help="detect keypoints and describe every frame of a sequence")
     frames_options(p)
     p.add_argument("--out", required=True, help="features file (.h5 or .npz) or folder")
     p.add_argument("--overwrite", action="store_true", help="replace an existing features file")

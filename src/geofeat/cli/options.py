@@ -87,7 +87,7 @@ def frames_options(p: argparse.ArgumentParser) -> None:
                    help="SIFT keypoints only. unique: one keypoint per position (default); protocol: SIFT's "
                         "strongest as OpenCV returns them")
     depth_profile_option(p, None)
-    p.add_argument("--radius", type=float, default=None, help="geodesic radius, metres (default 0.075)")
+    p.add_argument("--radius", type=float, default=None, help="geodesic radius, metres (default: geofeat.json or 0.075)")
     p.add_argument("--depth-scale", type=float, default=None,
                    help=f"metres per depth-PNG unit (default: geofeat.json or {DEPTH_SCALE_M})")
 
