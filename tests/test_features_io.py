@@ -83,3 +83,29 @@ def test_bad_inputs():
         Features(np.zeros((3, 2)), np.zeros((3, 8), np.uint8), np.ones(2, bool))
     with pytest.raises(ValueError, match=".npz or .h5"):
         save_features("x.txt", make_features())
+
+
+def test_npz_names_in_upper_case_round_trip(tmp_path):
+    """np.savez appends ".npz" to a name that does not end so in lower case: "A.NPZ" was written as
+    "A.NPZ.npz", and loading "A.NPZ" failed."""
+    f, m = make_features(), Matches([1, -1, 0], [0.5, np.inf, 2.0])
+    save_features(tmp_path / "A.NPZ", f)
+    save_matches(tmp_path / "M.Npz", m)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["A.NPZ", "M.Npz"]
+    assert_same(load_features(tmp_path / "A.NPZ"), f)
+    assert load_matches(tmp_path / "M.Npz").matches0.tolist() == [1, -1, 0]
+
+
+def test_h5_nested_names_are_kept_and_folders_are_not_images(tmp_path):
+    path = tmp_path / "f.h5"
+    a, ab = make_features(seed=1), make_features(n=4, seed=2)
+    save_features(path, ab, "a/b.png")
+    save_features(path, a, "a")  # replaced "a" whole, deleting the other image "a/b.png"
+    save_features(path, a, "a")  # and again: only a's own datasets are replaced
+    assert_same(load_features(path, "a"), a, kp_tol=1e-4)  # a's datasets only, not the group "b.png" in it
+    assert_same(load_features(path, "a/b.png"), ab, kp_tol=1e-4)
+    save_features(tmp_path / "g.h5", a, "seq/img.png")
+    with pytest.raises(KeyError, match="no group 'seq'.*seq/img.png"):  # was h5py's "Accessing a group is done with..."
+        load_features(tmp_path / "g.h5", "seq")
+    save_features(path, a, 7)  # a name that is not a string is stored under str(name) and loads back by it
+    assert_same(load_features(path, 7), a, kp_tol=1e-4)

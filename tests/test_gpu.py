@@ -12,6 +12,8 @@ descriptors 1e-4, matches identical.
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 import pytest
 import torch
@@ -120,6 +122,21 @@ def test_cuda_requests_fail_clearly_without_gpu(pair):
         frame_mesh(frame, device="gpu")
     with pytest.raises(RuntimeError, match="CUDA"):
         frame_mesh(frame, device="cuda")
+
+
+@pytest.mark.skipif(CUDA, reason="checks the error without a GPU")
+def test_torch_devices_fail_clearly_without_gpu():
+    """GeoPatch's network and match(device=...) on a CUDA device without a GPU: the same RuntimeError
+    as extract's (torch's own is "AssertionError: Torch not compiled with CUDA enabled"); a device
+    name torch does not know is a ValueError naming `device`."""
+    d = np.random.default_rng(0).standard_normal((4, 8)).astype(np.float32)
+    for call in (partial(GeoPatch, device="cuda", backend="torch"), partial(match, d, d, device="cuda:0")):
+        with pytest.raises(RuntimeError, match="no CUDA GPU is available"):
+            call()
+    for call in (partial(GeoPatch, device="tpu", backend="torch"), partial(match, d, d, device="tpu")):
+        with pytest.raises(ValueError, match="device: expected"):
+            call()
+    assert match(d, d, device="cpu").matches0.tolist() == [0, 1, 2, 3]
 
 
 @pytest.mark.skipif(not CUDA, reason="no CUDA GPU")

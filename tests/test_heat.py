@@ -207,3 +207,14 @@ def test_arguments(texture):
         HeatGeodesics(mesh, boundary_mix=2.0)
     H = HeatGeodesics(mesh)
     assert np.isnan(H.distance((-5.0, 3.0))).all()
+
+
+def test_a_mesh_of_another_frame_size_is_refused():
+    from surfaces import plane_frame
+
+    frame = plane_frame((120, 160))
+    other = geofeat.build_mesh(frame.rotated90(1), DepthConfig(fill="none", smooth_levels=0))
+    with pytest.raises(ValueError, match="mesh: built for a"):  # gave patches of the other frame's surface
+        heat_polar_patches(frame, [[80.0, 60.0]], radius=0.02, mesh=other)
+    with pytest.raises(ValueError, match="mesh: built for a"):
+        heat_polar_patches(frame, [[80.0, 60.0]], radius=0.02, solver=HeatGeodesics(other))

@@ -148,3 +148,15 @@ def test_extract_and_match_pick_geokey_for_geodesic_descriptors_and_sift_for_the
     frame = geofeat.read_demo_frame()
     orb = geofeat.extract(frame, 64, descriptor="orb")
     np.testing.assert_array_equal(orb.keypoints, geofeat.detect(frame, 64, detector="sift").xy)
+
+
+def test_keypoints_fields_must_have_one_entry_per_keypoint():
+    with pytest.raises(ValueError, match=r"angles: expected shape \(3,\) like xy"):
+        Keypoints(np.zeros((3, 2)), np.zeros(2), np.zeros(3), np.zeros(3))  # to_cv dropped the third keypoint
+    with pytest.raises(ValueError, match="xy: expected shape"):
+        Keypoints(np.zeros((3, 3)), np.zeros(3), np.zeros(3), np.zeros(3))
+    kps = Keypoints([[1, 2], [3, 4]], [0, 90], [8, 8], [1, 0.5])  # lists: float64 arrays (was an AttributeError)
+    assert kps.xy.dtype == np.float64 and len(kps.to_cv()) == 2
+    kps.angles = np.zeros(5)  # replaced after construction
+    with pytest.raises(ValueError, match="keypoints: angles must have one entry per keypoint"):
+        geofeat.as_keypoints(kps)

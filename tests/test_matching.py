@@ -330,3 +330,26 @@ def test_l2_search_in_blocks_equals_brute_force():
             m, dist = reference_match(f0, f1, "l2", mutual=mutual, ratio=ratio)
             assert np.array_equal(got.matches0, m), (dtype, mutual, ratio)
             assert np.allclose(got.distances0[m >= 0], dist[m >= 0], rtol=1e-6)
+
+
+def test_features_whose_fields_disagree_are_refused_by_name():
+    rng = np.random.default_rng(0)
+    f0 = Features(np.zeros((6, 2)), rng.standard_normal((6, 8)).astype(np.float32), None)
+    f1 = Features(np.zeros((7, 2)), rng.standard_normal((7, 8)).astype(np.float32), None)
+    f0.valid = np.ones(3, bool)  # replaced after construction: numpy's "boolean index did not match"
+    with pytest.raises(ValueError, match="features0: keypoints, descriptors and valid"):
+        match(f0, f1)
+    f0.valid, f1.descriptors = np.ones(6, bool), f1.descriptors[:4]
+    with pytest.raises(ValueError, match="features1: keypoints, descriptors and valid"):
+        match(f0, f1)
+
+
+def test_float_and_binary_descriptors_are_not_matched_together():
+    rng = np.random.default_rng(0)
+    floats = rng.standard_normal((6, 32)).astype(np.float32)
+    bits = rng.integers(0, 256, (7, 32), dtype=np.uint8)
+    for a, b in ((floats, bits), (bits, floats)):  # float first was matched by L2 to the bytes
+        with pytest.raises(ValueError, match="different kinds"):
+            match(a, b)
+    assert len(match(floats, bits.astype(np.float32))) == 6  # float32 with float64/float32: one kind
+    assert len(match(floats, bits, metric="l2")) == 6  # asked for

@@ -318,3 +318,54 @@ def test_extract_prefetches_the_mesh_with_identical_results():
     plain = fresh()
     geofeat.extract(plain, n=50, detector="sift", descriptor="orb")
     assert not getattr(plain, _CACHE_ATTR, {})
+
+
+def test_rotated90_takes_integer_quarter_turns_only():
+    frame = plane_frame((120, 160))
+    assert frame.rotated90(np.int64(-3)).shape == frame.rotated90(1).shape == (160, 120)
+    for k in (1.5, 1.0, "1", None, True):  # 1.5 used to rotate by 270 degrees without a word
+        with pytest.raises(TypeError, match="k: expected an integer"):
+            frame.rotated90(k)
+
+
+def test_images_of_other_kinds_are_refused_by_name():
+    depth = np.ones((120, 160), np.float32)
+    with pytest.raises(TypeError, match="image: .*complex128"):  # was cast to its real part with a warning
+        geofeat.RGBDFrame(np.zeros((120, 160), complex), depth, K_VGA)
+    with pytest.raises(ValueError, match="image: empty"):  # was numpy's "zero-size array to reduction"
+        geofeat.RGBDFrame(np.zeros((0, 0), np.float32), np.zeros((0, 0), np.float32), K_VGA)
+    with pytest.raises(ValueError, match=r"image: int64 images must lie in \[0, 1\].*uint8"):  # not "float images"
+        geofeat.RGBDFrame(np.full((120, 160), 200, np.int64), depth, K_VGA)
+
+
+@pytest.mark.parametrize("kwargs, name", [
+    (dict(n_angles=16.5), "n_angles"),  # gave 16 columns without a word
+    (dict(n_rings=8.7), "n_rings"),
+    (dict(n_angles=True), "n_angles"),
+    (dict(radius="0.05"), "radius"),  # numpy's "ufunc 'isfinite' not supported"
+    (dict(radius=None), "radius"),
+])
+def test_patch_sizes_are_integers_and_the_radius_a_number(kwargs, name):
+    frame = plane_frame((120, 160))
+    with pytest.raises(ValueError, match=f"^{name}: "):
+        geofeat.polar_patches(frame, np.array([[80.0, 60.0]]), depth_config=CLEAN, **kwargs)
+
+
+def test_numpy_scalars_are_patch_sizes_and_radii():
+    frame = plane_frame((120, 160))
+    p = geofeat.polar_patches(frame, np.array([[80.0, 60.0]]), radius=np.float32(0.02), n_angles=np.int64(8),
+                              n_rings=4, depth_config=CLEAN)
+    assert p.values.shape == (1, 4, 8) and p.valid.all()
+
+
+@pytest.mark.parametrize("name", ["geobit", "geopatch"])
+def test_descriptors_refuse_patches_of_other_keypoints(name):
+    frame = plane_frame((120, 160))
+    kp = np.array([[60.0, 50.0], [80.0, 60.0], [100.0, 70.0]])
+    describer = geofeat.make_descriptor(name, radius=0.02, depth_config=CLEAN)
+    patches = geofeat.polar_patches(frame, kp, radius=0.02, depth_config=CLEAN)
+    assert np.array_equal(describer.compute(frame, kp, patches=patches).keypoints, kp)
+    with pytest.raises(ValueError, match="patches: computed for other keypoints"):  # the same count, reversed
+        describer.compute(frame, kp[::-1], patches=patches)
+    with pytest.raises(TypeError, match="patches: expected PolarPatches"):
+        describer.compute(frame, kp[:1], patches="x")

@@ -92,3 +92,27 @@ def test_hartley_transform():
     p = xy @ T[:2, :2].T + T[:2, 2]
     np.testing.assert_allclose(p.mean(axis=0), 0, atol=1e-12)
     assert np.linalg.norm(p, axis=1).mean() == pytest.approx(np.sqrt(2))
+
+
+def test_spline_maps_points_of_shape_m_by_2_only():
+    rng = np.random.default_rng(0)
+    src = rng.uniform(0, 100, (12, 2))
+    tps = fit_tps(src, src + rng.normal(0, 1, src.shape))
+    grid = rng.uniform(0, 100, (3, 4, 2))
+    assert np.array_equal(tps(grid), tps(grid.reshape(-1, 2)))  # any (..., 2) array is M points
+    for xy in (np.ones((4, 3)), src[:3].T, np.float64(3.0)):  # (4, 3) was read as 6 points, (2, 3) as 3
+        with pytest.raises(ValueError, match=r"xy: expected \(M, 2\)"):
+            tps(xy)
+
+
+def test_fit_refuses_negative_smoothing_and_bad_sizes():
+    rng = np.random.default_rng(0)
+    src = rng.uniform(0, 100, (12, 2))
+    dst = src + rng.normal(0, 1, src.shape)
+    for value in (-1.0, np.nan, "1"):  # -1 gave a spline that neither interpolates nor smooths
+        with pytest.raises(ValueError, match="regularisation: expected a number >= 0"):
+            fit_tps(src, dst, regularisation=value)
+    for size in ((0, 480), (640,), (640, 480, 3), (-640, 480)):  # ZeroDivisionError, unpacking errors
+        with pytest.raises(ValueError, match=r"size: expected the image size \(W, H\)"):
+            fit_tps(src, dst, normalisation="size", size=size)
+    assert np.allclose(fit_tps(src, dst, regularisation=np.float32(0))(src), dst)

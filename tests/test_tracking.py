@@ -334,3 +334,15 @@ def test_tracking_table_counts_a_failed_frame_as_lost_not_as_missing():
     assert per_sequence[0] == "| sequence | fails | poor | lost |"
     assert per_sequence[2] == "| s | 0.50 | 30.00 | lost |" and per_sequence[3] == "| t | – | 2.00 | – |"
     assert sequence_error_table([row("x", "nan")]) == ""  # no simulator truth: no table
+
+
+def test_ransac_arguments_are_checked_before_any_work():
+    src, dst, _ = matches_with_outliers(40, 0.2, seed=0)
+    with pytest.raises(TypeError, match="sample_size: expected an integer"):  # "slice indices must be integers"
+        fit_tps_ransac(src, dst, sample_size=5.5)
+    with pytest.raises(TypeError, match="iterations: expected an integer"):
+        fit_tps_ransac(src, dst, iterations=100.5)
+    with pytest.raises(ValueError, match="regularisation: expected a number >= 0"):  # was used as given
+        fit_tps_ransac(src, dst, regularisation=-1.0)
+    # a numpy threshold is a number (was "threshold_px: expected a positive number, got np.float32(3.0)")
+    assert fit_tps_ransac(src, dst, threshold_px=np.float32(3.0)).warp is not None

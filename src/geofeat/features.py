@@ -122,9 +122,9 @@ def _h5_write_group(path: str | Path, name: str, arrays: dict[str, np.ndarray]) 
     import h5py
 
     with h5py.File(str(path), "a") as fd:
-        if name in fd:
-            del fd[name]
-        grp = fd.create_group(name)
+        grp = fd.require_group(name)
+        for key in [k for k, v in grp.items() if isinstance(v, h5py.Dataset)]:
+            del grp[key]  # the datasets of `name` only: a nested name ("name/other") is another image's group
         for key, value in arrays.items():
             grp.create_dataset(key, data=value)
 
@@ -142,9 +142,13 @@ def _h5_read_group(path: str | Path, name: str | None) -> dict[str, np.ndarray]:
                     f"name: {str(path)!r} holds {len(names)} groups; pass one of them, e.g. {names[:3]}"
                 )
             name = names[0]
-        if name not in fd:
-            raise KeyError(f"name: no group {name!r} in {str(path)!r}")
-        return {key: np.asarray(ds[()]) for key, ds in fd[name].items()}
+        name = str(name)
+        group = fd.get(name)
+        arrays = {} if not isinstance(group, h5py.Group) else \
+            {key: np.asarray(ds[()]) for key, ds in group.items() if isinstance(ds, h5py.Dataset)}
+        if not arrays:  # missing, a dataset, or a folder of other names ("dir" of "dir/img.png")
+            raise KeyError(f"name: no group {name!r} in {str(path)!r}; it holds {_h5_leaf_groups(fd)[:5]}")
+        return arrays
 
 
 def _h5_leaf_groups(fd) -> list[str]:
@@ -183,9 +187,16 @@ def save_features(path: str | Path, features: Features, name: str | None = None)
     if features.sizes is not None:
         arrays["sizes"] = features.sizes
     if _suffix(path) == ".npz":
-        np.savez(str(path), **arrays)
+        _write_npz(path, arrays)
     else:
         _h5_write_group(path, _require_name(name, path), arrays)
+
+
+def _write_npz(path: str | Path, arrays: dict[str, np.ndarray]) -> None:
+    """`np.savez` to exactly `path` (given a name, numpy appends ".npz" unless it ends so, in lower case:
+    "A.NPZ" became "A.NPZ.npz", which `load_*("A.NPZ")` did not find)."""
+    with open(path, "wb") as fh:
+        np.savez(fh, **arrays)
 
 
 def _features_from(arrays: dict[str, np.ndarray]) -> Features:
@@ -216,7 +227,7 @@ def save_matches(path: str | Path, matches: Matches, name: str | None = None) ->
         raise TypeError(f"matches: expected a Matches record, got {type(matches).__name__}")
     arrays = {"matches0": matches.matches0.astype(np.int64), "distances": matches.distances0}
     if _suffix(path) == ".npz":
-        np.savez(str(path), **arrays)
+        _write_npz(path, arrays)
     else:
         _h5_write_group(path, _require_name(name, path), arrays)
 

@@ -14,6 +14,10 @@ from .inputs import check_focal_lengths
 def to_gray(image: np.ndarray) -> np.ndarray:
     """Convert an (H, W) or (H, W, 3) BGR image (uint8, uint16 or float in [0, 1]) to float32 gray in [0, 1]."""
     image = np.asarray(image)
+    if image.dtype.kind not in "biuf":
+        raise TypeError(f"image: expected uint8, uint16 or float values in [0, 1], got dtype {image.dtype}")
+    if image.size == 0:
+        raise ValueError(f"image: empty, shape {image.shape}")
     if image.ndim == 3 and image.shape[2] == 1:
         image = image[:, :, 0]
     if image.ndim == 3 and image.shape[2] == 3:
@@ -37,7 +41,8 @@ def to_gray(image: np.ndarray) -> np.ndarray:
         raise ValueError("image: contains NaN or infinite values")
     if gray.min() < 0 or gray.max() > 1.0 + 1e-6:
         raise ValueError(
-            f"image: float images must lie in [0, 1], got range [{gray.min():.3g}, {gray.max():.3g}]"
+            f"image: {image.dtype} images must lie in [0, 1], got range [{gray.min():.3g}, {gray.max():.3g}]"
+            " (pass 0-255 images as uint8, or divide by 255)"
         )
     return np.ascontiguousarray(gray, dtype=np.float32)
 
@@ -123,8 +128,11 @@ class RGBDFrame:
 
     def rotated90(self, k: int = 1) -> "RGBDFrame":
         """The same frame seen by a camera rolled by k * 90 degrees (image rotated counter-clockwise
-        as displayed), with intrinsics changed consistently. Used to test rotation invariance."""
-        k %= 4
+        as displayed), with intrinsics changed consistently. Used to test rotation invariance.
+        k: an integer number of quarter turns (any sign)."""
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
+            raise TypeError(f"k: expected an integer number of quarter turns, got {k!r}")
+        k = int(k) % 4
         H, W = self.shape
         K = self.K.copy()
         image = self.color if self.color is not None else self.image

@@ -58,6 +58,23 @@ def simulated() -> bool:
     return os.environ.get("NUMBA_ENABLE_CUDASIM", "0") not in ("", "0")
 
 
+def torch_device(device):
+    """The torch.device for `device` ("cpu", "cuda", "cuda:N" or a torch.device) for work that needs torch
+    only (the GeoPatch network, `match(..., device=...)`): ValueError for a name torch does not know,
+    and `require_cuda`'s RuntimeError for a CUDA device without a CUDA GPU (torch's own is an
+    AssertionError). The GPU walk needs `require_cuda`."""
+    import torch
+
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError):
+        raise ValueError(f"device: expected None, 'cpu' or 'cuda[:N]', got {device!r}") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise RuntimeError(f"device={str(device)!r}: no CUDA GPU is available to torch (torch {torch.__version__}, "
+                           f"built for CUDA {torch.version.cuda}); use device='cpu' or None")
+    return dev
+
+
 def require_cuda(device="cuda"):
     """The torch.device for `device`, or a RuntimeError saying what is missing: a CUDA build of
     torch with a visible GPU, and numba's CUDA target (built into numba <= 0.60, else the

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import numbers
 import re
 from pathlib import Path
 from typing import Any
@@ -29,7 +30,8 @@ CONFIG_KEYS = ("depth_scale", "depth_profile", "radius")
 
 
 def _positive_number(value: Any, what: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+    # numbers.Real: Python and numpy ints and floats (np.float32(3.0) is a number too); not bool
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) or value <= 0:
         raise ValueError(f"{what}: expected a positive number, got {value!r}")
     return float(value)
 

@@ -45,6 +45,21 @@ class Keypoints:
     sizes: np.ndarray
     responses: np.ndarray
 
+    def __post_init__(self) -> None:
+        """Fields as float64 arrays: xy (N, 2), the others (N,); ValueError naming the field otherwise
+        (a field of another length would pair keypoints with another keypoint's angle or size)."""
+        xy = np.asarray(self.xy, dtype=np.float64)
+        if xy.size == 0 and xy.ndim <= 2:
+            xy = xy.reshape(0, 2)
+        if xy.ndim != 2 or xy.shape[1] != 2:
+            raise ValueError(f"xy: expected shape (N, 2) of (x, y) pixels, got {xy.shape}")
+        self.xy = xy
+        for name in ("angles", "sizes", "responses"):
+            value = np.asarray(getattr(self, name), dtype=np.float64)
+            if value.shape != (len(xy),):
+                raise ValueError(f"{name}: expected shape ({len(xy)},) like xy, got {value.shape}")
+            setattr(self, name, value)
+
     def __len__(self) -> int:
         return int(self.xy.shape[0])
 
@@ -88,6 +103,11 @@ def as_keypoints(keypoints, shape: tuple[int, int] | None = None, allow_empty: b
     """
     if isinstance(keypoints, Keypoints):
         kps = keypoints
+        n = np.shape(kps.xy)[0] if np.ndim(kps.xy) else -1
+        bad = [name for name in ("angles", "sizes", "responses") if np.shape(getattr(kps, name)) != (n,)]
+        if bad:  # a field replaced after construction
+            raise ValueError(f"{what}: {', '.join(bad)} must have one entry per keypoint ({n}), got shapes "
+                             f"{[np.shape(getattr(kps, name)) for name in bad]}")
     elif isinstance(keypoints, (list, tuple)) and keypoints and all(isinstance(k, cv2.KeyPoint) for k in keypoints):
         kps = Keypoints.from_cv(list(keypoints))
     else:

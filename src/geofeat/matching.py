@@ -822,7 +822,11 @@ def _l2_search(d0, d1, valid0, valid1, want_cols, block: int = 1024):
 
 def _unpack(x, which: str) -> tuple[np.ndarray, np.ndarray]:
     if isinstance(x, Features):
-        return np.asarray(x.descriptors), np.asarray(x.valid, dtype=bool)
+        desc, valid = np.asarray(x.descriptors), np.asarray(x.valid, dtype=bool)
+        if len({np.shape(x.keypoints)[:1], desc.shape[:1], valid.shape}) > 1:  # fields replaced after construction
+            raise ValueError(f"{which}: keypoints, descriptors and valid must have one entry per keypoint, got "
+                             f"shapes {np.shape(x.keypoints)}, {desc.shape} and {valid.shape}")
+        return desc, valid
     if isinstance(x, np.ndarray):
         return x, np.ones(x.shape[0] if x.ndim else 0, bool)
     raise TypeError(f"{which}: expected a Features record or a descriptor array, got {type(x).__name__}")
@@ -880,6 +884,9 @@ def match(
         )
     if metric is None:
         metric = _default_metric(d0)
+        if _default_metric(d1) != metric:  # e.g. float GeoPatch against uint8 ORB: no common distance
+            raise ValueError(f"descriptors: features0 ({d0.dtype}) and features1 ({d1.dtype}) are of different kinds; "
+                             "match descriptors of one type, or pass metric=")
     if metric not in METRICS:
         raise ValueError(f"metric: expected one of {METRICS} or None, got {metric!r}")
     if ratio is not None and not (0 < ratio <= 1):
@@ -906,13 +913,16 @@ def match(
                 f"descriptors: metric {metric!r} expects shape "
                 f"{'(N, B)' if want == 2 else '(N, R, B)'}, got {d0.shape}"
             )
+    if device is not None:
+        from .gpu import torch_device
+
+        dev = torch_device(device)
     if n0 == 0 or n1 == 0:
         return Matches(np.full(n0, -1, np.int64), np.full(n0, np.inf))
 
     if metric == "l2" and device is not None:
         import torch
 
-        dev = torch.device(device)
         best_d, best_j, second_d, col_j = _l2_search_torch(
             *(torch.from_numpy(np.ascontiguousarray(x)).to(dev) for x in (d0, d1, valid0, valid1)), mutual)
     elif metric == "l2":

@@ -22,6 +22,7 @@ that the applications use for their own warps, not a source of ground truth.
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 from typing import Literal
 
@@ -29,7 +30,8 @@ import numpy as np
 
 __all__ = [
     "ThinPlateSpline", "fit_tps", "authors_tps", "hartley_transform", "size_transform", "normalise_points",
-    "check_pairs", "kernel", "system_matrix", "solve_batch", "evaluate_batch", "AUTHORS_EPS", "MIN_POINTS",
+    "check_pairs", "check_regularisation", "kernel", "system_matrix", "solve_batch", "evaluate_batch", "AUTHORS_EPS",
+    "MIN_POINTS",
 ]
 
 #: Kernel offset of the authors' splines: U(r) = r^2 log (r + 1e-6)^2 (the files hold weights of r^2 log(r + 1e-6)).
@@ -56,7 +58,10 @@ def hartley_transform(xy: np.ndarray) -> np.ndarray:
 
 def size_transform(size: tuple[float, float]) -> np.ndarray:
     """(3, 3) scaling of pixels by 1 / (W, H), the authors' normalisation; size = (W, H) pixels."""
-    w, h = (float(v) for v in size)
+    values = np.asarray(size, np.float64).reshape(-1)
+    if values.shape != (2,) or not (np.isfinite(values).all() and (values > 0).all()):
+        raise ValueError(f"size: expected the image size (W, H) in pixels, got {size!r}")
+    w, h = values
     return np.diag([1.0 / w, 1.0 / h, 1.0])
 
 
@@ -152,8 +157,11 @@ class ThinPlateSpline:
     eps: float = 0.0
 
     def __call__(self, xy: np.ndarray) -> np.ndarray:
-        """Map (M, 2) source pixels to (M, 2) destination pixels."""
-        xy = np.asarray(xy, np.float64).reshape(-1, 2)
+        """Map (M, 2) source pixels to (M, 2) destination pixels (any (..., 2) array is read as M points)."""
+        xy = np.asarray(xy, np.float64)
+        if xy.ndim == 0 or xy.shape[-1] != 2:  # reshaping an (M, 3) or (2, M) array would mix x and y
+            raise ValueError(f"xy: expected (M, 2) pixels (x, y), got shape {xy.shape}")
+        xy = xy.reshape(-1, 2)
         p = _apply(self.src_transform, xy)
         out = np.concatenate([np.ones((len(p), 1)), p], axis=1) @ self.affine
         c2 = (self.centres**2).sum(1)
@@ -206,6 +214,15 @@ def check_pairs(src, dst, minimum: int) -> tuple[np.ndarray, np.ndarray]:
     return src, dst
 
 
+def check_regularisation(regularisation: float) -> float:
+    """A spline's smoothing: a finite number >= 0 (0 interpolates); a negative one is not smoothing but
+    a different, possibly singular, system. ValueError naming `regularisation` otherwise."""
+    if isinstance(regularisation, bool) or not isinstance(regularisation, numbers.Real) \
+            or not (np.isfinite(regularisation) and regularisation >= 0):
+        raise ValueError(f"regularisation: expected a number >= 0 (0 interpolates), got {regularisation!r}")
+    return float(regularisation)
+
+
 def fit_tps(src: np.ndarray, dst: np.ndarray, regularisation: float = 0.0, normalisation: Normalisation = "hartley",
             size: tuple[int, int] | None = None, eps: float = 0.0) -> ThinPlateSpline:
     """Fit a spline to all (N, 2) source -> (N, 2) destination pixel pairs (N >= 3, not collinear).
@@ -221,6 +238,7 @@ def fit_tps(src: np.ndarray, dst: np.ndarray, regularisation: float = 0.0, norma
         ValueError: mismatched, non-finite or too few points; collinear or repeated points.
     """
     src, dst = check_pairs(src, dst, MIN_POINTS)
+    check_regularisation(regularisation)
     if normalisation == "hartley":
         Ts, Td = hartley_transform(src), hartley_transform(dst)
     elif normalisation == "size":

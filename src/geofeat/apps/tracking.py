@@ -35,6 +35,7 @@ Pixels follow the OpenCV convention (the centre of the top-left pixel is (0, 0))
 from __future__ import annotations
 
 import csv
+import numbers
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -47,7 +48,7 @@ from tqdm import tqdm
 from ..constants import N_KEYPOINTS
 from ..inputs import check_positive
 from ..io import Sequence, read_sequence
-from ..tps import ThinPlateSpline, check_pairs, evaluate_batch, normalise_points, solve_batch
+from ..tps import ThinPlateSpline, check_pairs, check_regularisation, evaluate_batch, normalise_points, solve_batch
 
 if TYPE_CHECKING:
     from ..descriptors.describer import Describer
@@ -161,9 +162,13 @@ def fit_tps_ransac(
         N < max(sample_size, min_inliers).
     """
     src, dst = check_pairs(src, dst, 0)
+    for name, value in (("sample_size", sample_size), ("iterations", iterations)):
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+            raise TypeError(f"{name}: expected an integer, got {value!r}")
     if sample_size < 3:
         raise ValueError(f"sample_size: expected >= 3 correspondences per hypothesis, got {sample_size}")
     check_positive(threshold_px, "threshold_px")
+    check_regularisation(regularisation)
     n = len(src)
     failed = RansacResult(None, np.zeros(n, bool))
     if n < max(sample_size, min_inliers, 3):

@@ -69,7 +69,7 @@ from ..features import Features
 from ..frame import RGBDFrame
 from ..keypoints import as_keypoints
 from ..geodesic.mesh import GridMesh
-from ..geodesic.polar import PolarPatches, polar_patches
+from ..geodesic.polar import PolarPatches, check_patches, polar_patches
 from .settings import PatchSettings, merge_settings
 
 __all__ = ["GeoBit", "GeoBitSettings", "generate_pattern", "load_pattern", "DEFAULT_SIGMA_ROWS", "PATTERN_SEED"]
@@ -282,10 +282,8 @@ class GeoBit:
                 mesh=mesh,
                 blur_px=self.blur_px,
             )
-        elif not isinstance(patches, PolarPatches):
-            raise TypeError(f"patches: expected PolarPatches, got {type(patches).__name__}")
-        elif len(kps) != len(patches):
-            raise ValueError(f"patches: hold {len(patches)} keypoints, but {len(kps)} keypoints were given")
+        else:
+            check_patches(patches, kps.xy)
         desc = self.describe(patches.values, patches.valid)
         return Features(
             keypoints=patches.keypoints,

@@ -49,7 +49,7 @@ from ..features import Features
 from ..frame import RGBDFrame
 from ..keypoints import as_keypoints
 from ..geodesic.mesh import GridMesh
-from ..geodesic.polar import PolarPatches, polar_patches
+from ..geodesic.polar import PolarPatches, check_patches, polar_patches
 from .settings import PatchSettings, merge_settings
 
 #: File name of the shipped weights inside geofeat/data.
@@ -186,7 +186,9 @@ class GeoPatch:
 
             from .geopatch_net import fuse_batchnorm, load_network
 
-            self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+            from ..gpu import torch_device
+
+            self.device = torch_device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
             net, self.checkpoint = load_network(weights)
             self.net = fuse_batchnorm(net).to(self.device)
             self.config = self.net.config
@@ -325,7 +327,7 @@ class GeoPatch:
         if patches is None:
             patches = polar_patches(frame, kps, radius=self.radius, depth_config=self.depth_config,
                                     mesh=mesh, blur_px=self.blur_px)
-        elif len(patches) != len(kps):
-            raise ValueError(f"patches: hold {len(patches)} keypoints, but {len(kps)} keypoints were given")
+        else:
+            check_patches(patches, kps.xy)
         return Features(patches.keypoints, self.describe(patches.values, patches.valid), patches.valid,
                         angles=kps.angles, sizes=kps.sizes)

@@ -33,7 +33,7 @@ from ..constants import DEFAULT_RADIUS_M, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX
 from ..depth import DepthConfig
 from ..frame import RGBDFrame
 from .mesh import GridMesh, build_mesh
-from .polar import PolarPatches, check_patch_request, patch_validity, sample_bilinear, sampling_image
+from .polar import PolarPatches, check_mesh_shape, check_patch_request, patch_validity, sample_bilinear, sampling_image
 from .walk import tangent_frames
 
 #: Distance sampling step along an isocurve search line, mesh pixels (GeoBit: 0.05 full-res px).
@@ -435,6 +435,7 @@ def heat_polar_patches(
         mesh = solver.mesh
     elif mesh is None:
         mesh = build_mesh(frame, depth_config)
+    check_mesh_shape(mesh, frame)
     N = len(kp)
     xy = np.full((N, n_rings, n_angles, 2), np.nan)
     pts = np.full((N, n_rings, n_angles, 3), np.nan)

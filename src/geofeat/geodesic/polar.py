@@ -9,6 +9,7 @@ displayed, from the image +x axis projected onto the surface's tangent plane at 
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 
 import cv2
@@ -63,13 +64,32 @@ def check_patch_request(frame: RGBDFrame, keypoints, radius: float, n_angles: in
     """Validate the arguments shared by the polar patch builders; returns the (N, 2) keypoints."""
     if not isinstance(frame, RGBDFrame):
         raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
-    if not (np.isfinite(radius) and radius > 0):
-        raise ValueError(f"radius: must be a positive number of metres, got {radius}")
+    if isinstance(radius, bool) or not isinstance(radius, numbers.Real) or not (np.isfinite(radius) and radius > 0):
+        raise ValueError(f"radius: must be a positive number of metres, got {radius!r}")
     if radius > 10:
         raise ValueError(f"radius: {radius} m is implausible; the radius is in metres (e.g. 0.075)")
-    if n_angles < 1 or n_rings < 1:
-        raise ValueError(f"n_angles, n_rings: must be positive, got {n_angles}, {n_rings}")
+    for name, value in (("n_angles", n_angles), ("n_rings", n_rings)):
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
+            raise ValueError(f"{name}: must be a positive integer, got {value!r}")
     return as_keypoint_array(keypoints, frame.shape)
+
+
+def check_patches(patches, xy: np.ndarray) -> PolarPatches:
+    """Precomputed patches given to a descriptor with its (N, 2) keypoints `xy` must be the
+    `PolarPatches` of those keypoints, in that order (TypeError / ValueError naming `patches`)."""
+    if not isinstance(patches, PolarPatches):
+        raise TypeError(f"patches: expected PolarPatches, got {type(patches).__name__}")
+    if len(patches) != len(xy):
+        raise ValueError(f"patches: hold {len(patches)} keypoints, but {len(xy)} keypoints were given")
+    if not np.array_equal(patches.keypoints, xy):
+        raise ValueError("patches: computed for other keypoints (or another order) than the keypoints given")
+    return patches
+
+
+def check_mesh_shape(mesh: GridMesh, frame: RGBDFrame) -> None:
+    """A prebuilt mesh must be of a frame of this size (ValueError naming `mesh` otherwise)."""
+    if tuple(mesh.image_shape) != tuple(frame.shape):
+        raise ValueError(f"mesh: built for a {mesh.image_shape} frame, not this {frame.shape} one")
 
 
 def patch_validity(rings_reached: np.ndarray) -> np.ndarray:
@@ -137,8 +157,8 @@ def polar_patches(
     kp = check_patch_request(frame, keypoints, radius, n_angles, n_rings)
     if mesh is None:
         mesh = frame_mesh(frame, depth_config)
-    elif tuple(mesh.image_shape) != tuple(frame.shape):
-        raise ValueError(f"mesh: built for a {mesh.image_shape} frame, not this {frame.shape} one")
+    else:
+        check_mesh_shape(mesh, frame)
     starts = mesh.image_to_mesh(kp) + np.array([1.3e-6, 0.7e-6])  # keeps starts off vertices/edges
     local, edges = mesh.walk_tables
     samples, coords, reached, _ = walk_polar(
