@@ -86,6 +86,17 @@ def test_backproject_inverts_projection():
     assert np.isnan(P[0, 0]).all()
 
 
+def test_backproject_inverts_the_walks_projection_with_skew():
+    """The walk projects with K's skew (u = (fx X + s Y) / Z + cx): back-projection must invert it."""
+    K = np.array([[525.0, 12.0, 319.5], [0, 530.0, 239.5], [0, 0, 1]])
+    depth = np.random.default_rng(0).uniform(0.5, 2.0, (48, 64)).astype(np.float32)
+    P = backproject(depth, K).reshape(-1, 3)
+    u = (K[0, 0] * P[:, 0] + K[0, 1] * P[:, 1]) / P[:, 2] + K[0, 2]
+    v = K[1, 1] * P[:, 1] / P[:, 2] + K[1, 2]
+    vv, uu = np.mgrid[0:48, 0:64]
+    np.testing.assert_allclose(np.stack([u, v], 1), np.stack([uu.ravel(), vv.ravel()], 1), atol=1e-9)
+
+
 def test_constant_mode_and_config_checks():
     depth = ramp()
     out = preprocess_depth(depth, DepthConfig(constant=True))

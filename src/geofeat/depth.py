@@ -320,13 +320,14 @@ def scale_intrinsics(K: np.ndarray, sx: float, sy: float) -> np.ndarray:
 
 def backproject(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     """Back-project an (H, W) depth map (metres) with intrinsics K to (H, W, 3) camera-frame points
-    in metres; missing pixels give NaN."""
+    in metres, the inverse of u = (fx X + s Y) / Z + cx, v = fy Y / Z + cy (s = K[0, 1], the skew);
+    missing pixels give NaN."""
     H, W = depth.shape
     v, u = np.mgrid[0:H, 0:W].astype(np.float64)
     z = np.where(depth > 0, depth.astype(np.float64), np.nan)
-    x = (u - K[0, 2]) / K[0, 0] * z
-    y = (v - K[1, 2]) / K[1, 1] * z
-    return np.stack([x, y, z], axis=-1)
+    y_over_z = (v - K[1, 2]) / K[1, 1]
+    x = (u - K[0, 2] - K[0, 1] * y_over_z) / K[0, 0] * z
+    return np.stack([x, y_over_z * z, z], axis=-1)
 
 
 def filled_depth(depth: np.ndarray, config: DepthConfig = DepthConfig()) -> np.ndarray:

@@ -180,9 +180,9 @@ def backproject_torch(depth, K: np.ndarray):
     z = torch.where(depth > 0, depth.double(), torch.full((), float("nan"), dtype=torch.float64, device=dev))
     u = torch.arange(W, dtype=torch.float64, device=dev)[None, :]
     v = torch.arange(H, dtype=torch.float64, device=dev)[:, None]
-    x = (u - float(K[0, 2])) / float(K[0, 0]) * z
-    y = (v - float(K[1, 2])) / float(K[1, 1]) * z
-    return torch.stack([x, y, z], dim=-1)
+    y_over_z = (v - float(K[1, 2])) / float(K[1, 1])
+    x = (u - float(K[0, 2]) - float(K[0, 1]) * y_over_z) / float(K[0, 0]) * z
+    return torch.stack([x, y_over_z * z, z], dim=-1)
 
 
 @dataclass
