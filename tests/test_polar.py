@@ -169,8 +169,9 @@ def test_bad_keypoints_and_radius():
         geofeat.polar_patches(frame, np.zeros((3, 3)))
     with pytest.raises(ValueError, match="keypoints"):
         geofeat.polar_patches(frame, np.array([[np.nan, 1.0]]))
-    with pytest.raises(ValueError, match="radius"):
-        geofeat.polar_patches(frame, np.array([[10.0, 10.0]]), radius=75.0)
+    for centimetres_or_millimetres in (7.5, 75.0):  # the radius is in metres, at most 2 m as for the commands
+        with pytest.raises(ValueError, match="radius: .* not a plausible geodesic radius"):
+            geofeat.polar_patches(frame, np.array([[10.0, 10.0]]), radius=centimetres_or_millimetres)
     with pytest.raises(ValueError, match="mesh"):
         geofeat.polar_patches(frame, np.array([[10.0, 10.0]]), mesh=geofeat.build_mesh(plane_frame((60, 80))))
     with pytest.raises(ValueError, match="keypoints: the keypoint set is empty"):

@@ -18,6 +18,7 @@ import numpy as np
 from ..constants import DEFAULT_RADIUS_M, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX
 from ..depth import DepthConfig
 from ..frame import RGBDFrame
+from ..inputs import check_radius
 from ..keypoints import as_keypoints
 from .mesh import GridMesh, frame_mesh
 from .walk import MAX_CROSSINGS, walk_polar
@@ -64,10 +65,7 @@ def check_patch_request(frame: RGBDFrame, keypoints, radius: float, n_angles: in
     """Validate the arguments shared by the polar patch builders; returns the (N, 2) keypoints."""
     if not isinstance(frame, RGBDFrame):
         raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
-    if isinstance(radius, bool) or not isinstance(radius, numbers.Real) or not (np.isfinite(radius) and radius > 0):
-        raise ValueError(f"radius: must be a positive number of metres, got {radius!r}")
-    if radius > 10:
-        raise ValueError(f"radius: {radius} m is implausible; the radius is in metres (e.g. 0.075)")
+    check_radius(radius, "radius")  # metres, within inputs.PLAUSIBLE_RADIUS_M, as for the commands
     for name, value in (("n_angles", n_angles), ("n_rings", n_rings)):
         if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
             raise ValueError(f"{name}: must be a positive integer, got {value!r}")
