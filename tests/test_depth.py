@@ -105,6 +105,10 @@ def test_constant_mode_and_config_checks():
         DepthConfig(fill="magic")
     with pytest.raises(ValueError, match="mesh_scale"):
         DepthConfig(mesh_scale=2.0)
+    with pytest.raises(ValueError, match="smooth_levels: must be a whole number"):
+        DepthConfig(smooth_levels=1.5)  # was accepted, and smoothed once
+    with pytest.raises(ValueError, match="max_perimeter"):
+        DepthConfig(max_perimeter=-3)
 
 
 def test_halving_is_the_mean_of_the_valid_pixels_of_each_block():

@@ -345,6 +345,9 @@ def test_images_of_other_kinds_are_refused_by_name():
     (dict(n_angles=True), "n_angles"),
     (dict(radius="0.05"), "radius"),  # numpy's "ufunc 'isfinite' not supported"
     (dict(radius=None), "radius"),
+    (dict(blur_px=float("nan")), "blur_px"),  # an OpenCV assertion
+    (dict(blur_px=1e6), "blur_px"),  # ran out of memory
+    (dict(blur_px=-1.0), "blur_px"),
 ])
 def test_patch_sizes_are_integers_and_the_radius_a_number(kwargs, name):
     frame = plane_frame((120, 160))

@@ -101,3 +101,8 @@ def test_depth_profile_of_a_bare_depth_map_is_a_type_error():
     depth, _ = _sphere_cap()
     with pytest.raises(TypeError, match="RGBDFrame.*depth_noise"):
         depth_profile(depth)
+
+
+def test_depth_noise_of_an_empty_map_is_an_error():
+    with pytest.raises(ValueError, match="depth: empty"):
+        depth_noise(np.zeros((0, 5)), K_VGA)

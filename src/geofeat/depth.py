@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numbers
+
 import cv2
 import numpy as np
 
@@ -39,10 +41,13 @@ class DepthConfig:
     def __post_init__(self) -> None:
         if self.fill not in FILL_METHODS:
             raise ValueError(f"fill: expected one of {FILL_METHODS}, got {self.fill!r}")
-        if self.smooth_levels < 0:
-            raise ValueError(f"smooth_levels: must be >= 0, got {self.smooth_levels}")
-        if not 0 < self.mesh_scale <= 1:
-            raise ValueError(f"mesh_scale: must be in (0, 1], got {self.mesh_scale}")
+        for name in ("smooth_levels", "max_perimeter"):  # counts: 1.5 rounds of smoothing mean nothing
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 0:
+                raise ValueError(f"{name}: must be a whole number >= 0, got {value!r}")
+        if isinstance(self.mesh_scale, bool) or not isinstance(self.mesh_scale, numbers.Real) \
+                or not 0 < self.mesh_scale <= 1:
+            raise ValueError(f"mesh_scale: must be in (0, 1], got {self.mesh_scale!r}")
 
 
 #: Named depth profiles (see `depth_profile`): "kinect" is the paper's real-data setting (IDW hole
@@ -134,6 +139,8 @@ def depth_noise(depth: np.ndarray, K: np.ndarray) -> DepthNoise:
     raw = np.asarray(depth)
     if raw.ndim != 2:
         raise ValueError(f"depth: expected an (H, W) map, got shape {raw.shape}")
+    if raw.size == 0:
+        raise ValueError(f"depth: empty, shape {raw.shape}")
     K = check_intrinsics(K)
     depth = raw.astype(np.float64)
     valid = depth > 0
