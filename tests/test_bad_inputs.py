@@ -672,6 +672,43 @@ def train_detector_over_user_file(tmp):
     return _train_detector(tmp)
 
 
+# ---------------------------------------------------------------- audit of train
+def _no_patches(monkeypatch):
+    import geofeat.train.dataset as dataset
+
+    def built(*args, **kwargs):
+        raise AssertionError("patches were built before the bad option was reported")
+
+    monkeypatch.setattr(dataset, "build_patch_set", built)
+
+
+def _train(tmp, *extra, out="w.pt"):
+    sim = tmp / "sim"
+    if not sim.is_dir():
+        assert main(["simulate", str(sim), "--frames", "2", "--width", "64", "--height", "48", "--no-progress",
+                     "--texture", "procedural"]) == 0
+    return ["train", "--data", str(sim), "--out", str(tmp / out), "--epochs", "1", "--steps", "2",
+            "--batch-size", "8", "--keypoints", "50", *extra]
+
+
+def train_over_user_file(tmp):
+    (tmp / "w.pt").write_text("my own weights")
+    return _train(tmp)
+
+
+def train_resume_corrupt_checkpoint(tmp):
+    (tmp / "w.pt.ckpt").write_text("not a checkpoint")
+    return _train(tmp, "--resume")
+
+
+def _nothing_in_tmp(tmp):
+    assert list(tmp.iterdir()) == []
+
+
+def _nothing_trained(tmp):
+    assert sorted(p.name for p in tmp.iterdir()) == ["sim"], sorted(p.name for p in tmp.iterdir())
+
+
 # ---------------------------------------------------------------- audit of groundtruth
 def _gt_three(tmp):
     return make_sequence(tmp / "seq", names=("frame-000-master", "frame-001", "frame-002"))
@@ -874,6 +911,31 @@ CASES = [
          None, _no_training),
     Case("train-detector-val-without-ground-truth", lambda t: _train_detector(t, val=_seq(t)), 2,
          "val: .*no simulator ground truth", None, _no_training),
+    # audit of train
+    Case("train-over-user-file", train_over_user_file, 2, "exists.*--overwrite",
+         lambda t: (t / "w.pt").read_text() == "my own weights" or pytest.fail("overwritten"), _no_patches),
+    Case("train-zero-epochs", lambda t: _train(t, "--epochs", "0"), 2, "epochs: expected", _nothing_trained,
+         _no_patches),
+    Case("train-zero-steps", lambda t: _train(t, "--steps", "0"), 2, "steps: expected", _nothing_trained,
+         _no_patches),
+    Case("train-zero-batch-size", lambda t: _train(t, "--batch-size", "0"), 2, "batch_size: expected",
+         _nothing_trained, _no_patches),
+    Case("train-nan-learning-rate", lambda t: _train(t, "--lr", "nan"), 2, "lr: expected", _nothing_trained,
+         _no_patches),
+    Case("train-negative-seed", lambda t: _train(t, "--seed", "-1"), 2, "seed: expected", _nothing_trained,
+         _no_patches),
+    Case("train-out-a-folder", lambda t: (t / "w").mkdir() or _train(t, out="w"), 2, "w is a folder", None,
+         _no_patches),
+    Case("train-init-missing", lambda t: _train(t, "--init", str(t / "nope.pt")), 2, "no GeoPatch checkpoint",
+         _nothing_trained, _no_patches),
+    Case("train-val-without-ground-truth", lambda t: _train(t, "--val", str(_seq(t))), 2,
+         "--val: .*no simulator ground truth", None, _no_patches),
+    Case("train-resume-corrupt-checkpoint", train_resume_corrupt_checkpoint, 2, "resume: .*w.pt.ckpt is not a checkpoint",
+         lambda t: not (t / "w.pt").exists() or pytest.fail("trained")),
+    Case("simulate-huge-width", lambda t: ["simulate", str(t / "out"), "--frames", "2", "--width", "100000",
+                                           "--no-progress"], 2, "width: expected 32 to 8192", _nothing_in_tmp),
+    Case("simulate-negative-seed", lambda t: ["simulate", str(t / "out"), "--frames", "2", "--seed", "-1",
+                                              "--no-progress"], 2, "seed: expected", _nothing_in_tmp),
     # audit of groundtruth
     Case("groundtruth-target-without-depth", groundtruth_target_without_depth, 1,
          "FAILED frame frame-001: .*every pixel is 0", _gt_other_frames_written),

@@ -80,3 +80,16 @@ def test_sequence_without_intrinsics(tmp_path):
     shutil.copy(src / "cloud_1-depth.png", tmp_path / "ref-depth.png")
     with pytest.raises(ValueError, match="intrinsics"):
         geofeat.read_sequence(tmp_path)
+
+
+def test_sequence_frames_are_named_or_indexed_within_the_sequence():
+    """An index past the end was an IndexError, a numpy index a file "1-rgb.png" not found, and a
+    path-like name read a frame outside the sequence."""
+    seq = geofeat.read_sequence(demo_data_dir())
+    assert seq.frame(np.int64(0)).image.shape[:2] == seq.frame("cloud_1").image.shape[:2]
+    for key, message in ((1, "index 1 out of range"), ("nope", "'nope' is not in the sequence"),
+                         ("../kinect_example/cloud_1", "is not in the sequence"), (True, "is not in the sequence")):
+        with pytest.raises(ValueError, match=message):
+            seq.frame(key)
+        with pytest.raises(ValueError, match=message):
+            seq.landmarks(key)

@@ -314,3 +314,16 @@ def test_simulate_writes_the_depth_profile_it_rendered(tmp_path):
         seq = geofeat.read_sequence(folder)
         assert seq.depth_profile == profile
         assert geofeat.depth_profile(seq.frame(seq.reference)) == profile
+
+
+@pytest.mark.parametrize("change, message", [
+    (dict(width=64.5), "width: expected a whole number"),  # ran, with the principal point a quarter pixel off
+    (dict(width=100000), "width: expected 32 to 8192"), (dict(height=8), "height: expected 32 to 8192"),
+    (dict(seed=-1), "seed: expected"),  # numpy's "expected non-negative integer"
+    (dict(steps_per_frame=0), "steps_per_frame: expected"),  # every frame a copy of the reference
+])
+def test_size_seed_and_steps_are_checked(change, message, tmp_path):
+    kwargs = dict(dict(n_frames=2, width=64, height=48, texture="procedural", progress=False), **change)
+    with pytest.raises(ValueError, match=message):
+        simulate_sequence(tmp_path / "out", **kwargs)
+    assert list(tmp_path.iterdir()) == []

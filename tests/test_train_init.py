@@ -51,3 +51,50 @@ def test_photometric_augmentation_changes_contrast_not_layout():
     # a monotone change plus small noise: the patches stay strongly correlated with the originals
     for a, p in zip(aug, plain):
         assert np.corrcoef(a.ravel().numpy(), p.ravel().numpy())[0, 1] > 0.9
+
+
+@pytest.mark.parametrize("change, message", [
+    (dict(epochs=0), "epochs: expected"), (dict(steps_per_epoch=-1), "steps_per_epoch: expected"),
+    (dict(batch_size=0), "batch_size: expected"), (dict(batch_size=1, mining="hardest"), "batch_size: expected"),
+    (dict(lr=float("nan")), "lr: expected"), (dict(lr=-0.1), "lr: expected"), (dict(margin=0.0), "margin: expected"),
+    (dict(mining="semi-hard"), "mining: expected"), (dict(seed=-1), "seed: expected"),
+])
+def test_bad_settings_are_refused_before_training(change, message, tmp_path):
+    """NaN lr trained to NaN weights, epochs=0 ended on an IndexError, batch_size=0 on a torch error."""
+    config = TrainConfig(**dict(dict(epochs=1, steps_per_epoch=1, batch_size=8, net=NET), **change))
+    with pytest.raises(ValueError, match=message):
+        train(_data(), tmp_path / "w.pt", config, progress=False, device="cpu")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_existing_weights_are_replaced_only_with_overwrite(tmp_path):
+    config = TrainConfig(epochs=1, steps_per_epoch=1, batch_size=8, net=NET)
+    (tmp_path / "w.pt").write_bytes(b"my own weights")
+    with pytest.raises(ValueError, match="exists.*overwrite"):
+        train(_data(), tmp_path / "w.pt", config, progress=False, device="cpu")
+    assert (tmp_path / "w.pt").read_bytes() == b"my own weights"
+    train(_data(), tmp_path / "w.pt", config, progress=False, device="cpu", overwrite=True)
+    assert load_network(tmp_path / "w.pt")[0].config == NET
+    assert not [p for p in tmp_path.iterdir() if "partial" in p.name]
+
+
+def test_resume_refuses_a_corrupt_checkpoint_or_other_settings(tmp_path):
+    config = TrainConfig(epochs=1, steps_per_epoch=1, batch_size=8, net=NET)
+    (tmp_path / "a.pt.ckpt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="resume: .*a.pt.ckpt is not a checkpoint"):
+        train(_data(), tmp_path / "a.pt", config, resume=True, progress=False, device="cpu")
+    train(_data(), tmp_path / "b.pt", config, progress=False, device="cpu")
+    # more epochs would continue a cosine schedule fitted to one epoch; another net would not load
+    for change, message in ((dict(epochs=2), "epochs 1, not 2"), (dict(mining="hardest"), "mining 'random'"),
+                            (dict(net=GeoPatchConfig(channels=(8, 8, 8), dim=16)), "net")):
+        with pytest.raises(ValueError, match=f"resume: .*other settings.*{message}"):
+            train(_data(), tmp_path / "b.pt", TrainConfig(**dict(config.__dict__, **change)), resume=True,
+                  progress=False, device="cpu")
+
+
+def test_a_corrupt_patch_cache_is_one_error(tmp_path):
+    (tmp_path / "w.pt.patches.npz").write_bytes(b"not an archive")
+    with pytest.raises(ValueError, match="patches: cannot read .*w.pt.patches.npz"):
+        PatchSet.load(tmp_path / "w.pt.patches.npz")
+    _data().save(tmp_path / "p.npz")
+    assert len(PatchSet.load(tmp_path / "p.npz")) == 80

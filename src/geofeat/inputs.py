@@ -86,6 +86,14 @@ def check_positive(value: float, what: str) -> float:
     return _positive_number(value, what)
 
 
+def check_whole(value: Any, what: str, minimum: int = 1) -> int:
+    """A whole number (Python or numpy int, not bool) >= `minimum`: a count, an index, a seed;
+    ValueError naming `what` otherwise (2.5 and "3" too)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
+        raise ValueError(f"{what}: expected a whole number >= {minimum}, got {value!r}")
+    return int(value)
+
+
 def check_depth_plausible(depth_m: np.ndarray, depth_scale: float, where: str) -> None:
     """The median of the valid depths (metres, after scaling) must be plausible, else the depth scale is
     wrong (metres stored where millimetres are expected, or the other way round)."""

@@ -189,8 +189,20 @@ class Sequence:
     def targets(self) -> list[str]:
         return self.names[1:]
 
+    def frame_name(self, key: str | int) -> str:
+        """The name of a frame given by name or by index into `names` (Python or numpy int; negative
+        counts from the end); ValueError for a name or index the sequence does not have."""
+        if isinstance(key, (int, np.integer)) and not isinstance(key, bool):
+            if not -len(self.names) <= int(key) < len(self.names):
+                raise ValueError(f"frame index {key} out of range for a sequence of {len(self.names)} frames")
+            return self.names[int(key)]
+        if not isinstance(key, str) or key not in self.names:
+            raise ValueError(f"frame {key!r} is not in the sequence {self.folder} (frames: {self.names[:5]}...)")
+        return key
+
     def frame(self, name: str | int) -> RGBDFrame:
-        name = self.names[name] if isinstance(name, int) else name
+        """The frame `name` (a name or an index, see `frame_name`) as an RGBDFrame."""
+        name = self.frame_name(name)
         image = read_image(self.folder / f"{name}{RGB_SUFFIX}")
         depth = read_depth(self.folder / f"{name}{DEPTH_SUFFIX}", self.depth_scale)
         if depth.shape != image.shape[:2]:
@@ -202,7 +214,7 @@ class Sequence:
     def landmarks(self, name: str | int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(ids, xy, visible) of the frame's csv, see `read_landmarks`, checked by
         `geofeat.inputs.check_landmarks` (unique ids, visible landmarks on the image)."""
-        name = self.names[name] if isinstance(name, int) else name
+        name = self.frame_name(name)
         ids, xy, visible = read_landmarks(self.folder / f"{name}.csv")
         if self.shape is not None:
             check_landmarks(ids, xy, visible, self.shape, f"{name}.csv")

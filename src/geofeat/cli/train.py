@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .options import depth_profile_option
+from .options import depth_profile_option, keypoint_count
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -16,6 +16,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--data", nargs="+", required=True, help="simulated sequence folders, or folders of them")
     p.add_argument("--val", nargs="*", default=None, help="held-out simulated sequences for the per-epoch matching score")
     p.add_argument("--out", required=True, help="weights file to write (e.g. geopatch.pt)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing OUT file")
     p.add_argument("--epochs", type=int, default=10)
     p.add_argument("--steps", type=int, default=200, help="batches per epoch (default 200)")
     p.add_argument("--batch-size", type=int, default=1000, help="triplets per batch (default 1000, the paper's)")
@@ -28,11 +29,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--channels", type=int, nargs=3, default=(16, 32, 64), metavar=("C1", "C2", "C3"),
                    help="channels of the three convolutions (default 16 32 64; the paper's: 32 64 128)")
     p.add_argument("--no-angle-pool", action="store_true", help="flatten instead of max-pooling over angle (ablation)")
-    p.add_argument("--keypoints", type=int, default=512, help="SIFT keypoints per reference frame (default 512)")
+    p.add_argument("--keypoints", type=keypoint_count, default=512, help="SIFT keypoints per reference frame (default 512)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--net", choices=("geopatch", "tfeat", "logpolar"), default="geopatch",
                    help="network: GeoPatch (geodesic patches) or an image-patch baseline (tfeat-sim, logpolar-sim)")
-    p.add_argument("--resume", action="store_true", help="continue from OUT.ckpt")
+    p.add_argument("--resume", action="store_true", help="continue from OUT.ckpt (with the same options)")
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
     depth_profile_option(p, "auto")
     p.set_defaults(func=run)
@@ -40,12 +41,30 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Train GeoPatch (or an image-patch baseline) and write the weights, a loss plot and a log."""
+    """Train GeoPatch (or an image-patch baseline) and write the weights, a loss plot and a log.
+    The options, OUT, the --init weights and the data folders are checked before any work."""
     from functools import partial
 
     from ..descriptors.geopatch import GeoPatchConfig
-    from ..train.dataset import PatchSet, build_patch_set, validation_pairs
-    from ..train.loop import TrainConfig, train
+    from ..inputs import check_whole
+    from ..train.dataset import PatchSet, build_patch_set, check_simulated, validation_pairs
+    from ..train.loop import TrainConfig, check_train_config, check_train_out, load_init, train
+
+    check_whole(args.steps, "--steps", 1)
+    for c in args.channels:
+        check_whole(c, "--channels", 1)
+    config = TrainConfig(
+        epochs=args.epochs, steps_per_epoch=args.steps, batch_size=args.batch_size, lr=args.lr,
+        mining=args.mining, augment_shift=args.augment_shift, seed=args.seed,
+        augment_photometric=args.augment_photometric,
+        net=GeoPatchConfig(channels=tuple(args.channels), angle_pool=not args.no_angle_pool),
+    )
+    check_train_config(config)
+    check_train_out(args.out, args.overwrite, args.resume)
+    if args.init is not None:
+        if args.net != "geopatch":
+            raise ValueError(f"--init: fine-tuning starts from GeoPatch weights; not with --net {args.net}")
+        load_init(args.init, config.net)
 
     net = None  # geodesic polar patches with the depth profile asked for (auto: per sequence)
     build = partial(build_patch_set, depth_config=args.depth_profile)
@@ -58,23 +77,19 @@ def run(args: argparse.Namespace) -> int:
         build = partial(build_image_patch_set, arch=args.net)
         make_validation = partial(image_validation_pairs, arch=args.net)
     cache = Path(str(args.out) + ".patches.npz")
+    if args.val:
+        check_simulated(args.val, "--val")
     if args.resume and cache.is_file():
         data = PatchSet.load(cache)
         print(f"training patches: {len(data)} from {cache}")
     else:
+        check_simulated(args.data, "--data")
         data = build(args.data, n_keypoints=args.keypoints)
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         data.save(cache)
         print(f"training patches: {len(data)} of {len(np.unique(data.ids))} surface points (cached in {cache})")
     validation = make_validation(args.val) if args.val else None
-    config = TrainConfig(
-        epochs=args.epochs, steps_per_epoch=args.steps, batch_size=args.batch_size, lr=args.lr,
-        mining=args.mining, augment_shift=args.augment_shift, seed=args.seed,
-        augment_photometric=args.augment_photometric,
-        net=GeoPatchConfig(channels=tuple(args.channels), angle_pool=not args.no_angle_pool),
-    )
     history = train(data, args.out, config, validation=validation, resume=args.resume, device=args.device, net=net,
-                    init=args.init)
+                    init=args.init, overwrite=args.overwrite)
     print(f"wrote {args.out} (final loss {history['loss'][-1]:.4f}, validation MS {history['val_ms'][-1]:.3f}), "
           f"{args.out}.png and {args.out}.json")
     return 0

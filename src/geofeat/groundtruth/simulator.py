@@ -207,16 +207,6 @@ def read_frame_truth(folder: str | Path, name: str | int) -> FrameTruth:
         return FrameTruth(uv=data["uv"], vertices=data["vertices"])
 
 
-def _name(seq, key) -> str:
-    if isinstance(key, (int, np.integer)):
-        if not -len(seq.names) <= int(key) < len(seq.names):
-            raise ValueError(f"frame index {key} out of range for a sequence of {len(seq.names)} frames")
-        return seq.names[int(key)]
-    if key not in seq.names:
-        raise ValueError(f"frame {key!r} is not in the sequence {seq.folder} (frames: {seq.names[:5]}...)")
-    return str(key)
-
-
 def correspondences(seq, i, j, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Map pixels of frame i to frame j of a simulated `geofeat.io.Sequence`.
 
@@ -238,6 +228,6 @@ def correspondences(seq, i, j, points: np.ndarray) -> tuple[np.ndarray, np.ndarr
     if points.ndim != 2 or points.shape[1] != 2:
         raise ValueError(f"points: expected shape (N, 2) pixels, got {points.shape}")
     meta = read_metadata(seq.folder)
-    ti = read_frame_truth(seq.folder, _name(seq, i))
-    tj = read_frame_truth(seq.folder, _name(seq, j))
+    ti = read_frame_truth(seq.folder, seq.frame_name(i))
+    tj = read_frame_truth(seq.folder, seq.frame_name(j))
     return map_points(ti, tj, seq.K, float(meta["spacing_m"]), points)

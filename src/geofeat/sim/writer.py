@@ -27,6 +27,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..inputs import check_whole
 from ..io import write_intrinsics, write_landmarks
 from ..outputs import check_out_dir, replace_folder
 from ..groundtruth.simulator import GT_JSON, GT_SUFFIX, FrameTruth, map_points
@@ -36,6 +37,8 @@ from .textures import choose_texture
 REFERENCE_NAME = "frame-000-master"
 N_LANDMARKS = 100
 FORMAT_VERSION = 1
+#: Image sides (pixels) the simulator renders: from 32 (landmarks need a border) to 8192.
+SIDE_RANGE_PX = (32, 8192)
 
 
 def frame_name(index: int) -> str:
@@ -81,13 +84,17 @@ def encode_depth(depth: np.ndarray, unit: float = DEPTH_UNIT_M) -> np.ndarray:
     return units.astype(np.uint16)
 
 
-def _check_args(scenario: str, n_frames: int, width: int, height: int) -> None:
+def _check_args(scenario: str, n_frames: int, width: int, height: int, seed: int = 0, steps_per_frame: int = 6) -> None:
     if scenario not in SCENARIOS:
         raise ValueError(f"scenario: expected one of {', '.join(SCENARIOS)}, got {scenario!r}")
     if isinstance(n_frames, bool) or not isinstance(n_frames, (int, np.integer)) or n_frames < 1:
         raise ValueError(f"n_frames: expected an integer >= 1 (the reference included), got {n_frames!r}")
-    if width < 32 or height < 32:
-        raise ValueError(f"width, height: expected at least 32 x 32 pixels, got {width} x {height}")
+    lo, hi = SIDE_RANGE_PX
+    for what, side in (("width", width), ("height", height)):  # a float size would shift the principal point
+        if check_whole(side, what, 1) < lo or side > hi:
+            raise ValueError(f"{what}: expected {lo} to {hi} pixels, got {side}")
+    check_whole(seed, "seed", 0)
+    check_whole(steps_per_frame, "steps_per_frame", 1)  # 0: every frame a copy of the reference
 
 
 def simulate_sequence(
@@ -114,14 +121,15 @@ def simulate_sequence(
         scenario: `deform` (fixed camera), `rotate` (camera roll 0..180 degrees) or `scale`
             (camera moving back to twice the distance).
         n_frames: number of frames, the reference included (>= 1).
-        seed: everything random (texture choice, cloth, wind, pins, lights, noise) follows it.
+        seed: a whole number >= 0; everything random (texture choice, cloth, wind, pins, lights, noise) follows it.
         texture: image file, `"procedural"`, an (H, W, 3) uint8 BGR array, or None (a packaged
             training photograph or a procedural texture, drawn from the seed).
-        width, height: image size in pixels; intrinsics f = 525 * width / 640, centred.
+        width, height: image size in pixels, whole numbers from 32 to 8192; intrinsics f = 525 * width / 640,
+            centred.
         kinect_noise: write Kinect-like noisy depth with holes (ground truth stays exact).
         progress: show a tqdm progress bar.
         texture_dir: draw the texture from this folder instead.
-        steps_per_frame: simulation steps between frames.
+        steps_per_frame: simulation steps between frames (>= 1).
         overwrite: replace an earlier simulation in out_dir: only the files geofeat wrote there (its
             `.geofeat-manifest.json`) are removed; a folder holding any other file is refused.
         preset: `mild` (the original scenes), `paper` (the paper's simulation section) or `hard`
@@ -131,7 +139,7 @@ def simulate_sequence(
             f = 525 px at 640 x 480, 49.1 deg; the paper authors' renders: 90).
         motion_blur: blur the target frames along a random direction (up to the preset's length).
     """
-    _check_args(scenario, n_frames, width, height)
+    _check_args(scenario, n_frames, width, height, seed, steps_per_frame)
     preset_obj = get_preset(preset)
     K = default_intrinsics(width, height, fov)
     out_dir = Path(out_dir)

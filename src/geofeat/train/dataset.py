@@ -34,12 +34,21 @@ class PatchSet:
     ids: np.ndarray
 
     def save(self, path: str | Path) -> None:
-        np.savez_compressed(path, patches=self.patches, ids=self.ids)
+        """Write an .npz archive, whole or not at all (`atomic_file`)."""
+        from ..outputs import atomic_file
+
+        with atomic_file(path) as tmp, open(tmp, "wb") as f:  # a file object: no ".npz" appended to the name
+            np.savez_compressed(f, patches=self.patches, ids=self.ids)
 
     @classmethod
     def load(cls, path: str | Path) -> "PatchSet":
-        with np.load(path) as data:
-            return cls(data["patches"], data["ids"])
+        """Read what `save` wrote; ValueError naming the file when it is not such an archive."""
+        try:
+            with np.load(path) as data:
+                return cls(data["patches"], data["ids"])
+        except (OSError, ValueError, KeyError, EOFError) as error:
+            raise ValueError(f"patches: cannot read {path} as a patch set of `geofeat train` "
+                             f"({type(error).__name__}); delete it to rebuild it") from None
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -89,6 +98,16 @@ def build_patch_set(paths, n_keypoints: int = 512, radius: float = DEFAULT_RADIU
     if not sets:
         raise ValueError("data: no patches could be built")
     return PatchSet(np.concatenate([s.patches for s in sets]), np.concatenate([s.ids for s in sets]))
+
+
+def check_simulated(paths, what: str) -> list[Path]:
+    """The sequence folders under `paths` (`find_sequences`), each with the simulator's ground truth;
+    ValueError naming `what` (data, val) otherwise. Checked before any patch is built."""
+    folders = find_sequences(paths)
+    for folder in folders:
+        if not read_sequence(folder).has_ground_truth():
+            raise ValueError(f"{what}: {folder} has no simulator ground truth (geofeat simulate writes it)")
+    return folders
 
 
 @dataclass

@@ -14,7 +14,9 @@ from tqdm import tqdm
 
 from ..scoring import score_detect
 from ..descriptors.geopatch import GeoPatchConfig, GeoPatchNet, save_checkpoint
+from ..inputs import check_positive, check_whole
 from ..matching import match
+from ..outputs import atomic_file, check_out_file
 from .dataset import PatchSet, ValidationPair
 
 
@@ -41,6 +43,47 @@ class TrainConfig:
     augment_photometric: bool = False
     seed: int = 0
     net: GeoPatchConfig = field(default_factory=GeoPatchConfig)
+
+
+#: Negative mining modes of `TrainConfig.mining`.
+MINING = ("random", "hardest")
+
+
+def check_train_config(config: TrainConfig) -> TrainConfig:
+    """The settings of `train`, checked before any work: ValueError naming the first one that cannot
+    train. epochs >= 1; steps_per_epoch >= 0 (0: no step, the starting weights are written);
+    batch_size >= 1 (>= 2 for hardest mining, whose negatives are the batch's other pairs); lr and
+    margin positive; momentum and weight_decay finite and >= 0; a known mining mode; seed >= 0."""
+    if config.mining not in MINING:
+        raise ValueError(f"mining: expected one of {', '.join(MINING)}, got {config.mining!r}")
+    check_whole(config.epochs, "epochs", 1)
+    check_whole(config.steps_per_epoch, "steps_per_epoch", 0)
+    check_whole(config.batch_size, "batch_size", 2 if config.mining == "hardest" else 1)
+    check_whole(config.seed, "seed", 0)
+    check_positive(config.lr, "lr")
+    check_positive(config.margin, "margin")
+    for name in ("momentum", "weight_decay"):
+        if getattr(config, name) != 0:  # 0 turns it off
+            check_positive(getattr(config, name), name)
+    return config
+
+
+def check_train_out(out: str | Path, overwrite: bool = False, resume: bool = False) -> Path:
+    """The weights file `train` writes (`check_out_file`): an existing file is replaced only with
+    `overwrite`, or with `resume` when its checkpoint `out`.ckpt exists (the run that wrote it)."""
+    out = Path(out)
+    return check_out_file(out, overwrite or (resume and out.with_suffix(out.suffix + ".ckpt").is_file()))
+
+
+def load_init(init: str | Path, config: GeoPatchConfig) -> GeoPatchNet:
+    """The GeoPatch weights to start from ("shipped": geofeat's own); ValueError when the file is
+    missing, not a GeoPatch checkpoint, or of another shape than `config`."""
+    from ..descriptors.geopatch import load_network
+
+    start, _ = load_network(None if str(init) == "shipped" else init)
+    if start.config != config:
+        raise ValueError(f"init: the weights' network {start.config} differs from the requested {config}")
+    return start
 
 
 def triplet_loss(a: torch.Tensor, p: torch.Tensor, n: torch.Tensor | None, margin: float, mining: str) -> torch.Tensor:
@@ -130,15 +173,17 @@ def _batch(patches: np.ndarray, index: np.ndarray, rng: np.random.Generator, shi
 def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
           validation: list[ValidationPair] | None = None, resume: bool = False,
           device: str | None = None, progress: bool = True, net: torch.nn.Module | None = None,
-          init: str | Path | None = None) -> dict:
+          init: str | Path | None = None, overwrite: bool = False) -> dict:
     """Train GeoPatchNet (or `net`, any module mapping (B, 1, H, W) patches to unit (B, dim)
     descriptors with a dataclass `config` holding `dim`, e.g. the image-patch baselines); writes
     `out` (final weights), `out`.ckpt (resumable state after every epoch), `out`.json (history) and
     `out`.png (loss / validation plot). Returns the history. `init`: start GeoPatchNet from these
     weights ("shipped" = geofeat's own) instead of at random (fine-tuning; the network shape must
-    match `config.net`)."""
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    match `config.net`). The settings and `out` are checked first (`check_train_config`,
+    `check_train_out`: an existing `out` only with `overwrite`, or when resuming its run); every file
+    is written whole or not at all."""
+    check_train_config(config)
+    out = check_train_out(out, overwrite, resume)
     ckpt_path = out.with_suffix(out.suffix + ".ckpt")
     device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     torch.manual_seed(config.seed)
@@ -146,12 +191,7 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
     if net is None:
         net = GeoPatchNet(config.net)
         if init is not None:
-            from ..descriptors.geopatch import load_network
-
-            start, _ = load_network(None if str(init) == "shipped" else init)
-            if start.config != config.net:
-                raise ValueError(f"init: the weights' network {start.config} differs from the requested {config.net}")
-            net.load_state_dict(start.state_dict())
+            net.load_state_dict(load_init(init, config.net).state_dict())
     elif init is not None:
         raise ValueError("init: fine-tuning starts from GeoPatch weights; not with another network")
     net = net.to(device)
@@ -160,12 +200,24 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
     history = {"epoch": [], "loss": [], "val_ms": [], "config": asdict(config)}
     start_epoch = 0
     if resume and ckpt_path.is_file():
-        state = torch.load(str(ckpt_path), map_location=device, weights_only=False)
-        net.load_state_dict(state["state_dict"])
-        opt.load_state_dict(state["optimizer"])
-        sched.load_state_dict(state["scheduler"])
-        rng.bit_generator.state = state["rng"]
-        torch.set_rng_state(state["torch_rng"])
+        try:
+            state = torch.load(str(ckpt_path), map_location=device, weights_only=False)
+            written_with = state["history"]["config"]
+            if written_with == history["config"]:
+                net.load_state_dict(state["state_dict"])
+                opt.load_state_dict(state["optimizer"])
+                sched.load_state_dict(state["scheduler"])
+                rng.bit_generator.state = state["rng"]
+                torch.set_rng_state(state["torch_rng"])
+        except Exception as error:  # noqa: BLE001 - unpickling, a missing key, another network: one user error
+            text = str(error).splitlines()[0] if str(error) else ""
+            raise ValueError(f"resume: {ckpt_path} is not a checkpoint of this network written by `geofeat train` "
+                             f"({type(error).__name__}: {text[:200]})") from None
+        if written_with != history["config"]:
+            changed = [k for k in history["config"] if written_with.get(k) != history["config"][k]]
+            raise ValueError(f"resume: {ckpt_path} was written with other settings ("
+                             + ", ".join(f"{k} {written_with.get(k)!r}, not {history['config'][k]!r}" for k in changed)
+                             + "); resume with the same options, or train anew")
         history = state["history"]
         start_epoch = state["epoch"] + 1
     sampler = TripletSampler(data.ids, rng)
@@ -192,17 +244,21 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
             bar.set_postfix(loss=f"{np.mean(losses[-20:]):.3f}")
         val = validation_score(net, validation, device) if validation else float("nan")
         history["epoch"].append(epoch + 1)
-        history["loss"].append(float(np.mean(losses)))
+        history["loss"].append(float(np.mean(losses)) if losses else float("nan"))
         history["val_ms"].append(val)
         if progress:
             tqdm.write(f"epoch {epoch + 1}: loss {history['loss'][-1]:.4f}, validation MS {val:.3f}")
-        torch.save({"state_dict": net.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
-                    "rng": rng.bit_generator.state, "torch_rng": torch.get_rng_state(), "history": history,
-                    "epoch": epoch}, str(ckpt_path))
+        with atomic_file(ckpt_path) as tmp:
+            torch.save({"state_dict": net.state_dict(), "optimizer": opt.state_dict(),
+                        "scheduler": sched.state_dict(), "rng": rng.bit_generator.state,
+                        "torch_rng": torch.get_rng_state(), "history": history, "epoch": epoch}, str(tmp))
     net.eval()
-    save_checkpoint(out, net.cpu(), history=history)
-    Path(str(out) + ".json").write_text(json.dumps(history, indent=1))
-    _plot(history, Path(str(out) + ".png"))
+    with atomic_file(out) as tmp:
+        save_checkpoint(tmp, net.cpu(), history=history)
+    with atomic_file(Path(str(out) + ".json")) as tmp:
+        tmp.write_text(json.dumps(history, indent=1))
+    with atomic_file(Path(str(out) + ".png")) as tmp:
+        _plot(history, tmp)
     return history
 
 
