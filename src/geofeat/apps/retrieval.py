@@ -45,6 +45,7 @@ from tqdm import tqdm
 
 from ..constants import N_KEYPOINTS
 from ..features import Features
+from ..inputs import check_whole
 
 __all__ = [
     "Vocabulary", "vocabulary", "sample_descriptors", "histogram", "search", "accuracy_at_k", "read_classes",
@@ -173,12 +174,6 @@ def _check_weighting(weighting: str) -> None:
     """ValueError unless `weighting` is one of WEIGHTINGS (checked before any costly work)."""
     if weighting not in WEIGHTINGS:
         raise ValueError(f"weighting: expected one of {', '.join(WEIGHTINGS)}, got {weighting!r}")
-
-
-def _check_whole(value, what: str, minimum: int) -> None:
-    """ValueError naming `what` unless `value` is a whole number >= `minimum` (checked before any costly work)."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ValueError(f"{what}: expected a whole number >= {minimum}, got {value!r}")
 
 
 def _normalise(v: np.ndarray, order: int) -> np.ndarray:
@@ -668,11 +663,11 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
         raise ValueError(f"rerank: expected a whole number of results >= 0 (0 = the words' order), got {rerank_top!r}")
     out = check_out_dir(out, overwrite, files=RESULT_FILES)
     if n_keypoints is not None:
-        _check_whole(n_keypoints, "keypoints", 1)
-    _check_whole(seed, "seed", 0)
+        check_whole(n_keypoints, "keypoints", 1)
+    check_whole(seed, "seed", 0)
     if words is not None:
-        _check_whole(words, "words", 2)
-    _check_whole(n_samples, "samples", 1)
+        check_whole(words, "words", 2)
+    check_whole(n_samples, "samples", 1)
     fewest = words or min(WORD_CANDIDATES)
     if n_samples <= fewest:
         raise ValueError(f"samples: {n_samples} sampled descriptors are too few for {fewest} visual words; "
