@@ -123,12 +123,12 @@ class ValidationPair:
     gt_pairs: np.ndarray
 
 
-def validation_keypoints(paths, n_keypoints: int = 1024, max_pairs_per_sequence: int = 2):
+def validation_keypoints(paths, n_keypoints: int = 1024, max_pairs_per_sequence: int = 2, progress: bool = True):
     """Held-out pairs as protocol "detect" sees them, per sequence under `paths`: yields
     (seq, reference frame, its SIFT keypoints, [(target frame, its SIFT keypoints with ground truth,
     their (M, 2) ground-truth positions in the reference, pixels)]). Target keypoints without ground
-    truth in the reference are dropped (protocol step 3)."""
-    for folder in find_sequences(paths):
+    truth in the reference are dropped (protocol step 3). `progress`: a progress bar over sequences."""
+    for folder in tqdm(find_sequences(paths), desc="validation pairs", unit="seq", disable=not progress):
         seq = read_sequence(folder)
         ref = seq.frame(seq.reference)
         targets = []
