@@ -56,6 +56,9 @@ def test_depth_scale_from_geofeat_json(tmp_path):
     reference = geofeat.read_demo_frame()
     both = (frame.depth > 0) & (reference.depth > 0)
     np.testing.assert_allclose(frame.depth[both], reference.depth[both], atol=0.0021)
+    (tmp_path / "geofeat.json").write_text('{"depth_scale": 1e308}')  # made every depth inf
+    with pytest.raises(ValueError, match="depth_scale: 1e.308 m per depth unit is implausible"):
+        geofeat.read_sequence(tmp_path)
 
 
 def test_missing_and_unreadable_files(tmp_path):

@@ -24,6 +24,8 @@ PLAUSIBLE_MEDIAN_DEPTH_M = (0.05, 50.0)
 PLAUSIBLE_FOCAL_SIDES = (0.1, 20.0)
 #: Geodesic radius (metres) must lie in this range.
 PLAUSIBLE_RADIUS_M = (0.001, 2.0)
+#: The largest depth scale accepted, metres per depth-PNG unit.
+MAX_DEPTH_SCALE_M = 10.0
 #: Whole name tokens (split on _ - . and spaces) that mark the reference frame, optionally with digits.
 REFERENCE_TOKEN = re.compile(r"^(master|ref|reference)\d*$")
 CONFIG_KEYS = ("depth_scale", "depth_profile", "radius")
@@ -49,7 +51,7 @@ def read_config(folder: str | Path) -> dict:
     if not isinstance(config, dict):
         raise ValueError(f"{path}: expected a JSON object like {{\"depth_scale\": 0.001}}, got a {type(config).__name__}")
     if "depth_scale" in config:
-        _positive_number(config["depth_scale"], f"{path}: depth_scale")
+        check_depth_scale(config["depth_scale"], f"{path}: depth_scale")
     if "radius" in config:
         check_radius(_positive_number(config["radius"], f"{path}: radius"), f"{path}: radius")
     profile = config.get("depth_profile", "auto")
@@ -77,8 +79,13 @@ def resolve_radius(radius: float | None, seq) -> float:
 
 
 def check_depth_scale(depth_scale: float, what: str = "--depth-scale") -> float:
-    """A depth scale (metres per depth-PNG unit): a positive finite number."""
-    return _positive_number(depth_scale, what)
+    """A depth scale (metres per depth-PNG unit): a positive number of at most `MAX_DEPTH_SCALE_M` (a
+    larger one turns 16-bit depth into kilometres, or into inf)."""
+    depth_scale = _positive_number(depth_scale, what)
+    if depth_scale > MAX_DEPTH_SCALE_M:
+        raise ValueError(f"{what}: {depth_scale:g} m per depth unit is implausible (at most {MAX_DEPTH_SCALE_M:g}; "
+                         "millimetre PNGs: 0.001)")
+    return depth_scale
 
 
 def check_positive(value: float, what: str) -> float:
