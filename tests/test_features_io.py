@@ -109,3 +109,22 @@ def test_h5_nested_names_are_kept_and_folders_are_not_images(tmp_path):
         load_features(tmp_path / "g.h5", "seq")
     save_features(path, a, 7)  # a name that is not a string is stored under str(name) and loads back by it
     assert_same(load_features(path, 7), a, kp_tol=1e-4)
+
+
+def test_external_hloc_descriptors_are_read_as_d_by_n_even_when_square(tmp_path):
+    """hloc writes float descriptors (D, N) and no `valid`: with 128 keypoints of 128-d descriptors
+    the layout cannot be told by shape, so such a group is read as hloc's."""
+    import h5py
+
+    from geofeat.bench.external import ExternalFeatures
+
+    rng = np.random.default_rng(0)
+    kp = rng.uniform(0, 100, (128, 2)).astype(np.float32)
+    desc = rng.normal(size=(128, 128)).astype(np.float32)  # (N, D)
+    path = tmp_path / "hloc.h5"
+    with h5py.File(path, "w") as fd:
+        fd.create_group("seq/f0")
+        fd["seq/f0/keypoints"] = kp
+        fd["seq/f0/descriptors"] = desc.T  # hloc's (D, N)
+    got = ExternalFeatures("m", path).load("seq", "f0", shape=(120, 160))
+    np.testing.assert_array_equal(got.descriptors, desc)

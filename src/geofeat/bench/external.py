@@ -12,6 +12,8 @@ compared at a larger budget than the others), `valid` (N,) bool and `metric` (a 
 `metric` it follows the descriptors' dtype: float -> L2, uint8 (N, B) -> Hamming, uint8 (N, R, B) ->
 Hamming minimum over R; name `metric` "l2" for integer descriptors that are not packed bits (e.g. SIFT
 stored as uint8). Keypoints must lie on the frame's image; float descriptors must be finite.
+Float descriptors may also come as hloc's (D, N); an .h5 group without `valid` (as hloc writes them)
+is read as (D, N) whenever its second axis has one entry per keypoint, even when D = N.
 """
 
 from __future__ import annotations
@@ -69,16 +71,21 @@ class ExternalFeatures:
         """
         arrays, source = self._read(sequence, frame)
         try:
-            return self._features(arrays, n, shape)
+            return self._features(arrays, n, shape, hloc_layout=self.path.is_file() and "valid" not in arrays)
         except (TypeError, ValueError) as error:
             raise ValueError(f"features {self.name}: {sequence}/{frame} ({source}): {error}") from None
 
-    def _features(self, arrays: dict[str, np.ndarray], n: int | None, shape: tuple[int, int] | None) -> Features:
+    def _features(self, arrays: dict[str, np.ndarray], n: int | None, shape: tuple[int, int] | None,
+                  hloc_layout: bool = False) -> Features:
+        """`hloc_layout`: an .h5 group without `valid` (hloc writes none, geofeat always does), whose
+        float descriptors are hloc's (D, N) whenever their second axis has one entry per keypoint,
+        also when D = N; otherwise (D, N) is recognised only where (N, D) cannot fit."""
         if "keypoints" not in arrays or "descriptors" not in arrays:
             raise ValueError("lacks 'keypoints' or 'descriptors'")
         kp = as_keypoints(arrays["keypoints"], shape=shape, allow_empty=True).xy
         desc = np.asarray(arrays["descriptors"])
-        if desc.dtype.kind == "f" and desc.ndim == 2 and desc.shape[0] != len(kp) and desc.shape[1] == len(kp):
+        if desc.dtype.kind == "f" and desc.ndim == 2 and desc.shape[1] == len(kp) \
+                and (hloc_layout or desc.shape[0] != len(kp)):
             desc = desc.T  # hloc stores float descriptors as (D, N)
         if desc.dtype.kind == "f" and not np.isfinite(desc).all():
             raise ValueError("descriptors hold NaN or infinite values; drop those keypoints")
