@@ -216,3 +216,45 @@ def test_gpu_path_equals_cpu_path(pair):
     np.testing.assert_array_equal(match_cuda(b0, b1, mutual=True).matches0, match(b0, b1, mutual=True).matches0)
     host = geofeat.extract(pair[0][0], 256, detector="sift", device="cuda")
     assert host.descriptors.shape == (256, 128) and isinstance(host.descriptors, np.ndarray)
+
+
+def test_require_cuda_refuses_a_device_that_is_not_cuda():
+    """The GPU path asked for "cpu" or an unknown name: one ValueError naming `device` (without a GPU
+    it was "no CUDA GPU ... use device='cpu'" for device='cpu'; with one, "cpu" passed and the walk
+    failed inside numba)."""
+    from geofeat.gpu import mesh_device, require_cuda
+
+    for device in ("cpu", "tpu"):
+        for call in (require_cuda, mesh_device):
+            with pytest.raises(ValueError, match="device"):
+                call(device)
+
+
+def test_match_cuda_checks_its_features(monkeypatch):
+    """`match_cuda` on CPU tensors (the simulator's setting, which it reads when called) refuses what
+    `geofeat.match` refuses: descriptors of different kinds (float against uint8 of the same width
+    were compared as L2 numbers), NaN at a valid keypoint (one in features1 made every match -1),
+    valid flags of another length (a torch broadcasting error)."""
+    from geofeat.features import Features
+
+    monkeypatch.setenv("NUMBA_ENABLE_CUDASIM", "1")
+    rng = np.random.default_rng(0)
+    d = rng.standard_normal((6, 32)).astype(np.float32)
+    f = Features(np.zeros((6, 2)), d, np.ones(6, bool))
+    assert match_cuda(f, f).matches0.tolist() == list(range(6))
+    bits = Features(np.zeros((6, 2)), rng.integers(0, 256, (6, 32), dtype=np.uint8), np.ones(6, bool))
+    for a, b in ((f, bits), (bits, f)):
+        with pytest.raises(ValueError, match="different kinds"):
+            match_cuda(a, b)
+    nan = d.copy()
+    nan[2, 5] = np.nan
+    with pytest.raises(ValueError, match="features1 has NaN"):
+        match_cuda(f, Features(np.zeros((6, 2)), nan, np.ones(6, bool)), mutual=True)
+    masked = Features(np.zeros((6, 2)), nan, np.arange(6) != 2)  # NaN at an invalid keypoint is fine
+    got = match_cuda(f, masked).matches0
+    assert 2 not in got.tolist() and got.tolist() == match(f, masked).matches0.tolist()
+    short = torch.ones(4, dtype=torch.bool)
+    with pytest.raises(ValueError, match="features0: expected"):
+        match_cuda(type("F", (), {"descriptors": torch.from_numpy(d), "valid": short})(), f)
+    with pytest.raises(TypeError, match="features0"):
+        match_cuda(d, f)

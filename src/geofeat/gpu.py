@@ -78,7 +78,8 @@ def torch_device(device):
 def require_cuda(device="cuda"):
     """The torch.device for `device`, or a RuntimeError saying what is missing: a CUDA build of
     torch with a visible GPU, and numba's CUDA target (built into numba <= 0.60, else the
-    numba-cuda package: pip install 'geofeat[cuda]')."""
+    numba-cuda package: pip install 'geofeat[cuda]'). A device that is not CUDA ("cpu", a typo) is a
+    ValueError naming `device`. Under the simulator: the CPU, whatever `device`."""
     import importlib.util
 
     if simulated():
@@ -89,9 +90,8 @@ def require_cuda(device="cuda"):
         raise RuntimeError("device='cuda': torch is not installed")
     import torch
 
-    if not torch.cuda.is_available():
-        raise RuntimeError(f"device={str(device)!r}: no CUDA GPU is available to torch (torch {torch.__version__}, "
-                           f"built for CUDA {torch.version.cuda}); use device='cpu' or None")
+    if torch_device(device).type != "cuda":  # ValueError for a name torch does not know, RuntimeError without a GPU
+        raise ValueError(f"device: the GPU path needs 'cuda' or 'cuda:N', got {device!r}")
     try:
         from numba import cuda
     except ImportError as exc:  # pragma: no cover - depends on the numba build
@@ -452,13 +452,30 @@ def match_cuda(features0, features1, mutual: bool = False, ratio: float | None =
             return x.to(dev)
         return torch.from_numpy(np.ascontiguousarray(x)).to(dev)
 
-    d0, v0 = up(features0.descriptors), up(features0.valid).bool()
-    d1, v1 = up(features1.descriptors), up(features1.valid).bool()
+    def unpack(features, which: str):
+        """(descriptors, valid) on `dev`, checked as `geofeat.match` checks them."""
+        if not (hasattr(features, "descriptors") and hasattr(features, "valid")):
+            raise TypeError(f"{which}: expected DeviceFeatures or Features, got {type(features).__name__}")
+        d, v = up(features.descriptors), up(features.valid).bool()
+        if d.ndim < 2 or tuple(v.shape) != tuple(d.shape[:1]):
+            raise ValueError(f"{which}: expected (N, ...) descriptors and (N,) valid flags, got shapes "
+                             f"{tuple(d.shape)} and {tuple(v.shape)}")
+        if d.dtype.is_floating_point and not bool((torch.isfinite(d).flatten(1).all(1) | ~v).all()):
+            raise ValueError(f"descriptors: {which} has NaN or infinite values at valid keypoints; mark them "
+                             "invalid or drop them")
+        return d, v
+
+    d0, v0 = unpack(features0, "features0")
+    d1, v1 = unpack(features1, "features1")
     if ratio is not None and not (0 < ratio <= 1):
         raise ValueError(f"ratio: expected a number in (0, 1], got {ratio}")
     if d0.shape[1:] != d1.shape[1:]:
         raise ValueError(f"descriptors: trailing shapes differ: features0 {tuple(d0.shape)} vs features1 "
                          f"{tuple(d1.shape)}")
+    if d0.dtype.is_floating_point != d1.dtype.is_floating_point or (
+            not d0.dtype.is_floating_point and d0.dtype != d1.dtype):  # e.g. GeoPatch against GeoBit
+        raise ValueError(f"descriptors: features0 ({d0.dtype}) and features1 ({d1.dtype}) are of different kinds; "
+                         "match descriptors of one type")
     n0 = d0.shape[0]
     if n0 == 0 or d1.shape[0] == 0:
         return Matches(np.full(n0, -1, np.int64), np.full(n0, np.inf))
