@@ -76,6 +76,41 @@ def test_local_consistency_rejects_random_matches_and_checks_its_input():
         locally_consistent(np.where(np.arange(500)[:, None] == 3, np.nan, src), dst)
 
 
+def test_local_consistency_checks_its_settings():
+    """neighbours < 3 or trials < 1 were numpy errors from inside the vote (LinAlgError, argmax of an
+    empty sequence); a NaN or negative tolerance silently confirmed no match at all."""
+    rng = np.random.default_rng(3)
+    src = rng.uniform(0, 640, (40, 2))
+    dst = src * 0.5 + 3
+    assert locally_consistent(src, dst, neighbours=3).all()
+    for kwargs, name in (({"neighbours": 2}, "neighbours"), ({"neighbours": 0}, "neighbours"),
+                         ({"trials": 0}, "trials"), ({"tolerance_px": float("nan")}, "tolerance_px"),
+                         ({"tolerance_px": -1.0}, "tolerance_px")):
+        with pytest.raises(ValueError, match=name):
+            locally_consistent(src, dst, **kwargs)
+
+
+def test_refit_fails_when_its_last_fit_keeps_too_few_inliers():
+    """`refit_on_inliers` (and so `fit_tps_ransac` / `fit_tps_local`) returned a warp with fewer than
+    `min_inliers` inliers when the refit on a bad start lost them (the count checked was the start's);
+    a NaN threshold made `fit_tps_local` return ok with no inlier at all; a start of another length
+    was a numpy broadcasting error."""
+    from geofeat.apps.tracking import refit_on_inliers
+
+    rng = np.random.default_rng(1)
+    src, dst = rng.uniform(0, 200, (40, 2)), rng.uniform(0, 200, (40, 2))  # no warp explains them
+    for _ in range(10):
+        start = np.zeros(40, bool)
+        start[rng.choice(40, 12, replace=False)] = True
+        r = refit_on_inliers(src, dst, start, min_inliers=10)
+        assert not r.ok or r.inliers.sum() >= 10
+    src, dst = matches_with_outliers(200, 0.3, 0)[:2]
+    with pytest.raises(ValueError, match="threshold_px"):
+        fit_tps_local(src, dst, threshold_px=float("nan"))
+    with pytest.raises(ValueError, match="start"):
+        refit_on_inliers(src, dst, np.ones(10, bool))
+
+
 def test_tps_interpolates_and_normalisation_is_hartleys():
     rng = np.random.default_rng(3)
     src = rng.uniform(0, 500, (20, 2))
@@ -128,6 +163,13 @@ def test_roi_helpers():
         check_roi((10, 10, 300, 50), (100, 200))
     with pytest.raises(ValueError, match="roi"):
         check_roi("a,b", (100, 200))
+    with pytest.raises(ValueError, match="roi"):  # was an OverflowError
+        check_roi((0, 0, float("inf"), 50), (100, 200))
+    for shrink in (1.5, 1.0, -0.5, float("nan")):  # 1.5 gave x0 > x1, -0.5 a box off the mask's
+        with pytest.raises(ValueError, match="shrink"):
+            default_roi(mask, shrink)
+    with pytest.raises(ValueError, match="mask"):  # was "not enough values to unpack"
+        default_roi(mask[0])
 
 
 @pytest.fixture(scope="module")
@@ -300,6 +342,29 @@ def test_guided_matches_follow_the_prediction_among_identical_descriptors():
     predicted[0] = np.nan
     assert guided_matches(f0, f1, predicted, radius=40.0)[0] == -1
     assert guided_matches(f0, f1, predicted + 100.0, radius=40.0).tolist() == [-1, -1, -1]  # nothing near
+
+
+
+def test_guided_matches_check_their_input():
+    """Predictions of another shape were scipy / numpy errors; a negative radius searched as its
+    absolute value and a NaN one matched nothing; float template descriptors against uint8 frame ones
+    were compared as L2 numbers."""
+    from geofeat.features import Features
+    from geofeat.apps.tracking import guided_matches
+
+    rng = np.random.default_rng(0)
+    kp = rng.uniform(0, 100, (6, 2))
+    f0 = Features(kp, rng.normal(size=(6, 8)).astype(np.float32), np.ones(6, bool))
+    bits = Features(kp, rng.integers(0, 256, (6, 8), dtype=np.uint8), np.ones(6, bool))
+    assert guided_matches(f0, f0, kp).tolist() == list(range(6))
+    for predicted in (kp[:3], kp.ravel(), np.c_[kp, kp[:, :1]]):
+        with pytest.raises(ValueError, match="predicted0"):
+            guided_matches(f0, f0, predicted)
+    for radius in (-40.0, float("nan"), 0.0):
+        with pytest.raises(ValueError, match="radius"):
+            guided_matches(f0, f0, kp, radius=radius)
+    with pytest.raises(ValueError, match="different kinds"):
+        guided_matches(f0, bits, kp)
 
 
 def test_paper_table_iv_rows_follow_the_descriptors_tracked():

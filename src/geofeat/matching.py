@@ -998,7 +998,11 @@ def distance_matrix(descriptors0: np.ndarray, descriptors1: np.ndarray, metric: 
     d0, d1 = np.asarray(descriptors0), np.asarray(descriptors1)
     if d0.ndim < 2 or d1.ndim < 2 or d0.shape[1:] != d1.shape[1:]:
         raise ValueError(f"descriptors: expected (N, ...) arrays of the same trailing shape, got {d0.shape} and {d1.shape}")
-    metric = _default_metric(d0) if metric is None else metric
+    if metric is None:
+        metric = _default_metric(d0)
+        if _default_metric(d1) != metric:  # as in `match`: float against uint8 has no common distance
+            raise ValueError(f"descriptors: descriptors0 ({d0.dtype}) and descriptors1 ({d1.dtype}) are of different "
+                             "kinds; compare descriptors of one type, or pass metric=")
     if metric not in METRICS:
         raise ValueError(f"metric: expected one of {METRICS} or None, got {metric!r}")
     if metric == "l2":

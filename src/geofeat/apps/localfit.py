@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..inputs import check_positive, check_whole
 from ..tps import check_pairs
 
 __all__ = ["locally_consistent", "NEIGHBOURS", "TRIALS", "LOCAL_TOLERANCE_PX"]
@@ -45,16 +46,20 @@ def locally_consistent(
 
     Args:
         src, dst: (N, 2) matched pixels, template and frame.
-        neighbours: template neighbours per match (fewer when N is small).
+        neighbours: template neighbours per match, >= 3 (fewer when N is small).
         trials: affine hypotheses per match.
         tolerance_px: agreement radius, frame pixels.
         seed: random seed or generator (the result is deterministic for a given seed).
     Returns:
         (N,) bool, True for the matches that their neighbourhood confirms; all False when N < 8.
     Raises:
-        ValueError: src and dst are not two (N, 2) arrays of finite pixels.
+        ValueError: src and dst are not two (N, 2) arrays of finite pixels; neighbours < 3, trials < 1
+            or tolerance_px not a positive number.
     """
     src, dst = check_pairs(src, dst, 0)  # (N, 2) finite pixels each, or ValueError
+    check_whole(neighbours, "neighbours", 3)  # an affine map needs 3 of them
+    check_whole(trials, "trials", 1)
+    check_positive(tolerance_px, "tolerance_px")
     n = len(src)
     if n < 8:
         return np.zeros(n, bool)

@@ -210,8 +210,12 @@ def refit_on_inliers(
     Returns:
         `RansacResult`; warp None when fewer than `min_inliers` inliers remain.
     """
+    src, dst = check_pairs(src, dst, 0)
+    check_positive(threshold_px, "threshold_px")
     failed = RansacResult(None, np.zeros(len(src), bool))
     best = np.asarray(start, bool)
+    if best.shape != (len(src),):
+        raise ValueError(f"start: expected ({len(src)},) bool flags, one per match, got shape {best.shape}")
     if best.sum() < max(min_inliers, 3):
         return failed
     Ts, sn = normalise_points(src)
@@ -227,9 +231,10 @@ def refit_on_inliers(
         if (inliers == best).all() or inliers.sum() < max(min_inliers, 3):
             break
         best = inliers
-    if warp is None or best.sum() < min_inliers:
+    if warp is None:
         return failed
-    return RansacResult(warp, np.linalg.norm(warp(src) - dst, axis=1) < threshold_px)
+    inliers = np.linalg.norm(warp(src) - dst, axis=1) < threshold_px  # the last fit's, not the set it was fitted to
+    return RansacResult(warp, inliers) if inliers.sum() >= min_inliers else failed
 
 
 def fit_tps_local(
@@ -251,6 +256,7 @@ def fit_tps_local(
     from .localfit import locally_consistent  # scipy.spatial: imported when a frame is first fitted
 
     src, dst = check_pairs(src, dst, 0)
+    check_positive(threshold_px, "threshold_px")  # before the local fits
     return refit_on_inliers(src, dst, locally_consistent(src, dst, seed=seed), threshold_px, min_inliers=min_inliers)
 
 
@@ -275,12 +281,17 @@ def guided_matches(features0, features1, predicted0: np.ndarray, radius: float =
     from ..matching import distance_matrix
 
     n0, n1 = len(features0.keypoints), len(features1.keypoints)
+    predicted0 = np.asarray(predicted0, float)
+    if predicted0.shape != (n0, 2):
+        raise ValueError(f"predicted0: expected ({n0}, 2) pixels, one per keypoint of features0, got shape "
+                         f"{predicted0.shape}")
+    check_positive(radius, "radius")
     out = np.full(n0, -1, np.int64)
     if n0 == 0 or n1 == 0:
         return out
     dist = distance_matrix(features0.descriptors, features1.descriptors).astype(np.float64)
     # (N0, N1) squared pixel distances; NaN predictions compare False, so they never match
-    near = cdist(np.asarray(predicted0, float), np.asarray(features1.keypoints, float), "sqeuclidean") < radius**2
+    near = cdist(predicted0, np.asarray(features1.keypoints, float), "sqeuclidean") < radius**2
     allowed = near & features0.valid[:, None] & features1.valid[None, :]
     dist[~allowed] = np.inf
     best = np.argmin(dist, axis=1)
@@ -296,7 +307,12 @@ def guided_matches(features0, features1, predicted0: np.ndarray, radius: float =
 
 def default_roi(mask: np.ndarray, shrink: float = 0.10) -> tuple[int, int, int, int]:
     """(x0, y0, x1, y1) pixels: the bounding box of the (H, W) bool object mask shrunk by `shrink`
-    of its width and height (half on each side)."""
+    of its width and height (half on each side), 0 <= shrink < 1."""
+    mask = np.asarray(mask)
+    if mask.ndim != 2:
+        raise ValueError(f"mask: expected an (H, W) object mask, got shape {mask.shape}")
+    if isinstance(shrink, bool) or not isinstance(shrink, numbers.Real) or not 0 <= shrink < 1:
+        raise ValueError(f"shrink: expected a fraction in [0, 1) of the mask's box, got {shrink!r}")
     ys, xs = np.nonzero(mask)
     if len(xs) == 0:
         raise ValueError("mask: the object mask is empty; pass --roi x0,y0,x1,y1")
@@ -309,7 +325,7 @@ def check_roi(roi, shape: tuple[int, int]) -> tuple[int, int, int, int]:
     """Validate an (x0, y0, x1, y1) ROI against an image of shape (H, W)."""
     try:
         x0, y0, x1, y1 = (int(round(float(v))) for v in roi)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # OverflowError: an infinite coordinate
         raise ValueError(f"roi: expected four numbers x0,y0,x1,y1 (pixels), got {roi!r}") from None
     H, W = shape
     if not (0 <= x0 < x1 <= W - 1 and 0 <= y0 < y1 <= H - 1):
