@@ -354,3 +354,46 @@ def test_each_descriptor_gets_its_own_detector_by_default(three_objects):
                               detector="sift")
     assert named.detectors == {"geobit": "sift", "orb": "sift"}
     np.testing.assert_array_equal(named.features["geobit"][0].keypoints, named.features["orb"][0].keypoints)
+
+
+def test_read_classes_of_a_spreadsheet_export(tmp_path):
+    """A byte-order mark (Excel's "CSV UTF-8") hid the header: '\\ufeffsequence' became a sequence of
+    class 'class'; a file that is not UTF-8 was a UnicodeDecodeError."""
+    p = tmp_path / "c.csv"
+    p.write_bytes("\ufeffsequence,class\na,cloth\n".encode("utf-8"))
+    assert read_classes(p) == {"a": "cloth"}
+    p.write_bytes(b"\xff\xfe\x00a,b\n")
+    with pytest.raises(ValueError, match="classes: .* UTF-8"):
+        read_classes(p)
+
+
+def test_split_weighting_and_vocabulary_check_their_input():
+    """split_queries(-1) split nothing silently and 2.5 was a numpy AxisError; negative or NaN counts
+    and a negative idf gave vectors with NaN or negative weights; a distance matrix of another sample
+    picked medoids by the wrong rows; records of two descriptors were concatenated (uint8 bits cast
+    to floats) and counted against the other descriptor's words."""
+    from geofeat.apps.retrieval import sample_descriptors
+
+    for n in (-1, 2.5, True):
+        with pytest.raises(ValueError, match="n: expected"):
+            split_queries(n)
+    val, test = split_queries(9)
+    assert sorted(np.concatenate([val, test]).tolist()) == list(range(9))
+    counts = np.array([[1, 0, 2], [0, 3, 1]])
+    for bad in (np.array([[1, -2, 3]]), np.array([[1.0, np.nan, 3.0]]), np.ones((2, 2, 2))):
+        with pytest.raises(ValueError, match="counts"):
+            weight_histograms(bad, "none")
+    with pytest.raises(ValueError, match="idf"):
+        weight_histograms(counts, "tfidf", idf=np.array([1.0, -1.0, 1.0]))
+    assert weight_histograms(np.zeros((0, 3))).shape == (0, 3)
+    rng = np.random.default_rng(0)
+    floats = rng.standard_normal((30, 16)).astype(np.float32)
+    with pytest.raises(ValueError, match="distances"):
+        vocabulary(floats, 4, distances=np.zeros((10, 10), np.float32))
+    vocab = vocabulary(floats, 4)
+    bits = rng.integers(0, 256, (30, 16), dtype=np.uint8)
+    with pytest.raises(ValueError, match="features"):
+        word_counts(bits, vocab)
+    f = [Features(np.zeros((30, 2)), d, np.ones(30, bool)) for d in (floats, bits)]
+    with pytest.raises(ValueError, match="different kinds"):
+        sample_descriptors(f)

@@ -99,10 +99,15 @@ def _metric_of(descriptors: np.ndarray) -> str:
 
 def sample_descriptors(features: list[Features], n: int = N_VOCABULARY_SAMPLES, seed: int | np.random.Generator = 0
                        ) -> np.ndarray:
-    """(min(n, total), ...) valid descriptors drawn at random, without replacement, from all records."""
+    """(min(n, total), ...) valid descriptors drawn at random, without replacement, from all records
+    (all of one descriptor: the same dtype and trailing shape)."""
     valid = [np.asarray(f.descriptors)[f.valid] for f in features]
     if not valid:
         raise ValueError("features: expected at least one Features record")
+    kinds = {f"{v.dtype} (N, {', '.join(map(str, v.shape[1:]))})" for v in valid}
+    if len(kinds) > 1:  # np.concatenate would cast uint8 bits to floats, or fail on the widths
+        raise ValueError(f"features: descriptors of different kinds: {', '.join(sorted(kinds))}; sample one "
+                         "descriptor's")
     pool = np.concatenate(valid, axis=0)
     rng = np.random.default_rng(seed)
     if len(pool) <= n:
@@ -141,7 +146,10 @@ def vocabulary(descriptors: np.ndarray, words: int = N_WORDS, metric: str | None
         raise ValueError(f"descriptors: too few for {words} visual words: got {len(descriptors)} "
                          f"(shape {descriptors.shape}), expected more than {words}")
     metric = _metric_of(descriptors) if metric is None else metric
-    D = sample_distances(descriptors, metric) if distances is None else distances
+    D = sample_distances(descriptors, metric) if distances is None else np.asarray(distances)
+    if D.shape != (len(descriptors),) * 2:  # another sample's matrix would pick medoids of the wrong rows
+        raise ValueError(f"distances: expected the ({len(descriptors)}, {len(descriptors)}) matrix of these "
+                         f"descriptors, got shape {D.shape}")
     result = kmedoids.fasterpam(D, int(words), init="random", random_state=int(seed), n_cpu=1)
     medoids = np.sort(np.asarray(result.medoids, np.int64))
     return Vocabulary(descriptors[medoids].copy(), metric)
@@ -151,6 +159,10 @@ def word_counts(features: Features | np.ndarray, vocab: Vocabulary) -> np.ndarra
     """(K,) int64 number of valid descriptors of `features` whose nearest visual word is each word."""
     from ..matching import match
 
+    descriptors = np.asarray(features.descriptors if isinstance(features, Features) else features)
+    if _metric_of(descriptors) != _metric_of(vocab.medoids):  # uint8 bits against float words: no common distance
+        raise ValueError(f"features: {descriptors.dtype} descriptors against a vocabulary of {vocab.medoids.dtype} "
+                         "words; use the vocabulary of the same descriptor")
     m = match(features, vocab.medoids, metric=vocab.metric)
     return np.bincount(m.matches0[m.matches0 >= 0], minlength=len(vocab)).astype(np.int64)
 
@@ -196,14 +208,21 @@ def weight_histograms(counts: np.ndarray, weighting: str = DEFAULT_WEIGHTING, id
     """
     _check_weighting(weighting)
     counts = np.atleast_2d(np.asarray(counts, np.float64))
+    if counts.ndim != 2 or not (np.isfinite(counts) & (counts >= 0)).all():
+        raise ValueError(f"counts: expected (N, K) word counts >= 0 (`word_counts`), got shape {counts.shape}"
+                         f"{'' if counts.ndim != 2 else ' with negative, NaN or infinite values'}")
     tf = _normalise(counts, 1)
     if weighting == "none":
         return tf
     if weighting == "hellinger":
         return np.sqrt(tf)
-    idf = inverse_document_frequency(counts) if idf is None else np.asarray(idf, np.float64)
-    if idf.shape != counts.shape[1:]:
-        raise ValueError(f"idf: expected shape {counts.shape[1:]}, got {idf.shape}")
+    if idf is None:
+        idf = inverse_document_frequency(counts)
+    else:
+        idf = np.asarray(idf, np.float64)
+        if idf.shape != counts.shape[1:] or not (np.isfinite(idf) & (idf >= 0)).all():
+            raise ValueError(f"idf: expected shape {counts.shape[1:]} of finite values >= 0 "
+                             f"(`inverse_document_frequency`), got shape {idf.shape}")
     if weighting == "tfidf-l1":
         return _normalise(tf * idf, 1)
     return _normalise((np.sqrt(tf) if weighting == "tfidf-sqrt" else tf) * idf, 2)
@@ -321,6 +340,7 @@ def eligible_queries(db: "RetrievalDatabase", include_own_sequence: bool = False
 
 def split_queries(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """(validation, test) sorted indices into n queries: a random half (floor(n / 2)) and the rest."""
+    n, seed = check_whole(n, "n", 0), check_whole(seed, "seed", 0)
     perm = np.random.default_rng(seed).permutation(n)
     return np.sort(perm[: n // 2]), np.sort(perm[n // 2 :])
 
@@ -332,16 +352,20 @@ def read_classes(path: str | Path) -> dict[str, str]:
     if not path.is_file():
         raise ValueError(f"classes: file not found: {path}")
     out = {}
-    with open(path, newline="") as fh:
-        for i, row in enumerate(csv.reader(fh)):
-            row = [c.strip() for c in row]
-            if not row or not any(row) or (i == 0 and row[:2] == ["sequence", "class"]):
-                continue
-            if len(row) < 2 or not row[0] or not row[1]:
-                raise ValueError(f"classes: {path} line {i + 1}: expected 'sequence,class', got {','.join(row)!r}")
-            if out.setdefault(row[0], row[1]) != row[1]:
-                raise ValueError(f"classes: {path} line {i + 1}: sequence {row[0]!r} has class {out[row[0]]!r} "
-                                 f"on an earlier line and {row[1]!r} here; give each sequence one class")
+    try:  # utf-8-sig: a spreadsheet's byte-order mark is not part of the first sequence name
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            rows = list(csv.reader(fh))
+    except UnicodeDecodeError as error:
+        raise ValueError(f"classes: {path} is not a UTF-8 text file ({error})") from None
+    for i, row in enumerate(rows):
+        row = [c.strip() for c in row]
+        if not row or not any(row) or (i == 0 and row[:2] == ["sequence", "class"]):
+            continue
+        if len(row) < 2 or not row[0] or not row[1]:
+            raise ValueError(f"classes: {path} line {i + 1}: expected 'sequence,class', got {','.join(row)!r}")
+        if out.setdefault(row[0], row[1]) != row[1]:
+            raise ValueError(f"classes: {path} line {i + 1}: sequence {row[0]!r} has class {out[row[0]]!r} "
+                             f"on an earlier line and {row[1]!r} here; give each sequence one class")
     return out
 
 
