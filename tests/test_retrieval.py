@@ -391,6 +391,8 @@ def test_split_weighting_and_vocabulary_check_their_input():
     with pytest.raises(ValueError, match="distances"):
         vocabulary(floats, 4, distances=np.zeros((10, 10), np.float32))
     vocab = vocabulary(floats, 4)
+    with pytest.raises(ValueError, match="NaN"):  # NaN distances gave words without a word
+        vocabulary(np.where(np.arange(30)[:, None] == 7, np.nan, floats), 4)
     bits = rng.integers(0, 256, (30, 16), dtype=np.uint8)
     with pytest.raises(ValueError, match="features"):
         word_counts(bits, vocab)

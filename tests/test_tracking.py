@@ -365,6 +365,12 @@ def test_guided_matches_check_their_input():
             guided_matches(f0, f0, kp, radius=radius)
     with pytest.raises(ValueError, match="different kinds"):
         guided_matches(f0, bits, kp)
+    nan = Features(kp, f0.descriptors.copy(), np.ones(6, bool))
+    nan.descriptors[2, 0] = np.nan  # np.argmin takes a NaN distance for the smallest: a wrong match
+    with pytest.raises(ValueError, match=r"features1 has NaN.*\[2\]"):
+        guided_matches(f0, nan, kp)
+    nan.valid[2] = False  # an invalid keypoint's descriptor is never compared
+    assert guided_matches(f0, nan, kp).tolist() == [0, 1, -1, 3, 4, 5]
 
 
 def test_paper_table_iv_rows_follow_the_descriptors_tracked():

@@ -820,6 +820,19 @@ def _l2_search(d0, d1, valid0, valid1, want_cols, block: int = 1024):
     return best_d.astype(np.float64), best_j, second_d.astype(np.float64), (col_j if want_cols else None)
 
 
+def check_finite_descriptors(descriptors: np.ndarray, valid: np.ndarray | None = None, name: str = "descriptors") -> None:
+    """Float (N, ...) descriptors must be finite at every valid keypoint (`valid` (N,) bool; None: all):
+    a NaN distance matches nothing or anything, without a word. ValueError naming the rows otherwise."""
+    d = np.asarray(descriptors)
+    if d.dtype.kind != "f" or d.size == 0:
+        return
+    finite = np.isfinite(d.reshape(len(d), -1)).all(axis=1)
+    bad = np.flatnonzero(~finite if valid is None else (valid & ~finite))
+    if len(bad):
+        raise ValueError(f"descriptors: {name} has NaN or infinite values at valid keypoints "
+                         f"{bad[:5].tolist()}{' ...' if len(bad) > 5 else ''}; mark them invalid or drop them")
+
+
 def _unpack(x, which: str) -> tuple[np.ndarray, np.ndarray]:
     if isinstance(x, Features):
         desc, valid = np.asarray(x.descriptors), np.asarray(x.valid, dtype=bool)
@@ -897,11 +910,8 @@ def match(
             raise ValueError(f"descriptors: metric 'l2' expects (N, D) arrays, got shape {d0.shape}")
         if d0.dtype.kind not in "fiu" or d1.dtype.kind not in "fiu":
             raise TypeError(f"descriptors: metric 'l2' expects numeric arrays, got {d0.dtype} and {d1.dtype}")
-        for d, valid, name in ((d0, valid0, "features0"), (d1, valid1, "features1")):
-            if d.dtype.kind == "f" and not np.isfinite(d[valid]).all():  # NaN would match nothing, or anything
-                bad = np.flatnonzero(valid & ~np.isfinite(d).all(axis=1))
-                raise ValueError(f"descriptors: {name} has NaN or infinite values at valid keypoints "
-                                 f"{bad[:5].tolist()}{' ...' if len(bad) > 5 else ''}; mark them invalid or drop them")
+        check_finite_descriptors(d0, valid0, "features0")
+        check_finite_descriptors(d1, valid1, "features1")
     else:
         if d0.dtype != np.uint8 or d1.dtype != np.uint8:
             raise TypeError(

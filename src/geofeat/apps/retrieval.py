@@ -117,9 +117,10 @@ def sample_descriptors(features: list[Features], n: int = N_VOCABULARY_SAMPLES, 
 
 def sample_distances(descriptors: np.ndarray, metric: str | None = None) -> np.ndarray:
     """(N, N) float32 symmetrised distance matrix (D + D^T) / 2 of (N, ...) descriptors under `metric`."""
-    from ..matching import distance_matrix
+    from ..matching import check_finite_descriptors, distance_matrix
 
     descriptors = np.asarray(descriptors)
+    check_finite_descriptors(descriptors)  # NaN distances would give K-medoids words without a word
     metric = _metric_of(descriptors) if metric is None else metric
     D = distance_matrix(descriptors, descriptors, metric)
     return (D + D.T) * np.float32(0.5)

@@ -278,7 +278,7 @@ def guided_matches(features0, features1, predicted0: np.ndarray, radius: float =
     """
     from scipy.spatial.distance import cdist
 
-    from ..matching import distance_matrix
+    from ..matching import check_finite_descriptors, distance_matrix
 
     n0, n1 = len(features0.keypoints), len(features1.keypoints)
     predicted0 = np.asarray(predicted0, float)
@@ -289,6 +289,8 @@ def guided_matches(features0, features1, predicted0: np.ndarray, radius: float =
     out = np.full(n0, -1, np.int64)
     if n0 == 0 or n1 == 0:
         return out
+    check_finite_descriptors(features0.descriptors, features0.valid, "features0")
+    check_finite_descriptors(features1.descriptors, features1.valid, "features1")
     dist = distance_matrix(features0.descriptors, features1.descriptors).astype(np.float64)
     # (N0, N1) squared pixel distances; NaN predictions compare False, so they never match
     near = cdist(predicted0, np.asarray(features1.keypoints, float), "sqeuclidean") < radius**2

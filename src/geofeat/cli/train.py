@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     from ..descriptors.geopatch import GeoPatchConfig
     from ..inputs import check_whole
     from ..train.dataset import PatchSet, build_patch_set, check_simulated, validation_pairs
-    from ..train.loop import TrainConfig, check_train_config, check_train_out, load_init, train
+    from ..train.loop import TrainConfig, check_train_config, check_train_out, load_init, load_resume_state, train
 
     check_whole(args.steps, "--steps", 1)
     for c in args.channels:
@@ -61,6 +61,9 @@ def run(args: argparse.Namespace) -> int:
     )
     check_train_config(config)
     check_train_out(args.out, args.overwrite, args.resume)
+    checkpoint = Path(str(args.out) + ".ckpt")
+    if args.resume and checkpoint.is_file():
+        load_resume_state(checkpoint, config)  # a corrupt or other run's checkpoint, before the patches
     if args.init is not None:
         if args.net != "geopatch":
             raise ValueError(f"--init: fine-tuning starts from GeoPatch weights; not with --net {args.net}")

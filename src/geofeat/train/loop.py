@@ -86,6 +86,30 @@ def load_init(init: str | Path, config: GeoPatchConfig) -> GeoPatchNet:
     return start
 
 
+def load_resume_state(ckpt_path: str | Path, config: TrainConfig, device=None) -> dict:
+    """The state `train` saved in `ckpt_path` after its last epoch, to resume with `config`; ValueError
+    naming the file when it cannot be read as one, or was written with other settings (resuming
+    with another schedule would silently train a different run). Called by `train` and, before any
+    patches are built, by the `train` command."""
+    ckpt_path = Path(ckpt_path)
+    try:
+        state = torch.load(str(ckpt_path), map_location=device or "cpu", weights_only=False)
+        written_with = state["history"]["config"]
+        for key in ("state_dict", "optimizer", "scheduler", "rng", "torch_rng", "epoch"):
+            state[key]
+    except Exception as error:  # noqa: BLE001 - unpickling, a missing key: one user error
+        text = str(error).splitlines()[0] if str(error) else ""
+        raise ValueError(f"resume: {ckpt_path} is not a checkpoint written by `geofeat train` "
+                         f"({type(error).__name__}: {text[:200]})") from None
+    wanted = asdict(config)
+    if written_with != wanted:
+        changed = [k for k in wanted if written_with.get(k) != wanted[k]]
+        raise ValueError(f"resume: {ckpt_path} was written with other settings ("
+                         + ", ".join(f"{k} {written_with.get(k)!r}, not {wanted[k]!r}" for k in changed)
+                         + "); resume with the same options, or train anew")
+    return state
+
+
 def triplet_loss(a: torch.Tensor, p: torch.Tensor, n: torch.Tensor | None, margin: float, mining: str) -> torch.Tensor:
     """Margin ranking loss with anchor swap on unit descriptors (B, D).
 
@@ -200,24 +224,17 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
     history = {"epoch": [], "loss": [], "val_ms": [], "config": asdict(config)}
     start_epoch = 0
     if resume and ckpt_path.is_file():
+        state = load_resume_state(ckpt_path, config, device)
         try:
-            state = torch.load(str(ckpt_path), map_location=device, weights_only=False)
-            written_with = state["history"]["config"]
-            if written_with == history["config"]:
-                net.load_state_dict(state["state_dict"])
-                opt.load_state_dict(state["optimizer"])
-                sched.load_state_dict(state["scheduler"])
-                rng.bit_generator.state = state["rng"]
-                torch.set_rng_state(state["torch_rng"])
-        except Exception as error:  # noqa: BLE001 - unpickling, a missing key, another network: one user error
+            net.load_state_dict(state["state_dict"])
+            opt.load_state_dict(state["optimizer"])
+            sched.load_state_dict(state["scheduler"])
+            rng.bit_generator.state = state["rng"]
+            torch.set_rng_state(state["torch_rng"])
+        except Exception as error:  # noqa: BLE001 - another network's state, a missing key: one user error
             text = str(error).splitlines()[0] if str(error) else ""
             raise ValueError(f"resume: {ckpt_path} is not a checkpoint of this network written by `geofeat train` "
                              f"({type(error).__name__}: {text[:200]})") from None
-        if written_with != history["config"]:
-            changed = [k for k in history["config"] if written_with.get(k) != history["config"][k]]
-            raise ValueError(f"resume: {ckpt_path} was written with other settings ("
-                             + ", ".join(f"{k} {written_with.get(k)!r}, not {history['config'][k]!r}" for k in changed)
-                             + "); resume with the same options, or train anew")
         history = state["history"]
         start_epoch = state["epoch"] + 1
     sampler = TripletSampler(data.ids, rng)
