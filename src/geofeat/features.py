@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .outputs import write_npz
+
 __all__ = [
     "Features",
     "Matches",
@@ -187,16 +189,9 @@ def save_features(path: str | Path, features: Features, name: str | None = None)
     if features.sizes is not None:
         arrays["sizes"] = features.sizes
     if _suffix(path) == ".npz":
-        _write_npz(path, arrays)
+        write_npz(path, arrays)
     else:
         _h5_write_group(path, _require_name(name, path), arrays)
-
-
-def _write_npz(path: str | Path, arrays: dict[str, np.ndarray]) -> None:
-    """`np.savez` to exactly `path` (given a name, numpy appends ".npz" unless it ends so, in lower case:
-    "A.NPZ" became "A.NPZ.npz", which `load_*("A.NPZ")` did not find)."""
-    with open(path, "wb") as fh:
-        np.savez(fh, **arrays)
 
 
 def _features_from(arrays: dict[str, np.ndarray]) -> Features:
@@ -227,7 +222,7 @@ def save_matches(path: str | Path, matches: Matches, name: str | None = None) ->
         raise TypeError(f"matches: expected a Matches record, got {type(matches).__name__}")
     arrays = {"matches0": matches.matches0.astype(np.int64), "distances": matches.distances0}
     if _suffix(path) == ".npz":
-        _write_npz(path, arrays)
+        write_npz(path, arrays)
     else:
         _h5_write_group(path, _require_name(name, path), arrays)
 

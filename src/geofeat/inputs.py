@@ -101,6 +101,13 @@ def check_whole(value: Any, what: str, minimum: int = 1) -> int:
     return int(value)
 
 
+def error_summary(error: BaseException, limit: int = 200) -> str:
+    """"TypeName: first line of the message" (at most `limit` characters of it), for a ValueError
+    that wraps an error from a library (unpickling, ONNX Runtime) in words naming the user's file."""
+    text = str(error).splitlines()[0] if str(error) else ""
+    return f"{type(error).__name__}: {text[:limit]}"
+
+
 def check_depth_plausible(depth_m: np.ndarray, depth_scale: float, where: str) -> None:
     """The median of the valid depths (metres, after scaling) must be plausible, else the depth scale is
     wrong (metres stored where millimetres are expected, or the other way round)."""

@@ -820,6 +820,16 @@ def _l2_search(d0, d1, valid0, valid1, want_cols, block: int = 1024):
     return best_d.astype(np.float64), best_j, second_d.astype(np.float64), (col_j if want_cols else None)
 
 
+def metric_of_pair(d0: np.ndarray, d1: np.ndarray, names: tuple[str, str] = ("features0", "features1")) -> str:
+    """The metric `match` chooses for two descriptor arrays (from the dtype and rank), which must be of
+    one kind: float against uint8 bits has no common distance. ValueError naming both otherwise."""
+    metric = _default_metric(d0)
+    if _default_metric(d1) != metric:  # e.g. float GeoPatch against uint8 ORB
+        raise ValueError(f"descriptors: {names[0]} ({d0.dtype}) and {names[1]} ({d1.dtype}) are of different kinds; "
+                         "use descriptors of one type, or pass metric=")
+    return metric
+
+
 def check_finite_descriptors(descriptors: np.ndarray, valid: np.ndarray | None = None, name: str = "descriptors") -> None:
     """Float (N, ...) descriptors must be finite at every valid keypoint (`valid` (N,) bool; None: all):
     a NaN distance matches nothing or anything, without a word. ValueError naming the rows otherwise."""
@@ -896,10 +906,7 @@ def match(
             f"descriptors: trailing shapes differ: features0 {d0.shape} vs features1 {d1.shape}"
         )
     if metric is None:
-        metric = _default_metric(d0)
-        if _default_metric(d1) != metric:  # e.g. float GeoPatch against uint8 ORB: no common distance
-            raise ValueError(f"descriptors: features0 ({d0.dtype}) and features1 ({d1.dtype}) are of different kinds; "
-                             "match descriptors of one type, or pass metric=")
+        metric = metric_of_pair(d0, d1)
     if metric not in METRICS:
         raise ValueError(f"metric: expected one of {METRICS} or None, got {metric!r}")
     if ratio is not None and not (0 < ratio <= 1):
@@ -1009,10 +1016,7 @@ def distance_matrix(descriptors0: np.ndarray, descriptors1: np.ndarray, metric: 
     if d0.ndim < 2 or d1.ndim < 2 or d0.shape[1:] != d1.shape[1:]:
         raise ValueError(f"descriptors: expected (N, ...) arrays of the same trailing shape, got {d0.shape} and {d1.shape}")
     if metric is None:
-        metric = _default_metric(d0)
-        if _default_metric(d1) != metric:  # as in `match`: float against uint8 has no common distance
-            raise ValueError(f"descriptors: descriptors0 ({d0.dtype}) and descriptors1 ({d1.dtype}) are of different "
-                             "kinds; compare descriptors of one type, or pass metric=")
+        metric = metric_of_pair(d0, d1, ("descriptors0", "descriptors1"))
     if metric not in METRICS:
         raise ValueError(f"metric: expected one of {METRICS} or None, got {metric!r}")
     if metric == "l2":

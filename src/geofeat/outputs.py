@@ -125,6 +125,16 @@ def check_out_dir(path: str | Path, overwrite: bool = False, what: str = "--out"
     return path
 
 
+def write_npz(path: str | Path, arrays: dict, compressed: bool = False) -> None:
+    """Write `arrays` to an .npz archive at exactly `path`, whole or not at all (`atomic_file`). Through
+    a file object: given a name, numpy appends ".npz" unless it already ends so in lower case ("A.NPZ"
+    became "A.NPZ.npz")."""
+    import numpy as np
+
+    with atomic_file(path) as tmp, open(tmp, "wb") as fh:
+        (np.savez_compressed if compressed else np.savez)(fh, **arrays)
+
+
 def partial_name(path: Path) -> Path:
     """The temporary sibling that a result is written to before it is renamed to `path`."""
     return path.with_name(f".geofeat-partial-{os.getpid()}-{path.name}")

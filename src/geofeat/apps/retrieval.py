@@ -158,12 +158,10 @@ def vocabulary(descriptors: np.ndarray, words: int = N_WORDS, metric: str | None
 
 def word_counts(features: Features | np.ndarray, vocab: Vocabulary) -> np.ndarray:
     """(K,) int64 number of valid descriptors of `features` whose nearest visual word is each word."""
-    from ..matching import match
+    from ..matching import match, metric_of_pair
 
     descriptors = np.asarray(features.descriptors if isinstance(features, Features) else features)
-    if _metric_of(descriptors) != _metric_of(vocab.medoids):  # uint8 bits against float words: no common distance
-        raise ValueError(f"features: {descriptors.dtype} descriptors against a vocabulary of {vocab.medoids.dtype} "
-                         "words; use the vocabulary of the same descriptor")
+    metric_of_pair(descriptors, vocab.medoids, ("features", "vocabulary"))  # bits against float words: no distance
     m = match(features, vocab.medoids, metric=vocab.metric)
     return np.bincount(m.matches0[m.matches0 >= 0], minlength=len(vocab)).astype(np.int64)
 

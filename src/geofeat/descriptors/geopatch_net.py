@@ -100,9 +100,10 @@ def load_checkpoint(path: str | Path, build, what: str) -> tuple[nn.Module, dict
         net = build(dict(ckpt["config"]))
         net.load_state_dict(ckpt["state_dict"])
     except Exception as error:  # noqa: BLE001 - unpickling, a missing key, another architecture: all one user error
-        text = str(error).splitlines()[0] if str(error) else ""
-        raise ValueError(f"weights: {path} is not a {what} checkpoint of `geofeat train` "
-                         f"({type(error).__name__}: {text[:200]})") from None
+        from ..inputs import error_summary
+
+        raise ValueError(f"weights: {path} is not a {what} checkpoint of `geofeat train` ({error_summary(error)})") \
+            from None
     return net, ckpt
 
 

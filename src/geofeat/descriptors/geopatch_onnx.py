@@ -278,9 +278,9 @@ class OnnxGeoPatch:
             self.config = json.loads(meta["config"])
         except Exception as error:  # noqa: BLE001 - a corrupt file or another network: one user error
             where = "the exported model" if isinstance(model, bytes) else str(model)
-            text = str(error).splitlines()[0] if str(error) else ""
-            raise ValueError(f"weights: {where} is not a GeoPatch ONNX model ({type(error).__name__}: "
-                             f"{text[:200]})") from None
+            from ..inputs import error_summary
+
+            raise ValueError(f"weights: {where} is not a GeoPatch ONNX model ({error_summary(error)})") from None
 
     def run(self, x: np.ndarray, batch_size: int = 256) -> np.ndarray:
         """(N, R, A) float32 patches -> (N, dim) float32 unit descriptors, `batch_size` at a time."""

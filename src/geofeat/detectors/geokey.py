@@ -109,15 +109,17 @@ class GeoKeyModel:
         return bool(self.weights)
 
     def save(self, path: str | Path) -> None:
-        """Write the model to `path` as an .npz archive (the extension is kept as given)."""
+        """Write the model to `path` as an .npz archive (the extension is kept as given), whole or not
+        at all (`geofeat.outputs.write_npz`)."""
+        from ..outputs import write_npz
+
         arrays = {"mean": self.mean, "std": self.std, "linear": self.linear,
                   "nms_radius": np.float32(self.nms_radius), "threshold": np.float32(self.threshold),
                   "min_fraction": np.float32(self.min_fraction),
                   "cue_names": np.array(CUE_NAMES)}
         for k, (w, b) in enumerate(zip(self.weights, self.biases)):
             arrays[f"w{k}"], arrays[f"b{k}"] = w, b
-        with open(path, "wb") as fh:
-            np.savez(fh, **arrays)
+        write_npz(path, arrays)
 
 
 def load_geokey(path: str | Path | None = None) -> GeoKeyModel:

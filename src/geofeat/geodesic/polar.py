@@ -18,7 +18,7 @@ import numpy as np
 from ..constants import DEFAULT_RADIUS_M, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX
 from ..depth import DepthConfig
 from ..frame import RGBDFrame
-from ..inputs import check_radius
+from ..inputs import check_radius, check_whole
 from ..keypoints import as_keypoints
 from .mesh import GridMesh, frame_mesh
 from .walk import MAX_CROSSINGS, walk_polar
@@ -66,9 +66,8 @@ def check_patch_request(frame: RGBDFrame, keypoints, radius: float, n_angles: in
     if not isinstance(frame, RGBDFrame):
         raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
     check_radius(radius, "radius")  # metres, within inputs.PLAUSIBLE_RADIUS_M, as for the commands
-    for name, value in (("n_angles", n_angles), ("n_rings", n_rings)):
-        if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
-            raise ValueError(f"{name}: must be a positive integer, got {value!r}")
+    check_whole(n_angles, "n_angles", 1)
+    check_whole(n_rings, "n_rings", 1)
     return as_keypoint_array(keypoints, frame.shape)
 
 

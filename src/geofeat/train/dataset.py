@@ -34,11 +34,10 @@ class PatchSet:
     ids: np.ndarray
 
     def save(self, path: str | Path) -> None:
-        """Write an .npz archive, whole or not at all (`atomic_file`)."""
-        from ..outputs import atomic_file
+        """Write a compressed .npz archive, whole or not at all (`geofeat.outputs.write_npz`)."""
+        from ..outputs import write_npz
 
-        with atomic_file(path) as tmp, open(tmp, "wb") as f:  # a file object: no ".npz" appended to the name
-            np.savez_compressed(f, patches=self.patches, ids=self.ids)
+        write_npz(path, {"patches": self.patches, "ids": self.ids}, compressed=True)
 
     @classmethod
     def load(cls, path: str | Path) -> "PatchSet":

@@ -27,8 +27,10 @@ from tqdm import tqdm
 
 from ..detectors.cues import CUE_NAMES, IMAGE_CUES
 from ..detectors.geokey import GeoKeyModel, candidate_features, candidates, detect_geokey
-from ..io import Sequence, find_sequences, read_sequence
+from ..inputs import check_whole
+from ..io import Sequence, read_sequence
 from ..scoring import GT_THRESHOLD_PX, ground_truth_pairs
+from .dataset import check_simulated
 
 #: A candidate is found again when another view's candidate lies within this many pixels.
 MATCH_PX = 1.0
@@ -339,9 +341,9 @@ def check_counts(counts: int | tuple[int, ...]) -> tuple[int, ...]:
     """Validation keypoint counts as a tuple: one or more positive whole numbers."""
     if isinstance(counts, int):
         counts = (counts,)
-    if not counts or any(isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n <= 0 for n in counts):
+    if not counts:
         raise ValueError(f"keypoints: expected positive counts, got {counts}")
-    return tuple(counts)
+    return tuple(check_whole(n, "keypoints", 1) for n in counts)
 
 
 #: The key of SIFT's own validation figures in `choose_model`'s results.
@@ -383,24 +385,19 @@ def train_detector(data, val, out: str | Path, n: int | tuple[int, ...] = VALIDA
     weights to `out` (written whole or not at all; an existing file only with `overwrite`). The
     options are checked before any work. Returns the model, the validation figures per (scorer,
     radius) and count, and the chosen (scorer, radius) key."""
-    from ..outputs import atomic_file, check_out_file
+    from ..outputs import check_out_file
 
     out = check_out_file(out, overwrite)
     n = check_counts(n)
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
-        raise ValueError(f"steps: expected a positive number of Adam steps, got {steps!r}")
+    check_whole(steps, "steps", 1)  # Adam steps
     if hidden is not None and (not hidden or any(int(h) < 1 for h in hidden)):
         raise ValueError(f"hidden: expected positive layer widths, got {hidden!r}")
-    train_folders = find_sequences(data)
-    val_folders = find_sequences(val)
+    train_folders = check_simulated(data, "data")  # ground truth in every one, before training
+    val_folders = check_simulated(val, "val")
     if not train_folders:
         raise ValueError(f"data: no sequences under {data}")
     if not val_folders:
         raise ValueError(f"val: no sequences under {val}")
-    for what, folders in (("data", train_folders), ("val", val_folders)):  # before training, not after
-        for folder in folders:
-            if not read_sequence(folder).has_ground_truth():
-                raise ValueError(f"{what}: {folder} has no simulator ground truth (geofeat simulate writes it)")
     x, y = collect(train_folders, labels, progress=progress)
     if progress:
         tqdm.write(f"train-detector: {len(x)} candidates from {len(train_folders)} sequences, "
@@ -408,6 +405,5 @@ def train_detector(data, val, out: str | Path, n: int | tuple[int, ...] = VALIDA
     models = {"image cues": fit(x, y, hidden=None, steps=steps, seed=seed, progress=progress),
               "image + depth cues": fit(x, y, hidden=hidden, steps=steps, seed=seed, progress=progress)}
     model, results, chosen = choose_model(models, val_folders, n, radii, progress=progress)
-    with atomic_file(out) as tmp:
-        model.save(tmp)
+    model.save(out)  # whole or not at all
     return model, results, chosen

@@ -14,7 +14,7 @@ from tqdm import tqdm
 
 from ..scoring import score_detect
 from ..descriptors.geopatch import GeoPatchConfig, GeoPatchNet, save_checkpoint
-from ..inputs import check_positive, check_whole
+from ..inputs import check_positive, check_whole, error_summary
 from ..matching import match
 from ..outputs import atomic_file, check_out_file
 from .dataset import PatchSet, ValidationPair
@@ -98,9 +98,8 @@ def load_resume_state(ckpt_path: str | Path, config: TrainConfig, device=None) -
         for key in ("state_dict", "optimizer", "scheduler", "rng", "torch_rng", "epoch"):
             state[key]
     except Exception as error:  # noqa: BLE001 - unpickling, a missing key: one user error
-        text = str(error).splitlines()[0] if str(error) else ""
         raise ValueError(f"resume: {ckpt_path} is not a checkpoint written by `geofeat train` "
-                         f"({type(error).__name__}: {text[:200]})") from None
+                         f"({error_summary(error)})") from None
     wanted = asdict(config)
     if written_with != wanted:
         changed = [k for k in wanted if written_with.get(k) != wanted[k]]
@@ -232,9 +231,8 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
             rng.bit_generator.state = state["rng"]
             torch.set_rng_state(state["torch_rng"])
         except Exception as error:  # noqa: BLE001 - another network's state, a missing key: one user error
-            text = str(error).splitlines()[0] if str(error) else ""
             raise ValueError(f"resume: {ckpt_path} is not a checkpoint of this network written by `geofeat train` "
-                             f"({type(error).__name__}: {text[:200]})") from None
+                             f"({error_summary(error)})") from None
         history = state["history"]
         start_epoch = state["epoch"] + 1
     sampler = TripletSampler(data.ids, rng)
