@@ -60,6 +60,26 @@ def test_auto_picks_kinect_on_the_real_frame_and_clean_on_clean_depth():
         assert depth_profile(geofeat.RGBDFrame(bent.image, quantised, bent.K)) == expected, noise
 
 
+def test_depth_profile_is_the_rule_on_depth_noise():
+    """depth_profile stops at the cheap tests (windows, steps) before the quadratic fits; its answer
+    must still be the three-test rule applied to the full depth_noise, for each way of deciding."""
+    from geofeat.depth import MIN_NOISE_WINDOWS, SLOPE_NOISE_THRESHOLD, STEP_THRESHOLD
+
+    _, bent, *_ = sheet_pair(bend_radius=0.1)
+    noisy = kinect_depth_noise(bent.depth, np.ones_like(bent.depth), np.random.default_rng(0), n_blobs=0)
+    tiny = np.zeros_like(bent.depth)
+    tiny[100:110, 100:130] = 1.0  # 6 x 26 = 156 measurable windows
+    depths = [bent.depth, noisy, tiny] + [(np.round(bent.depth / u) * u).astype(np.float32) for u in (0.0001, 0.001)]
+    answers = []
+    for depth in depths:
+        noise = depth_noise(depth, bent.K)
+        rule = ("kinect" if noise.windows < MIN_NOISE_WINDOWS or noise.slope_noise > SLOPE_NOISE_THRESHOLD
+                or noise.step_per_footprint > STEP_THRESHOLD else "clean")
+        answers.append(depth_profile(geofeat.RGBDFrame(bent.image, depth, bent.K)))
+        assert answers[-1] == rule, noise
+    assert answers == ["clean", "kinect", "kinect", "clean", "kinect"]  # every branch was taken
+
+
 def test_auto_default_equals_the_profile_it_picks():
     _, bent, _, sheet = sheet_pair(bend_radius=0.1)
     xy = np.array([[300.0, 240.0], [340.5, 250.2]])

@@ -125,6 +125,50 @@ def _noise_rms(residual: np.ndarray, floor: np.ndarray) -> float:
     return float(np.sqrt(max(r2.mean() / _WINSOR_95 - np.mean(floor**2), 0.0)))
 
 
+class _NoiseMeasure:
+    """The parts of `depth_noise` on one (H, W) depth map, each computed on first use, so that
+    `depth_profile` can stop at the cheap ones: the windows, the quantisation step and the median
+    pixel footprint (about 2 ms on a 640 x 480 frame) before the quadratic fits (about 5 ms more)."""
+
+    def __init__(self, depth: np.ndarray, K: np.ndarray) -> None:
+        raw = np.asarray(depth)
+        if raw.ndim != 2:
+            raise ValueError(f"depth: expected an (H, W) map, got shape {raw.shape}")
+        if raw.size == 0:
+            raise ValueError(f"depth: empty, shape {raw.shape}")
+        self.K = check_intrinsics(K)
+        self.depth = raw.astype(np.float64)
+        valid = self.depth > 0
+        self.inner = cv2.erode(valid.astype(np.uint8), np.ones((5, 5), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                               borderValue=0) > 0
+        self.windows = int(self.inner.sum())
+        self.holes = float(1.0 - valid.mean())
+        # the distinct values in the map's own type (float32 for frames: sorting them costs a third of
+        # float64), converted exactly to float64 before the gaps are taken
+        gaps = np.diff(np.unique(raw[valid]).astype(np.float64))
+        self.step = float(np.quantile(gaps, 0.05)) if len(gaps) else 0.0
+        self._footprint = None
+
+    @property
+    def footprint(self) -> np.ndarray:
+        """(windows,) lateral size of a pixel at each window centre, z / fx, metres."""
+        if self._footprint is None:
+            self._footprint = self.depth[self.inner] / self.K[0, 0]
+        return self._footprint
+
+    def step_per_footprint(self) -> float:
+        """The quantisation step over the median pixel footprint (needs windows > 0)."""
+        return float(self.step / np.median(self.footprint))
+
+    def slope_noise(self) -> float:
+        """sigma_z / (z / fx) from the centre residuals of the 5 x 5 quadratic fits (needs windows > 0)."""
+        kernel = _quadratic_fit_kernel()
+        residual = (self.depth - cv2.filter2D(self.depth, -1, kernel, borderType=cv2.BORDER_REFLECT))[self.inner]
+        residual /= np.sqrt(1.0 - kernel[2, 2])
+        sigma_q = self.step / np.sqrt(12.0)
+        return _noise_rms(residual / self.footprint, sigma_q / self.footprint)
+
+
 def depth_noise(depth: np.ndarray, K: np.ndarray) -> DepthNoise:
     """Measure the noise of an (H, W) depth map (metres, 0 = missing) with intrinsics K (3, 3).
 
@@ -136,46 +180,28 @@ def depth_noise(depth: np.ndarray, K: np.ndarray) -> DepthNoise:
     millimetre PNGs of clean depth read as clean at any distance, while sensor noise (Kinect's
     disparity steps are several times coarser than a millimetre at a metre) remains.
     """
-    raw = np.asarray(depth)
-    if raw.ndim != 2:
-        raise ValueError(f"depth: expected an (H, W) map, got shape {raw.shape}")
-    if raw.size == 0:
-        raise ValueError(f"depth: empty, shape {raw.shape}")
-    K = check_intrinsics(K)
-    depth = raw.astype(np.float64)
-    valid = depth > 0
-    inner = cv2.erode(valid.astype(np.uint8), np.ones((5, 5), np.uint8), borderType=cv2.BORDER_CONSTANT,
-                      borderValue=0) > 0
-    n = int(inner.sum())
-    holes = float(1.0 - valid.mean())
-    # the distinct values in the map's own type (float32 for frames: sorting them costs a third of
-    # float64), converted exactly to float64 before the gaps are taken
-    gaps = np.diff(np.unique(raw[valid]).astype(np.float64))
-    step = float(np.quantile(gaps, 0.05)) if len(gaps) else 0.0
-    if n == 0:
-        return DepthNoise(float("nan"), float("nan"), step, float("nan"), holes, 0)
-    kernel = _quadratic_fit_kernel()
-    residual = (depth - cv2.filter2D(depth, -1, kernel, borderType=cv2.BORDER_REFLECT))[inner]
-    residual /= np.sqrt(1.0 - kernel[2, 2])
-    z = depth[inner]
-    footprint = z / K[0, 0]
-    sigma_q = step / np.sqrt(12.0)
-    slope = _noise_rms(residual / footprint, sigma_q / footprint)
+    measure = _NoiseMeasure(depth, K)
+    if measure.windows == 0:
+        return DepthNoise(float("nan"), float("nan"), measure.step, float("nan"), measure.holes, 0)
+    slope = measure.slope_noise()
     # residual / z = (residual / footprint) / fx, and the same for the floor: the relative noise is
     # the slope noise over fx (one winsorised quantile fewer)
-    return DepthNoise(slope, slope / float(K[0, 0]), step, float(step / np.median(footprint)), holes, n)
+    return DepthNoise(slope, slope / float(measure.K[0, 0]), measure.step, measure.step_per_footprint(),
+                      measure.holes, measure.windows)
 
 
 def depth_profile(frame) -> str:
     """The depth profile for `frame` (an RGBDFrame): "kinect" when its measured slope noise
     (`depth_noise`) exceeds `SLOPE_NOISE_THRESHOLD`, when its depth is stored in steps coarser than
-    `STEP_THRESHOLD` pixel footprints, or when too little surface can be measured; else "clean"."""
+    `STEP_THRESHOLD` pixel footprints, or when too little surface can be measured; else "clean".
+    The cheap tests come first: a millimetre PNG at a Kinect's range is decided by its steps alone,
+    without the quadratic fits (the same answer as testing all three)."""
     if not (hasattr(frame, "depth") and hasattr(frame, "K")):
         raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__} (for a bare depth map, "
                         "use geofeat.depth_noise(depth, K))")
-    noise = depth_noise(frame.depth, frame.K)
-    if (noise.windows < MIN_NOISE_WINDOWS or noise.slope_noise > SLOPE_NOISE_THRESHOLD
-            or noise.step_per_footprint > STEP_THRESHOLD):
+    measure = _NoiseMeasure(frame.depth, frame.K)
+    if (measure.windows < MIN_NOISE_WINDOWS or measure.step_per_footprint() > STEP_THRESHOLD
+            or measure.slope_noise() > SLOPE_NOISE_THRESHOLD):
         return "kinect"
     return "clean"
 
