@@ -60,8 +60,8 @@ PROFILES = {
 #: Names accepted wherever a depth profile is asked for ("auto" = chosen by `depth_profile`).
 PROFILE_NAMES = DEPTH_PROFILE_NAMES
 #: `depth_profile` picks "kinect" when the frame's slope noise (`DepthNoise.slope_noise`) is above this.
-#: Measured (`benchmarks/depth_noise.py`): the real Kinect v1 frame 0.47, Kinect-noise simulations
-#: about 1.0, clean simulations 0.07-0.20 (millimetre-quantised depth PNGs).
+#: Measured (`benchmarks/depth_profiles.py`): the real Kinect v1 frame 0.52-0.56, Kinect-noise
+#: simulations 0.97-0.99, clean simulations 0-0.21 (docs/concepts.md, "How the profile is chosen").
 SLOPE_NOISE_THRESHOLD = 0.3
 #: `depth_profile` also picks "kinect" when the depth is stored in steps coarser than this many pixel
 #: footprints: on millimetre PNGs of close-up noise-free cloth (0.5-1 footprint) the full-resolution
