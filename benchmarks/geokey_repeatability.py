@@ -1,0 +1,180 @@
+"""GeoKey's repeatability on validation sequences, for the shipped detector and experimental variants.
+
+Repeatability is the protocol's (`geofeat.train.detector.repeatability`: ground-truth pairs < 3 px
+over min(reference, target keypoints kept), the MS a perfect descriptor would reach), at 1024 and
+2048 keypoints. No descriptor is computed, so a run over 9 sequences takes about 10 s: a quick
+check for a detector idea before `geofeat bench`.
+
+Variants (each patches one step of `geofeat.detectors.geokey` for the run; the shipped weights
+score every variant):
+- `shipped`: GeoKey as shipped.
+- `foreshortened-3`, `foreshortened-7`, `foreshortened`: the cornerness cue(s) (`log_eig_3`,
+  `log_eig_7`, both) measured on the surface instead of the image: the smaller eigenvalue of
+  G^-1 M, with M the image structure tensor and G the surface's metric tensor in image coordinates
+  (from the depth, smoothed by a Gaussian of 2 px), rescaled to image pixels at the frame's median
+  depth. A corner seen obliquely is then ranked as if seen face-on.
+- `quadratic-peak`: sub-pixel peaks by a full 2-D quadratic fit of the 3 x 3 cornerness
+  (with the cross term) instead of two 1-D parabolas.
+- `normalised-8`, `normalised-4`: the cornerness cues measured on the image with its local contrast
+  normalised, (I - mean) / (std + 0.02) over a Gaussian of 8 / 4 px, rescaled to the image cue's
+  median: corners ranked regardless of shading.
+- `half-res-cornerness`: the half-resolution candidates' cornerness cues read on the half-resolution
+  image (their own scale), shifted to the full-resolution cue's median over those candidates.
+
+    PYTHONPATH=src python benchmarks/geokey_repeatability.py out/det2/val/*hard* --variants shipped,foreshortened
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from geofeat.detectors import cues, geokey
+from geofeat.train.detector import repeatability
+
+
+def foreshortened_cue_maps(windows: tuple[int, ...]):
+    """A `cues.cue_maps` whose `log_eig_<w>` maps (w in `windows`) are measured on the surface."""
+    image_cue_maps = cues.cue_maps
+
+    def cue_maps(frame, depth_cues=True):
+        maps = image_cue_maps(frame, depth_cues)
+        fx, fy, cx, cy = frame.K[0, 0], frame.K[1, 1], frame.K[0, 2], frame.K[1, 2]
+        depth = frame.depth.astype(np.float32)
+        valid = (depth > 0).astype(np.float32)
+        num, den = cv2.GaussianBlur(depth * valid, (0, 0), 2.0), cv2.GaussianBlur(valid, (0, 0), 2.0)
+        z = np.where(den > 1e-3, num / np.maximum(den, 1e-3), 0).astype(np.float32)
+        v, u = np.mgrid[0:z.shape[0], 0:z.shape[1]].astype(np.float32)
+        xyz = [((u - cx) / fx * z).astype(np.float32), ((v - cy) / fy * z).astype(np.float32), z]
+        Pu = np.stack([cv2.Sobel(c, cv2.CV_32F, 1, 0, ksize=3) / 8 for c in xyz], -1)  # dP / du, metres per px
+        Pv = np.stack([cv2.Sobel(c, cv2.CV_32F, 0, 1, ksize=3) / 8 for c in xyz], -1)
+        a, b, c = (Pu * Pu).sum(-1), (Pu * Pv).sum(-1), (Pv * Pv).sum(-1)  # metric tensor G
+        det = np.maximum(a * c - b * b, 1e-30)
+        px2 = (np.median(depth[depth > 0]) / fx) ** 2 if (depth > 0).any() else 1.0  # m^2 per px^2 at the median depth
+        g = frame.image.astype(np.float32)
+        gx, gy = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3)
+        for w in windows:
+            Ixx, Ixy, Iyy = (cv2.boxFilter(p, -1, (w, w)) for p in (gx * gx, gx * gy, gy * gy))
+            m11, m12 = (c * Ixx - b * Ixy) / det, (c * Ixy - b * Iyy) / det  # G^-1 M
+            m21, m22 = (a * Ixy - b * Ixx) / det, (a * Iyy - b * Ixy) / det
+            half = (m11 + m22) / 2
+            with np.errstate(over="ignore", invalid="ignore"):  # flat or missing depth: det is clamped
+                smallest = (half - np.sqrt(np.maximum(half * half - (m11 * m22 - m12 * m21), 0))) * px2
+            image = maps[f"log_eig_{w}"]
+            ok = (depth > 0) & (image > 0)
+            scale = np.median(image[ok]) / max(float(np.median(smallest[ok])), 1e-30) if ok.any() else 1.0
+            maps[f"log_eig_{w}"] = np.where(depth > 0, smallest * scale, image).astype(np.float32)
+        return maps
+
+    return cue_maps
+
+
+def normalised_cue_maps(sigma: float):
+    """A `cues.cue_maps` whose cornerness cues come from the contrast-normalised image."""
+    image_cue_maps = cues.cue_maps
+
+    def cue_maps(frame, depth_cues=True):
+        maps = image_cue_maps(frame, depth_cues)
+        g = frame.image.astype(np.float32)
+        mean = cv2.GaussianBlur(g, (0, 0), sigma)
+        std = np.sqrt(np.maximum(cv2.GaussianBlur(g * g, (0, 0), sigma) - mean * mean, 0))
+        normalised = (g - mean) / (std + 0.02)
+        for w in (3, 7):
+            image, new = maps[f"log_eig_{w}"], cv2.cornerMinEigenVal(normalised, w, 3)
+            ok = (frame.depth > 0) & (image > 0) & (new > 0)
+            if ok.any():
+                maps[f"log_eig_{w}"] = (new * (np.median(image[ok]) / np.median(new[ok]))).astype(np.float32)
+        return maps
+
+    return cue_maps
+
+
+def half_res_features(frame, cands, depth_cues=True):
+    """`geokey.candidate_features` with the level-1 candidates' cornerness read at half resolution."""
+    from geofeat.detectors.cues import CUE_NAMES
+
+    features = FEATURES(frame, cands, depth_cues)
+    half = cv2.pyrDown(frame.image.astype(np.float32))
+    level1 = cands.level == 1
+    if level1.sum() < 10:
+        return features
+    xy = (cands.xy[level1] + 0.5) / 2 - 0.5
+    xi = np.clip(np.rint(xy[:, 0]).astype(np.int64), 0, half.shape[1] - 1)
+    yi = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, half.shape[0] - 1)
+    for w in (3, 7):
+        col = CUE_NAMES.index(f"log_eig_{w}")
+        value = np.log(np.abs(cv2.cornerMinEigenVal(half, w, 3)[yi, xi]) + cues.LOG_EPS[f"log_eig_{w}"])
+        features[level1, col] = value - np.median(value) + np.median(features[level1, col])
+    return features
+
+
+def quadratic_peaks(response: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """`geokey.refine_peaks` by a 2-D quadratic through the 3 x 3 neighbourhood (offset -H^-1 g,
+    clipped to half a pixel); the 1-D parabolas where the fit is not a maximum."""
+    H, W = response.shape
+    x = np.clip(np.rint(xy[:, 0]).astype(np.int64), 1, W - 2)
+    y = np.clip(np.rint(xy[:, 1]).astype(np.int64), 1, H - 2)
+
+    def r(dy, dx):
+        return response[y + dy, x + dx].astype(np.float64)
+
+    gx, gy = (r(0, 1) - r(0, -1)) / 2, (r(1, 0) - r(-1, 0)) / 2
+    hxx, hyy = r(0, 1) - 2 * r(0, 0) + r(0, -1), r(1, 0) - 2 * r(0, 0) + r(-1, 0)
+    hxy = (r(1, 1) - r(1, -1) - r(-1, 1) + r(-1, -1)) / 4
+    det = hxx * hyy - hxy * hxy
+    peak = (det > 1e-20) & (hxx < 0)
+    safe = np.where(peak, det, 1.0)
+    separable = PARABOLAS(response, xy)
+    dx = np.where(peak, np.clip(-(hyy * gx - hxy * gy) / safe, -0.5, 0.5), separable[:, 0] - x)
+    dy = np.where(peak, np.clip(-(hxx * gy - hxy * gx) / safe, -0.5, 0.5), separable[:, 1] - y)
+    return np.stack([x + dx, y + dy], axis=1)
+
+
+PARABOLAS = geokey.refine_peaks
+FEATURES = geokey.candidate_features
+VARIANTS = {
+    "shipped": {},
+    "foreshortened-3": {"cue_maps": lambda: foreshortened_cue_maps((3,))},
+    "foreshortened-7": {"cue_maps": lambda: foreshortened_cue_maps((7,))},
+    "foreshortened": {"cue_maps": lambda: foreshortened_cue_maps((3, 7))},
+    "quadratic-peak": {"refine_peaks": lambda: quadratic_peaks},
+    "normalised-8": {"cue_maps": lambda: normalised_cue_maps(8.0)},
+    "normalised-4": {"cue_maps": lambda: normalised_cue_maps(4.0)},
+    "half-res-cornerness": {"candidate_features": lambda: half_res_features},
+}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("sequences", nargs="+", type=Path, help="simulated sequence folders with ground truth")
+    ap.add_argument("--variants", default=",".join(VARIANTS), help=f"comma-separated, of {', '.join(VARIANTS)}")
+    ap.add_argument("--keypoints", default="1024,2048")
+    a = ap.parse_args()
+    counts = [int(n) for n in a.keypoints.split(",")]
+    print(f"{len(a.sequences)} sequences; load average {os.getloadavg()[0]:.2f}")
+    print("| variant | " + " | ".join(f"repeatability / ground-truth pairs per pair, {n}" for n in counts) + " |")
+    print("|---|" + "---|" * len(counts))
+    originals = {"cue_maps": geokey.cue_maps, "refine_peaks": geokey.refine_peaks,
+                 "candidate_features": geokey.candidate_features}
+    for name in a.variants.split(","):
+        if name not in VARIANTS:
+            raise SystemExit(f"--variants: unknown {name!r}; known: {', '.join(VARIANTS)}")
+        for attr, make in VARIANTS[name].items():
+            setattr(geokey, attr, make())
+        t = time.perf_counter()
+        cells = []
+        for n in counts:
+            r = repeatability(a.sequences, lambda frame, k: geokey.detect_geokey(frame, k), n)
+            cells.append(f"{r['repeatability']:.3f} / {r['pairs']:.0f}")
+        for attr, fn in originals.items():
+            setattr(geokey, attr, fn)
+        print(f"| {name} | " + " | ".join(cells) + f" |   ({time.perf_counter() - t:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()
