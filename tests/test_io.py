@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 import geofeat
-from geofeat.io import demo_data_dir, read_depth, read_intrinsics, read_landmarks, write_intrinsics, write_landmarks
+from geofeat.io import (demo_data_dir, read_depth, read_intrinsics, read_landmarks, write_frame, write_intrinsics,
+                        write_landmarks)
 
 
 def test_read_demo_frame():
@@ -96,3 +97,122 @@ def test_sequence_frames_are_named_or_indexed_within_the_sequence():
             seq.frame(key)
         with pytest.raises(ValueError, match=message):
             seq.landmarks(key)
+
+
+# ---------------------------------------------------------------- audit of the layout readers and writers
+K_SMALL = np.array([[150.0, 0, 79.5], [0, 150.0, 59.5], [0, 0, 1]])
+
+
+def _small_sequence(folder, sizes=None):
+    """Reference frame-000-master and target frame-001, 160x120 unless `sizes` says otherwise, depth 1 m."""
+    folder.mkdir(parents=True, exist_ok=True)
+    write_intrinsics(folder / "intrinsics.xml", K_SMALL)
+    rng = np.random.default_rng(0)
+    for name in ("frame-000-master", "frame-001"):
+        h, w = (sizes or {}).get(name, (120, 160))
+        write_frame(folder, name, rng.integers(0, 255, (h, w, 3), dtype=np.uint8), np.ones((h, w)))
+    return folder
+
+
+def test_a_three_channel_16bit_depth_png_is_refused(tmp_path):
+    """IMREAD_ANYDEPTH turned it into its luminance: 969 mm was read as 0.491 m without a word."""
+    raw = cv2.imread(str(demo_data_dir() / "cloud_1-depth.png"), cv2.IMREAD_ANYDEPTH)
+    cv2.imwrite(str(tmp_path / "d-depth.png"), np.dstack([raw, raw // 2, raw // 3]))
+    with pytest.raises(ValueError, match="d-depth.png has 3 channels; depth must be a single-channel"):
+        read_depth(tmp_path / "d-depth.png")
+
+
+def test_read_frame_checks_what_read_sequence_checks(tmp_path):
+    """read_frame took depth stored in metres (median 1 unit = 1 mm) and a principal point off the image
+    without a word, and its size and all-zero errors named no file."""
+    src = demo_data_dir()
+    rgb, depth, xml = src / "cloud_1-rgb.png", src / "cloud_1-depth.png", src / "intrinsics.xml"
+    raw = cv2.imread(str(depth), cv2.IMREAD_ANYDEPTH)
+    cv2.imwrite(str(tmp_path / "metres-depth.png"), ((raw + 500) // 1000).astype(np.uint16))
+    with pytest.raises(ValueError, match="metres-depth.png: median depth 0.001 m"):
+        geofeat.read_frame(rgb, tmp_path / "metres-depth.png", xml)
+    write_intrinsics(tmp_path / "off.xml", np.array([[525.0, 0, 900], [0, 525, 240], [0, 0, 1]]))
+    with pytest.raises(ValueError, match="off.xml: principal point"):
+        geofeat.read_frame(rgb, depth, tmp_path / "off.xml")
+    cv2.imwrite(str(tmp_path / "half-depth.png"), raw[::2, ::2])
+    with pytest.raises(ValueError, match="half-depth.png is 320x240, the colour image .*cloud_1-rgb.png 640x480"):
+        geofeat.read_frame(rgb, tmp_path / "half-depth.png", xml)
+    cv2.imwrite(str(tmp_path / "zero-depth.png"), np.zeros_like(raw))
+    with pytest.raises(ValueError, match="zero-depth.png: depth: every pixel is 0"):
+        geofeat.read_frame(rgb, tmp_path / "zero-depth.png", xml)
+
+
+def test_a_target_of_another_size_than_the_reference_is_refused(tmp_path):
+    """The target was read with the reference's intrinsics (cx = 79.5 on an 80x60 image) without a word."""
+    seq = geofeat.read_sequence(_small_sequence(tmp_path, {"frame-001": (60, 80)}))
+    assert seq.frame(0).shape == (120, 160)
+    with pytest.raises(ValueError, match="frame frame-001: colour 80x60 differs in size from the reference "
+                                         r"frame-000-master \(160x120\)"):
+        seq.frame("frame-001")
+
+
+def test_write_intrinsics_refuses_what_read_intrinsics_cannot_read(tmp_path):
+    """A missing folder raised a bare cv2.error (after an OpenCV log line); a 4x4 matrix was written."""
+    with pytest.raises(ValueError, match="cannot write .*nope/intrinsics.xml: folder not found"):
+        write_intrinsics(tmp_path / "nope" / "intrinsics.xml", K_SMALL)
+    with pytest.raises(ValueError, match=r"K: expected a \(3, 3\) camera matrix, got shape \(4, 4\)"):
+        write_intrinsics(tmp_path / "intrinsics.xml", np.eye(4))
+    assert not (tmp_path / "intrinsics.xml").exists()
+
+
+@pytest.mark.parametrize("text, message", [
+    ("0,10,20,1\n1,30,40,1\n", "first line '0,10,20,1' is a landmark, not a header"),  # lost landmark 0
+    ("id,x,y,z,valid\n0,10,20,5,0\n", "expected the 4 fields 'id, x, y, valid', got 5"),  # z read as valid
+    ("id,x,y,valid\n0,,20,0\n", "expected numbers"),  # the empty x was filled by y, y by valid...
+    ("id,x,y,valid,score\n0,,20,0,0.9\n", "got 5"),  # ... and valid by the score: visible at (20, 0)
+    ("id,x,y,valid\n0,10,20,nan\n", r"valid must be 0 or 1, got \[nan\]"),  # silently invisible
+    ("id,x,y,valid\n0,10,20,2\n1,10,20,0.5\n", r"valid must be 0 or 1, got \[2.0, 0.5\] for ids \[0, 1\]"),
+    ("id,x,y,valid\n1e30,10,20,1\n", "ids must be integers"),  # id -9223372036854775808
+])
+def test_landmark_csv_that_was_read_as_something_else(tmp_path, text, message):
+    (tmp_path / "f.csv").write_text(text)
+    with pytest.raises(ValueError, match="landmarks: .*f.csv: .*" + message):
+        read_landmarks(tmp_path / "f.csv")
+
+
+def test_landmark_csv_layouts_still_read(tmp_path):
+    for text in ("# id, x, y, valid\n0, 245, 202, 1\n\n1\t3.5\t-1\t0\n", "id,x,y,valid\r\n0,245,202,1,\r\n1,3.5,-1,0\r\n"):
+        (tmp_path / "f.csv").write_text(text)
+        ids, xy, visible = read_landmarks(tmp_path / "f.csv")
+        assert ids.tolist() == [0, 1] and xy.tolist() == [[245, 202], [3.5, -1]] and visible.tolist() == [True, False]
+
+
+def test_write_landmarks_refuses_arrays_that_do_not_match(tmp_path):
+    """Arrays of different lengths were cut to the shortest (3 landmarks written as 1), ids 0.5 and 1.7
+    written as 0 and 1, a scalar visible flag a bare TypeError."""
+    xy = np.array([[1.0, 2.0], [3.0, 4.0]])
+    for ids, points, visible, message in (([0, 1, 2], xy[:1], [1, 1, 1], r"got shapes \(3,\), \(1, 2\) and \(3,\)"),
+                                          ([0, 1], xy, True, r"got shapes \(2,\), \(2, 2\) and \(\)"),
+                                          ([0.5, 1.7], xy, [1, 1], "ids must be integers")):
+        with pytest.raises(ValueError, match="landmarks: .*w.csv: .*" + message):
+            write_landmarks(tmp_path / "w.csv", ids, points, visible)
+    assert not (tmp_path / "w.csv").exists()
+    write_landmarks(tmp_path / "w.csv", np.arange(2.0), xy, np.array([True, False]))
+    assert read_landmarks(tmp_path / "w.csv")[2].tolist() == [True, False]
+
+
+@pytest.mark.parametrize("color, depth, kw, message", [
+    (np.full((4, 5, 3), 100, np.uint8), np.full((4, 5), -1.0), {}, "negative values; use 0"),  # read back as 64.536 m
+    (np.full((4, 5, 3), 100, np.uint8), np.full((4, 5), np.nan), {}, "NaN"),  # 0 after a RuntimeWarning
+    (np.full((4, 5, 3), 0.5), np.ones((4, 5)), {}, "color: expected 8-bit values .*float64"),  # written black
+    (np.ones((4, 5, 3), bool), np.ones((4, 5)), {}, "color: expected 8-bit values .*bool"),
+    (np.full((4, 5, 3), 100, np.uint8), np.ones((8, 10)), {}, r"depth's \(H, W\) = \(8, 10\), got \(4, 5, 3\)"),
+    (np.full((4, 5, 3), 100, np.uint8), np.ones((4, 5, 3)), {}, r"depth: expected an \(H, W\) array"),
+    (np.full((4, 5, 5), 100, np.uint8), np.ones((4, 5)), {}, "got .4, 5, 5."),  # a bare cv2.error after the depth
+    (np.full((4, 5, 3), 100, np.uint8), np.ones((4, 5)), {"depth_scale": -0.001}, "depth_scale: expected a positive"),
+])
+def test_write_frame_refuses_what_it_cannot_write_faithfully(tmp_path, color, depth, kw, message):
+    with pytest.raises(ValueError, match=message):
+        write_frame(tmp_path, "f", color, depth, **kw)
+    assert not list(tmp_path.iterdir())  # nothing half written
+
+
+def test_write_frame_writes_integer_colour_as_8_bit(tmp_path):
+    write_frame(tmp_path, "f", np.full((4, 5, 3), 200), np.ones((4, 5)))
+    assert cv2.imread(str(tmp_path / "f-rgb.png"), cv2.IMREAD_UNCHANGED).dtype == np.uint8
+    assert geofeat.io.read_image(tmp_path / "f-rgb.png").max() == 200

@@ -329,6 +329,22 @@ def test_rotated90_takes_integer_quarter_turns_only():
             frame.rotated90(k)
 
 
+
+def test_rotated90_keeps_or_refuses_the_skew():
+    """The skew K[0, 1] was dropped: the rotated frame had another camera. A half turn keeps it; a
+    quarter turn would move it to K[1, 0], which a camera matrix here never has (and was ignored)."""
+    K = K_VGA.copy()
+    K[0, 1] = 2.0
+    frame = geofeat.RGBDFrame(np.zeros((120, 160), np.uint8), np.ones((120, 160)), K)
+    assert frame.rotated90(2).K[0, 1] == 2.0
+    for k in (1, 3, -1):
+        with pytest.raises(ValueError, match="K: rotated90 .* needs no skew"):
+            frame.rotated90(k)
+    K = K_VGA.copy()
+    K[1, 0] = 2.0
+    with pytest.raises(ValueError, match=r"K: expected \[\[fx, s, cx\], \[0, fy, cy\], \[0, 0, 1\]\], got K\[1, 0\] = 2"):
+        geofeat.RGBDFrame(np.zeros((120, 160), np.uint8), np.ones((120, 160)), K)
+
 def test_images_of_other_kinds_are_refused_by_name():
     depth = np.ones((120, 160), np.float32)
     with pytest.raises(TypeError, match="image: .*complex128"):  # was cast to its real part with a warning

@@ -58,6 +58,8 @@ def check_intrinsics(K: np.ndarray) -> np.ndarray:
         raise ValueError(f"K: focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}")
     if abs(K[2, 2] - 1.0) > 1e-9 or abs(K[2, 0]) > 1e-9 or abs(K[2, 1]) > 1e-9:
         raise ValueError(f"K: last row must be [0, 0, 1], got {K[2].tolist()}")
+    if abs(K[1, 0]) > 1e-9:  # no projection in geofeat reads K[1, 0]: it would be ignored
+        raise ValueError(f"K: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got K[1, 0] = {K[1, 0]:g}")
     return K
 
 
@@ -136,13 +138,15 @@ class RGBDFrame:
         H, W = self.shape
         K = self.K.copy()
         image = self.color if self.color is not None else self.image
-        fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+        fx, fy, cx, cy, s = K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]
         if k == 0:
             return RGBDFrame(image, self.depth, K)
+        if k in (1, 3) and abs(s) > 1e-9:  # the skew would land in K[1, 0], which no camera matrix here has
+            raise ValueError(f"K: rotated90 by an odd number of quarter turns needs no skew, got K[0, 1] = {s:g}")
         if k == 1:  # new (x', y') = (y, W - 1 - x)
             Kn = np.array([[fy, 0, cy], [0, fx, W - 1 - cx], [0, 0, 1.0]])
-        elif k == 2:  # new (x', y') = (W - 1 - x, H - 1 - y)
-            Kn = np.array([[fx, 0, W - 1 - cx], [0, fy, H - 1 - cy], [0, 0, 1.0]])
+        elif k == 2:  # new (x', y') = (W - 1 - x, H - 1 - y); the skew is kept
+            Kn = np.array([[fx, s, W - 1 - cx], [0, fy, H - 1 - cy], [0, 0, 1.0]])
         else:  # new (x', y') = (H - 1 - y, x)
             Kn = np.array([[fy, 0, H - 1 - cy], [0, fx, cx], [0, 0, 1.0]])
         return RGBDFrame(np.ascontiguousarray(np.rot90(image, k)), np.ascontiguousarray(np.rot90(self.depth, k)), Kn)

@@ -11,7 +11,6 @@ The reference frame is the one whose name holds `master` or `ref` as a whole tok
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,7 +18,7 @@ import cv2
 import numpy as np
 
 from .constants import DEFAULT_RADIUS_M, DEPTH_SCALE_M
-from .frame import RGBDFrame
+from .frame import RGBDFrame, check_depth
 from .inputs import (check_depth_plausible, check_depth_scale, check_intrinsics_for_image, check_landmarks,
                      check_unique_names, is_reference_name, read_config)
 
@@ -59,9 +58,19 @@ def read_intrinsics(path: str | Path) -> np.ndarray:
 
 def write_intrinsics(path: str | Path, K: np.ndarray) -> None:
     """Write a (3, 3) camera matrix as OpenCV FileStorage XML under the node `intrinsics`."""
+    path = Path(path)
+    K = np.asarray(K, dtype=np.float64)
+    if K.shape != (3, 3):  # read_intrinsics refuses anything else
+        raise ValueError(f"K: expected a (3, 3) camera matrix, got shape {K.shape}")
+    if not path.parent.is_dir():  # OpenCV would log an error and raise a bare cv2.error
+        raise ValueError(f"intrinsics_path: cannot write {path}: folder not found")
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
-    fs.write("intrinsics", np.asarray(K, dtype=np.float64))
-    fs.release()
+    try:
+        if not fs.isOpened():
+            raise ValueError(f"intrinsics_path: cannot write {path}")
+        fs.write("intrinsics", K)
+    finally:
+        fs.release()
 
 
 def read_image(path: str | Path, what: str = "rgb_path") -> np.ndarray:
@@ -76,11 +85,12 @@ def read_image(path: str | Path, what: str = "rgb_path") -> np.ndarray:
 def read_depth(path: str | Path, depth_scale: float = DEPTH_SCALE_M) -> np.ndarray:
     """Read a 16-bit depth PNG as (H, W) float32 metres (value * depth_scale; 0 = missing)."""
     path = _existing(path, "depth_path")
-    raw = cv2.imread(str(path), cv2.IMREAD_ANYDEPTH)
+    # ANYCOLOR keeps the channels: IMREAD_ANYDEPTH alone turns a 3-channel 16-bit PNG into its luminance
+    raw = cv2.imread(str(path), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
     if raw is None:
         raise ValueError(f"depth_path: cannot decode image {path}")
     if raw.ndim != 2:
-        raise ValueError(f"depth_path: expected a single-channel depth image, got shape {raw.shape}")
+        raise ValueError(f"depth_path: {path} has {raw.shape[2]} channels; depth must be a single-channel 16-bit PNG")
     if raw.dtype == np.uint8:
         raise ValueError(f"depth_path: {path} is 8-bit; depth must be a 16-bit PNG")
     check_depth_scale(depth_scale, "depth_scale")
@@ -93,16 +103,45 @@ def read_frame(
     intrinsics_path: str | Path,
     depth_scale: float = DEPTH_SCALE_M,
 ) -> RGBDFrame:
-    """Read one frame of the public layout. `depth_scale` is metres per depth-PNG unit."""
-    return RGBDFrame(read_image(rgb_path), read_depth(depth_path, depth_scale), read_intrinsics(intrinsics_path))
+    """Read one frame of the public layout. `depth_scale` is metres per depth-PNG unit. The frame is
+    checked as `read_sequence` checks one: colour and depth of one size, a plausible median depth,
+    intrinsics plausible for the image size."""
+    image = read_image(rgb_path)
+    depth = read_depth(depth_path, depth_scale)
+    if depth.shape != image.shape[:2]:
+        raise ValueError(f"depth_path: {depth_path} is {depth.shape[1]}x{depth.shape[0]}, the colour image {rgb_path} "
+                         f"{image.shape[1]}x{image.shape[0]}; they must have one size")
+    try:
+        check_depth(depth)
+    except ValueError as error:
+        raise ValueError(f"depth_path: {depth_path}: {error}") from None
+    check_depth_plausible(depth, depth_scale, f"depth_path: {depth_path}")
+    K = check_intrinsics_for_image(read_intrinsics(intrinsics_path), image.shape[:2], f"intrinsics_path: {intrinsics_path}")
+    return RGBDFrame(image, depth, K)
 
 
 def write_frame(folder: str | Path, name: str, color: np.ndarray, depth: np.ndarray,
                 depth_scale: float = DEPTH_SCALE_M) -> None:
     """Write one frame in the public layout: `<name>-rgb.png` (8-bit, (H, W, 3) BGR or (H, W)) and
-    `<name>-depth.png` (16-bit, depth in metres / depth_scale, rounded; 0 = missing)."""
+    `<name>-depth.png` (16-bit, depth in metres / depth_scale, rounded; 0 = missing). Everything is
+    checked before either file is written."""
     folder = Path(folder)
-    units = np.rint(np.asarray(depth, np.float64) / depth_scale)
+    check_depth_scale(depth_scale, "depth_scale")
+    color, depth = np.asarray(color), np.asarray(depth)
+    if depth.ndim != 2 or depth.dtype.kind not in "fiu":
+        raise ValueError(f"depth: expected an (H, W) array of metres, got shape {depth.shape}, dtype {depth.dtype}")
+    if color.shape[:2] != depth.shape or color.ndim not in (2, 3) or (color.ndim == 3 and color.shape[2] not in (1, 3, 4)):
+        raise ValueError(f"color: expected shape (H, W, 3) or (H, W) with the depth's (H, W) = {depth.shape}, "
+                         f"got {color.shape}")
+    if color.dtype != np.uint8:  # OpenCV would write floats in [0, 1] as a black image, 16-bit as 16-bit
+        if color.dtype.kind not in "iu" or (color.size and (color.min() < 0 or color.max() > 255)):
+            raise ValueError(f"color: expected 8-bit values (uint8, or integers 0-255), got {color.dtype}"
+                             + (f" in [{color.min():.3g}, {color.max():.3g}]" if color.dtype.kind in "iuf" and color.size else ""))
+        color = color.astype(np.uint8)
+    depth = depth.astype(np.float64)
+    if not np.isfinite(depth).all() or (depth < 0).any():  # a negative depth would wrap to 65 m in uint16
+        raise ValueError("depth: NaN, infinite or negative values; use 0 for missing depth")
+    units = np.rint(depth / depth_scale)
     if units.max(initial=0) > 65535:
         raise ValueError(f"depth: {units.max() * depth_scale:.1f} m does not fit a 16-bit PNG at {depth_scale} m per unit")
     for path, image in ((folder / f"{name}{RGB_SUFFIX}", color), (folder / f"{name}{DEPTH_SUFFIX}", units.astype(np.uint16))):
@@ -110,8 +149,18 @@ def write_frame(folder: str | Path, name: str, color: np.ndarray, depth: np.ndar
             raise ValueError(f"folder: cannot write {path}")
 
 
+def _csv_fields(line: str) -> list[str]:
+    """The fields of one landmark csv line: comma-separated (empty fields kept, so a missing value is not
+    filled by the next column; trailing commas dropped), else whitespace-separated."""
+    line = line.strip()
+    if "," in line:
+        return [t.strip() for t in line.rstrip(", \t").split(",")]
+    return line.split()
+
+
 def read_landmarks(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Read a landmark csv (`id, x, y, valid` after one header line).
+    """Read a landmark csv (`id, x, y, valid` after one header line; exactly these four fields a row,
+    valid 0 or 1).
 
     Returns:
         ids (N,) int64, xy (N, 2) float64 pixels, visible (N,) bool (valid flag set and x, y >= 0).
@@ -121,22 +170,35 @@ def read_landmarks(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
         text = Path(path).read_text()
     except UnicodeDecodeError:
         raise ValueError(f"landmarks: {path}: not a text csv ('id, x, y, valid' after one header line)") from None
-    rows = []
-    for line in text.splitlines()[1:]:
-        tokens = [t for t in re.split(r"[,\s]+", line.strip()) if t]
-        if not tokens:
-            continue
-        if len(tokens) < 4:
-            raise ValueError(f"landmarks: {path}: expected 'id, x, y, valid', got {line!r}")
+    lines = text.splitlines()
+    if lines:  # a file without its header line would lose its first landmark
         try:
-            rows.append([float(t) for t in tokens[:4]])
+            first = [float(t) for t in _csv_fields(lines[0])]
+        except ValueError:
+            first = None
+        if first is not None and len(first) == 4:
+            raise ValueError(f"landmarks: {path}: the first line {lines[0].strip()!r} is a landmark, not a header; "
+                             "the csv needs a header line such as 'id,x,y,valid'")
+    rows = []
+    for line in lines[1:]:
+        tokens = _csv_fields(line)
+        if not any(tokens):
+            continue
+        if len(tokens) != 4:
+            raise ValueError(f"landmarks: {path}: expected the 4 fields 'id, x, y, valid', got {len(tokens)} in {line!r}")
+        try:
+            rows.append([float(t) for t in tokens])
         except ValueError:
             raise ValueError(f"landmarks: {path}: expected numbers 'id, x, y, valid', got {line!r}") from None
     data = np.asarray(rows, dtype=np.float64).reshape(-1, 4)
+    if not np.isfinite(data[:, 0]).all() or (data[:, 0] != np.round(data[:, 0])).any() or (np.abs(data[:, 0]) > 2**53).any():
+        raise ValueError(f"landmarks: {path}: ids must be integers")
     ids = data[:, 0].astype(np.int64)
     xy = data[:, 1:3]
-    if not np.isfinite(data[:, 0]).all() or (data[:, 0] != np.round(data[:, 0])).any():
-        raise ValueError(f"landmarks: {path}: ids must be integers")
+    odd = ~np.isin(data[:, 3], (0.0, 1.0))  # NaN, 0.5, 2 (a COCO "visible"), -1: no guessing which is meant
+    if odd.any():
+        raise ValueError(f"landmarks: {path}: valid must be 0 or 1, got {data[odd, 3][:5].tolist()} for ids "
+                         f"{ids[odd][:10].tolist()}")
     flagged = data[:, 3] > 0
     if (flagged & ~np.isfinite(xy).all(axis=1)).any():
         raise ValueError(f"landmarks: {path}: landmarks marked valid need finite coordinates, ids "
@@ -146,9 +208,18 @@ def read_landmarks(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 
 def write_landmarks(path: str | Path, ids: np.ndarray, xy: np.ndarray, visible: np.ndarray) -> None:
-    """Write landmarks in the public csv layout (`id,x,y,valid`, coordinates with 2 decimals)."""
+    """Write landmarks in the public csv layout (`id,x,y,valid`, coordinates with 2 decimals).
+    ids (N,) integers, xy (N, 2) pixels, visible (N,)."""
+    ids, xy, visible = np.asarray(ids), np.asarray(xy, dtype=np.float64), np.asarray(visible)
+    if xy.size == 0:
+        xy = xy.reshape(0, 2)
+    if ids.ndim != 1 or xy.shape != (len(ids), 2) or visible.shape != (len(ids),):
+        raise ValueError(f"landmarks: {path}: expected ids (N,), xy (N, 2) and visible (N,), got shapes "
+                         f"{ids.shape}, {xy.shape} and {visible.shape}")
+    if ids.dtype.kind not in "iu" and not (ids.dtype.kind == "f" and np.isfinite(ids).all() and (ids == np.round(ids)).all()):
+        raise ValueError(f"landmarks: {path}: ids must be integers, got {ids[:5].tolist()}")
     lines = ["id,x,y,valid"]
-    for i, (x, y), v in zip(np.asarray(ids), np.asarray(xy), np.asarray(visible)):
+    for i, (x, y), v in zip(ids, xy, visible):
         lines.append(f"{int(i)},{x:.2f},{y:.2f},{int(bool(v))}")
     Path(path).write_text("\n".join(lines) + "\n")
 
@@ -204,6 +275,10 @@ class Sequence:
         """The frame `name` (a name or an index, see `frame_name`) as an RGBDFrame."""
         name = self.frame_name(name)
         image = read_image(self.folder / f"{name}{RGB_SUFFIX}")
+        if self.shape is not None and image.shape[:2] != tuple(self.shape):  # K is the reference's
+            raise ValueError(f"frame {name}: colour {image.shape[1]}x{image.shape[0]} differs in size from the reference "
+                             f"{self.reference} ({self.shape[1]}x{self.shape[0]}), whose intrinsics.xml the sequence "
+                             f"shares ({self.folder})")
         depth = read_depth(self.folder / f"{name}{DEPTH_SUFFIX}", self.depth_scale)
         if depth.shape != image.shape[:2]:
             raise ValueError(f"frame {name}: depth {depth.shape[1]}x{depth.shape[0]} and colour "
