@@ -472,6 +472,30 @@ def extract_out_under_file(tmp):
     return ["extract", str(_seq(tmp)), "--descriptor", "sift", "--out", str(tmp / "taken" / "f.h5")]
 
 
+def _frame_of_another_size(command: str) -> Callable[[Path], list[str]]:
+    """frame-001 at twice the reference's size: the sequence's one intrinsics matrix is the
+    reference's, so its geodesic patches (and its landmarks' check) would use another camera."""
+    def setup(tmp):
+        seq = make_sequence(tmp / "seq", names=("frame-000-master", "frame-001", "frame-002"))
+        image = cv2.resize(cv2.imread(str(seq / "frame-001-rgb.png")), (2 * W, 2 * H))
+        write_frame(seq, "frame-001", image, np.ones((2 * H, 2 * W)))
+        if command == "extract":
+            return ["extract", str(seq), "--descriptor", "sift", "--keypoints", "200", "--out", str(tmp / "f.h5")]
+        return ["match", str(seq), "--descriptor", "sift", "--keypoints", "200", "--out", str(tmp / "m")]
+
+    return setup
+
+
+def extract_out_in_other_case(tmp):
+    return ["extract", str(_seq(tmp)), "--descriptor", "sift", "--keypoints", "50", "--out", str(tmp / "f.HDF5")]
+
+
+def _features_file_in_other_case(tmp):
+    """save_features takes .hdf5 / .H5 / .NPZ; extract made a folder of that name with features-sift.h5 in it."""
+    assert (tmp / "f.HDF5").is_file()
+    assert len(geofeat.load_features(tmp / "f.HDF5", "frame-001")) > 0
+
+
 def groundtruth_into_user_folder(tmp):
     _user_files(tmp / "gt" / "seq")
     return _gt(tmp)
@@ -949,6 +973,13 @@ CASES = [
          _groundtruth_second_sequence(lambda s: (s / "frame-001.csv").unlink()), 2,
          "sequence b: frame frame-001 has no landmark csv", _nothing_in_gt),
     Case("groundtruth-landmark-csv-not-text", groundtruth_binary_csv, 2, "frame-001.csv: not a text"),
+    # audit of extract and match
+    Case("extract-frame-of-another-size", _frame_of_another_size("extract"), 1,
+         "SKIPPED frame frame-001: size 320x240.*160x120", _extract_kept_other_frames),
+    Case("match-frame-of-another-size", _frame_of_another_size("match"), 1,
+         "SKIPPED frame frame-001: size 320x240.*160x120", _match_kept_other_frames),
+    Case("extract-out-hdf5-in-upper-case", extract_out_in_other_case, 0, "to .*f.HDF5\n",
+         _features_file_in_other_case),
     # audit of the docs: the one radius rule in every command
     Case("bench-timing-honours-json-radius", bench_timing_json_radius, 0, "", _timed_at_json_radius,
          _record_timing_radius),

@@ -49,6 +49,15 @@ def test_dropped_keypoints_are_invalid():
     assert F.valid.tolist() == [False, True]
 
 
+def test_daisy_on_the_first_pixel_row_or_column_is_invalid_not_an_opencv_error():
+    """(-0.3, 10) lies on the image (pixel 0 spans [-0.5, 0.5)); OpenCV's DAISY asserted x >= 0."""
+    frame = geofeat.read_demo_frame()
+    xy = np.array([[-0.3, 240.0], [320.0, -0.5], [0.0, 0.0], [320.0, 240.0]])
+    F = OpenCVDescriptor("daisy").compute(frame, xy)
+    assert F.valid.tolist() == [False, False, True, True]
+    assert (F.descriptors[:2] == 0).all()
+
+
 @pytest.mark.parametrize("name", ["orb", "daisy", "sift"])
 def test_sift_angle_helps_under_rotation(name, pair):
     """Descriptors that take the given angle match a 45 deg rotated copy better with it than without.

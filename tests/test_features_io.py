@@ -128,3 +128,32 @@ def test_external_hloc_descriptors_are_read_as_d_by_n_even_when_square(tmp_path)
         fd["seq/f0/descriptors"] = desc.T  # hloc's (D, N)
     got = ExternalFeatures("m", path).load("seq", "f0", shape=(120, 160))
     np.testing.assert_array_equal(got.descriptors, desc)
+
+
+@pytest.mark.parametrize("n, dim", [(300, 256), (128, 128)])
+def test_load_features_reads_hloc_groups_descriptors_as_n_by_d(tmp_path, n, dim):
+    """hloc writes float descriptors (D, N) and no `valid`: load_features raised "descriptors: expected
+    first axis" for them, and with D = N returned the transposed matrix without a word."""
+    rng = np.random.default_rng(0)
+    kp = rng.uniform(0, 100, (n, 2)).astype(np.float32)
+    desc = rng.normal(size=(n, dim)).astype(np.float32)
+    with h5py.File(tmp_path / "hloc.h5", "w") as fd:
+        fd["img.png/keypoints"] = kp
+        fd["img.png/descriptors"] = desc.T
+        fd["img.png/scores"] = rng.random(n).astype(np.float32)
+    got = load_features(tmp_path / "hloc.h5", "img.png")
+    np.testing.assert_array_equal(got.descriptors, desc)
+    assert got.valid.all()
+    square = Features(kp[:dim], desc[:dim], np.ones(dim, bool))  # geofeat's own files (with `valid`) are (N, D)
+    save_features(tmp_path / "own.h5", square, "img.png")
+    np.testing.assert_array_equal(load_features(tmp_path / "own.h5").descriptors, desc[:dim])
+
+
+def test_loading_the_wrong_kind_of_file_names_it(tmp_path):
+    """A matches file given to load_features (and the reverse) was a bare KeyError: 'keypoints'."""
+    save_matches(tmp_path / "m.npz", Matches([0, -1], [1.0, np.inf]))
+    save_features(tmp_path / "f.npz", make_features())
+    with pytest.raises(ValueError, match=r"m.npz' holds no 'keypoints' or 'descriptors', so it is not a features"):
+        load_features(tmp_path / "m.npz")
+    with pytest.raises(ValueError, match=r"f.npz' holds no 'matches0', so it is not a matches file"):
+        load_matches(tmp_path / "f.npz")

@@ -150,6 +150,24 @@ def test_extract_and_match_pick_geokey_for_geodesic_descriptors_and_sift_for_the
     np.testing.assert_array_equal(orb.keypoints, geofeat.detect(frame, 64, detector="sift").xy)
 
 
+
+def test_the_detector_follows_the_descriptor_name_in_any_case():
+    """make_descriptor reads " GeoBit " as geobit; detector_for read it as a baseline and gave SIFT's
+    keypoints to geofeat.extract(descriptor="GeoBit"), without a word."""
+    import sys
+    from pathlib import Path
+
+    from geofeat.keypoints import detector_for
+
+    assert detector_for(" GeoBit ") == detector_for("GeoPatch") == detector_for("GEOPATCH=my.pt") == "geokey"
+    assert detector_for("ORB") == "sift"
+    sys.path.insert(0, str(Path(__file__).parent))
+    from surfaces import plane_frame
+
+    frame = plane_frame((120, 160))
+    np.testing.assert_array_equal(geofeat.extract(frame, 20, descriptor="GeoBit").keypoints,
+                                  geofeat.detect(frame, 20).xy)
+
 def test_keypoints_fields_must_have_one_entry_per_keypoint():
     with pytest.raises(ValueError, match=r"angles: expected shape \(3,\) like xy"):
         Keypoints(np.zeros((3, 2)), np.zeros(2), np.zeros(3), np.zeros(3))  # to_cv dropped the third keypoint

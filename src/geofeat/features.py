@@ -194,12 +194,28 @@ def save_features(path: str | Path, features: Features, name: str | None = None)
         _h5_write_group(path, _require_name(name, path), arrays)
 
 
-def _features_from(arrays: dict[str, np.ndarray]) -> Features:
+def _require_arrays(arrays: dict[str, np.ndarray], keys: tuple[str, ...], path, what: str) -> None:
+    """ValueError naming the file and what it holds when one of `keys` is missing (e.g. a matches
+    file given to `load_features`), rather than a bare KeyError."""
+    missing = [key for key in keys if key not in arrays]
+    if missing:
+        raise ValueError(f"path: {str(path)!r} holds no {' or '.join(map(repr, missing))}, so it is not a {what} "
+                         f"file; it holds {sorted(arrays)}")
+
+
+def _features_from(arrays: dict[str, np.ndarray], path, hloc: bool = False) -> Features:
+    """`hloc`: an .h5 group without `valid` (hloc writes none, `save_features` always does), whose 2-D
+    float descriptors are hloc's (D, N) when their second axis has one entry per keypoint (also
+    when D = N), as `geofeat.bench.external` reads them."""
+    _require_arrays(arrays, ("keypoints", "descriptors"), path, "features")
     kp = np.asarray(arrays["keypoints"], dtype=np.float64)
+    desc = np.asarray(arrays["descriptors"])
+    if hloc and desc.dtype.kind == "f" and desc.ndim == 2 and kp.ndim == 2 and desc.shape[1] == len(kp):
+        desc = desc.T  # hloc stores float descriptors as (D, N)
     valid = arrays.get("valid")
     return Features(
         keypoints=kp,
-        descriptors=arrays["descriptors"],
+        descriptors=desc,
         valid=np.ones(len(kp), bool) if valid is None else valid,
         angles=arrays.get("angles"),
         sizes=arrays.get("sizes"),
@@ -208,11 +224,13 @@ def _features_from(arrays: dict[str, np.ndarray]) -> Features:
 
 def load_features(path: str | Path, name: str | None = None) -> Features:
     """Read features written by `save_features` (or an hloc features.h5 group: a missing `valid`
-    means every keypoint is valid). For .h5, `name` may be omitted when the file holds one image."""
+    means every keypoint is valid, and float descriptors stored as hloc's (D, N) are read as
+    (N, D)). For .h5, `name` may be omitted when the file holds one image."""
     if _suffix(path) == ".npz":
         with np.load(str(path)) as data:
-            return _features_from({k: data[k] for k in data.files})
-    return _features_from(_h5_read_group(path, name))
+            return _features_from({k: data[k] for k in data.files}, path)
+    arrays = _h5_read_group(path, name)
+    return _features_from(arrays, path, hloc="valid" not in arrays)
 
 
 def save_matches(path: str | Path, matches: Matches, name: str | None = None) -> None:
@@ -234,6 +252,7 @@ def load_matches(path: str | Path, name: str | None = None) -> Matches:
             arrays = {k: data[k] for k in data.files}
     else:
         arrays = _h5_read_group(path, name)
+    _require_arrays(arrays, ("matches0",), path, "matches")
     m0 = arrays["matches0"]
     dist = arrays.get("distances", arrays.get("distances0"))
     if dist is None:

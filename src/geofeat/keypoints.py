@@ -199,7 +199,8 @@ def detector_for(descriptor: str, detector: str | None = None) -> str:
 
     if detector:
         return detector
-    return DEFAULT_DETECTOR if str(descriptor).partition("=")[0] in GEODESIC_DESCRIPTORS else "sift"
+    base = str(descriptor).strip().partition("=")[0].lower()  # as `check_descriptor_name` reads it
+    return DEFAULT_DETECTOR if base in GEODESIC_DESCRIPTORS else "sift"
 
 
 def group_by_detector(descriptors, detector: str | None = None) -> dict[str, tuple[str, ...]]:

@@ -15,9 +15,15 @@ def file_label(descriptor: str) -> str:
     return descriptor
 
 
+def is_h5(path: Path) -> bool:
+    """True for a .h5 / .hdf5 name in any case, as `geofeat.save_features` reads it."""
+    return path.suffix.lower() in (".h5", ".hdf5")
+
+
 def features_path(out: Path, descriptor: str) -> Path:
-    """`out` itself when it names a .h5 / .npz file, else `out/features-<descriptor>.h5`."""
-    return out if out.suffix in (".h5", ".npz") else out / f"features-{descriptor}.h5"
+    """`out` itself when it names a .h5 / .hdf5 / .npz file (any case, as `geofeat.save_features`
+    takes them), else `out/features-<descriptor>.h5`."""
+    return out if is_h5(out) or out.suffix.lower() == ".npz" else out / f"features-{descriptor}.h5"
 
 
 def skip_frame(skipped: list[str], name: str, error: Exception) -> None:
@@ -40,10 +46,15 @@ def finish_skipped(skipped: list[str], total: int, what: str) -> int:
 
 def frame_and_keypoints(seq, name: str, args: argparse.Namespace):
     """(frame, keypoints) of frame `name` with the command's detector options; ValueError when the
-    frame cannot be read or has no keypoints (extract and match skip such a frame by name)."""
+    frame cannot be read, differs in size from the reference or has no keypoints (extract and match
+    skip such a frame by name)."""
     from ..keypoints import detect
 
     frame = seq.frame(name)
+    if seq.shape is not None and frame.shape != tuple(seq.shape):
+        # the sequence's one intrinsics matrix is checked against the reference's size only
+        raise ValueError(f"size {frame.shape[1]}x{frame.shape[0]}, but the reference frame (and so the "
+                         f"sequence's intrinsics) is {seq.shape[1]}x{seq.shape[0]}")
     kps = detect(frame, args.keypoints, detector=args.detector, keypoint_set=args.keypoint_set)
     if len(kps) == 0:
         raise ValueError("no keypoints detected")

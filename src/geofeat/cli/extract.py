@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .common import features_path, file_label, finish_skipped, frame_and_keypoints, skip_frame
+from .common import features_path, file_label, finish_skipped, frame_and_keypoints, is_h5, skip_frame
 from .options import frames_options, resolve_detection
 
 
@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     seq = read_sequence(args.folder, depth_scale=args.depth_scale)
     radius = resolve_radius(args.radius, seq)
     path = features_path(Path(args.out), file_label(args.descriptor))
-    finals = [path] if path.suffix == ".h5" else [path.with_name(f"{path.stem}-{n}.npz") for n in seq.names]
+    finals = [path] if is_h5(path) else [path.with_name(f"{path.stem}-{n}.npz") for n in seq.names]
     for final in finals:
         check_out_file(final, args.overwrite)
     profile = sequence_depth_profile(seq, args.depth_profile)
@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
                 except ValueError as error:
                     skip_frame(skipped, name, error)
                     continue
-                if path.suffix == ".h5":
+                if is_h5(path):
                     save_features(h5_tmp, features, name=name)
                 else:
                     final = path.with_name(f"{path.stem}-{name}.npz")
@@ -68,6 +68,6 @@ def run(args: argparse.Namespace) -> int:
         finally:
             for tmp, _ in written:
                 tmp.unlink(missing_ok=True)
-    where = path if path.suffix == ".h5" else path.with_name(f"{path.stem}-<frame>.npz")
+    where = path if is_h5(path) else path.with_name(f"{path.stem}-<frame>.npz")
     print(f"wrote {args.descriptor} features of {len(seq) - len(skipped)} frames of {seq.folder} to {where}")
     return status

@@ -13,7 +13,8 @@ support size derived from SIFT's size where the descriptor uses one. Factors (me
 - SIFT: uses size and angle as detected.
 
 OpenCV drops keypoints it cannot describe (too close to the border); those come back with
-`valid = False` and zero descriptors, in the input order.
+`valid = False` and zero descriptors, in the input order. So do DAISY's keypoints at x < 0 or y < 0
+(on the image's first pixel, which spans [-0.5, 0.5)), which OpenCV's DAISY refuses with an error.
 """
 
 from __future__ import annotations
@@ -91,6 +92,8 @@ class OpenCVDescriptor:
             cv2.KeyPoint(float(x), float(y), float(max(s * self.size_factor, 1.0)),
                          float(a) if self.use_angle else 0.0, 0.0, 0, i)
             for i, ((x, y), s, a) in enumerate(zip(kps.xy, sizes, kps.angles))
+            # DAISY asserts x, y >= 0 (an OpenCV error); the first pixel row and column reach -0.5
+            if self.name != "daisy" or (x >= 0 and y >= 0)
         ]
         kept, desc = self._extractor.compute(to_uint8(frame.image), cv_kps)
         dim = self._extractor.descriptorSize()
