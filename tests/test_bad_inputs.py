@@ -975,9 +975,9 @@ CASES = [
     Case("groundtruth-landmark-csv-not-text", groundtruth_binary_csv, 2, "frame-001.csv: not a text"),
     # audit of extract and match
     Case("extract-frame-of-another-size", _frame_of_another_size("extract"), 1,
-         "SKIPPED frame frame-001: size 320x240.*160x120", _extract_kept_other_frames),
+         "SKIPPED frame frame-001: .*320x240.*160x120", _extract_kept_other_frames),
     Case("match-frame-of-another-size", _frame_of_another_size("match"), 1,
-         "SKIPPED frame frame-001: size 320x240.*160x120", _match_kept_other_frames),
+         "SKIPPED frame frame-001: .*320x240.*160x120", _match_kept_other_frames),
     Case("extract-out-hdf5-in-upper-case", extract_out_in_other_case, 0, "to .*f.HDF5\n",
          _features_file_in_other_case),
     # audit of the docs: the one radius rule in every command

@@ -203,15 +203,22 @@ def _require_arrays(arrays: dict[str, np.ndarray], keys: tuple[str, ...], path, 
                          f"file; it holds {sorted(arrays)}")
 
 
+def descriptors_n_by_d(descriptors: np.ndarray, n_keypoints: int, hloc_layout: bool = False) -> np.ndarray:
+    """Float descriptors as (N, D): hloc stores them as (D, N). `hloc_layout` (an .h5 group without
+    `valid`: hloc writes none, `save_features` always does): (D, N) whenever the second axis has one
+    entry per keypoint, also when D = N; otherwise (D, N) only where (N, D) cannot fit. Other arrays
+    are returned as they are."""
+    d = np.asarray(descriptors)
+    if d.dtype.kind == "f" and d.ndim == 2 and d.shape[1] == n_keypoints and (hloc_layout or d.shape[0] != n_keypoints):
+        return d.T
+    return d
+
+
 def _features_from(arrays: dict[str, np.ndarray], path, hloc: bool = False) -> Features:
-    """`hloc`: an .h5 group without `valid` (hloc writes none, `save_features` always does), whose 2-D
-    float descriptors are hloc's (D, N) when their second axis has one entry per keypoint (also
-    when D = N), as `geofeat.bench.external` reads them."""
+    """`hloc`: the group has hloc's layout (`descriptors_n_by_d`)."""
     _require_arrays(arrays, ("keypoints", "descriptors"), path, "features")
     kp = np.asarray(arrays["keypoints"], dtype=np.float64)
-    desc = np.asarray(arrays["descriptors"])
-    if hloc and desc.dtype.kind == "f" and desc.ndim == 2 and kp.ndim == 2 and desc.shape[1] == len(kp):
-        desc = desc.T  # hloc stores float descriptors as (D, N)
+    desc = descriptors_n_by_d(arrays["descriptors"], len(kp) if kp.ndim == 2 else -1, hloc)
     valid = arrays.get("valid")
     return Features(
         keypoints=kp,

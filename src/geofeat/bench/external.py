@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..features import Features, _h5_leaf_groups
+from ..features import Features, _h5_leaf_groups, descriptors_n_by_d
 from ..keypoints import as_keypoints
 from ..matching import METRICS, match
 
@@ -77,16 +77,11 @@ class ExternalFeatures:
 
     def _features(self, arrays: dict[str, np.ndarray], n: int | None, shape: tuple[int, int] | None,
                   hloc_layout: bool = False) -> Features:
-        """`hloc_layout`: an .h5 group without `valid` (hloc writes none, geofeat always does), whose
-        float descriptors are hloc's (D, N) whenever their second axis has one entry per keypoint,
-        also when D = N; otherwise (D, N) is recognised only where (N, D) cannot fit."""
+        """`hloc_layout`: the group has hloc's layout (`features.descriptors_n_by_d`)."""
         if "keypoints" not in arrays or "descriptors" not in arrays:
             raise ValueError("lacks 'keypoints' or 'descriptors'")
         kp = as_keypoints(arrays["keypoints"], shape=shape, allow_empty=True).xy
-        desc = np.asarray(arrays["descriptors"])
-        if desc.dtype.kind == "f" and desc.ndim == 2 and desc.shape[1] == len(kp) \
-                and (hloc_layout or desc.shape[0] != len(kp)):
-            desc = desc.T  # hloc stores float descriptors as (D, N)
+        desc = descriptors_n_by_d(arrays["descriptors"], len(kp), hloc_layout)
         if desc.dtype.kind == "f" and not np.isfinite(desc).all():
             raise ValueError("descriptors hold NaN or infinite values; drop those keypoints")
         valid = arrays.get("valid")

@@ -50,11 +50,7 @@ def frame_and_keypoints(seq, name: str, args: argparse.Namespace):
     skip such a frame by name)."""
     from ..keypoints import detect
 
-    frame = seq.frame(name)
-    if seq.shape is not None and frame.shape != tuple(seq.shape):
-        # the sequence's one intrinsics matrix is checked against the reference's size only
-        raise ValueError(f"size {frame.shape[1]}x{frame.shape[0]}, but the reference frame (and so the "
-                         f"sequence's intrinsics) is {seq.shape[1]}x{seq.shape[0]}")
+    frame = seq.frame(name)  # a frame of another size than the reference is its ValueError there
     kps = detect(frame, args.keypoints, detector=args.detector, keypoint_set=args.keypoint_set)
     if len(kps) == 0:
         raise ValueError("no keypoints detected")
