@@ -42,3 +42,34 @@ def roll_pair_scores(f0, f1, A, describe, detector: str, n: int, tolerance_px: f
     correct = np.zeros(len(k0), bool)
     correct[ok] = np.linalg.norm(k1.xy[m[ok]] - truth[ok], axis=1) < tolerance_px
     return [correct.sum() / min(inside.sum(), len(k1)), correct.sum(), len(k0), len(k1)]
+
+
+def cached_retrieval(cache):
+    """The described frames cached by `retrieval_weightings.py --cache` (a pickled
+    `RetrievalDatabase`) and its eligible queries: (db, queries (Q,), exclude (Q, N), validation and
+    test halves of range(Q) (`split_queries(Q, 0)`, the command's split), classes (N,))."""
+    import pickle
+
+    import numpy as np
+
+    from geofeat.apps.retrieval import eligible_queries, split_queries
+
+    with open(cache, "rb") as fh:
+        db = pickle.load(fh)
+    queries, exclude, _ = eligible_queries(db)
+    val, test = split_queries(len(queries), 0)
+    return db, queries, exclude, val, test, np.asarray(db.classes)
+
+
+def word_shortlist(features, queries, exclude, words: int, depth: int, weighting: str = "tfidf-l1"):
+    """(Q, depth) database indices of each query's best results by the words, as `geofeat retrieval`
+    ranks them: K = `words` medoids of the sampled descriptors (seed 0), `weighting`."""
+    import numpy as np
+
+    from geofeat.apps.retrieval import (N_VOCABULARY_SAMPLES, WEIGHTINGS, sample_descriptors, sample_distances,
+                                        search, vocabulary, weight_histograms, word_counts)
+
+    sample = sample_descriptors(features, N_VOCABULARY_SAMPLES, 0)
+    vocab = vocabulary(sample, words, seed=0, distances=sample_distances(sample))
+    vectors = weight_histograms(np.stack([word_counts(f, vocab) for f in features]), weighting)
+    return search(vectors[queries], vectors, depth, exclude=exclude, distance=WEIGHTINGS[weighting])[0]

@@ -13,17 +13,14 @@ queries (`split_queries(..., 0)`, the command's split).
 from __future__ import annotations
 
 import argparse
-import pickle
 import time
 from pathlib import Path
 
 import numpy as np
+from common import cached_retrieval, word_shortlist
 from tqdm import tqdm
 
-from geofeat.apps.retrieval import (
-    N_VOCABULARY_SAMPLES, WEIGHTINGS, eligible_queries, match_counts, per_query_accuracy, sample_descriptors,
-    sample_distances, search, split_queries, vocabulary, weight_histograms, word_counts,
-)
+from geofeat.apps.retrieval import match_counts, per_query_accuracy
 
 RATIOS = {"mutual": None, "ratio 0.9": 0.9, "ratio 0.8": 0.8}
 
@@ -44,17 +41,10 @@ def main() -> None:
     p.add_argument("--weighting", default="tfidf-l1")
     p.add_argument("--depth", type=int, default=40, help="results per query scored (default 40)")
     args = p.parse_args()
-    with open(args.cache, "rb") as fh:
-        db = pickle.load(fh)
-    queries, exclude, _ = eligible_queries(db)
-    val, test = split_queries(len(queries), 0)
-    classes = np.asarray(db.classes)
+    db, queries, exclude, val, test, classes = cached_retrieval(args.cache)
     for name in [d for d in args.descriptors.split(",") if d]:
         feats = db.features[name]
-        sample = sample_descriptors(feats, N_VOCABULARY_SAMPLES, 0)
-        vocab = vocabulary(sample, args.words, seed=0, distances=sample_distances(sample))
-        vectors = weight_histograms(np.stack([word_counts(f, vocab) for f in feats]), args.weighting)
-        nb, _ = search(vectors[queries], vectors, args.depth, exclude=exclude, distance=WEIGHTINGS[args.weighting])
+        nb = word_shortlist(feats, queries, exclude, args.words, args.depth, args.weighting)
         t0 = time.perf_counter()
         scores = [[pair_scores(feats[q], feats[c]) for c in row]
                   for q, row in tqdm(zip(queries, nb), total=len(queries), desc=f"{name}: pairs", unit="query")]

@@ -19,18 +19,15 @@ on the validation half, the test half and all queries (`split_queries(..., 0)`, 
 from __future__ import annotations
 
 import argparse
-import pickle
 from pathlib import Path
 
 import numpy as np
+from common import cached_retrieval, word_shortlist
 from scipy.spatial import cKDTree
 from tqdm import tqdm
 
 from geofeat.apps.localfit import locally_consistent
-from geofeat.apps.retrieval import (
-    N_VOCABULARY_SAMPLES, RERANK, RERANK_RATIO, WEIGHTINGS, eligible_queries, per_query_accuracy,
-    sample_descriptors, sample_distances, search, split_queries, vocabulary, weight_histograms, word_counts,
-)
+from geofeat.apps.retrieval import RERANK, RERANK_RATIO, per_query_accuracy
 from geofeat.depth import backproject
 from geofeat.io import read_sequence
 from geofeat.matching import match
@@ -130,18 +127,11 @@ def main() -> None:
     p.add_argument("--words", type=int, default=2560)
     p.add_argument("--depth", type=int, default=RERANK, help=f"results per query re-ranked (default {RERANK})")
     args = p.parse_args()
-    with open(args.cache, "rb") as fh:
-        db = pickle.load(fh)
-    queries, exclude, _ = eligible_queries(db)
-    val, test = split_queries(len(queries), 0)
-    classes = np.asarray(db.classes)
+    db, queries, exclude, val, test, classes = cached_retrieval(args.cache)
     print("| descriptor | score | validation | test | all |\n|---|---|---|---|---|")
     for name in [d for d in args.descriptors.split(",") if d]:
         feats = db.features[name]
-        sample = sample_descriptors(feats, N_VOCABULARY_SAMPLES, 0)
-        vocab = vocabulary(sample, args.words, seed=0, distances=sample_distances(sample))
-        vectors = weight_histograms(np.stack([word_counts(f, vocab) for f in feats]), "tfidf-l1")
-        nb, _ = search(vectors[queries], vectors, args.depth, exclude=exclude, distance=WEIGHTINGS["tfidf-l1"])
+        nb = word_shortlist(feats, queries, exclude, args.words, args.depth)
         points = keypoint_points(db, feats)
         scores = np.zeros(nb.shape + (3,))  # (Q, depth, [affine, 3D distances, 3D rigid])
         for r, (q, row) in enumerate(tqdm(list(zip(queries, nb)), desc=f"{name}: pairs", unit="query")):
