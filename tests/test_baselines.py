@@ -97,3 +97,32 @@ def test_baselines_that_use_the_given_angle_warn_on_unoriented_keypoints():
         warnings.simplefilter("error")
         geofeat.make_descriptor("orb").compute(frame, geofeat.detect(frame, 50, detector="sift"))  # oriented: quiet
         geofeat.make_descriptor("freak").compute(frame, geokey)  # FREAK estimates its own orientation
+
+
+@pytest.mark.parametrize("name", BASELINES)
+def test_nan_or_infinite_angles_are_refused_by_name(name):
+    """A NaN or infinite keypoint angle crashed the process in ORB (segmentation fault), was an
+    OpenCV assertion in DAISY, and gave valid all-zero SIFT descriptors."""
+    frame = geofeat.read_demo_frame()
+    xy = np.array([[320.0, 240.0], [300.0, 200.0]])
+    for bad in (np.nan, np.inf):
+        kps = Keypoints(xy, np.array([30.0, bad]), np.full(2, 10.0), np.zeros(2))
+        with pytest.raises(ValueError, match="keypoints: 1 keypoint angle"):
+            OpenCVDescriptor(name).compute(frame, kps)
+    # without the angle, no angle is read
+    assert OpenCVDescriptor(name, use_angle=False).compute(frame, kps).keypoints.shape == (2, 2)
+
+
+def test_daisy_takes_angles_outside_0_to_360():
+    """cv2.KeyPoint's default angle is -1, and 360 or 390 degrees are the angles 0 and 30: OpenCV's
+    DAISY asserted 0 <= angle < 360; now they describe like their equivalents in [0, 360)."""
+    frame = geofeat.read_demo_frame()
+    d = OpenCVDescriptor("daisy")
+
+    def describe(angles):
+        return d.compute(frame, [cv2.KeyPoint(320.0, 240.0, 10.0, float(a)) for a in angles])
+
+    got, ref = describe([-1.0, 360.0, 390.0]), describe([359.0, 0.0, 30.0])
+    assert got.valid.all()
+    np.testing.assert_allclose(got.descriptors, ref.descriptors, atol=1e-6)
+    assert cv2.KeyPoint(1.0, 2.0, 3.0).angle == -1  # what a user gets without an angle

@@ -62,3 +62,11 @@ def test_bad_input():
     f = BRAND().compute(holey, np.array([[20.0, 100.0], [120.0, 100.0]]))
     assert f.valid.tolist() == [False, True]
     assert not f.descriptors[0].any()
+
+
+def test_off_image_keypoints_are_refused():
+    """A keypoint off the image took the depth and normal of the nearest border pixel (as every other
+    descriptor does, it is now refused by name)."""
+    flat, _ = _frames()
+    with pytest.raises(ValueError, match="keypoints: 1 keypoint.s. off the 200x200 image"):
+        BRAND().compute(flat, np.array([[100.0, 100.0], [150.0, 260.0]]))

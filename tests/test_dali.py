@@ -60,3 +60,14 @@ def test_invariant_to_a_rotation_of_the_patch(scene, angle):
 def test_bad_patch_shape():
     with pytest.raises(ValueError, match="patches"):
         DaLI(progress=False).describe_patches(np.zeros((2, 10, 10)))
+
+
+def test_bad_workers_and_off_image_keypoints_are_refused():
+    """workers=0 ran on every CPU, -1 failed inside the thread pool after the patches were sampled;
+    a keypoint off the image was described from replicated border pixels as valid."""
+    for workers in (0, -1, 1.5):
+        with pytest.raises(ValueError, match="^workers: "):
+            DaLI(workers=workers, progress=False)
+    assert DaLI(workers=1, progress=False).workers == 1
+    with pytest.raises(ValueError, match="keypoints: 1 keypoint.s. off the 160x160 image"):
+        DaLI(progress=False).compute(_frame(np.zeros((160, 160))), np.array([[80.0, 80.0], [80.0, 400.0]]))

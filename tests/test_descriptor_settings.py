@@ -42,3 +42,27 @@ def test_make_descriptor_passes_radius_and_depth_the_same_way():
     assert orb.name == "orb" and not takes_patch_settings(type(orb))
     brand = make_descriptor("brand", radius=0.05, n_bits=128)  # further options by name
     assert brand.settings.n_bits == 128 and len(brand.pattern) == 128
+
+
+def test_weights_named_twice_are_refused(tmp_path):
+    """make_descriptor("geopatch=A.pt", weights="B.pt") used A.pt and dropped B.pt without a word."""
+    from geofeat.descriptors.geopatch import default_weights_path
+
+    with pytest.raises(ValueError, match="give them once"):
+        make_descriptor(f"geopatch={default_weights_path()}", weights=str(tmp_path / "other.pt"))
+
+
+def test_descriptor_names_as_one_string_are_refused_by_name():
+    """check_descriptor_names("geobit") checked its letters and said "unknown name 'g'"."""
+    from geofeat.descriptors import check_descriptor_names
+
+    with pytest.raises(ValueError, match=r"descriptors: expected a list of names such as \['geobit'\]"):
+        check_descriptor_names("geobit")
+    assert check_descriptor_names(["geobit", " ORB "]) == ("geobit", "orb")
+
+
+@pytest.mark.parametrize("seed", [-1, 2.5, True])
+def test_geobit_seed_is_a_whole_number(seed):
+    """-1 and 2.5 were numpy's errors ("expected non-negative integer", "SeedSequence expects int")."""
+    with pytest.raises(ValueError, match="^seed: "):
+        GeoBit(seed=seed)

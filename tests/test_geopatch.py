@@ -159,3 +159,36 @@ def test_threads_and_batch_size_do_not_change_descriptors():
     assert (got[~valid] == 0).all() and np.allclose(np.linalg.norm(got[valid], axis=1), 1, atol=1e-5)
     with pytest.raises(ValueError, match="threads"):
         GeoPatch(device="cpu", threads=0)
+
+
+@pytest.mark.parametrize("option, value", [("threads", 2.5), ("threads", True), ("threads", "2"),
+                                           ("batch_size", 2.5), ("batch_size", "64"), ("batch_size", 0)])
+def test_threads_and_batch_size_must_be_whole_numbers(option, value):
+    """threads=2.5 ran on 2 threads and batch_size=2.5 in batches of 2, without a word; threads="abc"
+    was int()'s error."""
+    with pytest.raises(ValueError, match=f"^{option}: "):
+        GeoPatch(device="cpu", backend="torch", **{option: value})
+    assert GeoPatch(device="cpu", backend="torch", threads=np.int64(1), batch_size=np.int32(8)).threads == 1
+
+
+def test_describe_names_a_valid_mask_of_another_length():
+    g = GeoPatch(device="cpu", backend="torch")
+    with pytest.raises(ValueError, match=r"^valid: expected shape \(2,\)"):  # was numpy's "cannot reshape"
+        g.describe(np.zeros((2, 32, 32), np.float32), np.ones(3, bool))
+
+
+def test_compute_samples_patches_of_the_checkpoints_size(tmp_path):
+    """A checkpoint of a network for 24 x 16 patches: `describe` takes 24 x 16 patches, and `compute`
+    sampled 32 x 32 ones, then refused them ("patch_values: expected shape (N, 24, 16)")."""
+    from surfaces import plane_frame
+
+    torch.manual_seed(0)
+    net = GeoPatchNet(GeoPatchConfig(channels=(4, 8, 8), dim=16, n_rings=24, n_angles=16)).eval()
+    save_checkpoint(tmp_path / "w.pt", net)
+    g = GeoPatch(weights=str(tmp_path / "w.pt"), device="cpu", radius=0.02, depth_config="clean")
+    frame = plane_frame((120, 160))
+    kp = np.array([[80.0, 60.0], [60.0, 50.0]])
+    f = g.compute(frame, kp)
+    p = geofeat.polar_patches(frame, kp, radius=0.02, n_rings=24, n_angles=16, depth_config="clean")
+    assert f.valid.all() and f.descriptors.shape == (2, 16)
+    np.testing.assert_allclose(f.descriptors, g.describe(p.values, p.valid), atol=1e-6)

@@ -76,3 +76,25 @@ def test_patch_sampler_follows_rotation_and_scale():
     p1 = sample_patches(rot, xy, np.array([30.0 - 90.0]), np.array([10.0]), grid)
     np.testing.assert_allclose(p1, p0, atol=1e-5)
     assert image_patches(image, xy, "logpolar").shape == (1, 32, 32)
+
+
+@pytest.mark.parametrize("name", ["tfeat-sim", "logpolar-sim"])
+def test_off_image_keypoints_and_nan_angles_are_refused(name):
+    """Keypoints off the image were described from replicated border pixels and reported valid (every
+    other descriptor refuses them); a NaN angle gave valid NaN descriptors."""
+    frame = geofeat.read_demo_frame()
+    d = geofeat.make_descriptor(name)
+    with pytest.raises(ValueError, match="keypoints: 1 keypoint.s. off the 640x480 image"):
+        d.compute(frame, np.array([[320.0, 240.0], [5000.0, 3000.0]]))
+    from geofeat.keypoints import Keypoints
+
+    kps = Keypoints(np.array([[320.0, 240.0]]), np.array([np.nan]), np.array([8.0]), np.zeros(1))
+    with pytest.raises(ValueError, match="angle"):
+        d.compute(frame, kps)
+
+
+@pytest.mark.parametrize("batch_size", [0, -1, 2.5, True])
+def test_batch_size_must_be_a_positive_whole_number(batch_size):
+    """0 failed with "range() arg 3 must not be zero", -1 with a descriptor-count mismatch, 2.5 ran as 2."""
+    with pytest.raises(ValueError, match="^batch_size: "):
+        ImagePatchDescriptor("tfeat", batch_size=batch_size)

@@ -389,3 +389,16 @@ def test_descriptors_refuse_patches_of_other_keypoints(name):
         describer.compute(frame, kp[::-1], patches=patches)
     with pytest.raises(TypeError, match="patches: expected PolarPatches"):
         describer.compute(frame, kp[:1], patches="x")
+
+
+@pytest.mark.parametrize("name", ["geobit", "geopatch"])
+def test_descriptors_refuse_patches_of_another_radius(name):
+    """Patches of 0.03 m given to a descriptor of radius 0.02 m were described without a word (the
+    descriptor's radius ignored)."""
+    frame = plane_frame((120, 160))
+    kp = np.array([[60.0, 50.0], [80.0, 60.0]])
+    describer = geofeat.make_descriptor(name, radius=0.02, depth_config=CLEAN)
+    with pytest.raises(ValueError, match="patches: computed with radius 0.03 m, but the descriptor's radius is 0.02"):
+        describer.compute(frame, kp, patches=geofeat.polar_patches(frame, kp, radius=0.03, depth_config=CLEAN))
+    same = geofeat.polar_patches(frame, kp, radius=np.float32(0.02), depth_config=CLEAN)  # float32: the same radius
+    assert describer.compute(frame, kp, patches=same).valid.all()

@@ -54,6 +54,8 @@ def check_descriptor_name(name: str) -> str:
 def check_descriptor_names(names) -> tuple[str, ...]:
     """`check_descriptor_name` of each of `names` (empty entries dropped), as a tuple; ValueError for
     an unknown one or for none at all. Builds nothing, so a bad name fails before any work."""
+    if isinstance(names, str):  # iterating it would check its letters: "unknown name 'g'"
+        raise ValueError(f"descriptors: expected a list of names such as [{names!r}], got the string {names!r}")
     checked = tuple(check_descriptor_name(d) for d in names if not isinstance(d, str) or d.strip())
     if not checked:
         raise ValueError("descriptors: expected at least one descriptor name")
@@ -90,6 +92,9 @@ def make_descriptor(name: str, radius: float | None = None, depth_config=None, *
     base, _, weights = key.partition("=")
     cls, variant = _descriptor_class(base)
     if weights:
+        if options.get("weights") is not None:  # was replaced by the name's path without a word
+            raise ValueError(f"descriptor: {name!r} names its weights, and weights={options['weights']!r} was "
+                             "given too; give them once")
         options["weights"] = weights
     if takes_patch_settings(cls):
         patch = {k: v for k, v in (("radius", radius), ("depth_config", depth_config)) if v is not None}

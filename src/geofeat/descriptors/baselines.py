@@ -15,6 +15,8 @@ support size derived from SIFT's size where the descriptor uses one. Factors (me
 OpenCV drops keypoints it cannot describe (too close to the border); those come back with
 `valid = False` and zero descriptors, in the input order. So do DAISY's keypoints at x < 0 or y < 0
 (on the image's first pixel, which spans [-0.5, 0.5)), which OpenCV's DAISY refuses with an error.
+Angles are passed modulo 360 (DAISY asserts 0 <= angle < 360; cv2.KeyPoint's default angle is -1);
+NaN or infinite angles raise ValueError (ORB crashed the process on them).
 """
 
 from __future__ import annotations
@@ -53,6 +55,16 @@ def _make_extractor(name: str):
 USES_GIVEN_ANGLE = ("orb", "daisy", "sift")
 
 
+def check_angles(angles: np.ndarray, name: str) -> None:
+    """Keypoint angles (degrees) must be finite: OpenCV's ORB crashes the process on a NaN or infinite
+    angle, DAISY asserts, SIFT returns all-zero descriptors; the patch descriptors would be NaN."""
+    bad = ~np.isfinite(np.asarray(angles, np.float64))
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise ValueError(f"keypoints: {int(bad.sum())} keypoint angle(s) are NaN or infinite (e.g. #{i}); {name} "
+                         "describes at the given angle: give angles in degrees (0 for upright keypoints)")
+
+
 @dataclass
 class OpenCVDescriptor:
     """An OpenCV descriptor on given keypoints.
@@ -88,10 +100,15 @@ class OpenCVDescriptor:
                           f"no orientation), so the descriptor is not rotation-invariant; detect with "
                           f"detector='sift' to use SIFT's orientation", stacklevel=2)
         sizes = np.where(np.isfinite(kps.sizes), kps.sizes, DEFAULT_SIZE_PX)
+        angles = np.zeros(n)
+        if self.use_angle:
+            check_angles(kps.angles, self.name)
+            # the same angle in [0, 360): DAISY asserts that range (cv2.KeyPoint's default angle is -1)
+            angles = np.mod(kps.angles, 360.0).astype(np.float32)
+            angles[angles >= 360.0] = 0.0  # -1e-9 % 360 rounds to 360 in float32
         cv_kps = [
-            cv2.KeyPoint(float(x), float(y), float(max(s * self.size_factor, 1.0)),
-                         float(a) if self.use_angle else 0.0, 0.0, 0, i)
-            for i, ((x, y), s, a) in enumerate(zip(kps.xy, sizes, kps.angles))
+            cv2.KeyPoint(float(x), float(y), float(max(s * self.size_factor, 1.0)), float(a), 0.0, 0, i)
+            for i, ((x, y), s, a) in enumerate(zip(kps.xy, sizes, angles))
             # DAISY asserts x, y >= 0 (an OpenCV error); the first pixel row and column reach -0.5
             if self.name != "daisy" or (x >= 0 and y >= 0)
         ]

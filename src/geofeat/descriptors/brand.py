@@ -123,7 +123,7 @@ class BRAND:
         if depth.shape != frame.image.shape or not (depth > 0).any():
             raise ValueError(f"frame: BRAND needs a depth map of the image's shape {frame.image.shape} with "
                              f"valid (> 0) values, got shape {depth.shape}")
-        xy, angles, sizes = keypoint_arrays(keypoints, "brand")
+        xy, angles, sizes = keypoint_arrays(keypoints, "brand", depth.shape)
         n, nb = len(xy), len(self.pattern)
         H, W = depth.shape
         normals, points = surface_normals(depth, frame.K)

@@ -39,6 +39,7 @@ normalisation; ours is the z-score of step 2 (exactly invariant to I -> a I + b,
 
 from __future__ import annotations
 
+import numbers
 import os
 from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Mapping
@@ -191,7 +192,11 @@ class DaLI:
 
     def __init__(self, settings: DaLISettings | Mapping[str, Any] | None = None, **kwargs: Any) -> None:
         self.settings = s = merge_settings(DaLISettings, settings, kwargs)
-        self.workers = int(s.workers or os.cpu_count() or 1)
+        workers = s.workers
+        if workers is not None and (isinstance(workers, bool) or not isinstance(workers, numbers.Integral)
+                                    or workers < 1):  # 0 meant all CPUs, -1 failed in the thread pool
+            raise ValueError(f"workers: expected a positive number of threads or None (all CPUs), got {workers!r}")
+        self.workers = int(workers or os.cpu_count() or 1)
         self.progress = s.progress
 
     def describe_patches(self, patches: np.ndarray) -> np.ndarray:
@@ -221,7 +226,7 @@ class DaLI:
         bare (N, 2) pixels: 8 px diameter)."""
         if not hasattr(frame, "image"):
             raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
-        xy, angles, sizes = keypoint_arrays(keypoints, "dali")
+        xy, angles, sizes = keypoint_arrays(keypoints, "dali", frame.image.shape[:2])
         grid = cartesian_grid(GRID) * (GRID / (GRID - 1))  # vertex spacing = support radius / ((GRID-1)/2)
         patches = sample_patches(frame.image, xy, angles, RADIUS_FACTOR * sizes, grid)
         return Features(xy, self.describe_patches(patches), np.ones(len(xy), bool), angles=angles, sizes=sizes)

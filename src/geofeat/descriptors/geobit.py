@@ -56,6 +56,7 @@ real-data curve, and the authors' effective value, so results stay comparable wi
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib import resources
@@ -191,6 +192,8 @@ class GeoBit:
             raise ValueError(f"n_bits: expected a positive multiple of 8, got {n_bits}")
         if n_rotations < 1 or n_angles % n_rotations:
             raise ValueError(f"n_rotations: must divide n_angles={n_angles}, got {n_rotations}")
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or seed < 0):
+            raise ValueError(f"seed: expected None (the shipped pattern) or a whole number >= 0, got {seed!r}")
         self.n_bits = int(n_bits)
         self.n_rotations = int(n_rotations)
         self.sigma = DEFAULT_SIGMA_ROWS if s.sigma is None else float(s.sigma)
@@ -283,7 +286,7 @@ class GeoBit:
                 blur_px=self.blur_px,
             )
         else:
-            check_patches(patches, kps.xy)
+            check_patches(patches, kps.xy, self.radius)
         desc = self.describe(patches.values, patches.valid)
         return Features(
             keypoints=patches.keypoints,

@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 import importlib.util
+import numbers
 import os
 
 import numpy as np
@@ -175,8 +176,13 @@ class GeoPatch:
     def __init__(self, settings: GeoPatchSettings | Mapping[str, Any] | None = None, **kwargs: Any) -> None:
         self.settings = s = merge_settings(GeoPatchSettings, settings, kwargs)
         weights, device, batch_size, threads = s.weights, s.device, s.batch_size, s.threads
-        if threads is not None and int(threads) < 1:
-            raise ValueError(f"threads: expected a positive number of CPU threads or None, got {threads}")
+        # whole numbers only: 2.5 threads or "2" were truncated or converted without a word
+        if threads is not None and (isinstance(threads, bool) or not isinstance(threads, numbers.Integral)
+                                    or threads < 1):
+            raise ValueError(f"threads: expected a positive number of CPU threads or None, got {threads!r}")
+        if batch_size is not None and (isinstance(batch_size, bool) or not isinstance(batch_size, numbers.Integral)
+                                       or batch_size < 1):
+            raise ValueError(f"batch_size: expected a positive number of patches or None, got {batch_size!r}")
         self.threads = None if threads is None else int(threads)
         self.backend = resolve_backend(s.backend, weights, device)
         self.net = self.session = None
@@ -207,8 +213,6 @@ class GeoPatch:
         self.depth_config = s.depth_config
         self.blur_px = s.blur_px
         self.batch_size = int(DEFAULT_BATCH[self.backend] if batch_size is None else batch_size)
-        if self.batch_size < 1:
-            raise ValueError(f"batch_size: expected a positive number of patches, got {batch_size}")
 
     def _onnx_session(self, weights):
         from .geopatch_onnx import ONNX_INT8_NAME, ONNX_NAME, OnnxGeoPatch, data_path, export_checkpoint
@@ -258,7 +262,9 @@ class GeoPatch:
         if v.ndim != 3 or v.shape[1:] != (cfg.n_rings, cfg.n_angles):
             raise ValueError(f"patch_values: expected shape (N, {cfg.n_rings}, {cfg.n_angles}), got {v.shape}")
         n = v.shape[0]
-        valid = np.ones(n, bool) if valid is None else np.asarray(valid, bool).reshape(n)
+        valid = np.ones(n, bool) if valid is None else np.asarray(valid, bool).reshape(-1)
+        if valid.shape != (n,):
+            raise ValueError(f"valid: expected shape ({n},), got {valid.shape}")
         out = np.zeros((n, cfg.dim), np.float32)
         index = np.flatnonzero(valid)
         if len(index) == 0:
@@ -324,10 +330,11 @@ class GeoPatch:
                 mesh: GridMesh | None = None) -> Features:
         """GeoPatch features of `keypoints` ((N, 2) pixels, cv2.KeyPoint list or `Keypoints`)."""
         kps = as_keypoints(keypoints, frame.shape)
-        if patches is None:
-            patches = polar_patches(frame, kps, radius=self.radius, depth_config=self.depth_config,
-                                    mesh=mesh, blur_px=self.blur_px)
+        if patches is None:  # of the size the network takes (the checkpoint's n_rings x n_angles)
+            patches = polar_patches(frame, kps, radius=self.radius, n_angles=self.config.n_angles,
+                                    n_rings=self.config.n_rings, depth_config=self.depth_config, mesh=mesh,
+                                    blur_px=self.blur_px)
         else:
-            check_patches(patches, kps.xy)
+            check_patches(patches, kps.xy, self.radius)
         return Features(patches.keypoints, self.describe(patches.values, patches.valid), patches.valid,
                         angles=kps.angles, sizes=kps.sizes)

@@ -30,6 +30,7 @@ figures are in BENCHMARKS.md.
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib import resources
@@ -183,6 +184,8 @@ class ImagePatchDescriptor:
                 self.net = ImagePatchNet(default_config(arch)).eval()
         else:
             self.net = load_image_net(default_weights_path(arch) if weights is None else weights, arch)
+        if isinstance(s.batch_size, bool) or not isinstance(s.batch_size, numbers.Integral) or s.batch_size < 1:
+            raise ValueError(f"batch_size: expected a positive number of patches, got {s.batch_size!r}")
         self.batch_size = int(s.batch_size)
 
     def __repr__(self) -> str:
@@ -199,7 +202,7 @@ class ImagePatchDescriptor:
         """Features of `keypoints` (Keypoints, cv2.KeyPoint list, or (N, 2) pixels: angle 0, size 8 px)."""
         if not hasattr(frame, "image"):
             raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
-        xy, angles, sizes = keypoint_arrays(keypoints, self.name)
+        xy, angles, sizes = keypoint_arrays(keypoints, self.name, frame.image.shape[:2])
         patches = image_patches(frame.image, Keypoints(xy, angles, sizes, np.zeros(len(xy))), self.arch)
         return Features(xy, self.describe(patches), np.ones(len(xy), bool), angles=angles, sizes=sizes)
 

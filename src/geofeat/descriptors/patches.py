@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from ..keypoints import as_keypoints
+from .baselines import check_angles
 
 #: Keypoint diameter (pixels) assumed when the caller gives bare (N, 2) positions.
 DEFAULT_SIZE_PX = 8.0
@@ -26,11 +27,16 @@ DEFAULT_SIZE_PX = 8.0
 _CHUNK = 512
 
 
-def keypoint_arrays(keypoints, what: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def keypoint_arrays(keypoints, what: str,
+                    shape: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(xy (N, 2) pixels, angles (N,) degrees, sizes (N,) pixels) from `Keypoints`, a list of
     cv2.KeyPoint or an (N, 2) array. Bare positions get angle 0 and size `DEFAULT_SIZE_PX`
-    (documented default of every image-patch descriptor); `what` names the caller in errors."""
-    k = as_keypoints(keypoints)
+    (documented default of every image-patch descriptor); `what` names the descriptor in errors.
+    With the image's (H, W) `shape`, keypoints off the image raise ValueError (as for every other
+    descriptor), rather than being described from replicated border pixels; so do NaN or infinite
+    angles, which would give NaN patches."""
+    k = as_keypoints(keypoints, shape)
+    check_angles(k.angles, what)
     sizes = np.where(np.isfinite(k.sizes), k.sizes, DEFAULT_SIZE_PX)
     return k.xy.astype(np.float64), k.angles.astype(np.float64), sizes.astype(np.float64)
 

@@ -71,15 +71,20 @@ def check_patch_request(frame: RGBDFrame, keypoints, radius: float, n_angles: in
     return as_keypoint_array(keypoints, frame.shape)
 
 
-def check_patches(patches, xy: np.ndarray) -> PolarPatches:
+def check_patches(patches, xy: np.ndarray, radius: float | None = None) -> PolarPatches:
     """Precomputed patches given to a descriptor with its (N, 2) keypoints `xy` must be the
-    `PolarPatches` of those keypoints, in that order (TypeError / ValueError naming `patches`)."""
+    `PolarPatches` of those keypoints, in that order, and of the descriptor's geodesic `radius`
+    (metres; None: any) (TypeError / ValueError naming `patches`)."""
     if not isinstance(patches, PolarPatches):
         raise TypeError(f"patches: expected PolarPatches, got {type(patches).__name__}")
     if len(patches) != len(xy):
         raise ValueError(f"patches: hold {len(patches)} keypoints, but {len(xy)} keypoints were given")
     if not np.array_equal(patches.keypoints, xy):
         raise ValueError("patches: computed for other keypoints (or another order) than the keypoints given")
+    if radius is not None and not np.isclose(patches.radius, radius, rtol=1e-6, atol=0.0):
+        raise ValueError(f"patches: computed with radius {patches.radius:g} m, but the descriptor's radius is "
+                         f"{radius:g} m; compute them with radius={radius:g} or build the descriptor with "
+                         f"radius={patches.radius:g}")
     return patches
 
 
