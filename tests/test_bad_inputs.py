@@ -463,6 +463,28 @@ def bench_overwrite_foreign_results_csv(tmp):
     return _bench_args(tmp, _seq(tmp), extra=["--overwrite"])
 
 
+def bench_overwrite_user_config_json(tmp):
+    """A folder of the user's without results.csv: `--overwrite` used to replace their config.json and
+    table.md with the bench's."""
+    _user_files(tmp / "b")
+    (tmp / "b" / "config.json").write_text('{"mine": 1}')
+    return _bench_args(tmp, _seq(tmp), extra=["--overwrite"])
+
+
+def _user_config_kept(tmp):
+    _user_files_kept(tmp / "b")
+    assert (tmp / "b" / "config.json").read_text() == '{"mine": 1}'
+    assert not (tmp / "b" / "results.csv").exists()
+
+
+def bench_huge_keypoint_budget(tmp):
+    """More keypoints than OpenCV's int: every sequence used to fail with "OpenCV ... Bad argument in
+    function 'SIFT_create'"; a budget above what a frame has returns them all."""
+    args = _bench_args(tmp, _seq(tmp))
+    args[args.index("--keypoints") + 1] = "3000000000"
+    return args
+
+
 def _foreign_csv_kept(tmp):
     assert (tmp / "b" / "results.csv").read_text() == "my,own,table\n1,2,3\n"
 
@@ -882,6 +904,10 @@ CASES = [
     Case("bench-overwrite-foreign-results-csv", bench_overwrite_foreign_results_csv, 2, "did not write",
          _foreign_csv_kept),
     Case("bench-unparsable-row-recomputed", bench_unparsable_row, 0, "dropped", _results_complete),
+    # audit of bench
+    Case("bench-overwrite-keeps-user-config-json", bench_overwrite_user_config_json, 2,
+         "config.json, .*which geofeat did not write", _user_config_kept),
+    Case("bench-huge-keypoint-budget", bench_huge_keypoint_budget, 0, "", _bench_scored),
     Case("bench-same-folder-twice", bench_same_folder_twice, 0, "", _one_sequence),
     Case("extract-out-under-a-file", extract_out_under_file, 2, "is a file", _file_kept),
     Case("extract-ctrl-c", extract_interrupted, 130, "interrupted", _nothing_written, _interrupt_extract),

@@ -232,3 +232,80 @@ def test_detail_table_gives_the_denominator_of_ms():
     assert "target keypoints kept / pair" in header
     cells = [c.strip() for c in first.split("|")[1:-1]]
     assert cells[6:9] == ["1000", "700", "320"]  # per-sequence means: n_ref, n_tgt, hits
+
+
+def test_a_descriptor_named_twice_is_refused(datasets, tmp_path):
+    """"orb,ORB" (or "orb,orb") used to write every orb row two times into results.csv."""
+    with pytest.raises(ValueError, match="'orb' is named twice"):
+        BenchConfig(descriptors=("orb", "ORB"))
+    assert main(["bench", str(datasets / "seqs"), "--descriptors", "orb,sift,orb", "--out", str(tmp_path / "b")]) == 2
+    assert not (tmp_path / "b").exists()
+
+
+def _without_ground_truth(npz):
+    """The simulator's ground truth of a frame that shows no cloth (every pixel background)."""
+    arrays = dict(np.load(npz))
+    arrays["uv"][:] = -1
+    np.savez(npz, **arrays)
+
+
+def test_a_target_without_ground_truth_is_skipped_not_scored_zero(datasets, tmp_path, capsys):
+    """A target frame where the ground truth covers no pixel keeps no keypoint: it used to be scored
+    MS = MMA = 0 and averaged into its sequence's mean."""
+    seq = tmp_path / "data" / "a-deform"
+    shutil.copytree(datasets / "seqs" / "a-deform", seq)
+    _without_ground_truth(seq / "frame-002-gt.npz")
+    config = BenchConfig(descriptors=("orb",), n_keypoints=200)
+    csv_path, failed = run_benchmark(tmp_path / "data", tmp_path / "out", config, progress=False)
+    rows = read_rows(csv_path)
+    assert not failed and [r["target"] for r in rows] == ["frame-001"] and float(rows[0]["ms"]) > 0
+    assert "a-deform: the ground truth covers no pixel of frame-002; pair skipped" in capsys.readouterr().out
+
+
+def test_a_reference_without_ground_truth_fails_its_sequence(datasets, tmp_path, capsys):
+    """No reference keypoint on the object by the ground truth: every pair used to score 0."""
+    seq = tmp_path / "data" / "a-deform"
+    shutil.copytree(datasets / "seqs" / "a-deform", seq)
+    _without_ground_truth(seq / "frame-000-master-gt.npz")
+    shutil.copytree(datasets / "seqs" / "b-rotate", tmp_path / "data" / "b-rotate")
+    config = BenchConfig(descriptors=("orb",), n_keypoints=200)
+    csv_path, failed = run_benchmark(tmp_path / "data", tmp_path / "out", config, progress=False)
+    assert failed == ["a-deform"] and {r["sequence"] for r in read_rows(csv_path)} == {"b-rotate"}
+    assert "covers no pixel of the reference frame frame-000-master" in capsys.readouterr().out
+
+
+def test_overwrite_leaves_no_report_of_the_earlier_run(datasets, tmp_path):
+    """details.md (protocol detect only) of an earlier run used to stay beside the new table.md."""
+    out = tmp_path / "b"
+    args = ["bench", str(datasets / "seqs" / "a-deform"), "--descriptors", "orb", "--keypoints", "200",
+            "--out", str(out)]
+    assert main(args) == 0 and (out / "details.md").is_file()
+    (out / "notes.md").write_text("mine")
+    assert main(args + ["--protocol", "landmarks", "--overwrite"]) == 0
+    assert not (out / "details.md").exists() and (out / "notes.md").read_text() == "mine"
+    assert "landmarks" in read_rows(out / "results.csv")[0]["protocol"]
+
+
+def test_curves_take_sequences_by_their_scenario_word():
+    """"grayscale-deform" is no scale sequence (the table groups it under deform); it used to be
+    drawn in the scale curve because "scale" is in its name."""
+    from geofeat.bench.report import CURVES, curve_series
+
+    rows = [{"sequence": seq, "descriptor": "orb", "detector": "sift", "angle_deg": 0.0, "scale": scale, "ms": ms}
+            for seq, scale, ms in (("b-scale", 0.5, 0.2), ("grayscale-deform", 0.99, 0.9), ("hard_scale_2", 0.6, 0.4))]
+    key, kind, _, bins = CURVES[1]
+    x, y = curve_series(rows, key, kind, bins)["orb"]
+    np.testing.assert_allclose(x, [0.5, 0.6])
+    np.testing.assert_allclose(y, [0.2, 0.4])
+
+
+def test_table_says_when_a_descriptor_has_fewer_sequences():
+    """A rerun can add a descriptor on other sequences than the earlier ones (other datasets, a
+    failure): its mean is over fewer sequences, which the table must say rather than set side by side."""
+    from geofeat.bench.report import markdown_table
+
+    rows = [dict(sequence=s, descriptor=d, ms=ms, mma=ms) for s, d, ms in
+            (("a-deform", "orb", 0.2), ("b-deform", "orb", 0.6), ("b-deform", "sift", 0.5))]
+    lines = markdown_table(rows).splitlines()
+    assert lines[2] == "| deform (2) | 0.400 | **0.500** (1 of 2) |"
+    assert lines[3] == "| all (2) | 0.400 | **0.500** (1 of 2) |"

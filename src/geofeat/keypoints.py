@@ -296,7 +296,9 @@ def detect_sift(
     if keypoint_set not in KEYPOINT_SETS:
         raise ValueError(f"keypoint_set: expected one of {', '.join(KEYPOINT_SETS)}, got {keypoint_set!r}")
     if keypoint_set == "protocol":
-        sift = cv2.SIFT_create(nfeatures=int(n or 0), contrastThreshold=float(contrast_threshold))
+        # OpenCV takes a C int: a larger budget keeps every keypoint, as the frame has far fewer
+        sift = cv2.SIFT_create(nfeatures=min(int(n or 0), np.iinfo(np.int32).max),
+                               contrastThreshold=float(contrast_threshold))
         kps = Keypoints.from_cv(list(sift.detect(to_uint8(frame.image), mask)))
         order = np.argsort(-kps.responses, kind="stable")
         return kps[order[:n] if n else order]

@@ -62,10 +62,14 @@ def summary(rows: list[dict]) -> dict[str, dict[str, float]]:
 SCENARIO_WORDS = ("deform", "rotate", "scale")
 
 
+def _words(name: str) -> list[str]:
+    return name.replace("_", "-").split("-")
+
+
 def sequence_group(name: str) -> str:
     """The group of a sequence in `markdown_table`: a scenario word of its name (`SCENARIO_WORDS`),
     else the part after its last "-", else "all"."""
-    parts = name.replace("_", "-").split("-")
+    parts = _words(name)
     for word in SCENARIO_WORDS:
         if word in parts:
             return word
@@ -74,7 +78,9 @@ def sequence_group(name: str) -> str:
 
 def markdown_table(rows: list[dict], group_of=sequence_group) -> str:
     """Table 1 style: matching score per descriptor (columns) for each group of sequences (rows, e.g.
-    the scenario suffix of simulated sequence names) and overall; best of each row in bold."""
+    the scenario suffix of simulated sequence names) and overall; best of each row in bold. A cell
+    whose descriptor has results on fewer of the row's sequences than the row counts says so
+    ("(1 of 2)"): its mean is over those only."""
     groups = {}
     for r in rows:
         groups.setdefault(group_of(r["sequence"]), []).append(r)
@@ -84,14 +90,15 @@ def markdown_table(rows: list[dict], group_of=sequence_group) -> str:
     for group, grows in groups.items():
         s = summary(grows)
         best = max(s[n]["ms"] for n in names if n in s)
+        n_seq = len({r["sequence"] for r in grows})
         cells = []
         for n in names:
             if n not in s:
                 cells.append("-")
                 continue
             text = f"{s[n]['ms']:.3f}"
-            cells.append(f"**{text}**" if s[n]["ms"] == best else text)
-        n_seq = len({r["sequence"] for r in grows})
+            text = f"**{text}**" if s[n]["ms"] == best else text
+            cells.append(text + (f" ({s[n]['sequences']} of {n_seq})" if s[n]["sequences"] < n_seq else ""))
         lines.append(f"| {group} ({n_seq}) | " + " | ".join(cells) + " |")
     kp_sets = sorted({r.get("keypoint_set", "") for r in rows} - {""})
     detectors = sorted({r.get("detector", "") for r in rows} - {""})
@@ -114,11 +121,12 @@ CURVES = (  # (row column, sequence kind, axis label, bin edges)
 
 
 def curve_series(rows: list[dict], key: str, kind: str, bins: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Mean MS per bin of `key` over the rows of `kind` sequences ("rotate" or "scale").
+    """Mean MS per bin of `key` over the rows of `kind` sequences ("rotate" or "scale": a word of the
+    sequence name, as `sequence_group` reads it; "grayscale-deform" is no scale sequence).
 
     Returns {label: (bin centres (B,), mean MS (B,))}, centres ascending. The label is the
     descriptor, or "detector + descriptor" when the rows come from several detectors."""
-    sel = [r for r in rows if kind in r["sequence"] and np.isfinite(r[key])]
+    sel = [r for r in rows if kind in _words(r["sequence"]) and np.isfinite(r[key])]
     detectors = list(dict.fromkeys(r.get("detector") or "sift" for r in sel))
     series = {}
     for name, det in dict.fromkeys((r["descriptor"], r.get("detector") or "sift") for r in sel):

@@ -39,6 +39,7 @@ from ..keypoints import Keypoints, check_detector_name, detect, resolve_keypoint
 from ..matching import match
 from ..features import Features
 from .external import ExternalFeatures, parse_features_option
+from .report import CURVES
 from ..descriptors.describer import Describer
 from ..groundtruth.sources import GroundTruth
 from ..scoring import ground_truth_pairs, score_detect, score_landmarks
@@ -46,6 +47,10 @@ from ..scoring import ground_truth_pairs, score_detect, score_landmarks
 COLUMNS = ["sequence", "reference", "target", "descriptor", "detector", "protocol", "keypoint_set", "depth_profile",
            "ms", "mma", "repeatability", "hits", "n_gt", "n_ref", "n_tgt", "seconds_extract", "seconds_match",
            "angle_deg", "scale"]
+#: The files `geofeat bench` writes into its output folder (results.csv and config.json here, the
+#: reports in `geofeat.cli.bench` and `geofeat.bench.report.plot_curves`).
+REPORTS = ("table.md", "details.md", "timing.md") + tuple(f"ms_vs_{kind}.png" for _, kind, _, _ in CURVES)
+OUTPUT_FILES = ("results.csv", "config.json") + REPORTS
 #: Settings that must be equal for a rerun to reuse the results already in the output folder.
 REUSE_KEYS = ("protocol", "detector", "features", "keypoint_set", "depth_profile", "radius", "depth_scale", "n_keypoints", "tps_dir")
 
@@ -85,6 +90,9 @@ class BenchConfig:
             raise ValueError("descriptors: at least one descriptor (or --features) is needed")
         # validates the names (and that weights files exist) without building anything
         self.descriptors = tuple(check_descriptor_name(d) for d in self.descriptors)
+        twice = sorted({d for d in self.descriptors if self.descriptors.count(d) > 1})
+        if twice:  # each would write its rows again into results.csv
+            raise ValueError(f"descriptors: {', '.join(map(repr, twice))} is named twice; name each descriptor once")
         clash = set(external) & set(self.descriptors)
         if clash:
             raise ValueError(f"features: {sorted(clash)} is also a descriptor name; rename the feature set")
@@ -105,6 +113,12 @@ def _pose_change(seq: Sequence, target: str) -> tuple[float, float]:
         return angle, scale
     except (OSError, KeyError):
         return float("nan"), float("nan")
+
+
+def _pixel_grid(shape: tuple[int, int], step: int = 4) -> np.ndarray:
+    """(N, 2) pixels every `step` px over an image of `shape` (H, W)."""
+    ys, xs = np.mgrid[0:shape[0]:step, 0:shape[1]:step]
+    return np.stack([xs.ravel(), ys.ravel()], axis=1).astype(float)
 
 
 def _empty_row_score(n_ref: int, n_tgt: int):
@@ -139,6 +153,9 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
         truth = GroundTruth(seq, config.tps_dir)
         k_ref = detect(ref, config.n_keypoints, detector=config.detector, keypoint_set=config.keypoint_set)
         k_ref = k_ref[truth.reference_keep(k_ref.xy)]
+        if not len(k_ref) and not truth.reference_keep(_pixel_grid(seq.shape)).any():
+            raise ValueError(f"sequence {seq.name}: the ground truth covers no pixel of the reference frame "
+                             f"{seq.reference} (no object there), so no pair can be scored")
         rows += [dict(r, depth_profile=profile) for e in external for r in evaluate_external(seq, truth, e, config)]
     if not names:
         return rows
@@ -159,6 +176,10 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
         else:
             k_tgt = detect(frame, config.n_keypoints, detector=config.detector, keypoint_set=config.keypoint_set)
             mapped, known = truth.map(target, k_tgt.xy)
+            if not known.any() and not truth.map(target, _pixel_grid(seq.shape))[1].any():
+                # no keypoint could have a partner: MS would be 0 / 0, not a score of 0
+                tqdm.write(f"{seq.name}: the ground truth covers no pixel of {target}; pair skipped")
+                continue
             k_tgt, mapped = k_tgt[known], mapped[known]
             gt = ground_truth_pairs(k_ref.xy, mapped)
         f_tgt = describe(frame, k_tgt) if len(k_tgt) and f_ref is not None else None
@@ -308,14 +329,15 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
     A rerun into the same folder with the same settings evaluates only the (sequence, descriptor)
     results not yet in results.csv (a row cut short by a kill is dropped and recomputed, see
     `repair_results`); with other settings it raises ValueError unless `overwrite`, which starts the
-    file anew. A non-empty `out` without results.csv needs `overwrite`; files geofeat did not write
-    are never replaced. Sequence names must be unique (results are keyed by them). Ctrl-C stops the
+    file anew and removes the earlier run's reports (`REPORTS`, those geofeat wrote). A non-empty
+    `out` without results.csv needs `overwrite`; files geofeat did not write are never replaced. Sequence names must be unique (results are keyed by them). Ctrl-C stops the
     run (KeyboardInterrupt) and leaves the finished rows in place. Returns the csv path and the names of failed sequences (with
     reasons printed)."""
     out = Path(out)
     csv_path = out / "results.csv"
     if not csv_path.is_file():
-        check_out_dir(out, overwrite)  # a non-empty folder without results.csv is not a bench to resume
+        # a non-empty folder without results.csv is not a bench to resume; --overwrite replaces none of the user's files
+        check_out_dir(out, overwrite, files=OUTPUT_FILES)
     elif out.exists() and not out.is_dir():
         raise ValueError(f"out: {out} is a file, not a folder")
     folders = [str(f) for f in find_sequences(datasets, unique_names=True)]
@@ -380,6 +402,10 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
             with open(tmp, "w", newline="") as fh:
                 csv.DictWriter(fh, COLUMNS, lineterminator="\n").writeheader()
         done = set()
+        ours = read_manifest(out)
+        for name in REPORTS:  # the earlier run's reports, which this run may not rewrite (details.md, a curve)
+            if name in ours:
+                (out / name).unlink(missing_ok=True)
     with atomic_file(config_path) as tmp:
         tmp.write_text(json.dumps({**asdict(config), "provenance": provenance(config)}, indent=1))
     add_to_manifest(out, ["results.csv", "config.json"])
