@@ -262,6 +262,28 @@ def test_a_target_without_ground_truth_is_skipped_not_scored_zero(datasets, tmp_
     assert "a-deform: the ground truth covers no pixel of frame-002; pair skipped" in capsys.readouterr().out
 
 
+def test_external_features_skip_a_target_without_ground_truth_too(datasets, tmp_path, capsys):
+    """`--features` scores its pairs with the same rule: a target the ground truth does not cover is
+    skipped by name, not scored 0."""
+    import geofeat
+    from geofeat.io import read_sequence
+
+    seq = tmp_path / "data" / "a-deform"
+    shutil.copytree(datasets / "seqs" / "a-deform", seq)
+    _without_ground_truth(seq / "frame-002-gt.npz")
+    s = read_sequence(seq)
+    (tmp_path / "feats").mkdir()
+    for name in s.names:
+        frame = s.frame(name)
+        f = geofeat.make_descriptor("orb").compute(frame, geofeat.detect(frame, 200, detector="sift"))
+        np.savez(tmp_path / "feats" / f"{name}.npz", keypoints=f.keypoints[f.valid], descriptors=f.descriptors[f.valid])
+    config = BenchConfig(descriptors=(), features=(f"mine={tmp_path / 'feats'}",), n_keypoints=200)
+    csv_path, failed = run_benchmark(tmp_path / "data", tmp_path / "out", config, progress=False)
+    rows = read_rows(csv_path)
+    assert not failed and [r["target"] for r in rows] == ["frame-001"] and float(rows[0]["ms"]) > 0
+    assert "a-deform: the ground truth covers no pixel of frame-002; pair skipped for mine" in capsys.readouterr().out
+
+
 def test_a_reference_without_ground_truth_fails_its_sequence(datasets, tmp_path, capsys):
     """No reference keypoint on the object by the ground truth: every pair used to score 0."""
     seq = tmp_path / "data" / "a-deform"

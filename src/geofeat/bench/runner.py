@@ -121,6 +121,13 @@ def _pixel_grid(shape: tuple[int, int], step: int = 4) -> np.ndarray:
     return np.stack([xs.ravel(), ys.ravel()], axis=1).astype(float)
 
 
+def _covers_no_pixel(truth: GroundTruth, target: str, known: np.ndarray, shape: tuple[int, int]) -> bool:
+    """True when the ground truth maps no pixel of `target` (no object there): its pair cannot be
+    scored (MS would be 0 / 0), so it is skipped rather than counted as 0. `known`: which of the
+    target's keypoints have a ground truth (the grid is tried only when none has)."""
+    return not known.any() and not truth.map(target, _pixel_grid(shape))[1].any()
+
+
 def _empty_row_score(n_ref: int, n_tgt: int):
     from ..scoring import PairScore
 
@@ -176,8 +183,7 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
         else:
             k_tgt = detect(frame, config.n_keypoints, detector=config.detector, keypoint_set=config.keypoint_set)
             mapped, known = truth.map(target, k_tgt.xy)
-            if not known.any() and not truth.map(target, _pixel_grid(seq.shape))[1].any():
-                # no keypoint could have a partner: MS would be 0 / 0, not a score of 0
+            if _covers_no_pixel(truth, target, known, seq.shape):
                 tqdm.write(f"{seq.name}: the ground truth covers no pixel of {target}; pair skipped")
                 continue
             k_tgt, mapped = k_tgt[known], mapped[known]
@@ -222,6 +228,9 @@ def evaluate_external(seq: Sequence, truth: GroundTruth, features: ExternalFeatu
             raise ValueError(f"features {features.name}: {seq.name}/{target} has descriptors of shape "
                              f"{f_tgt.descriptors.shape[1:]}, {seq.reference} of {f_ref.descriptors.shape[1:]}")
         mapped, known = truth.map(target, f_tgt.keypoints)
+        if _covers_no_pixel(truth, target, known, seq.shape):
+            tqdm.write(f"{seq.name}: the ground truth covers no pixel of {target}; pair skipped for {features.name}")
+            continue
         f_tgt = Features(f_tgt.keypoints[known], f_tgt.descriptors[known], f_tgt.valid[known])
         gt = ground_truth_pairs(f_ref.keypoints, mapped[known])
         t = time.perf_counter()
