@@ -250,6 +250,16 @@ def test_bad_input_gives_clear_errors_and_writes_nothing(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.png", "full"]
 
 
+@pytest.mark.parametrize("preset", ["mild", "hard"])
+@pytest.mark.parametrize("shape", [(0, 10, 3), (10, 0, 3)])
+def test_empty_texture_array_is_a_clear_error(shape, preset, tmp_path):
+    # was a bare ZeroDivisionError (mild) or cv2.error (paper, hard) from deep in the scene setup
+    with pytest.raises(ValueError, match="texture: the array is empty"):
+        simulate_sequence(tmp_path / "o", n_frames=2, width=64, height=48, texture=np.zeros(shape, np.uint8),
+                          preset=preset, progress=False)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_failure_midway_leaves_nothing_behind(tmp_path, monkeypatch):
     original = writer_mod.write_frame
 

@@ -97,7 +97,8 @@ def default_intrinsics(width: int = 640, height: int = 480, fov_deg: float | Non
         f = 525.0 * width / 640.0
     else:
         check_fov(fov_deg)
-        f = (height / 2.0) / np.tan(np.radians(fov_deg) / 2.0)
+        # in float64: a numpy float32 fov gave another K than the fov_deg recorded (float) reproduces
+        f = (height / 2.0) / np.tan(np.radians(float(fov_deg)) / 2.0)
     return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
 
 
@@ -114,7 +115,7 @@ def get_preset(preset: str | Preset) -> Preset:
     """The Preset of a name (ValueError naming the choices) or the Preset itself."""
     if isinstance(preset, Preset):
         return preset
-    if preset not in PRESETS:
+    if not isinstance(preset, str) or preset not in PRESETS:  # a list raised TypeError (unhashable)
         raise ValueError(f"preset: expected one of {', '.join(PRESETS)}, got {preset!r}")
     return PRESETS[preset]
 

@@ -105,6 +105,8 @@ def choose_texture(
         arr = np.asarray(texture)
         if arr.ndim != 3 or arr.shape[2] != 3 or arr.dtype != np.uint8:
             raise ValueError(f"texture: expected an (H, W, 3) uint8 BGR array, got {arr.shape} {arr.dtype}")
+        if arr.size == 0:  # a zero side crashed later (ZeroDivisionError, cv2.error)
+            raise ValueError(f"texture: the array is empty ({arr.shape})")
         return arr, "array"
     if texture is not None:
         if str(texture) == "procedural":
