@@ -5,7 +5,9 @@ Data (made here, in a temporary folder unless --data is given):
 - the shipped real Kinect v1 frame, and a two-target sequence of it seen by the camera rolled by
   30 and 60 degrees (ground truth: a thin-plate spline on the 51 annotated landmarks);
 - `--sequences` clean simulated deformation sequences (millimetre depth PNGs, no sensor noise);
-- the same scenes with the simulator's Kinect noise model (`geofeat simulate --kinect-noise`).
+- as many sequences with the same seeds and the simulator's Kinect noise model (`geofeat simulate
+  --kinect-noise`). The noise draws share the scene's random generator, so from the second frame on
+  these are other scenes of the same kind, not the clean scenes with noise added.
 
 Prints the statistic `geofeat.depth_noise(...).slope_noise` (depth noise in units of the pixel
 footprint; `auto` picks "kinect" above `geofeat.depth.SLOPE_NOISE_THRESHOLD`) and, per kind of data,
