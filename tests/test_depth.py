@@ -126,3 +126,29 @@ def test_halving_is_the_mean_of_the_valid_pixels_of_each_block():
     assert got.shape == (4, 6) and got.dtype == np.float32
     np.testing.assert_allclose(got, expected, rtol=1e-6, atol=0)
     assert ((got == 0) == (count < 2)).all()
+
+
+@pytest.mark.parametrize("func", [fill_holes, smooth, lambda d: backproject(d, geofeat.read_demo_frame().K)])
+@pytest.mark.parametrize("depth", [np.ones((0, 5), np.float32), np.ones(5, np.float32), np.ones((5, 5, 1), np.float32)],
+                         ids=["empty", "1d", "3d"])
+def test_depth_functions_refuse_what_is_not_a_depth_map(func, depth):
+    # an empty map used to crash the whole process (segfault in OpenCV's labelling) in fill_holes;
+    # other shapes gave "not enough values to unpack"
+    with pytest.raises(ValueError, match="depth: "):
+        func(depth)
+
+
+def test_fill_and_smooth_refuse_nan_for_missing_depth():
+    depth = ramp((40, 40))
+    depth[10:13, 10:13] = np.nan  # the NaN-for-missing convention: was left as NaN, and spread by smoothing
+    for func in (fill_holes, smooth):
+        with pytest.raises(ValueError, match="use 0 for missing"):
+            func(depth)
+
+
+@pytest.mark.parametrize("kwargs", [dict(levels=-1), dict(levels=1.5), dict(window=0), dict(out_scale=-1.0),
+                                    dict(out_scale=0.0), dict(out_scale=float("nan"))])
+def test_smooth_refuses_meaningless_parameters(kwargs):
+    # levels=-1 silently skipped the smoothing, out_scale=-1 gave a 2x2 map, window=0 an OpenCV assertion
+    with pytest.raises(ValueError, match=next(iter(kwargs))):
+        smooth(ramp((40, 40)), **kwargs)

@@ -402,3 +402,37 @@ def test_descriptors_refuse_patches_of_another_radius(name):
         describer.compute(frame, kp, patches=geofeat.polar_patches(frame, kp, radius=0.03, depth_config=CLEAN))
     same = geofeat.polar_patches(frame, kp, radius=np.float32(0.02), depth_config=CLEAN)  # float32: the same radius
     assert describer.compute(frame, kp, patches=same).valid.all()
+
+
+def test_sample_bilinear_refuses_colour_and_integer_images():
+    from geofeat.geodesic.polar import sample_bilinear
+
+    coords = np.array([[1.0, 2.0], [3.0, 1.0]])
+    gray = np.arange(20, dtype=np.float32).reshape(4, 5) / 20
+    np.testing.assert_allclose(sample_bilinear(gray, coords), [gray[2, 1], gray[1, 3]])
+    # a colour image used to give its first point's three channels as the two samples
+    with pytest.raises(ValueError, match="image"):
+        sample_bilinear(np.dstack([gray] * 3), coords)
+    with pytest.raises(ValueError, match="image"):  # uint8: came back in 0..255, rounded
+        sample_bilinear((gray * 255).astype(np.uint8), coords)
+
+
+def test_frame_keeps_its_own_intrinsics():
+    K = K_VGA.copy()
+    frame = geofeat.RGBDFrame(np.full((480, 640), 0.5, np.float32), np.ones((480, 640), np.float32), K)
+    K[0, 2] += 50.0  # the caller reuses its array (e.g. for the next camera): the frame must not move
+    assert frame.K[0, 2] == K_VGA[0, 2]
+    assert not np.shares_memory(frame.K, K)
+
+
+@pytest.mark.parametrize("edit, match", [(np.nan, "NaN"), (-1.0, "negative"), ("mm", "millimetres")])
+def test_depth_edited_in_place_is_checked_again_before_a_mesh_is_built(edit, match):
+    frame = plane_frame()
+    kp = np.array([[320.0, 240.0]])
+    assert geofeat.polar_patches(frame, kp, depth_config=CLEAN).valid.all()
+    if edit == "mm":
+        frame.depth[:] *= 1000.0  # was silently a surface 1000 times too large: the rays left it
+    else:
+        frame.depth[100:120, 100:120] = edit
+    with pytest.raises(ValueError, match=match):
+        geofeat.polar_patches(frame, kp, depth_config=CLEAN)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
 import numbers
 
 import cv2
@@ -234,6 +235,21 @@ def resolve_depth_config(depth_config, frame=None) -> DepthConfig:
     return PROFILES[name]
 
 
+def _check_depth_map(depth, what: str = "depth", finite: bool = True) -> np.ndarray:
+    """An (H, W) numeric depth map as an array (ValueError / TypeError naming `what` otherwise; with
+    `finite`, NaN or infinite values are refused too: missing depth is 0 here)."""
+    depth = np.asarray(depth)
+    if depth.ndim != 2:
+        raise ValueError(f"{what}: expected an (H, W) depth map, got shape {depth.shape}")
+    if depth.size == 0:
+        raise ValueError(f"{what}: empty, shape {depth.shape}")
+    if depth.dtype.kind not in "biuf":
+        raise TypeError(f"{what}: expected a numeric depth map, got dtype {depth.dtype}")
+    if finite and depth.dtype.kind == "f" and not np.isfinite(depth).all():
+        raise ValueError(f"{what}: contains NaN or infinite values; use 0 for missing depth")
+    return depth
+
+
 def fill_holes(
     depth: np.ndarray,
     max_perimeter: int = HOLE_MAX_PERIMETER_PX,
@@ -251,6 +267,7 @@ def fill_holes(
     """
     if method not in FILL_METHODS:
         raise ValueError(f"method: expected one of {FILL_METHODS}, got {method!r}")
+    depth = _check_depth_map(depth)  # an empty map crashes OpenCV's labelling (segfault)
     out = np.array(depth, dtype=np.float32, copy=True)
     if method == "none":
         return out
@@ -329,6 +346,12 @@ def smooth(
     Returns:
         (round(H * out_scale), round(W * out_scale)) float32 metres, 0 = missing.
     """
+    depth = _check_depth_map(depth)
+    for name, value, least in (("levels", levels, 0), ("window", window, 1)):
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < least:
+            raise ValueError(f"{name}: must be a whole number >= {least}, got {value!r}")
+    if isinstance(out_scale, bool) or not isinstance(out_scale, numbers.Real) or not 0 < out_scale < math.inf:
+        raise ValueError(f"out_scale: must be a positive number, got {out_scale!r}")
     H, W = depth.shape
     size = (max(2, int(round(W * out_scale))), max(2, int(round(H * out_scale))))
     d = np.asarray(depth, dtype=np.float32)
@@ -355,6 +378,8 @@ def backproject(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     """Back-project an (H, W) depth map (metres) with intrinsics K to (H, W, 3) camera-frame points
     in metres, the inverse of u = (fx X + s Y) / Z + cx, v = fy Y / Z + cy (s = K[0, 1], the skew);
     missing pixels give NaN."""
+    depth = _check_depth_map(depth, finite=False)
+    K = check_intrinsics(K)
     H, W = depth.shape
     v, u = np.mgrid[0:H, 0:W].astype(np.float64)
     z = np.where(depth > 0, depth.astype(np.float64), np.nan)

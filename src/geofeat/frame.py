@@ -118,7 +118,7 @@ class RGBDFrame:
         color = image if (image.ndim == 3 and image.dtype == np.uint8) else None
         object.__setattr__(self, "image", gray)
         object.__setattr__(self, "depth", check_depth(depth, gray.shape))
-        K = check_intrinsics(K)
+        K = check_intrinsics(K).copy()  # the frame's own copy, as for the depth: not the caller's array
         check_focal_lengths(K, gray.shape, "K")
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "color", color)

@@ -23,7 +23,7 @@ from numba import njit, prange
 
 from ..constants import MAX_EDGE_STRETCH
 from ..depth import DepthConfig, backproject, preprocess_depth, resolve_depth_config, scale_intrinsics
-from ..frame import RGBDFrame
+from ..frame import RGBDFrame, check_depth, check_intrinsics
 from .walk import _shared
 
 
@@ -146,10 +146,19 @@ def mesh_from_points(
     return GridMesh(points=points, face_ok=face_ok, normals=normals, K=K, scale=scale, image_shape=image_shape)
 
 
+def check_frame_arrays(frame: RGBDFrame) -> None:
+    """The frame's depth and intrinsics are checked when the frame is made, but both are plain
+    arrays that can be edited in place afterwards (`frame_mesh` notices such edits): check them
+    again before a mesh is built from them (NaN, negative or millimetre depth: ValueError)."""
+    check_depth(frame.depth, frame.shape)
+    check_intrinsics(frame.K)
+
+
 def build_mesh(frame: RGBDFrame, config: DepthConfig | str = "auto",
                max_edge_stretch: float = MAX_EDGE_STRETCH) -> GridMesh:
     """Preprocess the frame's depth (a `DepthConfig`, or a profile name: "auto", "kinect", "clean";
     see `geofeat.depth.depth_profile`) and build its GridMesh."""
+    check_frame_arrays(frame)
     depth = preprocess_depth(frame.depth, resolve_depth_config(config, frame))
     H, W = frame.shape
     Hm, Wm = depth.shape
@@ -200,6 +209,7 @@ def frame_mesh(frame: RGBDFrame, config: DepthConfig | str = "auto",
     if on_gpu:
         from ..gpu import build_mesh_cuda
 
+        check_frame_arrays(frame)
         mesh = build_mesh_cuda(frame, config, max_edge_stretch, device=device)
     else:
         mesh = build_mesh(frame, config, max_edge_stretch)

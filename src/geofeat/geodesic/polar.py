@@ -121,6 +121,14 @@ def sampling_image(frame: RGBDFrame, blur_px: float = SAMPLING_BLUR_PX) -> np.nd
 def sample_bilinear(image: np.ndarray, coords: np.ndarray) -> np.ndarray:
     """Bilinear intensities of an (H, W) float32 image at (..., 2) pixel coordinates (x, y);
     coordinates off the image take the nearest border value."""
+    image = np.asarray(image)
+    # cv2.remap would read a colour image's channels as interleaved samples, and an integer one
+    # would come back rounded in its own range
+    if image.ndim != 2 or image.dtype.kind != "f":
+        raise ValueError(f"image: expected an (H, W) float gray image, got shape {image.shape} {image.dtype}")
+    coords = np.asarray(coords)
+    if coords.ndim == 0 or coords.shape[-1] != 2:
+        raise ValueError(f"coords: expected (..., 2) pixel coordinates (x, y), got shape {coords.shape}")
     shape = coords.shape[:-1]
     flat = np.ascontiguousarray(coords.reshape(-1, 2), dtype=np.float32)  # no copy for float32 patches
     if flat.shape[0] == 0:
