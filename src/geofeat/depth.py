@@ -132,11 +132,7 @@ class _NoiseMeasure:
     pixel footprint (about 2 ms on a 640 x 480 frame) before the quadratic fits (about 5 ms more)."""
 
     def __init__(self, depth: np.ndarray, K: np.ndarray) -> None:
-        raw = np.asarray(depth)
-        if raw.ndim != 2:
-            raise ValueError(f"depth: expected an (H, W) map, got shape {raw.shape}")
-        if raw.size == 0:
-            raise ValueError(f"depth: empty, shape {raw.shape}")
+        raw = _check_depth_map(depth, finite=False)
         self.K = check_intrinsics(K)
         self.depth = raw.astype(np.float64)
         valid = self.depth > 0

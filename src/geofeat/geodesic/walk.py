@@ -339,7 +339,7 @@ def _tangent_frame_one(points, face_ok, normals, sx, sy, faces, centre, frames, 
     p0 = w0 * points[ya, xa, 0] + w1 * points[y, x + 1, 0] + w2 * points[y + 1, x, 0]
     p1 = w0 * points[ya, xa, 1] + w1 * points[y, x + 1, 1] + w2 * points[y + 1, x, 1]
     p2 = w0 * points[ya, xa, 2] + w1 * points[y, x + 1, 2] + w2 * points[y + 1, x, 2]
-    # tangent plane normal: area-weighted mean of the face normals around the start cell
+    # tangent plane normal: mean of the unit face normals around the start cell (not area-weighted)
     n0 = n1 = n2 = 0.0
     for yy in range(max(0, y - 1), min(Hc, y + 2)):
         for xx in range(max(0, x - 1), min(Wc, x + 2)):
@@ -405,7 +405,7 @@ def tangent_frames(points, face_ok, normals, starts):
         faces (N, 3) int64 (x, y, t) of the start face, -1 where the start has no surface;
         centre (N, 3) float64 start point, metres (NaN without surface);
         frames (N, 3, 3) float64 rows e0, e1, n: e0 is image +x projected onto the tangent plane,
-        e1 turns counter-clockwise as displayed, n the area-weighted normal around the start cell.
+        e1 turns counter-clockwise as displayed, n the mean unit normal of the faces around the start cell.
     """
     N = starts.shape[0]
     centre = np.full((N, 3), np.nan)
