@@ -152,3 +152,28 @@ def test_smooth_refuses_meaningless_parameters(kwargs):
     # levels=-1 silently skipped the smoothing, out_scale=-1 gave a 2x2 map, window=0 an OpenCV assertion
     with pytest.raises(ValueError, match=next(iter(kwargs))):
         smooth(ramp((40, 40)), **kwargs)
+
+
+def test_a_frame_not_a_multiple_of_four_warns_that_its_smoothed_depth_is_stretched():
+    """The smoothing pyramid drops an odd last row or column at each halving; the map is then
+    stretched over the whole frame. The warning must come exactly when that misplaces the depth."""
+    import warnings
+
+    from geofeat.depth import PROFILES, preprocess_depth
+
+    def error_mm(H, W):
+        x = np.arange(W, dtype=np.float64)
+        depth = np.tile(1.0 + 0.002 * x, (H, 1)).astype(np.float32)  # a plane tilted along x
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            mesh_depth = preprocess_depth(depth, PROFILES["kinect"])
+        Wm = mesh_depth.shape[1]
+        xm = (np.arange(Wm) + 0.5) / (Wm / W) - 0.5  # the frame column of each mesh column
+        truth = 1.0 + 0.002 * xm
+        row = mesh_depth[mesh_depth.shape[0] // 2]
+        return 1e3 * float(np.median(np.abs(row - truth))), len(caught)
+
+    exact, warned_exact = error_mm(480, 640)
+    stretched, warned_stretched = error_mm(483, 643)
+    assert exact < 0.1 and warned_exact == 0
+    assert stretched > 1.0 and warned_stretched == 1

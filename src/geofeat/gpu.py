@@ -143,13 +143,17 @@ def smooth_depth_torch(depth, levels: int, out_scale: float, window: int = SMOOT
     import torch
     import torch.nn.functional as F
 
+    from .depth import warn_if_cropped
+
     H, W = depth.shape
     size = (max(2, int(round(H * out_scale))), max(2, int(round(W * out_scale))))
     d = depth.float()
     area = float(window * window)
+    halvings = 0
     for _ in range(levels):
         if min(d.shape) < 2 * window:
             break
+        halvings += 1
         valid = d > 0
         v = valid.double()
         both = torch.stack([d.double() * v, v])[:, None]  # (2, 1, H, W): depth sum and count
@@ -162,6 +166,7 @@ def smooth_depth_torch(depth, levels: int, out_scale: float, window: int = SMOOT
         total = (a + b) + (c + e)
         d = torch.where(count >= 2, total.double() / torch.clamp(count, min=1.0), torch.zeros((), dtype=torch.float64,
                                                                                             device=d.device)).float()
+    warn_if_cropped((H, W), tuple(d.shape), halvings)
     if tuple(d.shape) == size:
         return d
     valid = (d > 0).float()
