@@ -10,8 +10,8 @@ from geofeat.features import Features
 from geofeat.matching import distance_matrix, match
 from geofeat.apps.retrieval import (
     DEFAULT_WEIGHTING, WEIGHTINGS, accuracy_at_k, bootstrap_interval, exclusion_mask, histogram,
-    inverse_document_frequency, read_classes, rerank, run_retrieval, search, split_queries, verified_matches,
-    vocabulary, weight_histograms, word_counts,
+    inverse_document_frequency, per_query_accuracy, read_classes, rerank, run_retrieval, search, split_queries,
+    verified_matches, vocabulary, weight_histograms, word_counts,
 )
 
 
@@ -286,6 +286,22 @@ def test_exclusion_split_and_bootstrap():
     low, high = bootstrap_interval(per_query)
     assert low[0] < 0.6 < high[0] and 0.25 < low[0] and high[0] < 0.95  # a real interval around the mean 0.6
     np.testing.assert_allclose([low[1], high[1]], 0.5)  # no spread, no interval
+
+
+def test_search_k_and_accuracy_read_only_real_results():
+    """An (Q,) exclude of -1 everywhere (nothing excluded) still lowered k by one; a -1 (padding)
+    among the neighbours of `per_query_accuracy` / `accuracy_at_k` silently read the last database
+    frame's class."""
+    q, db = np.array([[0.0, 0.0]]), np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 0.0]])
+    nn, d = search(q, db, k=3, exclude=np.array([-1]))
+    assert nn.tolist() == [[0, 1, 2]]  # ties: lowest index first
+    assert search(q, db, k=3, exclude=np.array([1]))[0].tolist() == [[0, 2]]
+    for bad in ([[0, -1]], [[0, 3]]):
+        with pytest.raises(ValueError, match="neighbours"):
+            per_query_accuracy(np.array(bad), ["a", "b", "a"], ["a"])
+        with pytest.raises(ValueError, match="neighbours"):
+            accuracy_at_k(np.array(bad), ["a", "b", "a"], ["a"])
+    np.testing.assert_allclose(per_query_accuracy(np.array([[0, 1]]), ["a", "b", "a"], ["a"]), [[1.0, 0.5]])
 
 
 @pytest.fixture(scope="module")

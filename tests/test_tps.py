@@ -116,3 +116,27 @@ def test_fit_refuses_negative_smoothing_and_bad_sizes():
         with pytest.raises(ValueError, match=r"size: expected the image size \(W, H\)"):
             fit_tps(src, dst, normalisation="size", size=size)
     assert np.allclose(fit_tps(src, dst, regularisation=np.float32(0))(src), dst)
+
+
+def test_repeated_control_points_with_two_destinations_are_refused_not_fitted_by_least_squares():
+    """A point repeated with two destinations has no interpolating spline: `fit_tps` fell back to
+    least squares and returned a spline 2.5 px off its own control points (docstring: 0 interpolates);
+    a nearly repeated one (1e-7 px apart) gave weights of 1e14 and a warp 4e6 px away at the centre.
+    With the same destination the repeat is harmless; smoothing (regularisation > 0) has a solution.
+    `solve_batch` failed the whole batch (LinAlgError) on one exactly singular member."""
+    rng = np.random.default_rng(0)
+    src = rng.uniform(0, 100, (10, 2))
+    dst = src + rng.normal(0, 1, src.shape)
+    for gap in (0.0, 1e-7):
+        s, d = np.vstack([src, src[:1] + gap]), np.vstack([dst, dst[:1] + 5])
+        with pytest.raises(ValueError, match="degenerate control points"):
+            fit_tps(s, d)
+        assert np.isfinite(fit_tps(s, d, regularisation=1e-3)(s)).all()
+    same = np.vstack([src, src[:1]]), np.vstack([dst, dst[:1]])
+    np.testing.assert_allclose(fit_tps(*same)(same[0]), same[1], atol=1e-6)
+    batch_src = np.stack([src[:5], np.vstack([src[:4], src[:1]])])  # the second repeats a point
+    w, a, ok = solve_batch(batch_src, batch_src + 1.0, 0.0)
+    assert ok.tolist() == [True, False]
+    single = solve_batch(batch_src[:1], batch_src[:1] + 1.0, 0.0)
+    np.testing.assert_allclose(w[0], single[0][0])
+    np.testing.assert_allclose(a[0], single[1][0])

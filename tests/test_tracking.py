@@ -153,6 +153,35 @@ def test_similarity_measures():
     assert ssim(a, rng.random((40, 50)).astype(np.float32)) < 0.2
 
 
+def test_ncc_reads_its_mask_as_bool_and_checks_shapes():
+    """A 0/1 integer mask indexed rows 0 and 1 instead of selecting pixels (ssim already read it as
+    bool); images of different shapes were a numpy IndexError."""
+    rng = np.random.default_rng(7)
+    a, b = rng.random((20, 20)), rng.random((20, 20))
+    mask = np.zeros((20, 20), np.uint8)
+    mask[5:15, 5:15] = 1
+    assert ncc(a, b, mask) == ncc(a, b, mask.astype(bool)) == ncc(a[5:15, 5:15], b[5:15, 5:15])
+    assert np.isnan(ncc(a, b, np.zeros((20, 20), bool))) and np.isnan(ncc(np.ones((5, 5)), np.ones((5, 5))))
+    for x, y, m in ((a, b[:10], None), (a, b, mask[:10])):
+        with pytest.raises(ValueError, match="one shape"):
+            ncc(x, y, m)
+
+
+def test_refit_without_smoothing_on_a_repeated_point_fails_cleanly():
+    """With regularisation 0 a template point matched twice (SIFT repeats a location with two
+    orientations) made the refit's linear system singular: a LinAlgError out of `fit_tps_ransac`
+    instead of a failed fit."""
+    from geofeat.apps.tracking import refit_on_inliers
+
+    rng = np.random.default_rng(8)
+    src = rng.uniform(0, 200, (60, 2))
+    src = np.vstack([src, src[:5]])
+    dst = 1.1 * src + 3
+    assert not refit_on_inliers(src, dst, np.ones(65, bool), regularisation=0.0).ok
+    assert not fit_tps_ransac(src, dst, regularisation=0.0).ok
+    assert fit_tps_ransac(src, dst).ok  # the default smoothing fits it
+
+
 def test_roi_helpers():
     mask = np.zeros((100, 200), bool)
     mask[20:81, 40:141] = True

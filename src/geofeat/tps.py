@@ -41,6 +41,8 @@ MIN_POINTS = 3
 #: A set of control points "spans the plane" when det of its centred scatter matrix exceeds this
 #: times n^2, in normalised coordinates (collinear or repeated points do not).
 _SPAN_TOL = 1e-6
+#: Largest residual of a spline's linear system, relative to its right-hand side, that `fit_tps` accepts.
+_SOLVE_TOL = 1e-6
 #: Query points per block when evaluating (bounds the (block, C) kernel matrix).
 _BLOCK = 4096
 
@@ -117,7 +119,8 @@ def solve_batch(src: np.ndarray, dst: np.ndarray, regularisation: float = 0.0, e
         eps: kernel offset (0, or `AUTHORS_EPS`).
     Returns:
         weights (B, n, 2), affine (B, 3, 2), ok (B,) bool (False for samples that do not span the
-        plane; their weights and affine part are meaningless).
+        plane, or whose system is singular: repeated control points without smoothing; their
+        weights and affine part are meaningless).
     """
     n = src.shape[1]
     L = system_matrix(src, regularisation, eps)
@@ -125,7 +128,15 @@ def solve_batch(src: np.ndarray, dst: np.ndarray, regularisation: float = 0.0, e
     L[~ok] = np.eye(n + 3)
     rhs = np.zeros((len(src), n + 3, 2))
     rhs[:, :n] = dst
-    sol = np.linalg.solve(L, rhs)
+    try:
+        sol = np.linalg.solve(L, rhs)
+    except np.linalg.LinAlgError:  # a singular member (repeated control points, no smoothing) fails the batch
+        sol = np.zeros_like(rhs)
+        for b in range(len(L)):
+            try:
+                sol[b] = np.linalg.solve(L[b], rhs[b])
+            except np.linalg.LinAlgError:
+                ok[b] = False
     return sol[:, :n], sol[:, n:], ok
 
 
@@ -235,7 +246,9 @@ def fit_tps(src: np.ndarray, dst: np.ndarray, regularisation: float = 0.0, norma
             sides divided by size = (W, H), the authors').
         eps: kernel offset (0, or `AUTHORS_EPS`).
     Raises:
-        ValueError: mismatched, non-finite or too few points; collinear or repeated points.
+        ValueError: mismatched, non-finite or too few points; collinear points; a point repeated (or
+            nearly) with different destinations, which no spline interpolates (repeated with the same
+            destination is fine).
     """
     src, dst = check_pairs(src, dst, MIN_POINTS)
     check_regularisation(regularisation)
@@ -256,8 +269,11 @@ def fit_tps(src: np.ndarray, dst: np.ndarray, regularisation: float = 0.0, norma
         sol = np.linalg.solve(L, rhs)
     except np.linalg.LinAlgError:  # repeated control points without smoothing
         sol = np.linalg.lstsq(L, rhs, rcond=None)[0]
-    if not np.isfinite(sol).all():
-        raise ValueError("src: degenerate control points; the spline has no solution")
+    # the least-squares answer to a repeated point with two destinations, or the round-off of nearly
+    # repeated ones, does not solve the system: a spline that misses its own control points
+    if not np.isfinite(sol).all() or np.abs(L @ sol - rhs).max() > _SOLVE_TOL * (1.0 + np.abs(rhs).max()):
+        raise ValueError("src: degenerate control points (repeated or nearly repeated points with different "
+                         "destinations); the spline has no solution (smoothing, regularisation > 0, may have one)")
     n = len(sn)
     return ThinPlateSpline(sn, sol[:n], sol[n:], Ts, Td, eps)
 

@@ -270,7 +270,7 @@ def search(queries: np.ndarray, database: np.ndarray, k: int = MAX_K, exclude: n
             exclude = exclude.astype(np.int64).reshape(-1)
             rows = np.flatnonzero(exclude >= 0)
             d[rows, exclude[rows]] = np.inf
-            allowed -= 1
+            allowed -= 1 if len(rows) else 0  # -1 everywhere excludes nothing
     k = max(min(k, allowed), 0)
     idx = np.argsort(d, axis=1, kind="stable")[:, :k]
     return idx, np.take_along_axis(d, idx, axis=1)
@@ -280,7 +280,11 @@ def per_query_accuracy(neighbours: np.ndarray, database_classes, query_classes) 
     """(Q, k) Acc@K of each query for K = 1..k: the fraction of its top K results (neighbours (Q, k)
     database indices) of its class."""
     db = np.asarray(database_classes)
-    correct = db[np.asarray(neighbours)] == np.asarray(query_classes)[:, None]  # (Q, k)
+    neighbours = np.asarray(neighbours)
+    if neighbours.size and (neighbours.min() < 0 or neighbours.max() >= len(db)):  # -1 would read the last class
+        raise ValueError(f"neighbours: expected database indices in [0, {len(db)}), got values from "
+                         f"{neighbours.min()} to {neighbours.max()}")
+    correct = db[neighbours] == np.asarray(query_classes)[:, None]  # (Q, k)
     return np.cumsum(correct, axis=1) / np.arange(1, correct.shape[1] + 1)
 
 

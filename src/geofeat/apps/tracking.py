@@ -344,10 +344,13 @@ def roi_grid(roi: tuple[int, int, int, int], side: int = GRID_SIDE) -> np.ndarra
 
 
 def ncc(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:
-    """Zero-mean normalised cross-correlation of two images of the same shape over `mask` (bool)."""
+    """Zero-mean normalised cross-correlation of two images of the same shape over `mask` (read as
+    bool, like `ssim`'s); NaN when the mask holds fewer than 2 pixels or either image is constant there."""
     a = np.asarray(a, np.float64)
     b = np.asarray(b, np.float64)
-    m = np.ones(a.shape, bool) if mask is None else mask
+    m = np.ones(a.shape, bool) if mask is None else np.asarray(mask, bool)  # a 0/1 mask would index rows 0 and 1
+    if b.shape != a.shape or m.shape != a.shape:
+        raise ValueError(f"a, b, mask: expected images and mask of one shape, got {a.shape}, {b.shape} and {m.shape}")
     if m.sum() < 2:
         return float("nan")
     x, y = a[m] - a[m].mean(), b[m] - b[m].mean()
