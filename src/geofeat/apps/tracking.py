@@ -870,7 +870,9 @@ def _cell(value: float, digits: int = 2) -> str:
 
 def tracking_table(rows: list[dict]) -> str:
     """Markdown table like the paper's Table IV: per descriptor, each metric averaged per sequence
-    (over its target frames; failed frames count 0 inliers and no SSIM), then over sequences. The
+    (over its target frames), then over sequences. A failed frame counts in the inlier rate (with the
+    inliers its failed RANSAC kept), but its matching score, precision, SSIM and NCC are NaN and left
+    out of the means: a failure does not lower them, so read them beside the failed-frames column. The
     grid errors are medians per sequence in which a failed frame counts as lost (an infinite error,
     so that failing never scores better than a poor fit), then averaged over sequences ("lost" when
     a sequence lost half of its frames or more)."""
