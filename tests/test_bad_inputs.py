@@ -1180,3 +1180,95 @@ def test_polar_patches_valid_ones_lie_on_the_surface(sample) -> None:
     assert (pts[:, 2] >= valid_depth.min() * 0.9).all() and (pts[:, 2] <= valid_depth.max() * 1.1).all()
     # invalid: flagged, never a NaN passed off as data
     assert np.isnan(p.coords[~v]).all() and (p.values[~v] == 0).all()
+
+
+# --- the output policy itself (geofeat.outputs): links, interrupts, the current folder --------------------------
+
+
+def test_overwrite_never_deletes_or_writes_through_a_linked_subfolder(tmp_path):
+    """A manifest entry (hand-edited, or a result subfolder later replaced by a link) that leads through
+    a symbolic link into a folder of the user's: --overwrite removes nothing there, and a result to be
+    written there is refused."""
+    from geofeat.outputs import MANIFEST, check_out_dir, foreign_clashes, output_folder
+
+    user = tmp_path / "photos"
+    user.mkdir()
+    (user / "holiday.png").write_bytes(b"mine")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "sub").symlink_to(user, target_is_directory=True)
+    (out / MANIFEST).write_text(json.dumps({"generator": "geofeat", "files": ["sub/holiday.png"]}))
+    check_out_dir(out, overwrite=True)
+    with output_folder(out) as tmp:
+        (tmp / "result.txt").write_text("new")
+    assert (user / "holiday.png").read_bytes() == b"mine"
+    assert (out / "result.txt").read_text() == "new"
+    assert foreign_clashes(out, ["sub/new.png"]) == ["sub/new.png"]
+    with pytest.raises(ValueError, match="did not write"):
+        with output_folder(out) as tmp:
+            (tmp / "sub").mkdir()
+            (tmp / "sub" / "new.png").write_bytes(b"result")
+    assert sorted(p.name for p in user.iterdir()) == ["holiday.png"]
+
+
+def test_interrupt_while_replacing_a_folder_keeps_the_earlier_result(tmp_path, monkeypatch):
+    """Ctrl-C between the moves of replace_folder: the earlier result is back whole, its manifest lists
+    it, and no temporary folder is left (before: the earlier files were gone and the new ones half moved)."""
+    import os
+
+    from geofeat.outputs import output_folder, read_manifest
+
+    out = tmp_path / "out"
+    with output_folder(out) as tmp:
+        for name in ("a.txt", "b.txt", "c.txt"):
+            (tmp / name).write_text("old")
+    (out / "notes.txt").write_text("user")
+    real_replace = os.replace
+    pressed = []
+
+    def interrupted(src, dst):  # Ctrl-C once, as the new b.txt is moved in
+        if Path(src).name == "b.txt" and Path(dst).parent == out and not pressed:
+            pressed.append(src)
+            raise KeyboardInterrupt
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        with output_folder(out) as tmp:
+            for name in ("a.txt", "b.txt", "c.txt"):
+                (tmp / name).write_text("new")
+    assert {p.name: p.read_text() for p in out.glob("*.txt")} == {"a.txt": "old", "b.txt": "old", "c.txt": "old",
+                                                                  "notes.txt": "user"}
+    assert sorted(read_manifest(out)) == ["a.txt", "b.txt", "c.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+    monkeypatch.setattr(os, "replace", real_replace)
+    with output_folder(out) as tmp:
+        (tmp / "a.txt").write_text("new")
+    assert sorted(p.name for p in out.iterdir() if p.name != ".geofeat-manifest.json") == ["a.txt", "notes.txt"]
+
+
+def test_output_folder_may_be_the_current_folder(tmp_path, monkeypatch):
+    """`--out .` (the current folder): the result is written beside the user's files, which stay;
+    before, a bare ValueError "PosixPath('.') has an empty name"."""
+    from geofeat.outputs import check_out_dir, output_folder
+
+    work = tmp_path / "work"
+    work.mkdir()
+    (work / "data.csv").write_text("mine")
+    monkeypatch.chdir(work)
+    check_out_dir(".", overwrite=True)
+    for text in ("first", "second"):
+        with output_folder(".") as tmp:
+            (tmp / "result.txt").write_text(text)
+    assert (work / "result.txt").read_text() == "second" and (work / "data.csv").read_text() == "mine"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["work"]
+
+
+def test_a_dangling_link_at_an_output_file_name_needs_overwrite(tmp_path):
+    from geofeat.outputs import check_out_file
+
+    link = tmp_path / "features.h5"
+    link.symlink_to(tmp_path / "on-an-unmounted-disk.h5")
+    with pytest.raises(ValueError, match="exists.*--overwrite"):
+        check_out_file(link)
+    assert check_out_file(link, overwrite=True) == link

@@ -69,3 +69,37 @@ def test_keypoints_must_be_positive(tmp_path, capsys, command):
     with pytest.raises(SystemExit) as stop:
         main([command, str(tmp_path), "--keypoints", "0", "--out", str(tmp_path / "out")])
     assert stop.value.code == 2 and "--keypoints: expected a positive number" in capsys.readouterr().err
+
+
+def test_demo_pictures_replace_a_link_not_its_target_and_leave_no_partial_file(tmp_path, monkeypatch):
+    """A demo picture listed in the folder's manifest but now a link to a user's picture: the demo
+    replaces the link, never writes into the linked file; a failed write leaves no temporary file."""
+    import numpy as np
+
+    from geofeat.cli.demo import _write_picture
+
+    mine = tmp_path / "paper-figure.png"
+    mine.write_bytes(b"my figure")
+    out = tmp_path / "demo"
+    out.mkdir()
+    (out / "polar_patches.png").symlink_to(mine)
+    _write_picture(out / "polar_patches.png", np.zeros((8, 8, 3), np.uint8))
+    assert mine.read_bytes() == b"my figure"
+    assert not (out / "polar_patches.png").is_symlink() and (out / "polar_patches.png").stat().st_size > 0
+    import cv2
+
+    def half_written(path, image):
+        open(path, "wb").write(b"\x89PNG")
+        return False
+
+    monkeypatch.setattr(cv2, "imwrite", half_written)
+    with pytest.raises(OSError, match="cannot write"):
+        _write_picture(out / "rolled_pair_matches.png", np.zeros((8, 8, 3), np.uint8))
+    assert sorted(p.name for p in out.iterdir()) == ["polar_patches.png"]
+
+
+def test_demo_refuses_a_user_folder_named_simulated_cloth_before_any_work(tmp_path):
+    (tmp_path / "simulated_cloth").mkdir()
+    (tmp_path / "simulated_cloth" / "my-notes.txt").write_text("mine")
+    with pytest.raises(ValueError, match="simulated_cloth.*did not write"):
+        _check_demo_folder(tmp_path)

@@ -337,3 +337,16 @@ def test_size_seed_and_steps_are_checked(change, message, tmp_path):
     with pytest.raises(ValueError, match=message):
         simulate_sequence(tmp_path / "out", **kwargs)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_refused_or_interrupted_move_into_place_leaves_no_partial_folder(tmp_path, monkeypatch):
+    """replace_folder failing at the end of simulate_sequence (a clash, Ctrl-C) used to leave the
+    hidden ".<name>.partial-<pid>" folder behind."""
+    def refuse(tmp, out):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(writer_mod, "_write", lambda folder, scene, progress, meta: (folder / "x.txt").write_text("x"))
+    monkeypatch.setattr(writer_mod, "replace_folder", refuse)
+    with pytest.raises(KeyboardInterrupt):
+        simulate_sequence(tmp_path / "seq", n_frames=2, width=64, height=48, progress=False)
+    assert list(tmp_path.iterdir()) == []

@@ -64,15 +64,22 @@ def foreign_entries(folder: str | Path) -> list[str]:
     return foreign
 
 
+def _via_symlink(folder: Path, rel: str) -> bool:
+    """Whether a folder on the way from `folder` to `folder / rel` is a symbolic link (so the path
+    leads out of `folder`, perhaps into a folder of the user's)."""
+    return any((folder / part).is_symlink() for part in Path(rel).parents if part != Path("."))
+
+
 def check_out_file(path: str | Path, overwrite: bool = False, what: str = "--out") -> Path:
-    """Refuse an output file path that names a folder, sits under a file, or exists (unless `overwrite`)."""
+    """Refuse an output file path that names a folder, sits under a file, or exists (unless `overwrite`;
+    a symbolic link, even a dangling one, exists)."""
     path = Path(path)
     if path.is_dir():
         raise ValueError(f"{what}: {path} is a folder; expected a file name")
     for parent in path.parents:
         if parent.exists() and not parent.is_dir():
             raise ValueError(f"{what}: {parent} is a file, so {path} cannot be written")
-    if path.exists() and not overwrite:
+    if (path.exists() or path.is_symlink()) and not overwrite:
         raise ValueError(f"{what}: {path} exists; pass --overwrite to replace it, or choose another name")
     return path
 
@@ -80,14 +87,15 @@ def check_out_file(path: str | Path, overwrite: bool = False, what: str = "--out
 def foreign_clashes(folder: str | Path, files: Iterable[str]) -> list[str]:
     """Those of `files` (paths relative to `folder` that a result will be written to) that would
     replace something geofeat did not write there: an existing file its manifest does not list, or a
-    file where a folder of the path must go."""
+    file where a folder of the path must go, or a symbolic link to a folder (which would take the file
+    out of `folder`)."""
     folder = Path(folder)
     ours = set(read_manifest(folder))
     clashes = []
     for rel in files:
         target = folder / rel
         blocked = [p for p in target.parents if folder in p.parents and p.exists() and not p.is_dir()]
-        if (rel not in ours and (target.exists() or target.is_symlink())) or blocked:
+        if (rel not in ours and (target.exists() or target.is_symlink())) or blocked or _via_symlink(folder, rel):
             clashes.append(rel)
     return clashes
 
@@ -137,6 +145,9 @@ def write_npz(path: str | Path, arrays: dict, compressed: bool = False) -> None:
 
 def partial_name(path: Path) -> Path:
     """The temporary sibling that a result is written to before it is renamed to `path`."""
+    path = Path(path)
+    if path.name in ("", ".", ".."):  # ".", "..", "/": no name to put beside; the absolute path has one
+        path = Path(os.path.abspath(path))
     return path.with_name(f".geofeat-partial-{os.getpid()}-{path.name}")
 
 
@@ -169,39 +180,71 @@ def temporary_folder(out: str | Path) -> Path:
     return tmp
 
 
+def _prune_empty_parents(folder: Path, rel: str) -> None:
+    """Remove the folders of `rel` inside `folder` that are left empty, deepest first."""
+    for parent in (folder / rel).parents:
+        if parent == folder or folder not in parent.parents:
+            break
+        try:
+            parent.rmdir()  # only when empty
+        except OSError:
+            break
+
+
+def _removable(folder: Path, rel: str) -> bool:
+    """A manifest entry that is a file (or link) inside `folder`, not reached through a linked folder."""
+    path = folder / rel
+    return (path.is_file() or path.is_symlink()) and not _via_symlink(folder, rel)
+
+
 def remove_written(folder: str | Path) -> None:
-    """Remove the files that the manifest of `folder` lists (and the folders that leaves empty)."""
+    """Remove the files that the manifest of `folder` lists (and the folders that leaves empty); never
+    a file reached through a symbolic link to a folder, which may be the user's."""
     folder = Path(folder)
     for rel in read_manifest(folder):
-        path = folder / rel
-        if path.is_file() or path.is_symlink():
-            path.unlink()
-        for parent in (folder / rel).parents:
-            if parent == folder or folder not in parent.parents:
-                break
-            try:
-                parent.rmdir()  # only when empty
-            except OSError:
-                break
+        if _removable(folder, rel):
+            (folder / rel).unlink()
+            _prune_empty_parents(folder, rel)
     (folder / MANIFEST).unlink(missing_ok=True)
 
 
 def replace_folder(tmp: str | Path, out: str | Path) -> Path:
     """Move the finished folder `tmp` into `out`. Files geofeat wrote earlier into `out` (its manifest)
-    are removed first; every other file there stays, and a result that would replace one of them is
-    refused (ValueError, `out` untouched). The new manifest lists the files moved in."""
+    are replaced; every other file there stays, and a result that would replace one of them is
+    refused (ValueError, `out` untouched). The new manifest lists the files moved in. An error or an
+    interrupt while moving puts the earlier files back (the new ones return to `tmp`), and until the
+    move is complete the manifest lists both, so a rerun with --overwrite can always clean up."""
     tmp, out = Path(tmp), Path(out)
     files = [str(p.relative_to(tmp)) for p in sorted(tmp.rglob("*")) if p.is_file() and p.name != MANIFEST]
     if not out.exists():
         write_manifest(tmp, files)
         os.replace(tmp, out)
         return out
-    _refuse_clashes(out, foreign_clashes(out, files), "--out")  # before anything is removed
-    remove_written(out)
-    for rel in files:
-        target = out / rel
-        target.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(tmp / rel, target)
+    _refuse_clashes(out, foreign_clashes(out, files), "--out")  # before anything is moved
+    old = [rel for rel in read_manifest(out) if _removable(out, rel)]
+    backup = tmp / f".geofeat-partial-old-{os.getpid()}"
+    write_manifest(out, old + files)
+    moved_old: list[str] = []
+    moved_new: list[str] = []
+    try:
+        for rel in old:
+            (backup / rel).parent.mkdir(parents=True, exist_ok=True)
+            os.replace(out / rel, backup / rel)
+            moved_old.append(rel)
+            _prune_empty_parents(out, rel)  # a new file may take the name of a folder left empty
+        for rel in files:
+            target = out / rel
+            target.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(tmp / rel, target)
+            moved_new.append(rel)
+    except BaseException:
+        for rel in reversed(moved_new):
+            os.replace(out / rel, tmp / rel)
+        for rel in reversed(moved_old):
+            (out / rel).parent.mkdir(parents=True, exist_ok=True)
+            os.replace(backup / rel, out / rel)
+        write_manifest(out, old)
+        raise
     write_manifest(out, files)
     shutil.rmtree(tmp, ignore_errors=True)
     return out

@@ -21,6 +21,16 @@ def _profile_of(profile: str, frame) -> str:
     return depth_profile(frame) if profile == "auto" else profile
 
 
+def _write_picture(path: Path, picture: np.ndarray) -> None:
+    """Write a picture whole or not at all (`atomic_file`): an interrupt leaves no truncated file, and a
+    symbolic link at `path` is replaced, not the file it points to."""
+    from ..outputs import atomic_file
+
+    with atomic_file(path) as tmp:
+        if not cv2.imwrite(str(tmp), picture):
+            raise OSError(f"cannot write {path}")
+
+
 def _demo_patches(out: Path, radius: float, profile: str) -> None:
     from ..depth import depth_noise
     from ..geodesic.mesh import build_mesh
@@ -44,7 +54,7 @@ def _demo_patches(out: Path, radius: float, profile: str) -> None:
     print(f"geodesic polar patches: {len(patches)} keypoints, {patches.valid.sum()} valid, "
           f"radius {radius * 1000:.0f} mm, {t2 - t1:.3f} s (the first run compiles the numba kernels)")
     picture = side_by_side(draw_geodesic_support(frame, patches), patch_grid(patches, columns=8))
-    cv2.imwrite(str(out / "polar_patches.png"), picture)
+    _write_picture(out / "polar_patches.png", picture)
     print(f"wrote {out / 'polar_patches.png'} (geodesic rings at 18/37/75 mm, and the 32x32 polar patches)")
 
 
@@ -75,7 +85,7 @@ def _demo_match_pair(out: Path, picture_name: str, frame0, frame1, k0, k1, truth
                                          np.ones(len(k0), bool), max_lines=200,
                                          title=f"{name}: {correct.sum()} correct"))
     path = out / picture_name
-    cv2.imwrite(str(path), np.concatenate(pictures, axis=0))
+    _write_picture(path, np.concatenate(pictures, axis=0))
     print(f"wrote {path} (correct matches of {names[0]}, top, and {names[1]}, bottom)")
 
 
@@ -137,6 +147,8 @@ def _check_demo_folder(out: Path) -> None:
     if theirs:
         raise ValueError(f"--out: {out} already holds {', '.join(theirs)}, which geofeat did not write; "
                          "choose another folder")
+    # the simulated sequence replaces only an earlier one: checked now, not after the first pictures
+    check_out_dir(out / "simulated_cloth", overwrite=True, strict=True)
 
 
 def run(args: argparse.Namespace) -> int:

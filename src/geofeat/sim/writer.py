@@ -161,12 +161,12 @@ def simulate_sequence(
             "texture": tex_name, "kinect_noise": bool(kinect_noise), "preset": preset_obj.name,
             "fov_deg": None if fov is None else float(fov), "motion_blur": bool(motion_blur),
         })
+        replace_folder(tmp, out_dir)  # inside: a refusal or an interrupt here must not leave tmp behind
     except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
         if isinstance(exc, Exception):
             raise type(exc)(f"{exc} (nothing was written to {out_dir})") from exc
         raise
-    replace_folder(tmp, out_dir)
     return out_dir
 
 
