@@ -165,6 +165,40 @@ def test_rerun_skips_finished_results_and_refuses_other_settings(datasets, tmp_p
     assert len(read_rows(csv_path)) == 4
 
 
+def test_rerun_refuses_weights_retrained_at_the_same_path(datasets, tmp_path):
+    """A rerun into the same folder resumes; with the detector's weights file rewritten since (same
+    path, same settings), its new rows would be mixed with the old ones under one name."""
+    import dataclasses
+
+    from geofeat.detectors.geokey import load_geokey
+
+    weights = tmp_path / "w.npz"
+    shipped = load_geokey()
+    shipped.save(weights)
+    config = BenchConfig(descriptors=("orb",), detector=f"geokey={weights}", n_keypoints=200)
+    out = tmp_path / "out"
+    csv_path, _ = run_benchmark(datasets / "seqs", out, config, progress=False)
+    rows = read_rows(csv_path)
+    run_benchmark(datasets / "seqs", out, config, progress=False)  # unchanged weights: resumed, nothing redone
+    assert read_rows(csv_path) == rows
+    dataclasses.replace(shipped, linear=shipped.linear * 1.5).save(weights)  # "retrained"
+    with pytest.raises(ValueError, match="other weights at the same path.*detector"):
+        run_benchmark(datasets / "seqs", out, config, progress=False)
+    run_benchmark(datasets / "seqs", out, config, progress=False, overwrite=True)
+
+
+def test_changed_weights_compares_only_what_both_runs_recorded():
+    from geofeat.bench.runner import _changed_weights
+
+    before = {"detector_weights_sha256": "a", "descriptor_weights_sha256": {"geopatch=w.pt": "x", "geopatch=v.pt": None}}
+    assert _changed_weights(before, before) == []
+    assert _changed_weights(before, {"detector_weights_sha256": "b"}) == ["the detector's"]
+    now = {"detector_weights_sha256": "a", "descriptor_weights_sha256": {"geopatch=w.pt": "y", "geopatch=v.pt": "z",
+                                                                        "geopatch=new.pt": "n"}}
+    assert _changed_weights(before, now) == ["'geopatch=w.pt'"]  # an unknown old hash and a new name: not compared
+    assert _changed_weights({}, now) == []  # a config.json written before the hashes were recorded
+
+
 def test_match_command_counts_the_bench_hits(datasets, tmp_path, capsys):
     """`geofeat match` judges matches with the bench's ground truth: on the same keypoints and
     matches it counts exactly the benchmark's hits."""
@@ -306,6 +340,20 @@ def test_overwrite_leaves_no_report_of_the_earlier_run(datasets, tmp_path):
     assert main(args + ["--protocol", "landmarks", "--overwrite"]) == 0
     assert not (out / "details.md").exists() and (out / "notes.md").read_text() == "mine"
     assert "landmarks" in read_rows(out / "results.csv")[0]["protocol"]
+
+
+def test_landmarks_protocol_says_which_detection_options_it_does_not_use(datasets, tmp_path, capsys):
+    """--protocol landmarks describes the annotated landmarks: a --keypoints or --detector given
+    with it changes nothing, and the command says so instead of ignoring them silently."""
+    args = ["bench", str(datasets / "seqs" / "a-deform"), "--descriptors", "orb", "--protocol", "landmarks"]
+    assert main(args + ["--out", str(tmp_path / "a")]) == 0
+    assert "not used" not in capsys.readouterr().err
+    assert main(args + ["--keypoints", "300", "--detector", "geokey", "--out", str(tmp_path / "b")]) == 0
+    assert "--keypoints, --detector not used" in capsys.readouterr().err
+    def scores(folder):
+        return [{k: v for k, v in r.items() if not k.startswith("seconds")} for r in read_rows(folder / "results.csv")]
+
+    assert scores(tmp_path / "a") == scores(tmp_path / "b")
 
 
 def test_curves_take_sequences_by_their_scenario_word():

@@ -402,6 +402,10 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
                              "another --out")
         if header != COLUMNS:
             raise ValueError(f"out: {csv_path} has other columns (an older geofeat?); use --overwrite")
+        changed = _changed_weights(before.get("provenance") or {}, provenance(config))
+        if changed:
+            raise ValueError(f"out: {out} holds results made with other weights at the same path ({', '.join(changed)} "
+                             "changed since: retrained?); use --overwrite or another --out")
         dropped = repair_results(csv_path)
         if dropped and progress:
             tqdm.write(f"bench: dropped {dropped} incomplete row(s) at the end of {csv_path}; they are recomputed")
@@ -438,7 +442,23 @@ def provenance(config: BenchConfig) -> dict:
         _, _, weights = config.detector.partition("=")
         path = Path(weights) if weights else SHIPPED_WEIGHTS
         info["detector_weights_sha256"] = file_sha256(path) if path.is_file() else None
+    named = {d: Path(d.partition("=")[2]) for d in config.descriptors if "=" in d}  # "geopatch=W.pt"
+    if named:
+        info["descriptor_weights_sha256"] = {d: file_sha256(p) if p.is_file() else None for d, p in named.items()}
     return info
+
+
+def _changed_weights(before: dict, now: dict) -> list[str]:
+    """The weights files whose SHA-256 in config.json's provenance `before` differs from `now` (the
+    same path retrained since): their earlier rows would be mixed with new ones under one name.
+    A field an older config.json lacks is not compared."""
+    changed = []
+    old, new = before.get("detector_weights_sha256"), now.get("detector_weights_sha256")
+    if old is not None and new is not None and old != new:
+        changed.append("the detector's")
+    old_d, new_d = before.get("descriptor_weights_sha256") or {}, now.get("descriptor_weights_sha256") or {}
+    changed += [repr(d) for d in sorted(set(old_d) & set(new_d)) if old_d[d] is not None and old_d[d] != new_d[d]]
+    return changed
 
 
 def _run_all(work: list[tuple[str, tuple[str, ...]]], config: BenchConfig, workers: int, scheduler: str | None,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from ..constants import N_KEYPOINTS
@@ -54,6 +55,14 @@ def run(args: argparse.Namespace) -> int:
             tmp.write_text(text)
         add_to_manifest(path.parent, [path.name])
 
+    if args.protocol == "landmarks":  # the annotated landmarks are described: nothing is detected
+        unused = [flag for flag, given in (("--keypoints", args.keypoints != N_KEYPOINTS),
+                                           ("--detector", args.detector != "sift"),
+                                           ("--keypoint-set", args.keypoint_set is not None)) if given]
+        if unused:
+            print(f"bench: --protocol landmarks describes the annotated landmarks themselves; {', '.join(unused)} "
+                  "not used", file=sys.stderr)
+        args.keypoints, args.detector, args.keypoint_set = N_KEYPOINTS, "sift", None  # the same run whatever they say
     config = BenchConfig(descriptors=names(args.descriptors), protocol=args.protocol,
                          radius=args.radius, depth_scale=args.depth_scale, n_keypoints=args.keypoints,
                          tps_dir=args.tps_dir, keypoint_set=keypoint_set_for(args.detector, args.keypoint_set, "protocol"),
