@@ -347,9 +347,9 @@ def test_landmarks_protocol_says_which_detection_options_it_does_not_use(dataset
     with it changes nothing, and the command says so instead of ignoring them silently."""
     args = ["bench", str(datasets / "seqs" / "a-deform"), "--descriptors", "orb", "--protocol", "landmarks"]
     assert main(args + ["--out", str(tmp_path / "a")]) == 0
-    assert "not used" not in capsys.readouterr().err
+    assert "not used" not in capsys.readouterr().out
     assert main(args + ["--keypoints", "300", "--detector", "geokey", "--out", str(tmp_path / "b")]) == 0
-    assert "--keypoints, --detector not used" in capsys.readouterr().err
+    assert "--keypoints, --detector not used" in capsys.readouterr().out
     def scores(folder):
         return [{k: v for k, v in r.items() if not k.startswith("seconds")} for r in read_rows(folder / "results.csv")]
 

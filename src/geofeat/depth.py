@@ -10,7 +10,6 @@ from dataclasses import dataclass
 
 import math
 import numbers
-import warnings
 
 import cv2
 import numpy as np
@@ -358,24 +357,44 @@ def smooth(
             break
         d = _halve(_masked_box_mean(d, window))
         halvings += 1
-    warn_if_cropped(depth.shape, d.shape, halvings)
-    return _masked_resize(d, size)
+    matrices = pyramid_resampling(depth.shape, d.shape, halvings, size)
+    if matrices is None:  # the pyramid covers the frame: the resize's own mapping is the exact one
+        return _masked_resize(d, size)
+    Ry, Rx = matrices
+    valid = (d > 0).astype(np.float64)
+    num, den = Ry @ (d * valid) @ Rx.T, Ry @ valid @ Rx.T
+    return np.where(den >= 0.5, num / np.maximum(den, 1e-12), 0.0).astype(np.float32)
 
 
-def warn_if_cropped(shape: tuple[int, int], smoothed: tuple[int, ...], halvings: int) -> None:
-    """Warn when the smoothing pyramid dropped rows or columns: each 2x halving drops an odd last
-    row or column, so a frame whose sides are not multiples of 2^halvings (e.g. 643 x 483 with the
-    "kinect" profile's two rounds) gives a map that covers less than the frame, and the resize
-    stretches it over the whole frame: the mesh is then off by up to a pixel or two towards the far
-    edges (measured on a tilted plane: median 2.3 mm at 643 x 483, 0.06 mm at 640 x 480). Shared
-    by the CPU and GPU pyramids."""
+def _axis_interpolation(n_in: int, n_out: int, step: float) -> np.ndarray:
+    """(n_out, n_in) linear interpolation weights of output sample i at input position
+    (i + 0.5) step - 0.5 (pixel centres kept, as `cv2.resize`), clamped to the input's ends."""
+    j = np.clip((np.arange(n_out) + 0.5) * step - 0.5, 0.0, n_in - 1.0)
+    j0 = np.minimum(np.floor(j).astype(np.int64), n_in - 1)
+    j1 = np.minimum(j0 + 1, n_in - 1)
+    w1 = j - j0
+    R = np.zeros((n_out, n_in))
+    np.add.at(R, (np.arange(n_out), j0), 1.0 - w1)
+    np.add.at(R, (np.arange(n_out), j1), w1)
+    return R
+
+
+def pyramid_resampling(shape: tuple[int, int], smoothed: tuple[int, ...], halvings: int,
+                       size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | None:
+    """None when the smoothing pyramid's map `smoothed` (h, w) covers the (H, W) frame `shape`
+    (h 2^halvings = H and the same for w); else the (Hm, Wm) = `size`[::-1] interpolation matrices
+    Ry (Hm, h) and Rx (Wm, w) that put the map back where it belongs. Each 2x halving drops an odd
+    last row or column, so a frame whose sides are not multiples of 2^halvings (643 x 483 with the
+    "kinect" profile's two) keeps a map of only its top-left 640 x 480 pixels; a plain resize
+    stretched it over the whole frame, and the mesh was off by up to a few pixels towards the far
+    edges (a tilted plane's depth: 3 mm median error at 643 x 483). Shared by the CPU and GPU pyramids."""
     H, W = shape
-    h, w = int(smoothed[0]) << halvings, int(smoothed[1]) << halvings
-    if (h, w) != (H, W):
-        warnings.warn(f"depth smoothing: a {W} x {H} frame is not a multiple of {1 << halvings} on each side; "
-                      f"the smoothed depth covers {w} x {h} of it and is stretched over the frame, so the mesh "
-                      f"is off by up to {max(W - w, H - h)} px at the far edges (crop the frame to a multiple "
-                      f"of {1 << halvings}, or use the 'clean' profile)", stacklevel=3)
+    h, w = int(smoothed[0]), int(smoothed[1])
+    if (h << halvings, w << halvings) == (H, W):
+        return None
+    Wm, Hm = size
+    return (_axis_interpolation(h, Hm, (H / Hm) / (1 << halvings)),
+            _axis_interpolation(w, Wm, (W / Wm) / (1 << halvings)))
 
 
 def scale_intrinsics(K: np.ndarray, sx: float, sy: float) -> np.ndarray:

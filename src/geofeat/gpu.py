@@ -143,7 +143,7 @@ def smooth_depth_torch(depth, levels: int, out_scale: float, window: int = SMOOT
     import torch
     import torch.nn.functional as F
 
-    from .depth import warn_if_cropped
+    from .depth import pyramid_resampling
 
     H, W = depth.shape
     size = (max(2, int(round(H * out_scale))), max(2, int(round(W * out_scale))))
@@ -166,7 +166,13 @@ def smooth_depth_torch(depth, levels: int, out_scale: float, window: int = SMOOT
         total = (a + b) + (c + e)
         d = torch.where(count >= 2, total.double() / torch.clamp(count, min=1.0), torch.zeros((), dtype=torch.float64,
                                                                                             device=d.device)).float()
-    warn_if_cropped((H, W), tuple(d.shape), halvings)
+    matrices = pyramid_resampling((H, W), tuple(d.shape), halvings, size[::-1])
+    if matrices is not None:  # a frame the pyramid does not cover: the CPU's exact resampling
+        Ry, Rx = (torch.as_tensor(m, dtype=torch.float64, device=d.device) for m in matrices)
+        valid = (d > 0).double()
+        num, den = Ry @ (d.double() * valid) @ Rx.T, Ry @ valid @ Rx.T
+        return torch.where(den >= 0.5, num / torch.clamp(den, min=1e-12), torch.zeros((), dtype=torch.float64,
+                                                                                     device=d.device)).float()
     if tuple(d.shape) == size:
         return d
     valid = (d > 0).float()

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from ..constants import N_KEYPOINTS
@@ -61,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
                                            ("--keypoint-set", args.keypoint_set is not None)) if given]
         if unused:
             print(f"bench: --protocol landmarks describes the annotated landmarks themselves; {', '.join(unused)} "
-                  "not used", file=sys.stderr)
+                  "not used")
         args.keypoints, args.detector, args.keypoint_set = N_KEYPOINTS, "sift", None  # the same run whatever they say
     config = BenchConfig(descriptors=names(args.descriptors), protocol=args.protocol,
                          radius=args.radius, depth_scale=args.depth_scale, n_keypoints=args.keypoints,
