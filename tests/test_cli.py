@@ -76,14 +76,14 @@ def test_demo_pictures_replace_a_link_not_its_target_and_leave_no_partial_file(t
     replaces the link, never writes into the linked file; a failed write leaves no temporary file."""
     import numpy as np
 
-    from geofeat.cli.demo import _write_picture
+    from geofeat.outputs import write_picture
 
     mine = tmp_path / "paper-figure.png"
     mine.write_bytes(b"my figure")
     out = tmp_path / "demo"
     out.mkdir()
     (out / "polar_patches.png").symlink_to(mine)
-    _write_picture(out / "polar_patches.png", np.zeros((8, 8, 3), np.uint8))
+    write_picture(out / "polar_patches.png", np.zeros((8, 8, 3), np.uint8))
     assert mine.read_bytes() == b"my figure"
     assert not (out / "polar_patches.png").is_symlink() and (out / "polar_patches.png").stat().st_size > 0
     import cv2
@@ -94,7 +94,7 @@ def test_demo_pictures_replace_a_link_not_its_target_and_leave_no_partial_file(t
 
     monkeypatch.setattr(cv2, "imwrite", half_written)
     with pytest.raises(OSError, match="cannot write"):
-        _write_picture(out / "rolled_pair_matches.png", np.zeros((8, 8, 3), np.uint8))
+        write_picture(out / "rolled_pair_matches.png", np.zeros((8, 8, 3), np.uint8))
     assert sorted(p.name for p in out.iterdir()) == ["polar_patches.png"]
 
 

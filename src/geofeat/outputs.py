@@ -133,6 +133,17 @@ def check_out_dir(path: str | Path, overwrite: bool = False, what: str = "--out"
     return path
 
 
+def write_picture(path: str | Path, picture: np.ndarray) -> None:
+    """Write an image file (its extension picks the format) whole or not at all (`atomic_file`): an
+    interrupt leaves no truncated file, and a symbolic link at `path` is replaced, not the file it
+    points to. OSError when OpenCV cannot write it (the format, or the disk)."""
+    import cv2
+
+    with atomic_file(path) as tmp:
+        if not cv2.imwrite(str(tmp), picture):
+            raise OSError(f"cannot write the picture {path}")
+
+
 def write_npz(path: str | Path, arrays: dict, compressed: bool = False) -> None:
     """Write `arrays` to an .npz archive at exactly `path`, whole or not at all (`atomic_file`). Through
     a file object: given a name, numpy appends ".npz" unless it already ends so in lower case ("A.NPZ"

@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 
 from ..constants import DEFAULT_RADIUS_M
+from ..outputs import write_picture
 from .options import depth_profile_option, keypoint_count
 
 
@@ -19,16 +20,6 @@ def _profile_of(profile: str, frame) -> str:
     from ..depth import depth_profile
 
     return depth_profile(frame) if profile == "auto" else profile
-
-
-def _write_picture(path: Path, picture: np.ndarray) -> None:
-    """Write a picture whole or not at all (`atomic_file`): an interrupt leaves no truncated file, and a
-    symbolic link at `path` is replaced, not the file it points to."""
-    from ..outputs import atomic_file
-
-    with atomic_file(path) as tmp:
-        if not cv2.imwrite(str(tmp), picture):
-            raise OSError(f"cannot write {path}")
 
 
 def _demo_patches(out: Path, radius: float, profile: str) -> None:
@@ -54,7 +45,7 @@ def _demo_patches(out: Path, radius: float, profile: str) -> None:
     print(f"geodesic polar patches: {len(patches)} keypoints, {patches.valid.sum()} valid, "
           f"radius {radius * 1000:.0f} mm, {t2 - t1:.3f} s (the first run compiles the numba kernels)")
     picture = side_by_side(draw_geodesic_support(frame, patches), patch_grid(patches, columns=8))
-    _write_picture(out / "polar_patches.png", picture)
+    write_picture(out / "polar_patches.png", picture)
     print(f"wrote {out / 'polar_patches.png'} (geodesic rings at 18/37/75 mm, and the 32x32 polar patches)")
 
 
@@ -85,7 +76,7 @@ def _demo_match_pair(out: Path, picture_name: str, frame0, frame1, k0, k1, truth
                                          np.ones(len(k0), bool), max_lines=200,
                                          title=f"{name}: {correct.sum()} correct"))
     path = out / picture_name
-    _write_picture(path, np.concatenate(pictures, axis=0))
+    write_picture(path, np.concatenate(pictures, axis=0))
     print(f"wrote {path} (correct matches of {names[0]}, top, and {names[1]}, bottom)")
 
 

@@ -9,6 +9,7 @@ import numpy as np
 
 from ..io import read_sequence
 from ..groundtruth.simulator import correspondences
+from ..outputs import write_picture
 
 
 def contact_sheet(folder: str | Path, out_png: str | Path, n_frames: int = 6, n_tracks: int = 16,
@@ -44,6 +45,5 @@ def contact_sheet(folder: str | Path, out_png: str | Path, n_frames: int = 6, n_
     half = max(1, len(tiles) // 2) if len(tiles) > 1 else 1
     rows = [np.concatenate(tiles[k : k + half], axis=1) for k in range(0, len(tiles), half)]
     sheet = np.concatenate(rows, axis=0)
-    if not cv2.imwrite(str(out_png), sheet):
-        raise ValueError(f"out_png: cannot write {out_png}")
+    write_picture(out_png, sheet)  # whole or not at all
     return sheet
