@@ -261,3 +261,22 @@ def test_map_is_one_interface_for_every_source(tmp_path, simulated, source):
     np.testing.assert_array_equal(valid, expected_valid)
     assert np.isnan(mapped[~valid]).all() and np.isfinite(mapped[valid]).all()
     assert np.abs(mapped[valid] - truth_xy[valid]).max() < 1.0
+
+
+def test_tps_files_map_no_point_off_the_target_image(tmp_path):
+    """`GroundTruth.map` with TPS files: a point off the target image is not valid (the object mask
+    and the SSIM map were read at the clipped border pixel, so a point 40 px right of the image, or
+    50 px above it, was 'valid' with the spline extrapolated there); points on the image are unchanged."""
+    folder = _write_pair(tmp_path / "seq", _grid_landmarks(4))
+    reports = generate_ground_truth(folder, tmp_path / "tps" / "seq", GroundTruthConfig(refine=False), progress=False)
+    assert reports[0].status == "ok"
+    truth = GroundTruth(read_sequence(folder), str(tmp_path / "tps"))
+    mask = cv2.imread(str(tmp_path / "tps" / "seq" / "frame-001_objmask.png"), cv2.IMREAD_GRAYSCALE)
+    assert mask[H // 2, W - 1] and mask[0, W // 2]  # the right and top borders are on the object
+    off = np.array([[W + 40.0, H / 2], [W / 2, -50.0], [W - 0.2, H / 2], [W / 2, -0.7]])
+    mapped, valid = truth.map("frame-001", off)
+    assert not valid.any() and np.isnan(mapped).all()
+    on = np.array([[W / 2, H / 2], [W - 0.6, H / 2], [W / 2, 0.0], [W / 2, -0.4]])
+    mapped, valid = truth.map("frame-001", on)
+    assert valid.all()
+    assert np.abs(mapped[0] - _inverse(on[:1])[0]).max() < 1.0

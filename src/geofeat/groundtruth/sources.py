@@ -36,11 +36,16 @@ def tps_folder(tps_dir: str, name: str) -> Path | None:
 
 
 def _on_mask(mask: np.ndarray | None, xy: np.ndarray) -> np.ndarray:
+    """(N,) bool: pixels xy on the mask; False off the image (pixel centres at integers, so outside
+    -0.5 .. W - 0.5), where clipping would read the border pixel of the mask instead."""
     if mask is None:
         return np.ones(len(xy), bool)
-    x = np.clip(xy[:, 0].astype(int), 0, mask.shape[1] - 1)
-    y = np.clip(xy[:, 1].astype(int), 0, mask.shape[0] - 1)
-    return mask[y, x] > 0
+    H, W = mask.shape
+    with np.errstate(invalid="ignore"):
+        inside = (xy[:, 0] >= -0.5) & (xy[:, 0] <= W - 0.5) & (xy[:, 1] >= -0.5) & (xy[:, 1] <= H - 0.5)
+    x = np.clip(np.where(inside, xy[:, 0], 0).astype(int), 0, W - 1)
+    y = np.clip(np.where(inside, xy[:, 1], 0).astype(int), 0, H - 1)
+    return inside & (mask[y, x] > 0)
 
 
 def load_authors_spline(folder: Path, frame: str, size: tuple[int, int]) -> ThinPlateSpline:
