@@ -415,3 +415,12 @@ def test_split_weighting_and_vocabulary_check_their_input():
     f = [Features(np.zeros((30, 2)), d, np.ones(30, bool)) for d in (floats, bits)]
     with pytest.raises(ValueError, match="different kinds"):
         sample_descriptors(f)
+
+
+def test_retrieval_names_the_results_it_really_reranked(three_objects, tmp_path):
+    """With 9 frames a query has at most 8 results: retrieval.md said "each query's best 80 frames by
+    the words reordered" (the --rerank default) although only 8 were."""
+    res, _ = run_retrieval([three_objects], tmp_path, ("sift",), words=40, n_samples=2000, n_keypoints=300,
+                           include_own_sequence=True, progress=False)
+    md = (tmp_path / "retrieval.md").read_text()
+    assert res["sift"].rerank == 8 and "each query's best 8 frames by the words" in md, md

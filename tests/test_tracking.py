@@ -446,3 +446,16 @@ def test_ransac_arguments_are_checked_before_any_work():
         fit_tps_ransac(src, dst, regularisation=-1.0)
     # a numpy threshold is a number (was "threshold_px: expected a positive number, got np.float32(3.0)")
     assert fit_tps_ransac(src, dst, threshold_px=np.float32(3.0)).warp is not None
+
+
+def test_a_descriptor_named_twice_is_tracked_once(sequence, tmp_path):
+    """`--descriptors sift,sift` wrote every sift row twice into track.csv, and tracking.md counted
+    each frame twice (failed frames "0/4" for 2 target frames)."""
+    import csv
+
+    csv_path, table = write_tracking([sequence], tmp_path, ("sift", "sift"), n_keypoints=300, progress=False,
+                                     refine="none")
+    rows = list(csv.DictReader(open(csv_path)))
+    assert [r["frame"] for r in rows] == ["frame-001", "frame-002"]
+    assert "| 0/2 |" in table or "| 1/2 |" in table or "| 2/2 |" in table
+    assert "sift: sift, sift: sift" not in (tmp_path / "tracking.md").read_text()

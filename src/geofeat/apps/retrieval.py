@@ -651,6 +651,8 @@ def evaluate_descriptor(features: list[Features], db: RetrievalDatabase, queries
     neighbours, acc = run(ks[0])
     neighbours, acc_words = neighbours[test], acc[test]
     acc = acc_words
+    # the results `rerank` reorders: no more than the database leaves a query (retrieval.md names them)
+    rerank_top = min(rerank_top, neighbours.shape[1]) if rerank_top >= 2 else 0
     if rerank_top > 0:
         neighbours = rerank(neighbours, queries[test], features, rerank_top, progress=progress)
         acc = per_query_accuracy(neighbours[:, :max_k], db.classes, np.asarray(db.classes)[queries[test]])
