@@ -448,14 +448,9 @@ def test_ransac_arguments_are_checked_before_any_work():
     assert fit_tps_ransac(src, dst, threshold_px=np.float32(3.0)).warp is not None
 
 
-def test_a_descriptor_named_twice_is_tracked_once(sequence, tmp_path):
+def test_a_descriptor_named_twice_is_refused(sequence, tmp_path):
     """`--descriptors sift,sift` wrote every sift row twice into track.csv, and tracking.md counted
-    each frame twice (failed frames "0/4" for 2 target frames)."""
-    import csv
-
-    csv_path, table = write_tracking([sequence], tmp_path, ("sift", "sift"), n_keypoints=300, progress=False,
-                                     refine="none")
-    rows = list(csv.DictReader(open(csv_path)))
-    assert [r["frame"] for r in rows] == ["frame-001", "frame-002"]
-    assert "| 0/2 |" in table or "| 1/2 |" in table or "| 2/2 |" in table
-    assert "sift: sift, sift: sift" not in (tmp_path / "tracking.md").read_text()
+    each frame twice (failed frames "0/4" for 2 target frames); as in bench, it is refused."""
+    with pytest.raises(ValueError, match="'sift' is named twice"):
+        write_tracking([sequence], tmp_path / "t", ("sift", "SIFT"), n_keypoints=300, progress=False, refine="none")
+    assert not (tmp_path / "t").exists()

@@ -549,8 +549,7 @@ def track_sequence(
     """
     from ..descriptors import check_descriptor_names
 
-    # unknown names fail before any work; a name given twice is tracked once (not two rows per frame)
-    names = tuple(dict.fromkeys(check_descriptor_names(descriptors)))
+    names = check_descriptor_names(descriptors)  # unknown or repeated names fail before any work
     if refine not in REFINE_MODES:
         raise ValueError(f"refine: expected one of {', '.join(REFINE_MODES)}, got {refine!r}")
     check_positive(threshold_px, "threshold")  # NaN or inf would fail every frame, or pass every match
@@ -979,9 +978,7 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
     from ..keypoints import group_by_detector
     from ..outputs import check_out_dir, output_folder
 
-    # unknown names fail before any work; a name given twice is tracked once (its rows, failed-frame
-    # count and timing would otherwise be doubled)
-    names = tuple(dict.fromkeys(check_descriptor_names(descriptors)))
+    names = check_descriptor_names(descriptors)  # unknown or repeated names fail before any work
     groups = group_by_detector(names, detector)
     out = check_out_dir(out, overwrite, files=("track.csv", "tracking.md"))
     sequences = find_sequences(sequences, unique_names=True)

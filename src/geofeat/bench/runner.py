@@ -31,7 +31,7 @@ from tqdm import tqdm
 
 from ..constants import N_KEYPOINTS
 from ..depth import check_profile, sequence_depth_profile
-from ..descriptors import OpenCVDescriptor, check_descriptor_name
+from ..descriptors import OpenCVDescriptor, check_descriptor_name, refuse_repeated
 from ..inputs import check_tps_dir, resolve_radius
 from ..io import Sequence, find_sequences, read_sequence
 from ..outputs import add_to_manifest, append_line_durably, atomic_file, check_out_dir, read_manifest
@@ -90,9 +90,7 @@ class BenchConfig:
             raise ValueError("descriptors: at least one descriptor (or --features) is needed")
         # validates the names (and that weights files exist) without building anything
         self.descriptors = tuple(check_descriptor_name(d) for d in self.descriptors)
-        twice = sorted({d for d in self.descriptors if self.descriptors.count(d) > 1})
-        if twice:  # each would write its rows again into results.csv
-            raise ValueError(f"descriptors: {', '.join(map(repr, twice))} is named twice; name each descriptor once")
+        refuse_repeated(self.descriptors)  # each would write its rows again into results.csv
         clash = set(external) & set(self.descriptors)
         if clash:
             raise ValueError(f"features: {sorted(clash)} is also a descriptor name; rename the feature set")

@@ -51,6 +51,14 @@ def check_descriptor_name(name: str) -> str:
     return key.lower()
 
 
+def refuse_repeated(names: tuple[str, ...]) -> None:
+    """ValueError when a (checked) descriptor name is given twice ("orb,ORB"): each command would
+    compute it twice and write its rows or results twice."""
+    twice = sorted({d for d in names if names.count(d) > 1})
+    if twice:
+        raise ValueError(f"descriptors: {', '.join(map(repr, twice))} is named twice; name each descriptor once")
+
+
 def check_descriptor_names(names) -> tuple[str, ...]:
     """`check_descriptor_name` of each of `names` (empty entries dropped), as a tuple; ValueError for
     an unknown one or for none at all. Builds nothing, so a bad name fails before any work."""
@@ -59,6 +67,7 @@ def check_descriptor_names(names) -> tuple[str, ...]:
     checked = tuple(check_descriptor_name(d) for d in names if not isinstance(d, str) or d.strip())
     if not checked:
         raise ValueError("descriptors: expected at least one descriptor name")
+    refuse_repeated(checked)
     return checked
 
 
