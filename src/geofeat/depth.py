@@ -16,6 +16,7 @@ import numpy as np
 
 from .constants import DEPTH_PROFILE_NAMES, HOLE_MAX_PERIMETER_PX, IDW_POWER, MESH_SCALE, SMOOTH_LEVELS, SMOOTH_WINDOW_PX
 from .frame import check_intrinsics
+from .inputs import check_whole
 
 FILL_METHODS = ("idw", "simple", "none")
 
@@ -343,9 +344,8 @@ def smooth(
         (round(H * out_scale), round(W * out_scale)) float32 metres, 0 = missing.
     """
     depth = _check_depth_map(depth)
-    for name, value, least in (("levels", levels, 0), ("window", window, 1)):
-        if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < least:
-            raise ValueError(f"{name}: must be a whole number >= {least}, got {value!r}")
+    check_whole(levels, "levels", 0)
+    check_whole(window, "window", 1)
     if isinstance(out_scale, bool) or not isinstance(out_scale, numbers.Real) or not 0 < out_scale < math.inf:
         raise ValueError(f"out_scale: must be a positive number, got {out_scale!r}")
     H, W = depth.shape

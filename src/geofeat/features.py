@@ -105,13 +105,20 @@ class Matches:
         return np.stack([i0, self.matches0[i0]], axis=1)
 
 
-def _suffix(path: str | Path) -> str:
+def file_format(path: str | Path) -> str | None:
+    """".h5" for a .h5 / .hdf5 name, ".npz" for a .npz one (any case), None for any other name."""
     suffix = Path(path).suffix.lower()
     if suffix in (".h5", ".hdf5"):
         return ".h5"
-    if suffix == ".npz":
-        return ".npz"
-    raise ValueError(f"path: expected a .npz or .h5 file name, got {str(path)!r}")
+    return ".npz" if suffix == ".npz" else None
+
+
+def _suffix(path: str | Path) -> str:
+    """`file_format`, or ValueError for a name that is neither."""
+    fmt = file_format(path)
+    if fmt is None:
+        raise ValueError(f"path: expected a .npz or .h5 file name, got {str(path)!r}")
+    return fmt
 
 
 def _require_name(name: str | None, path: str | Path) -> str:

@@ -382,6 +382,7 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
     csv_path = out / "results.csv"
     config_path = out / "config.json"
     resume = csv_path.is_file() and not overwrite
+    made_by = provenance(config)  # hashes the weights files once
     header = None
     if csv_path.is_file():
         with open(csv_path, newline="") as fh:
@@ -400,7 +401,7 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
                              "another --out")
         if header != COLUMNS:
             raise ValueError(f"out: {csv_path} has other columns (an older geofeat?); use --overwrite")
-        changed = _changed_weights(before.get("provenance") or {}, provenance(config))
+        changed = _changed_weights(before.get("provenance") or {}, made_by)
         if changed:
             raise ValueError(f"out: {out} holds results made with other weights at the same path ({', '.join(changed)} "
                              "changed since: retrained?); use --overwrite or another --out")
@@ -418,7 +419,7 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
             if name in ours:
                 (out / name).unlink(missing_ok=True)
     with atomic_file(config_path) as tmp:
-        tmp.write_text(json.dumps({**asdict(config), "provenance": provenance(config)}, indent=1))
+        tmp.write_text(json.dumps({**asdict(config), "provenance": made_by}, indent=1))
     add_to_manifest(out, ["results.csv", "config.json"])
     return done
 

@@ -17,13 +17,17 @@ def file_label(descriptor: str) -> str:
 
 def is_h5(path: Path) -> bool:
     """True for a .h5 / .hdf5 name in any case, as `geofeat.save_features` reads it."""
-    return path.suffix.lower() in (".h5", ".hdf5")
+    from ..features import file_format
+
+    return file_format(path) == ".h5"
 
 
 def features_path(out: Path, descriptor: str) -> Path:
     """`out` itself when it names a .h5 / .hdf5 / .npz file (any case, as `geofeat.save_features`
     takes them), else `out/features-<descriptor>.h5`."""
-    return out if is_h5(out) or out.suffix.lower() == ".npz" else out / f"features-{descriptor}.h5"
+    from ..features import file_format
+
+    return out if file_format(out) is not None else out / f"features-{descriptor}.h5"
 
 
 def skip_frame(skipped: list[str], name: str, error: Exception) -> None:

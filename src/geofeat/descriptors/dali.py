@@ -39,7 +39,6 @@ normalisation; ours is the z-score of step 2 (exactly invariant to I -> a I + b,
 
 from __future__ import annotations
 
-import numbers
 import os
 from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Mapping
@@ -55,6 +54,7 @@ from ..features import Features
 from ..frame import RGBDFrame
 from .patches import cartesian_grid, keypoint_arrays, sample_patches
 from .settings import merge_settings
+from ..inputs import check_whole
 
 #: Patch grid side (vertices); the mesh is the disc of radius (GRID - 1) / 2 grid units.
 GRID = 25
@@ -192,11 +192,9 @@ class DaLI:
 
     def __init__(self, settings: DaLISettings | Mapping[str, Any] | None = None, **kwargs: Any) -> None:
         self.settings = s = merge_settings(DaLISettings, settings, kwargs)
-        workers = s.workers
-        if workers is not None and (isinstance(workers, bool) or not isinstance(workers, numbers.Integral)
-                                    or workers < 1):  # 0 meant all CPUs, -1 failed in the thread pool
-            raise ValueError(f"workers: expected a positive number of threads or None (all CPUs), got {workers!r}")
-        self.workers = int(workers or os.cpu_count() or 1)
+        if s.workers is not None:  # 0 meant all CPUs, -1 failed in the thread pool
+            check_whole(s.workers, "workers", 1)
+        self.workers = int(s.workers or os.cpu_count() or 1)
         self.progress = s.progress
 
     def describe_patches(self, patches: np.ndarray) -> np.ndarray:

@@ -56,7 +56,6 @@ real-data curve, and the authors' effective value, so results stay comparable wi
 
 from __future__ import annotations
 
-import numbers
 from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib import resources
@@ -72,6 +71,7 @@ from ..keypoints import as_keypoints
 from ..geodesic.mesh import GridMesh
 from ..geodesic.polar import PolarPatches, check_patches, polar_patches
 from .settings import PatchSettings, merge_settings
+from ..inputs import check_whole
 
 __all__ = ["GeoBit", "GeoBitSettings", "generate_pattern", "load_pattern", "DEFAULT_SIGMA_ROWS", "PATTERN_SEED"]
 
@@ -192,8 +192,8 @@ class GeoBit:
             raise ValueError(f"n_bits: expected a positive multiple of 8, got {n_bits}")
         if n_rotations < 1 or n_angles % n_rotations:
             raise ValueError(f"n_rotations: must divide n_angles={n_angles}, got {n_rotations}")
-        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or seed < 0):
-            raise ValueError(f"seed: expected None (the shipped pattern) or a whole number >= 0, got {seed!r}")
+        if seed is not None:  # None: the shipped pattern
+            check_whole(seed, "seed", 0)
         self.n_bits = int(n_bits)
         self.n_rotations = int(n_rotations)
         self.sigma = DEFAULT_SIGMA_ROWS if s.sigma is None else float(s.sigma)

@@ -40,7 +40,6 @@ from pathlib import Path
 from typing import Any
 
 import importlib.util
-import numbers
 import os
 
 import numpy as np
@@ -52,6 +51,7 @@ from ..keypoints import as_keypoints
 from ..geodesic.mesh import GridMesh
 from ..geodesic.polar import PolarPatches, check_patches, polar_patches
 from .settings import PatchSettings, merge_settings
+from ..inputs import check_whole
 
 #: File name of the shipped weights inside geofeat/data.
 WEIGHTS_NAME = "geopatch.pt"
@@ -177,12 +177,9 @@ class GeoPatch:
         self.settings = s = merge_settings(GeoPatchSettings, settings, kwargs)
         weights, device, batch_size, threads = s.weights, s.device, s.batch_size, s.threads
         # whole numbers only: 2.5 threads or "2" were truncated or converted without a word
-        if threads is not None and (isinstance(threads, bool) or not isinstance(threads, numbers.Integral)
-                                    or threads < 1):
-            raise ValueError(f"threads: expected a positive number of CPU threads or None, got {threads!r}")
-        if batch_size is not None and (isinstance(batch_size, bool) or not isinstance(batch_size, numbers.Integral)
-                                       or batch_size < 1):
-            raise ValueError(f"batch_size: expected a positive number of patches or None, got {batch_size!r}")
+        for name, value in (("threads", threads), ("batch_size", batch_size)):
+            if value is not None:
+                check_whole(value, name, 1)
         self.threads = None if threads is None else int(threads)
         self.backend = resolve_backend(s.backend, weights, device)
         self.net = self.session = None

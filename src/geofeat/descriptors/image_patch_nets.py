@@ -30,7 +30,6 @@ figures are in BENCHMARKS.md.
 
 from __future__ import annotations
 
-import numbers
 from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib import resources
@@ -47,6 +46,7 @@ from ..frame import RGBDFrame
 from ..keypoints import Keypoints
 from .patches import cartesian_grid, keypoint_arrays, logpolar_grid, sample_patches
 from .settings import merge_settings
+from ..inputs import check_whole
 
 #: Support radius of a TFeat patch = this x the keypoint diameter (pixels): a patch side of 6x
 #: SIFT's size, the factor at which BRISK/FREAK plateau under scale (BENCHMARKS.md).
@@ -184,8 +184,7 @@ class ImagePatchDescriptor:
                 self.net = ImagePatchNet(default_config(arch)).eval()
         else:
             self.net = load_image_net(default_weights_path(arch) if weights is None else weights, arch)
-        if isinstance(s.batch_size, bool) or not isinstance(s.batch_size, numbers.Integral) or s.batch_size < 1:
-            raise ValueError(f"batch_size: expected a positive number of patches, got {s.batch_size!r}")
+        check_whole(s.batch_size, "batch_size", 1)
         self.batch_size = int(s.batch_size)
 
     def __repr__(self) -> str:
