@@ -20,6 +20,11 @@ score every variant):
   median: corners ranked regardless of shading.
 - `half-res-cornerness`: the half-resolution candidates' cornerness cues read on the half-resolution
   image (their own scale), shifted to the full-resolution cue's median over those candidates.
+- `blur-0.7`, `blur-1.0`: the whole detection (candidates and cues) on the gray image blurred by a
+  Gaussian of 0.7 / 1.0 px: fewer corners made by the image noise.
+- `noise-floor-1`, `noise-floor-3`: candidates whose cornerness (3 px window, at their level) is below
+  1 / 3 x the 99th percentile that pure noise of the frame's level would give are dropped. The noise
+  level is the frame's robust estimate (median absolute 3 x 3 Laplacian, Immerkaer's mask).
 
     PYTHONPATH=src python benchmarks/geokey_repeatability.py out/det2/val/*hard* --variants shipped,foreshortened
 """
@@ -135,6 +140,52 @@ def quadratic_peaks(response: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return np.stack([x + dx, y + dy], axis=1)
 
 
+def blurred_detector(sigma: float):
+    """`geokey.detect_geokey` on the gray image blurred by a Gaussian of `sigma` px."""
+    from geofeat.frame import RGBDFrame
+
+    def detect(frame, n):
+        return DETECT(RGBDFrame(cv2.GaussianBlur(frame.image, (0, 0), sigma), frame.depth, frame.K), n)
+
+    return detect
+
+
+#: Immerkaer's noise mask: the 3 x 3 Laplacian difference whose response to white noise of unit
+#: standard deviation has standard deviation 6 (the root of the sum of its squared weights).
+NOISE_MASK = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+
+
+def noise_floor_candidates(factor: float, quantile: float = 0.99):
+    """`geokey.candidates` without the candidates whose 3 px cornerness at their level is below
+    `factor` x the `quantile` of the cornerness of white noise at the frame's noise level."""
+    unit: dict = {}
+
+    def candidates(frame, max_candidates=geokey.MAX_CANDIDATES):
+        cands = CANDIDATES(frame, max_candidates)
+        g = frame.image.astype(np.float32)
+        sigma = float(np.median(np.abs(cv2.filter2D(g, -1, NOISE_MASK))[1:-1, 1:-1])) / (0.6745 * 6.0)
+        if g.shape not in unit:  # cornerness quantiles of unit-variance noise at each level
+            noise, unit[g.shape] = np.random.default_rng(0).normal(0.0, 1.0, g.shape).astype(np.float32), []
+            for level in range(len(max_candidates)):
+                noise = cv2.pyrDown(noise) if level else noise
+                unit[g.shape].append(float(np.quantile(cv2.cornerMinEigenVal(noise, geokey.CORNER_WINDOW_PX, 3), quantile)))
+        keep = np.ones(len(cands), bool)
+        image = g
+        for level in range(len(max_candidates)):
+            image = cv2.pyrDown(image) if level else image
+            response = cv2.cornerMinEigenVal(image, geokey.CORNER_WINDOW_PX, 3)
+            on = cands.level == level
+            xy = (cands.xy[on] + 0.5) / 2**level - 0.5
+            xi = np.clip(np.rint(xy[:, 0]).astype(np.int64), 0, image.shape[1] - 1)
+            yi = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, image.shape[0] - 1)
+            keep[on] = response[yi, xi] >= factor * unit[g.shape][level] * sigma**2
+        return cands[keep]
+
+    return candidates
+
+
+DETECT = geokey.detect_geokey
+CANDIDATES = geokey.candidates
 PARABOLAS = geokey.refine_peaks
 FEATURES = geokey.candidate_features
 VARIANTS = {
@@ -146,6 +197,10 @@ VARIANTS = {
     "normalised-8": {"cue_maps": lambda: normalised_cue_maps(8.0)},
     "normalised-4": {"cue_maps": lambda: normalised_cue_maps(4.0)},
     "half-res-cornerness": {"candidate_features": lambda: half_res_features},
+    "blur-0.7": {"detector": lambda: blurred_detector(0.7)},
+    "blur-1.0": {"detector": lambda: blurred_detector(1.0)},
+    "noise-floor-1": {"candidates": lambda: noise_floor_candidates(1.0)},
+    "noise-floor-3": {"candidates": lambda: noise_floor_candidates(3.0)},
 }
 
 
@@ -160,16 +215,20 @@ def main() -> None:
     print("| variant | " + " | ".join(f"repeatability / ground-truth pairs per pair, {n}" for n in counts) + " |")
     print("|---|" + "---|" * len(counts))
     originals = {"cue_maps": geokey.cue_maps, "refine_peaks": geokey.refine_peaks,
-                 "candidate_features": geokey.candidate_features}
+                 "candidate_features": geokey.candidate_features, "candidates": geokey.candidates}
     for name in a.variants.split(","):
         if name not in VARIANTS:
             raise SystemExit(f"--variants: unknown {name!r}; known: {', '.join(VARIANTS)}")
+        detector = lambda frame, k: geokey.detect_geokey(frame, k)  # noqa: E731 (reads the patched module)
         for attr, make in VARIANTS[name].items():
-            setattr(geokey, attr, make())
+            if attr == "detector":
+                detector = make()
+            else:
+                setattr(geokey, attr, make())
         t = time.perf_counter()
         cells = []
         for n in counts:
-            r = repeatability(a.sequences, lambda frame, k: geokey.detect_geokey(frame, k), n)
+            r = repeatability(a.sequences, detector, n)
             cells.append(f"{r['repeatability']:.3f} / {r['pairs']:.0f}")
         for attr, fn in originals.items():
             setattr(geokey, attr, fn)
