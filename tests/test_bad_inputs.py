@@ -1101,8 +1101,12 @@ def _geokey_arrays(**change) -> dict:
 
 
 @pytest.mark.parametrize("change", [dict(mean=None), dict(mean=np.zeros(3, np.float32)),
-                                    dict(w0=np.zeros((5, 4), np.float32), b0=np.zeros(4, np.float32))],
-                         ids=["missing-array", "wrong-shape", "layers-not-ending-in-one-logit"])
+                                    dict(w0=np.zeros((5, 4), np.float32), b0=np.zeros(4, np.float32)),
+                                    dict(std=np.zeros(13, np.float32)), dict(linear=np.full(8, np.nan, np.float32)),
+                                    dict(nms_radius=np.float32(np.nan)), dict(min_fraction=np.float32(2)),
+                                    dict(threshold=np.float32(np.nan))],
+                         ids=["missing-array", "wrong-shape", "layers-not-ending-in-one-logit", "zero-std",
+                              "nan-weights", "nan-radius", "fraction-above-one", "nan-threshold"])
 def test_incomplete_geokey_weights_are_one_error(change: dict, tmp_path: Path) -> None:
     path = tmp_path / "gk.npz"
     np.savez(path, **_geokey_arrays(**change))

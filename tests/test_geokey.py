@@ -364,3 +364,51 @@ def test_train_detector_command_writes_weights_chosen_over_both_counts(tiny, tmp
     model = load_geokey(out)
     assert model.nms_radius in (2.0, 3.0, 4.0, 5.0)
     assert len(geofeat.detect(geofeat.read_sequence(tiny / "a-deform").frame(0), 50, detector=f"geokey={out}")) > 0
+
+
+# ---------------------------------------------------------------- audit of detection inputs
+@pytest.mark.parametrize("n", [-1, 2.5, True])
+def test_detect_geokey_refuses_a_bad_n(n):
+    """n = -1 used to drop the last keypoint (order[:-1]) and 2.5 to fail inside numpy slicing."""
+    with pytest.raises(ValueError, match="n:"):
+        detect_geokey(geofeat.read_demo_frame(), n)
+
+
+@pytest.mark.parametrize("option, value", [("nms_radius", float("nan")), ("nms_radius", float("inf")),
+                                           ("nms_radius", -1.0), ("threshold", [1, 2]), ("threshold", "1"),
+                                           ("min_fraction", "0.5"), ("min_fraction", True)])
+def test_detect_geokey_options_must_be_numbers(option, value):
+    """NaN and inf radii failed converting to int (inf an OverflowError); a list threshold was
+    float()'s TypeError; strings and bools passed as numbers."""
+    with pytest.raises(ValueError, match=option):
+        detect_geokey(geofeat.read_demo_frame(), 10, **{option: value})
+
+
+def test_a_suppression_radius_beyond_the_image_keeps_the_best_candidate_only():
+    """A radius larger than the image diagonal used to ask OpenCV for a kernel of terabytes."""
+    frame = geofeat.read_demo_frame()
+    best = detect_geokey(frame, 1, nms_radius=0)
+    one = detect_geokey(frame, 0, nms_radius=1e6, threshold=-np.inf)
+    assert len(one) == 1
+    np.testing.assert_array_equal(one.xy, best.xy)
+
+
+def test_rewritten_weights_are_read_again(tmp_path):
+    """load_geokey cached by path: weights retrained into the same file were ignored for the rest
+    of the process (the old model's keypoints, silently)."""
+    path = tmp_path / "w.npz"
+    shipped = load_geokey()
+    shipped.save(path)
+    assert load_geokey(path).nms_radius == shipped.nms_radius != 5.0
+    layer, bias = np.zeros((5, 1), np.float32), np.zeros(1, np.float32)  # a depth-cue layer: another size on disk
+    GeoKeyModel(shipped.mean, shipped.std, shipped.linear, (layer,), (bias,), 5.0).save(path)
+    again = load_geokey(path)
+    assert again.uses_depth_cues and again.nms_radius == 5.0
+
+
+def test_weights_path_that_is_a_folder_says_so(tmp_path):
+    with pytest.raises(ValueError, match="is a folder"):
+        geofeat.detect(geofeat.read_demo_frame(), 10, detector=f"geokey={tmp_path}")
+    with pytest.raises(ValueError, match="is a folder"):
+        load_geokey(tmp_path)
+

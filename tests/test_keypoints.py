@@ -178,3 +178,27 @@ def test_keypoints_fields_must_have_one_entry_per_keypoint():
     kps.angles = np.zeros(5)  # replaced after construction
     with pytest.raises(ValueError, match="keypoints: angles must have one entry per keypoint"):
         geofeat.as_keypoints(kps)
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), "0.01", None])
+def test_contrast_threshold_must_be_a_finite_number(frame, value):
+    """NaN used to pass the `< 0` check and run SIFT with it; a string or None was a TypeError of `<`."""
+    with pytest.raises(ValueError, match="contrast_threshold"):
+        detect(frame, 10, contrast_threshold=value)
+
+
+@pytest.mark.parametrize("value", [float("nan"), None, -1])
+def test_border_must_be_a_whole_number_of_pixels(frame, value):
+    """NaN silently dropped every keypoint; None was a TypeError of `>=`."""
+    with pytest.raises(ValueError, match="border_px"):
+        detect(frame, 10, border_px=value)
+
+
+def test_an_integer_index_gives_one_keypoint(frame):
+    """kps[0] used to fail with "xy: expected shape (N, 2) ..., got (2,)"."""
+    kps = detect(frame, 10)
+    for i in (0, -1, np.int64(3)):
+        one = kps[i]
+        assert len(one) == 1
+        np.testing.assert_array_equal(one.xy, kps.xy[[i]])
+        assert one.responses[0] == kps.responses[i]

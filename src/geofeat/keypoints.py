@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass
 
 import cv2
@@ -9,6 +11,7 @@ import numpy as np
 
 from .constants import N_KEYPOINTS
 from .frame import RGBDFrame
+from .inputs import check_whole
 
 __all__ = ["DEFAULT_DETECTOR", "DETECTORS", "KEYPOINT_SETS", "Keypoints", "as_keypoints", "check_detector_name", "detect", "detect_sift"]
 
@@ -64,6 +67,9 @@ class Keypoints:
         return int(self.xy.shape[0])
 
     def __getitem__(self, index) -> "Keypoints":
+        """The keypoints at `index` (a slice, mask or index array); an integer gives a set of one."""
+        if isinstance(index, (int, np.integer)) and not isinstance(index, bool):
+            index = [index]
         return Keypoints(self.xy[index], self.angles[index], self.sizes[index], self.responses[index])
 
     def to_cv(self) -> list[cv2.KeyPoint]:
@@ -147,12 +153,14 @@ def to_uint8(image: np.ndarray) -> np.ndarray:
     return np.clip(np.rint(np.asarray(image, dtype=np.float32) * 255.0), 0, 255).astype(np.uint8)
 
 
-def _check_n(n) -> int:
-    """n >= 1 (or None = all, returned as 0); anything else is a ValueError naming `n`."""
+def _check_n(n, zero_is_all: bool = False) -> int:
+    """n >= 1 (or None = all, returned as 0; with `zero_is_all`, 0 too); anything else is a ValueError
+    naming `n`."""
     if n is None:
         return 0
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n <= 0:
-        raise ValueError(f"n: expected a positive number of keypoints (or None for all), got {n!r}")
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < (0 if zero_is_all else 1):
+        raise ValueError(f"n: expected a positive number of keypoints (or {'0 or ' if zero_is_all else ''}None "
+                         f"for all), got {n!r}")
     return int(n)
 
 
@@ -166,13 +174,9 @@ def check_detector_name(detector: str) -> str:
     if name not in DETECTORS or (weights and name != "geokey") or ("=" in detector and not weights):
         raise ValueError(f"detector: expected one of {', '.join(DETECTORS)} or geokey=WEIGHTS, got {detector!r}")
     if weights:
-        from pathlib import Path
-
-        if not Path(weights).is_file():
-            raise ValueError(f"detector: weights file {weights} does not exist")
         from .detectors.geokey import load_geokey
 
-        load_geokey(weights)
+        load_geokey(weights)  # a ValueError naming the file when it is missing, a folder, or not GeoKey weights
     return detector
 
 
@@ -269,7 +273,7 @@ def detect_sift(
         n: maximum number of keypoints kept (by decreasing response, after filtering); None = all.
         contrast_threshold: SIFT contrast threshold (OpenCV `contrastThreshold`).
         require_depth: drop keypoints whose rounded pixel has no depth (`frame.depth == 0`).
-        border_px: drop keypoints closer than this to the image border, pixels.
+        border_px: drop keypoints closer than this to the image border, pixels (a whole number >= 0).
         mask: optional (H, W) uint8/bool detection mask (nonzero = allowed).
         keypoint_set: "unique" keeps only the strongest of keypoints at the same position (SIFT
             repeats a position once per dominant orientation; position-only descriptors would
@@ -285,8 +289,10 @@ def detect_sift(
     if not isinstance(frame, RGBDFrame):
         raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
     n = _check_n(n)
-    if contrast_threshold < 0:
-        raise ValueError(f"contrast_threshold: expected >= 0, got {contrast_threshold}")
+    if (isinstance(contrast_threshold, bool) or not isinstance(contrast_threshold, numbers.Real)
+            or not (math.isfinite(contrast_threshold) and contrast_threshold >= 0)):
+        raise ValueError(f"contrast_threshold: expected a finite number >= 0, got {contrast_threshold!r}")
+    border_px = check_whole(border_px, "border_px", minimum=0)
     H, W = frame.shape
     if mask is not None:
         mask = np.asarray(mask)

@@ -25,6 +25,7 @@ needs neither torch nor a GPU.
 
 from __future__ import annotations
 
+import numbers
 import warnings
 import zipfile
 from dataclasses import dataclass
@@ -35,7 +36,7 @@ import cv2
 import numpy as np
 
 from ..frame import RGBDFrame
-from ..keypoints import Keypoints
+from ..keypoints import Keypoints, _check_n
 from .cues import CUE_NAMES, IMAGE_CUES, cue_features, cue_maps, depth_edge_distance
 
 #: The shipped weights.
@@ -126,16 +127,39 @@ def load_geokey(path: str | Path | None = None) -> GeoKeyModel:
     """Load GeoKey weights (default: the shipped ones).
 
     Raises:
-        ValueError naming the file when it is missing, corrupt, or made for other cues.
+        ValueError naming the file when it is missing, a folder, corrupt, made for other cues, or
+        holds non-finite arrays or settings out of range.
     """
-    path = Path(path) if path is not None else SHIPPED_WEIGHTS
-    return _load(str(path.resolve()))
+    path = (Path(path) if path is not None else SHIPPED_WEIGHTS).resolve()
+    if path.is_dir():
+        raise ValueError(f"detector weights: {path} is a folder, not a weights file")
+    if not path.is_file():
+        raise ValueError(f"detector weights: {path} does not exist")
+    stat = path.stat()  # a file rewritten since (retrained weights) is read again
+    return _load(str(path), (stat.st_mtime_ns, stat.st_size, stat.st_ino))
+
+
+def check_settings(nms_radius, threshold, min_fraction) -> tuple[float, float, float]:
+    """The selection settings as floats: `nms_radius` a finite number of pixels >= 0, `threshold` a
+    number (not NaN; +-inf allowed), `min_fraction` in [0, 1]. ValueError naming the setting otherwise."""
+    def number(value, what: str, expected: str) -> float:
+        if isinstance(value, bool) or not isinstance(value, numbers.Real) or np.isnan(value):
+            raise ValueError(f"{what}: expected {expected}, got {value!r}")
+        return float(value)
+
+    nms_radius = number(nms_radius, "nms_radius", "a finite number of pixels >= 0")
+    if not 0.0 <= nms_radius < np.inf:
+        raise ValueError(f"nms_radius: expected a finite number of pixels >= 0, got {nms_radius!r}")
+    threshold = number(threshold, "threshold", "a number or -inf")
+    min_fraction = number(min_fraction, "min_fraction", "a fraction in [0, 1]")
+    if not 0.0 <= min_fraction <= 1.0:
+        raise ValueError(f"min_fraction: expected a fraction in [0, 1], got {min_fraction}")
+    return nms_radius, threshold, min_fraction
 
 
 @lru_cache(maxsize=4)
-def _load(path: str) -> GeoKeyModel:
-    if not Path(path).is_file():
-        raise ValueError(f"detector weights: {path} does not exist")
+def _load(path: str, stamp: tuple[int, int, int]) -> GeoKeyModel:
+    """The weights at `path` as they were at `stamp` (modification time, size, inode of the file)."""
     try:
         with np.load(path, allow_pickle=False) as a:
             arrays = {k: a[k] for k in a.files}
@@ -158,6 +182,10 @@ def _load(path: str) -> GeoKeyModel:
         if model.weights and model.weights[-1].shape[-1:] != (1,):
             raise ValueError(f"the depth-cue layers end in {model.weights[-1].shape[-1:]} values, not one logit")
         model.score(np.zeros((1, len(CUE_NAMES)), np.float32))  # the layers chain (a ValueError otherwise)
+        every = (model.mean, model.std, model.linear) + model.weights + model.biases
+        if not all(np.isfinite(a).all() for a in every) or not (model.std > 0).all():
+            raise ValueError("arrays with NaN or infinite values, or a std that is not positive")
+        check_settings(model.nms_radius, model.threshold, model.min_fraction)
     except (KeyError, TypeError, ValueError) as error:  # a missing array, or arrays of the wrong shapes
         raise ValueError(f"detector weights: {path} is not a complete GeoKey weights file ({error})") from None
     return model
@@ -256,9 +284,12 @@ def suppress(xy: np.ndarray, score: np.ndarray, radius: float, shape: tuple[int,
     yi = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, H - 1)
     grid = np.full((H, W), -np.inf, np.float32)
     np.maximum.at(grid, (yi, xi), score.astype(np.float32))
-    r = int(np.ceil(radius))
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-    peak = cv2.dilate(grid, kernel)
+    if radius >= np.hypot(H, W):  # every candidate within the radius of every other: the best one only
+        peak = np.full_like(grid, grid.max())
+    else:
+        r = int(np.ceil(radius))
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+        peak = cv2.dilate(grid, kernel)
     keep = score.astype(np.float32) >= peak[yi, xi]
     kept = np.flatnonzero(keep)
     _, first = np.unique(yi[kept] * W + xi[kept], return_index=True)
@@ -274,9 +305,10 @@ def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
     threshold).
 
     Args:
-        n: maximum number of keypoints; fewer come back when fewer candidates reach `threshold`.
+        n: maximum number of keypoints (0 or None = all); fewer come back when fewer candidates reach
+            `threshold`.
         model: the scorer (default: the shipped weights).
-        nms_radius: suppression radius, pixels (default: the model's).
+        nms_radius: suppression radius, pixels, >= 0 (default: the model's; 0 = no suppression).
         mask: (H, W), nonzero = allowed; restricts the keypoints like OpenCV's detection masks.
         threshold: minimum logit (default: the model's, chosen on validation; -inf keeps the `n` best
             whatever their score).
@@ -287,13 +319,11 @@ def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
     rotation-invariant), sizes 2^level x 8 px, and responses = the learned score (logit).
     A frame without depth or texture gives fewer keypoints, or none, with a warning.
     """
+    n = _check_n(n, zero_is_all=True)
     model = model or load_geokey()
-    threshold = model.threshold if threshold is None else float(threshold)
-    if np.isnan(threshold):
-        raise ValueError("threshold: expected a number or -inf, got nan")
-    min_fraction = model.min_fraction if min_fraction is None else float(min_fraction)
-    if not 0.0 <= min_fraction <= 1.0:
-        raise ValueError(f"min_fraction: expected a fraction in [0, 1], got {min_fraction}")
+    nms_radius, threshold, min_fraction = check_settings(
+        model.nms_radius if nms_radius is None else nms_radius, model.threshold if threshold is None else threshold,
+        model.min_fraction if min_fraction is None else min_fraction)
     cands = candidates(frame)
     if mask is not None:
         mask = np.asarray(mask)
@@ -305,7 +335,7 @@ def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
         warnings.warn("geokey: no candidate with depth under it in this frame (no texture or no depth)", stacklevel=2)
         return Keypoints(np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0))
     score = model.score(candidate_features(frame, cands, depth_cues=model.uses_depth_cues))
-    keep = suppress(cands.xy, score, model.nms_radius if nms_radius is None else nms_radius, frame.shape)
+    keep = suppress(cands.xy, score, nms_radius, frame.shape)
     cands, score = cands[keep], score[keep]
     order = np.argsort(-score, kind="stable")
     floor = int(min_fraction * len(order))
