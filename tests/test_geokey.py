@@ -412,3 +412,16 @@ def test_weights_path_that_is_a_folder_says_so(tmp_path):
     with pytest.raises(ValueError, match="is a folder"):
         load_geokey(tmp_path)
 
+
+def test_an_empty_detector_name_is_not_the_default():
+    """extract(detector="") used the descriptor's own detector, where detect(detector="") refuses it."""
+    with pytest.raises(ValueError, match="detector"):
+        geofeat.extract(geofeat.read_demo_frame(), 10, detector="", descriptor="geobit")
+
+
+def test_extract_on_a_frame_without_keypoints_names_the_frame():
+    """It used to end on "keypoints: the keypoint set is empty", an argument extract has not."""
+    frame = geofeat.read_demo_frame()
+    blank = geofeat.RGBDFrame(np.full(frame.shape, 0.5, np.float32), frame.depth, frame.K)
+    with pytest.warns(UserWarning, match="geokey"), pytest.raises(ValueError, match="frame: no keypoints"):
+        geofeat.extract(blank, 10, descriptor="geobit")

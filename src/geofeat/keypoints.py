@@ -201,7 +201,7 @@ def detector_for(descriptor: str, detector: str | None = None) -> str:
     SIFT for the others, which take their orientation and scale from SIFT's keypoints."""
     from .descriptors import GEODESIC_DESCRIPTORS
 
-    if detector:
+    if detector is not None:  # "" is checked (and refused) like any other name
         return detector
     base = str(descriptor).strip().partition("=")[0].lower()  # as `check_descriptor_name` reads it
     return DEFAULT_DETECTOR if base in GEODESIC_DESCRIPTORS else "sift"

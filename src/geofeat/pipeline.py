@@ -8,7 +8,7 @@ from contextlib import contextmanager
 from .constants import N_KEYPOINTS
 from .features import Features
 from .frame import RGBDFrame
-from .keypoints import detect, detector_for
+from .keypoints import Keypoints, detect, detector_for
 
 
 def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None, descriptor: str = "geopatch",
@@ -32,6 +32,9 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
     Returns:
         `Features`: keypoints (N, 2) pixels, descriptors ((N, 128) float32 for GeoPatch), valid (N,).
 
+    A frame on which the detector finds no keypoint (no texture, or no depth under it) is a
+    ValueError naming the frame (`detect` itself warns and returns an empty set).
+
     Descriptors on geodesic patches (GeoPatch, GeoBit; on the CPU and with device="cuda") have the
     frame's mesh built in a background thread while the detector runs (`_mesh_prefetch`); the
     results are the same as detecting first and describing after.
@@ -54,14 +57,24 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
         net = GeoPatch(weights=weights or None, device=device, backend="torch", depth_config=depth_config, **kwargs)
         # the mesh is built on the GPU (its hole filling on the host) while the host detects
         with _mesh_prefetch(frame, net.depth_config, device=mesh_device(device)):
-            keypoints = detect(frame, n, detector=detector_for(descriptor, detector))
+            keypoints = _detect(frame, n, detector_for(descriptor, detector))
         return net.compute_cuda(frame, keypoints).to_host()
     if device is not None and str(device) != "cpu":
         raise ValueError(f"device: expected None, 'cpu' or 'cuda[:N]', got {device!r}")
     describer = make_descriptor(descriptor, radius=radius, depth_config=depth_config)
     with _mesh_prefetch(frame, getattr(describer, "depth_config", None)):
-        keypoints = detect(frame, n, detector=detector_for(descriptor, detector))
+        keypoints = _detect(frame, n, detector_for(descriptor, detector))
     return describer.compute(frame, keypoints)
+
+
+def _detect(frame: RGBDFrame, n: int, detector: str) -> Keypoints:
+    """`detect(frame, n, detector=detector)`; a ValueError naming the frame when it gives no keypoint
+    (a frame without texture or depth: the detector warns, and there is nothing to describe)."""
+    keypoints = detect(frame, n, detector=detector)
+    if len(keypoints) == 0:
+        raise ValueError(f"frame: no keypoints detected by {detector} (no texture, or no depth under it); "
+                         "nothing to describe")
+    return keypoints
 
 
 @contextmanager
