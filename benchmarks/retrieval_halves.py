@@ -6,7 +6,9 @@
    difference of the first descriptor minus each other one with a 95 % bootstrap interval;
 2. of the wrong results in each query's top 10, the share from an object whose texture is of the
    query's procedural fabric family (`geofeat.sim.fabric_texture`'s `kind`, redrawn from the set's
-   texture seeds), against the share of such frames among those the query may return.
+   texture seeds), against the share of such frames among those the query may return;
+3. with `--by-scenario`, the paired difference over all queries grouped by the simulator's scenario
+   and preset of the query's sequence (its groundtruth.json).
 
     python benchmarks/retrieval_halves.py --cache /tmp/db_gp_sift.pkl --descriptors geopatch,sift --words 2560
 """
@@ -14,6 +16,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import pickle
 from pathlib import Path
 
@@ -50,13 +53,15 @@ def main() -> None:
                         "BENCHMARKS.md that this script made before `geofeat retrieval` re-ranked)")
     p.add_argument("--objects", type=int, default=20, help="make_retrieval_set.py --objects")
     p.add_argument("--set-seed", type=int, default=5000, help="make_retrieval_set.py --seed")
+    p.add_argument("--by-scenario", action="store_true",
+                   help="also the paired difference by the query sequence's scenario and preset")
     args = p.parse_args()
     names = [d for d in args.descriptors.split(",") if d]
     dbs = []
     for path in args.cache:
         with open(path, "rb") as fh:
             dbs.append(pickle.load(fh))
-    per_query, first = {}, None
+    per_query, first, query_index = {}, None, None
     for name in names:
         db = next((d for d in dbs if name in d.features), None)
         if db is None:
@@ -65,6 +70,7 @@ def main() -> None:
         if db.sequences != first.sequences or db.frames != first.frames:
             raise SystemExit("--cache: the pickles hold different frames")
         queries, exclude, _ = eligible_queries(db)
+        query_index = queries
         r = evaluate_descriptor(db.features[name], db, queries, exclude, words=args.words, weighting=args.weighting,
                                 rerank_top=args.rerank)
         per_query[name] = r.per_query.mean(axis=1)  # (Q,) all queries: K is given
@@ -90,6 +96,34 @@ def main() -> None:
             lo, hi = bootstrap_interval(d[:, None])
             diffs.append(f"{names[0]} - {other_name} {d.mean():+.3f} [{lo[0]:+.2f}, {hi[0]:+.2f}]")
         print(f"{label} ({len(idx)} queries): {cells}; " + "; ".join(diffs))
+    if args.by_scenario:
+        print_by_scenario(first, query_index, per_query, names)
+
+
+def scenario_of(folder: Path) -> str:
+    """"scenario, preset" of a simulated sequence, from its groundtruth.json ("?" without one)."""
+    info = Path(folder) / "groundtruth.json"
+    if not info.is_file():
+        return "?"
+    meta = json.loads(info.read_text())
+    return f"{meta.get('scenario', '?')}, {meta.get('preset', '?')}"
+
+
+def print_by_scenario(db, queries: np.ndarray, per_query: dict, names: list[str]) -> None:
+    """The paired difference of the first descriptor minus each other one, per (scenario, preset) of
+    the query's sequence, over all queries (95 % bootstrap intervals)."""
+    groups = np.array([scenario_of(db.folders[q]) for q in queries])
+    print("| query's scenario, preset | queries | " + " | ".join(names) + " | "
+          + " | ".join(f"{names[0]} - {o}" for o in names[1:]) + " |")
+    print("|---|---|" + "---|" * (2 * len(names) - 1))
+    for g in sorted(set(groups)):
+        idx = np.flatnonzero(groups == g)
+        cells = [f"{per_query[n][idx].mean():.3f}" for n in names]
+        for other in names[1:]:
+            d = per_query[names[0]][idx] - per_query[other][idx]
+            lo, hi = bootstrap_interval(d[:, None])
+            cells.append(f"{d.mean():+.3f} [{lo[0]:+.2f}, {hi[0]:+.2f}]")
+        print(f"| {g} | {len(idx)} | " + " | ".join(cells) + " |")
 
 
 if __name__ == "__main__":
