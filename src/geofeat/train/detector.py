@@ -30,7 +30,7 @@ from ..detectors.geokey import GeoKeyModel, candidate_features, candidates, dete
 from ..inputs import check_whole
 from ..io import Sequence, read_sequence
 from ..scoring import GT_THRESHOLD_PX, ground_truth_pairs
-from .dataset import check_simulated
+from .dataset import check_simulated, warn_if_not_held_out
 
 #: A candidate is found again when another view's candidate lies within this many pixels.
 MATCH_PX = 1.0
@@ -398,6 +398,7 @@ def train_detector(data, val, out: str | Path, n: int | tuple[int, ...] = VALIDA
         raise ValueError(f"data: no sequences under {data}")
     if not val_folders:
         raise ValueError(f"val: no sequences under {val}")
+    warn_if_not_held_out(train_folders, val_folders)
     x, y = collect(train_folders, labels, progress=progress)
     if progress:
         tqdm.write(f"train-detector: {len(x)} candidates from {len(train_folders)} sequences, "
