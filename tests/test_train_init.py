@@ -155,3 +155,12 @@ def test_training_with_hardest_mining_tells_the_loss_which_rows_are_one_point(tm
     train(data, tmp_path / "w.pt", TrainConfig(epochs=1, steps_per_epoch=2, batch_size=64, mining="hardest", net=NET),
           progress=False, device="cpu")
     assert len(seen) == 2 and all(ids is not None and len(ids) == 64 and len(set(ids.tolist())) < 64 for ids in seen)
+
+
+def test_train_detector_counts_take_a_numpy_whole_number_and_name_a_string_whole():
+    """A numpy count was a TypeError ("not iterable"); "100" was iterated and refused as '1'."""
+    from geofeat.train.detector import check_counts
+
+    assert check_counts(np.int64(100)) == (100,) and check_counts((100, np.int32(200))) == (100, 200)
+    with pytest.raises(ValueError, match="keypoints: expected a whole number >= 1, got '100'"):
+        check_counts("100")

@@ -18,6 +18,7 @@ each deformation, scale change and roll.
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -339,7 +340,7 @@ def choose_model(models: dict[str, GeoKeyModel], folders: list[Path], counts: tu
 
 def check_counts(counts: int | tuple[int, ...]) -> tuple[int, ...]:
     """Validation keypoint counts as a tuple: one or more positive whole numbers."""
-    if isinstance(counts, int):
+    if isinstance(counts, (numbers.Integral, str)):  # one count (numpy's too); a string is not a sequence of them
         counts = (counts,)
     if not counts:
         raise ValueError(f"keypoints: expected positive counts, got {counts}")
