@@ -5,6 +5,7 @@ anything a user had. One table row per case; a property test of `polar_patches` 
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -747,6 +748,20 @@ def train_resume_corrupt_checkpoint(tmp):
     return _train(tmp, "--resume")
 
 
+def _single_frame_sim(tmp):
+    one = tmp / "one"
+    assert main(["simulate", str(one), "--frames", "1", "--width", "64", "--height", "48", "--no-progress",
+                 "--texture", "procedural"]) == 0
+    return one
+
+
+def _no_cuda_and_no_patches(monkeypatch):
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    _no_patches(monkeypatch)
+
+
 def _nothing_in_tmp(tmp):
     assert list(tmp.iterdir()) == []
 
@@ -982,6 +997,14 @@ CASES = [
          "--val: .*no simulator ground truth", None, _no_patches),
     Case("train-resume-corrupt-checkpoint", train_resume_corrupt_checkpoint, 2, "resume: .*w.pt.ckpt is not a checkpoint",
          lambda t: not (t / "w.pt").exists() or pytest.fail("trained"), _no_patches),  # reported before the patches
+    Case("train-device-typo", lambda t: _train(t, "--device", "gpu"), 2, "--device: expected", _nothing_trained,
+         _no_patches),  # a torch RuntimeError traceback, after the patches were built
+    Case("train-device-cuda-without-gpu", lambda t: _train(t, "--device", "cuda"), 2, "--device.*no CUDA GPU",
+         _nothing_trained, _no_cuda_and_no_patches),  # torch's AssertionError, after the patches were built
+    Case("train-val-single-frame", lambda t: _train(t, "--val", str(_single_frame_sim(t))), 2,
+         "--val: .*one has only its reference frame", None, _no_patches),
+    Case("train-detector-val-single-frame", lambda t: _train_detector(t, val=_single_frame_sim(t)), 2,
+         "val: .*one has only its reference frame", None, _no_training),  # a TypeError after training
     Case("simulate-huge-width", lambda t: ["simulate", str(t / "out"), "--frames", "2", "--width", "100000",
                                            "--no-progress"], 2, "width: expected 32 to 8192", _nothing_in_tmp),
     Case("simulate-negative-seed", lambda t: ["simulate", str(t / "out"), "--frames", "2", "--seed", "-1",
@@ -1031,6 +1054,36 @@ def test_bad_input(case: Case, tmp_path: Path, capsys, monkeypatch) -> None:
         assert re.search(case.message, captured.out + captured.err, re.S), captured.err[-2000:]
     if case.check is not None:
         case.check(tmp_path)
+
+
+class _Stop(Exception):
+    """Raised by a patched step to end a run once its checks are done."""
+
+
+def _stop(*args, **kwargs):
+    raise _Stop
+
+
+def test_validation_sequences_that_are_also_training_sequences_are_warned_of(tmp_path, monkeypatch):
+    """--val is "held-out": a sequence under --data too (passed twice, or a folder of sequences that
+    holds it) inflates the validation score, and train-detector chooses its radius and threshold on it."""
+    import geofeat.train.dataset as dataset
+    import geofeat.train.detector as detector
+
+    sims = tmp_path / "sims"
+    assert main(["simulate", str(sims / "a"), "--frames", "2", "--width", "64", "--height", "48", "--no-progress",
+                 "--texture", "procedural"]) == 0
+    monkeypatch.setattr(dataset, "build_patch_set", _stop)
+    monkeypatch.setattr(detector, "collect", _stop)
+    for args in (["train", "--data", str(sims), "--val", str(sims / "a"), "--out", str(tmp_path / "w.pt")],
+                 ["train-detector", "--data", str(sims / "a"), "--val", str(sims), "--out", str(tmp_path / "k.npz")]):
+        with pytest.warns(UserWarning, match=r"val: .*a is also under (--)?data.*not held out"), pytest.raises(_Stop):
+            main(args)
+    assert main(["simulate", str(tmp_path / "val"), "--frames", "2", "--width", "64", "--height", "48",
+                 "--no-progress", "--texture", "procedural"]) == 0
+    with pytest.raises(_Stop), warnings.catch_warnings():  # held-out sequences: no warning
+        warnings.filterwarnings("error", message=".*held out")
+        main(["train-detector", "--data", str(sims), "--val", str(tmp_path / "val"), "--out", str(tmp_path / "k.npz")])
 
 
 def test_enough_cases() -> None:

@@ -280,3 +280,62 @@ def test_tps_files_map_no_point_off_the_target_image(tmp_path):
     mapped, valid = truth.map("frame-001", on)
     assert valid.all()
     assert np.abs(mapped[0] - _inverse(on[:1])[0]).max() < 1.0
+
+
+@pytest.mark.parametrize("change, message", [
+    (dict(window=6), "window: expected an odd"),  # a torch size mismatch deep inside the refinement
+    (dict(window=0), "window: expected an odd"),
+    (dict(iterations=()), "iterations: expected"),  # IndexError
+    (dict(iterations=(10, -1)), "iterations: expected"),
+    (dict(levels=0), "levels: expected"),  # no refinement at all, reported as refined
+    (dict(sigma_px=0.0), "sigma_px: expected"),  # the process died (segmentation fault)
+    (dict(bending=float("nan")), "bending: expected"),  # the process died too
+    (dict(landmarks=-1.0), "landmarks: expected"),
+    (dict(flat_tau=0.0), "flat_tau: expected"),
+])
+def test_refinement_settings_are_checked_before_any_work(tmp_path, change, message):
+    from geofeat.groundtruth.pipeline import check_config
+
+    config = GroundTruthConfig(refine_config=RefineConfig(**{**FAST.__dict__, **change}))
+    with pytest.raises(ValueError, match=message):
+        check_config(config)
+    if "window" in change or "iterations" in change:  # safe to run before the fix: a Python error, not a crash
+        folder = _write_pair(tmp_path / "seq", _grid_landmarks(3))
+        with pytest.raises(ValueError, match=message):
+            generate_ground_truth(folder, tmp_path / "out", config, progress=False)
+        assert not (tmp_path / "out").exists()
+
+
+def test_landmarks_on_a_line_have_no_inside(tmp_path):
+    """The landmark ground truth trusts its spline inside the landmarks' hull: landmarks on a line have
+    none, and scipy's QhullError (a RuntimeError, a traceback in `geofeat bench`) said so."""
+    from geofeat.groundtruth.landmarks import inside_hull
+
+    line = np.stack([np.linspace(30, 130, 6), np.linspace(30, 90, 6)], 1)
+    for points in (line, line[:2], np.repeat(line[:1], 4, axis=0)):
+        with pytest.raises(ValueError, match="landmarks: .*collinear or repeated"):
+            inside_hull(points, np.array([[50.0, 50.0]]))
+    truth = GroundTruth(read_sequence(_write_pair(tmp_path / "seq", line)), None)
+    with pytest.raises(ValueError, match="landmarks: .*collinear or repeated"):
+        truth.reference_keep(np.array([[W / 2, H / 2]]))
+    np.testing.assert_array_equal(inside_hull(_grid_landmarks(3), np.array([[W / 2, H / 2], [1.0, 1.0]])),
+                                  [True, False])
+
+
+def test_overwrite_refuses_a_file_it_would_replace_before_any_frame(tmp_path, monkeypatch, capsys):
+    """`--overwrite` never replaces a file geofeat did not write; that was found only when the finished
+    result was moved into place, after every frame had been refined."""
+    from geofeat.groundtruth import pipeline
+
+    folder = _write_pair(tmp_path / "seq", _grid_landmarks(3))
+    for name in ("report.csv", "frame-001_theta.npy"):
+        out = tmp_path / name / "seq"
+        out.mkdir(parents=True)
+        (out / name).write_text("mine")
+        monkeypatch.setattr(pipeline, "_frame", lambda *a, **k: pytest.fail("a frame was worked on"))
+        assert main(["groundtruth", str(folder), "--out", str(out.parent), "--no-refine", "--no-progress",
+                     "--overwrite"]) == 2
+        assert f"holds {name}, which geofeat did not write" in capsys.readouterr().err
+        assert (out / name).read_text() == "mine"
+        with pytest.raises(ValueError, match=f"holds {name}"):
+            generate_ground_truth(folder, out, GroundTruthConfig(refine=False), progress=False, overwrite=True)

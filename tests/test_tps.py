@@ -140,3 +140,17 @@ def test_repeated_control_points_with_two_destinations_are_refused_not_fitted_by
     single = solve_batch(batch_src[:1], batch_src[:1] + 1.0, 0.0)
     np.testing.assert_allclose(w[0], single[0][0])
     np.testing.assert_allclose(a[0], single[1][0])
+
+
+def test_a_small_cluster_of_control_points_is_not_called_collinear():
+    """Whether points span the plane is a question of their shape, not of their size: with the
+    authors' normalisation (division by the image size), five landmarks in a 20 px square of a
+    640x480 frame were refused as "collinear or repeated" (and the ground-truth frame failed)."""
+    src = np.array([[300.0, 200.0], [320.0, 200.0], [300.0, 220.0], [320.0, 220.0], [310.0, 212.0]])
+    dst = src + [[1.0, 0.5], [0.5, -0.5], [-0.5, 1.0], [0.0, 0.0], [0.7, 0.2]]
+    for tps in (authors_tps(src, dst, (640, 480)), fit_tps(src, dst, normalisation="size", size=(640, 480))):
+        np.testing.assert_allclose(tps(src), dst, atol=1e-6)
+    for collinear in (np.array([[300.0, 200.0], [310.0, 200.0], [320.0, 200.0], [330.0, 200.0]]),
+                      np.array([[0.0, 0.0], [300.0, 200.0], [600.0, 400.0], [150.0, 100.0]])):
+        with pytest.raises(ValueError, match="collinear or repeated"):
+            authors_tps(collinear, collinear + 1.0, (640, 480))

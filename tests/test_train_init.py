@@ -98,3 +98,69 @@ def test_a_corrupt_patch_cache_is_one_error(tmp_path):
         PatchSet.load(tmp_path / "w.pt.patches.npz")
     _data().save(tmp_path / "p.npz")
     assert len(PatchSet.load(tmp_path / "p.npz")) == 80
+
+
+def test_an_unfinished_runs_checkpoint_is_kept_without_resume_or_overwrite(tmp_path):
+    """A run stopped after some epochs leaves w.pt.ckpt (to --resume from) but no w.pt: running again
+    without --resume started anew and replaced the checkpoint, and the epochs it held, silently; so
+    were a w.pt.json or w.pt.png of the user's."""
+    config = TrainConfig(epochs=1, steps_per_epoch=1, batch_size=8, net=NET)
+    for name in ("w.pt.ckpt", "w.pt.json", "w.pt.png"):
+        folder = tmp_path / name
+        folder.mkdir()
+        (folder / name).write_bytes(b"hours of training")
+        with pytest.raises(ValueError, match=f"{name} exists.*--resume.*--overwrite"):
+            train(_data(), folder / "w.pt", config, progress=False, device="cpu")
+        assert (folder / name).read_bytes() == b"hours of training"
+        assert sorted(p.name for p in folder.iterdir()) == [name]
+    train(_data(), tmp_path / "w.pt.json" / "w.pt", config, progress=False, device="cpu", overwrite=True)
+    assert load_network(tmp_path / "w.pt.json" / "w.pt")[0].config == NET
+
+
+def test_the_device_is_checked_before_training(tmp_path, monkeypatch):
+    """A device torch does not know, or CUDA without a GPU, was a torch error (AssertionError "Torch not
+    compiled with CUDA enabled") after the patches were built."""
+    config = TrainConfig(epochs=1, steps_per_epoch=1, batch_size=8, net=NET)
+    with pytest.raises(ValueError, match="device: expected"):
+        train(_data(), tmp_path / "w.pt", config, progress=False, device="gpu")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    with pytest.raises(RuntimeError, match="no CUDA GPU"):
+        train(_data(), tmp_path / "w.pt", config, progress=False, device="cuda")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_hardest_mining_never_takes_another_view_of_the_same_point_for_a_negative():
+    """With fewer surface points than the batch, the sampler draws a point twice; hardest mining took
+    the second pair for a negative of the first and pushed two views of one point apart."""
+    from geofeat.train.loop import triplet_loss
+
+    a = torch.tensor([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0]])  # rows 0 and 1: one surface point, drawn twice
+    ids = torch.tensor([7, 7, 3])
+    assert triplet_loss(a, a.clone(), None, 1.0, "hardest", ids=ids) == 0  # |a - n| = sqrt(2) > margin
+    assert triplet_loss(a, a.clone(), None, 1.0, "hardest", ids=torch.tensor([7, 8, 3])) > 0.6
+
+
+def test_training_with_hardest_mining_tells_the_loss_which_rows_are_one_point(tmp_path, monkeypatch):
+    from geofeat.train import loop
+
+    seen = []
+
+    def spy(a, p, n, margin, mining, ids=None):
+        seen.append(ids)
+        return loop_loss(a, p, n, margin, mining, ids=ids)
+
+    loop_loss = loop.triplet_loss
+    monkeypatch.setattr(loop, "triplet_loss", spy)
+    data = _data()  # 40 surface points, batch 64: some are drawn twice
+    train(data, tmp_path / "w.pt", TrainConfig(epochs=1, steps_per_epoch=2, batch_size=64, mining="hardest", net=NET),
+          progress=False, device="cpu")
+    assert len(seen) == 2 and all(ids is not None and len(ids) == 64 and len(set(ids.tolist())) < 64 for ids in seen)
+
+
+def test_train_detector_counts_take_a_numpy_whole_number_and_name_a_string_whole():
+    """A numpy count was a TypeError ("not iterable"); "100" was iterated and refused as '1'."""
+    from geofeat.train.detector import check_counts
+
+    assert check_counts(np.int64(100)) == (100,) and check_counts((100, np.int32(200))) == (100, 200)
+    with pytest.raises(ValueError, match="keypoints: expected a whole number >= 1, got '100'"):
+        check_counts("100")

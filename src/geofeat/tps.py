@@ -39,7 +39,7 @@ AUTHORS_EPS = 1e-6
 #: Fewest control points of a fit: 3 fix the affine part.
 MIN_POINTS = 3
 #: A set of control points "spans the plane" when det of its centred scatter matrix exceeds this
-#: times n^2, in normalised coordinates (collinear or repeated points do not).
+#: times n^2, in Hartley-normalised coordinates (collinear or repeated points do not).
 _SPAN_TOL = 1e-6
 #: Largest residual of a spline's linear system, relative to its right-hand side, that `fit_tps` accepts.
 _SOLVE_TOL = 1e-6
@@ -261,7 +261,7 @@ def fit_tps(src: np.ndarray, dst: np.ndarray, regularisation: float = 0.0, norma
     else:
         raise ValueError(f"normalisation: expected 'hartley' or 'size', got {normalisation!r}")
     sn, dn = _apply(Ts, src), _apply(Td, dst)
-    if not _spans_plane(sn[None])[0]:
+    if not _spans_plane(normalise_points(src)[1][None])[0]:  # a question of shape, not of size: Hartley's frame
         raise ValueError("src: the points are collinear or repeated; a spline needs points spanning the plane")
     L = system_matrix(sn[None], regularisation, eps)[0]
     rhs = np.concatenate([dn, np.zeros((3, 2))])

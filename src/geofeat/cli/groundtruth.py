@@ -38,7 +38,8 @@ def run(args: argparse.Namespace) -> int:
     """Run `groundtruth`; ValueError on bad input. Returns 0, or 1 when a frame failed."""
     from ..io import find_sequences, read_sequence
     from ..outputs import check_out_dir
-    from ..groundtruth.pipeline import GroundTruthConfig, check_config, check_sequence, generate_ground_truth
+    from ..groundtruth.pipeline import (GroundTruthConfig, check_config, check_sequence, generate_ground_truth,
+                                       result_files)
 
     config = GroundTruthConfig(refine=not args.no_refine, spacing=args.spacing, margin_px=args.margin,
                                depth_margin_m=args.depth_margin)
@@ -47,8 +48,9 @@ def run(args: argparse.Namespace) -> int:
     if args.out.exists() and not args.out.is_dir():
         raise ValueError(f"--out: {args.out} is a file, not a folder")
     for folder in folders:  # every input and output is checked before the first frame is refined
-        check_sequence(read_sequence(folder), config)
-        check_out_dir(args.out / folder.name, args.overwrite)
+        seq = read_sequence(folder)
+        check_sequence(seq, config)
+        check_out_dir(args.out / folder.name, args.overwrite, files=result_files(seq))
     failed = []
     for folder in folders:
         out = args.out / folder.name

@@ -16,7 +16,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--data", nargs="+", required=True, help="simulated sequence folders, or folders of them")
     p.add_argument("--val", nargs="*", default=None, help="held-out simulated sequences for the per-epoch matching score")
     p.add_argument("--out", required=True, help="weights file to write (e.g. geopatch.pt)")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing OUT file")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing OUT file (and OUT.ckpt, OUT.json, OUT.png of an earlier run)")
     p.add_argument("--epochs", type=int, default=10)
     p.add_argument("--steps", type=int, default=200, help="batches per epoch (default 200)")
     p.add_argument("--batch-size", type=int, default=1000, help="triplets per batch (default 1000, the paper's)")
@@ -46,8 +47,9 @@ def run(args: argparse.Namespace) -> int:
     from functools import partial
 
     from ..descriptors.geopatch import GeoPatchConfig
+    from ..gpu import torch_device
     from ..inputs import check_whole
-    from ..train.dataset import PatchSet, build_patch_set, check_simulated, validation_pairs
+    from ..train.dataset import PatchSet, build_patch_set, check_simulated, validation_pairs, warn_if_not_held_out
     from ..train.loop import TrainConfig, check_train_config, check_train_out, load_init, load_resume_state, train
 
     check_whole(args.steps, "--steps", 1)
@@ -60,6 +62,13 @@ def run(args: argparse.Namespace) -> int:
         net=GeoPatchConfig(channels=tuple(args.channels), angle_pool=not args.no_angle_pool),
     )
     check_train_config(config)
+    if args.device is not None:  # torch's own errors came after the patches were built, as tracebacks
+        try:
+            torch_device(args.device)
+        except ValueError:
+            raise ValueError(f"--device: expected cpu, cuda or cuda:N, got {args.device!r}") from None
+        except RuntimeError as error:  # no CUDA GPU: a user error here
+            raise ValueError(f"--device: {error}") from None
     check_train_out(args.out, args.overwrite, args.resume)
     checkpoint = Path(str(args.out) + ".ckpt")
     if args.resume and checkpoint.is_file():
@@ -80,13 +89,12 @@ def run(args: argparse.Namespace) -> int:
         build = partial(build_image_patch_set, arch=args.net)
         make_validation = partial(image_validation_pairs, arch=args.net)
     cache = Path(str(args.out) + ".patches.npz")
-    if args.val:
-        check_simulated(args.val, "--val")
+    val_folders = check_simulated(args.val, "--val") if args.val else []
     if args.resume and cache.is_file():
         data = PatchSet.load(cache)
         print(f"training patches: {len(data)} from {cache}")
     else:
-        check_simulated(args.data, "--data")
+        warn_if_not_held_out(check_simulated(args.data, "--data"), val_folders, "--val", "--data")
         data = build(args.data, n_keypoints=args.keypoints)
         data.save(cache)
         print(f"training patches: {len(data)} of {len(np.unique(data.ids))} surface points (cached in {cache})")

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import Delaunay
+from scipy.spatial import Delaunay, QhullError
 
 from ..tps import AUTHORS_EPS, ThinPlateSpline, authors_tps, fit_tps, size_transform, system_matrix
 
@@ -87,11 +87,16 @@ def robust_landmark_tps(src: np.ndarray, dst: np.ndarray, size: tuple[int, int])
 
 
 def inside_hull(points: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """(N,) bool: which of the (N, 2) pixels xy lie inside the convex hull of the (P, 2) pixels points."""
+    """(N,) bool: which of the (N, 2) pixels xy lie inside the convex hull of the (P, 2) pixels points.
+    ValueError when the points are fewer than 3, collinear or repeated (a hull without inside)."""
     xy = np.asarray(xy, float).reshape(-1, 2)
     if len(xy) == 0:
         return np.zeros(0, bool)
-    return Delaunay(np.asarray(points, float)).find_simplex(xy) >= 0
+    try:
+        return Delaunay(np.asarray(points, float)).find_simplex(xy) >= 0
+    except QhullError:
+        raise ValueError(f"landmarks: the {len(points)} landmarks are collinear or repeated; their convex hull has "
+                         "no inside, where a landmark spline could be trusted") from None
 
 
 def landmark_spline(tgt_xy: np.ndarray, ref_xy: np.ndarray) -> ThinPlateSpline:

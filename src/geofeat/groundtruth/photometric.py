@@ -16,6 +16,7 @@ warped position leaves the frame are masked out, as are flat windows (weight var
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -24,6 +25,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from ..inputs import check_positive, check_whole
 from .defaults import DEFAULT_SPACING_PX
 
 #: A map of (N, 2) pixels to (N, 2) pixels, e.g. a `geofeat.tps.ThinPlateSpline`.
@@ -42,6 +44,32 @@ class RefineConfig:
     landmarks: float = 0.05
     sigma_px: float = 1.0
     flat_tau: float = 1e-4
+
+
+def check_refine_config(cfg: RefineConfig) -> RefineConfig:
+    """Refinement settings that can run: spacing >= 2 pixels; levels a whole number >= 1; iterations a
+    whole number >= 0 or a non-empty tuple of them; window an odd whole number >= 3 pixels; bending and
+    landmarks finite and >= 0; sigma_px and flat_tau positive. ValueError naming the first that is not
+    (a zero sigma_px or a NaN weight crashed the process inside L-BFGS, an even window was a torch
+    size mismatch)."""
+    if not (np.isfinite(cfg.spacing) and cfg.spacing >= 2):
+        raise ValueError(f"spacing: expected >= 2 pixels, got {cfg.spacing}")
+    check_whole(cfg.levels, "levels", 1)
+    its = (cfg.iterations,) if isinstance(cfg.iterations, numbers.Integral) else cfg.iterations
+    if not isinstance(its, (tuple, list)) or not its or any(
+            isinstance(i, bool) or not isinstance(i, numbers.Integral) or i < 0 for i in its):
+        raise ValueError(f"iterations: expected a whole number >= 0 or a non-empty tuple of them (L-BFGS "
+                         f"iterations per pyramid level, finest first), got {cfg.iterations!r}")
+    window = cfg.window
+    if isinstance(window, bool) or not isinstance(window, numbers.Integral) or window < 3 or window % 2 == 0:
+        raise ValueError(f"window: expected an odd whole number >= 3 (pixels of the local NCC), got {cfg.window!r}")
+    for name in ("bending", "landmarks"):
+        value = getattr(cfg, name)
+        if value != 0:  # 0 turns the term off
+            check_positive(value, name)
+    check_positive(cfg.sigma_px, "sigma_px")
+    check_positive(cfg.flat_tau, "flat_tau")
+    return cfg
 
 
 @dataclass
@@ -171,10 +199,8 @@ def refine(ref: np.ndarray, tgt: np.ndarray, mask: np.ndarray, f0: Warp, lm_ref:
         lm_ref, lm_tgt: (L, 2) inlier landmark pixels in the reference and the frame (soft constraints).
         config: settings (`RefineConfig()` by default).
     """
-    cfg = config or RefineConfig()
+    cfg = check_refine_config(config or RefineConfig())
     s = float(cfg.spacing)
-    if s < 2:
-        raise ValueError(f"spacing: expected >= 2 pixels, got {s}")
     ys, xs = np.nonzero(mask)
     if len(xs) == 0:
         raise ValueError("mask: the reference object mask is empty")

@@ -22,7 +22,7 @@ from __future__ import annotations
 import csv
 import json
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -34,7 +34,7 @@ from ..inputs import check_landmarks
 from ..io import Sequence, read_sequence
 from ..outputs import check_out_dir, output_folder
 from .defaults import DEFAULT_DEPTH_MARGIN_M, DEFAULT_MARGIN_PX, DEFAULT_SPACING_PX
-from .photometric import RefineConfig, refine
+from .photometric import RefineConfig, check_refine_config, refine
 from ..tps import ThinPlateSpline, authors_tps
 from .landmarks import MIN_LANDMARKS, robust_landmark_tps
 
@@ -362,7 +362,7 @@ def generate_ground_truth(sequence: str | Path | Sequence, out: str | Path, conf
     check_config(config)
     seq = sequence if isinstance(sequence, Sequence) else read_sequence(sequence)
     ref, lms, ref_mask = check_sequence(seq, config)
-    out = check_out_dir(out, overwrite)
+    out = check_out_dir(out, overwrite, files=result_files(seq))
     names = seq.targets
     if progress:
         from tqdm import tqdm
@@ -373,6 +373,14 @@ def generate_ground_truth(sequence: str | Path | Sequence, out: str | Path, conf
         reports = [_frame(seq, name, ref, ref_mask, lms, config, tmp) for name in names]
         _write_report(tmp, seq, config, reports)
     return reports
+
+
+def result_files(seq: Sequence) -> list[str]:
+    """Names of the files `generate_ground_truth` may write into its output folder for `seq` (see the
+    module docstring), for `check_out_dir` to refuse, before any work, replacing one geofeat did not write."""
+    per_target = ("_theta.npy", "_ctrlpts.npy", "_objmask.png", "_SSIM.png", "_overlay.png")
+    return [f"{seq.reference}_objmask.png", "report.csv", "report.json",
+            *(f"{name}{suffix}" for name in seq.targets for suffix in per_target)]
 
 
 def check_sequence(seq: Sequence, config: GroundTruthConfig) -> tuple[RGBDFrame, dict, np.ndarray]:
@@ -399,7 +407,8 @@ def check_sequence(seq: Sequence, config: GroundTruthConfig) -> tuple[RGBDFrame,
 
 def check_config(config: GroundTruthConfig, shape: tuple[int, int] | None = None) -> None:
     """Settings must be finite, margins >= 0, the spacing >= 2 pixels and (with the frame's (H, W))
-    at most half the smaller image side: a grid needs control points inside the frame."""
+    at most half the smaller image side: a grid needs control points inside the frame; the
+    refinement settings must run (`check_refine_config`)."""
     for key in ("spacing", "margin_px", "depth_margin_m"):
         value = getattr(config, key)
         if not np.isfinite(value):
@@ -413,6 +422,7 @@ def check_config(config: GroundTruthConfig, shape: tuple[int, int] | None = None
     if shape is not None and config.spacing > min(shape) / 2:
         raise ValueError(f"spacing: {config.spacing:g} pixels leaves no control-point grid on a {shape[1]}x{shape[0]} "
                          f"frame; expected 2-{min(shape) / 2:g}")
+    check_refine_config(replace(config.refine_config, spacing=config.spacing))
 
 
 def _write_report(out: Path, seq: Sequence, config: GroundTruthConfig, reports: list[FrameReport]) -> None:

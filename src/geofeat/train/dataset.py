@@ -100,13 +100,32 @@ def build_patch_set(paths, n_keypoints: int = 512, radius: float = DEFAULT_RADIU
 
 
 def check_simulated(paths, what: str) -> list[Path]:
-    """The sequence folders under `paths` (`find_sequences`), each with the simulator's ground truth;
+    """The sequence folders under `paths` (`find_sequences`), each with the simulator's ground truth
+    and at least one target frame beside its reference (training and validation work on pairs);
     ValueError naming `what` (data, val) otherwise. Checked before any patch is built."""
     folders = find_sequences(paths)
     for folder in folders:
-        if not read_sequence(folder).has_ground_truth():
+        seq = read_sequence(folder)
+        if not seq.has_ground_truth():
             raise ValueError(f"{what}: {folder} has no simulator ground truth (geofeat simulate writes it)")
+        if not seq.targets:
+            raise ValueError(f"{what}: {folder} has only its reference frame; training and validation need pairs "
+                             "(geofeat simulate --frames 2 or more)")
     return folders
+
+
+def warn_if_not_held_out(data_folders: list[Path], val_folders: list[Path], what: str = "val",
+                         data_what: str = "data") -> None:
+    """A UserWarning when validation sequences are also training sequences (the same folder given
+    twice, or inside a folder of sequences given as data): validation is then not held out, and its
+    scores flatter what was trained (train-detector also chooses its settings on them)."""
+    trained = {Path(f).resolve() for f in data_folders}
+    shared = [str(f) for f in val_folders if Path(f).resolve() in trained]
+    if shared:
+        import warnings
+
+        warnings.warn(f"{what}: {', '.join(shared[:3])}{', ...' if len(shared) > 3 else ''} is also under {data_what}, "
+                      "so validation is not held out and its scores flatter the training", UserWarning, stacklevel=2)
 
 
 @dataclass

@@ -18,6 +18,7 @@ each deformation, scale change and roll.
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -30,7 +31,7 @@ from ..detectors.geokey import GeoKeyModel, candidate_features, candidates, dete
 from ..inputs import check_whole
 from ..io import Sequence, read_sequence
 from ..scoring import GT_THRESHOLD_PX, ground_truth_pairs
-from .dataset import check_simulated
+from .dataset import check_simulated, warn_if_not_held_out
 
 #: A candidate is found again when another view's candidate lies within this many pixels.
 MATCH_PX = 1.0
@@ -339,7 +340,7 @@ def choose_model(models: dict[str, GeoKeyModel], folders: list[Path], counts: tu
 
 def check_counts(counts: int | tuple[int, ...]) -> tuple[int, ...]:
     """Validation keypoint counts as a tuple: one or more positive whole numbers."""
-    if isinstance(counts, int):
+    if isinstance(counts, (numbers.Integral, str)):  # one count (numpy's too); a string is not a sequence of them
         counts = (counts,)
     if not counts:
         raise ValueError(f"keypoints: expected positive counts, got {counts}")
@@ -398,6 +399,7 @@ def train_detector(data, val, out: str | Path, n: int | tuple[int, ...] = VALIDA
         raise ValueError(f"data: no sequences under {data}")
     if not val_folders:
         raise ValueError(f"val: no sequences under {val}")
+    warn_if_not_held_out(train_folders, val_folders)
     x, y = collect(train_folders, labels, progress=progress)
     if progress:
         tqdm.write(f"train-detector: {len(x)} candidates from {len(train_folders)} sequences, "

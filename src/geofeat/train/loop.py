@@ -14,6 +14,7 @@ from tqdm import tqdm
 
 from ..scoring import score_detect
 from ..descriptors.geopatch import GeoPatchConfig, GeoPatchNet, save_checkpoint
+from ..gpu import torch_device
 from ..inputs import check_positive, check_whole, error_summary
 from ..matching import match
 from ..outputs import atomic_file, check_out_file
@@ -70,9 +71,18 @@ def check_train_config(config: TrainConfig) -> TrainConfig:
 
 def check_train_out(out: str | Path, overwrite: bool = False, resume: bool = False) -> Path:
     """The weights file `train` writes (`check_out_file`): an existing file is replaced only with
-    `overwrite`, or with `resume` when its checkpoint `out`.ckpt exists (the run that wrote it)."""
+    `overwrite`, or with `resume` when its checkpoint `out`.ckpt exists (the run that wrote it). So are
+    the files written beside it (`out`.ckpt, `out`.json, `out`.png), replaced only with `overwrite` or
+    `resume`: a run stopped after some epochs leaves its checkpoint, which a new run would restart over."""
     out = Path(out)
-    return check_out_file(out, overwrite or (resume and out.with_suffix(out.suffix + ".ckpt").is_file()))
+    check_out_file(out, overwrite or (resume and out.with_suffix(out.suffix + ".ckpt").is_file()))
+    for beside in (".ckpt", ".json", ".png"):
+        path = Path(str(out) + beside)  # as `train` names them
+        if not (overwrite or resume) and (path.exists() or path.is_symlink()):
+            raise ValueError(f"--out: {path} exists (an earlier run's?); pass --resume to continue that run, "
+                             "--overwrite to start anew over it, or choose another name")
+        check_out_file(path, True)  # not a folder, not under a file
+    return out
 
 
 def load_init(init: str | Path, config: GeoPatchConfig) -> GeoPatchNet:
@@ -109,17 +119,20 @@ def load_resume_state(ckpt_path: str | Path, config: TrainConfig, device=None) -
     return state
 
 
-def triplet_loss(a: torch.Tensor, p: torch.Tensor, n: torch.Tensor | None, margin: float, mining: str) -> torch.Tensor:
+def triplet_loss(a: torch.Tensor, p: torch.Tensor, n: torch.Tensor | None, margin: float, mining: str,
+                 ids: torch.Tensor | None = None) -> torch.Tensor:
     """Margin ranking loss with anchor swap on unit descriptors (B, D).
 
     random: delta* = min(|a - n|, |p - n|) for the given negatives.
-    hardest: delta* = min over the batch of |a_i - p_j| and |p_i - a_j| (j != i)."""
+    hardest: delta* = min over the batch of |a_i - p_j| and |p_i - a_j| (j != i, and with `ids`, the (B,)
+    surface-point ids of the rows, ids[j] != ids[i]: a point drawn twice is not its own negative)."""
     d_pos = (a - p).norm(dim=1)
     if mining == "random":
         d_neg = torch.minimum((a - n).norm(dim=1), (p - n).norm(dim=1))
     elif mining == "hardest":
         dist = torch.cdist(a, p)
-        dist = dist + torch.eye(len(a), device=a.device) * 10.0
+        same = torch.eye(len(a), device=a.device) if ids is None else (ids[:, None] == ids[None, :]).to(dist)
+        dist = dist + same * 10.0
         d_neg = torch.minimum(dist.min(dim=1).values, dist.min(dim=0).values)
     else:
         raise ValueError(f"mining: expected 'random' or 'hardest', got {mining!r}")
@@ -203,12 +216,12 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
     `out`.png (loss / validation plot). Returns the history. `init`: start GeoPatchNet from these
     weights ("shipped" = geofeat's own) instead of at random (fine-tuning; the network shape must
     match `config.net`). The settings and `out` are checked first (`check_train_config`,
-    `check_train_out`: an existing `out` only with `overwrite`, or when resuming its run); every file
-    is written whole or not at all."""
+    `check_train_out`: an existing `out`, or files beside it, only with `overwrite`, or when resuming
+    its run); every file is written whole or not at all."""
     check_train_config(config)
+    device = torch_device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     out = check_train_out(out, overwrite, resume)
     ckpt_path = out.with_suffix(out.suffix + ".ckpt")
-    device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     torch.manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
     if net is None:
@@ -250,7 +263,7 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
                 da, dp, dn = net(torch.cat([xa, xp, xn])).split(len(a))
             else:
                 (da, dp), dn = net(torch.cat([xa, xp])).split(len(a)), None
-            loss = triplet_loss(da, dp, dn, config.margin, config.mining)
+            loss = triplet_loss(da, dp, dn, config.margin, config.mining, ids=torch.from_numpy(data.ids[a]).to(device))
             opt.zero_grad()
             loss.backward()
             opt.step()
