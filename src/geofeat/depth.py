@@ -343,7 +343,8 @@ def smooth(
     Args:
         depth: (H, W) metres, 0 = missing.
     Returns:
-        (round(H * out_scale), round(W * out_scale)) float32 metres, 0 = missing.
+        (max(2, round(H * out_scale)), max(2, round(W * out_scale))) float32 metres, 0 = missing (at least
+        2 x 2: a mesh needs one cell).
     """
     depth = _check_depth_map(depth)
     check_whole(levels, "levels", 0)

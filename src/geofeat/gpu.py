@@ -143,7 +143,7 @@ def smooth_depth_torch(depth, levels: int, out_scale: float, window: int = SMOOT
     Kinect frame with the shipped profiles: tested). A resize by a factor that is not a power of two
     differs a little more (measured: up to 5.7e-6 m at a factor of 0.37 on that frame).
 
-    Returns (round(H * out_scale), round(W * out_scale)) float32 metres, 0 = missing."""
+    Returns (max(2, round(H * out_scale)), max(2, round(W * out_scale))) float32 metres, 0 = missing."""
     import torch
     import torch.nn.functional as F
 
