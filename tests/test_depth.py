@@ -185,3 +185,24 @@ def test_the_gpu_pyramid_equals_the_cpu_one_on_a_frame_it_does_not_cover():
     gpu = smooth_depth_torch(torch.from_numpy(depth), 2, 0.5).numpy()
     assert gpu.shape == cpu.shape and np.array_equal(gpu > 0, cpu > 0)
     assert np.abs(gpu - cpu).max() < 1e-6
+
+
+@pytest.mark.parametrize("kwargs", [dict(power=float("nan")), dict(power=-1.0), dict(power=0.0),
+                                    dict(max_perimeter=-1), dict(max_perimeter=2.5)])
+def test_fill_holes_refuses_meaningless_parameters(kwargs):
+    # power=NaN wrote NaN into the filled hole (refused later by smooth as "depth: contains NaN"),
+    # power=-1 weighted the far border pixels most; max_perimeter as DepthConfig checks it
+    depth = ramp((40, 40))
+    depth[18:21, 18:21] = 0.0
+    with pytest.raises(ValueError, match=next(iter(kwargs))):
+        fill_holes(depth, **kwargs)
+
+
+def test_backproject_gives_nan_for_infinite_depth():
+    """Missing pixels give NaN (the docstring); an infinite depth (disparity 0) gave +-inf and NaN
+    coordinates mixed, points no surface has."""
+    depth = ramp((6, 8)).astype(np.float64)
+    depth[2, 3] = np.inf
+    points = backproject(depth, geofeat.read_demo_frame().K)
+    assert np.isnan(points[2, 3]).all()
+    assert np.isfinite(np.delete(points.reshape(-1, 3), 2 * 8 + 3, axis=0)).all()

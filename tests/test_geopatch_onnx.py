@@ -238,3 +238,31 @@ def test_openvino_streams_give_the_one_thread_descriptors(kinect_pair, backend):
     ref = one.describe(x)
     np.testing.assert_allclose(two.describe(x), ref, atol=1e-6, rtol=0)
     np.testing.assert_allclose(two.describe(x[:50]), ref[:50], atol=1e-6, rtol=0)
+
+
+@pytest.mark.parametrize("backend", ["torch", "onnx", "onnx-int8", "openvino-int8", "openvino-bf16"])
+def test_every_backend_refuses_nan_in_a_valid_patch(backend):
+    """A NaN or inf value in a patch marked valid made a NaN descriptor in torch and fp32 ONNX, and an
+    ordinary-looking finite one in the int8 and OpenVINO backends (their quantisation swallowed it):
+    one ValueError naming the patches instead; NaN in an invalid patch is fine (its row is 0)."""
+    if backend.startswith("openvino"):
+        pytest.importorskip("openvino")
+    g = GeoPatch(backend=backend, device="cpu")
+    x = np.random.default_rng(0).random((3, 32, 32)).astype(np.float32)
+    for bad in (np.nan, np.inf):
+        x[1, 4, 5] = bad
+        with pytest.raises(ValueError, match="patch_values: .*valid patches \\[1\\]"):
+            g.describe(x)
+    out = g.describe(x, np.array([True, False, True]))
+    assert (out[1] == 0).all() and np.isfinite(out).all()
+
+
+def test_openvino_refuses_a_file_that_is_not_a_model_like_onnxruntime(tmp_path):
+    """A corrupt .onnx file was OpenVINO's "Exception from src/inference/src/cpp/core.cpp ..."
+    RuntimeError; ONNX Runtime's is already a ValueError naming the weights."""
+    pytest.importorskip("openvino")
+    path = tmp_path / "broken.onnx"
+    path.write_text("not a model")
+    for backend in ("onnx", "openvino-int8", "openvino-bf16"):
+        with pytest.raises(ValueError, match="weights: .*broken.onnx is not a GeoPatch ONNX model"):
+            GeoPatch(weights=str(path), backend=backend)

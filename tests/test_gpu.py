@@ -258,3 +258,18 @@ def test_match_cuda_checks_its_features(monkeypatch):
         match_cuda(type("F", (), {"descriptors": torch.from_numpy(d), "valid": short})(), f)
     with pytest.raises(TypeError, match="features0"):
         match_cuda(d, f)
+
+
+def test_a_cuda_index_torch_does_not_see_is_a_value_error(monkeypatch):
+    """device='cuda:7' on a machine with one GPU passed the checks and failed later in torch with
+    "CUDA error: invalid device ordinal"; now one ValueError naming the device and the GPUs there are.
+    (torch.cuda is faked to report one GPU, so this runs without one.)"""
+    from geofeat.gpu import torch_device
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 1)
+    assert torch_device("cuda:0") == torch.device("cuda", 0)
+    assert torch_device("cuda") == torch.device("cuda")
+    for device in ("cuda:7", "cuda:1", torch.device("cuda", 1)):
+        with pytest.raises(ValueError, match="device: .*cuda:[17].*1 CUDA GPU"):
+            torch_device(device)

@@ -31,3 +31,28 @@ def test_ssim_mask_and_bad_input():
     assert mean_ssim(a, b, mask) == pytest.approx(float(ssim_map(a, b)[mask].mean()))
     with pytest.raises(ValueError, match="ssim"):
         ssim_map(a, b[:-1])
+
+
+def test_ssim_reads_8_bit_images_as_fractions_of_255():
+    """A uint8 image given for one in [0, 1] was scaled by 255 once more: SSIM's constants became
+    negligible and a low-contrast pair read as 0.004 instead of 0.82, without a word."""
+    rng = np.random.default_rng(0)
+    a, b = (np.round(np.clip(0.5 + 0.01 * rng.standard_normal((60, 80)), 0, 1) * 255).astype(np.uint8)
+            for _ in range(2))
+    assert mean_ssim(a, b) == pytest.approx(mean_ssim(a / 255.0, b / 255.0), abs=1e-6)
+
+
+@pytest.mark.parametrize("scale, message", [(255.0, "in \\[0, 1\\]"), (float("nan"), "NaN")])
+def test_ssim_refuses_float_images_outside_0_1(scale, message):
+    a = _texture()
+    with pytest.raises(ValueError, match=message):
+        mean_ssim(a * scale, a)
+
+
+def test_ssim_refuses_empty_images_and_a_mask_of_another_shape():
+    # OpenCV's "(-215:Assertion failed) !_src.empty()" and numpy's "boolean index did not match"
+    a = _texture()
+    with pytest.raises(ValueError, match="empty"):
+        ssim_map(a[:0], a[:0])
+    with pytest.raises(ValueError, match="mask"):
+        mean_ssim(a, a, np.ones((10, 10), bool))

@@ -126,3 +126,15 @@ def test_depth_profile_of_a_bare_depth_map_is_a_type_error():
 def test_depth_noise_of_an_empty_map_is_an_error():
     with pytest.raises(ValueError, match="depth: empty"):
         depth_noise(np.zeros((0, 5)), K_VGA)
+
+
+def test_depth_noise_reads_infinite_depth_as_missing_like_nan():
+    """Depth from disparity holds inf where the disparity is 0. NaN was already read as missing; inf
+    counted as depth, so every statistic became NaN (and the holes 0 %) without a word."""
+    depth, K = _sphere_cap()
+    holes = np.zeros(depth.shape, bool)
+    holes[100:130, 150:200] = True
+    expected = depth_noise(np.where(holes, 0.0, depth), K)
+    for missing in (np.nan, np.inf):
+        got = depth_noise(np.where(holes, missing, depth), K)
+        assert got == expected

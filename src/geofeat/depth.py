@@ -16,7 +16,7 @@ import numpy as np
 
 from .constants import DEPTH_PROFILE_NAMES, HOLE_MAX_PERIMETER_PX, IDW_POWER, MESH_SCALE, SMOOTH_LEVELS, SMOOTH_WINDOW_PX
 from .frame import check_intrinsics
-from .inputs import check_whole
+from .inputs import check_positive, check_whole
 
 FILL_METHODS = ("idw", "simple", "none")
 
@@ -136,7 +136,7 @@ class _NoiseMeasure:
         raw = _check_depth_map(depth, finite=False)
         self.K = check_intrinsics(K)
         self.depth = raw.astype(np.float64)
-        valid = self.depth > 0
+        valid = np.isfinite(self.depth) & (self.depth > 0)  # NaN and inf (disparity 0) are missing too
         self.inner = cv2.erode(valid.astype(np.uint8), np.ones((5, 5), np.uint8), borderType=cv2.BORDER_CONSTANT,
                                borderValue=0) > 0
         self.windows = int(self.inner.sum())
@@ -168,7 +168,7 @@ class _NoiseMeasure:
 
 
 def depth_noise(depth: np.ndarray, K: np.ndarray) -> DepthNoise:
-    """Measure the noise of an (H, W) depth map (metres, 0 = missing) with intrinsics K (3, 3).
+    """Measure the noise of an (H, W) depth map (metres, 0, NaN or inf = missing) with intrinsics K (3, 3).
 
     Every 5x5 window whose pixels all have depth gets a least-squares quadratic surface; the
     residual at its centre, divided by sqrt(1 - h0) (h0 = the fit's centre weight), estimates the
@@ -264,6 +264,8 @@ def fill_holes(
     """
     if method not in FILL_METHODS:
         raise ValueError(f"method: expected one of {FILL_METHODS}, got {method!r}")
+    check_whole(max_perimeter, "max_perimeter", 0)
+    check_positive(power, "power")  # NaN wrote NaN into the holes, a negative one favoured far pixels
     depth = _check_depth_map(depth)  # an empty map crashes OpenCV's labelling (segfault)
     out = np.array(depth, dtype=np.float32, copy=True)
     if method == "none":
@@ -341,7 +343,8 @@ def smooth(
     Args:
         depth: (H, W) metres, 0 = missing.
     Returns:
-        (round(H * out_scale), round(W * out_scale)) float32 metres, 0 = missing.
+        (max(2, round(H * out_scale)), max(2, round(W * out_scale))) float32 metres, 0 = missing (at least
+        2 x 2: a mesh needs one cell).
     """
     depth = _check_depth_map(depth)
     check_whole(levels, "levels", 0)
@@ -412,12 +415,12 @@ def scale_intrinsics(K: np.ndarray, sx: float, sy: float) -> np.ndarray:
 def backproject(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     """Back-project an (H, W) depth map (metres) with intrinsics K to (H, W, 3) camera-frame points
     in metres, the inverse of u = (fx X + s Y) / Z + cx, v = fy Y / Z + cy (s = K[0, 1], the skew);
-    missing pixels give NaN."""
+    missing pixels (depth 0, negative, NaN or inf) give NaN."""
     depth = _check_depth_map(depth, finite=False)
     K = check_intrinsics(K)
     H, W = depth.shape
     v, u = np.mgrid[0:H, 0:W].astype(np.float64)
-    z = np.where(depth > 0, depth.astype(np.float64), np.nan)
+    z = np.where(np.isfinite(depth) & (depth > 0), depth.astype(np.float64), np.nan)
     y_over_z = (v - K[1, 2]) / K[1, 1]
     x = (u - K[0, 2] - K[0, 1] * y_over_z) / K[0, 0] * z
     return np.stack([x, y_over_z * z, z], axis=-1)

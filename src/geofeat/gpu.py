@@ -60,8 +60,8 @@ def simulated() -> bool:
 
 def torch_device(device):
     """The torch.device for `device` ("cpu", "cuda", "cuda:N" or a torch.device) for work that needs torch
-    only (the GeoPatch network, `match(..., device=...)`): ValueError for a name torch does not know,
-    and `require_cuda`'s RuntimeError for a CUDA device without a CUDA GPU (torch's own is an
+    only (the GeoPatch network, `match(..., device=...)`): ValueError for a name torch does not know
+    or a GPU index it does not see, and `require_cuda`'s RuntimeError for a CUDA device without a CUDA GPU (torch's own is an
     AssertionError). The GPU walk needs `require_cuda`."""
     import torch
 
@@ -72,6 +72,10 @@ def torch_device(device):
     if dev.type == "cuda" and not torch.cuda.is_available():
         raise RuntimeError(f"device={str(device)!r}: no CUDA GPU is available to torch (torch {torch.__version__}, "
                            f"built for CUDA {torch.version.cuda}); use device='cpu' or None")
+    if dev.type == "cuda" and dev.index is not None and dev.index >= torch.cuda.device_count():
+        count = torch.cuda.device_count()  # torch's own error comes later: "CUDA error: invalid device ordinal"
+        raise ValueError(f"device: {str(device)!r}, but torch sees {count} CUDA GPU{'s' if count != 1 else ''} "
+                         f"(cuda:0 to cuda:{count - 1}; CUDA_VISIBLE_DEVICES renumbers them)")
     return dev
 
 
@@ -139,7 +143,7 @@ def smooth_depth_torch(depth, levels: int, out_scale: float, window: int = SMOOT
     Kinect frame with the shipped profiles: tested). A resize by a factor that is not a power of two
     differs a little more (measured: up to 5.7e-6 m at a factor of 0.37 on that frame).
 
-    Returns (round(H * out_scale), round(W * out_scale)) float32 metres, 0 = missing."""
+    Returns (max(2, round(H * out_scale)), max(2, round(W * out_scale))) float32 metres, 0 = missing."""
     import torch
     import torch.nn.functional as F
 

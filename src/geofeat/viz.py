@@ -7,6 +7,7 @@ import numpy as np
 
 from .frame import RGBDFrame
 from .geodesic.polar import PolarPatches
+from .inputs import check_whole
 
 
 def to_bgr(frame: RGBDFrame) -> np.ndarray:
@@ -43,6 +44,8 @@ def draw_geodesic_support(frame: RGBDFrame, patches: PolarPatches, rings=(7, 15,
 def patch_grid(patches: PolarPatches, columns: int = 8, zoom: int = 3, max_patches: int = 64) -> np.ndarray:
     """Tile polar patches (rows = rings, columns = angles) into one uint8 BGR picture, each labelled
     with its keypoint index; invalid keypoints get a red tile."""
+    check_whole(columns, "columns", 1)
+    check_whole(zoom, "zoom", 1)
     n = min(len(patches), max_patches)
     R, A = patches.values.shape[1:]
     th, tw = R * zoom + 14, A * zoom + 4

@@ -253,7 +253,8 @@ class GeoPatch:
                 f"radius={self.radius})")
 
     def describe(self, patch_values: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
-        """(N, R, A) polar patches -> (N, dim) float32 descriptors; rows of invalid patches are 0."""
+        """(N, R, A) polar patches -> (N, dim) float32 descriptors; rows of invalid patches are 0.
+        Valid patches must be finite (ValueError otherwise)."""
         v = np.asarray(patch_values, dtype=np.float32)
         cfg = self.config
         if v.ndim != 3 or v.shape[1:] != (cfg.n_rings, cfg.n_angles):
@@ -267,6 +268,10 @@ class GeoPatch:
         if len(index) == 0:
             return out
         x = np.ascontiguousarray(v[index])
+        finite = np.isfinite(x).reshape(len(x), -1).all(axis=1)
+        if not finite.all():  # torch gave NaN descriptors, the int8 backends finite ones that mean nothing
+            raise ValueError(f"patch_values: NaN or infinite values in valid patches {index[~finite][:10].tolist()}; "
+                             "mark them invalid (valid=False)")
         out[index] = self._describe_torch(x) if self.backend == "torch" else self.session.run(x, self.batch_size)
         return out
 

@@ -95,7 +95,12 @@ def _compile(path: str, mtime_ns: int, size: int, threads: int, bf16: bool, pid:
     import openvino as ov
 
     core = ov.Core()
-    network = core.read_model(path)
+    try:
+        network = core.read_model(path)
+    except RuntimeError as error:  # a corrupt file: the ValueError ONNX Runtime's backends give
+        from ..inputs import error_summary
+
+        raise ValueError(f"weights: {path} is not a GeoPatch ONNX model ({error_summary(error)})") from None
     # the ONNX metadata written by make_geopatch_onnx.py, which OpenVINO keeps under "framework"
     metadata = {key: network.get_rt_info(["framework", key]).astype(str)
                 for key in ("config", "source_sha256") if network.has_rt_info(["framework", key])}
