@@ -158,8 +158,10 @@ def test_rerun_skips_finished_results_and_refuses_other_settings(datasets, tmp_p
     run_benchmark(datasets / "seqs", tmp_path, config, progress=False)
     assert [d for _, d in calls[2:]] == [("sift",), ("sift",)]
     assert len(read_rows(csv_path)) == 8
-    with pytest.raises(ValueError, match="other settings"):
+    with pytest.raises(ValueError, match="other settings") as refused:
         run_benchmark(datasets / "seqs", tmp_path, BenchConfig(descriptors=("orb",), n_keypoints=100), progress=False)
+    # the message names what differs (not every setting of the earlier run, to be compared by eye)
+    assert "n_keypoints 200 there, 100 now" in str(refused.value) and "tps_dir" not in str(refused.value)
     run_benchmark(datasets / "seqs", tmp_path, BenchConfig(descriptors=("orb",), n_keypoints=100), progress=False,
                   overwrite=True)
     assert len(read_rows(csv_path)) == 4
