@@ -129,6 +129,11 @@ def test_landmarks_protocol(datasets, tmp_path):
     assert {r["protocol"] for r in rows} == {"landmarks"} and len(rows) == 2 * 2 * 2
     geobit = [float(r["ms"]) for r in rows if r["descriptor"] == "geobit"]
     assert min(geobit) > 0.8  # 100 Harris corners tracked exactly through mild deformation
+    # the landmarks are described where they are annotated: table.md names no SIFT keypoint set for them
+    from geofeat.bench.report import markdown_table, read_results
+
+    table = markdown_table(read_results(tmp_path / "results.csv"))
+    assert "Detector: landmarks." in table and "Keypoints:" not in table
 
 
 def test_timing_table_names_the_counts_it_used(datasets):
