@@ -129,6 +129,11 @@ def test_landmarks_protocol(datasets, tmp_path):
     assert {r["protocol"] for r in rows} == {"landmarks"} and len(rows) == 2 * 2 * 2
     geobit = [float(r["ms"]) for r in rows if r["descriptor"] == "geobit"]
     assert min(geobit) > 0.8  # 100 Harris corners tracked exactly through mild deformation
+    # the landmarks are described where they are annotated: table.md names no SIFT keypoint set for them
+    from geofeat.bench.report import markdown_table, read_results
+
+    table = markdown_table(read_results(tmp_path / "results.csv"))
+    assert "Detector: landmarks." in table and "Keypoints:" not in table
 
 
 def test_timing_table_names_the_counts_it_used(datasets):
@@ -158,8 +163,10 @@ def test_rerun_skips_finished_results_and_refuses_other_settings(datasets, tmp_p
     run_benchmark(datasets / "seqs", tmp_path, config, progress=False)
     assert [d for _, d in calls[2:]] == [("sift",), ("sift",)]
     assert len(read_rows(csv_path)) == 8
-    with pytest.raises(ValueError, match="other settings"):
+    with pytest.raises(ValueError, match="other settings") as refused:
         run_benchmark(datasets / "seqs", tmp_path, BenchConfig(descriptors=("orb",), n_keypoints=100), progress=False)
+    # the message names what differs (not every setting of the earlier run, to be compared by eye)
+    assert "n_keypoints 200 there, 100 now" in str(refused.value) and "tps_dir" not in str(refused.value)
     run_benchmark(datasets / "seqs", tmp_path, BenchConfig(descriptors=("orb",), n_keypoints=100), progress=False,
                   overwrite=True)
     assert len(read_rows(csv_path)) == 4

@@ -47,6 +47,10 @@ def test_extract_and_match_on_a_sequence(rolled_sequence, tmp_path, capsys):
     assert main(["extract", str(rolled_sequence), "--out", str(features), "--keypoints", "300"]) == 0
     f = geofeat.load_features(features, name="cloud_roll30")
     assert f.descriptors.shape[1:] == (16, 64) and len(f) <= 300
+    # the summary says how many keypoints each frame got (GeoKey may find fewer than --keypoints asks)
+    counts = sorted(len(geofeat.load_features(features, name=n)) for n in ("cloud_ref", "cloud_roll30"))
+    said = re.search(r"(\d+)(?:-(\d+))? keypoints per frame of --keypoints 300\)", capsys.readouterr().out)
+    assert said and [int(said.group(1)), int(said.group(2) or said.group(1))] == counts
     assert main(["match", str(rolled_sequence), "--out", str(tmp_path / "m"), "--keypoints", "300"]) == 0
     m = geofeat.load_matches(tmp_path / "m" / "matches-geobit.h5", name="cloud_ref/cloud_roll30")
     assert (m.matches0 >= 0).sum() > 100

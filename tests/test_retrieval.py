@@ -240,6 +240,7 @@ def test_retrieval_command(three_objects, tmp_path, capsys):
     assert "Acc@1" in out and "object masks" in out and "chosen by validation" in out
     assert f"word weighting {DEFAULT_WEIGHTING}" in out
     assert "640:" in out and "1280:" not in out  # candidates below the 1000 sampled descriptors only
+    assert str(tmp_path / "retrieval.md") in out  # the summary names every file written (it left out retrieval.md)
     assert main(args[:-2] + ["--words", "100000", "--out", str(tmp_path)]) == 2  # non-empty OUT refused
     assert "--overwrite" in capsys.readouterr().err
     assert main(args[:-2] + ["--words", "100000", "--out", str(tmp_path), "--overwrite"]) == 2

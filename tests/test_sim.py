@@ -350,3 +350,12 @@ def test_a_refused_or_interrupted_move_into_place_leaves_no_partial_folder(tmp_p
     with pytest.raises(KeyboardInterrupt):
         simulate_sequence(tmp_path / "seq", n_frames=2, width=64, height=48, progress=False)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_help_names_every_texture_choice_and_the_default_scenario(capsys):
+    """`--texture fabric[:KIND]` works and docs/cli.md offers it; --help listed only a file or 'procedural'."""
+    with pytest.raises(SystemExit):
+        main(["simulate", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "'fabric' or 'fabric:KIND'" in text and "plaid" in text
+    assert "(default deform)" in text

@@ -100,7 +100,8 @@ def markdown_table(rows: list[dict], group_of=sequence_group) -> str:
             text = f"**{text}**" if s[n]["ms"] == best else text
             cells.append(text + (f" ({s[n]['sequences']} of {n_seq})" if s[n]["sequences"] < n_seq else ""))
         lines.append(f"| {group} ({n_seq}) | " + " | ".join(cells) + " |")
-    kp_sets = sorted({r.get("keypoint_set", "") for r in rows} - {""})
+    # protocol landmarks describes the annotated positions: no keypoint set applies (its rows still record one)
+    kp_sets = sorted({r.get("keypoint_set", "") for r in rows if r.get("protocol") != "landmarks"} - {""})
     detectors = sorted({r.get("detector", "") for r in rows} - {""})
     profiles: dict[str, set] = {}
     for r in rows:

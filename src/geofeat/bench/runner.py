@@ -396,7 +396,9 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
         except ValueError:
             raise ValueError(f"out: {config_path} is not valid JSON; use --overwrite or another --out") from None
         if not isinstance(before, dict) or {k: before.get(k) for k in REUSE_KEYS} != _settings(config):
-            shown = {k: before.get(k) for k in REUSE_KEYS} if isinstance(before, dict) else before
+            now = _settings(config)
+            shown = ("; ".join(f"{k} {json.dumps(before.get(k))} there, {json.dumps(now[k])} now" for k in REUSE_KEYS
+                               if before.get(k) != now[k]) if isinstance(before, dict) else repr(before))
             raise ValueError(f"out: {out} holds results made with other settings ({shown}); use --overwrite or "
                              "another --out")
         if header != COLUMNS:

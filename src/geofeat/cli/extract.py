@@ -45,6 +45,7 @@ def run(args: argparse.Namespace) -> int:
           f"radius {radius:g} m")
     skipped: list[str] = []
     written: list[tuple[Path, Path]] = []  # (temporary, final) of the .npz files
+    counts: list[int] = []  # keypoints of each frame written
     with atomic_file(path) as h5_tmp:
         try:
             for name in tqdm(seq.names, desc=f"extract {args.descriptor}", unit="frame"):
@@ -54,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
                 except ValueError as error:
                     skip_frame(skipped, name, error)
                     continue
+                counts.append(len(features))
                 if is_h5(path):
                     save_features(h5_tmp, features, name=name)
                 else:
@@ -69,5 +71,7 @@ def run(args: argparse.Namespace) -> int:
             for tmp, _ in written:
                 tmp.unlink(missing_ok=True)
     where = path if is_h5(path) else path.with_name(f"{path.stem}-<frame>.npz")
-    print(f"wrote {args.descriptor} features of {len(seq) - len(skipped)} frames of {seq.folder} to {where}")
+    per_frame = "" if not counts else (f" ({min(counts)}" + (f"-{max(counts)}" if max(counts) != min(counts) else "")
+                                       + f" keypoints per frame of --keypoints {args.keypoints})")
+    print(f"wrote {args.descriptor} features of {len(seq) - len(skipped)} frames of {seq.folder}{per_frame} to {where}")
     return status

@@ -40,7 +40,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Object retrieval on the datasets; writes retrieval.csv/md, acc_at_k.png, top6.png."""
-    from ..apps.retrieval import run_retrieval
+    from ..apps.retrieval import RESULT_FILES, run_retrieval
 
     acc, db = run_retrieval(args.datasets, args.out, names(args.descriptors),
                             words=args.words, n_samples=args.samples, seed=args.seed, classes_file=args.classes,
@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
                             weighting=args.weighting, rerank_top=args.rerank)
     out = Path(args.out)
     print((out / "retrieval.md").read_text())
-    print(f"wrote {out / 'retrieval.csv'}, {out / 'acc_at_k.png'}, {out / 'top6.png'}")
+    print(f"wrote {', '.join(str(out / name) for name in RESULT_FILES)}")
     if db.skipped:
         print(f"{len(db.skipped)} frame(s) SKIPPED: {', '.join(db.skipped)}", file=sys.stderr)
     return 1 if db.skipped else 0

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from ..sim.scenes import PRESETS, SCENARIOS
+from ..sim.textures import FABRIC_KINDS
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -19,7 +20,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument("out_dir", type=Path, help="sequence folder to create")
     p.add_argument("--scenario", choices=SCENARIOS, default="deform",
-                   help="deform: fixed camera; rotate: camera roll 0..180 deg; scale: camera moves back to half scale")
+                   help="deform: fixed camera; rotate: camera roll 0..180 deg; scale: camera moves back to half scale "
+                   "(default deform)")
     p.add_argument("--preset", choices=tuple(PRESETS), default="mild",
                    help="mild: the original gentle scenes; paper: the paper's simulation section (scale swings "
                    "0.5x-1.3x, bends, gusts); hard: strong folds, foreshortening up to ~70 deg, self-occlusion, "
@@ -31,7 +33,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--frames", type=int, default=30, help="number of frames, reference included (default 30)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     tex = p.add_mutually_exclusive_group()
-    tex.add_argument("--texture", help="texture image file, or 'procedural' (default: a packaged photo or a procedural texture)")
+    tex.add_argument("--texture", help="texture image file, 'procedural', or 'fabric' or 'fabric:KIND' (a generated fabric; "
+                     f"KIND one of {', '.join(FABRIC_KINDS)}) (default: a packaged photo or a procedural texture)")
     tex.add_argument("--texture-dir", type=Path, help="draw the texture at random from this folder")
     p.add_argument("--width", type=int, default=640, help="image width in pixels, 32 to 8192 (default 640)")
     p.add_argument("--height", type=int, default=480, help="image height in pixels, 32 to 8192 (default 480)")
