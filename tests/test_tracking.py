@@ -76,6 +76,24 @@ def test_local_consistency_rejects_random_matches_and_checks_its_input():
         locally_consistent(np.where(np.arange(500)[:, None] == 3, np.nan, src), dst)
 
 
+def test_repeated_matches_vote_once():
+    """A match repeated at one template position (SIFT emits a keypoint once per dominant orientation,
+    and the copies often match the same frame point) is one piece of evidence: three wrong matches,
+    each repeated three times, must not confirm each other as nine neighbours would."""
+    rng = np.random.default_rng(5)
+    src = rng.uniform(0, 640, (300, 2))
+    dst = src * 0.9 + [20, 10] + rng.normal(0, 0.3, (300, 2))  # correct matches: one affine map
+    centre = src[np.argmin(np.linalg.norm(src - [320, 240], axis=1))]
+    wrong_src = centre + np.array([[0.5, 0.5], [4.0, 0.5], [0.5, 4.0]])  # among the correct ones' neighbours
+    wrong_dst = wrong_src * [-1, 1] + [700, 40]  # a mirror: agrees with itself, not with the others
+    alone = locally_consistent(np.vstack([src, wrong_src]), np.vstack([dst, wrong_dst]))
+    assert not alone[-3:].any()  # three wrong matches are outvoted by their correct neighbours
+    repeated_src, repeated_dst = np.repeat(wrong_src, 3, axis=0), np.repeat(wrong_dst, 3, axis=0)
+    confirmed = locally_consistent(np.vstack([src, repeated_src]), np.vstack([dst, repeated_dst]))
+    assert not confirmed[-9:].any()
+    assert (confirmed[:300] == alone[:300]).mean() > 0.95  # the correct matches are judged as before
+
+
 def test_local_consistency_checks_its_settings():
     """neighbours < 3 or trials < 1 were numpy errors from inside the vote (LinAlgError, argmax of an
     empty sequence); a NaN or negative tolerance silently confirmed no match at all."""

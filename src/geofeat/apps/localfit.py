@@ -43,6 +43,8 @@ def locally_consistent(
     affine maps, each through 3 of them chosen at random, are scored by how many of the neighbours
     they carry within `tolerance_px` of their frame positions; the best one must be supported by at
     least a third of the neighbours (and 3) and must carry match i itself within `tolerance_px`.
+    Repeated matches (the same template and frame pixels, as SIFT's copies of one keypoint with
+    another orientation often give) vote once, and share one verdict: a copy is no evidence.
 
     Args:
         src, dst: (N, 2) matched pixels, template and frame.
@@ -51,7 +53,8 @@ def locally_consistent(
         tolerance_px: agreement radius, frame pixels.
         seed: random seed or generator (the result is deterministic for a given seed).
     Returns:
-        (N,) bool, True for the matches that their neighbourhood confirms; all False when N < 8.
+        (N,) bool, True for the matches that their neighbourhood confirms; all False when fewer than 8
+        distinct matches.
     Raises:
         ValueError: src and dst are not two (N, 2) arrays of finite pixels; neighbours < 3, trials < 1
             or tolerance_px not a positive number.
@@ -60,6 +63,16 @@ def locally_consistent(
     check_whole(neighbours, "neighbours", 3)  # an affine map needs 3 of them
     check_whole(trials, "trials", 1)
     check_positive(tolerance_px, "tolerance_px")
+    distinct, copy_of = np.unique(np.hstack([src, dst]), axis=0, return_inverse=True)
+    if len(distinct) < len(src):  # repeated matches: judge each distinct one once
+        return _locally_consistent(distinct[:, :2], distinct[:, 2:], neighbours, trials, tolerance_px,
+                                   seed)[copy_of.reshape(-1)]
+    return _locally_consistent(src, dst, neighbours, trials, tolerance_px, seed)
+
+
+def _locally_consistent(src: np.ndarray, dst: np.ndarray, neighbours: int, trials: int, tolerance_px: float,
+                        seed: int | np.random.Generator) -> np.ndarray:
+    """`locally_consistent` on checked, distinct (N, 2) matches."""
     n = len(src)
     if n < 8:
         return np.zeros(n, bool)
