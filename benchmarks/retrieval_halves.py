@@ -7,7 +7,7 @@
 2. of the wrong results in each query's top 10, the share from an object whose texture is of the
    query's procedural fabric family (`geofeat.sim.fabric_texture`'s `kind`, redrawn from the set's
    texture seeds), against the share of such frames among those the query may return;
-3. with `--by-scenario`, the paired difference over all queries grouped by the simulator's scenario
+3. with `--by-scenario SET_DIR`, the paired difference over all queries grouped by the simulator's scenario
    and preset of the query's sequence (its groundtruth.json).
 
     python benchmarks/retrieval_halves.py --cache /tmp/db_gp_sift.pkl --descriptors geopatch,sift --words 2560
@@ -53,8 +53,9 @@ def main() -> None:
                         "BENCHMARKS.md that this script made before `geofeat retrieval` re-ranked)")
     p.add_argument("--objects", type=int, default=20, help="make_retrieval_set.py --objects")
     p.add_argument("--set-seed", type=int, default=5000, help="make_retrieval_set.py --seed")
-    p.add_argument("--by-scenario", action="store_true",
-                   help="also the paired difference by the query sequence's scenario and preset")
+    p.add_argument("--by-scenario", type=Path, metavar="SET_DIR",
+                   help="also the paired difference by the query sequence's scenario and preset, read from "
+                        "SET_DIR/<sequence>/groundtruth.json (the set the cache was described from)")
     args = p.parse_args()
     names = [d for d in args.descriptors.split(",") if d]
     dbs = []
@@ -97,7 +98,7 @@ def main() -> None:
             diffs.append(f"{names[0]} - {other_name} {d.mean():+.3f} [{lo[0]:+.2f}, {hi[0]:+.2f}]")
         print(f"{label} ({len(idx)} queries): {cells}; " + "; ".join(diffs))
     if args.by_scenario:
-        print_by_scenario(first, query_index, per_query, names)
+        print_by_scenario(first, query_index, per_query, names, args.by_scenario)
 
 
 def scenario_of(folder: Path) -> str:
@@ -109,10 +110,10 @@ def scenario_of(folder: Path) -> str:
     return f"{meta.get('scenario', '?')}, {meta.get('preset', '?')}"
 
 
-def print_by_scenario(db, queries: np.ndarray, per_query: dict, names: list[str]) -> None:
+def print_by_scenario(db, queries: np.ndarray, per_query: dict, names: list[str], set_dir: Path) -> None:
     """The paired difference of the first descriptor minus each other one, per (scenario, preset) of
     the query's sequence, over all queries (95 % bootstrap intervals)."""
-    groups = np.array([scenario_of(db.folders[q]) for q in queries])
+    groups = np.array([scenario_of(set_dir / db.sequences[q]) for q in queries])
     print("| query's scenario, preset | queries | " + " | ".join(names) + " | "
           + " | ".join(f"{names[0]} - {o}" for o in names[1:]) + " |")
     print("|---|---|" + "---|" * (2 * len(names) - 1))

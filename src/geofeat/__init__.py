@@ -7,7 +7,7 @@ from .frame import RGBDFrame
 from .geodesic.heat import HeatGeodesics, heat_polar_patches
 from .geodesic.mesh import GridMesh, build_mesh
 from .geodesic.polar import PolarPatches, polar_patches
-from .io import read_frame, read_sequence, read_demo_frame, Sequence
+from .io import read_frame, read_sequence, read_demo_frame, Sequence, write_frame, write_intrinsics
 from .keypoints import Keypoints, as_keypoints, detect
 from .matching import match
 from .pipeline import extract
@@ -57,4 +57,6 @@ __all__ = [
     "read_demo_frame",
     "read_frame",
     "read_sequence",
+    "write_frame",
+    "write_intrinsics",
 ]
