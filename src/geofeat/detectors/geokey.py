@@ -181,10 +181,10 @@ def _load(path: str, stamp: tuple[int, int, int]) -> GeoKeyModel:
             raise ValueError(f"mean, std, linear of shapes {shapes}")
         if model.weights and model.weights[-1].shape[-1:] != (1,):
             raise ValueError(f"the depth-cue layers end in {model.weights[-1].shape[-1:]} values, not one logit")
-        model.score(np.zeros((1, len(CUE_NAMES)), np.float32))  # the layers chain (a ValueError otherwise)
         every = (model.mean, model.std, model.linear) + model.weights + model.biases
         if not all(np.isfinite(a).all() for a in every) or not (model.std > 0).all():
             raise ValueError("arrays with NaN or infinite values, or a std that is not positive")
+        model.score(np.zeros((1, len(CUE_NAMES)), np.float32))  # the layers chain (a ValueError otherwise)
         check_settings(model.nms_radius, model.threshold, model.min_fraction)
     except (KeyError, TypeError, ValueError) as error:  # a missing array, or arrays of the wrong shapes
         raise ValueError(f"detector weights: {path} is not a complete GeoKey weights file ({error})") from None
