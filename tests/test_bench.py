@@ -386,3 +386,14 @@ def test_table_says_when_a_descriptor_has_fewer_sequences():
     lines = markdown_table(rows).splitlines()
     assert lines[2] == "| deform (2) | 0.400 | **0.500** (1 of 2) |"
     assert lines[3] == "| all (2) | 0.400 | **0.500** (1 of 2) |"
+
+
+def test_simulated_sequences_are_grouped_by_the_scenario_they_were_simulated_with(tmp_path):
+    """A simulated roll saved as `cloth1` (no scenario word in its name) is a rotate sequence: the
+    table groups it so and the roll curve is drawn (both read only the folder name before)."""
+    simulate_sequence(tmp_path / "data" / "cloth1", scenario="rotate", n_frames=3, seed=12, **SMALL)
+    out = tmp_path / "out"
+    assert main(["bench", str(tmp_path / "data"), "--descriptors", "geobit", "--keypoints", "200",
+                 "--out", str(out)]) == 0
+    assert "| rotate (1) |" in (out / "table.md").read_text()
+    assert (out / "ms_vs_rotate.png").is_file()

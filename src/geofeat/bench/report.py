@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import csv
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -76,6 +77,24 @@ def sequence_group(name: str) -> str:
     return parts[-1] if len(parts) > 1 else "all"
 
 
+def scenario_groups(folders) -> Callable[[str], str]:
+    """A `group_of` for `markdown_table` and `plot_curves`: the scenario a sequence folder was
+    simulated with (its groundtruth.json), else `sequence_group` of its name. Keyed by folder name,
+    as the results' "sequence" column."""
+    from ..groundtruth.simulator import GT_JSON, read_metadata
+
+    scenarios = {}
+    for folder in folders:
+        if (Path(folder) / GT_JSON).is_file():
+            try:
+                scenario = read_metadata(folder).get("scenario")
+            except (OSError, ValueError):  # unreadable: the name decides
+                continue
+            if scenario in SCENARIO_WORDS:
+                scenarios[Path(folder).name] = scenario
+    return lambda name: scenarios.get(name) or sequence_group(name)
+
+
 def markdown_table(rows: list[dict], group_of=sequence_group) -> str:
     """Table 1 style: matching score per descriptor (columns) for each group of sequences (rows, e.g.
     the scenario suffix of simulated sequence names) and overall; best of each row in bold. A cell
@@ -121,13 +140,15 @@ CURVES = (  # (row column, sequence kind, axis label, bin edges)
 )
 
 
-def curve_series(rows: list[dict], key: str, kind: str, bins: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Mean MS per bin of `key` over the rows of `kind` sequences ("rotate" or "scale": a word of the
-    sequence name, as `sequence_group` reads it; "grayscale-deform" is no scale sequence).
+def curve_series(rows: list[dict], key: str, kind: str, bins: np.ndarray,
+                 group_of=sequence_group) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Mean MS per bin of `key` over the rows of `kind` sequences ("rotate" or "scale": the group
+    `group_of` gives the sequence name, by default a word of the name as `sequence_group` reads it;
+    "grayscale-deform" is no scale sequence).
 
     Returns {label: (bin centres (B,), mean MS (B,))}, centres ascending. The label is the
     descriptor, or "detector + descriptor" when the rows come from several detectors."""
-    sel = [r for r in rows if kind in _words(r["sequence"]) and np.isfinite(r[key])]
+    sel = [r for r in rows if group_of(r["sequence"]) == kind and np.isfinite(r[key])]
     detectors = list(dict.fromkeys(r.get("detector") or "sift" for r in sel))
     series = {}
     for name, det in dict.fromkeys((r["descriptor"], r.get("detector") or "sift") for r in sel):
@@ -143,8 +164,9 @@ def curve_series(rows: list[dict], key: str, kind: str, bins: np.ndarray) -> dic
     return series
 
 
-def plot_curves(rows: list[dict], path: str | Path) -> list[Path]:
-    """MS against camera roll (rotate sequences) and against scale (scale sequences): PNG files.
+def plot_curves(rows: list[dict], path: str | Path, group_of=sequence_group) -> list[Path]:
+    """MS against camera roll (rotate sequences) and against scale (scale sequences, as `group_of`
+    tells them): PNG files.
 
     One line per descriptor; when the rows come from several detectors, one line per
     (detector, descriptor) pair, with one line style per detector."""
@@ -156,7 +178,7 @@ def plot_curves(rows: list[dict], path: str | Path) -> list[Path]:
     written = []
     styles = ("o-", "s--", "^:", "d-.")
     for key, kind, axis_label, bins in CURVES:
-        series = curve_series(rows, key, kind, bins)
+        series = curve_series(rows, key, kind, bins, group_of)
         if not series:
             continue
         detectors = list(dict.fromkeys(lab.split(" + ")[0] for lab in series if " + " in lab))

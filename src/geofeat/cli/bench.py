@@ -41,7 +41,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark and write results.csv, table.md, details.md, plots (timing.md with --timing)."""
-    from ..bench.report import detail_table, markdown_table, plot_curves, read_results
+    from ..bench.report import detail_table, markdown_table, plot_curves, read_results, scenario_groups
     from ..bench.runner import BenchConfig, run_benchmark
     from ..bench.timing import timing_table
     from ..depth import sequence_depth_profile
@@ -73,14 +73,15 @@ def run(args: argparse.Namespace) -> int:
     rows = read_results(csv_path)
     if not rows:
         raise ValueError(f"datasets: no sequence could be evaluated ({len(failed)} failed)")
-    table = markdown_table(rows)
+    group_of = scenario_groups(find_sequences(args.datasets))  # simulated sequences: their scenario
+    table = markdown_table(rows, group_of)
     write(out / "table.md", table)
     print(table)
     if config.protocol == "detect":
         details = detail_table(rows)
         write(out / "details.md", details)
         print(details)
-    for path in plot_curves(rows, out):
+    for path in plot_curves(rows, out, group_of):
         add_to_manifest(out, [Path(path).name])
         print(f"wrote {path}")
     if args.timing:
