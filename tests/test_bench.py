@@ -397,3 +397,14 @@ def test_simulated_sequences_are_grouped_by_the_scenario_they_were_simulated_wit
                  "--out", str(out)]) == 0
     assert "| rotate (1) |" in (out / "table.md").read_text()
     assert (out / "ms_vs_rotate.png").is_file()
+
+
+def test_table_says_when_an_oriented_descriptor_was_given_upright_keypoints():
+    """SIFT's descriptor on GeoKey's keypoints (no orientation) scored near 0 on rolls with only a
+    warning inside the progress bar; the table must say why."""
+    from geofeat.bench.report import markdown_table
+
+    rows = [dict(sequence="a-rotate", descriptor=d, detector="geokey", ms=ms, mma=ms)
+            for d, ms in (("sift", 0.01), ("geopatch", 0.5))]
+    assert "sift on GeoKey's keypoints: described upright" in markdown_table(rows)
+    assert "upright" not in markdown_table([dict(r, detector="sift") for r in rows])

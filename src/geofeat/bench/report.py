@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..descriptors.baselines import USES_GIVEN_ANGLE
+
 
 def read_results(path: str | Path) -> list[dict]:
     with open(path, newline="") as fh:
@@ -128,6 +130,11 @@ def markdown_table(rows: list[dict], group_of=sequence_group) -> str:
     notes = "Matching score (MS, mean over sequences of the per-sequence mean over pairs)."
     if detectors:
         notes += f" Detector: {', '.join(detectors)}."
+    upright = sorted({r["descriptor"] for r in rows if str(r.get("detector", "")).startswith("geokey")
+                      and str(r["descriptor"]).lower() in USES_GIVEN_ANGLE})
+    if upright:  # their warning scrolls by inside the progress bar
+        notes += (f" {', '.join(upright)} on GeoKey's keypoints: described upright (GeoKey gives no orientation), "
+                  "so not rotation-invariant; use --detector sift for them.")
     if kp_sets:
         notes += f" Keypoints: {', '.join(kp_sets)}."
     notes += " Depth profile: " + ", ".join(f"{p} ({len(v)} sequences)" for p, v in sorted(profiles.items())) + "."
