@@ -164,3 +164,22 @@ def test_train_detector_counts_take_a_numpy_whole_number_and_name_a_string_whole
     assert check_counts(np.int64(100)) == (100,) and check_counts((100, np.int32(200))) == (100, 200)
     with pytest.raises(ValueError, match="keypoints: expected a whole number >= 1, got '100'"):
         check_counts("100")
+
+
+def test_cli_init_without_channels_takes_the_init_weights_widths(tmp_path, capsys):
+    """`geofeat train --init shipped` as docs/training.md shows it: the shipped weights are the paper's
+    widths (32 64 128), not --channels' default; without --channels the run takes the weights' widths.
+    An explicit --channels that differs is still refused, naming the option."""
+    from geofeat.cli import main
+
+    sim = tmp_path / "sim"
+    assert main(["simulate", str(sim), "--frames", "2", "--width", "64", "--height", "48", "--no-progress",
+                 "--texture", "procedural"]) == 0
+    common = ["train", "--data", str(sim), "--epochs", "1", "--steps", "1", "--batch-size", "8", "--keypoints", "50",
+              "--init", "shipped", "--device", "cpu"]
+    assert main([*common, "--out", str(tmp_path / "w.pt")]) == 0
+    tuned, _ = load_network(tmp_path / "w.pt")
+    shipped, _ = load_network(None)
+    assert tuned.config == shipped.config
+    assert main([*common, "--out", str(tmp_path / "x.pt"), "--channels", "16", "32", "64"]) == 2
+    assert "--channels" in capsys.readouterr().err

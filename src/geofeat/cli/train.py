@@ -18,7 +18,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="weights file to write (e.g. geopatch.pt)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace an existing OUT file (and OUT.ckpt, OUT.json, OUT.png of an earlier run)")
-    p.add_argument("--epochs", type=int, default=10)
+    p.add_argument("--epochs", type=int, default=10, help="passes of --steps batches (default 10)")
     p.add_argument("--steps", type=int, default=200, help="batches per epoch (default 200)")
     p.add_argument("--batch-size", type=int, default=1000, help="triplets per batch (default 1000, the paper's)")
     p.add_argument("--lr", type=float, default=0.1, help="SGD learning rate (default 0.1, the paper's)")
@@ -27,8 +27,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--augment-shift", action="store_true", help="random circular shifts along the angle axis")
     p.add_argument("--augment-photometric", action="store_true", help="random per-patch gamma and noise")
     p.add_argument("--init", default=None, help="start from these GeoPatch weights ('shipped': geofeat's own)")
-    p.add_argument("--channels", type=int, nargs=3, default=(16, 32, 64), metavar=("C1", "C2", "C3"),
-                   help="channels of the three convolutions (default 16 32 64; the paper's: 32 64 128)")
+    p.add_argument("--channels", type=int, nargs=3, default=None, metavar=("C1", "C2", "C3"),
+                   help="channels of the three convolutions (default 16 32 64, or with --init the weights' own; "
+                        "the paper's and the shipped weights': 32 64 128)")
     p.add_argument("--no-angle-pool", action="store_true", help="flatten instead of max-pooling over angle (ablation)")
     p.add_argument("--keypoints", type=keypoint_count, default=512, help="SIFT keypoints per reference frame (default 512)")
     p.add_argument("--seed", type=int, default=0)
@@ -53,6 +54,11 @@ def run(args: argparse.Namespace) -> int:
     from ..train.loop import TrainConfig, check_train_config, check_train_out, load_init, load_resume_state, train
 
     check_whole(args.steps, "--steps", 1)
+    channels_given = args.channels is not None
+    if not channels_given:  # fine-tuning takes the widths of the weights it starts from
+        args.channels = (16, 32, 64)
+        if args.init is not None and args.net == "geopatch":
+            args.channels = _init_channels(args.init)
     for c in args.channels:
         check_whole(c, "--channels", 1)
     config = TrainConfig(
@@ -76,7 +82,12 @@ def run(args: argparse.Namespace) -> int:
     if args.init is not None:
         if args.net != "geopatch":
             raise ValueError(f"--init: fine-tuning starts from GeoPatch weights; not with --net {args.net}")
-        load_init(args.init, config.net)
+        try:
+            load_init(args.init, config.net)
+        except ValueError as error:
+            if channels_given and "differs from the requested" in str(error):
+                raise ValueError(f"--init: {error}; leave --channels out to train the weights' own widths") from None
+            raise
 
     net = None  # geodesic polar patches with the depth profile asked for (auto: per sequence)
     build = partial(build_patch_set, depth_config=args.depth_profile)
@@ -104,3 +115,15 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {args.out} (final loss {history['loss'][-1]:.4f}, validation MS {history['val_ms'][-1]:.3f}), "
           f"{args.out}.png and {args.out}.json")
     return 0
+
+
+def _init_channels(init: str) -> tuple[int, int, int]:
+    """The channel widths of the --init weights ("shipped": geofeat's own), for a run that names none;
+    a missing or foreign file is reported by `load_init` with the run's other checks."""
+    from ..descriptors.geopatch import load_network
+
+    try:
+        start, _ = load_network(None if str(init) == "shipped" else init)
+    except (ValueError, OSError):
+        return (16, 32, 64)
+    return tuple(start.config.channels)
