@@ -178,6 +178,8 @@ def inverse_document_frequency(counts: np.ndarray) -> np.ndarray:
     log(N / n_w), n_w the number of frames holding word w (0 for a word in every frame or in none)."""
     counts = np.atleast_2d(np.asarray(counts))
     frames_with = (counts > 0).sum(axis=0)
+    if len(counts) == 0:  # no frames: no word is in any (log 0 would give NaN weights)
+        return np.zeros(counts.shape[1])
     return np.log(len(counts) / np.maximum(frames_with, 1)) * (frames_with > 0)
 
 
