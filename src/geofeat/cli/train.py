@@ -112,7 +112,8 @@ def run(args: argparse.Namespace) -> int:
     validation = make_validation(args.val) if args.val else None
     history = train(data, args.out, config, validation=validation, resume=args.resume, device=args.device, net=net,
                     init=args.init, overwrite=args.overwrite)
-    print(f"wrote {args.out} (final loss {history['loss'][-1]:.4f}, validation MS {history['val_ms'][-1]:.3f}), "
+    scored = f"validation MS {history['val_ms'][-1]:.3f}" if args.val else "no --val sequences"
+    print(f"wrote {args.out} (final loss {history['loss'][-1]:.4f}, {scored}), "
           f"{args.out}.png and {args.out}.json")
     return 0
 

@@ -275,7 +275,8 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
         history["loss"].append(float(np.mean(losses)) if losses else float("nan"))
         history["val_ms"].append(val)
         if progress:
-            tqdm.write(f"epoch {epoch + 1}: loss {history['loss'][-1]:.4f}, validation MS {val:.3f}")
+            scored = f"validation MS {val:.3f}" if validation else "no validation pairs"
+            tqdm.write(f"epoch {epoch + 1}: loss {history['loss'][-1]:.4f}, {scored}")
         with atomic_file(ckpt_path) as tmp:
             torch.save({"state_dict": net.state_dict(), "optimizer": opt.state_dict(),
                         "scheduler": sched.state_dict(), "rng": rng.bit_generator.state,
