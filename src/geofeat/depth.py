@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import math
 import numbers
 
 import cv2
@@ -349,8 +348,7 @@ def smooth(
     depth = _check_depth_map(depth)
     check_whole(levels, "levels", 0)
     check_whole(window, "window", 1)
-    if isinstance(out_scale, bool) or not isinstance(out_scale, numbers.Real) or not 0 < out_scale < math.inf:
-        raise ValueError(f"out_scale: must be a positive number, got {out_scale!r}")
+    check_positive(out_scale, "out_scale")
     H, W = depth.shape
     size = (max(2, int(round(W * out_scale))), max(2, int(round(H * out_scale))))
     d = np.asarray(depth, dtype=np.float32)

@@ -93,6 +93,14 @@ def check_positive(value: float, what: str) -> float:
     return _positive_number(value, what)
 
 
+def check_non_negative(value: float, what: str) -> float:
+    """A finite number >= 0 (a weight that 0 turns off, a radius that 0 disables): ValueError naming
+    `what` otherwise (NaN, inf and bool too)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) or value < 0:
+        raise ValueError(f"{what}: expected a number >= 0, got {value!r}")
+    return float(value)
+
+
 def check_whole(value: Any, what: str, minimum: int = 1) -> int:
     """A whole number (Python or numpy int, not bool) >= `minimum`: a count, an index, a seed;
     ValueError naming `what` otherwise (2.5 and "3" too)."""

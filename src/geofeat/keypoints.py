@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import math
-import numbers
 from dataclasses import dataclass
 
 import cv2
@@ -11,7 +9,7 @@ import numpy as np
 
 from .constants import N_KEYPOINTS
 from .frame import RGBDFrame
-from .inputs import check_whole
+from .inputs import check_non_negative, check_whole
 
 __all__ = ["DEFAULT_DETECTOR", "DETECTORS", "KEYPOINT_SETS", "Keypoints", "as_keypoints", "check_detector_name", "detect", "detect_sift"]
 
@@ -289,9 +287,7 @@ def detect_sift(
     if not isinstance(frame, RGBDFrame):
         raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
     n = _check_n(n)
-    if (isinstance(contrast_threshold, bool) or not isinstance(contrast_threshold, numbers.Real)
-            or not (math.isfinite(contrast_threshold) and contrast_threshold >= 0)):
-        raise ValueError(f"contrast_threshold: expected a finite number >= 0, got {contrast_threshold!r}")
+    check_non_negative(contrast_threshold, "contrast_threshold")
     border_px = check_whole(border_px, "border_px", minimum=0)
     H, W = frame.shape
     if mask is not None:

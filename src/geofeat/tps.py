@@ -22,11 +22,12 @@ that the applications use for their own warps, not a source of ground truth.
 
 from __future__ import annotations
 
-import numbers
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+
+from .inputs import check_non_negative
 
 __all__ = [
     "ThinPlateSpline", "fit_tps", "authors_tps", "hartley_transform", "size_transform", "normalise_points",
@@ -228,10 +229,7 @@ def check_pairs(src, dst, minimum: int) -> tuple[np.ndarray, np.ndarray]:
 def check_regularisation(regularisation: float) -> float:
     """A spline's smoothing: a finite number >= 0 (0 interpolates); a negative one is not smoothing but
     a different, possibly singular, system. ValueError naming `regularisation` otherwise."""
-    if isinstance(regularisation, bool) or not isinstance(regularisation, numbers.Real) \
-            or not (np.isfinite(regularisation) and regularisation >= 0):
-        raise ValueError(f"regularisation: expected a number >= 0 (0 interpolates), got {regularisation!r}")
-    return float(regularisation)
+    return check_non_negative(regularisation, "regularisation")
 
 
 def fit_tps(src: np.ndarray, dst: np.ndarray, regularisation: float = 0.0, normalisation: Normalisation = "hartley",

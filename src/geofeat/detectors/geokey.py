@@ -36,6 +36,7 @@ import cv2
 import numpy as np
 
 from ..frame import RGBDFrame
+from ..inputs import check_non_negative
 from ..keypoints import Keypoints, _check_n
 from .cues import CUE_NAMES, IMAGE_CUES, cue_features, cue_maps, depth_edge_distance
 
@@ -147,9 +148,7 @@ def check_settings(nms_radius, threshold, min_fraction) -> tuple[float, float, f
             raise ValueError(f"{what}: expected {expected}, got {value!r}")
         return float(value)
 
-    nms_radius = number(nms_radius, "nms_radius", "a finite number of pixels >= 0")
-    if not 0.0 <= nms_radius < np.inf:
-        raise ValueError(f"nms_radius: expected a finite number of pixels >= 0, got {nms_radius!r}")
+    nms_radius = check_non_negative(nms_radius, "nms_radius")
     threshold = number(threshold, "threshold", "a number or -inf")
     min_fraction = number(min_fraction, "min_fraction", "a fraction in [0, 1]")
     if not 0.0 <= min_fraction <= 1.0:

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ..inputs import check_positive, check_whole
+from ..inputs import check_non_negative, check_positive, check_whole
 from .defaults import DEFAULT_SPACING_PX
 
 #: A map of (N, 2) pixels to (N, 2) pixels, e.g. a `geofeat.tps.ThinPlateSpline`.
@@ -63,10 +63,8 @@ def check_refine_config(cfg: RefineConfig) -> RefineConfig:
     window = cfg.window
     if isinstance(window, bool) or not isinstance(window, numbers.Integral) or window < 3 or window % 2 == 0:
         raise ValueError(f"window: expected an odd whole number >= 3 (pixels of the local NCC), got {cfg.window!r}")
-    for name in ("bending", "landmarks"):
-        value = getattr(cfg, name)
-        if value != 0:  # 0 turns the term off
-            check_positive(value, name)
+    for name in ("bending", "landmarks"):  # 0 turns the term off
+        check_non_negative(getattr(cfg, name), name)
     check_positive(cfg.sigma_px, "sigma_px")
     check_positive(cfg.flat_tau, "flat_tau")
     return cfg

@@ -15,7 +15,7 @@ from tqdm import tqdm
 from ..scoring import score_detect
 from ..descriptors.geopatch import GeoPatchConfig, GeoPatchNet, save_checkpoint
 from ..gpu import torch_device
-from ..inputs import check_positive, check_whole, error_summary
+from ..inputs import check_non_negative, check_positive, check_whole, error_summary
 from ..matching import match
 from ..outputs import atomic_file, check_out_file
 from .dataset import PatchSet, ValidationPair
@@ -63,9 +63,8 @@ def check_train_config(config: TrainConfig) -> TrainConfig:
     check_whole(config.seed, "seed", 0)
     check_positive(config.lr, "lr")
     check_positive(config.margin, "margin")
-    for name in ("momentum", "weight_decay"):
-        if getattr(config, name) != 0:  # 0 turns it off
-            check_positive(getattr(config, name), name)
+    for name in ("momentum", "weight_decay"):  # 0 turns it off
+        check_non_negative(getattr(config, name), name)
     return config
 
 
