@@ -31,6 +31,7 @@ import zipfile
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
+from stat import S_ISDIR
 
 import cv2
 import numpy as np
@@ -132,11 +133,12 @@ def load_geokey(path: str | Path | None = None) -> GeoKeyModel:
         holds non-finite arrays or settings out of range.
     """
     path = (Path(path) if path is not None else SHIPPED_WEIGHTS).resolve()
-    if path.is_dir():
+    try:
+        stat = path.stat()  # one call per detection: the stamp makes a file rewritten since be read again
+    except OSError:
+        raise ValueError(f"detector weights: {path} does not exist") from None
+    if S_ISDIR(stat.st_mode):
         raise ValueError(f"detector weights: {path} is a folder, not a weights file")
-    if not path.is_file():
-        raise ValueError(f"detector weights: {path} does not exist")
-    stat = path.stat()  # a file rewritten since (retrained weights) is read again
     return _load(str(path), (stat.st_mtime_ns, stat.st_size, stat.st_ino))
 
 
