@@ -73,3 +73,16 @@ def word_shortlist(features, queries, exclude, words: int, depth: int, weighting
     vocab = vocabulary(sample, words, seed=0, distances=sample_distances(sample))
     vectors = weight_histograms(np.stack([word_counts(f, vocab) for f in features]), weighting)
     return search(vectors[queries], vectors, depth, exclude=exclude, distance=WEIGHTINGS[weighting])[0]
+
+
+def simulated_as(folder, keys: tuple[str, ...] = ("scenario",)) -> str | None:
+    """The simulator's settings `keys` of a sequence folder (its groundtruth.json), joined by ", "
+    ("?" for a key it lacks); None for a folder the simulator did not write."""
+    from pathlib import Path
+
+    from geofeat.groundtruth.simulator import GT_JSON, read_metadata
+
+    if not (Path(folder) / GT_JSON).is_file():
+        return None
+    meta = read_metadata(folder)
+    return ", ".join(str(meta.get(key, "?")) for key in keys)

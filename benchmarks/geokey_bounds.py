@@ -19,13 +19,13 @@ For each (reference, target) pair of each sequence, at each keypoint count n:
 from __future__ import annotations
 
 import argparse
-import json
 import os
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 
+from common import simulated_as
 from geofeat.detectors.geokey import detect_geokey
 from geofeat.io import read_sequence
 from geofeat.scoring import GT_THRESHOLD_PX, ground_truth_pairs
@@ -50,14 +50,6 @@ def pair_figures(seq, ref_xy: np.ndarray, target: str, n: int, rng: np.random.Ge
     return row
 
 
-def scenario_of(folder: Path) -> str:
-    """The simulator's scenario (deform, rotate, scale) from groundtruth.json, else the folder name."""
-    info = folder / "groundtruth.json"
-    if info.is_file():
-        return str(json.loads(info.read_text()).get("scenario", folder.name))
-    return folder.name
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("sequences", nargs="+", type=Path, help="simulated sequence folders with ground truth")
@@ -68,7 +60,7 @@ def main() -> None:
     per_seq: dict = defaultdict(list)  # (scenario, n) -> per-sequence means
     for folder in a.sequences:
         seq = read_sequence(folder)
-        scenario = scenario_of(folder)
+        scenario = simulated_as(folder) or folder.name
         ref_frame = seq.frame(seq.reference)
         for n in counts:
             ref = detect_geokey(ref_frame, n).xy

@@ -16,12 +16,12 @@
 from __future__ import annotations
 
 import argparse
-import json
 import pickle
 from pathlib import Path
 
 import numpy as np
 
+from common import simulated_as
 from geofeat.apps.retrieval import (
     DEFAULT_WEIGHTING, bootstrap_interval, eligible_queries, evaluate_descriptor, split_queries,
 )
@@ -101,19 +101,10 @@ def main() -> None:
         print_by_scenario(first, query_index, per_query, names, args.by_scenario)
 
 
-def scenario_of(folder: Path) -> str:
-    """"scenario, preset" of a simulated sequence, from its groundtruth.json ("?" without one)."""
-    info = Path(folder) / "groundtruth.json"
-    if not info.is_file():
-        return "?"
-    meta = json.loads(info.read_text())
-    return f"{meta.get('scenario', '?')}, {meta.get('preset', '?')}"
-
-
 def print_by_scenario(db, queries: np.ndarray, per_query: dict, names: list[str], set_dir: Path) -> None:
     """The paired difference of the first descriptor minus each other one, per (scenario, preset) of
     the query's sequence, over all queries (95 % bootstrap intervals)."""
-    groups = np.array([scenario_of(set_dir / db.sequences[q]) for q in queries])
+    groups = np.array([simulated_as(set_dir / db.sequences[q], ("scenario", "preset")) or "?" for q in queries])
     print("| query's scenario, preset | queries | " + " | ".join(names) + " | "
           + " | ".join(f"{names[0]} - {o}" for o in names[1:]) + " |")
     print("|---|---|" + "---|" * (2 * len(names) - 1))
