@@ -21,10 +21,9 @@ from geofeat.io import read_sequence
 def full_rule(frame) -> str:
     """The profile from every statistic of `depth_noise`: the reference."""
     noise = depth_noise(frame.depth, frame.K)
-    if (noise.windows < MIN_NOISE_WINDOWS or noise.slope_noise > SLOPE_NOISE_THRESHOLD
-            or noise.step_per_footprint > STEP_THRESHOLD):
+    if noise.windows < MIN_NOISE_WINDOWS or noise.slope_noise > SLOPE_NOISE_THRESHOLD:
         return "kinect"
-    return "clean"
+    return "quantised" if noise.step_per_footprint > STEP_THRESHOLD else "clean"
 
 
 def best_ms(fn, repeats: int) -> float:

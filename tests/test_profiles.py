@@ -11,7 +11,7 @@ import geofeat
 from geofeat.depth import PROFILES, check_profile, depth_noise, depth_profile, resolve_depth_config
 from geofeat.io import read_sequence, write_frame, write_intrinsics
 from geofeat.sim.noise import kinect_depth_noise
-from surfaces import K_VGA, sheet_pair
+from surfaces import K_VGA, corresponding_points, sheet_pair
 
 
 def _sphere_cap(z0: float = 0.9, radius: float = 0.12, shape=(240, 320)) -> np.ndarray:
@@ -51,8 +51,8 @@ def test_auto_picks_kinect_on_the_real_frame_and_clean_on_clean_depth():
     noisy = kinect_depth_noise(bent.depth, cos_view, np.random.default_rng(0), n_blobs=0)
     assert depth_profile(geofeat.RGBDFrame(bent.image, noisy, bent.K)) == "kinect"
     # noise-free depth stored in 0.1 mm steps (what the simulator writes) stays clean; in 1 mm steps
-    # (half a pixel footprint at 1 m) the staircase is coarse enough for the smoothed profile
-    for unit, expected in ((0.0001, "clean"), (0.001, "kinect")):
+    # (half a pixel footprint at 1 m) the staircase is coarse enough for one round of smoothing
+    for unit, expected in ((0.0001, "clean"), (0.001, "quantised")):
         quantised = (np.round(bent.depth / unit) * unit).astype(np.float32)
         noise = depth_noise(quantised, bent.K)
         assert unit * 0.99 <= noise.quantisation_step <= 2.5 * unit  # fine steps are not all occupied
@@ -60,9 +60,27 @@ def test_auto_picks_kinect_on_the_real_frame_and_clean_on_clean_depth():
         assert depth_profile(geofeat.RGBDFrame(bent.image, quantised, bent.K)) == expected, noise
 
 
+def test_quantised_profile_follows_the_surface_under_millimetre_steps():
+    """Noise-free depth stored in millimetres (the public layout) at 1 m: the "quantised" profile's
+    samples lie closer to those of the exact surface than both other profiles' (the full-resolution
+    mesh follows the staircase, the kinect one smooths the bend away)."""
+    _, bent, flat_sheet, bent_sheet = sheet_pair(bend_radius=0.12)
+    _, xy = corresponding_points(flat_sheet, bent_sheet, n=60)
+    exact = geofeat.polar_patches(bent, xy, depth_config="clean")
+    mm = geofeat.RGBDFrame(bent.image, (np.round(bent.depth / 0.001) * 0.001).astype(np.float32), bent.K)
+    assert depth_profile(mm) == "quantised"
+    error = {}
+    for profile in ("quantised", "kinect", "clean"):
+        got = geofeat.polar_patches(mm, xy, depth_config=profile)
+        assert got.valid.all() and exact.valid.all()
+        error[profile] = np.linalg.norm(got.coords - exact.coords, axis=-1).mean()  # pixels
+    assert error["quantised"] < 0.06, error  # measured 0.04
+    assert error["quantised"] < 0.5 * min(error["kinect"], error["clean"]), error  # 0.13 and 0.19
+
+
 def test_depth_profile_is_the_rule_on_depth_noise():
-    """depth_profile stops at the cheap tests (windows, steps) before the quadratic fits; its answer
-    must still be the three-test rule applied to the full depth_noise, for each way of deciding."""
+    """depth_profile stops at the window count when it decides; its answer must be the rule
+    applied to the full depth_noise, for each way of deciding."""
     from geofeat.depth import MIN_NOISE_WINDOWS, SLOPE_NOISE_THRESHOLD, STEP_THRESHOLD
 
     _, bent, *_ = sheet_pair(bend_radius=0.1)
@@ -74,10 +92,10 @@ def test_depth_profile_is_the_rule_on_depth_noise():
     for depth in depths:
         noise = depth_noise(depth, bent.K)
         rule = ("kinect" if noise.windows < MIN_NOISE_WINDOWS or noise.slope_noise > SLOPE_NOISE_THRESHOLD
-                or noise.step_per_footprint > STEP_THRESHOLD else "clean")
+                else "quantised" if noise.step_per_footprint > STEP_THRESHOLD else "clean")
         answers.append(depth_profile(geofeat.RGBDFrame(bent.image, depth, bent.K)))
         assert answers[-1] == rule, noise
-    assert answers == ["clean", "kinect", "kinect", "clean", "kinect"]  # every branch was taken
+    assert answers == ["clean", "kinect", "kinect", "clean", "quantised"]  # every branch was taken
 
 
 def test_auto_default_equals_the_profile_it_picks():
@@ -92,7 +110,7 @@ def test_auto_default_equals_the_profile_it_picks():
 
 
 def test_unknown_profiles_are_clear_errors(tmp_path):
-    with pytest.raises(ValueError, match="depth_profile: expected one of auto, kinect, clean"):
+    with pytest.raises(ValueError, match="depth_profile: expected one of auto, kinect, quantised, clean"):
         check_profile("smooth")
     with pytest.raises(ValueError, match="depth_config"):
         geofeat.GeoBit(depth_config="kinnect")

@@ -191,7 +191,8 @@ for name, cfg in PROFILES.items():
     dev = polar_patches_cuda(frame, kps, depth_config=name, radius=0.05)  # builds the mesh on the device
     assert isinstance(frame_mesh(frame, name, device="cuda"), DeviceMesh)
     dev = dev.to_host()
-    assert cpu.valid.all()
+    assert cpu.valid.sum() >= 4, (name, cpu.valid)  # "quantised" loses the patch nearest the depth step
+    np.testing.assert_array_equal(dev.valid, cpu.valid)
     np.testing.assert_array_equal(dev.rings_reached, cpu.rings_reached)
     np.testing.assert_allclose(dev.coords, cpu.coords, rtol=0, atol=1e-4, equal_nan=True)
     np.testing.assert_allclose(dev.values, cpu.values, rtol=0, atol=1e-5)

@@ -23,9 +23,9 @@ SMOOTH_WINDOW_PX = 7
 #: A mesh triangle is cut when an edge is longer than this many times the lateral size of a
 #: mesh pixel at that depth (about an 83 degree slope): this keeps rays off the background.
 MAX_EDGE_STRETCH = 8.0
-#: Depth profile names: "auto" (chosen from the frame's measured depth noise), "kinect", "clean"
-#: (see `geofeat.depth.PROFILES`).
-DEPTH_PROFILE_NAMES = ("auto", "kinect", "clean")
+#: Depth profile names: "auto" (chosen from the frame's measured depth noise), "kinect", "quantised",
+#: "clean" (see `geofeat.depth.PROFILES`).
+DEPTH_PROFILE_NAMES = ("auto", "kinect", "quantised", "clean")
 #: Depths above this many metres are taken as a unit mistake (millimetres passed as metres).
 MAX_PLAUSIBLE_DEPTH_M = 50.0
 #: Gaussian blur applied to the gray image before sampling polar patches, full-resolution pixels.

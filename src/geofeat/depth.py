@@ -52,10 +52,14 @@ class DepthConfig:
 
 
 #: Named depth profiles (see `depth_profile`): "kinect" is the paper's real-data setting (IDW hole
-#: filling, two rounds of masked smoothing, half-resolution mesh); "clean" keeps the measured depth
-#: (holes still filled) on a full-resolution mesh, for noise-free depth such as simulations.
+#: filling, two rounds of masked smoothing, half-resolution mesh); "quantised" is for noise-free depth
+#: stored in coarse steps (millimetre PNGs of a close-up surface): one round of smoothing, enough to
+#: take the staircase out, on the same half-resolution mesh; "clean" keeps the measured depth (holes
+#: still filled) on a full-resolution mesh, for noise-free depth in fine steps such as the
+#: simulator's 0.1 mm PNGs. BENCHMARKS.md, "Millimetre depth: the quantised profile".
 PROFILES = {
     "kinect": DepthConfig(),
+    "quantised": DepthConfig(smooth_levels=1, mesh_scale=0.5),
     "clean": DepthConfig(smooth_levels=0, mesh_scale=1.0),
 }
 #: Names accepted wherever a depth profile is asked for ("auto" = chosen by `depth_profile`).
@@ -64,10 +68,11 @@ PROFILE_NAMES = DEPTH_PROFILE_NAMES
 #: Measured (`benchmarks/depth_profiles.py`): the real Kinect v1 frame 0.52-0.56, Kinect-noise
 #: simulations 0.97-0.99, clean simulations 0-0.21 (docs/concepts.md, "How the profile is chosen").
 SLOPE_NOISE_THRESHOLD = 0.3
-#: `depth_profile` also picks "kinect" when the depth is stored in steps coarser than this many pixel
+#: `depth_profile` picks "quantised" for low-noise depth stored in steps coarser than this many pixel
 #: footprints: on millimetre PNGs of close-up noise-free cloth (0.5-1 footprint) the full-resolution
-#: mesh reads the staircase as surface and the smoothed half-resolution one scores a fifth higher;
-#: with 0.1 mm steps (0.05-0.1) the clean profile is the better one (BENCHMARKS.md, "Depth units").
+#: mesh reads the staircase as surface (a fifth lower MS than "kinect"), and one round of smoothing
+#: ("quantised") scores what "clean" scores on the same scenes in 0.1 mm steps (0.05-0.1 footprints);
+#: BENCHMARKS.md, "Depth units" and "Millimetre depth: the quantised profile".
 STEP_THRESHOLD = 0.3
 #: Fewer measurable 5x5 windows than this: too little surface to measure, "kinect" (the safe choice).
 MIN_NOISE_WINDOWS = 500
@@ -128,8 +133,8 @@ def _noise_rms(residual: np.ndarray, floor: np.ndarray) -> float:
 
 class _NoiseMeasure:
     """The parts of `depth_noise` on one (H, W) depth map, each computed on first use, so that
-    `depth_profile` can stop at the cheap ones: the windows, the quantisation step and the median
-    pixel footprint (about 2 ms on a 640 x 480 frame) before the quadratic fits (about 5 ms more)."""
+    `depth_profile` can stop at the cheapest one, the window count (the quantisation step and the
+    median pixel footprint take about 2 ms on a 640 x 480 frame, the quadratic fits about 5 ms more)."""
 
     def __init__(self, depth: np.ndarray, K: np.ndarray) -> None:
         raw = _check_depth_map(depth, finite=False)
@@ -189,22 +194,21 @@ def depth_noise(depth: np.ndarray, K: np.ndarray) -> DepthNoise:
 
 def depth_profile(frame) -> str:
     """The depth profile for `frame` (an RGBDFrame): "kinect" when its measured slope noise
-    (`depth_noise`) exceeds `SLOPE_NOISE_THRESHOLD`, when its depth is stored in steps coarser than
-    `STEP_THRESHOLD` pixel footprints, or when too little surface can be measured; else "clean".
-    The cheap tests come first: a millimetre PNG at a Kinect's range is decided by its steps alone,
-    without the quadratic fits (the same answer as testing all three)."""
+    (`depth_noise`) exceeds `SLOPE_NOISE_THRESHOLD` or when too little surface can be measured;
+    otherwise "quantised" when its depth is stored in steps coarser than `STEP_THRESHOLD` pixel
+    footprints, else "clean". The window count is tested first: a frame it decides needs no
+    quadratic fits."""
     if not (hasattr(frame, "depth") and hasattr(frame, "K")):
         raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__} (for a bare depth map, "
                         "use geofeat.depth_noise(depth, K))")
     measure = _NoiseMeasure(frame.depth, frame.K)
-    if (measure.windows < MIN_NOISE_WINDOWS or measure.step_per_footprint() > STEP_THRESHOLD
-            or measure.slope_noise() > SLOPE_NOISE_THRESHOLD):
+    if measure.windows < MIN_NOISE_WINDOWS or measure.slope_noise() > SLOPE_NOISE_THRESHOLD:
         return "kinect"
-    return "clean"
+    return "quantised" if measure.step_per_footprint() > STEP_THRESHOLD else "clean"
 
 
 def sequence_depth_profile(seq, requested: str | None = None, frame=None) -> str:
-    """The concrete depth profile ("kinect" or "clean") for a whole sequence (a `geofeat.io.Sequence`):
+    """The concrete depth profile ("kinect", "quantised" or "clean") for a whole sequence (a `geofeat.io.Sequence`):
     `requested` unless None or "auto", else the sequence's geofeat.json `depth_profile`, else the
     one `depth_profile` picks on `frame` (default: the sequence's reference frame). One profile per
     sequence keeps every frame of it on the same kind of mesh."""
@@ -217,7 +221,7 @@ def sequence_depth_profile(seq, requested: str | None = None, frame=None) -> str
 
 
 def resolve_depth_config(depth_config, frame=None) -> DepthConfig:
-    """A `DepthConfig`, or a profile name ("auto", "kinect", "clean") -> the DepthConfig to use on
+    """A `DepthConfig`, or a profile name ("auto", "kinect", "quantised", "clean") -> the DepthConfig to use on
     `frame` ("auto" needs the frame and measures it)."""
     if isinstance(depth_config, DepthConfig):
         return depth_config

@@ -322,7 +322,7 @@ def read_sequence(folder: str | Path, depth_scale: float | None = None) -> Seque
 
     `depth_scale` (metres per depth unit) defaults to the folder's optional `geofeat.json`
     (`{"depth_scale": ...}`) and otherwise to 0.001 (millimetres). The same file may name a
-    `depth_profile` ("auto", "kinect" or "clean"); without it the profile is "auto".
+    `depth_profile` ("auto", "kinect", "quantised" or "clean"); without it the profile is "auto".
     """
     folder = Path(folder)
     if not folder.is_dir():

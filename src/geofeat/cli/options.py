@@ -30,11 +30,13 @@ def keypoint_count(text: str) -> int:
 
 
 def depth_profile_option(p: argparse.ArgumentParser, default: str | None) -> None:
-    """--depth-profile (kinect, clean, auto) with `default`."""
+    """--depth-profile (auto, kinect, quantised, clean) with `default`."""
     p.add_argument("--depth-profile", choices=DEPTH_PROFILE_NAMES, default=default,
-                   help="depth preprocessing: kinect (hole filling, smoothing, half-resolution mesh), clean "
-                        "(raw depth, holes filled, full-resolution mesh) or auto (chosen from the measured "
-                        "depth noise; default, unless the sequence's geofeat.json names one)")
+                   help="depth preprocessing: kinect (hole filling, two rounds of smoothing, half-resolution "
+                        "mesh; noisy depth), quantised (one round; noise-free depth in coarse steps such as "
+                        "millimetre PNGs), clean (raw depth, holes filled, full-resolution mesh) or auto "
+                        "(chosen from the measured depth noise and steps; default, unless the sequence's "
+                        "geofeat.json names one)")
 
 
 def detector_name(text: str) -> str:

@@ -30,8 +30,8 @@ class PatchSettings:
 
     Attributes:
         radius: geodesic radius of the patch, metres.
-        depth_config: depth preprocessing, a `DepthConfig` or a profile name ("kinect", "clean",
-            "auto": chosen per frame from the measured depth noise).
+        depth_config: depth preprocessing, a `DepthConfig` or a profile name ("kinect",
+            "quantised", "clean", "auto": chosen per frame from the measured depth noise).
         blur_px: Gaussian blur of the image before sampling, pixels.
     """
 

@@ -156,8 +156,8 @@ def check_frame_arrays(frame: RGBDFrame) -> None:
 
 def build_mesh(frame: RGBDFrame, config: DepthConfig | str = "auto",
                max_edge_stretch: float = MAX_EDGE_STRETCH) -> GridMesh:
-    """Preprocess the frame's depth (a `DepthConfig`, or a profile name: "auto", "kinect", "clean";
-    see `geofeat.depth.depth_profile`) and build its GridMesh."""
+    """Preprocess the frame's depth (a `DepthConfig`, or a profile name: "auto", "kinect", "quantised",
+    "clean"; see `geofeat.depth.depth_profile`) and build its GridMesh."""
     check_frame_arrays(frame)
     depth = preprocess_depth(frame.depth, resolve_depth_config(config, frame))
     H, W = frame.shape
