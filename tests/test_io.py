@@ -151,6 +151,17 @@ def test_a_target_of_another_size_than_the_reference_is_refused(tmp_path):
         seq.frame("frame-001")
 
 
+def test_a_frame_without_depth_is_named_by_the_sequence(tmp_path):
+    """An all-zero depth PNG in a sequence said only 'depth: every pixel is 0': `geofeat extract` or
+    `bench` on a sequence whose reference has no depth named neither the frame nor the folder."""
+    folder = _small_sequence(tmp_path / "seq")
+    cv2.imwrite(str(folder / "frame-001-depth.png"), np.zeros((120, 160), np.uint16))
+    seq = geofeat.read_sequence(folder)
+    assert seq.frame(0).shape == (120, 160)
+    with pytest.raises(ValueError, match=r"frame frame-001 of .*seq: depth: every pixel is 0"):
+        seq.frame("frame-001")
+
+
 def test_write_intrinsics_refuses_what_read_intrinsics_cannot_read(tmp_path):
     """A missing folder raised a bare cv2.error (after an OpenCV log line); a 4x4 matrix was written."""
     with pytest.raises(ValueError, match="cannot write .*nope/intrinsics.xml: folder not found"):

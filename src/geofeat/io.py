@@ -284,7 +284,10 @@ class Sequence:
             raise ValueError(f"frame {name}: depth {depth.shape[1]}x{depth.shape[0]} and colour "
                              f"{image.shape[1]}x{image.shape[0]} differ in size ({self.folder})")
         check_depth_plausible(depth, self.depth_scale, f"frame {name} of {self.folder}")
-        return RGBDFrame(image, depth, self.K)
+        try:  # RGBDFrame's own checks (an all-zero depth map) name no file
+            return RGBDFrame(image, depth, self.K)
+        except ValueError as error:
+            raise ValueError(f"frame {name} of {self.folder}: {error}") from None
 
     def landmarks(self, name: str | int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(ids, xy, visible) of the frame's csv, see `read_landmarks`, checked by
