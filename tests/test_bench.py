@@ -172,6 +172,29 @@ def test_rerun_skips_finished_results_and_refuses_other_settings(datasets, tmp_p
     assert len(read_rows(csv_path)) == 4
 
 
+def test_a_rerun_naming_the_default_depth_profile_auto_resumes(datasets, tmp_path, monkeypatch):
+    """`--depth-profile auto` is the default (the profile is measured either way), but a rerun naming
+    it was refused as 'other settings (depth_profile null there, "auto" now)'."""
+    from geofeat.bench import runner
+
+    calls = []
+    real = runner.evaluate_sequence
+    monkeypatch.setattr(runner, "evaluate_sequence", lambda f, c, d=None: calls.append(d) or real(f, c, d))
+    csv_path, _ = run_benchmark(datasets / "seqs", tmp_path / "a", BenchConfig(descriptors=("orb",), n_keypoints=200),
+                                progress=False)
+    rows = read_rows(csv_path)
+    run_benchmark(datasets / "seqs", tmp_path / "a", BenchConfig(descriptors=("orb",), n_keypoints=200,
+                                                                 depth_profile="auto"), progress=False)
+    assert len(calls) == 2 and read_rows(csv_path) == rows  # resumed: nothing redone
+    run_benchmark(datasets / "seqs", tmp_path / "b", BenchConfig(descriptors=("orb",), n_keypoints=200,
+                                                                 depth_profile="auto"), progress=False)
+    run_benchmark(datasets / "seqs", tmp_path / "b", BenchConfig(descriptors=("orb",), n_keypoints=200), progress=False)
+    assert len(calls) == 4
+    with pytest.raises(ValueError, match='depth_profile (null|"auto") there, "kinect" now'):  # a profile named: another run
+        run_benchmark(datasets / "seqs", tmp_path / "b", BenchConfig(descriptors=("orb",), n_keypoints=200,
+                                                                     depth_profile="kinect"), progress=False)
+
+
 def test_rerun_refuses_weights_retrained_at_the_same_path(datasets, tmp_path):
     """A rerun into the same folder resumes; with the detector's weights file rewritten since (same
     path, same settings), its new rows would be mixed with the old ones under one name."""

@@ -328,6 +328,13 @@ def _settings(config: BenchConfig) -> dict:
     return json.loads(json.dumps({key: asdict(config)[key] for key in REUSE_KEYS}))
 
 
+def _same_run(settings: dict) -> dict:
+    """`settings` (config.json's or `_settings`') with the depth profile None and "auto" made one:
+    both mean the sequence's geofeat.json profile, else the measured one (`sequence_depth_profile`),
+    so a rerun naming the default `--depth-profile auto` is the same run."""
+    return dict(settings, depth_profile=None if settings.get("depth_profile") == "auto" else settings.get("depth_profile"))
+
+
 def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int = 1,
                   scheduler: str | None = None, progress: bool = True,
                   overwrite: bool = False) -> tuple[Path, list[str]]:
@@ -395,10 +402,10 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
             before = json.loads(config_path.read_text()) if config_path.is_file() else {}
         except ValueError:
             raise ValueError(f"out: {config_path} is not valid JSON; use --overwrite or another --out") from None
-        if not isinstance(before, dict) or {k: before.get(k) for k in REUSE_KEYS} != _settings(config):
-            now = _settings(config)
+        now = _settings(config)
+        if not isinstance(before, dict) or _same_run({k: before.get(k) for k in REUSE_KEYS}) != _same_run(now):
             shown = ("; ".join(f"{k} {json.dumps(before.get(k))} there, {json.dumps(now[k])} now" for k in REUSE_KEYS
-                               if before.get(k) != now[k]) if isinstance(before, dict) else repr(before))
+                               if _same_run(before).get(k) != _same_run(now)[k]) if isinstance(before, dict) else repr(before))
             raise ValueError(f"out: {out} holds results made with other settings ({shown}); use --overwrite or "
                              "another --out")
         if header != COLUMNS:
