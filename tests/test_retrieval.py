@@ -213,6 +213,8 @@ def test_retrieval_on_three_simulated_objects(three_objects, tmp_path):
     assert {r["weighting"] for r in rows} == {DEFAULT_WEIGHTING} and {r["words"] for r in rows} == {"40"}
     assert (tmp_path / "acc_at_k.png").is_file() and cv2.imread(str(tmp_path / "top6.png")) is not None
     assert "object masks: simulator, for all 3 sequences" in (tmp_path / "retrieval.md").read_text()
+    # the profile the sequences were described with (the simulator's geofeat.json names it)
+    assert "depth profile: clean, for all 3 sequences" in (tmp_path / "retrieval.md").read_text()
 
 
 def test_retrieval_bad_input(three_objects, tmp_path):

@@ -258,6 +258,7 @@ def test_track_simulated_sequence_outputs(sequence, tmp_path):
     assert len(imageio.mimread(tmp_path / "cloth" / "sift" / "track.gif")) == 3
     md = (tmp_path / "tracking.md").read_text()
     assert "| sift |" in md and "object mask from simulator" in md
+    assert "depth profile clean" in md  # the simulator's geofeat.json profile, which describe used
     assert "Table IV" not in md  # neither SIFT nor ORB is in the paper's tracking table
     # SIFT tracks a gently deforming cloth: the tracked grid is a few pixels from the truth
     import csv

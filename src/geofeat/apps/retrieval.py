@@ -379,7 +379,8 @@ class RetrievalDatabase:
     """Described frames: per frame (sequence, frame name, class, is reference), the masks' sources
     per sequence, and per descriptor the list of Features (one per frame, same order) and the
     detector of its keypoints (`detectors`). `skipped` names ("sequence/frame") the frames that
-    could not be read or described (left out)."""
+    could not be read or described (left out); `depth_profiles` the depth profile each sequence was
+    described with."""
 
     sequences: list[str]
     frames: list[str]
@@ -390,6 +391,7 @@ class RetrievalDatabase:
     features: dict[str, list[Features]]
     skipped: list[str] = field(default_factory=list)
     detectors: dict[str, str] = field(default_factory=dict)
+    depth_profiles: dict[str, str] = field(default_factory=dict)
 
 
 def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int = N_KEYPOINTS,
@@ -427,6 +429,7 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
         # the bench's rules for the radius and the depth profile
         radius_m, profile = resolve_radius(radius, seq), sequence_depth_profile(seq)
         describers = {det: Describer(group, radius_m, profile) for det, group in groups.items()}
+        db.depth_profiles[seq.name] = profile
         sources = set()
         for name in seq.names:
             try:
@@ -792,6 +795,11 @@ def _report(db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: li
         notes.append(f"object masks: {sources.pop()}, for all {len(db.mask_sources)} sequences")
     else:
         notes.append("object masks: " + ", ".join(f"{s}: {src}" for s, src in db.mask_sources.items()))
+    profiles = set(getattr(db, "depth_profiles", {}).values())
+    if len(profiles) == 1:
+        notes.append(f"depth profile: {profiles.pop()}, for all {len(db.depth_profiles)} sequences")
+    elif profiles:
+        notes.append("depth profiles: " + ", ".join(f"{s}: {p}" for s, p in db.depth_profiles.items()))
     if db.skipped:
         notes.append(f"SKIPPED frames: {', '.join(db.skipped)}")
     return "\n".join(lines) + "\n\n" + "\n".join(f"- {x}" for x in notes) + "\n"

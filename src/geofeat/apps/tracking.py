@@ -475,6 +475,7 @@ class TrackResult:
         rows: one dict per target frame (see `TRACK_COLUMNS`).
         mask_source: where the object mask came from ("simulator", "objmask", "depth").
         skipped: target frames that could not be read or described (no row; points stay NaN).
+        depth_profile: the depth profile the sequence was described with ("kinect", "quantised", "clean").
     """
 
     sequence: str
@@ -486,6 +487,7 @@ class TrackResult:
     rows: list[dict] = field(default_factory=list)
     mask_source: str = ""
     skipped: list[str] = field(default_factory=list)
+    depth_profile: str = ""
 
 
 #: Columns of track.csv. n_template / n_frame: keypoints in the template ROI / in the frame; matches:
@@ -593,6 +595,7 @@ class _Template:
         describe: the `Describer` of every frame (one mesh and one set of patches for all descriptors).
         grid: (G, 2) regular grid over the ROI, reference pixels.
         truth: the sequence's `GroundTruth`, None when it has none (no scores then).
+        depth_profile: the depth profile of `describe` (`sequence_depth_profile`).
     """
 
     seq: Sequence
@@ -605,6 +608,7 @@ class _Template:
     describe: "Describer"
     grid: np.ndarray
     truth: "GroundTruth | None"
+    depth_profile: str = ""
 
     @classmethod
     def build(cls, folder: str | Path, names: tuple[str, ...], roi: tuple[int, int, int, int] | None,
@@ -639,13 +643,14 @@ class _Template:
             truth = GroundTruth(seq, tps_dir)
         except ValueError:
             truth = None
-        describe = Describer(names, sequence_radius(seq, radius), sequence_depth_profile(seq, None, ref))
+        profile = sequence_depth_profile(seq, None, ref)
+        describe = Describer(names, sequence_radius(seq, radius), profile)
         features = {name: f for name, (f, _) in describe(ref, keypoints).items()}
         roi_mask = np.zeros(ref.shape, bool)
         roi_mask[y0 : y1 + 1, x0 : x1 + 1] = True
         if (roi_mask & mask).sum() >= 0.25 * roi_mask.sum():  # the object's pixels, unless the mask misses the ROI
             roi_mask &= mask
-        return cls(seq, ref, roi, roi_mask, mask_source, keypoints, features, describe, roi_grid(roi), truth)
+        return cls(seq, ref, roi, roi_mask, mask_source, keypoints, features, describe, roi_grid(roi), truth, profile)
 
     def describe_frame(self, name: str, n_keypoints: int, detector: str) -> tuple["RGBDFrame", "Keypoints", dict[str, "Features"]]:
         """Read frame `name`, detect its N1 keypoints and describe them with every descriptor:
@@ -669,7 +674,7 @@ class _Template:
         points = np.full((len(self.seq), len(self.grid), 2), np.nan)
         points[0] = self.grid
         return TrackResult(self.seq.name, descriptor, self.roi, list(self.seq.names), self.grid, points,
-                           mask_source=self.mask_source)
+                           mask_source=self.mask_source, depth_profile=self.depth_profile)
 
 
 @dataclass
@@ -1013,7 +1018,8 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
                 first = next(iter(results.values()))
                 if skipped is not None:
                     skipped.extend(f"{first.sequence}/{f}" for f in skipped_here)
-                notes.append(f"{first.sequence}: ROI {first.roi}, object mask from {first.mask_source}"
+                notes.append(f"{first.sequence}: ROI {first.roi}, object mask from {first.mask_source}, "
+                             f"depth profile {first.depth_profile}"
                              + (f"; SKIPPED frames: {', '.join(skipped_here)}" if skipped_here else ""))
         table = tracking_table(rows)
         n_frames = len({(r["sequence"], r["frame"]) for r in rows})
