@@ -144,6 +144,8 @@ def test_timing_table_names_the_counts_it_used(datasets):
     header = table.splitlines()[0]
     assert "| 50 kps (s) |" in header and "100000" not in header
     assert "geobit matching (N x N)" in table and "map f(.)" in table
+    # the mesh's profile, which sets the cost of f(.) (the simulator's clean depth: full resolution)
+    assert "depth profile: clean." in table
 
 
 def test_rerun_skips_finished_results_and_refuses_other_settings(datasets, tmp_path, monkeypatch):

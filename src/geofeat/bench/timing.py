@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 
-from ..depth import resolve_depth_config
+from ..depth import check_profile, depth_profile as measured_profile, resolve_depth_config
 from ..descriptors import make_descriptor
 from ..geodesic.mesh import build_mesh
 from ..geodesic.polar import polar_patches
@@ -16,8 +16,13 @@ def timing_table(frame, descriptors: tuple[str, ...], radius: float, counts=(250
                  depth_profile: str = "auto") -> str:
     """Markdown timing table on one frame: map f(.) (polar patches), extraction and matching per
     descriptor for each keypoint count (best of `repeat`; counts above the number of keypoints the
-    frame has are lowered to it, and the header says the count used)."""
+    frame has are lowered to it, and the header says the count used). A line under the table names
+    the detector and the depth profile the mesh was built with ("auto" resolved on `frame`)."""
     config = resolve_depth_config(depth_profile, frame)
+    profile = None
+    if isinstance(depth_profile, str):
+        profile = check_profile(depth_profile)
+        profile = measured_profile(frame) if profile == "auto" else profile
 
     def best(fn):
         times = []
@@ -53,4 +58,5 @@ def timing_table(frame, descriptors: tuple[str, ...], radius: float, counts=(250
         if len(values) < len(counts):
             values = values + ["-"] * (len(counts) - len(values))
         lines.append(f"| {step} | " + " | ".join(values) + " |")
+    lines += ["", "Keypoints: OpenCV SIFT; depth profile: " + (profile or "a DepthConfig given") + "."]
     return "\n".join(lines) + "\n"
