@@ -1211,7 +1211,7 @@ def surfaces(draw):
     n = draw(st.integers(1, 12))
     kps = np.stack([rng.uniform(0, w - 1, n), rng.uniform(0, h - 1, n)], 1)
     radius = draw(st.sampled_from([0.01, 0.03, 0.075]))
-    profile = draw(st.sampled_from(["clean", "kinect"]))
+    profile = draw(st.sampled_from(["clean", "quantised", "kinect"]))
     return geofeat.RGBDFrame(np.clip(image, 0, 1), depth.astype(np.float32), Km), kps, radius, profile
 
 
