@@ -44,7 +44,7 @@ def main() -> None:
     frames = {"kinect (shipped)": geofeat.read_demo_frame()}
     for folder in a.sequences:
         seq = read_sequence(folder)
-        frames[seq.name] = seq.frame(seq.reference)
+        frames[folder] = seq.frame(seq.reference)  # the folder: two sets can hold one sequence name
     print(f"load average {os.getloadavg()}")
     print("| frame | profile | depth_profile (ms) | rule on the whole depth_noise (ms) | ratio |\n|---|---|---|---|---|")
     for name, frame in frames.items():
