@@ -70,7 +70,7 @@ PROFILE_NAMES = DEPTH_PROFILE_NAMES
 SLOPE_NOISE_THRESHOLD = 0.3
 #: `depth_profile` picks "quantised" for low-noise depth stored in steps coarser than this many pixel
 #: footprints: on millimetre PNGs of close-up noise-free cloth (0.5-1 footprint) the full-resolution
-#: mesh reads the staircase as surface (a fifth lower MS than "kinect"), and one round of smoothing
+#: mesh reads the staircase as surface (up to a fifth lower MS than "kinect"), and one round of smoothing
 #: ("quantised") scores what "clean" scores on the same scenes in 0.1 mm steps (0.05-0.1 footprints);
 #: BENCHMARKS.md, "Depth units" and "Millimetre depth: the quantised profile".
 STEP_THRESHOLD = 0.3
@@ -177,7 +177,8 @@ class _NoiseMeasure:
     def slope_noise(self) -> float:
         """sigma_z / (z / fx) from the centre residuals of the 5 x 5 quadratic fits (needs windows > 0)."""
         kernel = _quadratic_fit_kernel()
-        residual = self.depth[self.sample] - cv2.filter2D(self.depth, -1, kernel, borderType=cv2.BORDER_REFLECT)[self.sample]
+        fitted = cv2.filter2D(self.depth, -1, kernel, borderType=cv2.BORDER_REFLECT)
+        residual = self.depth[self.sample] - fitted[self.sample]
         residual /= np.sqrt(1.0 - kernel[2, 2])
         sigma_q = self.step / np.sqrt(12.0)
         return _noise_rms(residual / self.footprint, sigma_q / self.footprint)
@@ -220,7 +221,8 @@ def depth_profile(frame) -> str:
 
 
 def sequence_depth_profile(seq, requested: str | None = None, frame=None) -> str:
-    """The concrete depth profile ("kinect", "quantised" or "clean") for a whole sequence (a `geofeat.io.Sequence`):
+    """The concrete depth profile ("kinect", "quantised" or "clean") for a whole sequence (a
+    `geofeat.io.Sequence`):
     `requested` unless None or "auto", else the sequence's geofeat.json `depth_profile`, else the
     one `depth_profile` picks on `frame` (default: the sequence's reference frame). One profile per
     sequence keeps every frame of it on the same kind of mesh."""
@@ -233,8 +235,8 @@ def sequence_depth_profile(seq, requested: str | None = None, frame=None) -> str
 
 
 def resolve_depth_config(depth_config, frame=None) -> DepthConfig:
-    """A `DepthConfig`, or a profile name ("auto", "kinect", "quantised", "clean") -> the DepthConfig to use on
-    `frame` ("auto" needs the frame and measures it)."""
+    """A `DepthConfig`, or a profile name ("auto", "kinect", "quantised", "clean") -> the DepthConfig
+    to use on `frame` ("auto" needs the frame and measures it)."""
     if isinstance(depth_config, DepthConfig):
         return depth_config
     if not isinstance(depth_config, str):
