@@ -227,3 +227,19 @@ def test_write_frame_writes_integer_colour_as_8_bit(tmp_path):
     write_frame(tmp_path, "f", np.full((4, 5, 3), 200), np.ones((4, 5)))
     assert cv2.imread(str(tmp_path / "f-rgb.png"), cv2.IMREAD_UNCHANGED).dtype == np.uint8
     assert geofeat.io.read_image(tmp_path / "f-rgb.png").max() == 200
+
+
+def test_a_skipped_frame_is_named_once(tmp_path):
+    """The commands' SKIPPED lines: an error from `Sequence.frame` already names the frame and its
+    folder, and was printed as 'SKIPPED frame frame-001: frame frame-001 of ...'."""
+    from geofeat.io import skipped_frame_line
+
+    folder = _small_sequence(tmp_path / "seq")
+    cv2.imwrite(str(folder / "frame-001-depth.png"), np.zeros((120, 160), np.uint16))
+    with pytest.raises(ValueError) as error:
+        geofeat.read_sequence(folder).frame("frame-001")
+    line = skipped_frame_line("frame-001", error.value, "seq")
+    assert line.startswith("SKIPPED frame frame-001 of ") and line.count("frame-001") == 1, line
+    assert skipped_frame_line("f2", ValueError("no keypoints detected (sift)"), "seq") == \
+        "SKIPPED frame f2 of seq: no keypoints detected (sift)"
+    assert skipped_frame_line("f2", KeyError()) == "SKIPPED frame f2: KeyError"

@@ -320,6 +320,16 @@ class Sequence:
         return len(self.names)
 
 
+def skipped_frame_line(name: str, error: Exception, sequence: str = "") -> str:
+    """'SKIPPED frame NAME[ of SEQUENCE]: reason' for a frame a command leaves out, with the error's
+    first line as the reason; an error that already names the frame (`Sequence.frame`'s: "frame NAME
+    of FOLDER: ...") is not prefixed again."""
+    reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+    if reason.startswith(f"frame {name} of "):
+        return f"SKIPPED {reason}"
+    return f"SKIPPED frame {name}{f' of {sequence}' if sequence else ''}: {reason}"
+
+
 def read_sequence(folder: str | Path, depth_scale: float | None = None) -> Sequence:
     """Open a sequence folder of the public layout (see module docstring).
 

@@ -405,7 +405,7 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
     from ..descriptors.describer import Describer
     from ..depth import sequence_depth_profile
     from ..descriptors import check_descriptor_names
-    from ..io import find_sequences, read_sequence
+    from ..io import find_sequences, read_sequence, skipped_frame_line
     from ..keypoints import detect, group_by_detector
     from .objectmask import object_mask
 
@@ -442,7 +442,7 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
                         raise ValueError(f"no keypoints detected ({det})")
                     described.update(describe(frame, kps))
             except ValueError as error:  # reported by name; the other frames go on
-                tqdm.write(f"SKIPPED frame {name} of {seq.name}: {str(error).splitlines()[0]}")
+                tqdm.write(skipped_frame_line(name, error, seq.name))
                 db.skipped.append(f"{seq.name}/{name}")
                 bar.update(1)
                 continue

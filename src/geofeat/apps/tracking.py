@@ -47,7 +47,7 @@ from tqdm import tqdm
 
 from ..constants import N_KEYPOINTS
 from ..inputs import check_positive
-from ..io import Sequence, read_sequence
+from ..io import Sequence, read_sequence, skipped_frame_line
 from ..tps import ThinPlateSpline, check_pairs, check_regularisation, evaluate_batch, normalise_points, solve_batch
 
 if TYPE_CHECKING:
@@ -564,7 +564,7 @@ def track_sequence(
         try:
             frame, keypoints, features = template.describe_frame(frame_name, n_keypoints, detector)
         except ValueError as error:  # reported by name; the other frames go on
-            tqdm.write(f"SKIPPED frame {frame_name} of {seq.name}: {str(error).splitlines()[0]}")
+            tqdm.write(skipped_frame_line(frame_name, error, seq.name))
             for r in results.values():
                 r.skipped.append(frame_name)
             continue

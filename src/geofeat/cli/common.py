@@ -34,8 +34,10 @@ def skip_frame(skipped: list[str], name: str, error: Exception) -> None:
     """Report a frame that cannot be processed by name; the run goes on and exits 1 at the end."""
     from tqdm import tqdm
 
+    from ..io import skipped_frame_line
+
     skipped.append(name)
-    tqdm.write(f"SKIPPED frame {name}: {str(error).splitlines()[0] if str(error) else type(error).__name__}")
+    tqdm.write(skipped_frame_line(name, error))
 
 
 def finish_skipped(skipped: list[str], total: int, what: str) -> int:
