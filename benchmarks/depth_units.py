@@ -8,7 +8,10 @@ is the layout's default and the profile "auto"), then runs the benchmark on the 
 fixed profile and with "auto", and on the originals with "auto" for reference.
 
     PYTHONPATH=src python benchmarks/depth_units.py out/difficulty/paper out/difficulty/hard \
-        [--detector geokey] [--descriptors geopatch,geobit] [--keypoints 2048] [--work DIR]
+        [--detector geokey] [--descriptors geopatch,geobit] [--keypoints 2048] [--work DIR] [--step-mm 1]
+
+`--step-mm` rounds the copies to another step instead (their geofeat.json then gives only the
+depth scale), to see where between the simulator's 0.1 mm and millimetres each profile wins.
 
 Prints one row per set, profile and descriptor: the mean over sequences of the per-sequence mean MS.
 """
@@ -16,6 +19,7 @@ Prints one row per set, profile and descriptor: the mean over sequences of the p
 from __future__ import annotations
 
 import argparse
+import json
 import shutil
 import tempfile
 from pathlib import Path
@@ -26,12 +30,14 @@ import numpy as np
 from geofeat.bench.report import read_results, summary
 from geofeat.bench.runner import BenchConfig, run_benchmark
 from geofeat.constants import DEPTH_SCALE_M
-from geofeat.depth import PROFILES
+from geofeat.depth import PROFILES, depth_noise
 from geofeat.io import DEPTH_SUFFIX, find_sequences, read_sequence
 
 
-def to_millimetres(sequence: Path, out: Path) -> Path:
-    """Copy one sequence folder to `out`, depth PNGs rounded to millimetres, without geofeat.json."""
+def requantised(sequence: Path, out: Path, step_m: float = DEPTH_SCALE_M) -> Path:
+    """Copy one sequence folder to `out`, depth PNGs rounded to steps of `step_m` metres. In
+    millimetres (the layout's default unit) the copy has no geofeat.json, as outside data; another
+    step gets a geofeat.json that gives only its `depth_scale`."""
     scale = read_sequence(sequence).depth_scale  # metres per unit of the original PNGs
     out.mkdir(parents=True, exist_ok=True)
     for f in sequence.iterdir():
@@ -39,9 +45,11 @@ def to_millimetres(sequence: Path, out: Path) -> Path:
             continue
         if f.name.endswith(DEPTH_SUFFIX):
             units = cv2.imread(str(f), cv2.IMREAD_UNCHANGED).astype(np.float64)
-            cv2.imwrite(str(out / f.name), np.rint(units * scale / DEPTH_SCALE_M).astype(np.uint16))
+            cv2.imwrite(str(out / f.name), np.rint(units * scale / step_m).astype(np.uint16))
         else:
             shutil.copy2(f, out / f.name)
+    if step_m != DEPTH_SCALE_M:
+        (out / "geofeat.json").write_text(json.dumps({"depth_scale": step_m}))
     return out
 
 
@@ -60,6 +68,8 @@ def main() -> None:
     ap.add_argument("--descriptors", default="geopatch,geobit")
     ap.add_argument("--keypoints", type=int, default=2048)
     ap.add_argument("--work", help="folder for the millimetre copies and the results (default: a temporary one)")
+    ap.add_argument("--step-mm", type=float, default=1.0,
+                    help="depth step of the copies, millimetres (default 1: the public layout's unit)")
     args = ap.parse_args()
     work = Path(args.work or tempfile.mkdtemp(prefix="depth_units_"))
     print(f"detector {args.detector}, {args.keypoints} keypoints; copies and results in {work}")
@@ -67,11 +77,17 @@ def main() -> None:
     print("|---|---|---|" + "---|" * len(args.descriptors.split(",")))
     for set_dir in map(Path, args.sets):
         originals = find_sequences([set_dir])
-        copies = [to_millimetres(seq, work / "mm" / set_dir.name / seq.name) for seq in originals]
-        runs = [("original", originals, "auto")] + [("1 mm", copies, p) for p in (*PROFILES, "auto")]
-        for unit, folders, profile in runs:
-            ms = mean_ms(folders, work / "bench" / set_dir.name / f"{unit.replace(' ', '')}-{profile}", profile, args)
-            print(f"| {set_dir.name} | {unit} | {profile} | " + " | ".join(f"{ms[d]:.3f}" for d in ms) + " |", flush=True)
+        unit = f"{args.step_mm:g} mm"
+        copies = [requantised(seq, work / unit.replace(" ", "") / set_dir.name / seq.name, args.step_mm / 1000)
+                  for seq in originals]
+        steps = [depth_noise(f.depth, f.K).step_per_footprint for f in
+                 (read_sequence(c).frame(read_sequence(c).reference) for c in copies)]
+        print(f"| {set_dir.name} | {unit}: steps of {min(steps):.2f}-{max(steps):.2f} pixel footprints "
+              "(reference frames) | |" + " |" * len(args.descriptors.split(",")), flush=True)
+        runs = [("original", originals, "auto")] + [(unit, copies, p) for p in (*PROFILES, "auto")]
+        for label, folders, profile in runs:
+            ms = mean_ms(folders, work / "bench" / set_dir.name / f"{label.replace(' ', '')}-{profile}", profile, args)
+            print(f"| {set_dir.name} | {label} | {profile} | " + " | ".join(f"{ms[d]:.3f}" for d in ms) + " |", flush=True)
 
 
 if __name__ == "__main__":
