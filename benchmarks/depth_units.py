@@ -80,8 +80,8 @@ def main() -> None:
         unit = f"{args.step_mm:g} mm"
         copies = [requantised(seq, work / unit.replace(" ", "") / set_dir.name / seq.name, args.step_mm / 1000)
                   for seq in originals]
-        steps = [depth_noise(f.depth, f.K).step_per_footprint for f in
-                 (read_sequence(c).frame(read_sequence(c).reference) for c in copies)]
+        steps = [depth_noise(f.depth, f.K).step_per_footprint
+                 for f in (seq.frame(seq.reference) for seq in map(read_sequence, copies))]
         print(f"| {set_dir.name} | {unit}: steps of {min(steps):.2f}-{max(steps):.2f} pixel footprints "
               "(reference frames) | |" + " |" * len(args.descriptors.split(",")), flush=True)
         runs = [("original", originals, "auto")] + [(unit, copies, p) for p in (*PROFILES, "auto")]

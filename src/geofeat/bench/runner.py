@@ -402,10 +402,11 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
             before = json.loads(config_path.read_text()) if config_path.is_file() else {}
         except ValueError:
             raise ValueError(f"out: {config_path} is not valid JSON; use --overwrite or another --out") from None
-        now = _settings(config)
-        if not isinstance(before, dict) or _same_run({k: before.get(k) for k in REUSE_KEYS}) != _same_run(now):
-            shown = ("; ".join(f"{k} {json.dumps(before.get(k))} there, {json.dumps(now[k])} now" for k in REUSE_KEYS
-                               if _same_run(before).get(k) != _same_run(now)[k]) if isinstance(before, dict) else repr(before))
+        now = _same_run(_settings(config))
+        there = _same_run({k: before.get(k) for k in REUSE_KEYS}) if isinstance(before, dict) else None
+        if there != now:
+            shown = ("; ".join(f"{k} {json.dumps(there[k])} there, {json.dumps(now[k])} now" for k in REUSE_KEYS
+                               if there[k] != now[k]) if there is not None else repr(before))
             raise ValueError(f"out: {out} holds results made with other settings ({shown}); use --overwrite or "
                              "another --out")
         if header != COLUMNS:

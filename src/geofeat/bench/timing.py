@@ -18,11 +18,11 @@ def timing_table(frame, descriptors: tuple[str, ...], radius: float, counts=(250
     descriptor for each keypoint count (best of `repeat`; counts above the number of keypoints the
     frame has are lowered to it, and the header says the count used). A line under the table names
     the detector and the depth profile the mesh was built with ("auto" resolved on `frame`)."""
-    config = resolve_depth_config(depth_profile, frame)
-    profile = None
+    profile = None  # the profile's name, measured once when "auto" (a DepthConfig has none)
     if isinstance(depth_profile, str):
         profile = check_profile(depth_profile)
         profile = measured_profile(frame) if profile == "auto" else profile
+    config = resolve_depth_config(profile or depth_profile, frame)
 
     def best(fn):
         times = []
