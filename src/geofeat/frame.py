@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 
 from .constants import MAX_PLAUSIBLE_DEPTH_M
-from .inputs import check_focal_lengths
+from .inputs import as_points, check_focal_lengths
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
@@ -172,7 +172,7 @@ def rotate_points90(points: np.ndarray, shape: tuple[int, int], k: int = 1) -> n
     """Map (N, 2) pixel coordinates of an (H, W) image into the image rotated by `np.rot90(., k)`."""
     k %= 4
     H, W = shape
-    p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    p = as_points(points, "points")
     x, y = p[:, 0], p[:, 1]
     if k == 0:
         return p.copy()

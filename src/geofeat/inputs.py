@@ -158,6 +158,23 @@ def check_intrinsics_for_image(K: np.ndarray, shape: tuple[int, int], where: str
     return K
 
 
+def as_points(xy: Any, what: str = "xy") -> np.ndarray:
+    """An (N, 2) array of (x, y) pixels as float64 (an empty one as (0, 2)); NaN rows are kept for the
+    caller to read as unknown. Any other shape is a ValueError naming `what`: reshaping a (2, N) array
+    of x's then y's, or an (N, 3) one, would pair the wrong coordinates without a word."""
+    if isinstance(xy, (str, bytes, dict)) or xy is None:
+        raise TypeError(f"{what}: expected an (N, 2) array of (x, y) pixels, got {type(xy).__name__}")
+    try:
+        points = np.asarray(xy, dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise TypeError(f"{what}: expected an (N, 2) array of (x, y) pixels, got {type(xy).__name__}") from error
+    if points.size == 0 and points.ndim <= 2 and (points.ndim < 2 or points.shape[-1] in (0, 2)):
+        return points.reshape(0, 2)
+    if points.ndim != 2 or points.shape[1] != 2:
+        raise ValueError(f"{what}: expected shape (N, 2) of (x, y) pixels, got {points.shape}")
+    return points
+
+
 def check_landmarks(ids: np.ndarray, xy: np.ndarray, visible: np.ndarray, shape: tuple[int, int],
                     where: str) -> None:
     """The one landmark validator (groundtruth, match, bench): ids unique, visible landmarks finite

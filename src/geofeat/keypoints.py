@@ -9,7 +9,7 @@ import numpy as np
 
 from .constants import N_KEYPOINTS
 from .frame import RGBDFrame
-from .inputs import check_non_negative, check_whole
+from .inputs import as_points, check_non_negative, check_whole
 
 __all__ = ["DEFAULT_DETECTOR", "DETECTORS", "KEYPOINT_SETS", "Keypoints", "as_keypoints", "check_detector_name", "detect", "detect_sift"]
 
@@ -115,18 +115,11 @@ def as_keypoints(keypoints, shape: tuple[int, int] | None = None, allow_empty: b
     elif isinstance(keypoints, (list, tuple)) and keypoints and all(isinstance(k, cv2.KeyPoint) for k in keypoints):
         kps = Keypoints.from_cv(list(keypoints))
     else:
-        if isinstance(keypoints, (str, bytes, dict)) or keypoints is None:
-            raise TypeError(f"{what}: expected an (N, 2) array of (x, y) pixels, cv2.KeyPoints or Keypoints, "
-                            f"got {type(keypoints).__name__}")
         try:
-            xy = np.asarray(keypoints, dtype=np.float64)
-        except (TypeError, ValueError) as error:
+            xy = as_points(keypoints, what)
+        except TypeError as error:
             raise TypeError(f"{what}: expected an (N, 2) array of (x, y) pixels, cv2.KeyPoints or Keypoints, "
                             f"got {type(keypoints).__name__}") from error
-        if xy.size == 0 and xy.ndim <= 2 and (xy.ndim < 2 or xy.shape[-1] in (0, 2)):
-            xy = xy.reshape(0, 2)
-        if xy.ndim != 2 or xy.shape[1] != 2:
-            raise ValueError(f"{what}: expected shape (N, 2) of (x, y) pixels, got {xy.shape}")
         n = len(xy)
         kps = Keypoints(xy, np.zeros(n), np.full(n, np.nan), np.full(n, np.nan))
     if len(kps) == 0 and not allow_empty:

@@ -46,7 +46,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..constants import N_KEYPOINTS
-from ..inputs import check_positive
+from ..inputs import as_points, check_positive
 from ..io import Sequence, read_sequence, skipped_frame_line
 from ..tps import ThinPlateSpline, check_pairs, check_regularisation, evaluate_batch, normalise_points, solve_batch
 
@@ -384,7 +384,7 @@ class RefinedWarp:
     def __call__(self, xy: np.ndarray) -> np.ndarray:
         from scipy.ndimage import map_coordinates
 
-        xy = np.asarray(xy, np.float64).reshape(-1, 2)
+        xy = as_points(xy, "xy")
         rc = ((xy - self.origin) / self.spacing)[:, ::-1].T  # (2, M) node rows, columns
         d = np.stack([map_coordinates(self.displacement[..., c], rc, order=1, mode="constant", cval=0.0)
                       for c in range(2)], axis=1)

@@ -1,0 +1,109 @@
+"""An outside review of the public Python API for silently wrong results: each test is a call that
+returned a plausible-looking wrong answer (or an IndexError from deep inside) and now raises or
+warns, naming the argument."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+import geofeat
+from geofeat.frame import RGBDFrame, rotate_points90
+from geofeat.groundtruth.landmarks import inside_hull, robust_landmark_tps
+from geofeat.groundtruth.sources import GroundTruth
+from geofeat.io import read_landmarks, write_frame, write_intrinsics, write_landmarks
+from geofeat.scoring import correct_matches, ground_truth_pairs, score_detect, score_landmarks
+from geofeat.tps import fit_tps, solve_batch
+
+K_VGA = np.array([[525.0, 0.0, 319.5], [0.0, 525.0, 239.5], [0.0, 0.0, 1.0]])
+
+
+def _image(shape=(480, 640), seed=0) -> np.ndarray:
+    return np.random.default_rng(seed).integers(0, 256, shape + (3,), dtype=np.uint8)
+
+
+# ---------------------------------------------------------------- scoring (geofeat.scoring)
+def test_scoring_refuses_transposed_points_instead_of_reshaping_them():
+    """ground_truth_pairs(ref.T, tgt.T) reshaped the (2, N) arrays of x's then y's into N bogus points
+    and returned 50 'pairs'; an (N, 3) array (x, y, score) gave 25 pairs of mixed-up coordinates."""
+    rng = np.random.default_rng(0)
+    ref = rng.uniform(0, 400, (50, 2))
+    tgt = ref + rng.normal(0, 0.5, ref.shape)
+    assert len(ground_truth_pairs(ref, tgt)) == 50
+    with pytest.raises(ValueError, match=r"ref_xy: expected shape \(N, 2\) of \(x, y\) pixels, got \(2, 50\)"):
+        ground_truth_pairs(ref.T, tgt.T)
+    with pytest.raises(ValueError, match=r"ref_xy: expected shape \(N, 2\) of \(x, y\) pixels, got \(50, 3\)"):
+        ground_truth_pairs(np.c_[ref, np.ones(50)], tgt)
+    with pytest.raises(ValueError, match=r"tgt_in_ref: expected shape \(N, 2\)"):
+        correct_matches(ref, tgt.T)
+    with pytest.raises(ValueError, match="tgt_in_ref: expected one point per match, 10 like ref_xy, got 50"):
+        correct_matches(ref[:10], tgt)  # was numpy's "operands could not be broadcast"
+    assert ground_truth_pairs(np.zeros((0, 2)), []).shape == (0, 2)  # empty sets stay fine
+
+
+def test_score_detect_checks_the_matches_against_the_keypoint_counts():
+    """n_ref other than len(matches0) gave MS 5.0; a shorter matches0 or a `Matches` record raised a bare
+    IndexError; (2, M) pairs (transposed) scored 0 hits without a word."""
+    ref = np.random.default_rng(1).uniform(0, 400, (50, 2))
+    pairs = ground_truth_pairs(ref, ref + 0.5)
+    m = np.arange(50)
+    assert score_detect(m, pairs, 50, 50).ms == 1.0
+    assert score_detect(geofeat.Matches(m, np.zeros(50)), pairs, 50, 50).ms == 1.0  # a Matches reads as matches0
+    with pytest.raises(ValueError, match=r"matches0: expected \(n_ref=10,\) integer indices .* got int64 shape \(50,\)"):
+        score_detect(m, pairs, 10, 50)
+    with pytest.raises(ValueError, match=r"matches0: expected \(n_ref=50,\) .* shape \(20,\)"):
+        score_detect(m[:20], pairs, 50, 50)
+    with pytest.raises(ValueError, match=r"matches0: expected target indices in \[0, n_tgt=30\) or -1"):
+        score_detect(m, pairs, 50, 30)
+    with pytest.raises(ValueError, match=r"gt_pairs: expected \(M, 2\) integer pairs .* shape \(2, 50\)"):
+        score_detect(m, pairs.T, 50, 50)
+    with pytest.raises(ValueError, match=r"gt_pairs: indices must lie in \[0, n_ref=50\) and \[0, n_tgt=50\)"):
+        score_detect(m, pairs + [0, 60], 50, 50)
+    assert score_detect(np.zeros(0, np.int64), np.zeros((0, 2), np.int64), 0, 5).ms == 0.0
+
+
+def test_score_landmarks_refuses_a_match_index_past_the_targets():
+    """An index past the target landmarks was clipped to the last one and, when that one had the
+    query's id, counted as a hit: matches0 [0, 1, 2, 3, 9] scored 5/5."""
+    ids = np.arange(5)
+    assert score_landmarks(np.arange(5), ids, ids).hits == 5
+    with pytest.raises(ValueError, match=r"matches0: expected target indices in \[0, len\(tgt_ids\)=5\) or -1"):
+        score_landmarks(np.array([0, 1, 2, 3, 9]), ids, ids)
+    with pytest.raises(ValueError, match=r"matches0: expected \(len\(ref_ids\)=5,\)"):
+        score_landmarks(np.array([0, 1, 2]), ids, ids)  # was a numpy broadcasting error
+
+
+# ---------------------------------------------------------------- ground truth helpers
+def _landmark_sequence(folder):
+    """Two 160x120 frames, the target the reference shifted by 3 px, 20 landmarks."""
+    K = np.array([[150.0, 0, 79.5], [0, 150.0, 59.5], [0, 0, 1]])
+    folder.mkdir()
+    write_intrinsics(folder / "intrinsics.xml", K)
+    gx, gy = np.meshgrid(np.linspace(20, 130, 5), np.linspace(20, 100, 4))
+    lm = np.stack([gx.ravel(), gy.ravel()], 1)
+    for i, name in enumerate(("frame-000-master", "frame-001")):
+        write_frame(folder, name, _image((120, 160), seed=i), np.ones((120, 160)))
+        write_landmarks(folder / f"{name}.csv", np.arange(len(lm)), lm + [3 * i, 0], np.ones(len(lm), bool))
+    return geofeat.read_sequence(folder)
+
+
+def test_ground_truth_helpers_refuse_transposed_points(tmp_path):
+    """GroundTruth.map, inside_hull, robust_landmark_tps and rotate_points90 reshaped a (2, N) array into
+    N points made of x's then y's and answered for those."""
+    seq = _landmark_sequence(tmp_path / "seq")
+    truth = GroundTruth(seq, None)
+    xy = np.array([[50.0, 40.0], [60.0, 50.0], [70.0, 55.0]])
+    mapped, valid = truth.map("frame-001", xy)
+    np.testing.assert_allclose(mapped[valid], xy[valid] - [3, 0], atol=1e-6)
+    with pytest.raises(ValueError, match=r"xy: expected shape \(N, 2\) of \(x, y\) pixels, got \(2, 3\)"):
+        truth.map("frame-001", xy.T)
+    ids, lm, _ = seq.landmarks(0)
+    with pytest.raises(ValueError, match=r"xy: expected shape \(N, 2\)"):
+        inside_hull(lm, xy.T)
+    with pytest.raises(ValueError, match=r"src: expected shape \(N, 2\)"):
+        robust_landmark_tps(lm.T, lm.T + 1, (160, 120))
+    with pytest.raises(ValueError, match=r"points: expected shape \(N, 2\)"):
+        rotate_points90(xy.T, (120, 160), 1)
+
