@@ -75,6 +75,28 @@ def test_score_landmarks_refuses_a_match_index_past_the_targets():
         score_landmarks(np.array([0, 1, 2]), ids, ids)  # was a numpy broadcasting error
 
 
+# ---------------------------------------------------------------- thin-plate spline (geofeat.tps)
+def test_a_repeated_control_point_with_its_own_destination_is_fitted():
+    """The docstring says a point repeated with the same destination is fine, and it was, when LAPACK's
+    LU noticed the singular system; when it did not (these points), fit_tps got round-off of 1e15 from
+    np.linalg.solve and refused the points as 'repeated ... with different destinations'.
+    solve_batch returned ok=True with weights of 1e28 for a repeat with two destinations."""
+    rng = np.random.default_rng(1)
+    src = rng.random((10, 2)) * 500
+    dst = src + rng.normal(0, 2, (10, 2))
+    s, d = np.vstack([src, src[:1]]), np.vstack([dst, dst[:1]])
+    np.testing.assert_allclose(fit_tps(s, d)(s), d, atol=1e-6)
+    with pytest.raises(ValueError, match="degenerate control points"):
+        fit_tps(s, np.vstack([dst, dst[:1] + 3]))
+    for seed in (1, 2, 5):  # the seeds on which LU does not notice
+        rng = np.random.default_rng(seed)
+        a = rng.random((10, 2))
+        b = a + rng.normal(0, 0.01, a.shape)
+        batch_src, batch_dst = np.vstack([a, a[:1]])[None], np.vstack([b, b[:1] + 0.05])[None]
+        assert solve_batch(batch_src, batch_dst, 0.0)[2].tolist() == [False]
+        assert solve_batch(batch_src, batch_dst, 1e-3)[2].tolist() == [True]  # smoothing has a solution
+
+
 # ---------------------------------------------------------------- ground truth helpers
 def _landmark_sequence(folder):
     """Two 160x120 frames, the target the reference shifted by 3 px, 20 landmarks."""
