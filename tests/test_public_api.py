@@ -97,6 +97,48 @@ def test_a_repeated_control_point_with_its_own_destination_is_fitted():
         assert solve_batch(batch_src, batch_dst, 1e-3)[2].tolist() == [True]  # smoothing has a solution
 
 
+# ---------------------------------------------------------------- frames (geofeat.RGBDFrame)
+def test_a_frame_warns_of_intrinsics_made_for_another_resolution():
+    """A 640x480 K on a frame downsampled to 320x240 (principal point at the bottom-right corner), or a
+    320x240 K on a 640x480 frame, was taken without a word: every patch then has the wrong size and shape."""
+    depth = np.ones((480, 640), np.float32)
+    with pytest.warns(UserWarning, match=r"K: principal point \(319.5, 239.5\) lies far from the centre of the "
+                                         r"320x240 image .* intrinsics for another image size"):
+        RGBDFrame(_image((240, 320)), depth[::2, ::2], K_VGA)
+    half = K_VGA.copy()
+    half[:2] /= 2
+    with pytest.warns(UserWarning, match="principal point .* far from the centre of the 640x480 image"):
+        RGBDFrame(_image(), depth, half)
+    off = K_VGA.copy()
+    off[0, 2] = 1000.0
+    with pytest.warns(UserWarning, match=r"principal point \(1000, 239.5\)"):  # off the image, as a crop's may be
+        RGBDFrame(_image(), depth, off)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        frame = RGBDFrame(_image(), depth, K_VGA)
+        for k in (1, 2, 3):
+            frame.rotated90(k)
+        crop = K_VGA - [[0, 0, 160], [0, 0, 120], [0, 0, 0]]  # the central 320x240 with its shifted K
+        RGBDFrame(_image((240, 320)), depth[120:360, 160:480], crop)
+        geofeat.read_demo_frame()
+
+
+def test_a_frame_warns_of_a_nearly_black_uint16_or_float_image():
+    """8-bit values in a uint16 array (or floats divided by 255 twice) were read as a gray image with
+    its brightest pixel at 0.4 %: SIFT found no keypoint on it, without a word."""
+    image, depth = _image(), np.ones((480, 640), np.float32)
+    with pytest.warns(UserWarning, match="image: nearly black .* brightest value is 255 of 65535: 8-bit values "
+                                         "in a uint16 array"):
+        frame = RGBDFrame(image.astype(np.uint16), depth, K_VGA)
+    assert frame.image.max() < 0.004  # the reading itself is unchanged (uint16 is 0-65535)
+    with pytest.warns(UserWarning, match="image: nearly black .* divided by 255 twice"):
+        RGBDFrame(image / 255.0 / 255.0, depth, K_VGA)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for fine in (image, image.astype(np.uint16) * 257, image / 255.0, np.zeros((480, 640))):
+            RGBDFrame(fine, depth, K_VGA)
+
+
 # ---------------------------------------------------------------- ground truth helpers
 def _landmark_sequence(folder):
     """Two 160x120 frames, the target the reference shifted by 3 px, 20 landmarks."""
