@@ -171,3 +171,19 @@ def test_ground_truth_helpers_refuse_transposed_points(tmp_path):
     with pytest.raises(ValueError, match=r"points: expected shape \(N, 2\)"):
         rotate_points90(xy.T, (120, 160), 1)
 
+
+def test_a_landmark_csv_with_a_byte_order_mark_is_read_as_one_without():
+    """A spreadsheet's UTF-8 csv starts with a byte-order mark: without a header line its first landmark
+    ('\\ufeff0,...') did not parse as numbers, passed for the header and was dropped without a word."""
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "a.csv"
+        path.write_text("\ufeff0,1,2,1\n1,2,3,1\n", encoding="utf-8")
+        with pytest.raises(ValueError, match="the first line '0,1,2,1' is a landmark, not a header"):
+            read_landmarks(path)
+        path.write_text("\ufeffid,x,y,valid\n0,1,2,1\n1,2,3,1\n", encoding="utf-8")
+        ids, xy, visible = read_landmarks(path)
+        assert ids.tolist() == [0, 1] and visible.all()
+
