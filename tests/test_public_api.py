@@ -187,3 +187,22 @@ def test_a_landmark_csv_with_a_byte_order_mark_is_read_as_one_without():
         ids, xy, visible = read_landmarks(path)
         assert ids.tolist() == [0, 1] and visible.all()
 
+
+# ---------------------------------------------------------------- tracking (geofeat.apps.tracking)
+def test_ransac_counts_that_fit_nothing_are_refused():
+    """iterations=0, refinements=0 or max_centres < 4 tried no hypothesis, or fitted through one centre,
+    and reported 'fit failed' (warp None) for matches that fit: the caller tunes on a false failure."""
+    from geofeat.apps.tracking import fit_tps_ransac, refit_on_inliers
+
+    rng = np.random.default_rng(1)
+    src = rng.random((60, 2)) * 400
+    dst = src * 1.1 + 5 + rng.normal(0, 0.5, src.shape)
+    assert fit_tps_ransac(src, dst).ok and fit_tps_ransac(src, dst, max_centres=4).ok
+    for kw, message in ((dict(iterations=0), "iterations: expected a whole number >= 1, got 0"),
+                        (dict(refinements=0), "refinements: expected a whole number >= 1, got 0"),
+                        (dict(max_centres=1), "max_centres: expected a whole number >= 4, got 1"),
+                        (dict(min_inliers=2.5), "min_inliers: expected a whole number >= 0, got 2.5")):
+        with pytest.raises(ValueError, match=message):
+            fit_tps_ransac(src, dst, **kw)
+    with pytest.raises(ValueError, match="refinements: expected a whole number >= 1"):
+        refit_on_inliers(src, dst, np.ones(60, bool), refinements=0)
