@@ -139,6 +139,23 @@ def test_a_frame_warns_of_a_nearly_black_uint16_or_float_image():
             RGBDFrame(fine, depth, K_VGA)
 
 
+def test_sift_warns_when_it_finds_no_keypoint_as_geokey_does():
+    """`extract`'s docstring says detect warns and returns an empty set on a frame without texture: GeoKey
+    did, SIFT returned an empty set without a word (as on the nearly black uint16 frame above), and
+    describing or matching it gave empty results that look like a bad descriptor."""
+    depth = np.ones((480, 640), np.float32)
+    blank = RGBDFrame(np.full((480, 640), 0.5, np.float32), depth, K_VGA)
+    for keypoint_set in ("unique", "protocol"):
+        with pytest.warns(UserWarning, match="sift: no keypoint"):
+            assert len(geofeat.detect(blank, 10, detector="sift", keypoint_set=keypoint_set)) == 0
+    no_depth = RGBDFrame(_image(), np.pad(np.ones((480, 2), np.float32), ((0, 0), (0, 638))), K_VGA)
+    with pytest.warns(UserWarning, match="sift: no keypoint with depth under it"):
+        assert len(geofeat.detect(no_depth, 10, detector="sift")) == 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert len(geofeat.detect(RGBDFrame(_image(), depth, K_VGA), 10, detector="sift")) == 10
+
+
 # ---------------------------------------------------------------- ground truth helpers
 def _landmark_sequence(folder):
     """Two 160x120 frames, the target the reference shifted by 3 px, 20 landmarks."""
