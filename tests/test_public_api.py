@@ -156,6 +156,29 @@ def test_sift_warns_when_it_finds_no_keypoint_as_geokey_does():
         assert len(geofeat.detect(RGBDFrame(_image(), depth, K_VGA), 10, detector="sift")) == 10
 
 
+# ---------------------------------------------------------------- geodesic patches and descriptors
+def test_patches_and_meshes_of_another_frame_of_the_same_size_are_refused():
+    """GeoBit/GeoPatch `compute(frame, kps, patches=...)` checked the patches' keypoints and radius, not
+    their frame: the patches of the frame given to its 180-degree rotation (same size, same keypoints on
+    the image) described the first frame without a word; so did `polar_patches(frame, kps, mesh=...)`
+    with the rotated frame's mesh, which was checked for its size only."""
+    frame = geofeat.read_demo_frame()
+    turned = frame.rotated90(2)
+    xy = np.array([[300.0, 250.0], [350.0, 200.0], [250.0, 300.0]])
+    patches = geofeat.polar_patches(frame, xy)
+    mesh = geofeat.build_mesh(frame)
+    for descriptor in (geofeat.GeoBit(), geofeat.GeoPatch()):
+        assert descriptor.compute(frame, xy, patches=patches).valid.all()
+        assert descriptor.compute(geofeat.read_demo_frame(), xy, patches=patches).valid.all()  # an equal copy
+        with pytest.raises(ValueError, match="patches: computed on another frame"):
+            descriptor.compute(turned, xy, patches=patches)
+    np.testing.assert_array_equal(geofeat.polar_patches(frame, xy, mesh=mesh).values, patches.values)
+    with pytest.raises(ValueError, match="mesh: built from another frame"):
+        geofeat.polar_patches(turned, xy, mesh=mesh)
+    with pytest.raises(ValueError, match="mesh: built from another frame"):
+        geofeat.heat_polar_patches(turned, xy[:1], mesh=mesh)
+
+
 # ---------------------------------------------------------------- ground truth helpers
 def _landmark_sequence(folder):
     """Two 160x120 frames, the target the reference shifted by 3 px, 20 landmarks."""
