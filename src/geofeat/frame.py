@@ -2,17 +2,19 @@
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
 from .constants import MAX_PLAUSIBLE_DEPTH_M
-from .inputs import check_focal_lengths
+from .inputs import as_points, check_focal_lengths, check_principal_point
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
-    """Convert an (H, W) or (H, W, 3) BGR image (uint8, uint16 or float in [0, 1]) to float32 gray in [0, 1]."""
+    """Convert an (H, W) or (H, W, 3) BGR image (uint8, uint16 or float in [0, 1]) to float32 gray in [0, 1];
+    a uint16 or float image that uses under 1/16 of its full scale warns (`_warn_if_dark`)."""
     image = np.asarray(image)
     if image.dtype.kind not in "biuf":
         raise TypeError(f"image: expected uint8, uint16 or float values in [0, 1], got dtype {image.dtype}")
@@ -35,16 +37,39 @@ def to_gray(image: np.ndarray) -> np.ndarray:
             gray /= 65535.0
     else:
         raise ValueError(f"image: expected shape (H, W) or (H, W, 3), got {image.shape}")
-    if image.dtype == np.uint8 or image.dtype == np.uint16:  # finite and in [0, 1] by construction
-        return np.ascontiguousarray(gray, dtype=np.float32)
-    if not np.isfinite(gray).all():
-        raise ValueError("image: contains NaN or infinite values")
-    if gray.min() < 0 or gray.max() > 1.0 + 1e-6:
-        raise ValueError(
-            f"image: {image.dtype} images must lie in [0, 1], got range [{gray.min():.3g}, {gray.max():.3g}]"
-            " (pass 0-255 images as uint8, or divide by 255)"
-        )
+    if image.dtype != np.uint8 and image.dtype != np.uint16:  # those are finite and in [0, 1] by construction
+        if not np.isfinite(gray).all():
+            raise ValueError("image: contains NaN or infinite values")
+        if gray.min() < 0 or gray.max() > 1.0 + 1e-6:
+            raise ValueError(
+                f"image: {image.dtype} images must lie in [0, 1], got range [{gray.min():.3g}, {gray.max():.3g}]"
+                " (pass 0-255 images as uint8, or divide by 255)"
+            )
+    _warn_if_dark(image, gray)
     return np.ascontiguousarray(gray, dtype=np.float32)
+
+
+#: A uint16 or float image whose brightest pixel is below this fraction of its full scale is warned of.
+DARK_IMAGE_FRACTION = 1.0 / 16.0
+
+
+def _warn_if_dark(image: np.ndarray, gray: np.ndarray) -> None:
+    """Warn of a uint16 or float image that uses under `DARK_IMAGE_FRACTION` of its full scale: 8-bit
+    values in a uint16 array (or a Kinect's 10-bit IR) read as 0-65535, or floats divided by 255
+    twice, give a nearly black gray image, on which SIFT finds nothing and patches hold no contrast."""
+    if image.dtype == np.uint8 or image.dtype.kind not in "uf":
+        return
+    brightest = float(gray.max())
+    if not 0.0 < brightest < DARK_IMAGE_FRACTION:
+        return
+    if image.dtype == np.uint16:
+        hint = (f"its brightest value is {int(image.max())} of 65535: 8-bit values in a uint16 array? geofeat reads "
+                "uint16 images as 0-65535: pass 8-bit values as uint8, or scale the image to the full range")
+    else:
+        hint = (f"its brightest value is {brightest:.3g}: float images are read as 0-1 (1 = white); divided by "
+                "255 twice? scale the image to [0, 1]")
+    warnings.warn(f"image: nearly black ({brightest:.1%} of the full {image.dtype} scale); {hint}", UserWarning,
+                  stacklevel=4)
 
 
 def check_intrinsics(K: np.ndarray) -> np.ndarray:
@@ -101,7 +126,9 @@ class RGBDFrame:
         image: (H, W) float32 gray image in [0, 1].
         depth: (H, W) float32 depth in metres, 0 where missing.
         K: (3, 3) float64 pinhole intrinsics in pixels (OpenCV convention: the centre of the
-            top-left pixel is (0, 0)).
+            top-left pixel is (0, 0)), for this image's resolution: focal lengths implausible for
+            the image size raise ValueError, a principal point far from the image centre (or off
+            it: intrinsics of another resolution?) warns.
         color: optional (H, W, 3) uint8 BGR image, kept for display.
     """
 
@@ -120,6 +147,7 @@ class RGBDFrame:
         object.__setattr__(self, "depth", check_depth(depth, gray.shape))
         K = check_intrinsics(K).copy()  # the frame's own copy, as for the depth: not the caller's array
         check_focal_lengths(K, gray.shape, "K")
+        check_principal_point(K, gray.shape, "K", strict=False)
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "color", color)
 
@@ -172,7 +200,7 @@ def rotate_points90(points: np.ndarray, shape: tuple[int, int], k: int = 1) -> n
     """Map (N, 2) pixel coordinates of an (H, W) image into the image rotated by `np.rot90(., k)`."""
     k %= 4
     H, W = shape
-    p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    p = as_points(points, "points")
     x, y = p[:, 0], p[:, 1]
     if k == 0:
         return p.copy()

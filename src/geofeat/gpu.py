@@ -42,7 +42,7 @@ from .depth import DepthConfig
 from .features import Features, Matches
 from .frame import RGBDFrame
 from .geodesic.mesh import GridMesh, frame_mesh, image_to_mesh
-from .geodesic.polar import check_patch_request
+from .geodesic.polar import check_mesh_shape, check_patch_request
 
 #: Attribute of a GridMesh under which its device tables are kept, per device.
 _MESH_ATTR = "_geofeat_device_tables"
@@ -389,8 +389,8 @@ def polar_patches_cuda(frame: RGBDFrame, keypoints, radius: float = DEFAULT_RADI
     kp = check_patch_request(frame, keypoints, radius, n_angles, n_rings)
     if mesh is None:  # built on the GPU (the simulator's "GPU" is the CPU), cached on the frame
         mesh = frame_mesh(frame, depth_config, device=mesh_device(dev))
-    elif tuple(mesh.image_shape) != tuple(frame.shape):
-        raise ValueError(f"mesh: built for a {mesh.image_shape} frame, not this {frame.shape} one")
+    else:  # of this frame (a host GridMesh also knows its frame's depth and intrinsics)
+        check_mesh_shape(mesh, frame)
     points, face_ok, normals, local, edges = device_mesh_tables(mesh, dev)
     starts = mesh.image_to_mesh(kp) + np.array([1.3e-6, 0.7e-6])
     host = torch.from_numpy(np.concatenate([starts.ravel(), np.asarray(frame.K, np.float64).ravel()]))

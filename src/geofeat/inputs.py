@@ -11,6 +11,7 @@ import json
 import math
 import numbers
 import re
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +23,8 @@ from .constants import DEFAULT_RADIUS_M, DEPTH_PROFILE_NAMES
 PLAUSIBLE_MEDIAN_DEPTH_M = (0.05, 50.0)
 #: Focal lengths must lie between these multiples of the larger image side.
 PLAUSIBLE_FOCAL_SIDES = (0.1, 20.0)
+#: A principal point farther than this fraction of the image size from its centre is warned of (RGBDFrame).
+MAX_CENTRE_OFFSET = 0.2
 #: Geodesic radius (metres) must lie in this range.
 PLAUSIBLE_RADIUS_M = (0.001, 2.0)
 #: The largest depth scale accepted, metres per depth-PNG unit.
@@ -152,10 +155,47 @@ def check_intrinsics_for_image(K: np.ndarray, shape: tuple[int, int], where: str
     if abs(K[2, 2] - 1.0) > 1e-6 or abs(K[2, 0]) > 1e-6 or abs(K[2, 1]) > 1e-6 or abs(K[1, 0]) > 1e-6:
         raise ValueError(f"{where}: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got rows {K[1:].tolist()}")
     check_focal_lengths(K, shape, where)
-    cx, cy = K[0, 2], K[1, 2]
-    if not (0 <= cx <= W and 0 <= cy <= H):
-        raise ValueError(f"{where}: principal point ({cx:g}, {cy:g}) lies outside the {W}x{H} image")
+    check_principal_point(K, shape, where)
     return K
+
+
+def check_principal_point(K: np.ndarray, shape: tuple[int, int], where: str, strict: bool = True) -> None:
+    """The principal point (cx, cy) of a 3x3 camera matrix for an (H, W) image. `strict` (the readers:
+    whole images): it must lie on the image, else ValueError naming `where`. Otherwise (`RGBDFrame`,
+    which may hold a crop, whose shifted K can put it anywhere) a point farther than
+    `MAX_CENTRE_OFFSET` of the image size from its centre is warned of: the signature of intrinsics
+    calibrated at another resolution (a 1280x960 K on a 640x480 frame puts it at the bottom-right
+    corner, a 320x240 K at a quarter of the image), which sizes and shapes every geodesic patch
+    wrongly without a word."""
+    H, W = shape
+    cx, cy = float(K[0, 2]), float(K[1, 2])
+    if strict:
+        if not (0 <= cx <= W and 0 <= cy <= H):
+            raise ValueError(f"{where}: principal point ({cx:g}, {cy:g}) lies outside the {W}x{H} image; are the "
+                             "intrinsics for another image size? (scale fx, fy, cx, cy with the image)")
+        return
+    if abs(cx - (W - 1) / 2) > MAX_CENTRE_OFFSET * W or abs(cy - (H - 1) / 2) > MAX_CENTRE_OFFSET * H:
+        warnings.warn(f"{where}: principal point ({cx:g}, {cy:g}) lies far from the centre of the {W}x{H} image "
+                      f"(expected within {MAX_CENTRE_OFFSET:.0%} of its size); are the intrinsics for another image "
+                      "size? Scale fx, fy, cx, cy with the image (a crop's shifted K may be off-centre: then ignore "
+                      "this)", UserWarning, stacklevel=3)
+
+
+def as_points(xy: Any, what: str = "xy") -> np.ndarray:
+    """An (N, 2) array of (x, y) pixels as float64 (an empty one as (0, 2)); NaN rows are kept for the
+    caller to read as unknown. Any other shape is a ValueError naming `what`: reshaping a (2, N) array
+    of x's then y's, or an (N, 3) one, would pair the wrong coordinates without a word."""
+    if isinstance(xy, (str, bytes, dict)) or xy is None:
+        raise TypeError(f"{what}: expected an (N, 2) array of (x, y) pixels, got {type(xy).__name__}")
+    try:
+        points = np.asarray(xy, dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise TypeError(f"{what}: expected an (N, 2) array of (x, y) pixels, got {type(xy).__name__}") from error
+    if points.size == 0 and points.ndim <= 2 and (points.ndim < 2 or points.shape[-1] in (0, 2)):
+        return points.reshape(0, 2)
+    if points.ndim != 2 or points.shape[1] != 2:
+        raise ValueError(f"{what}: expected shape (N, 2) of (x, y) pixels, got {points.shape}")
+    return points
 
 
 def check_landmarks(ids: np.ndarray, xy: np.ndarray, visible: np.ndarray, shape: tuple[int, int],

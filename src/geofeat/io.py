@@ -167,7 +167,7 @@ def read_landmarks(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
     """
     path = _existing(path, "landmarks")
     try:
-        text = Path(path).read_text()
+        text = Path(path).read_text(encoding="utf-8-sig")  # a spreadsheet's byte-order mark is not part of the first field
     except UnicodeDecodeError:
         raise ValueError(f"landmarks: {path}: not a text csv ('id, x, y, valid' after one header line)") from None
     lines = text.splitlines()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import cv2
@@ -9,7 +10,7 @@ import numpy as np
 
 from .constants import N_KEYPOINTS
 from .frame import RGBDFrame
-from .inputs import check_non_negative, check_whole
+from .inputs import as_points, check_non_negative, check_whole
 
 __all__ = ["DEFAULT_DETECTOR", "DETECTORS", "KEYPOINT_SETS", "Keypoints", "as_keypoints", "check_detector_name", "detect", "detect_sift"]
 
@@ -115,18 +116,11 @@ def as_keypoints(keypoints, shape: tuple[int, int] | None = None, allow_empty: b
     elif isinstance(keypoints, (list, tuple)) and keypoints and all(isinstance(k, cv2.KeyPoint) for k in keypoints):
         kps = Keypoints.from_cv(list(keypoints))
     else:
-        if isinstance(keypoints, (str, bytes, dict)) or keypoints is None:
-            raise TypeError(f"{what}: expected an (N, 2) array of (x, y) pixels, cv2.KeyPoints or Keypoints, "
-                            f"got {type(keypoints).__name__}")
         try:
-            xy = np.asarray(keypoints, dtype=np.float64)
-        except (TypeError, ValueError) as error:
+            xy = as_points(keypoints, what)
+        except TypeError as error:
             raise TypeError(f"{what}: expected an (N, 2) array of (x, y) pixels, cv2.KeyPoints or Keypoints, "
                             f"got {type(keypoints).__name__}") from error
-        if xy.size == 0 and xy.ndim <= 2 and (xy.ndim < 2 or xy.shape[-1] in (0, 2)):
-            xy = xy.reshape(0, 2)
-        if xy.ndim != 2 or xy.shape[1] != 2:
-            raise ValueError(f"{what}: expected shape (N, 2) of (x, y) pixels, got {xy.shape}")
         n = len(xy)
         kps = Keypoints(xy, np.zeros(n), np.full(n, np.nan), np.full(n, np.nan))
     if len(kps) == 0 and not allow_empty:
@@ -235,7 +229,8 @@ def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = DEFAUL
 
     Returns:
         `Keypoints` sorted best first; fewer than `n` when the detector's threshold stops it (SIFT's
-        contrast threshold, GeoKey's score threshold). GeoKey's have angle 0 and a size of 8 px per pyramid level.
+        contrast threshold, GeoKey's score threshold); an empty set, with a warning, when the frame gives
+        none (no texture, or no depth under it). GeoKey's have angle 0 and a size of 8 px per pyramid level.
     """
     if not isinstance(frame, RGBDFrame):
         raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
@@ -297,17 +292,18 @@ def detect_sift(
         mask = (mask != 0).astype(np.uint8)
     if keypoint_set not in KEYPOINT_SETS:
         raise ValueError(f"keypoint_set: expected one of {', '.join(KEYPOINT_SETS)}, got {keypoint_set!r}")
+    where = "in this frame" if mask is None else "inside the mask"
     if keypoint_set == "protocol":
         # OpenCV takes a C int: a larger budget keeps every keypoint, as the frame has far fewer
         sift = cv2.SIFT_create(nfeatures=min(int(n or 0), np.iinfo(np.int32).max),
                                contrastThreshold=float(contrast_threshold))
         kps = Keypoints.from_cv(list(sift.detect(to_uint8(frame.image), mask)))
         order = np.argsort(-kps.responses, kind="stable")
-        return kps[order[:n] if n else order]
+        return _warn_if_none(kps[order[:n] if n else order], f"no keypoint {where} (no texture)")
     sift = cv2.SIFT_create(contrastThreshold=float(contrast_threshold))
     kps = Keypoints.from_cv(list(sift.detect(to_uint8(frame.image), mask)))
     if len(kps) == 0:
-        return kps
+        return _warn_if_none(kps, f"no keypoint {where} (no texture)")
     x, y = kps.xy[:, 0], kps.xy[:, 1]
     keep = (x >= border_px) & (x <= W - 1 - border_px) & (y >= border_px) & (y <= H - 1 - border_px)
     if require_depth:
@@ -321,4 +317,12 @@ def detect_sift(
         order = order[np.sort(first)]
     if n:
         order = order[:n]
-    return kps[order]
+    return _warn_if_none(kps[order], f"no keypoint with depth under it {where} (no texture or no depth)")
+
+
+def _warn_if_none(kps: Keypoints, why: str) -> Keypoints:
+    """`kps`, with a warning when it is empty, as GeoKey warns: an empty set, matched or described,
+    gives empty results that look like a bad descriptor rather than a blank or black frame."""
+    if len(kps) == 0:
+        warnings.warn(f"sift: {why}", UserWarning, stacklevel=5)  # the caller of `detect`
+    return kps

@@ -138,6 +138,11 @@ def solve_batch(src: np.ndarray, dst: np.ndarray, regularisation: float = 0.0, e
                 sol[b] = np.linalg.solve(L[b], rhs[b])
             except np.linalg.LinAlgError:
                 ok[b] = False
+    # an exactly singular member is not always noticed by LAPACK's LU, which then returns round-off
+    # (weights of 1e28) instead of raising: a member whose solution does not solve its system fails
+    residual = np.abs(np.einsum("bij,bjk->bik", L, sol) - rhs).max(axis=(1, 2))
+    scale = 1.0 + np.abs(rhs).max(axis=(1, 2))
+    ok &= np.isfinite(sol).all(axis=(1, 2)) & (residual <= _SOLVE_TOL * scale)
     return sol[:, :n], sol[:, n:], ok
 
 
@@ -263,13 +268,21 @@ def fit_tps(src: np.ndarray, dst: np.ndarray, regularisation: float = 0.0, norma
         raise ValueError("src: the points are collinear or repeated; a spline needs points spanning the plane")
     L = system_matrix(sn[None], regularisation, eps)[0]
     rhs = np.concatenate([dn, np.zeros((3, 2))])
+
+    def solves(x: np.ndarray) -> bool:
+        return bool(np.isfinite(x).all() and np.abs(L @ x - rhs).max() <= _SOLVE_TOL * (1.0 + np.abs(rhs).max()))
+
     try:
         sol = np.linalg.solve(L, rhs)
     except np.linalg.LinAlgError:  # repeated control points without smoothing
+        sol = None
+    if sol is None or not solves(sol):
+        # an exactly repeated point makes L singular, but LAPACK's LU may not notice and return
+        # round-off of 1e15 instead of raising: least squares solves it when the repeat has one destination
         sol = np.linalg.lstsq(L, rhs, rcond=None)[0]
     # the least-squares answer to a repeated point with two destinations, or the round-off of nearly
     # repeated ones, does not solve the system: a spline that misses its own control points
-    if not np.isfinite(sol).all() or np.abs(L @ sol - rhs).max() > _SOLVE_TOL * (1.0 + np.abs(rhs).max()):
+    if not solves(sol):
         raise ValueError("src: degenerate control points (repeated or nearly repeated points with different "
                          "destinations); the spline has no solution (smoothing, regularisation > 0, may have one)")
     n = len(sn)

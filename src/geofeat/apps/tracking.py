@@ -46,7 +46,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..constants import N_KEYPOINTS
-from ..inputs import check_positive
+from ..inputs import as_points, check_positive, check_whole
 from ..io import Sequence, read_sequence, skipped_frame_line
 from ..tps import ThinPlateSpline, check_pairs, check_regularisation, evaluate_batch, normalise_points, solve_batch
 
@@ -134,6 +134,14 @@ def _spread(points: np.ndarray, keep: np.ndarray, max_points: int) -> np.ndarray
     return idx[np.sort(first)]
 
 
+def _check_refit_counts(min_inliers: int, refinements: int, max_centres: int) -> None:
+    """The counts of the refit: refinements 0 fitted nothing and max_centres under 4 spread the centres
+    over a grid of one cell (one centre), so either reported every fit as failed without a word."""
+    check_whole(min_inliers, "min_inliers", 0)
+    check_whole(refinements, "refinements", 1)
+    check_whole(max_centres, "max_centres", 4)
+
+
 def fit_tps_ransac(
     src: np.ndarray,
     dst: np.ndarray,
@@ -167,8 +175,10 @@ def fit_tps_ransac(
             raise TypeError(f"{name}: expected an integer, got {value!r}")
     if sample_size < 3:
         raise ValueError(f"sample_size: expected >= 3 correspondences per hypothesis, got {sample_size}")
+    check_whole(iterations, "iterations", 1)  # 0 or fewer tried nothing and reported a failed fit
     check_positive(threshold_px, "threshold_px")
     check_regularisation(regularisation)
+    _check_refit_counts(min_inliers, refinements, max_centres)
     n = len(src)
     failed = RansacResult(None, np.zeros(n, bool))
     if n < max(sample_size, min_inliers, 3):
@@ -212,6 +222,7 @@ def refit_on_inliers(
     """
     src, dst = check_pairs(src, dst, 0)
     check_positive(threshold_px, "threshold_px")
+    _check_refit_counts(min_inliers, refinements, max_centres)
     failed = RansacResult(None, np.zeros(len(src), bool))
     best = np.asarray(start, bool)
     if best.shape != (len(src),):
@@ -384,7 +395,7 @@ class RefinedWarp:
     def __call__(self, xy: np.ndarray) -> np.ndarray:
         from scipy.ndimage import map_coordinates
 
-        xy = np.asarray(xy, np.float64).reshape(-1, 2)
+        xy = as_points(xy, "xy")
         rc = ((xy - self.origin) / self.spacing)[:, ::-1].T  # (2, M) node rows, columns
         d = np.stack([map_coordinates(self.displacement[..., c], rc, order=1, mode="constant", cval=0.0)
                       for c in range(2)], axis=1)

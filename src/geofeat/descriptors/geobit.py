@@ -286,7 +286,7 @@ class GeoBit:
                 blur_px=self.blur_px,
             )
         else:
-            check_patches(patches, kps.xy, self.radius)
+            check_patches(patches, kps.xy, self.radius, frame)
         desc = self.describe(patches.values, patches.valid)
         return Features(
             keypoints=patches.keypoints,

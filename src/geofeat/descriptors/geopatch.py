@@ -337,6 +337,6 @@ class GeoPatch:
                                     n_rings=self.config.n_rings, depth_config=self.depth_config, mesh=mesh,
                                     blur_px=self.blur_px)
         else:
-            check_patches(patches, kps.xy, self.radius)
+            check_patches(patches, kps.xy, self.radius, frame)
         return Features(patches.keypoints, self.describe(patches.values, patches.valid), patches.valid,
                         angles=kps.angles, sizes=kps.sizes)

@@ -32,7 +32,7 @@ from scipy.sparse.linalg import splu
 from ..constants import DEFAULT_RADIUS_M, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX
 from ..depth import DepthConfig
 from ..frame import RGBDFrame
-from .mesh import GridMesh, build_mesh
+from .mesh import GridMesh, build_mesh, frame_fingerprint
 from .polar import PolarPatches, check_mesh_shape, check_patch_request, patch_validity, sample_bilinear, sampling_image
 from .walk import tangent_frames
 
@@ -435,7 +435,8 @@ def heat_polar_patches(
         mesh = solver.mesh
     elif mesh is None:
         mesh = build_mesh(frame, depth_config)
-    check_mesh_shape(mesh, frame)
+    source = frame_fingerprint(frame)
+    check_mesh_shape(mesh, frame, source)
     N = len(kp)
     xy = np.full((N, n_rings, n_angles, 2), np.nan)
     pts = np.full((N, n_rings, n_angles, 3), np.nan)
@@ -471,4 +472,5 @@ def heat_polar_patches(
         rings_reached=reached,
         points=pts.astype(np.float32),
         radius=float(radius),
+        source=source,
     )

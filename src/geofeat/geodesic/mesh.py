@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
@@ -38,6 +38,8 @@ class GridMesh:
         K: (3, 3) intrinsics of the mesh grid (pixels of the mesh).
         scale: (sx, sy) mesh pixels per image pixel.
         image_shape: (H, W) of the frame the mesh was built from.
+        source: `frame_fingerprint` of that frame (depth and intrinsics), None when unknown; a mesh
+            given to `polar_patches` must come from the frame it describes.
     """
 
     points: np.ndarray
@@ -46,6 +48,7 @@ class GridMesh:
     K: np.ndarray
     scale: tuple[float, float]
     image_shape: tuple[int, int]
+    source: tuple | None = field(default=None, repr=False, compare=False)
 
     @cached_property
     def walk_tables(self) -> tuple[np.ndarray, np.ndarray]:
@@ -138,12 +141,14 @@ def _faces(points, fx, max_edge_stretch):
 
 def mesh_from_points(
     points: np.ndarray, K: np.ndarray, scale: tuple[float, float], image_shape: tuple[int, int],
-    max_edge_stretch: float = MAX_EDGE_STRETCH,
+    max_edge_stretch: float = MAX_EDGE_STRETCH, source: tuple | None = None,
 ) -> GridMesh:
-    """Build the GridMesh of an (Hm, Wm, 3) grid of camera-frame points (NaN = missing)."""
+    """Build the GridMesh of an (Hm, Wm, 3) grid of camera-frame points (NaN = missing); `source`: the
+    `frame_fingerprint` of the frame they come from, when known."""
     points = np.ascontiguousarray(points, dtype=np.float64)
     face_ok, normals = _faces(points, 0.5 * (K[0, 0] + K[1, 1]), float(max_edge_stretch))
-    return GridMesh(points=points, face_ok=face_ok, normals=normals, K=K, scale=scale, image_shape=image_shape)
+    return GridMesh(points=points, face_ok=face_ok, normals=normals, K=K, scale=scale, image_shape=image_shape,
+                    source=source)
 
 
 def check_frame_arrays(frame: RGBDFrame) -> None:
@@ -164,16 +169,17 @@ def build_mesh(frame: RGBDFrame, config: DepthConfig | str = "auto",
     Hm, Wm = depth.shape
     scale = (Wm / W, Hm / H)
     K = scale_intrinsics(frame.K, *scale)
-    return mesh_from_points(backproject(depth, K), K, scale, (H, W), max_edge_stretch)
+    return mesh_from_points(backproject(depth, K), K, scale, (H, W), max_edge_stretch, frame_fingerprint(frame))
 
 
 #: Attribute of an RGBDFrame under which `frame_mesh` keeps its meshes.
 _CACHE_ATTR = "_geofeat_meshes"
 
 
-def _depth_fingerprint(frame: RGBDFrame) -> tuple:
+def frame_fingerprint(frame: RGBDFrame) -> tuple:
     """What the mesh depends on besides the depth config: the depth values (CRC-32 of the bytes,
-    so that an in-place edit of frame.depth is noticed) and the intrinsics."""
+    so that an in-place edit of frame.depth is noticed) and the intrinsics. Meshes and polar patches
+    keep their frame's (`source`), so that one of another frame is refused rather than used."""
     depth = np.ascontiguousarray(frame.depth)
     return depth.shape, zlib.crc32(depth), frame.K.tobytes()
 
@@ -193,7 +199,7 @@ def frame_mesh(frame: RGBDFrame, config: DepthConfig | str = "auto",
     if device is not None and not on_gpu and str(device) != "cpu":
         raise ValueError(f"device: expected None, 'cpu' or 'cuda[:N]', got {device!r}")
     cache = frame.__dict__.setdefault(_CACHE_ATTR, {})
-    fingerprint = _depth_fingerprint(frame)
+    fingerprint = frame_fingerprint(frame)
     if isinstance(config, str):  # the profile "auto" picks is cached with the mesh
         hit = cache.get(("profile", config))
         if hit is not None and hit[0] == fingerprint:

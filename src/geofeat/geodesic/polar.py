@@ -10,7 +10,7 @@ displayed, from the image +x axis projected onto the surface's tangent plane at 
 from __future__ import annotations
 
 import numbers
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -20,7 +20,7 @@ from ..depth import DepthConfig
 from ..frame import RGBDFrame
 from ..inputs import check_radius, check_whole
 from ..keypoints import as_keypoints
-from .mesh import GridMesh, frame_mesh
+from .mesh import GridMesh, frame_fingerprint, frame_mesh
 from .walk import MAX_CROSSINGS, walk_polar
 
 
@@ -41,6 +41,8 @@ class PolarPatches:
             reached in its remaining rings, so every sample lies on the mesh.
         points: (N, R, A, 3) float32 camera-frame 3D positions of the samples, metres.
         radius: geodesic radius of the outer ring, metres.
+        source: `frame_fingerprint` of the frame they were computed on (its depth and intrinsics),
+            None when unknown; a descriptor given them with another frame refuses them.
     """
 
     keypoints: np.ndarray
@@ -50,6 +52,7 @@ class PolarPatches:
     rings_reached: np.ndarray
     points: np.ndarray
     radius: float
+    source: tuple | None = field(default=None, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.keypoints)
@@ -71,10 +74,12 @@ def check_patch_request(frame: RGBDFrame, keypoints, radius: float, n_angles: in
     return as_keypoint_array(keypoints, frame.shape)
 
 
-def check_patches(patches, xy: np.ndarray, radius: float | None = None) -> PolarPatches:
+def check_patches(patches, xy: np.ndarray, radius: float | None = None, frame: RGBDFrame | None = None
+                  ) -> PolarPatches:
     """Precomputed patches given to a descriptor with its (N, 2) keypoints `xy` must be the
-    `PolarPatches` of those keypoints, in that order, and of the descriptor's geodesic `radius`
-    (metres; None: any) (TypeError / ValueError naming `patches`)."""
+    `PolarPatches` of those keypoints, in that order, of the descriptor's geodesic `radius`
+    (metres; None: any), and of `frame` (None: any; patches whose `source` is unknown pass)
+    (TypeError / ValueError naming `patches`)."""
     if not isinstance(patches, PolarPatches):
         raise TypeError(f"patches: expected PolarPatches, got {type(patches).__name__}")
     if len(patches) != len(xy):
@@ -85,13 +90,22 @@ def check_patches(patches, xy: np.ndarray, radius: float | None = None) -> Polar
         raise ValueError(f"patches: computed with radius {patches.radius:g} m, but the descriptor's radius is "
                          f"{radius:g} m; compute them with radius={radius:g} or build the descriptor with "
                          f"radius={patches.radius:g}")
+    if frame is not None and patches.source is not None and patches.source != frame_fingerprint(frame):
+        raise ValueError("patches: computed on another frame (its depth or intrinsics differ from this frame's); "
+                         "compute them on this frame, or leave patches out")
     return patches
 
 
-def check_mesh_shape(mesh: GridMesh, frame: RGBDFrame) -> None:
-    """A prebuilt mesh must be of a frame of this size (ValueError naming `mesh` otherwise)."""
+def check_mesh_shape(mesh: GridMesh, frame: RGBDFrame, fingerprint: tuple | None = None) -> None:
+    """A prebuilt mesh must be of this frame: of its size, and, when the mesh knows its `source`, of
+    its depth and intrinsics (a mesh of the frame rotated by 180 degrees has the same size) (ValueError
+    naming `mesh` otherwise). `fingerprint`: the frame's `frame_fingerprint`, when already computed."""
     if tuple(mesh.image_shape) != tuple(frame.shape):
         raise ValueError(f"mesh: built for a {mesh.image_shape} frame, not this {frame.shape} one")
+    source = getattr(mesh, "source", None)
+    if source is not None and source != (fingerprint if fingerprint is not None else frame_fingerprint(frame)):
+        raise ValueError("mesh: built from another frame (its depth or intrinsics differ from this frame's); "
+                         "build it with build_mesh(frame), or leave mesh out")
 
 
 def patch_validity(rings_reached: np.ndarray) -> np.ndarray:
@@ -172,10 +186,11 @@ def polar_patches(
         blur_px: Gaussian blur of the gray image before sampling, pixels.
     """
     kp = check_patch_request(frame, keypoints, radius, n_angles, n_rings)
+    source = frame_fingerprint(frame)
     if mesh is None:
         mesh = frame_mesh(frame, depth_config)
     else:
-        check_mesh_shape(mesh, frame)
+        check_mesh_shape(mesh, frame, source)
     starts = mesh.image_to_mesh(kp) + np.array([1.3e-6, 0.7e-6])  # keeps starts off vertices/edges
     local, edges = mesh.walk_tables
     samples, coords, reached, _ = walk_polar(
@@ -198,4 +213,5 @@ def polar_patches(
         rings_reached=reached,
         points=samples,
         radius=float(radius),
+        source=source,
     )

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import Delaunay, QhullError
 
+from ..inputs import as_points
 from ..tps import AUTHORS_EPS, ThinPlateSpline, authors_tps, fit_tps, size_transform, system_matrix
 
 __all__ = ["MIN_LANDMARKS", "RobustFit", "robust_landmark_tps", "landmark_spline", "inside_hull"]
@@ -64,8 +65,9 @@ def robust_landmark_tps(src: np.ndarray, dst: np.ndarray, size: tuple[int, int])
         src, dst: (N, 2) landmark pixels in the source and destination images (same order).
         size: (W, H) image size, pixels.
     """
-    src = np.asarray(src, float).reshape(-1, 2)
-    dst = np.asarray(dst, float).reshape(-1, 2)
+    src, dst = as_points(src, "src"), as_points(dst, "dst")
+    if len(src) != len(dst):
+        raise ValueError(f"src, dst: expected the same landmarks in both images, got {len(src)} and {len(dst)}")
     n = len(src)
     if n < MIN_LANDMARKS:
         raise ValueError(f"landmarks: a thin-plate spline needs >= {MIN_LANDMARKS} landmarks visible in both frames, got {n}")
@@ -89,11 +91,12 @@ def robust_landmark_tps(src: np.ndarray, dst: np.ndarray, size: tuple[int, int])
 def inside_hull(points: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """(N,) bool: which of the (N, 2) pixels xy lie inside the convex hull of the (P, 2) pixels points.
     ValueError when the points are fewer than 3, collinear or repeated (a hull without inside)."""
-    xy = np.asarray(xy, float).reshape(-1, 2)
+    xy = as_points(xy, "xy")
+    points = as_points(points, "points")
     if len(xy) == 0:
         return np.zeros(0, bool)
     try:
-        return Delaunay(np.asarray(points, float)).find_simplex(xy) >= 0
+        return Delaunay(points).find_simplex(xy) >= 0
     except QhullError:
         raise ValueError(f"landmarks: the {len(points)} landmarks are collinear or repeated; their convex hull has "
                          "no inside, where a landmark spline could be trusted") from None

@@ -34,6 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..inputs import as_points
+
 GT_JSON = "groundtruth.json"
 GT_SUFFIX = "-gt.npz"
 #: Visibility tolerance in pixel footprints (see the module docstring).
@@ -224,9 +226,7 @@ def correspondences(seq, i, j, points: np.ndarray) -> tuple[np.ndarray, np.ndarr
             f"sequence {seq.folder} has no simulator ground truth ({GT_JSON} and <name>{GT_SUFFIX} files); "
             "only sequences written by `geofeat simulate` have dense correspondences"
         )
-    points = np.asarray(points, dtype=np.float64)
-    if points.ndim != 2 or points.shape[1] != 2:
-        raise ValueError(f"points: expected shape (N, 2) pixels, got {points.shape}")
+    points = as_points(points, "points")
     meta = read_metadata(seq.folder)
     ti = read_frame_truth(seq.folder, seq.frame_name(i))
     tj = read_frame_truth(seq.folder, seq.frame_name(j))

@@ -11,7 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..inputs import check_tps_dir
+from ..inputs import as_points, check_tps_dir
 from ..io import Sequence
 from ..scoring import ground_truth_pairs
 from ..tps import ThinPlateSpline
@@ -113,7 +113,7 @@ class GroundTruth:
                 threshold; outside the landmarks' convex hull).
             valid: (N,) bool, True where xy_ref is known.
         """
-        xy = np.asarray(xy, float).reshape(-1, 2)
+        xy = as_points(xy, "xy")
         if self.tps is not None:
             mask = self._mask(target)
             out = load_authors_spline(self.tps, target, (mask.shape[1], mask.shape[0]))(xy)
@@ -147,7 +147,7 @@ class GroundTruth:
         """
         if not self.exact:
             return None
-        return self.seq.correspondences(self.seq.reference, target, np.asarray(xy_ref, float).reshape(-1, 2))
+        return self.seq.correspondences(self.seq.reference, target, as_points(xy_ref, "xy_ref"))
 
 
 def _check_landmarks(n: int) -> None:
@@ -161,7 +161,7 @@ def correct_matches(truth: GroundTruth, target: str, ref_xy: np.ndarray, tgt_xy:
     protocol (the target keypoint whose ground-truth position in the reference is within 3 px of i,
     first in target order)? The count of True equals the benchmark's hits on the same keypoints."""
     mapped = truth.map(target, tgt_xy)[0]
-    pairs = ground_truth_pairs(np.asarray(ref_xy, float).reshape(-1, 2), mapped)
+    pairs = ground_truth_pairs(as_points(ref_xy, "ref_xy"), mapped)
     partner = np.full(len(ref_xy), -2, np.int64)
     partner[pairs[:, 0]] = pairs[:, 1]
     return np.asarray(matches0) == partner
