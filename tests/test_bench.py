@@ -2,6 +2,7 @@
 failures, process pool and Dask."""
 
 import csv
+import json
 import shutil
 
 import numpy as np
@@ -175,8 +176,10 @@ def test_rerun_skips_finished_results_and_refuses_other_settings(datasets, tmp_p
 
 
 def test_a_rerun_naming_the_default_depth_profile_auto_resumes(datasets, tmp_path, monkeypatch):
-    """`--depth-profile auto` is the default (the profile is measured either way), but a rerun naming
-    it was refused as 'other settings (depth_profile null there, "auto" now)'."""
+    """A rerun naming `--depth-profile auto` was refused as 'other settings (depth_profile null there,
+    "auto" now)'. The default (None: geofeat.json's profile, else measured) and "auto" (measured)
+    choose the same profile on these simulated sequences, so it resumes; the refusal message names
+    an unset profile in words, not as null."""
     from geofeat.bench import runner
 
     calls = []
@@ -192,7 +195,12 @@ def test_a_rerun_naming_the_default_depth_profile_auto_resumes(datasets, tmp_pat
                                                                  depth_profile="auto"), progress=False)
     run_benchmark(datasets / "seqs", tmp_path / "b", BenchConfig(descriptors=("orb",), n_keypoints=200), progress=False)
     assert len(calls) == 4
-    with pytest.raises(ValueError, match='depth_profile (null|"auto") there, "kinect" now'):  # a profile named: another run
+    # a profile named: another run. A resumed run's config.json holds its own settings: "auto" in a, the default in b
+    with pytest.raises(ValueError, match="depth_profile auto there, kinect now") as refused:
+        run_benchmark(datasets / "seqs", tmp_path / "a", BenchConfig(descriptors=("orb",), n_keypoints=200,
+                                                                     depth_profile="kinect"), progress=False)
+    assert '"' not in str(refused.value)  # names read as words, not as JSON
+    with pytest.raises(ValueError, match=r"depth_profile the default \(geofeat.json's, else auto\) there, kinect now"):
         run_benchmark(datasets / "seqs", tmp_path / "b", BenchConfig(descriptors=("orb",), n_keypoints=200,
                                                                      depth_profile="kinect"), progress=False)
 
@@ -433,3 +441,63 @@ def test_table_says_when_an_oriented_descriptor_was_given_upright_keypoints():
             for d, ms in (("sift", 0.01), ("geopatch", 0.5))]
     assert "sift on GeoKey's keypoints: described upright" in markdown_table(rows)
     assert "upright" not in markdown_table([dict(r, detector="sift") for r in rows])
+
+
+def _kinect_pair_naming(folder, profile):
+    """The shipped Kinect frame and its copy rolled by 20 degrees, with landmarks (a thin-plate
+    spline ground truth); geofeat.json names `profile` although the depth measures as kinect."""
+    from geofeat.frame import roll_camera
+    from geofeat.io import demo_data_dir, read_landmarks, write_frame, write_intrinsics, write_landmarks
+
+    frame = geofeat.read_demo_frame()
+    ids, xy, visible = read_landmarks(demo_data_dir() / "cloud_1.csv")
+    folder.mkdir(parents=True)
+    write_intrinsics(folder / "intrinsics.xml", frame.K)
+    write_frame(folder, "cloud_ref", frame.color, frame.depth)
+    write_landmarks(folder / "cloud_ref.csv", ids, xy, visible)
+    rolled, A = roll_camera(frame, 20.0)
+    write_frame(folder, "cloud_roll20", rolled.color, rolled.depth)
+    write_landmarks(folder / "cloud_roll20.csv", ids, xy @ A[:, :2].T + A[:, 2], visible)
+    (folder / "geofeat.json").write_text(json.dumps({"depth_profile": profile}))
+    return folder
+
+
+def test_a_rerun_is_another_run_where_auto_and_geofeat_json_choose_other_profiles(tmp_path, monkeypatch):
+    """`--depth-profile auto` now measures even where geofeat.json names a profile, so on a sequence
+    whose geofeat.json says clean but whose depth measures as kinect, the default and "auto" are
+    other runs. A config.json written before that change says "auto" for the geofeat.json rule: the
+    profile each finished sequence was described with decides, so it resumes with the default."""
+    from geofeat.bench import runner
+
+    calls = []
+    real = runner.evaluate_sequence
+    monkeypatch.setattr(runner, "evaluate_sequence", lambda f, c, d=None: calls.append(d) or real(f, c, d))
+    seq = _kinect_pair_naming(tmp_path / "data" / "cloud", "clean")
+    out = tmp_path / "out"
+    csv_path, _ = run_benchmark(seq, out, BenchConfig(descriptors=("orb",), n_keypoints=100), progress=False)
+    rows = read_rows(csv_path)
+    assert {r["depth_profile"] for r in rows} == {"clean"} and len(calls) == 1
+    with pytest.raises(ValueError, match=r"depth_profile the default \(geofeat.json's, else auto\) there, auto now: "
+                                         "cloud was described with clean, now it would be with kinect"):
+        run_benchmark(seq, out, BenchConfig(descriptors=("orb",), n_keypoints=100, depth_profile="auto"), progress=False)
+    # an older config.json: "auto" then meant the geofeat.json rule, as the rows recorded
+    config = json.loads((out / "config.json").read_text())
+    (out / "config.json").write_text(json.dumps(dict(config, depth_profile="auto")))
+    run_benchmark(seq, out, BenchConfig(descriptors=("orb",), n_keypoints=100), progress=False)
+    assert len(calls) == 1 and read_rows(csv_path) == rows  # resumed: nothing redone
+    (out / "config.json").write_text(json.dumps(dict(config, depth_profile="auto")))
+    with pytest.raises(ValueError, match="depth_profile auto there, auto now: cloud was described with clean"):
+        run_benchmark(seq, out, BenchConfig(descriptors=("orb",), n_keypoints=100, depth_profile="auto"), progress=False)
+
+
+def test_report_counts_read_as_words():
+    """"clean (1 sequences)" in table.md's depth-profile note."""
+    from geofeat.bench.report import markdown_table
+    from geofeat.outputs import plural
+
+    assert (plural(1, "sequence"), plural(2, "sequence"), plural(0, "class", "classes")) == (
+        "1 sequence", "2 sequences", "0 classes")
+    row = dict(sequence="a-deform", descriptor="orb", detector="sift", protocol="detect", keypoint_set="protocol",
+               depth_profile="clean", ms=0.5, mma=0.5)
+    table = markdown_table([row, dict(row, sequence="b-deform", depth_profile="kinect"), dict(row, sequence="c-deform")])
+    assert "Depth profile: clean (2 sequences), kinect (1 sequence)." in table

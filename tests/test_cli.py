@@ -107,3 +107,56 @@ def test_demo_refuses_a_user_folder_named_simulated_cloth_before_any_work(tmp_pa
     (tmp_path / "simulated_cloth" / "my-notes.txt").write_text("mine")
     with pytest.raises(ValueError, match="simulated_cloth.*did not write"):
         _check_demo_folder(tmp_path)
+
+
+@pytest.mark.parametrize("argv, flag", [
+    (["extract", "SEQ", "--keypoints", "-3"], "--keypoints"),
+    (["extract", "SEQ", "--radius", "0"], "--radius"),
+    (["match", "SEQ", "--depth-scale", "-0.001"], "--depth-scale"),
+    (["bench", "SEQ", "--radius", "0"], "--radius"),
+    (["bench", "SEQ", "--workers", "0"], "--workers"),
+    (["retrieval", "SEQ", "--words", "1"], "--words"),
+    (["retrieval", "SEQ", "--rerank", "-1"], "--rerank"),
+    (["retrieval", "SEQ", "--samples", "0"], "--samples"),
+    (["track", "SEQ", "--threshold", "0"], "--threshold"),
+    (["track", "SEQ", "--radius", "nan"], "--radius"),
+    (["simulate", "OUT", "--frames", "0"], "--frames"),
+    (["simulate", "OUT", "--width", "10"], "--width"),
+    (["simulate", "OUT", "--seed", "-1"], "--seed"),
+    (["simulate", "OUT", "--fov", "10"], "--fov"),
+    (["extract", "SEQ", "--depth-profile", "lidar"], "--depth-profile"),
+])
+def test_bad_option_values_are_usage_errors_naming_the_flag(rolled_sequence, tmp_path, capsys, argv, flag):
+    """A bad value was reported under the Python parameter behind it ("words: expected ...", "n: ...")
+    or, for bench --radius 0, only after every sequence had failed; now argparse refuses it by flag
+    (exit 2) before anything is read or written."""
+    out = tmp_path / "out"
+    argv = [str(rolled_sequence) if a == "SEQ" else str(out) if a == "OUT" else a for a in argv]
+    if argv[0] != "simulate":
+        argv += ["--out", str(out)]
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert stop.value.code == 2 and last.startswith(f"geofeat {argv[0]}: error: argument {flag}: "), last
+    assert not out.exists()
+
+
+def test_detector_and_descriptor_names_in_any_case_are_recorded_lower_case(rolled_sequence, tmp_path):
+    """`--detector SIFT` was refused; names are recorded in their canonical lower case."""
+    import csv
+    import json
+
+    out = tmp_path / "b"
+    assert main(["bench", str(rolled_sequence), "--descriptors", "ORB,Sift", "--detector", "SIFT",
+                 "--keypoints", "100", "--out", str(out)]) == 0
+    with open(out / "results.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert {(r["descriptor"], r["detector"]) for r in rows} == {("orb", "sift"), ("sift", "sift")}
+    config = json.loads((out / "config.json").read_text())
+    assert config["descriptors"] == ["orb", "sift"] and config["detector"] == "sift"
+    assert "| sequences | orb | sift |" in (out / "table.md").read_text()
+    # a rerun naming them in another case is the same run: nothing is redone
+    assert main(["bench", str(rolled_sequence), "--descriptors", "orb,SIFT", "--detector", "Sift",
+                 "--keypoints", "100", "--out", str(out)]) == 0
+    with open(out / "results.csv", newline="") as fh:
+        assert list(csv.DictReader(fh)) == rows

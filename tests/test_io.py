@@ -243,3 +243,58 @@ def test_a_skipped_frame_is_named_once(tmp_path):
     assert skipped_frame_line("f2", ValueError("no keypoints detected (sift)"), "seq") == \
         "SKIPPED frame f2 of seq: no keypoints detected (sift)"
     assert skipped_frame_line("f2", KeyError()) == "SKIPPED frame f2: KeyError"
+
+
+def _flat_sequence(folder, depth_m):
+    """Two frames of the shipped colour at a constant depth, written as millimetre PNGs."""
+    frame = geofeat.read_demo_frame()
+    folder.mkdir(parents=True)
+    write_intrinsics(folder / "intrinsics.xml", frame.K)
+    for name in ("a-ref", "b"):
+        write_frame(folder, name, frame.color, np.where(frame.depth > 0, depth_m, 0.0))
+    return folder
+
+
+def test_depth_ten_times_too_near_is_warned_of_once_per_sequence(tmp_path):
+    """`--depth-scale 0.0001` on millimetre PNGs (or PNGs written 10x too small) gave a scene at 0.1 m
+    without a word: plausible enough to pass, but most likely wrong units."""
+    import warnings
+
+    from geofeat.inputs import DepthUnitsWarning
+
+    near = _flat_sequence(tmp_path / "near", 0.1)
+    with pytest.warns(DepthUnitsWarning, match=r"sequence .*near.*median depth 0\.1 m .*--depth-scale") as caught:
+        seq = geofeat.read_sequence(near)
+        geofeat.read_sequence(near)  # the same sequence again: no second warning
+        seq.frame("b")
+    assert len([w for w in caught if w.category is DepthUnitsWarning]) == 1
+    assert seq.frame("b").depth.max() == pytest.approx(0.1)  # a warning, never an error
+    normal = _flat_sequence(tmp_path / "normal", 1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DepthUnitsWarning)
+        geofeat.read_sequence(normal)
+        geofeat.read_demo_frame()
+        with pytest.warns(DepthUnitsWarning, match=r"median depth 0\.1 m at depth scale 0\.0001"):
+            geofeat.read_sequence(normal, depth_scale=0.0001)  # millimetres read as tenths of one
+        with pytest.warns(DepthUnitsWarning, match=r"median depth 25 m .*farther"):
+            geofeat.read_sequence(_flat_sequence(tmp_path / "far", 2.5), depth_scale=0.01)
+
+
+def test_the_command_line_shows_the_depth_units_warning_on_one_line(tmp_path, capsys, monkeypatch):
+    import sys
+    import warnings
+
+    from geofeat.cli import main
+
+    def show(message, category, filename, lineno, file=None, line=None):  # Python's own, outside pytest's recorder
+        sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
+
+    folder = _flat_sequence(tmp_path / "s", 1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("default")
+        monkeypatch.setattr(warnings, "showwarning", show)
+        assert main(["extract", str(folder), "--descriptor", "orb", "--keypoints", "50", "--depth-scale", "0.0001",
+                     "--out", str(tmp_path / "f.h5")]) == 0
+    err = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert len(err) == 1 and err[0].startswith(f"geofeat extract: warning: sequence {folder} "), err
+    assert "median depth 0.1 m" in err[0] and "--depth-scale" in err[0]

@@ -202,3 +202,18 @@ def test_an_integer_index_gives_one_keypoint(frame):
         assert len(one) == 1
         np.testing.assert_array_equal(one.xy, kps.xy[[i]])
         assert one.responses[0] == kps.responses[i]
+
+
+def test_detector_names_in_any_case_are_recorded_lower_case(frame):
+    """`--detector SIFT` and detect(frame, detector="GeoKey") were refused; a weights path keeps its case."""
+    from geofeat.detectors.geokey import SHIPPED_WEIGHTS
+    from geofeat.keypoints import check_detector_name
+
+    assert check_detector_name("SIFT") == "sift" and check_detector_name(" GeoKey") == "geokey"
+    assert check_detector_name(f"GeoKey={SHIPPED_WEIGHTS}") == f"geokey={SHIPPED_WEIGHTS}"
+    np.testing.assert_array_equal(detect_any(frame, 100, detector="Sift").xy, detect_any(frame, 100, detector="sift").xy)
+    np.testing.assert_array_equal(detect_any(frame, 100, detector="GEOKEY").xy, detect_any(frame, 100, detector="geokey").xy)
+    with pytest.raises(ValueError, match="expected one of sift, geokey or geokey=WEIGHTS, got 'surf'"):
+        check_detector_name("surf")
+    with pytest.raises(ValueError, match="got 'SIFT=w.npz'"):
+        check_detector_name("SIFT=w.npz")

@@ -156,3 +156,32 @@ def test_depth_noise_reads_infinite_depth_as_missing_like_nan():
     for missing in (np.nan, np.inf):
         got = depth_noise(np.where(holes, missing, depth), K)
         assert got == expected
+
+
+def _kinect_sequence_naming(folder, profile):
+    """The shipped Kinect frame (measured: kinect) as a one-frame sequence whose geofeat.json names `profile`."""
+    frame = geofeat.read_demo_frame()
+    folder.mkdir(parents=True, exist_ok=True)
+    write_intrinsics(folder / "intrinsics.xml", frame.K)
+    write_frame(folder, "a-ref", frame.color, frame.depth)
+    (folder / "geofeat.json").write_text(json.dumps({"depth_profile": profile}))
+    return folder
+
+
+def test_an_explicit_auto_measures_even_where_geofeat_json_names_a_profile(tmp_path, capsys):
+    """`--depth-profile auto` was read as "not given", so geofeat.json's profile won over it; now None
+    is the default (geofeat.json's, else measured) and "auto" always measures."""
+    from geofeat.cli import main
+    from geofeat.depth import sequence_depth_profile
+
+    seq = read_sequence(_kinect_sequence_naming(tmp_path / "s", "clean"))
+    assert sequence_depth_profile(seq) == sequence_depth_profile(seq, None) == "clean"
+    assert sequence_depth_profile(seq, "auto") == "kinect"  # measured on the noisy Kinect depth
+    assert sequence_depth_profile(seq, "quantised") == "quantised"
+    common = ["extract", str(tmp_path / "s"), "--descriptor", "orb", "--keypoints", "50"]
+    assert main(common + ["--out", str(tmp_path / "a.h5")]) == 0
+    assert "depth profile clean," in capsys.readouterr().out
+    assert main(common + ["--out", str(tmp_path / "b.h5"), "--depth-profile", "auto"]) == 0
+    assert "depth profile kinect," in capsys.readouterr().out
+    assert main(common + ["--out", str(tmp_path / "c.h5"), "--depth-profile", "Quantised"]) == 0
+    assert "depth profile quantised," in capsys.readouterr().out

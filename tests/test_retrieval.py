@@ -427,3 +427,25 @@ def test_retrieval_names_the_results_it_really_reranked(three_objects, tmp_path)
                            include_own_sequence=True, progress=False)
     md = (tmp_path / "retrieval.md").read_text()
     assert res["sift"].rerank == 8 and "each query's best 8 frames by the words" in md, md
+
+
+def test_report_notes_count_in_words():
+    """retrieval.md said "2 frames of 1 sequences, 1 classes" and "for all 1 sequences"."""
+    from geofeat.apps.retrieval import DescriptorResult, RetrievalDatabase, _report
+
+    n = 3
+    features = [Features(np.zeros((2, 2)), np.zeros((2, 8), np.uint8), np.ones(2, bool)) for _ in range(n)]
+    db = RetrievalDatabase(sequences=["s"] * n, frames=["a-ref", "b", "c"], classes=["cloth"] * n,
+                           is_query=np.array([True, False, False]), folders=[], mask_sources={"s": "simulator"},
+                           features={"orb": features}, depth_profiles={"s": "clean"})
+    per_query = np.ones((1, 2))
+    result = DescriptorResult(words=2, validation={}, queries=np.array([0]), neighbours=np.array([[1, 2]]),
+                              per_query=per_query, accuracy=np.ones(2), low=np.ones(2), high=np.ones(2),
+                              rerank=1, per_query_words=per_query)
+    notes = _report(db, {"orb": result}, skipped=["s/x (class y)"], words=2, n_samples=1, include_own_sequence=True)
+    assert "3 frames of 1 sequence, 1 class;" in notes
+    assert "vocabulary from 1 sampled descriptor;" in notes
+    assert "each query's best 1 frame by the words" in notes
+    assert "skipped 1 query whose class" in notes
+    assert "object masks: simulator, for 1 sequence" in notes and "depth profile: clean, for 1 sequence" in notes
+    assert "for all 1" not in notes and "1 sequences" not in notes and "1 classes" not in notes

@@ -295,8 +295,9 @@ def test_command(tmp_path, capsys):
                  "--texture", "procedural", "--no-progress", "--contact-sheet", str(tmp_path / "sheet.png")]) == 0
     assert has_ground_truth(read_sequence(tmp_path / "c"))
     assert cv2.imread(str(tmp_path / "sheet.png")) is not None
-    assert main(["simulate", str(tmp_path / "d"), "--frames", "0", "--no-progress"]) == 2
-    assert "n_frames" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stop:  # a usage error naming the flag, not simulate_sequence's n_frames
+        main(["simulate", str(tmp_path / "d"), "--frames", "0", "--no-progress"])
+    assert stop.value.code == 2 and "argument --frames: expected a whole number >= 1" in capsys.readouterr().err
     assert not (tmp_path / "d").exists()
     assert main(["simulate", str(tmp_path / "e"), "--texture-dir", str(packaged_texture_dir()), "--frames", "1",
                  "--width", "64", "--height", "48", "--no-progress"]) == 0
@@ -359,3 +360,18 @@ def test_help_names_every_texture_choice_and_the_default_scenario(capsys):
     text = " ".join(capsys.readouterr().out.split())
     assert "'fabric' or 'fabric:KIND'" in text and "plaid" in text
     assert "(default deform)" in text
+
+
+@pytest.mark.parametrize("kw", [dict(scenario="scale", preset="paper", fov=119), dict(scenario="deform", preset="hard"),
+                                dict(scenario="rotate", kinect_noise=True)])
+def test_simulated_sequences_raise_no_depth_units_warning(tmp_path, kw):
+    """The depth-units warning (a median depth outside 0.15-20 m) never fires on what `simulate`
+    writes, the widest field of view (nearest cloth) included."""
+    import warnings
+
+    from geofeat.inputs import DepthUnitsWarning
+
+    folder = simulate_sequence(tmp_path / "s", n_frames=2, width=64, height=48, progress=False, **kw)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DepthUnitsWarning)
+        read_sequence(folder)

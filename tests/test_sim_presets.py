@@ -140,8 +140,9 @@ def test_command_presets(tmp_path, capsys):
     assert main(["simulate", str(tmp_path / "p"), "--preset", "paper", "--fov", "90", "--frames", "2",
                  "--width", "64", "--height", "48", "--texture", "procedural", "--no-progress"]) == 0
     assert read_metadata(tmp_path / "p")["preset"] == "paper"
-    assert main(["simulate", str(tmp_path / "q"), "--fov", "10", "--frames", "2", "--no-progress"]) == 2
-    assert "fov" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stop:  # a usage error naming the option, before any work
+        main(["simulate", str(tmp_path / "q"), "--fov", "10", "--frames", "2", "--no-progress"])
+    assert stop.value.code == 2 and "argument --fov: expected" in capsys.readouterr().err
     assert not (tmp_path / "q").exists()
     with pytest.raises(SystemExit):
         main(["simulate", str(tmp_path / "r"), "--preset", "brutal"])

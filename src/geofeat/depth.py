@@ -222,13 +222,14 @@ def depth_profile(frame) -> str:
 
 def sequence_depth_profile(seq, requested: str | None = None, frame=None) -> str:
     """The concrete depth profile ("kinect", "quantised" or "clean") for a whole sequence (a
-    `geofeat.io.Sequence`):
-    `requested` unless None or "auto", else the sequence's geofeat.json `depth_profile`, else the
-    one `depth_profile` picks on `frame` (default: the sequence's reference frame). One profile per
-    sequence keeps every frame of it on the same kind of mesh."""
-    name = check_profile(requested) if requested is not None else "auto"
-    if name == "auto":
+    `geofeat.io.Sequence`): `requested` when it names one; None (the default) the sequence's
+    geofeat.json `depth_profile` when that names one, else measured; "auto" measured, whatever
+    geofeat.json says. Measured = the one `depth_profile` picks on `frame` (default: the sequence's
+    reference frame). One profile per sequence keeps every frame of it on the same kind of mesh."""
+    if requested is None:
         name = check_profile(getattr(seq, "depth_profile", "auto"), "geofeat.json depth_profile")
+    else:
+        name = check_profile(requested)
     if name == "auto":
         name = depth_profile(frame if frame is not None else seq.frame(seq.reference))
     return name

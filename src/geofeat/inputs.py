@@ -21,6 +21,9 @@ from .constants import DEFAULT_RADIUS_M, DEPTH_PROFILE_NAMES
 
 #: Median depth (metres) of a frame must lie in this range at the depth scale used.
 PLAUSIBLE_MEDIAN_DEPTH_M = (0.05, 50.0)
+#: A sequence whose median depth (metres) lies outside this range, though plausible, is warned about
+#: (`warn_depth_units`): close-up or far scenes exist, but a depth scale off by 10x is likelier.
+USUAL_MEDIAN_DEPTH_M = (0.15, 20.0)
 #: Focal lengths must lie between these multiples of the larger image side.
 PLAUSIBLE_FOCAL_SIDES = (0.1, 20.0)
 #: A principal point farther than this fraction of the image size from its centre is warned of (RGBDFrame).
@@ -119,14 +122,48 @@ def error_summary(error: BaseException, limit: int = 200) -> str:
     return f"{type(error).__name__}: {text[:limit]}"
 
 
+def _median_depth(depth_m: np.ndarray) -> float | None:
+    """The median of the valid (finite, > 0) depths, None when there is none."""
+    depth_m = np.asarray(depth_m)
+    valid = depth_m[np.isfinite(depth_m) & (depth_m > 0)]
+    return float(np.median(valid)) if valid.size else None
+
+
+class DepthUnitsWarning(UserWarning):
+    """A sequence's depth lies at a plausible but unusual distance for its depth scale (see
+    `warn_depth_units`): a hint to check the depth units, never an error."""
+
+
+_warned_depth_units: set[tuple[str, float]] = set()
+
+
+def warn_depth_units(depth_m: np.ndarray, depth_scale: float, where: str, key: str | None = None) -> None:
+    """Warn (`DepthUnitsWarning`) when the median valid depth (metres, after scaling) lies outside
+    `USUAL_MEDIAN_DEPTH_M`: `--depth-scale 0.0001` on millimetre PNGs gives a scene 10x too near
+    (0.1 m) that `check_depth_plausible` lets through. Close-up (macro) data may be right, so it is
+    not an error. Once per `key` (default `where`: a sequence folder, a file) and depth scale in a
+    process, however often the sequence is read."""
+    median = _median_depth(depth_m)
+    lo, hi = USUAL_MEDIAN_DEPTH_M
+    if median is None or lo <= median <= hi:
+        return
+    seen = (key or where, float(depth_scale))
+    if seen in _warned_depth_units:
+        return
+    _warned_depth_units.add(seen)
+    warnings.warn(f"{where}: median depth {median:.3g} m at depth scale {depth_scale:g} m per unit is "
+                  f"{'nearer' if median < lo else 'farther'} than usual ({lo:g}-{hi:g} m); unless the scene really is that "
+                  f"{'near' if median < lo else 'far'}, "
+                  "check --depth-scale (or depth_scale in geofeat.json) against the units of "
+                  "the depth PNGs (millimetres: 0.001)", DepthUnitsWarning, stacklevel=2)
+
+
 def check_depth_plausible(depth_m: np.ndarray, depth_scale: float, where: str) -> None:
     """The median of the valid depths (metres, after scaling) must be plausible, else the depth scale is
     wrong (metres stored where millimetres are expected, or the other way round)."""
-    depth_m = np.asarray(depth_m)
-    valid = depth_m[np.isfinite(depth_m) & (depth_m > 0)]
-    if valid.size == 0:
+    median = _median_depth(depth_m)
+    if median is None:
         return  # a frame without depth is reported by the command that needs depth
-    median = float(np.median(valid))
     lo, hi = PLAUSIBLE_MEDIAN_DEPTH_M
     if not lo <= median <= hi:
         raise ValueError(f"{where}: median depth {median:.4g} m at depth scale {depth_scale:g} m per unit is "

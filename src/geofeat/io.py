@@ -20,7 +20,7 @@ import numpy as np
 from .constants import DEFAULT_RADIUS_M, DEPTH_SCALE_M
 from .frame import RGBDFrame, check_depth
 from .inputs import (check_depth_plausible, check_depth_scale, check_intrinsics_for_image, check_landmarks,
-                     check_unique_names, is_reference_name, read_config)
+                     check_unique_names, is_reference_name, read_config, warn_depth_units)
 
 RGB_SUFFIX = "-rgb.png"
 DEPTH_SUFFIX = "-depth.png"
@@ -116,6 +116,7 @@ def read_frame(
     except ValueError as error:
         raise ValueError(f"depth_path: {depth_path}: {error}") from None
     check_depth_plausible(depth, depth_scale, f"depth_path: {depth_path}")
+    warn_depth_units(depth, depth_scale, f"depth_path: {depth_path}", key=str(Path(depth_path).resolve()))
     K = check_intrinsics_for_image(read_intrinsics(intrinsics_path), image.shape[:2], f"intrinsics_path: {intrinsics_path}")
     return RGBDFrame(image, depth, K)
 
@@ -366,6 +367,8 @@ def read_sequence(folder: str | Path, depth_scale: float | None = None) -> Seque
                    radius=radius, shape=shape)
     depth = read_depth(folder / f"{reference}{DEPTH_SUFFIX}", depth_scale)
     check_depth_plausible(depth, depth_scale, f"frame {reference} of {folder}")
+    # once per sequence, on its reference frame: a scale 10x off passes the check above
+    warn_depth_units(depth, depth_scale, f"sequence {folder} (reference frame {reference})", key=str(folder.resolve()))
     return seq
 
 

@@ -157,19 +157,23 @@ def _check_n(n, zero_is_all: bool = False) -> int:
 
 
 def check_detector_name(detector: str) -> str:
-    """Validate a detector name ("sift", "geokey", "geokey=WEIGHTS"); a weights file must be GeoKey
-    weights (`load_geokey`, which keeps them for the detection), so that a missing, corrupt or wrong
-    file fails before any work. Returns the name unchanged."""
+    """Validate a detector name ("sift", "geokey", "geokey=WEIGHTS"; the name in any case, "SIFT",
+    "GeoKey=W.pt"); a weights file must be GeoKey weights (`load_geokey`, which keeps them for the
+    detection), so that a missing, corrupt or wrong file fails before any work. Returns the
+    canonical name, lower-case with the weights path as given ("geokey=W.pt"), which is what
+    results record."""
     if not isinstance(detector, str):
         raise TypeError(f"detector: expected a name such as 'sift' or 'geokey', got {type(detector).__name__}")
     name, _, weights = detector.partition("=")
+    name = name.strip().lower()
     if name not in DETECTORS or (weights and name != "geokey") or ("=" in detector and not weights):
         raise ValueError(f"detector: expected one of {', '.join(DETECTORS)} or geokey=WEIGHTS, got {detector!r}")
     if weights:
         from .detectors.geokey import load_geokey
 
         load_geokey(weights)  # a ValueError naming the file when it is missing, a folder, or not GeoKey weights
-    return detector
+        return f"{name}={weights}"
+    return name
 
 
 def resolve_keypoint_set(detector: str, keypoint_set: str | None, default: str = "unique") -> str:
@@ -234,7 +238,8 @@ def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = DEFAUL
     """
     if not isinstance(frame, RGBDFrame):
         raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
-    name, _, weights = check_detector_name(detector).partition("=")
+    detector = check_detector_name(detector)
+    name, _, weights = detector.partition("=")
     if name == "sift":
         return detect_sift(frame, n, **options)
     n = _check_n(n)

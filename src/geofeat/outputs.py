@@ -23,6 +23,12 @@ from pathlib import Path
 MANIFEST = ".geofeat-manifest.json"
 
 
+def plural(count: int, noun: str, nouns: str | None = None) -> str:
+    """A count and its noun for report text: "1 sequence", "3 sequences", "0 sequences"; `nouns` is
+    the plural where adding "s" is wrong ("class" -> "classes", "query" -> "queries")."""
+    return f"{count} {noun if count == 1 else nouns or noun + 's'}"
+
+
 def read_manifest(folder: str | Path) -> list[str]:
     """Relative paths of the files geofeat wrote into `folder` (empty when it has no readable manifest)."""
     path = Path(folder) / MANIFEST

@@ -46,6 +46,7 @@ from tqdm import tqdm
 from ..constants import N_KEYPOINTS
 from ..features import Features
 from ..inputs import check_whole
+from ..outputs import plural
 
 __all__ = [
     "Vocabulary", "vocabulary", "sample_descriptors", "histogram", "search", "accuracy_at_k", "read_classes",
@@ -747,6 +748,11 @@ def _write_retrieval(out: Path, db: RetrievalDatabase, res: dict[str, Descriptor
     (out / "retrieval.md").write_text(_report(db, res, skipped, words, n_samples, include_own_sequence))
 
 
+def _all_sequences(count: int) -> str:
+    """"all 3 sequences", but "1 sequence" (there is no "all" of one)."""
+    return ("all " if count > 1 else "") + plural(count, "sequence")
+
+
 def _report(db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: list[str], words: int | None,
             n_samples: int, include_own_sequence: bool) -> str:
     """retrieval.md: Acc@K [95 % interval] per descriptor, then notes."""
@@ -766,38 +772,40 @@ def _report(db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: li
         lines.append(f"| {n} | {r.words} | {len(r.queries)} | " + " | ".join(cells) + " |")
     n_cls = len(set(db.classes))
     n_desc = sum(int(f.valid.sum()) for f in next(iter(db.features.values())))
-    notes = [f"{len(db.frames)} frames of {len(set(db.sequences))} sequences, {n_cls} classes; database: "
+    notes = [f"{plural(len(db.frames), 'frame')} of {plural(len(set(db.sequences)), 'sequence')}, "
+             f"{plural(n_cls, 'class', 'classes')}; database: "
              + ("every frame but the query" if include_own_sequence else "the frames of the other sequences")
              + "; [95 % bootstrap interval over queries]",
-             f"vocabulary from {min(n_samples, n_desc)} sampled descriptors; word weighting "
+             f"vocabulary from {plural(min(n_samples, n_desc), 'sampled descriptor')}; word weighting "
              f"{next(iter(res.values())).weighting} ({WEIGHTINGS[next(iter(res.values())).weighting]} distance)"]
     if reranked:
         top = next(r.rerank for r in res.values())
-        notes.append(f"each query's best {top} frames by the words reordered by verified matches (mutual nearest "
+        notes.append(f"each query's best {plural(top, 'frame')} by the words reordered by verified matches (mutual nearest "
                      f"neighbours, ratio test {RERANK_RATIO}, confirmed by their neighbours' local affine map); "
                      "K chosen on the words' order")
     if words is None:
         for n, r in res.items():
             scores = ", ".join(f"{k}: {v:.3f}" for k, v in r.validation.items())
+            held_out = len(db.is_query.nonzero()[0]) - len(skipped) - len(r.queries)
             notes.append(f"{n}: K = {r.words} chosen by validation (mean Acc@1–{k_max} on "
-                         f"{len(db.is_query.nonzero()[0]) - len(skipped) - len(r.queries)} held-out queries: {scores}); "
+                         f"{plural(held_out, 'held-out query', 'held-out queries')}: {scores}); "
                          f"Acc@K on the other {len(r.queries)}")
     else:
         notes.append(f"K = {words} given")
     if skipped:
-        notes.append(f"skipped {len(skipped)} quer{'y' if len(skipped) == 1 else 'ies'} whose class has no other "
+        notes.append(f"skipped {plural(len(skipped), 'query', 'queries')} whose class has no other "
                      f"sequence: " + ", ".join(skipped))
     detectors = getattr(db, "detectors", {})
     if detectors:
         notes.append("keypoints (inside the object mask) from: " + ", ".join(f"{d}: {det}" for d, det in detectors.items()))
     sources = set(db.mask_sources.values())
     if len(sources) == 1:  # one line, not one entry per sequence
-        notes.append(f"object masks: {sources.pop()}, for all {len(db.mask_sources)} sequences")
+        notes.append(f"object masks: {sources.pop()}, for {_all_sequences(len(db.mask_sources))}")
     else:
         notes.append("object masks: " + ", ".join(f"{s}: {src}" for s, src in db.mask_sources.items()))
     profiles = set(getattr(db, "depth_profiles", {}).values())
     if len(profiles) == 1:
-        notes.append(f"depth profile: {profiles.pop()}, for all {len(db.depth_profiles)} sequences")
+        notes.append(f"depth profile: {profiles.pop()}, for {_all_sequences(len(db.depth_profiles))}")
     elif profiles:
         notes.append("depth profiles: " + ", ".join(f"{s}: {p}" for s, p in db.depth_profiles.items()))
     if db.skipped:

@@ -48,6 +48,7 @@ from tqdm import tqdm
 from ..constants import N_KEYPOINTS
 from ..inputs import as_points, check_positive, check_whole
 from ..io import Sequence, read_sequence, skipped_frame_line
+from ..outputs import plural
 from ..tps import ThinPlateSpline, check_pairs, check_regularisation, evaluate_batch, normalise_points, solve_batch
 
 if TYPE_CHECKING:
@@ -1038,7 +1039,7 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
                         for n in dict.fromkeys(r["descriptor"] for r in rows))
         of = {name: det for det, group in groups.items() for name in group}
         detectors = ", ".join(f"{name}: {of[name]}" for name in names)
-        notes.append(f"detector: {detectors}; refine: {refine}; {n_frames} target frames in {seconds:.1f} s: "
+        notes.append(f"detector: {detectors}; refine: {refine}; {plural(n_frames, 'target frame')} in {seconds:.1f} s: "
                      f"{n_frames / max(seconds, 1e-9):.2f} frames/s (detection, description and every descriptor); "
                      f"per frame, matching + RANSAC{' + refinement' if refine != 'none' else ''}: {per}")
         paper = paper_table_iv(dict.fromkeys(r["descriptor"] for r in rows))

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..descriptors.baselines import USES_GIVEN_ANGLE
+from ..outputs import plural
 
 
 def read_results(path: str | Path) -> list[dict]:
@@ -137,7 +138,7 @@ def markdown_table(rows: list[dict], group_of=sequence_group) -> str:
                   "so not rotation-invariant; use --detector sift for them.")
     if kp_sets:
         notes += f" Keypoints: {', '.join(kp_sets)}."
-    notes += " Depth profile: " + ", ".join(f"{p} ({len(v)} sequences)" for p, v in sorted(profiles.items())) + "."
+    notes += " Depth profile: " + ", ".join(f"{p} ({plural(len(v), 'sequence')})" for p, v in sorted(profiles.items())) + "."
     return "\n".join(lines) + "\n\n" + notes + "\n"
 
 

@@ -32,9 +32,9 @@ from tqdm import tqdm
 from ..constants import N_KEYPOINTS
 from ..depth import check_profile, sequence_depth_profile
 from ..descriptors import OpenCVDescriptor, check_descriptor_name, refuse_repeated
-from ..inputs import check_tps_dir, resolve_radius
+from ..inputs import check_depth_scale, check_radius, check_tps_dir, check_whole, resolve_radius
 from ..io import Sequence, find_sequences, read_sequence
-from ..outputs import add_to_manifest, append_line_durably, atomic_file, check_out_dir, read_manifest
+from ..outputs import add_to_manifest, append_line_durably, atomic_file, check_out_dir, plural, read_manifest
 from ..keypoints import Keypoints, check_detector_name, detect, resolve_keypoint_set
 from ..matching import match
 from ..features import Features
@@ -84,6 +84,12 @@ class BenchConfig:
         if self.protocol not in ("detect", "landmarks"):
             raise ValueError(f"protocol: expected 'detect' or 'landmarks', got {self.protocol!r}")
         self.keypoint_set = resolve_keypoint_set(self.detector, self.keypoint_set, "protocol")
+        # checked here, not in each sequence (where every one would fail alike, after config.json is written)
+        if self.radius is not None:
+            self.radius = check_radius(self.radius, "radius")
+        if self.depth_scale is not None:
+            self.depth_scale = check_depth_scale(self.depth_scale, "depth_scale")
+        self.n_keypoints = check_whole(self.n_keypoints, "n_keypoints")
         if self.depth_profile is not None:
             self.depth_profile = check_profile(self.depth_profile)
         if not self.descriptors and not self.features:
@@ -328,11 +334,72 @@ def _settings(config: BenchConfig) -> dict:
     return json.loads(json.dumps({key: asdict(config)[key] for key in REUSE_KEYS}))
 
 
-def _same_run(settings: dict) -> dict:
-    """`settings` (config.json's or `_settings`') with the depth profile None and "auto" made one:
-    both mean the sequence's geofeat.json profile, else the measured one (`sequence_depth_profile`),
-    so a rerun naming the default `--depth-profile auto` is the same run."""
-    return dict(settings, depth_profile=None if settings.get("depth_profile") == "auto" else settings.get("depth_profile"))
+#: How `settings_differences` shows an unset setting (None in BenchConfig, null in config.json).
+_UNSET = {"depth_profile": "the default (geofeat.json's, else auto)", "radius": "the default (geofeat.json's or 0.075)",
+          "depth_scale": "the default (geofeat.json's or 0.001)", "tps_dir": "none", "keypoint_set": "the default"}
+
+
+def _shown(key: str, value) -> str:
+    """A setting as a person reads it in the refusal message: a name bare (auto, not "auto"), an unset
+    one in words (not null), a list comma-separated."""
+    if value is None:
+        return _UNSET.get(key, "unset")
+    if isinstance(value, str):
+        return value
+    if isinstance(value, (list, tuple)):
+        return ", ".join(map(str, value)) or "none"
+    return json.dumps(value)
+
+
+def _chosen_per_sequence(profile: str | None) -> bool:
+    """True for a depth-profile setting that leaves the choice to each sequence: None (its
+    geofeat.json's, else measured) or "auto" (measured; in a config.json written before the two
+    differed, "auto" meant what None means now)."""
+    return profile is None or profile == "auto"
+
+
+def _profile_differences(there: str | None, now: str | None, csv_path: Path, folders: list[str],
+                         config: BenchConfig) -> list[str]:
+    """The depth-profile part of `settings_differences`. A named profile must be the same name. When
+    both runs leave the choice to each sequence (None or "auto"), and they are not both None, the
+    profile each finished sequence was described with (results.csv) is compared with the one this
+    run would choose for it (`sequence_depth_profile`, measuring when it must): None and "auto"
+    differ only for a sequence whose geofeat.json names a profile other than the measured one."""
+    if there == now and there != "auto":
+        return []
+    said = f"depth_profile {_shown('depth_profile', there)} there, {_shown('depth_profile', now)} now"
+    if not (_chosen_per_sequence(there) and _chosen_per_sequence(now)):
+        return [said]
+    with open(csv_path, newline="") as fh:  # complete rows only: a torn last line is dropped on resuming
+        rows = [dict(zip(COLUMNS, row)) for row in list(csv.reader(fh))[1:] if _parses(row)]
+    recorded = {row["sequence"]: row["depth_profile"] for row in rows if row["depth_profile"]}
+    for folder in folders:
+        name = Path(folder).name
+        if name not in recorded:
+            continue
+        try:
+            chosen = sequence_depth_profile(read_sequence(folder, depth_scale=config.depth_scale), now)
+        except ValueError:  # a sequence that cannot be read now fails by name in the run
+            continue
+        if chosen != recorded[name]:
+            return [f"{said}: {name} was described with {recorded[name]}, now it would be with {chosen}"]
+    return []
+
+
+def settings_differences(before: dict, config: BenchConfig, csv_path: Path, folders: list[str]) -> list[str]:
+    """What makes `config` another run than the one config.json's `before` describes, one phrase per
+    setting ("n_keypoints 200 there, 100 now"); empty for the same run. The depth profile is
+    compared by what it chooses (`_profile_differences`)."""
+    there = {key: before.get(key) for key in REUSE_KEYS}
+    now = _settings(config)
+    differences = [f"{key} {_shown(key, there[key])} there, {_shown(key, now[key])} now"
+                   for key in REUSE_KEYS if key != "depth_profile" and there[key] != now[key]]
+    if differences:  # another run already: the profiles are compared by name, without reading a sequence
+        if there["depth_profile"] != now["depth_profile"]:
+            differences.append(f"depth_profile {_shown('depth_profile', there['depth_profile'])} there, "
+                               f"{_shown('depth_profile', now['depth_profile'])} now")
+        return differences
+    return _profile_differences(there["depth_profile"], now["depth_profile"], csv_path, folders, config)
 
 
 def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int = 1,
@@ -356,7 +423,7 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
         raise ValueError(f"out: {out} is a file, not a folder")
     folders = [str(f) for f in find_sequences(datasets, unique_names=True)]
     check_tps_dir(config.tps_dir)
-    done = _open_results(out, config, overwrite, progress)
+    done = _open_results(out, config, overwrite, progress, folders)
     work = []
     for folder in folders:
         name = Path(folder).name
@@ -365,7 +432,7 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
             work.append((folder, todo))
     skipped = len(folders) - len(work)
     if skipped and progress:
-        tqdm.write(f"bench: {skipped} sequence(s) already in {csv_path}, skipped (--overwrite to redo)")
+        tqdm.write(f"bench: {plural(skipped, 'sequence')} already in {csv_path}, skipped (--overwrite to redo)")
     failed = []
     bar = tqdm(total=len(work), desc="bench", unit="seq", disable=not progress)
 
@@ -382,10 +449,12 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
     return csv_path, failed
 
 
-def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: bool) -> set[tuple[str, str]]:
-    """Make OUT/results.csv ready for `run_benchmark`: resume it (same settings and columns; a row cut
-    short is dropped) unless `overwrite`, else start it with its header; write OUT/config.json and
-    record both files in the manifest. Returns the (sequence, descriptor) results already there."""
+def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: bool,
+                  folders: list[str]) -> set[tuple[str, str]]:
+    """Make OUT/results.csv ready for `run_benchmark` on the sequence `folders`: resume it (same
+    settings, `settings_differences`, and columns; a row cut short is dropped) unless `overwrite`,
+    else start it with its header; write OUT/config.json and record both files in the manifest.
+    Returns the (sequence, descriptor) results already there."""
     csv_path = out / "results.csv"
     config_path = out / "config.json"
     resume = csv_path.is_file() and not overwrite
@@ -402,13 +471,13 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
             before = json.loads(config_path.read_text()) if config_path.is_file() else {}
         except ValueError:
             raise ValueError(f"out: {config_path} is not valid JSON; use --overwrite or another --out") from None
-        now = _same_run(_settings(config))
-        there = _same_run({k: before.get(k) for k in REUSE_KEYS}) if isinstance(before, dict) else None
-        if there != now:
-            shown = ("; ".join(f"{k} {json.dumps(there[k])} there, {json.dumps(now[k])} now" for k in REUSE_KEYS
-                               if there[k] != now[k]) if there is not None else repr(before))
-            raise ValueError(f"out: {out} holds results made with other settings ({shown}); use --overwrite or "
-                             "another --out")
+        if not isinstance(before, dict):
+            raise ValueError(f"out: {config_path} holds {before!r}, not the settings of a bench run; use --overwrite "
+                             "or another --out")
+        differences = settings_differences(before, config, csv_path, folders)
+        if differences:
+            raise ValueError(f"out: {out} holds results made with other settings ({'; '.join(differences)}); use "
+                             "--overwrite or another --out")
         if header != COLUMNS:
             raise ValueError(f"out: {csv_path} has other columns (an older geofeat?); use --overwrite")
         changed = _changed_weights(before.get("provenance") or {}, made_by)
@@ -417,7 +486,8 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
                              "changed since: retrained?); use --overwrite or another --out")
         dropped = repair_results(csv_path)
         if dropped and progress:
-            tqdm.write(f"bench: dropped {dropped} incomplete row(s) at the end of {csv_path}; they are recomputed")
+            tqdm.write(f"bench: dropped {plural(dropped, 'incomplete row')} at the end of {csv_path}; "
+                       + ("it is" if dropped == 1 else "they are") + " recomputed")
         done = _finished(csv_path)
     else:
         with atomic_file(csv_path) as tmp:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from importlib import import_module
 
 #: The command modules, in the order `geofeat --help` lists them.
@@ -46,6 +47,10 @@ def main(argv: list[str] | None = None) -> int:
     2 bad input (one-line error), 130 interrupted (finished results are kept)."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    plain = warnings.formatwarning
+    # a warning (the depth units, an upright descriptor) reads as one line of the command's, without
+    # the source line that Python's default format quotes
+    warnings.formatwarning = lambda message, category, *_, **__: f"geofeat {args.command}: warning: {message}\n"
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
@@ -60,3 +65,5 @@ def main(argv: list[str] | None = None) -> int:
         text = " ".join(str(error).split()) or type(error).__name__
         print(f"geofeat {args.command}: error: {text}", file=sys.stderr)
         return 2
+    finally:
+        warnings.formatwarning = plain

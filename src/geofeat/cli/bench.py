@@ -8,7 +8,8 @@ from pathlib import Path
 from ..constants import N_KEYPOINTS
 from ..descriptors import available_descriptors
 from ..keypoints import KEYPOINT_SETS
-from .options import depth_profile_option, detector_option, keypoint_count, keypoint_set_for, names
+from .options import (depth_profile_option, depth_scale_option, detector_option, keypoint_count, keypoint_set_for,
+                      names, radius_option, whole_number)
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -19,15 +20,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help=f"comma-separated, from {','.join(available_descriptors())} (default geobit,geopatch,orb,sift)")
     p.add_argument("--protocol", choices=("detect", "landmarks"), default="detect")
     p.add_argument("--out", required=True, help="output folder: results.csv, table.md, plots, timing.md")
-    p.add_argument("--radius", type=float, default=None, help="geodesic radius, metres (default: geofeat.json or 0.075)")
-    p.add_argument("--depth-scale", type=float, default=None, help="metres per depth-PNG unit (default: geofeat.json or 0.001)")
+    radius_option(p)
+    depth_scale_option(p)
     p.add_argument("--keypoints", type=keypoint_count, default=N_KEYPOINTS, help="keypoints per frame (default 2048)")
     detector_option(p)
     p.add_argument("--features", action="append", metavar="NAME=PATH",
                    help="also score features computed elsewhere: an hloc-style .h5 (groups <sequence>/<frame>) "
                         "or a folder of <frame>.npz with keypoints, descriptors and optional scores (repeatable)")
     p.add_argument("--tps-dir", default=None, help="the authors' published TPS ground truth, one folder per sequence")
-    p.add_argument("--workers", type=int, default=1, help="local worker processes (sequences in parallel)")
+    p.add_argument("--workers", type=whole_number(1), default=1, help="local worker processes (sequences in parallel)")
     p.add_argument("--scheduler", default=None, help="Dask scheduler address (e.g. tcp://host:8786); needs geofeat[dask]")
     p.add_argument("--timing", action="store_true", help="also time f(.), extraction and matching for 250 and 2048 keypoints")
     p.add_argument("--keypoint-set", choices=KEYPOINT_SETS, default=None,
@@ -47,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     from ..depth import sequence_depth_profile
     from ..inputs import resolve_radius
     from ..io import find_sequences, read_sequence
-    from ..outputs import add_to_manifest, atomic_file
+    from ..outputs import add_to_manifest, atomic_file, plural
 
     def write(path: Path, text: str) -> None:
         with atomic_file(path) as tmp:
@@ -90,6 +91,6 @@ def run(args: argparse.Namespace) -> int:
                               depth_profile=sequence_depth_profile(seq, args.depth_profile))
         write(out / "timing.md", timing)
         print(timing)
-    print(f"wrote {csv_path} ({len(rows)} rows) and {out / 'table.md'}"
+    print(f"wrote {csv_path} ({plural(len(rows), 'row')}) and {out / 'table.md'}"
           + (f"; FAILED sequences: {', '.join(failed)}" if failed else ""))
     return 1 if failed else 0

@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..outputs import plural
+
 
 def file_label(descriptor: str) -> str:
     """A descriptor name fit for a file name ("geopatch=runs/a.pt" -> "geopatch-a")."""
@@ -45,7 +47,7 @@ def finish_skipped(skipped: list[str], total: int, what: str) -> int:
     if skipped and len(skipped) >= total:
         raise ValueError(f"{what}: every frame was skipped ({', '.join(skipped[:5])}); nothing written")
     if skipped:
-        print(f"{len(skipped)} frame(s) SKIPPED: {', '.join(skipped)}", file=sys.stderr)
+        print(f"{plural(len(skipped), 'frame')} SKIPPED: {', '.join(skipped)}", file=sys.stderr)
         return 1
     return 0
 

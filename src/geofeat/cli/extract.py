@@ -31,7 +31,7 @@ def run(args: argparse.Namespace) -> int:
     from ..features import save_features
     from ..inputs import resolve_radius
     from ..io import read_sequence
-    from ..outputs import atomic_file, check_out_file, partial_name
+    from ..outputs import atomic_file, check_out_file, partial_name, plural
 
     seq = read_sequence(args.folder, depth_scale=args.depth_scale)
     radius = resolve_radius(args.radius, seq)
@@ -73,5 +73,5 @@ def run(args: argparse.Namespace) -> int:
     where = path if is_h5(path) else path.with_name(f"{path.stem}-<frame>.npz")
     per_frame = "" if not counts else (f" ({min(counts)}" + (f"-{max(counts)}" if max(counts) != min(counts) else "")
                                        + f" keypoints per frame of --keypoints {args.keypoints})")
-    print(f"wrote {args.descriptor} features of {len(seq) - len(skipped)} frames of {seq.folder}{per_frame} to {where}")
+    print(f"wrote {args.descriptor} features of {plural(len(seq) - len(skipped), 'frame')} of {seq.folder}{per_frame} to {where}")
     return status

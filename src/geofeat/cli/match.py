@@ -33,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
     from ..inputs import resolve_radius
     from ..io import read_sequence
     from ..matching import match
-    from ..outputs import check_out_dir, output_folder
+    from ..outputs import check_out_dir, output_folder, plural
     from ..viz import draw_matches
 
     seq = read_sequence(args.folder, depth_scale=args.depth_scale)
@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
             save_matches(matches_path, m, name=f"{seq.reference}/{name}")
             n_matches = int((m.matches0 >= 0).sum())
             total_matches += n_matches
-            summary = f"{n_matches} matches"
+            summary = plural(n_matches, "match", "matches")
             correct = None if truth is None else correct_matches(truth, name, k_ref.xy, k_tgt.xy, m.matches0)
             if correct is not None:
                 total_correct += int(correct.sum())
@@ -84,6 +84,6 @@ def run(args: argparse.Namespace) -> int:
             cv2.imwrite(str(tmp / f"{seq.reference}__{name}__{label}.png"), picture)
             tqdm.write(f"{seq.reference} -> {name}: {summary}")
         status = finish_skipped(skipped, len(seq.targets), "match")
-    print(f"total: {total_matches} matches" + (f", {total_correct} correct" if truth is not None else " (no ground truth)"))
+    print(f"total: {plural(total_matches, 'match', 'matches')}" + (f", {total_correct} correct" if truth is not None else " (no ground truth)"))
     print(f"wrote {out / f'matches-{label}.h5'} and one match picture per pair in {out}")
     return status

@@ -4,9 +4,11 @@ sequence-and-frames options of extract/match, the options of the applications)."
 from __future__ import annotations
 
 import argparse
+import math
 
 from ..constants import DEPTH_PROFILE_NAMES, DEPTH_SCALE_M, N_KEYPOINTS
 from ..descriptors import available_descriptors, check_descriptor_name
+from ..inputs import check_depth_scale, check_radius
 from ..keypoints import DEFAULT_DETECTOR, KEYPOINT_SETS, check_detector_name, detector_for, resolve_keypoint_set
 
 
@@ -29,14 +31,95 @@ def keypoint_count(text: str) -> int:
     return value
 
 
+# argparse types for the numeric options: a bad value is a usage error that names the flag
+# ("argument --words: expected a whole number >= 2, got '1'", exit 2) before any work, rather than a
+# later error naming the Python parameter behind it.
+
+def whole_number(minimum: int, maximum: int | None = None):
+    """argparse type: a whole number >= `minimum` (and <= `maximum` when given)."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or value < minimum or (maximum is not None and value > maximum):
+            bound = f">= {minimum}" if maximum is None else f"from {minimum} to {maximum}"
+            raise argparse.ArgumentTypeError(f"expected a whole number {bound}, got {text!r}")
+        return value
+    return parse
+
+
+def _finite(text: str) -> float | None:
+    try:
+        value = float(text)
+    except ValueError:
+        return None
+    return value if math.isfinite(value) else None
+
+
+def positive_number(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    value = _finite(text)
+    if value is None or value <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return value
+
+
+def number_between(lo: float, hi: float):
+    """argparse type: a finite number strictly between `lo` and `hi`."""
+    def parse(text: str) -> float:
+        value = _finite(text)
+        if value is None or not lo < value < hi:
+            raise argparse.ArgumentTypeError(f"expected a number strictly between {lo:g} and {hi:g}, got {text!r}")
+        return value
+    return parse
+
+
+def _checked(text: str, check, flag: str) -> float:
+    """`check(value, flag)` of a positive number; its ValueError as a usage error without the flag
+    (argparse names it)."""
+    value = positive_number(text)
+    try:
+        return check(value, flag)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error).removeprefix(f"{flag}: ")) from None
+
+
+def radius_value(text: str) -> float:
+    """argparse type: a plausible geodesic radius in metres (`geofeat.inputs.check_radius`)."""
+    return _checked(text, check_radius, "--radius")
+
+
+def depth_scale_value(text: str) -> float:
+    """argparse type: a plausible depth scale, metres per depth-PNG unit (`geofeat.inputs.check_depth_scale`)."""
+    return _checked(text, check_depth_scale, "--depth-scale")
+
+
+def radius_option(p: argparse.ArgumentParser) -> None:
+    """--radius (default: the sequence's geofeat.json or 0.075)."""
+    p.add_argument("--radius", type=radius_value, default=None,
+                   help="geodesic radius, metres (default: geofeat.json or 0.075)")
+
+
+def depth_scale_option(p: argparse.ArgumentParser) -> None:
+    """--depth-scale (default: the sequence's geofeat.json or 0.001)."""
+    p.add_argument("--depth-scale", type=depth_scale_value, default=None,
+                   help=f"metres per depth-PNG unit (default: geofeat.json or {DEPTH_SCALE_M})")
+
+
 def depth_profile_option(p: argparse.ArgumentParser, default: str | None) -> None:
-    """--depth-profile (auto, kinect, quantised, clean) with `default`."""
-    p.add_argument("--depth-profile", choices=DEPTH_PROFILE_NAMES, default=default,
+    """--depth-profile (auto, kinect, quantised, clean) with `default`: None for the commands that read
+    sequences (each sequence's geofeat.json profile when it names one, else auto: see
+    `depth.sequence_depth_profile`), so that an explicit "auto" measures even where geofeat.json
+    names a profile; "auto" for `demo` (a frame without geofeat.json)."""
+    what = ("default auto" if default == "auto" else
+            "default: the sequence's geofeat.json profile when it names one, else auto; given explicitly, auto "
+            "measures even where geofeat.json names a profile")
+    p.add_argument("--depth-profile", choices=DEPTH_PROFILE_NAMES, default=default, type=str.lower,
                    help="depth preprocessing: kinect (hole filling, two rounds of smoothing, half-resolution "
                         "mesh; noisy depth), quantised (one round; noise-free depth in coarse steps such as "
                         "millimetre PNGs), clean (raw depth, holes filled, full-resolution mesh) or auto "
-                        "(chosen from the measured depth noise and steps; default, unless the sequence's "
-                        "geofeat.json names one)")
+                        f"(chosen from the measured depth noise and steps); {what}")
 
 
 def detector_name(text: str) -> str:
@@ -89,9 +172,8 @@ def frames_options(p: argparse.ArgumentParser) -> None:
                    help="SIFT keypoints only. unique: one keypoint per position (default); protocol: SIFT's "
                         "strongest as OpenCV returns them")
     depth_profile_option(p, None)
-    p.add_argument("--radius", type=float, default=None, help="geodesic radius, metres (default: geofeat.json or 0.075)")
-    p.add_argument("--depth-scale", type=float, default=None,
-                   help=f"metres per depth-PNG unit (default: geofeat.json or {DEPTH_SCALE_M})")
+    radius_option(p)
+    depth_scale_option(p)
 
 
 def app_options(p: argparse.ArgumentParser) -> None:
@@ -105,8 +187,8 @@ def app_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--keypoints", type=keypoint_count, default=N_KEYPOINTS, help="keypoints per frame (default 2048)")
     detector_option(p, None)
     p.add_argument("--tps-dir", default=None, help="the authors' TPS ground truth (objmask, warps), one folder per sequence")
-    p.add_argument("--radius", type=float, default=None, help="geodesic radius, metres (default: geofeat.json or 0.075)")
-    p.add_argument("--depth-scale", type=float, default=None, help="metres per depth-PNG unit (default: geofeat.json or 0.001)")
+    radius_option(p)
+    depth_scale_option(p)
 
 
 def names(text: str) -> tuple[str, ...]:

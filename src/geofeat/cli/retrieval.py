@@ -7,7 +7,8 @@ import sys
 from pathlib import Path
 
 from ..apps.retrieval import DEFAULT_WEIGHTING, RERANK, WEIGHTINGS, WORD_CANDIDATES
-from .options import app_options, names
+from ..outputs import plural
+from .options import app_options, names, whole_number
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -15,7 +16,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("retrieval", help="object retrieval with a bag of visual words (Acc@K)")
     p.add_argument("datasets", nargs="+", help="sequence folders, or folders of sequences")
     app_options(p)
-    p.add_argument("--words", type=int, default=None,
+    p.add_argument("--words", type=whole_number(2), default=None,
                    help="visual words K (default: chosen per descriptor among "
                         f"{','.join(map(str, WORD_CANDIDATES))} (those below --samples) by validation on a random "
                         "half of the queries; Acc@K is then reported on the other half)")
@@ -24,16 +25,16 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "(square roots, L2), tfidf (tf-idf, cosine), tfidf-sqrt (square-root tf times idf, cosine), "
                         "tfidf-l1 (tf-idf, L1-normalised, L1 distance); idf from the database frames "
                         f"(default {DEFAULT_WEIGHTING})")
-    p.add_argument("--rerank", type=int, default=RERANK, metavar="N",
+    p.add_argument("--rerank", type=whole_number(0), default=RERANK, metavar="N",
                    help="reorder each query's best N results by the words by verified matches (mutual nearest "
                         "neighbours passing the ratio test that their neighbours' local affine map confirms); 0 keeps "
                         f"the words' order, the paper's setting (default {RERANK})")
     p.add_argument("--include-own-sequence", action="store_true",
                    help="the database also holds the query's own sequence (default: only the other sequences, "
                         "the paper's setting)")
-    p.add_argument("--samples", type=int, default=10000, help="descriptors sampled for the vocabulary (default 10000)")
+    p.add_argument("--samples", type=whole_number(1), default=10000, help="descriptors sampled for the vocabulary (default 10000)")
     p.add_argument("--classes", default=None, help="CSV 'sequence,class' (default: class = sequence folder name)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=whole_number(0), default=0, help="random seed (default 0)")
     p.set_defaults(func=run)
     return p
 
@@ -52,5 +53,5 @@ def run(args: argparse.Namespace) -> int:
     print((out / "retrieval.md").read_text())
     print(f"wrote {', '.join(str(out / name) for name in RESULT_FILES)}")
     if db.skipped:
-        print(f"{len(db.skipped)} frame(s) SKIPPED: {', '.join(db.skipped)}", file=sys.stderr)
+        print(f"{plural(len(db.skipped), 'frame')} SKIPPED: {', '.join(db.skipped)}", file=sys.stderr)
     return 1 if db.skipped else 0

@@ -5,8 +5,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..sim.scenes import PRESETS, SCENARIOS
+from ..sim.scenes import FOV_RANGE_DEG, PRESETS, SCENARIOS
 from ..sim.textures import FABRIC_KINDS
+from ..sim.writer import SIDE_RANGE_PX
+from .options import number_between, whole_number
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -26,19 +28,19 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="mild: the original gentle scenes; paper: the paper's simulation section (scale swings "
                    "0.5x-1.3x, bends, gusts); hard: strong folds, foreshortening up to ~70 deg, self-occlusion, "
                    "gusts, moving specular lights, image noise (default mild)")
-    p.add_argument("--fov", type=float, default=None,
+    p.add_argument("--fov", type=number_between(*FOV_RANGE_DEG), default=None,
                    help="vertical field of view in degrees, in (20, 120) (default: Kinect-like f = 525 px at "
                    "640 x 480, 49.1 deg; the paper authors rendered 90)")
     p.add_argument("--motion-blur", action="store_true", help="motion blur on the target frames (paper, hard)")
-    p.add_argument("--frames", type=int, default=30, help="number of frames, reference included (default 30)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--frames", type=whole_number(1), default=30, help="number of frames, reference included (default 30)")
+    p.add_argument("--seed", type=whole_number(0), default=0, help="random seed (default 0)")
     tex = p.add_mutually_exclusive_group()
     tex.add_argument("--texture", help="texture image file, 'procedural', or 'fabric' or 'fabric:KIND' (a generated fabric; "
                      f"KIND one of {', '.join(FABRIC_KINDS)}) (default: a packaged photo or a procedural texture)")
     tex.add_argument("--texture-dir", type=Path, help="draw the texture at random from this folder")
-    p.add_argument("--width", type=int, default=640, help="image width in pixels, 32 to 8192 (default 640)")
-    p.add_argument("--height", type=int, default=480, help="image height in pixels, 32 to 8192 (default 480)")
-    p.add_argument("--steps-per-frame", type=int, default=6, help="simulation steps between frames (default 6)")
+    p.add_argument("--width", type=whole_number(*SIDE_RANGE_PX), default=640, help="image width in pixels, 32 to 8192 (default 640)")
+    p.add_argument("--height", type=whole_number(*SIDE_RANGE_PX), default=480, help="image height in pixels, 32 to 8192 (default 480)")
+    p.add_argument("--steps-per-frame", type=whole_number(1), default=6, help="simulation steps between frames (default 6)")
     p.add_argument("--kinect-noise", action="store_true", help="Kinect-like depth noise and holes")
     p.add_argument("--contact-sheet", type=Path, help="also write a contact sheet PNG with ground-truth tracks")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier simulation in OUT_DIR (only files geofeat wrote; "
@@ -52,8 +54,6 @@ def run(args: argparse.Namespace) -> int:
     """Run `simulate`; ValueError on bad input. Returns the exit code."""
     from ..sim.writer import simulate_sequence
 
-    if args.steps_per_frame < 1:
-        raise ValueError(f"--steps-per-frame: expected >= 1, got {args.steps_per_frame}")
     if args.contact_sheet is not None:  # checked before the simulation, which takes minutes
         import cv2
 

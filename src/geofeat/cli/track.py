@@ -8,7 +8,8 @@ import sys
 from pathlib import Path
 
 from ..apps.tracking import DEFAULT_REFINE, RANSAC_THRESHOLD_PX, REFINE_MODES
-from .options import app_options, names
+from ..outputs import plural
+from .options import app_options, names, positive_number
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -17,7 +18,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("sequences", nargs="+", help="sequence folders, or folders of sequences")
     app_options(p)
     p.add_argument("--roi", default=None, help="x0,y0,x1,y1 in reference pixels (default: object mask box shrunk by 10%%)")
-    p.add_argument("--threshold", type=float, default=RANSAC_THRESHOLD_PX,
+    p.add_argument("--threshold", type=positive_number, default=RANSAC_THRESHOLD_PX,
                    help=f"inlier threshold of the spline fits (RANSAC and local consistency), pixels (default {RANSAC_THRESHOLD_PX:g})")
     p.add_argument("--refine", choices=REFINE_MODES, default=DEFAULT_REFINE,
                    help="after the robust TPS fit, refine the warp densely against the template: photometric (the "
@@ -50,5 +51,5 @@ def run(args: argparse.Namespace) -> int:
     print((Path(args.out) / "tracking.md").read_text())
     print(f"wrote {csv_path}, {Path(args.out) / 'tracking.md'} and per sequence/descriptor grid.npz + track.gif")
     if skipped:
-        print(f"{len(skipped)} frame(s) SKIPPED: {', '.join(skipped)}", file=sys.stderr)
+        print(f"{plural(len(skipped), 'frame')} SKIPPED: {', '.join(skipped)}", file=sys.stderr)
     return 1 if skipped else 0

@@ -37,7 +37,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="network: GeoPatch (geodesic patches) or an image-patch baseline (tfeat-sim, logpolar-sim)")
     p.add_argument("--resume", action="store_true", help="continue from OUT.ckpt (with the same options)")
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
-    depth_profile_option(p, "auto")
+    depth_profile_option(p, None)
     p.set_defaults(func=run)
     return p
 
@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
                 raise ValueError(f"--init: {error}; leave --channels out to train the weights' own widths") from None
             raise
 
-    net = None  # geodesic polar patches with the depth profile asked for (auto: per sequence)
+    net = None  # geodesic polar patches with the depth profile asked for (default: per sequence)
     build = partial(build_patch_set, depth_config=args.depth_profile)
     make_validation = partial(validation_pairs, depth_config=args.depth_profile)
     if args.net != "geopatch":  # image-patch baselines (tfeat-sim, logpolar-sim) on the same data

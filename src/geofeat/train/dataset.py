@@ -57,16 +57,17 @@ def _to_uint8(values: np.ndarray) -> np.ndarray:
     return np.clip(np.rint(values * 255), 0, 255).astype(np.uint8)
 
 
-def _sequence_config(seq: Sequence, depth_config: DepthConfig | str, ref) -> DepthConfig:
+def _sequence_config(seq: Sequence, depth_config: DepthConfig | str | None, ref) -> DepthConfig:
     if isinstance(depth_config, DepthConfig):
         return depth_config
     return PROFILES[sequence_depth_profile(seq, depth_config, ref)]
 
 
 def sequence_patches(seq: Sequence, n_keypoints: int = 512, radius: float = DEFAULT_RADIUS_M,
-                     depth_config: DepthConfig | str = "auto", first_id: int = 0) -> PatchSet:
+                     depth_config: DepthConfig | str | None = None, first_id: int = 0) -> PatchSet:
     """Patches of the reference frame's SIFT keypoints in every frame where they are visible.
-    `depth_config`: a DepthConfig or a profile name, resolved once for the sequence (as the bench does)."""
+    `depth_config`: a DepthConfig or a profile name, resolved once for the sequence (as the bench does:
+    `depth.sequence_depth_profile`; None: the sequence's geofeat.json profile, else measured)."""
     ref = seq.frame(seq.reference)
     depth_config = _sequence_config(seq, depth_config, ref)
     kps = detect(ref, n_keypoints, detector="sift")
@@ -86,7 +87,7 @@ def sequence_patches(seq: Sequence, n_keypoints: int = 512, radius: float = DEFA
 
 
 def build_patch_set(paths, n_keypoints: int = 512, radius: float = DEFAULT_RADIUS_M,
-                    depth_config: DepthConfig | str = "auto", progress: bool = True) -> PatchSet:
+                    depth_config: DepthConfig | str | None = None, progress: bool = True) -> PatchSet:
     """Patch set of all sequences under `paths` (see `geofeat.io.find_sequences`)."""
     sets, next_id = [], 0
     for folder in tqdm(find_sequences(paths), desc="patches", unit="seq", disable=not progress):
@@ -161,7 +162,7 @@ def validation_keypoints(paths, n_keypoints: int = 1024, max_pairs_per_sequence:
 
 
 def validation_pairs(paths, n_keypoints: int = 1024, radius: float = DEFAULT_RADIUS_M,
-                     depth_config: DepthConfig | str = "auto", max_pairs_per_sequence: int = 2) -> list[ValidationPair]:
+                     depth_config: DepthConfig | str | None = None, max_pairs_per_sequence: int = 2) -> list[ValidationPair]:
     """Reference-target pairs of held-out sequences with independently detected SIFT keypoints and
     the simulator's ground truth, geodesic polar patches precomputed, for a per-epoch matching score."""
     pairs = []
