@@ -108,4 +108,6 @@ def plane_frame(shape=(480, 640), z0: float = 1.0, seed: int = 0) -> geofeat.RGB
     rng = np.random.default_rng(seed)
     img = cv2.GaussianBlur(rng.random(shape).astype(np.float32), (0, 0), 2.0)
     img = (img - img.min()) / (img.max() - img.min())
-    return geofeat.RGBDFrame(img, np.full(shape, z0, np.float32), K_VGA)
+    K = K_VGA.copy()
+    K[0, 2], K[1, 2] = (shape[1] - 1) / 2, (shape[0] - 1) / 2  # the principal point of this image size
+    return geofeat.RGBDFrame(img, np.full(shape, z0, np.float32), K)

@@ -105,7 +105,10 @@ def test_every_stage_takes_every_keypoint_form(frame, form):
     assert len(f) == 40 and f.valid.sum() == reference.valid.sum()
     orb = make_descriptor("orb").compute(frame, given)
     assert len(orb) == 40 and orb.valid.any()
-    small = geofeat.RGBDFrame(frame.image[200:280, 280:380], frame.depth[200:280, 280:380], frame.K)
+    K = frame.K.copy()
+    K[0, 2] -= 280  # the crop's camera: the principal point moves with the crop's corner
+    K[1, 2] -= 200
+    small = geofeat.RGBDFrame(frame.image[200:280, 280:380], frame.depth[200:280, 280:380], K)
     xy = np.array([[40.2, 30.7], [55.1, 41.3]])
     forms = {"array": xy, "list": xy.tolist(), "cv2": [cv2.KeyPoint(x, y, 8.0) for x, y in xy],
              "Keypoints": geofeat.Keypoints(xy, np.zeros(2), np.full(2, 8.0), np.zeros(2))}

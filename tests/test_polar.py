@@ -335,6 +335,7 @@ def test_rotated90_keeps_or_refuses_the_skew():
     quarter turn would move it to K[1, 0], which a camera matrix here never has (and was ignored)."""
     K = K_VGA.copy()
     K[0, 1] = 2.0
+    K[0, 2], K[1, 2] = 79.5, 59.5  # the principal point of a 160 x 120 image
     frame = geofeat.RGBDFrame(np.zeros((120, 160), np.uint8), np.ones((120, 160)), K)
     assert frame.rotated90(2).K[0, 1] == 2.0
     for k in (1, 3, -1):
