@@ -6,7 +6,7 @@ DEFAULT_RADIUS_M = 0.075
 N_ANGLES = 32
 #: Number of radial rings (patch rows) of a polar patch; ring i sits at (i + 1) * radius / N_RINGS.
 N_RINGS = 32
-#: Number of SIFT keypoints detected per frame.
+#: Number of keypoints detected per frame by default (any detector).
 N_KEYPOINTS = 2048
 #: Depth PNG unit in metres (public datasets store millimetres).
 DEPTH_SCALE_M = 0.001

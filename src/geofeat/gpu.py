@@ -13,7 +13,7 @@ Then on the GPU:
    into torch tensors;
 2. the sampling blur (separable Gaussian, OpenCV's kernel) and the bilinear read of the patches
    in OpenCV `remap`'s form, with border replication (`sample_bilinear_torch`);
-3. the GeoPatch CNN in torch (fp32, TF32 off);
+3. the GeoPatch CNN in torch (fp32, TF32 off; float16 autocast with `compute_cuda(..., half=True)`);
 4. matching as matrix products: L2 for GeoPatch, min-over-rotations Hamming for GeoBit
    (`matching._hamming_search_torch`); only the (N0,) matches and distances come back.
 

@@ -22,11 +22,11 @@ KEYPOINT_SETS = ("protocol", "unique")
 #: Detector names of `detect`: "sift" (OpenCV) and "geokey" (learned, `geofeat.detectors.geokey`);
 #: "geokey=PATH" uses weights made by `geofeat train-detector`.
 DETECTORS = ("sift", "geokey")
-#: The detector of `detect` (and `geofeat.extract`, `geofeat extract|match`) when none is named: GeoKey,
-#: which scores above SIFT with both geodesic descriptors on every held-out simulated test set
-#: measured (`mild`, `paper`, `hard`, at 1024 and 2048 keypoints; BENCHMARKS.md, "GeoKey v3.3").
-#: The benchmark (`geofeat bench`) keeps SIFT, the published protocol's detector, as its default, and
-#: so do `track` and `retrieval`, which compare descriptors with SIFT's own (it needs SIFT's orientation).
+#: The detector of `detect` when none is named: GeoKey, which scores above SIFT with both geodesic
+#: descriptors on every held-out simulated test set measured (`mild`, `paper`, `hard`, at 1024 and
+#: 2048 keypoints; BENCHMARKS.md, "GeoKey v3.3"). `geofeat.extract` and `geofeat extract|match|track|
+#: retrieval` use it for the geodesic descriptors and SIFT for the others, which need SIFT's orientation
+#: (`detector_for`). The benchmark (`geofeat bench`) keeps SIFT, the published protocol's detector.
 DEFAULT_DETECTOR = "geokey"
 
 

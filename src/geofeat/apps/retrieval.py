@@ -1,7 +1,8 @@
 """Object retrieval with a bag of visual words (the paper's first application, its retrieval figure).
 
-1. SIFT keypoints (the 2048 strongest) are detected inside the object mask of every frame of every
-   sequence (`geofeat.apps.objectmask.object_mask`) and described;
+1. keypoints (the 2048 best; by default each descriptor's own detector, GeoKey for GeoPatch and
+   GeoBit and SIFT for the others, `describe_datasets`) are detected inside the object mask of every
+   frame of every sequence (`geofeat.apps.objectmask.object_mask`) and described;
 2. `vocabulary`: K visual words (paper: 10) are the K-medoids (FasterPAM, `kmedoids` package) of
    10,000 descriptors sampled at random from all frames, under each descriptor's own distance
    (L2; Hamming; GeoBit: the minimum Hamming distance over its 16 rotations), the distance matrix

@@ -2,7 +2,9 @@
 
 A template region of interest (ROI) of the reference frame is followed in every frame of a sequence:
 
-1. keypoints (SIFT's 2048 strongest by default, or GeoKey's) of the reference frame, kept inside the
+1. keypoints (the 2048 best; `write_tracking`, what `geofeat track` runs, uses each descriptor's own
+   detector by default, GeoKey for GeoPatch and GeoBit and SIFT for the others, while
+   `track_sequence` uses one detector, SIFT unless told) of the reference frame, kept inside the
    ROI, are matched to the keypoints of frame k by mutual nearest descriptor distance
    (`geofeat.match`) and, once a frame has been fitted, also among the frame keypoints within
    `GUIDE_RADIUS_PX` of where the last good warp puts them (`guided_matches`); the match set whose
@@ -26,7 +28,8 @@ A template region of interest (ROI) of the reference frame is followed in every 
    displacement field on a 16 px control grid over the ROI's object pixels, L-BFGS coarse to fine on
    local NCC, the RANSAC inliers as soft landmarks). Every frame is registered to the template itself,
    from that frame's own spline, so errors cannot accumulate (no drift); the refined warp is kept only
-   when it lowers the photometric cost and does not fold over (`RefinedWarp`, `refine_warp`),
+   when it lowers the photometric cost and folds over at no more than `MAX_FOLDED_FRACTION` of its
+   control points (`RefinedWarp`, `refine_warp`),
    otherwise the spline stays. The per-frame SSIM / NCC inside the ROI are the confidence.
 
 Pixels follow the OpenCV convention (the centre of the top-left pixel is (0, 0)).

@@ -122,7 +122,8 @@ def simulate_sequence(
             (camera moving back to twice the distance).
         n_frames: number of frames, the reference included (>= 1).
         seed: a whole number >= 0; everything random (texture choice, cloth, wind, pins, lights, noise) follows it.
-        texture: image file, `"procedural"`, an (H, W, 3) uint8 BGR array, or None (a packaged
+        texture: image file, `"procedural"`, `"fabric"` or `"fabric:KIND"` (a generated fabric,
+            `geofeat.sim.textures.FABRIC_KINDS`), an (H, W, 3) uint8 BGR array, or None (a packaged
             training photograph or a procedural texture, drawn from the seed).
         width, height: image size in pixels, whole numbers from 32 to 8192; intrinsics f = 525 * width / 640,
             centred.
