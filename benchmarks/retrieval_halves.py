@@ -23,7 +23,7 @@ import numpy as np
 
 from common import simulated_as
 from geofeat.apps.retrieval import (
-    DEFAULT_WEIGHTING, bootstrap_interval, eligible_queries, evaluate_descriptor, split_queries,
+    DEFAULT_WEIGHTING, N_VOCABULARY_SAMPLES, bootstrap_interval, eligible_queries, evaluate_descriptor, split_queries,
 )
 from geofeat.sim.textures import FABRIC_KINDS
 
@@ -48,6 +48,8 @@ def main() -> None:
     p.add_argument("--descriptors", default="geopatch,sift")
     p.add_argument("--words", type=int, default=2560)
     p.add_argument("--weighting", default=DEFAULT_WEIGHTING)
+    p.add_argument("--samples", type=int, default=N_VOCABULARY_SAMPLES,
+                   help=f"descriptors sampled for the vocabulary (default {N_VOCABULARY_SAMPLES}; more than --words)")
     p.add_argument("--rerank", type=int, default=0,
                    help="results re-ranked by verified matches (default 0: the words' order, as the figures in "
                         "BENCHMARKS.md that this script made before `geofeat retrieval` re-ranked)")
@@ -73,7 +75,7 @@ def main() -> None:
         queries, exclude, _ = eligible_queries(db)
         query_index = queries
         r = evaluate_descriptor(db.features[name], db, queries, exclude, words=args.words, weighting=args.weighting,
-                                rerank_top=args.rerank)
+                                rerank_top=args.rerank, n_samples=args.samples)
         per_query[name] = r.per_query.mean(axis=1)  # (Q,) all queries: K is given
         cls = np.asarray(db.classes)
         family = fabric_families(db.classes, args.objects, args.set_seed)
