@@ -674,6 +674,21 @@ def retrieval_overwrite_user_file_named_like_a_result(tmp):
     return _retrieval(tmp, "--overwrite")
 
 
+def retrieval_samples_without_words(tmp):
+    args = _retrieval(tmp, "--samples", "5")
+    i = args.index("--words")
+    return args[:i] + args[i + 2:]
+
+
+def _nothing_described(monkeypatch):
+    import geofeat.apps.retrieval as retrieval
+
+    def described(*args, **kwargs):
+        raise AssertionError("frames were described before the bad option was reported")
+
+    monkeypatch.setattr(retrieval, "describe_datasets", described)
+
+
 def retrieval_conflicting_classes(tmp):
     (tmp / "classes.csv").write_text("sequence,class\ns1,cloth\ns2,paper\ns2,cloth\n")
     return _retrieval(tmp, "--classes", str(tmp / "classes.csv"))
@@ -959,7 +974,12 @@ CASES = [
          "did not write", lambda t: (t / "t" / "seq" / "sift" / "track.gif").read_text() == "my own animation"
          or pytest.fail("overwritten")),
     Case("retrieval-negative-samples", lambda t: _retrieval(t, "--samples", "-3"), 2, "samples.*expected"),
-    Case("retrieval-samples-not-above-words", lambda t: _retrieval(t, "--samples", "3"), 2, "samples.*expected"),
+    Case("retrieval-samples-not-above-words", lambda t: _retrieval(t, "--samples", "3"), 2,
+         "--samples: 3 sampled descriptors are too few for --words 3; expected more than 3",
+         lambda t: not (t / "r").exists() or pytest.fail("written"), _nothing_described),
+    Case("retrieval-samples-not-above-the-smallest-candidate", retrieval_samples_without_words, 2,
+         "--samples: 5 sampled descriptors are too few for the smallest --words candidate, 5; expected more than 5",
+         None, _nothing_described),
     Case("retrieval-negative-seed", lambda t: _retrieval(t, "--seed", "-1"), 2, "seed: expected"),
     Case("retrieval-conflicting-class-rows", retrieval_conflicting_classes, 2, "'s2' has class 'paper'"),
     Case("track-nan-threshold", lambda t: _track(t, "--threshold", "nan"), 2, "threshold: expected"),
@@ -968,26 +988,32 @@ CASES = [
          "sequence seq: the reference frame frame-000-master cannot be used"),
     Case("train-detector-over-user-file", train_detector_over_user_file, 2, "exists.*--overwrite",
          lambda t: (t / "gk.npz").read_text() == "my own weights" or pytest.fail("overwritten"), _no_training),
-    Case("train-detector-zero-keypoints", lambda t: _train_detector(t, "--keypoints", "0"), 2, "keypoints: expected",
+    Case("train-detector-zero-keypoints", lambda t: _train_detector(t, "--keypoints", "0"), 2, "argument --keypoints: expected",
          None, _no_training),
-    Case("train-detector-zero-steps", lambda t: _train_detector(t, "--steps", "0"), 2, "steps: expected",
+    Case("train-detector-zero-steps", lambda t: _train_detector(t, "--steps", "0"), 2, "argument --steps: expected",
          None, _no_training),
-    Case("train-detector-zero-width", lambda t: _train_detector(t, "--hidden", "0"), 2, "hidden: expected",
+    Case("train-detector-zero-width", lambda t: _train_detector(t, "--hidden", "0"), 2, "argument --hidden: expected",
          None, _no_training),
     Case("train-detector-val-without-ground-truth", lambda t: _train_detector(t, val=_seq(t)), 2,
          "val: .*no simulator ground truth", None, _no_training),
     # audit of train
     Case("train-over-user-file", train_over_user_file, 2, "exists.*--overwrite",
          lambda t: (t / "w.pt").read_text() == "my own weights" or pytest.fail("overwritten"), _no_patches),
-    Case("train-zero-epochs", lambda t: _train(t, "--epochs", "0"), 2, "epochs: expected", _nothing_trained,
+    Case("train-zero-epochs", lambda t: _train(t, "--epochs", "0"), 2, "argument --epochs: expected", _nothing_trained,
          _no_patches),
-    Case("train-zero-steps", lambda t: _train(t, "--steps", "0"), 2, "steps: expected", _nothing_trained,
+    Case("train-zero-steps", lambda t: _train(t, "--steps", "0"), 2, "argument --steps: expected", _nothing_trained,
          _no_patches),
-    Case("train-zero-batch-size", lambda t: _train(t, "--batch-size", "0"), 2, "batch_size: expected",
+    Case("train-zero-batch-size", lambda t: _train(t, "--batch-size", "0"), 2, "argument --batch-size: expected",
          _nothing_trained, _no_patches),
-    Case("train-nan-learning-rate", lambda t: _train(t, "--lr", "nan"), 2, "lr: expected", _nothing_trained,
+    Case("train-nan-learning-rate", lambda t: _train(t, "--lr", "nan"), 2, "argument --lr: expected", _nothing_trained,
          _no_patches),
-    Case("train-negative-seed", lambda t: _train(t, "--seed", "-1"), 2, "seed: expected", _nothing_trained,
+    Case("train-hardest-mining-batch-of-one", lambda t: _train(t, "--mining", "hardest", "--batch-size", "1"), 2,
+         "--batch-size: --mining hardest .* at least 2", _nothing_trained, _no_patches),
+    Case("train-zero-channels", lambda t: _train(t, "--channels", "16", "0", "64"), 2, "argument --channels: expected",
+         _nothing_trained, _no_patches),
+    Case("train-detector-negative-seed", lambda t: _train_detector(t, "--seed", "-1"), 2, "argument --seed: expected",
+         None, _no_training),
+    Case("train-negative-seed", lambda t: _train(t, "--seed", "-1"), 2, "argument --seed: expected", _nothing_trained,
          _no_patches),
     Case("train-out-a-folder", lambda t: (t / "w").mkdir() or _train(t, out="w"), 2, "w is a folder", None,
          _no_patches),

@@ -165,7 +165,7 @@ def test_cli_writes_layout_and_report(tmp_path, capsys):
                  "frame-001_ctrlpts.npy", "frame-001_SSIM.png", "frame-001_overlay.png", "report.csv", "report.json"]:
         assert (out / name).is_file(), name
     assert np.load(out / "frame-001_theta.npy").shape == (1, 9 + 3, 2)
-    assert "1/1 frames" in capsys.readouterr().out
+    assert "seq: 1 of 1 frame, landmark residual" in capsys.readouterr().out  # it said "1/1 frames"
 
 
 def test_too_few_landmarks_mark_the_frame_failed(tmp_path, capsys):
@@ -175,7 +175,9 @@ def test_too_few_landmarks_mark_the_frame_failed(tmp_path, capsys):
     vis = ids < 3  # only 3 landmarks visible in the target
     write_landmarks(folder / "frame-001.csv", ids, np.where(vis[:, None], _forward(lms), -1), vis)
     assert main(["groundtruth", str(folder), "--out", str(tmp_path / "out"), "--no-progress"]) == 1
-    assert "FAILED frame frame-001" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "FAILED frame frame-001" in out
+    assert "\n1 frame failed; see report.csv" in out  # it said "1 frame(s) failed"
     assert not (tmp_path / "out" / "seq" / "frame-001_theta.npy").exists()
     assert "failed" in (tmp_path / "out" / "seq" / "report.csv").read_text()
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ..outputs import plural
+
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add `groundtruth` to an argparse subparsers object; returns its parser."""
@@ -58,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
         ok = [r for r in reports if r.status == "ok"]
         bad = [r for r in reports if r.status != "ok"]
         if ok:
-            print(f"{folder.name}: {len(ok)}/{len(reports)} frames, landmark residual median "
+            print(f"{folder.name}: {len(ok)} of {plural(len(reports), 'frame')}, landmark residual median "
                   f"{sum(r.landmark_median_px for r in ok) / len(ok):.2f} px, SSIM "
                   f"{sum(r.ssim_before for r in ok) / len(ok):.3f} -> {sum(r.ssim_after for r in ok) / len(ok):.3f}, "
                   f"{sum(r.seconds for r in ok) / len(ok):.2f} s/frame; wrote {out}")
@@ -66,5 +68,5 @@ def run(args: argparse.Namespace) -> int:
             print(f"{folder.name}: FAILED frame {r.frame}: {r.reason} (no TPS files written for it)")
             failed.append(f"{folder.name}/{r.frame}")
     if failed:
-        print(f"{len(failed)} frame(s) failed; see report.csv in each output folder")
+        print(f"{plural(len(failed), 'frame')} failed; see report.csv in each output folder")
     return 1 if failed else 0

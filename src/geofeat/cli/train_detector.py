@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from .options import keypoint_count, whole_number
+
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add `train-detector` to an argparse subparsers object; returns its parser."""
@@ -12,12 +14,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--val", nargs="+", required=True, help="held-out simulated sequences (choose the NMS radius, level bias and score threshold)")
     p.add_argument("--out", required=True, help="weights file to write (e.g. geokey.pt; an .npz archive)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing OUT file")
-    p.add_argument("--keypoints", type=int, nargs="+", default=(1024, 2048),
+    p.add_argument("--keypoints", type=keypoint_count, nargs="+", default=(1024, 2048),
                    help="keypoints per frame for validation; the scorer and NMS radius with the best mean MS "
                         "over these counts are kept (default 1024 2048)")
-    p.add_argument("--hidden", type=int, nargs="+", default=(32, 32), help="hidden layer widths (default 32 32)")
-    p.add_argument("--steps", type=int, default=3000, help="Adam steps (default 3000)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--hidden", type=whole_number(1), nargs="+", default=(32, 32), help="hidden layer widths (default 32 32)")
+    p.add_argument("--steps", type=whole_number(1), default=3000, help="Adam steps (default 3000)")
+    p.add_argument("--seed", type=whole_number(0), default=0, help="random seed (default 0)")
     p.add_argument("--labels", choices=("repeatable", "matchable"), default="repeatable",
                    help="training labels: found again within 1 px (default), or also matched by GeoPatch (slower)")
     p.set_defaults(func=run)
