@@ -763,6 +763,18 @@ def train_resume_corrupt_checkpoint(tmp):
     return _train(tmp, "--resume")
 
 
+def train_resume_with_other_keypoints(tmp):
+    """A resumed run trained on the cached patches of the run it resumes, whatever --data and
+    --keypoints it named."""
+    assert main(_train(tmp)) == 0
+    return _train(tmp, "--resume", "--keypoints", "60")
+
+
+def train_beside_user_patch_archive(tmp):
+    (tmp / "w.pt.patches.npz").write_text("my own archive")
+    return _train(tmp)
+
+
 def _single_frame_sim(tmp):
     one = tmp / "one"
     assert main(["simulate", str(one), "--frames", "1", "--width", "64", "--height", "48", "--no-progress",
@@ -890,7 +902,12 @@ CASES = [
     Case("normalised-intrinsics", _with_K([[0.8, 0, 0.5], [0, 0.8, 0.5], [0, 0, 1]]), 2, "focal lengths"),
     Case("negative-focal-length", _with_K([[-150, 0, 79.5], [0, 150, 59.5], [0, 0, 1]]), 2, "focal lengths"),
     Case("preflight-is-not-the-reference", preflight_is_not_the_reference, 0, "", _reference_is_frame0),
-    Case("groundtruth-negative-margin", lambda t: _gt(t, "--margin", "-5"), 2, "margin"),
+    Case("groundtruth-negative-margin", lambda t: _gt(t, "--margin", "-5"), 2, "argument --margin: expected a number >= 0"),
+    Case("groundtruth-nan-margin", lambda t: _gt(t, "--margin", "nan"), 2, "argument --margin: expected"),  # "margin_px:"
+    Case("groundtruth-infinite-depth-margin", lambda t: _gt(t, "--depth-margin", "inf"), 2,
+         "argument --depth-margin: expected"),  # it said "depth_margin_m: expected a finite number"
+    Case("demo-nan-angle", lambda t: ["demo", "--out", str(t / "d"), "--angle", "nan"], 2,
+         "argument --angle: expected a finite number", _nothing_in_tmp),  # "depth: every pixel is 0", a picture written
     Case("groundtruth-object-moves-back", groundtruth_object_moves_back, 0, "", _report_finite_ok),
     Case("retrieval-single-frame", retrieval_single_frame, 2, "reference frames"),
     Case("retrieval-negative-rerank", retrieval_negative_rerank, 2, "rerank: expected"),
@@ -944,8 +961,8 @@ CASES = [
     Case("groundtruth-into-user-folder", groundtruth_into_user_folder, 2, "not empty",
          lambda t: _user_files_kept(t / "gt" / "seq")),
     Case("groundtruth-overwrite-keeps-user-files", groundtruth_overwrite, 0, "", _gt_files_and_user_files),
-    Case("groundtruth-negative-depth-margin", lambda t: _gt(t, "--depth-margin", "-1"), 2, "depth-margin"),
-    Case("groundtruth-nan-spacing", lambda t: _gt(t, "--spacing", "nan"), 2, "spacing"),
+    Case("groundtruth-negative-depth-margin", lambda t: _gt(t, "--depth-margin", "-1"), 2, "argument --depth-margin"),
+    Case("groundtruth-nan-spacing", lambda t: _gt(t, "--spacing", "nan"), 2, "argument --spacing: expected a number >= 2"),
     Case("track-tps-dir-missing", _app_with_missing_tps("track"), 2, "tps-dir"),
     Case("bench-features-count-mismatch", _bench_features(_drop_descriptor_rows), 2,
          r"features ext: seq/frame-001 \(.*ext.h5.*\): descriptors: expected first axis"),
@@ -1023,6 +1040,12 @@ CASES = [
          "--val: .*no simulator ground truth", None, _no_patches),
     Case("train-resume-corrupt-checkpoint", train_resume_corrupt_checkpoint, 2, "resume: .*w.pt.ckpt is not a checkpoint",
          lambda t: not (t / "w.pt").exists() or pytest.fail("trained"), _no_patches),  # reported before the patches
+    Case("train-resume-with-other-keypoints", train_resume_with_other_keypoints, 2,
+         r"--resume: .*w.pt.patches.npz holds the patches of a run with other options \(--keypoints 50, not 60\)",
+         None, _no_patches),
+    Case("train-beside-user-patch-archive", train_beside_user_patch_archive, 2, "w.pt.patches.npz exists",
+         lambda t: (t / "w.pt.patches.npz").read_text() == "my own archive" or pytest.fail("overwritten"),
+         _no_patches),
     Case("train-device-typo", lambda t: _train(t, "--device", "gpu"), 2, "--device: expected", _nothing_trained,
          _no_patches),  # a torch RuntimeError traceback, after the patches were built
     Case("train-device-cuda-without-gpu", lambda t: _train(t, "--device", "cuda"), 2, "--device.*no CUDA GPU",

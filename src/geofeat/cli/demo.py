@@ -12,7 +12,7 @@ import numpy as np
 
 from ..constants import DEFAULT_RADIUS_M
 from ..outputs import plural, write_picture
-from .options import depth_profile_option, keypoint_count, radius_value
+from .options import depth_profile_option, finite_number, keypoint_count, radius_value
 
 
 def _profile_of(profile: str, frame) -> str:
@@ -120,7 +120,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("demo", help="run the demo on the shipped real Kinect frame")
     p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     p.add_argument("--radius", type=radius_value, default=DEFAULT_RADIUS_M, help="geodesic radius, metres (default 0.075)")
-    p.add_argument("--angle", type=float, default=60.0, help="camera roll of the rotated pair, degrees (default 60)")
+    p.add_argument("--angle", type=finite_number, default=60.0, help="camera roll of the rotated pair, degrees (default 60)")
     p.add_argument("--keypoints", type=keypoint_count, default=1000, help="SIFT keypoints per frame (default 1000)")
     depth_profile_option(p, "auto")
     p.set_defaults(func=run)

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from ..outputs import plural
+from .options import number_at_least
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -23,11 +24,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("sequences", nargs="+", type=Path, help="sequence folders, or folders of sequences")
     p.add_argument("--out", required=True, type=Path, help="output folder (one sub-folder per sequence)")
     p.add_argument("--no-refine", action="store_true", help="landmark-only spline, no photometric refinement")
-    p.add_argument("--spacing", type=float, default=DEFAULT_SPACING_PX,
+    p.add_argument("--spacing", type=number_at_least(2), default=DEFAULT_SPACING_PX,
                    help=f"control-point spacing in reference pixels (default {DEFAULT_SPACING_PX:g})")
-    p.add_argument("--margin", type=float, default=DEFAULT_MARGIN_PX,
+    p.add_argument("--margin", type=number_at_least(0), default=DEFAULT_MARGIN_PX,
                    help=f"object mask: pixels beyond the landmarks' convex hull (default {DEFAULT_MARGIN_PX:g})")
-    p.add_argument("--depth-margin", type=float, default=DEFAULT_DEPTH_MARGIN_M,
+    p.add_argument("--depth-margin", type=number_at_least(0), default=DEFAULT_DEPTH_MARGIN_M,
                    help=f"object mask: metres beyond the landmarks' depth range (default {DEFAULT_DEPTH_MARGIN_M:g})")
     p.add_argument("--overwrite", action="store_true",
                    help="replace what geofeat wrote in existing OUT/<sequence> folders (other files stay)")

@@ -76,7 +76,8 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--device: expected cpu, cuda or cuda:N, got {args.device!r}") from None
         except RuntimeError as error:  # no CUDA GPU: a user error here
             raise ValueError(f"--device: {error}") from None
-    check_train_out(args.out, args.overwrite, args.resume)
+    cache = Path(str(args.out) + ".patches.npz")  # the patches, kept for --resume
+    check_train_out(args.out, args.overwrite, args.resume, also=(".patches.npz",))
     checkpoint = Path(str(args.out) + ".ckpt")
     if args.resume and checkpoint.is_file():
         load_resume_state(checkpoint, config)  # a corrupt or other run's checkpoint, before the patches
@@ -100,14 +101,19 @@ def run(args: argparse.Namespace) -> int:
         net = ImagePatchNet(default_config(args.net))
         build = partial(build_image_patch_set, arch=args.net)
         make_validation = partial(image_validation_pairs, arch=args.net)
-    cache = Path(str(args.out) + ".patches.npz")
     val_folders = check_simulated(args.val, "--val") if args.val else []
+    data_folders = check_simulated(args.data, "--data")
+    warn_if_not_held_out(data_folders, val_folders, "--val", "--data")
+    # what the patches are built from: a resumed run takes the cached patches only when they match
+    source = {"data": [str(f.resolve()) for f in data_folders], "keypoints": args.keypoints,
+              "depth_profile": args.depth_profile, "net": args.net}
     if args.resume and cache.is_file():
         data = PatchSet.load(cache)
+        _check_cached_source(cache, data.source, source)
         print(f"training patches: {len(data)} from {cache}")
     else:
-        warn_if_not_held_out(check_simulated(args.data, "--data"), val_folders, "--val", "--data")
         data = build(args.data, n_keypoints=args.keypoints)
+        data.source = source
         data.save(cache)
         print(f"training patches: {len(data)} of {len(np.unique(data.ids))} surface points (cached in {cache})")
     validation = make_validation(args.val) if args.val else None
@@ -117,6 +123,25 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {args.out} (final loss {history['loss'][-1]:.4f}, {scored}), "
           f"{args.out}.png and {args.out}.json")
     return 0
+
+
+def _check_cached_source(cache: Path, cached: dict | None, wanted: dict) -> None:
+    """--resume trains on the patches cached by the run it resumes: refuse them when they were built
+    from other --data, --keypoints, --depth-profile or --net than this run names (they were used
+    silently, and the new options ignored). A cache that records nothing (an older geofeat's) is used."""
+    if cached is None or cached == wanted:
+        return
+    flags = {"data": "--data", "keypoints": "--keypoints", "depth_profile": "--depth-profile", "net": "--net"}
+
+    def shown(key: str, value) -> str:
+        if key == "data":
+            return " ".join(Path(p).name for p in value)
+        return "left out" if value is None else str(value)
+
+    changed = [f"{flag} {shown(k, cached.get(k))}, not {shown(k, wanted.get(k))}"
+               for k, flag in flags.items() if cached.get(k) != wanted.get(k)]
+    raise ValueError(f"--resume: {cache} holds the patches of a run with other options ({'; '.join(changed)}); "
+                     "resume with that run's options, or pass --overwrite (without --resume) to start anew")
 
 
 def _init_channels(init: str) -> tuple[int, int, int]:

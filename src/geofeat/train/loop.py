@@ -68,14 +68,17 @@ def check_train_config(config: TrainConfig) -> TrainConfig:
     return config
 
 
-def check_train_out(out: str | Path, overwrite: bool = False, resume: bool = False) -> Path:
+def check_train_out(out: str | Path, overwrite: bool = False, resume: bool = False,
+                    also: tuple[str, ...] = ()) -> Path:
     """The weights file `train` writes (`check_out_file`): an existing file is replaced only with
     `overwrite`, or with `resume` when its checkpoint `out`.ckpt exists (the run that wrote it). So are
-    the files written beside it (`out`.ckpt, `out`.json, `out`.png), replaced only with `overwrite` or
-    `resume`: a run stopped after some epochs leaves its checkpoint, which a new run would restart over."""
+    the files written beside it (`out`.ckpt, `out`.json, `out`.png, and the suffixes `also` of other
+    files a caller writes there, such as the `train` command's `out`.patches.npz), replaced only with
+    `overwrite` or `resume`: a run stopped after some epochs leaves its checkpoint, which a new run
+    would restart over."""
     out = Path(out)
     check_out_file(out, overwrite or (resume and out.with_suffix(out.suffix + ".ckpt").is_file()))
-    for beside in (".ckpt", ".json", ".png"):
+    for beside in (".ckpt", ".json", ".png", *also):
         path = Path(str(out) + beside)  # as `train` names them
         if not (overwrite or resume) and (path.exists() or path.is_symlink()):
             raise ValueError(f"--out: {path} exists (an earlier run's?); pass --resume to continue that run, "
