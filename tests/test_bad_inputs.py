@@ -1046,6 +1046,11 @@ CASES = [
     Case("train-beside-user-patch-archive", train_beside_user_patch_archive, 2, "w.pt.patches.npz exists",
          lambda t: (t / "w.pt.patches.npz").read_text() == "my own archive" or pytest.fail("overwritten"),
          _no_patches),
+    Case("train-data-without-sequences", lambda t: (t / "empty").mkdir() or _train(t, "--data", str(t / "empty")), 2,
+         "--data: no sequence", None, _no_patches),  # it said "dataset: no sequence"
+    Case("train-detector-val-without-sequences",
+         lambda t: (t / "empty").mkdir() or _train_detector(t, "--val", str(t / "empty")), 2, "--val: no sequence",
+         None, _no_training),
     Case("train-device-typo", lambda t: _train(t, "--device", "gpu"), 2, "--device: expected", _nothing_trained,
          _no_patches),  # a torch RuntimeError traceback, after the patches were built
     Case("train-device-cuda-without-gpu", lambda t: _train(t, "--device", "cuda"), 2, "--device.*no CUDA GPU",
@@ -1131,13 +1136,27 @@ def test_validation_sequences_that_are_also_training_sequences_are_warned_of(tmp
     monkeypatch.setattr(detector, "collect", _stop)
     for args in (["train", "--data", str(sims), "--val", str(sims / "a"), "--out", str(tmp_path / "w.pt")],
                  ["train-detector", "--data", str(sims / "a"), "--val", str(sims), "--out", str(tmp_path / "k.npz")]):
-        with pytest.warns(UserWarning, match=r"val: .*a is also under (--)?data.*not held out"), pytest.raises(_Stop):
+        with pytest.warns(UserWarning, match=r"--val: .*a is also under --data.*not held out"), pytest.raises(_Stop):
             main(args)
     assert main(["simulate", str(tmp_path / "val"), "--frames", "2", "--width", "64", "--height", "48",
                  "--no-progress", "--texture", "procedural"]) == 0
     with pytest.raises(_Stop), warnings.catch_warnings():  # held-out sequences: no warning
         warnings.filterwarnings("error", message=".*held out")
         main(["train-detector", "--data", str(sims), "--val", str(tmp_path / "val"), "--out", str(tmp_path / "k.npz")])
+
+
+def test_simulate_and_train_detector_count_in_words(tmp_path, capsys):
+    """"wrote 1 frames", "from 1 sequences", and a run that kept no score threshold reported
+    "threshold -inf, floor: the best 0 % of each frame's candidates"."""
+    assert main(["simulate", str(tmp_path / "one"), "--frames", "1", "--width", "64", "--height", "48",
+                 "--no-progress", "--texture", "procedural"]) == 0
+    assert f"wrote 1 frame to {tmp_path / 'one'}" in capsys.readouterr().out
+    assert main(_train_detector(tmp_path)) == 0
+    out = capsys.readouterr().out
+    assert "candidates from 1 sequence," in out and "-inf" not in out and "best 0 %" not in out
+    import re
+
+    assert re.search(r"(none did, so no score threshold|threshold [0-9.]+, floor: the best [1-9]\d* %)\)", out), out
 
 
 def test_enough_cases() -> None:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+import numpy as np
+
 from .options import keypoint_count, whole_number
 
 
@@ -33,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     counts = tuple(args.keypoints)
     model, results, chosen = train_detector(args.data, args.val, args.out, n=counts, hidden=tuple(args.hidden),
                                     steps=args.steps, seed=args.seed, labels=args.labels,
-                                    overwrite=args.overwrite)
+                                    overwrite=args.overwrite, names=("--data", "--val"))
     print("| scorer | NMS radius (px) | keypoints | GeoPatch MS | MMA | repeatability | correct matches / pair "
           "| reference keypoints / frame |")
     print("|---|---|---|---|---|---|---|---|")
@@ -43,7 +45,11 @@ def run(args: argparse.Namespace) -> int:
         for n, r in per_count.items():
             print(f"| {name}{mark} | {'-' if key == SIFT_KEY else f'{radius:g}'} | {n} | {r['ms']:.3f} | "
                   f"{r['mma']:.3f} | {r['repeatability']:.3f} | {r['hits']:.0f} | {r['n_ref']:.0f} |")
+    if np.isfinite(model.threshold):
+        rule = (f"threshold {model.threshold:g}, floor: the best {100 * model.min_fraction:.0f} % of each frame's "
+                "candidates")
+    else:  # it said "threshold -inf, floor: the best 0 % of each frame's candidates"
+        rule = "none did, so no score threshold"
     print(f"wrote {args.out} (chosen by the mean validation MS at {', '.join(map(str, counts))} keypoints per frame; "
-          f"a score threshold only where it keeps at least SIFT's keypoints and correct matches; "
-          f"threshold {model.threshold:g}, floor: the best {100 * model.min_fraction:.0f} % of each frame's candidates)")
+          f"a score threshold only where it keeps at least SIFT's keypoints and correct matches; {rule})")
     return 0

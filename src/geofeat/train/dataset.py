@@ -116,7 +116,7 @@ def check_simulated(paths, what: str) -> list[Path]:
     """The sequence folders under `paths` (`find_sequences`), each with the simulator's ground truth
     and at least one target frame beside its reference (training and validation work on pairs);
     ValueError naming `what` (data, val) otherwise. Checked before any patch is built."""
-    folders = find_sequences(paths)
+    folders = find_sequences(paths, what=what)
     for folder in folders:
         seq = read_sequence(folder)
         if not seq.has_ground_truth():
