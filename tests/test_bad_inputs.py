@@ -775,6 +775,15 @@ def train_beside_user_patch_archive(tmp):
     return _train(tmp)
 
 
+def _weights_load_back(tmp):
+    from geofeat.descriptors.geopatch import load_network
+
+    net, _ = load_network(tmp / "weights")
+    assert net.config.channels == (16, 32, 64)
+    assert main(["extract", str(tmp / "sim"), "--descriptor", f"geopatch={tmp / 'weights'}", "--keypoints", "50",
+                 "--out", str(tmp / "f.h5")]) == 0
+
+
 def _single_frame_sim(tmp):
     one = tmp / "one"
     assert main(["simulate", str(one), "--frames", "1", "--width", "64", "--height", "48", "--no-progress",
@@ -1051,6 +1060,10 @@ CASES = [
     Case("train-detector-val-without-sequences",
          lambda t: (t / "empty").mkdir() or _train_detector(t, "--val", str(t / "empty")), 2, "--val: no sequence",
          None, _no_training),
+    Case("train-out-without-extension", lambda t: _train(t, out="weights"), 0, "wrote .*weights",
+         _weights_load_back),  # a RuntimeError traceback ("invalid file name") after the whole training
+    Case("train-out-onnx-name", lambda t: _train(t, out="w.ONNX"), 2, "--out: .*w.ONNX: `train` writes PyTorch weights",
+         _nothing_trained, _no_patches),  # written, then refused by extract as "not a GeoPatch ONNX model"
     Case("train-device-typo", lambda t: _train(t, "--device", "gpu"), 2, "--device: expected", _nothing_trained,
          _no_patches),  # a torch RuntimeError traceback, after the patches were built
     Case("train-device-cuda-without-gpu", lambda t: _train(t, "--device", "cuda"), 2, "--device.*no CUDA GPU",

@@ -77,6 +77,9 @@ def check_train_out(out: str | Path, overwrite: bool = False, resume: bool = Fal
     `overwrite` or `resume`: a run stopped after some epochs leaves its checkpoint, which a new run
     would restart over."""
     out = Path(out)
+    if out.suffix.lower() == ".onnx":  # the weights were written, then read as an ONNX model and refused
+        raise ValueError(f"--out: {out}: `train` writes PyTorch weights, and a .onnx name is read as an ONNX model "
+                         "(geopatch=WEIGHTS); name it .pt")
     check_out_file(out, overwrite or (resume and out.with_suffix(out.suffix + ".ckpt").is_file()))
     for beside in (".ckpt", ".json", ".png", *also):
         path = Path(str(out) + beside)  # as `train` names them
@@ -279,10 +282,10 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
         if progress:
             scored = f"validation MS {val:.3f}" if validation else "no validation pairs"
             tqdm.write(f"epoch {epoch + 1}: loss {history['loss'][-1]:.4f}, {scored}")
-        with atomic_file(ckpt_path) as tmp:
+        with atomic_file(ckpt_path) as tmp, open(tmp, "wb") as fh:  # a file object: see `save_checkpoint`
             torch.save({"state_dict": net.state_dict(), "optimizer": opt.state_dict(),
                         "scheduler": sched.state_dict(), "rng": rng.bit_generator.state,
-                        "torch_rng": torch.get_rng_state(), "history": history, "epoch": epoch}, str(tmp))
+                        "torch_rng": torch.get_rng_state(), "history": history, "epoch": epoch}, fh)
     net.eval()
     with atomic_file(out) as tmp:
         save_checkpoint(tmp, net.cpu(), history=history)
