@@ -674,6 +674,21 @@ def retrieval_overwrite_user_file_named_like_a_result(tmp):
     return _retrieval(tmp, "--overwrite")
 
 
+def retrieval_samples_without_words(tmp):
+    args = _retrieval(tmp, "--samples", "5")
+    i = args.index("--words")
+    return args[:i] + args[i + 2:]
+
+
+def _nothing_described(monkeypatch):
+    import geofeat.apps.retrieval as retrieval
+
+    def described(*args, **kwargs):
+        raise AssertionError("frames were described before the bad option was reported")
+
+    monkeypatch.setattr(retrieval, "describe_datasets", described)
+
+
 def retrieval_conflicting_classes(tmp):
     (tmp / "classes.csv").write_text("sequence,class\ns1,cloth\ns2,paper\ns2,cloth\n")
     return _retrieval(tmp, "--classes", str(tmp / "classes.csv"))
@@ -746,6 +761,27 @@ def train_over_user_file(tmp):
 def train_resume_corrupt_checkpoint(tmp):
     (tmp / "w.pt.ckpt").write_text("not a checkpoint")
     return _train(tmp, "--resume")
+
+
+def train_resume_with_other_keypoints(tmp):
+    """A resumed run trained on the cached patches of the run it resumes, whatever --data and
+    --keypoints it named."""
+    assert main(_train(tmp)) == 0
+    return _train(tmp, "--resume", "--keypoints", "60")
+
+
+def train_beside_user_patch_archive(tmp):
+    (tmp / "w.pt.patches.npz").write_text("my own archive")
+    return _train(tmp)
+
+
+def _weights_load_back(tmp):
+    from geofeat.descriptors.geopatch import load_network
+
+    net, _ = load_network(tmp / "weights")
+    assert net.config.channels == (16, 32, 64)
+    assert main(["extract", str(tmp / "sim"), "--descriptor", f"geopatch={tmp / 'weights'}", "--keypoints", "50",
+                 "--out", str(tmp / "f.h5")]) == 0
 
 
 def _single_frame_sim(tmp):
@@ -875,7 +911,12 @@ CASES = [
     Case("normalised-intrinsics", _with_K([[0.8, 0, 0.5], [0, 0.8, 0.5], [0, 0, 1]]), 2, "focal lengths"),
     Case("negative-focal-length", _with_K([[-150, 0, 79.5], [0, 150, 59.5], [0, 0, 1]]), 2, "focal lengths"),
     Case("preflight-is-not-the-reference", preflight_is_not_the_reference, 0, "", _reference_is_frame0),
-    Case("groundtruth-negative-margin", lambda t: _gt(t, "--margin", "-5"), 2, "margin"),
+    Case("groundtruth-negative-margin", lambda t: _gt(t, "--margin", "-5"), 2, "argument --margin: expected a number >= 0"),
+    Case("groundtruth-nan-margin", lambda t: _gt(t, "--margin", "nan"), 2, "argument --margin: expected"),  # "margin_px:"
+    Case("groundtruth-infinite-depth-margin", lambda t: _gt(t, "--depth-margin", "inf"), 2,
+         "argument --depth-margin: expected"),  # it said "depth_margin_m: expected a finite number"
+    Case("demo-nan-angle", lambda t: ["demo", "--out", str(t / "d"), "--angle", "nan"], 2,
+         "argument --angle: expected a finite number", _nothing_in_tmp),  # "depth: every pixel is 0", a picture written
     Case("groundtruth-object-moves-back", groundtruth_object_moves_back, 0, "", _report_finite_ok),
     Case("retrieval-single-frame", retrieval_single_frame, 2, "reference frames"),
     Case("retrieval-negative-rerank", retrieval_negative_rerank, 2, "rerank: expected"),
@@ -929,8 +970,8 @@ CASES = [
     Case("groundtruth-into-user-folder", groundtruth_into_user_folder, 2, "not empty",
          lambda t: _user_files_kept(t / "gt" / "seq")),
     Case("groundtruth-overwrite-keeps-user-files", groundtruth_overwrite, 0, "", _gt_files_and_user_files),
-    Case("groundtruth-negative-depth-margin", lambda t: _gt(t, "--depth-margin", "-1"), 2, "depth-margin"),
-    Case("groundtruth-nan-spacing", lambda t: _gt(t, "--spacing", "nan"), 2, "spacing"),
+    Case("groundtruth-negative-depth-margin", lambda t: _gt(t, "--depth-margin", "-1"), 2, "argument --depth-margin"),
+    Case("groundtruth-nan-spacing", lambda t: _gt(t, "--spacing", "nan"), 2, "argument --spacing: expected a number >= 2"),
     Case("track-tps-dir-missing", _app_with_missing_tps("track"), 2, "tps-dir"),
     Case("bench-features-count-mismatch", _bench_features(_drop_descriptor_rows), 2,
          r"features ext: seq/frame-001 \(.*ext.h5.*\): descriptors: expected first axis"),
@@ -959,7 +1000,12 @@ CASES = [
          "did not write", lambda t: (t / "t" / "seq" / "sift" / "track.gif").read_text() == "my own animation"
          or pytest.fail("overwritten")),
     Case("retrieval-negative-samples", lambda t: _retrieval(t, "--samples", "-3"), 2, "samples.*expected"),
-    Case("retrieval-samples-not-above-words", lambda t: _retrieval(t, "--samples", "3"), 2, "samples.*expected"),
+    Case("retrieval-samples-not-above-words", lambda t: _retrieval(t, "--samples", "3"), 2,
+         "--samples: 3 sampled descriptors are too few for --words 3; expected more than 3",
+         lambda t: not (t / "r").exists() or pytest.fail("written"), _nothing_described),
+    Case("retrieval-samples-not-above-the-smallest-candidate", retrieval_samples_without_words, 2,
+         "--samples: 5 sampled descriptors are too few for the smallest --words candidate, 5; expected more than 5",
+         None, _nothing_described),
     Case("retrieval-negative-seed", lambda t: _retrieval(t, "--seed", "-1"), 2, "seed: expected"),
     Case("retrieval-conflicting-class-rows", retrieval_conflicting_classes, 2, "'s2' has class 'paper'"),
     Case("track-nan-threshold", lambda t: _track(t, "--threshold", "nan"), 2, "threshold: expected"),
@@ -968,26 +1014,32 @@ CASES = [
          "sequence seq: the reference frame frame-000-master cannot be used"),
     Case("train-detector-over-user-file", train_detector_over_user_file, 2, "exists.*--overwrite",
          lambda t: (t / "gk.npz").read_text() == "my own weights" or pytest.fail("overwritten"), _no_training),
-    Case("train-detector-zero-keypoints", lambda t: _train_detector(t, "--keypoints", "0"), 2, "keypoints: expected",
+    Case("train-detector-zero-keypoints", lambda t: _train_detector(t, "--keypoints", "0"), 2, "argument --keypoints: expected",
          None, _no_training),
-    Case("train-detector-zero-steps", lambda t: _train_detector(t, "--steps", "0"), 2, "steps: expected",
+    Case("train-detector-zero-steps", lambda t: _train_detector(t, "--steps", "0"), 2, "argument --steps: expected",
          None, _no_training),
-    Case("train-detector-zero-width", lambda t: _train_detector(t, "--hidden", "0"), 2, "hidden: expected",
+    Case("train-detector-zero-width", lambda t: _train_detector(t, "--hidden", "0"), 2, "argument --hidden: expected",
          None, _no_training),
     Case("train-detector-val-without-ground-truth", lambda t: _train_detector(t, val=_seq(t)), 2,
          "val: .*no simulator ground truth", None, _no_training),
     # audit of train
     Case("train-over-user-file", train_over_user_file, 2, "exists.*--overwrite",
          lambda t: (t / "w.pt").read_text() == "my own weights" or pytest.fail("overwritten"), _no_patches),
-    Case("train-zero-epochs", lambda t: _train(t, "--epochs", "0"), 2, "epochs: expected", _nothing_trained,
+    Case("train-zero-epochs", lambda t: _train(t, "--epochs", "0"), 2, "argument --epochs: expected", _nothing_trained,
          _no_patches),
-    Case("train-zero-steps", lambda t: _train(t, "--steps", "0"), 2, "steps: expected", _nothing_trained,
+    Case("train-zero-steps", lambda t: _train(t, "--steps", "0"), 2, "argument --steps: expected", _nothing_trained,
          _no_patches),
-    Case("train-zero-batch-size", lambda t: _train(t, "--batch-size", "0"), 2, "batch_size: expected",
+    Case("train-zero-batch-size", lambda t: _train(t, "--batch-size", "0"), 2, "argument --batch-size: expected",
          _nothing_trained, _no_patches),
-    Case("train-nan-learning-rate", lambda t: _train(t, "--lr", "nan"), 2, "lr: expected", _nothing_trained,
+    Case("train-nan-learning-rate", lambda t: _train(t, "--lr", "nan"), 2, "argument --lr: expected", _nothing_trained,
          _no_patches),
-    Case("train-negative-seed", lambda t: _train(t, "--seed", "-1"), 2, "seed: expected", _nothing_trained,
+    Case("train-hardest-mining-batch-of-one", lambda t: _train(t, "--mining", "hardest", "--batch-size", "1"), 2,
+         "--batch-size: --mining hardest .* at least 2", _nothing_trained, _no_patches),
+    Case("train-zero-channels", lambda t: _train(t, "--channels", "16", "0", "64"), 2, "argument --channels: expected",
+         _nothing_trained, _no_patches),
+    Case("train-detector-negative-seed", lambda t: _train_detector(t, "--seed", "-1"), 2, "argument --seed: expected",
+         None, _no_training),
+    Case("train-negative-seed", lambda t: _train(t, "--seed", "-1"), 2, "argument --seed: expected", _nothing_trained,
          _no_patches),
     Case("train-out-a-folder", lambda t: (t / "w").mkdir() or _train(t, out="w"), 2, "w is a folder", None,
          _no_patches),
@@ -997,6 +1049,21 @@ CASES = [
          "--val: .*no simulator ground truth", None, _no_patches),
     Case("train-resume-corrupt-checkpoint", train_resume_corrupt_checkpoint, 2, "resume: .*w.pt.ckpt is not a checkpoint",
          lambda t: not (t / "w.pt").exists() or pytest.fail("trained"), _no_patches),  # reported before the patches
+    Case("train-resume-with-other-keypoints", train_resume_with_other_keypoints, 2,
+         r"--resume: .*w.pt.patches.npz holds the patches of a run with other options \(--keypoints 50, not 60\)",
+         None, _no_patches),
+    Case("train-beside-user-patch-archive", train_beside_user_patch_archive, 2, "w.pt.patches.npz exists",
+         lambda t: (t / "w.pt.patches.npz").read_text() == "my own archive" or pytest.fail("overwritten"),
+         _no_patches),
+    Case("train-data-without-sequences", lambda t: (t / "empty").mkdir() or _train(t, "--data", str(t / "empty")), 2,
+         "--data: no sequence", None, _no_patches),  # it said "dataset: no sequence"
+    Case("train-detector-val-without-sequences",
+         lambda t: (t / "empty").mkdir() or _train_detector(t, "--val", str(t / "empty")), 2, "--val: no sequence",
+         None, _no_training),
+    Case("train-out-without-extension", lambda t: _train(t, out="weights"), 0, "wrote .*weights",
+         _weights_load_back),  # a RuntimeError traceback ("invalid file name") after the whole training
+    Case("train-out-onnx-name", lambda t: _train(t, out="w.ONNX"), 2, "--out: .*w.ONNX: `train` writes PyTorch weights",
+         _nothing_trained, _no_patches),  # written, then refused by extract as "not a GeoPatch ONNX model"
     Case("train-device-typo", lambda t: _train(t, "--device", "gpu"), 2, "--device: expected", _nothing_trained,
          _no_patches),  # a torch RuntimeError traceback, after the patches were built
     Case("train-device-cuda-without-gpu", lambda t: _train(t, "--device", "cuda"), 2, "--device.*no CUDA GPU",
@@ -1082,13 +1149,27 @@ def test_validation_sequences_that_are_also_training_sequences_are_warned_of(tmp
     monkeypatch.setattr(detector, "collect", _stop)
     for args in (["train", "--data", str(sims), "--val", str(sims / "a"), "--out", str(tmp_path / "w.pt")],
                  ["train-detector", "--data", str(sims / "a"), "--val", str(sims), "--out", str(tmp_path / "k.npz")]):
-        with pytest.warns(UserWarning, match=r"val: .*a is also under (--)?data.*not held out"), pytest.raises(_Stop):
+        with pytest.warns(UserWarning, match=r"--val: .*a is also under --data.*not held out"), pytest.raises(_Stop):
             main(args)
     assert main(["simulate", str(tmp_path / "val"), "--frames", "2", "--width", "64", "--height", "48",
                  "--no-progress", "--texture", "procedural"]) == 0
     with pytest.raises(_Stop), warnings.catch_warnings():  # held-out sequences: no warning
         warnings.filterwarnings("error", message=".*held out")
         main(["train-detector", "--data", str(sims), "--val", str(tmp_path / "val"), "--out", str(tmp_path / "k.npz")])
+
+
+def test_simulate_and_train_detector_count_in_words(tmp_path, capsys):
+    """"wrote 1 frames", "from 1 sequences", and a run that kept no score threshold reported
+    "threshold -inf, floor: the best 0 % of each frame's candidates"."""
+    assert main(["simulate", str(tmp_path / "one"), "--frames", "1", "--width", "64", "--height", "48",
+                 "--no-progress", "--texture", "procedural"]) == 0
+    assert f"wrote 1 frame to {tmp_path / 'one'}" in capsys.readouterr().out
+    assert main(_train_detector(tmp_path)) == 0
+    out = capsys.readouterr().out
+    assert "candidates from 1 sequence," in out and "-inf" not in out and "best 0 %" not in out
+    import re
+
+    assert re.search(r"(none did, so no score threshold|threshold [0-9.]+, floor: the best [1-9]\d* %)\)", out), out
 
 
 def test_enough_cases() -> None:

@@ -42,6 +42,37 @@ def test_demo_writes_pictures_and_reports(tmp_path, capsys):
     assert (mine / "polar_patches.png").read_bytes() == b"my own picture"
 
 
+def test_demo_match_lines_count_in_words(tmp_path, capsys, monkeypatch):
+    """The demo's per-descriptor lines said "1 correct matches ... of 1 keypoints"."""
+    from types import SimpleNamespace
+
+    import geofeat.descriptors
+    import geofeat.matching
+    import geofeat.viz
+    import numpy as np
+
+    from geofeat.cli.demo import _demo_match_pair
+
+    monkeypatch.setattr(geofeat.descriptors, "make_descriptor",
+                        lambda name, **kw: SimpleNamespace(compute=lambda frame, kps: None))
+    matches = iter([np.array([0, -1]), np.array([0, 1])])
+    monkeypatch.setattr(geofeat.matching, "match", lambda a, b: SimpleNamespace(matches0=next(matches)))
+    monkeypatch.setattr(geofeat.viz, "draw_matches", lambda *a, **kw: np.zeros((4, 4, 3), np.uint8))
+    class Keypoints:
+        xy = np.array([[1.0, 1.0], [5.0, 5.0]])
+
+        def __len__(self):
+            return 2
+
+    kps = Keypoints()
+    truth = np.array([[1.0, 1.0], [np.nan, np.nan]])  # one keypoint with a true position
+    _demo_match_pair(tmp_path, "pair.png", None, None, kps, kps, truth, ["geobit", "orb"], "kinect")
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "  geobit       1 correct match (< 3 px) of 1 keypoint with a true position (100.0%), " + \
+        lines[0].split(", ")[-1]
+    assert " 1 correct match (< 3 px)" in lines[1] and "1 keypoint with" in lines[1]
+
+
 def test_extract_and_match_on_a_sequence(rolled_sequence, tmp_path, capsys):
     features = tmp_path / "f.h5"
     assert main(["extract", str(rolled_sequence), "--out", str(features), "--keypoints", "300"]) == 0

@@ -165,7 +165,7 @@ def test_cli_writes_layout_and_report(tmp_path, capsys):
                  "frame-001_ctrlpts.npy", "frame-001_SSIM.png", "frame-001_overlay.png", "report.csv", "report.json"]:
         assert (out / name).is_file(), name
     assert np.load(out / "frame-001_theta.npy").shape == (1, 9 + 3, 2)
-    assert "1/1 frames" in capsys.readouterr().out
+    assert "seq: 1 of 1 frame, landmark residual" in capsys.readouterr().out  # it said "1/1 frames"
 
 
 def test_too_few_landmarks_mark_the_frame_failed(tmp_path, capsys):
@@ -175,9 +175,30 @@ def test_too_few_landmarks_mark_the_frame_failed(tmp_path, capsys):
     vis = ids < 3  # only 3 landmarks visible in the target
     write_landmarks(folder / "frame-001.csv", ids, np.where(vis[:, None], _forward(lms), -1), vis)
     assert main(["groundtruth", str(folder), "--out", str(tmp_path / "out"), "--no-progress"]) == 1
-    assert "FAILED frame frame-001" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "FAILED frame frame-001" in out
+    assert "\n1 frame failed; see report.csv" in out  # it said "1 frame(s) failed"
     assert not (tmp_path / "out" / "seq" / "frame-001_theta.npy").exists()
     assert "failed" in (tmp_path / "out" / "seq" / "report.csv").read_text()
+
+
+def test_landmarks_on_one_line_are_named(tmp_path, capsys):
+    """Landmarks on one line fit no spline: the reference's is an error before any work (every frame
+    failed, each as "src: the points are collinear"), a target's a failed frame saying why."""
+    lms = _grid_landmarks(4)
+    ids = np.arange(len(lms))
+    first_row = ids < 4  # y = 30 for all four
+    folder = _write_pair(tmp_path / "ref", lms)
+    write_landmarks(folder / "frame-000-master.csv", ids, np.where(first_row[:, None], lms, -1), first_row)
+    assert main(["groundtruth", str(folder), "--out", str(tmp_path / "out"), "--no-progress", "--no-refine"]) == 2
+    assert ("the 4 visible landmarks of the reference frame-000-master lie on one line"
+            in capsys.readouterr().err)
+    assert not (tmp_path / "out").exists()
+    folder = _write_pair(tmp_path / "tgt", lms)
+    write_landmarks(folder / "frame-001.csv", ids, np.where(first_row[:, None], _forward(lms), -1), first_row)
+    assert main(["groundtruth", str(folder), "--out", str(tmp_path / "out"), "--no-progress", "--no-refine"]) == 1
+    assert ("FAILED frame frame-001: the 4 landmarks visible in both frames lie on one line (or on one point) in "
+            "the reference; a spline needs landmarks spanning the plane" in capsys.readouterr().out)
 
 
 @pytest.mark.parametrize("case, message", [

@@ -383,21 +383,22 @@ def read_demo_frame() -> RGBDFrame:
     return read_frame(d / "cloud_1-rgb.png", d / "cloud_1-depth.png", d / "intrinsics.xml")
 
 
-def find_sequences(paths, unique_names: bool = False) -> list[Path]:
+def find_sequences(paths, unique_names: bool = False, what: str = "dataset") -> list[Path]:
     """Sequence folders under the given paths: a path that holds `*-rgb.png` frames is a sequence,
     otherwise its sub-folders that do are (one level down), sorted by name. A folder reached twice is
     listed once; with `unique_names`, two different folders with one name are refused (commands key
-    their results by the sequence name)."""
+    their results by the sequence name). ValueError naming `what` (an option such as --data) for a
+    path that is no folder or holds no sequence."""
     found: list[Path] = []
     for p in [Path(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]:
         if not p.is_dir():
-            raise ValueError(f"dataset: not a directory: {p}")
+            raise ValueError(f"{what}: not a directory: {p}")
         if any(p.glob(f"*{RGB_SUFFIX}")):
             found.append(p)
             continue
         subs = sorted(d for d in p.iterdir() if d.is_dir() and any(d.glob(f"*{RGB_SUFFIX}")))
         if not subs:
-            raise ValueError(f"dataset: no sequence (folder of '*{RGB_SUFFIX}' frames) in {p}")
+            raise ValueError(f"{what}: no sequence (folder of '*{RGB_SUFFIX}' frames) in {p}")
         found.extend(subs)
     seen: set[Path] = set()
     unique = [f for f in found if not (f.resolve() in seen or seen.add(f.resolve()))]

@@ -32,7 +32,7 @@ from .inputs import check_non_negative
 __all__ = [
     "ThinPlateSpline", "fit_tps", "authors_tps", "hartley_transform", "size_transform", "normalise_points",
     "check_pairs", "check_regularisation", "kernel", "system_matrix", "solve_batch", "evaluate_batch", "AUTHORS_EPS",
-    "MIN_POINTS",
+    "MIN_POINTS", "spans_plane",
 ]
 
 #: Kernel offset of the authors' splines: U(r) = r^2 log (r + 1e-6)^2 (the files hold weights of r^2 log(r + 1e-6)).
@@ -101,6 +101,13 @@ def system_matrix(src: np.ndarray, regularisation: float, eps: float) -> np.ndar
     L[:, :n, n:] = P
     L[:, n:, :n] = P.transpose(0, 2, 1)
     return L
+
+
+def spans_plane(xy: np.ndarray) -> bool:
+    """Whether (N, 2) pixels span the plane (not all on one line, not all one point), by the rule
+    `fit_tps` applies: a spline through them can be fitted only then."""
+    xy = np.asarray(xy, np.float64).reshape(-1, 2)
+    return len(xy) >= 3 and bool(_spans_plane(normalise_points(xy)[1][None])[0])
 
 
 def _spans_plane(src: np.ndarray) -> np.ndarray:
@@ -264,7 +271,7 @@ def fit_tps(src: np.ndarray, dst: np.ndarray, regularisation: float = 0.0, norma
     else:
         raise ValueError(f"normalisation: expected 'hartley' or 'size', got {normalisation!r}")
     sn, dn = _apply(Ts, src), _apply(Td, dst)
-    if not _spans_plane(normalise_points(src)[1][None])[0]:  # a question of shape, not of size: Hartley's frame
+    if not spans_plane(src):  # a question of shape, not of size: Hartley's frame
         raise ValueError("src: the points are collinear or repeated; a spline needs points spanning the plane")
     L = system_matrix(sn[None], regularisation, eps)[0]
     rhs = np.concatenate([dn, np.zeros((3, 2))])

@@ -669,6 +669,19 @@ def evaluate_descriptor(features: list[Features], db: RetrievalDatabase, queries
                             rerank_top, acc_words)
 
 
+def check_samples(n_samples: int, words: int | None, samples_name: str = "samples", words_name: str = "words") -> int:
+    """The vocabulary sample must be larger than K: `words`, or when None the smallest of
+    `WORD_CANDIDATES` (K is then chosen among those below it). ValueError naming `samples_name`
+    (the command line passes its flags) otherwise."""
+    check_whole(n_samples, samples_name, 1)
+    fewest = words or min(WORD_CANDIDATES)
+    if n_samples <= fewest:
+        k = f"{words_name} {words}" if words else f"the smallest {words_name} candidate, {fewest}"
+        raise ValueError(f"{samples_name}: {n_samples} sampled descriptors are too few for {k}; expected more than "
+                         f"{fewest}")
+    return n_samples
+
+
 def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("geopatch", "geobit", "sift"),
                   words: int | None = None, n_samples: int = N_VOCABULARY_SAMPLES, seed: int = 0,
                   classes_file: str | None = None, n_keypoints: int = N_KEYPOINTS, tps_dir: str | None = None,
@@ -703,11 +716,7 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
     check_whole(seed, "seed", 0)
     if words is not None:
         check_whole(words, "words", 2)
-    check_whole(n_samples, "samples", 1)
-    fewest = words or min(WORD_CANDIDATES)
-    if n_samples <= fewest:
-        raise ValueError(f"samples: {n_samples} sampled descriptors are too few for {fewest} visual words; "
-                         f"expected more than {fewest}")
+    check_samples(n_samples, words)
     classes = read_classes(classes_file) if classes_file else None
     db = describe_datasets(datasets, descriptors, n_keypoints, classes, tps_dir, radius, depth_scale, progress, detector)
     if not db.frames:

@@ -11,8 +11,8 @@ import cv2
 import numpy as np
 
 from ..constants import DEFAULT_RADIUS_M
-from ..outputs import write_picture
-from .options import depth_profile_option, keypoint_count, radius_value
+from ..outputs import plural, write_picture
+from .options import depth_profile_option, finite_number, keypoint_count, radius_value
 
 
 def _profile_of(profile: str, frame) -> str:
@@ -32,7 +32,7 @@ def _demo_patches(out: Path, radius: float, profile: str) -> None:
     frame = read_demo_frame()
     _, landmarks, _ = read_landmarks(demo_data_dir() / "cloud_1.csv")
     print(f"frame: {demo_data_dir() / 'cloud_1'} ({frame.shape[1]}x{frame.shape[0]}, "
-          f"{(frame.depth == 0).mean():.1%} missing depth), {len(landmarks)} annotated keypoints")
+          f"{(frame.depth == 0).mean():.1%} missing depth), {plural(len(landmarks), 'annotated keypoint')}")
     chosen = _profile_of(profile, frame)
     print(f"depth profile: {chosen}" + (f" (auto: measured slope noise {depth_noise(frame.depth, frame.K).slope_noise:.2f})"
                                         if profile == "auto" else ""))
@@ -42,7 +42,7 @@ def _demo_patches(out: Path, radius: float, profile: str) -> None:
     patches = polar_patches(frame, landmarks, radius=radius, mesh=mesh)
     t2 = time.perf_counter()
     print(f"depth preprocessing + mesh ({mesh.points.shape[1]}x{mesh.points.shape[0]}): {t1 - t0:.3f} s")
-    print(f"geodesic polar patches: {len(patches)} keypoints, {patches.valid.sum()} valid, "
+    print(f"geodesic polar patches: {plural(len(patches), 'keypoint')}, {patches.valid.sum()} valid, "
           f"radius {radius * 1000:.0f} mm, {t2 - t1:.3f} s (the first run compiles the numba kernels)")
     picture = side_by_side(draw_geodesic_support(frame, patches), patch_grid(patches, columns=8))
     write_picture(out / "polar_patches.png", picture)
@@ -69,8 +69,11 @@ def _demo_match_pair(out: Path, picture_name: str, frame0, frame1, k0, k1, truth
         error = np.full(len(k0), np.inf)
         error[has] = np.linalg.norm(k1.xy[m.matches0[has]] - truth[has], axis=1)
         correct = error < 3.0
-        print(f"  {name:8s} {correct.sum():5d} correct matches (< 3 px) of {visible.sum()} keypoints with a true "
-              f"position ({correct.sum() / max(visible.sum(), 1):.1%}), {elapsed:.2f} s")
+        n_correct, n_visible = int(correct.sum()), int(visible.sum())
+        counted = plural(n_correct, "correct match", "correct matches")
+        print(f"  {name:8s} {counted:>{len(counted) + 5 - len(str(n_correct))}} "  # counts right-aligned in 5
+              f"(< 3 px) of {plural(n_visible, 'keypoint')} with a true position "
+              f"({n_correct / max(n_visible, 1):.1%}), {elapsed:.2f} s")
         if len(pictures) < 2:
             pictures.append(draw_matches(frame0, frame1, k0.xy, k1.xy, np.where(correct, m.matches0, -1),
                                          np.ones(len(k0), bool), max_lines=200,
@@ -117,7 +120,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("demo", help="run the demo on the shipped real Kinect frame")
     p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     p.add_argument("--radius", type=radius_value, default=DEFAULT_RADIUS_M, help="geodesic radius, metres (default 0.075)")
-    p.add_argument("--angle", type=float, default=60.0, help="camera roll of the rotated pair, degrees (default 60)")
+    p.add_argument("--angle", type=finite_number, default=60.0, help="camera roll of the rotated pair, degrees (default 60)")
     p.add_argument("--keypoints", type=keypoint_count, default=1000, help="SIFT keypoints per frame (default 1000)")
     depth_profile_option(p, "auto")
     p.set_defaults(func=run)

@@ -5,6 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ..outputs import plural
+from .options import number_at_least
+
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add `groundtruth` to an argparse subparsers object; returns its parser."""
@@ -21,11 +24,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("sequences", nargs="+", type=Path, help="sequence folders, or folders of sequences")
     p.add_argument("--out", required=True, type=Path, help="output folder (one sub-folder per sequence)")
     p.add_argument("--no-refine", action="store_true", help="landmark-only spline, no photometric refinement")
-    p.add_argument("--spacing", type=float, default=DEFAULT_SPACING_PX,
+    p.add_argument("--spacing", type=number_at_least(2), default=DEFAULT_SPACING_PX,
                    help=f"control-point spacing in reference pixels (default {DEFAULT_SPACING_PX:g})")
-    p.add_argument("--margin", type=float, default=DEFAULT_MARGIN_PX,
+    p.add_argument("--margin", type=number_at_least(0), default=DEFAULT_MARGIN_PX,
                    help=f"object mask: pixels beyond the landmarks' convex hull (default {DEFAULT_MARGIN_PX:g})")
-    p.add_argument("--depth-margin", type=float, default=DEFAULT_DEPTH_MARGIN_M,
+    p.add_argument("--depth-margin", type=number_at_least(0), default=DEFAULT_DEPTH_MARGIN_M,
                    help=f"object mask: metres beyond the landmarks' depth range (default {DEFAULT_DEPTH_MARGIN_M:g})")
     p.add_argument("--overwrite", action="store_true",
                    help="replace what geofeat wrote in existing OUT/<sequence> folders (other files stay)")
@@ -58,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
         ok = [r for r in reports if r.status == "ok"]
         bad = [r for r in reports if r.status != "ok"]
         if ok:
-            print(f"{folder.name}: {len(ok)}/{len(reports)} frames, landmark residual median "
+            print(f"{folder.name}: {len(ok)} of {plural(len(reports), 'frame')}, landmark residual median "
                   f"{sum(r.landmark_median_px for r in ok) / len(ok):.2f} px, SSIM "
                   f"{sum(r.ssim_before for r in ok) / len(ok):.3f} -> {sum(r.ssim_after for r in ok) / len(ok):.3f}, "
                   f"{sum(r.seconds for r in ok) / len(ok):.2f} s/frame; wrote {out}")
@@ -66,5 +69,5 @@ def run(args: argparse.Namespace) -> int:
             print(f"{folder.name}: FAILED frame {r.frame}: {r.reason} (no TPS files written for it)")
             failed.append(f"{folder.name}/{r.frame}")
     if failed:
-        print(f"{len(failed)} frame(s) failed; see report.csv in each output folder")
+        print(f"{plural(len(failed), 'frame')} failed; see report.csv in each output folder")
     return 1 if failed else 0

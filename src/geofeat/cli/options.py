@@ -57,6 +57,24 @@ def _finite(text: str) -> float | None:
     return value if math.isfinite(value) else None
 
 
+def finite_number(text: str) -> float:
+    """argparse type: a finite number (not nan, not inf)."""
+    value = _finite(text)
+    if value is None:
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def number_at_least(minimum: float):
+    """argparse type: a finite number >= `minimum`."""
+    def parse(text: str) -> float:
+        value = _finite(text)
+        if value is None or value < minimum:
+            raise argparse.ArgumentTypeError(f"expected a number >= {minimum:g}, got {text!r}")
+        return value
+    return parse
+
+
 def positive_number(text: str) -> float:
     """argparse type: a finite number > 0."""
     value = _finite(text)

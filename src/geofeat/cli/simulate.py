@@ -8,6 +8,7 @@ from pathlib import Path
 from ..sim.scenes import FOV_RANGE_DEG, PRESETS, SCENARIOS
 from ..sim.textures import FABRIC_KINDS
 from ..sim.writer import SIDE_RANGE_PX
+from ..outputs import plural
 from .options import number_between, whole_number
 
 
@@ -79,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
         fov=args.fov,
         motion_blur=args.motion_blur,
     )
-    print(f"wrote {args.frames} frames to {folder}")
+    print(f"wrote {plural(args.frames, 'frame')} to {folder}")
     if args.contact_sheet is not None:
         from ..sim.contact_sheet import contact_sheet
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .options import depth_profile_option, keypoint_count
+from .options import depth_profile_option, keypoint_count, positive_number, whole_number
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -18,21 +18,22 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="weights file to write (e.g. geopatch.pt)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace an existing OUT file (and OUT.ckpt, OUT.json, OUT.png of an earlier run)")
-    p.add_argument("--epochs", type=int, default=10, help="passes of --steps batches (default 10)")
-    p.add_argument("--steps", type=int, default=200, help="batches per epoch (default 200)")
-    p.add_argument("--batch-size", type=int, default=1000, help="triplets per batch (default 1000, the paper's)")
-    p.add_argument("--lr", type=float, default=0.1, help="SGD learning rate (default 0.1, the paper's)")
+    p.add_argument("--epochs", type=whole_number(1), default=10, help="passes of --steps batches (default 10)")
+    p.add_argument("--steps", type=whole_number(1), default=200, help="batches per epoch (default 200)")
+    p.add_argument("--batch-size", type=whole_number(1), default=1000,
+                   help="triplets per batch, at least 2 with --mining hardest (default 1000, the paper's)")
+    p.add_argument("--lr", type=positive_number, default=0.1, help="SGD learning rate (default 0.1, the paper's)")
     p.add_argument("--mining", choices=("random", "hardest"), default="random",
                    help="negatives: random with anchor swap (the paper) or the hardest in the batch")
     p.add_argument("--augment-shift", action="store_true", help="random circular shifts along the angle axis")
     p.add_argument("--augment-photometric", action="store_true", help="random per-patch gamma and noise")
     p.add_argument("--init", default=None, help="start from these GeoPatch weights ('shipped': geofeat's own)")
-    p.add_argument("--channels", type=int, nargs=3, default=None, metavar=("C1", "C2", "C3"),
+    p.add_argument("--channels", type=whole_number(1), nargs=3, default=None, metavar=("C1", "C2", "C3"),
                    help="channels of the three convolutions (default 16 32 64, or with --init the weights' own; "
                         "the paper's and the shipped weights': 32 64 128)")
     p.add_argument("--no-angle-pool", action="store_true", help="flatten instead of max-pooling over angle (ablation)")
     p.add_argument("--keypoints", type=keypoint_count, default=512, help="SIFT keypoints per reference frame (default 512)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=whole_number(0), default=0, help="random seed (default 0)")
     p.add_argument("--net", choices=("geopatch", "tfeat", "logpolar"), default="geopatch",
                    help="network: GeoPatch (geodesic patches) or an image-patch baseline (tfeat-sim, logpolar-sim)")
     p.add_argument("--resume", action="store_true", help="continue from OUT.ckpt (with the same options)")
@@ -49,18 +50,18 @@ def run(args: argparse.Namespace) -> int:
 
     from ..descriptors.geopatch import GeoPatchConfig
     from ..gpu import torch_device
-    from ..inputs import check_whole
     from ..train.dataset import PatchSet, build_patch_set, check_simulated, validation_pairs, warn_if_not_held_out
     from ..train.loop import TrainConfig, check_train_config, check_train_out, load_init, load_resume_state, train
 
-    check_whole(args.steps, "--steps", 1)
+    # the numbers are checked by their argparse types; one rule spans two options
+    if args.mining == "hardest" and args.batch_size < 2:
+        raise ValueError(f"--batch-size: --mining hardest takes its negatives from the batch's other pairs, so it "
+                         f"needs at least 2 triplets per batch, got {args.batch_size}")
     channels_given = args.channels is not None
     if not channels_given:  # fine-tuning takes the widths of the weights it starts from
         args.channels = (16, 32, 64)
         if args.init is not None and args.net == "geopatch":
             args.channels = _init_channels(args.init)
-    for c in args.channels:
-        check_whole(c, "--channels", 1)
     config = TrainConfig(
         epochs=args.epochs, steps_per_epoch=args.steps, batch_size=args.batch_size, lr=args.lr,
         mining=args.mining, augment_shift=args.augment_shift, seed=args.seed,
@@ -75,7 +76,8 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--device: expected cpu, cuda or cuda:N, got {args.device!r}") from None
         except RuntimeError as error:  # no CUDA GPU: a user error here
             raise ValueError(f"--device: {error}") from None
-    check_train_out(args.out, args.overwrite, args.resume)
+    cache = Path(str(args.out) + ".patches.npz")  # the patches, kept for --resume
+    check_train_out(args.out, args.overwrite, args.resume, also=(".patches.npz",))
     checkpoint = Path(str(args.out) + ".ckpt")
     if args.resume and checkpoint.is_file():
         load_resume_state(checkpoint, config)  # a corrupt or other run's checkpoint, before the patches
@@ -99,14 +101,19 @@ def run(args: argparse.Namespace) -> int:
         net = ImagePatchNet(default_config(args.net))
         build = partial(build_image_patch_set, arch=args.net)
         make_validation = partial(image_validation_pairs, arch=args.net)
-    cache = Path(str(args.out) + ".patches.npz")
     val_folders = check_simulated(args.val, "--val") if args.val else []
+    data_folders = check_simulated(args.data, "--data")
+    warn_if_not_held_out(data_folders, val_folders, "--val", "--data")
+    # what the patches are built from: a resumed run takes the cached patches only when they match
+    source = {"data": [str(f.resolve()) for f in data_folders], "keypoints": args.keypoints,
+              "depth_profile": args.depth_profile, "net": args.net}
     if args.resume and cache.is_file():
         data = PatchSet.load(cache)
+        _check_cached_source(cache, data.source, source)
         print(f"training patches: {len(data)} from {cache}")
     else:
-        warn_if_not_held_out(check_simulated(args.data, "--data"), val_folders, "--val", "--data")
         data = build(args.data, n_keypoints=args.keypoints)
+        data.source = source
         data.save(cache)
         print(f"training patches: {len(data)} of {len(np.unique(data.ids))} surface points (cached in {cache})")
     validation = make_validation(args.val) if args.val else None
@@ -116,6 +123,25 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {args.out} (final loss {history['loss'][-1]:.4f}, {scored}), "
           f"{args.out}.png and {args.out}.json")
     return 0
+
+
+def _check_cached_source(cache: Path, cached: dict | None, wanted: dict) -> None:
+    """--resume trains on the patches cached by the run it resumes: refuse them when they were built
+    from other --data, --keypoints, --depth-profile or --net than this run names (they were used
+    silently, and the new options ignored). A cache that records nothing (an older geofeat's) is used."""
+    if cached is None or cached == wanted:
+        return
+    flags = {"data": "--data", "keypoints": "--keypoints", "depth_profile": "--depth-profile", "net": "--net"}
+
+    def shown(key: str, value) -> str:
+        if key == "data":
+            return " ".join(Path(p).name for p in value)
+        return "left out" if value is None else str(value)
+
+    changed = [f"{flag} {shown(k, cached.get(k))}, not {shown(k, wanted.get(k))}"
+               for k, flag in flags.items() if cached.get(k) != wanted.get(k)]
+    raise ValueError(f"--resume: {cache} holds the patches of a run with other options ({'; '.join(changed)}); "
+                     "resume with that run's options, or pass --overwrite (without --resume) to start anew")
 
 
 def _init_channels(init: str) -> tuple[int, int, int]:

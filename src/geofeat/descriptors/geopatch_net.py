@@ -87,7 +87,11 @@ def fuse_batchnorm(net: GeoPatchNet) -> GeoPatchNet:
 
 def save_checkpoint(path: str | Path, net: GeoPatchNet, **meta) -> None:
     """Save weights + config (+ any metadata, e.g. optimiser state, epoch, training settings)."""
-    torch.save({"config": asdict(net.config), "state_dict": net.state_dict(), **meta}, str(path))
+    # through a file object: given a name, torch names the archive's records after the name up to its
+    # last dot, and a name with only a leading one (".geofeat-partial-...-weights", the temporary file
+    # of `geofeat train --out weights`) left none: "invalid file name", after the whole training
+    with open(path, "wb") as fh:
+        torch.save({"config": asdict(net.config), "state_dict": net.state_dict(), **meta}, fh)
 
 
 def load_checkpoint(path: str | Path, build, what: str) -> tuple[nn.Module, dict]:

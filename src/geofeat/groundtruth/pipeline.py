@@ -35,7 +35,7 @@ from ..io import Sequence, read_sequence
 from ..outputs import check_out_dir, output_folder
 from .defaults import DEFAULT_DEPTH_MARGIN_M, DEFAULT_MARGIN_PX, DEFAULT_SPACING_PX
 from .photometric import RefineConfig, check_refine_config, refine
-from ..tps import ThinPlateSpline, authors_tps
+from ..tps import ThinPlateSpline, authors_tps, spans_plane
 from .landmarks import MIN_LANDMARKS, robust_landmark_tps
 
 #: The bench keeps target keypoints where the SSIM map exceeds this.
@@ -109,6 +109,10 @@ def _valid_landmarks(seq: Sequence, shape: tuple[int, int]) -> dict[str, tuple[n
     if out[seq.reference][2].sum() < MIN_LANDMARKS:
         raise ValueError(f"landmarks: the reference {seq.reference} has {out[seq.reference][2].sum()} visible landmarks, "
                          f"a spline needs >= {MIN_LANDMARKS}")
+    _, ref_xy, ref_vis = out[seq.reference]
+    if not spans_plane(ref_xy[ref_vis]):  # every frame failed on it, as "src: the points are collinear"
+        raise ValueError(f"landmarks: the {ref_vis.sum()} visible landmarks of the reference {seq.reference} lie on "
+                         "one line (or on one point); a spline needs landmarks spanning the plane")
     return out
 
 
@@ -247,6 +251,12 @@ def _frame(seq: Sequence, name: str, ref: RGBDFrame, ref_mask: np.ndarray, lms: 
         rep.status, rep.reason = "failed", f"{len(common)} landmarks visible in both frames, a spline needs >= {MIN_LANDMARKS}"
         return rep
     p_ref, p_tgt = xy_r[vis_r][ir], xy_t[vis_t][it]
+    flat = [which for which, xy in (("the reference", p_ref), ("this frame", p_tgt)) if not spans_plane(xy)]
+    if flat:
+        rep.status, rep.reason = "failed", (f"the {len(common)} landmarks visible in both frames lie on one line (or "
+                                            f"on one point) in {' and '.join(flat)}; a spline needs landmarks "
+                                            "spanning the plane")
+        return rep
     try:
         tgt = seq.frame(name)
     except ValueError as error:  # unreadable colour, no usable depth: this frame fails, the others go on
@@ -262,7 +272,7 @@ def _frame(seq: Sequence, name: str, ref: RGBDFrame, ref_mask: np.ndarray, lms: 
         inl = fit.inliers
         lm_inv = authors_tps(p_tgt[inl], p_ref[inl], size)
     except ValueError as error:
-        rep.status, rep.reason = "failed", str(error)
+        rep.status, rep.reason = "failed", f"the landmark spline cannot be fitted ({error})"
         return rep
     # the target's own depth range: the object moves in depth (a camera moving back, another renderer's
     # units and scene scale), so the reference's range would empty the target mask and make SSIM NaN

@@ -28,23 +28,35 @@ class PatchSet:
     Attributes:
         patches: (M, R, A) uint8 intensities (x 255).
         ids: (M,) int64 surface-point id; equal ids = the same surface point.
+        source: what the patches were built from (a JSON-able dict, e.g. the `train` command's
+            sequence folders and options), saved with them so that a cache is not reused for other
+            data; None when unknown.
     """
 
     patches: np.ndarray
     ids: np.ndarray
+    source: dict | None = None
 
     def save(self, path: str | Path) -> None:
         """Write a compressed .npz archive, whole or not at all (`geofeat.outputs.write_npz`)."""
+        import json
+
         from ..outputs import write_npz
 
-        write_npz(path, {"patches": self.patches, "ids": self.ids}, compressed=True)
+        arrays = {"patches": self.patches, "ids": self.ids}
+        if self.source is not None:
+            arrays["source"] = np.array(json.dumps(self.source, sort_keys=True))
+        write_npz(path, arrays, compressed=True)
 
     @classmethod
     def load(cls, path: str | Path) -> "PatchSet":
         """Read what `save` wrote; ValueError naming the file when it is not such an archive."""
+        import json
+
         try:
             with np.load(path) as data:
-                return cls(data["patches"], data["ids"])
+                source = json.loads(str(data["source"])) if "source" in data.files else None
+                return cls(data["patches"], data["ids"], source)
         except (OSError, ValueError, KeyError, EOFError) as error:
             raise ValueError(f"patches: cannot read {path} as a patch set of `geofeat train` "
                              f"({type(error).__name__}); delete it to rebuild it") from None
@@ -104,7 +116,7 @@ def check_simulated(paths, what: str) -> list[Path]:
     """The sequence folders under `paths` (`find_sequences`), each with the simulator's ground truth
     and at least one target frame beside its reference (training and validation work on pairs);
     ValueError naming `what` (data, val) otherwise. Checked before any patch is built."""
-    folders = find_sequences(paths)
+    folders = find_sequences(paths, what=what)
     for folder in folders:
         seq = read_sequence(folder)
         if not seq.has_ground_truth():

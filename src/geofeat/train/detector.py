@@ -30,6 +30,7 @@ from ..detectors.cues import CUE_NAMES, IMAGE_CUES
 from ..detectors.geokey import GeoKeyModel, candidate_features, candidates, detect_geokey
 from ..inputs import check_whole
 from ..io import Sequence, read_sequence
+from ..outputs import plural
 from ..scoring import GT_THRESHOLD_PX, ground_truth_pairs
 from .dataset import check_simulated, warn_if_not_held_out
 
@@ -379,13 +380,15 @@ def mean_ms(per_count: dict) -> float:
 def train_detector(data, val, out: str | Path, n: int | tuple[int, ...] = VALIDATION_COUNTS, hidden: tuple[int, ...] = (32, 32),
                    steps: int = 3000, seed: int = 0, labels: str = "repeatable",
                    radii: tuple[float, ...] = NMS_CHOICES, progress: bool = True,
-                   overwrite: bool = False) -> tuple[GeoKeyModel, dict, tuple]:
+                   overwrite: bool = False, names: tuple[str, str] = ("data", "val"),
+                   ) -> tuple[GeoKeyModel, dict, tuple]:
     """Collect candidates from `data`, fit two scorers (image cues only, and image + depth cues),
     choose the scorer, the suppression radius, the level-1 bias and the score threshold on `val` by
     GeoPatch's matching score (mean over the keypoint counts `n`; `choose_model`), and write the
     weights to `out` (written whole or not at all; an existing file only with `overwrite`). The
-    options are checked before any work. Returns the model, the validation figures per (scorer,
-    radius) and count, and the chosen (scorer, radius) key."""
+    options are checked before any work; errors and warnings name `data` and `val` by `names` (the
+    command line passes its flags). Returns the model, the validation figures per (scorer, radius)
+    and count, and the chosen (scorer, radius) key."""
     from ..outputs import check_out_file
 
     out = check_out_file(out, overwrite)
@@ -393,16 +396,17 @@ def train_detector(data, val, out: str | Path, n: int | tuple[int, ...] = VALIDA
     check_whole(steps, "steps", 1)  # Adam steps
     if hidden is not None and (not hidden or any(int(h) < 1 for h in hidden)):
         raise ValueError(f"hidden: expected positive layer widths, got {hidden!r}")
-    train_folders = check_simulated(data, "data")  # ground truth in every one, before training
-    val_folders = check_simulated(val, "val")
+    data_name, val_name = names
+    train_folders = check_simulated(data, data_name)  # ground truth in every one, before training
+    val_folders = check_simulated(val, val_name)
     if not train_folders:
-        raise ValueError(f"data: no sequences under {data}")
+        raise ValueError(f"{data_name}: no sequences under {data}")
     if not val_folders:
-        raise ValueError(f"val: no sequences under {val}")
-    warn_if_not_held_out(train_folders, val_folders)
+        raise ValueError(f"{val_name}: no sequences under {val}")
+    warn_if_not_held_out(train_folders, val_folders, val_name, data_name)
     x, y = collect(train_folders, labels, progress=progress)
     if progress:
-        tqdm.write(f"train-detector: {len(x)} candidates from {len(train_folders)} sequences, "
+        tqdm.write(f"train-detector: {plural(len(x), 'candidate')} from {plural(len(train_folders), 'sequence')}, "
                    f"{y.mean():.3f} positive ({labels})")
     models = {"image cues": fit(x, y, hidden=None, steps=steps, seed=seed, progress=progress),
               "image + depth cues": fit(x, y, hidden=hidden, steps=steps, seed=seed, progress=progress)}

@@ -68,14 +68,20 @@ def check_train_config(config: TrainConfig) -> TrainConfig:
     return config
 
 
-def check_train_out(out: str | Path, overwrite: bool = False, resume: bool = False) -> Path:
+def check_train_out(out: str | Path, overwrite: bool = False, resume: bool = False,
+                    also: tuple[str, ...] = ()) -> Path:
     """The weights file `train` writes (`check_out_file`): an existing file is replaced only with
     `overwrite`, or with `resume` when its checkpoint `out`.ckpt exists (the run that wrote it). So are
-    the files written beside it (`out`.ckpt, `out`.json, `out`.png), replaced only with `overwrite` or
-    `resume`: a run stopped after some epochs leaves its checkpoint, which a new run would restart over."""
+    the files written beside it (`out`.ckpt, `out`.json, `out`.png, and the suffixes `also` of other
+    files a caller writes there, such as the `train` command's `out`.patches.npz), replaced only with
+    `overwrite` or `resume`: a run stopped after some epochs leaves its checkpoint, which a new run
+    would restart over."""
     out = Path(out)
+    if out.suffix.lower() == ".onnx":  # the weights were written, then read as an ONNX model and refused
+        raise ValueError(f"--out: {out}: `train` writes PyTorch weights, and a .onnx name is read as an ONNX model "
+                         "(geopatch=WEIGHTS); name it .pt")
     check_out_file(out, overwrite or (resume and out.with_suffix(out.suffix + ".ckpt").is_file()))
-    for beside in (".ckpt", ".json", ".png"):
+    for beside in (".ckpt", ".json", ".png", *also):
         path = Path(str(out) + beside)  # as `train` names them
         if not (overwrite or resume) and (path.exists() or path.is_symlink()):
             raise ValueError(f"--out: {path} exists (an earlier run's?); pass --resume to continue that run, "
@@ -276,10 +282,10 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
         if progress:
             scored = f"validation MS {val:.3f}" if validation else "no validation pairs"
             tqdm.write(f"epoch {epoch + 1}: loss {history['loss'][-1]:.4f}, {scored}")
-        with atomic_file(ckpt_path) as tmp:
+        with atomic_file(ckpt_path) as tmp, open(tmp, "wb") as fh:  # a file object: see `save_checkpoint`
             torch.save({"state_dict": net.state_dict(), "optimizer": opt.state_dict(),
                         "scheduler": sched.state_dict(), "rng": rng.bit_generator.state,
-                        "torch_rng": torch.get_rng_state(), "history": history, "epoch": epoch}, str(tmp))
+                        "torch_rng": torch.get_rng_state(), "history": history, "epoch": epoch}, fh)
     net.eval()
     with atomic_file(out) as tmp:
         save_checkpoint(tmp, net.cpu(), history=history)
