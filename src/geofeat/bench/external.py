@@ -3,15 +3,23 @@
 
 PATH is either
 - an hloc-style `.h5` file: one group per frame, named `<sequence>/<frame>` or `<frame>` (the frame
-  name as in the sequence folder, e.g. `frame-003` for `frame-003-rgb.png`), or
+  name as in the sequence folder, e.g. `frame-003` for `frame-003-rgb.png`), or by the colour image's
+  file name as hloc names them (`<sequence>/frame-003-rgb.png` or `frame-003-rgb.png`), or
 - a folder of `.npz` files: `PATH/<sequence>/<frame>.npz` or `PATH/<frame>.npz`.
+A name without the sequence may serve one sequence only: two benched sequences whose frames would be
+read from one group or file are refused (`check_one_source_per_frame`).
 
-Each group or file holds `keypoints` (N, 2) pixels (x, y), `descriptors` (N, ...) and optionally
-`scores` (N,) (higher = better: with `n_keypoints` set, the best n are kept, so that no method is
-compared at a larger budget than the others), `valid` (N,) bool and `metric` (a string). Without
-`metric` it follows the descriptors' dtype: float -> L2, uint8 (N, B) -> Hamming, uint8 (N, R, B) ->
-Hamming minimum over R; name `metric` "l2" for integer descriptors that are not packed bits (e.g. SIFT
-stored as uint8). Keypoints must lie on the frame's image; float descriptors must be finite.
+Each group or file holds `keypoints` (N, 2) pixels (x, y), 0-based with pixel centres at whole numbers
+(OpenCV's, hloc's and kornia's convention: the top-left pixel's centre is (0, 0)), `descriptors` (N, ...)
+and optionally `scores` (N,) (higher = better: with `n_keypoints` set, the best n are kept, so that no
+method is compared at a larger budget than the others; without scores more than n keypoints are
+refused), `valid` (N,) bool, `metric` (a string) and hloc's `image_size` (W, H) of the image the
+keypoints are in pixels of (it must be the frame's). Without `metric` it follows the descriptors'
+dtype: float -> L2, uint8 (N, B) -> Hamming, uint8 (N, R, B) -> Hamming minimum over R; name `metric`
+"l2" for integer descriptors that are not packed bits (e.g. SIFT stored as uint8: uint8 descriptors
+with many zero bytes and no `metric` are refused as ambiguous). Keypoints must lie on the frame's image
+and not all within 1 px of the origin (normalised coordinates); float descriptors must be finite. An
+array whose name is close to one of these (`score`, `Metric`) is refused rather than ignored.
 Float descriptors may also come as hloc's (D, N); an .h5 group without `valid` (as hloc writes them)
 is read as (D, N) whenever its second axis has one entry per keypoint, even when D = N.
 """
@@ -24,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ..features import Features, _h5_leaf_groups, descriptors_n_by_d
+from ..io import RGB_SUFFIX
 from ..keypoints import as_keypoints
 from ..matching import METRICS, match
 
@@ -39,6 +48,69 @@ def parse_features_option(text: str) -> tuple[str, Path]:
     if p.is_file() and p.suffix.lower() not in (".h5", ".hdf5"):
         raise ValueError(f"features: {p} is neither an .h5 file nor a folder of .npz files")
     return name, p
+
+
+#: the arrays a group or file may hold that are read (`angles`, `sizes`: as `geofeat extract` writes them)
+FIELDS = ("keypoints", "descriptors", "scores", "valid", "metric", "image_size", "angles", "sizes")
+#: uint8 descriptors without `metric` whose bytes are 0 this often are not packed bits (random bits make
+#: a zero byte 1 in 256; ORB and GeoBit measure under 1 %, SIFT stored as uint8 about 30 %)
+_ZERO_BYTES_NOT_BITS = 0.1
+
+
+def _check_field_names(arrays: dict) -> None:
+    """Refuse an array whose name is a near miss of a field that is read (`score`, `Metric`,
+    `descriptor`): it would be ignored, and the numbers made without it."""
+    import difflib
+
+    for key in arrays:
+        if key in FIELDS:
+            continue
+        near = [f for f in FIELDS if f == key.lower()] or difflib.get_close_matches(key.lower(), FIELDS, 1, 0.75)
+        if near:
+            raise ValueError(f"holds {key!r}, which is not read; did you mean {near[0]!r}? "
+                             f"(the fields read: {', '.join(FIELDS)})")
+
+
+def _check_pixels(kp: np.ndarray, image_size, shape: tuple[int, int] | None) -> None:
+    """Keypoints in pixels of this frame: hloc's `image_size` (W, H), when stored, is the frame's, and
+    they are not normalised coordinates (all within 1 px of the origin, which pass the on-image check)."""
+    if shape is None:
+        return
+    H, W = shape
+    if image_size is not None:
+        size = np.asarray(image_size).reshape(-1)
+        if size.shape != (2,) or not np.array_equal(size.astype(np.float64), [W, H]):
+            raise ValueError(f"image_size {size.tolist()} (hloc's (W, H)) is not the frame's {[W, H]}: keypoints "
+                             "must be pixels of the frame itself (rescale those found on a resized image)")
+    if len(kp) >= 5 and max(W, H) > 4 and (np.abs(kp) <= 1.0).all():
+        raise ValueError(f"all {len(kp)} keypoints lie within 1 px of the origin: normalised coordinates? "
+                         f"expected (x, y) pixels of the {W}x{H} image")
+
+
+def _check_bytes_are_bits(desc: np.ndarray) -> None:
+    """uint8 descriptors without `metric` are matched as packed bits; SIFT or another quantised float
+    descriptor stored as uint8 would then be matched by a wrong distance without a word said."""
+    if desc.dtype != np.uint8 or not desc.size or np.isin(desc, (0, 1)).all():  # 0/1 bytes: Hamming is exact
+        return
+    zeros = float((desc == 0).mean())
+    if zeros > _ZERO_BYTES_NOT_BITS:
+        raise ValueError(f"uint8 descriptors without 'metric', {zeros:.0%} of their bytes 0: packed bits have "
+                         "about 0.4 %; store 'metric' 'l2' for a quantised descriptor such as SIFT, or 'hamming' "
+                         "for packed bits")
+
+
+def _check_no_repeats(kp: np.ndarray, desc: np.ndarray) -> None:
+    """Refuse a keypoint stored twice with the same descriptor (e.g. a frame's arrays concatenated
+    twice): each copy takes a place of the --keypoints budget and the copies tie in matching. Keypoints
+    at one position with other descriptors (SIFT's several orientations) are kept."""
+    if len(kp) < 2 or np.ndim(desc) < 1 or len(desc) != len(kp):
+        return
+    rows = np.concatenate([np.ascontiguousarray(kp, np.float64).view(np.uint8).reshape(len(kp), -1),
+                           np.ascontiguousarray(desc).view(np.uint8).reshape(len(kp), -1)], axis=1)
+    unique = np.unique(rows, axis=0)
+    if len(unique) < len(kp):
+        raise ValueError(f"{len(kp) - len(unique)} of {len(kp)} keypoints repeat an earlier one, position and "
+                         "descriptor alike; store each once")
 
 
 class ExternalFeatures:
@@ -78,17 +150,25 @@ class ExternalFeatures:
     def _features(self, arrays: dict[str, np.ndarray], n: int | None, shape: tuple[int, int] | None,
                   hloc_layout: bool = False) -> Features:
         """`hloc_layout`: the group has hloc's layout (`features.descriptors_n_by_d`)."""
+        _check_field_names(arrays)
         if "keypoints" not in arrays or "descriptors" not in arrays:
             raise ValueError("lacks 'keypoints' or 'descriptors'")
         kp = as_keypoints(arrays["keypoints"], shape=shape, allow_empty=True).xy
+        _check_pixels(kp, arrays.get("image_size"), shape)
         desc = descriptors_n_by_d(arrays["descriptors"], len(kp), hloc_layout)
         if desc.dtype.kind == "f" and not np.isfinite(desc).all():
             raise ValueError("descriptors hold NaN or infinite values; drop those keypoints")
+        _check_no_repeats(kp, desc)
         valid = arrays.get("valid")
         features = Features(kp, desc, np.ones(len(kp), bool) if valid is None else valid)
         self.metric = self._metric(arrays.get("metric"))
+        if self.metric is None:
+            _check_bytes_are_bits(features.descriptors)
         match(features.descriptors, features.descriptors[:0], metric=self.metric)  # match's checks only (no target)
         scores = arrays.get("scores")
+        if scores is None and n and len(kp) > n:
+            raise ValueError(f"{len(kp)} keypoints and no 'scores' to keep the best --keypoints {n} by: store "
+                             f"'scores' (higher = better), or at most {n} keypoints")
         if scores is not None:
             scores = np.asarray(scores, np.float64).reshape(-1)
             if scores.shape != (len(kp),) or not np.isfinite(scores).all():
@@ -115,18 +195,34 @@ class ExternalFeatures:
             raise ValueError(f"metric: {text!r} differs from the {self.metric!r} of frames read before")
         return text
 
-    def _read(self, sequence: str, frame: str) -> tuple[dict[str, np.ndarray], str]:
-        """The arrays of `frame` and where they come from (for messages)."""
+    def source(self, sequence: str, frame: str) -> str | None:
+        """The group (.h5) or file (.npz) that `frame` of `sequence` is read from; None when none is."""
         if self.path.is_file():
             groups = self._h5_groups()
-            for key in (f"{sequence}/{frame}", frame):
+            image = f"{frame}{RGB_SUFFIX}"  # hloc names a group by the image file
+            for key in (f"{sequence}/{frame}", frame, f"{sequence}/{image}", image):
                 if key in groups:
-                    import h5py
-
-                    with h5py.File(str(self.path), "r") as fd:
-                        return {k: np.asarray(v[()]) for k, v in fd[key].items()}, f"{self.path}, group {key}"
-            raise ValueError(f"features {self.name}: no group '{sequence}/{frame}' or '{frame}' in {self.path}")
+                    return key
+            return None
         for candidate in (self.path / sequence / f"{frame}.npz", self.path / f"{frame}.npz"):
+            if candidate.is_file():
+                return str(candidate)
+        return None
+
+    def _read(self, sequence: str, frame: str) -> tuple[dict[str, np.ndarray], str]:
+        """The arrays of `frame` and where they come from (for messages)."""
+        key = self.source(sequence, frame)
+        if self.path.is_file():
+            if key is not None:
+                import h5py
+
+                with h5py.File(str(self.path), "r") as fd:
+                    return {k: np.asarray(v[()]) for k, v in fd[key].items()}, f"{self.path}, group {key}"
+            some = sorted(self._h5_groups())[:3]
+            raise ValueError(f"features {self.name}: no group '{sequence}/{frame}' or '{frame}' (or "
+                             f"'{frame}{RGB_SUFFIX}') in {self.path}; it holds e.g. {some} (names are matched "
+                             "exactly, case included)")
+        for candidate in ([Path(key)] if key is not None else []):
             if candidate.is_file():
                 try:
                     with np.load(candidate, allow_pickle=False) as data:
@@ -134,3 +230,22 @@ class ExternalFeatures:
                 except (OSError, ValueError, zipfile.BadZipFile) as error:
                     raise ValueError(f"features {self.name}: cannot read {candidate} ({error})") from None
         raise ValueError(f"features {self.name}: no {sequence}/{frame}.npz or {frame}.npz under {self.path}")
+
+
+def check_one_source_per_frame(features: list[ExternalFeatures], sequences: dict[str, list[str]]) -> None:
+    """Refuse feature sets that would score two sequences' frames with one group or file: names
+    without the sequence (`frame-000`) serve any sequence whose frame has that name, so a second
+    benched sequence would silently be scored with the first one's features. `sequences`: sequence
+    name -> its frame names."""
+    for f in features:
+        seen: dict[str, str] = {}
+        for sequence, frames in sequences.items():
+            for frame in frames:
+                key = f.source(sequence, frame)
+                if key is None:
+                    continue
+                if key in seen and seen[key] != sequence:
+                    raise ValueError(f"features {f.name}: {frame} of {seen[key]} and of {sequence} would both be read "
+                                     f"from {key!r}; name each frame '<sequence>/<frame>' (.h5) or put the .npz files "
+                                     f"in PATH/<sequence>/ when benching several sequences")
+                seen[key] = sequence

@@ -33,12 +33,12 @@ from ..constants import N_KEYPOINTS
 from ..depth import check_profile, sequence_depth_profile
 from ..descriptors import OpenCVDescriptor, check_descriptor_name, refuse_repeated
 from ..inputs import check_depth_scale, check_radius, check_tps_dir, check_whole, resolve_radius
-from ..io import Sequence, find_sequences, read_sequence
+from ..io import RGB_SUFFIX, Sequence, find_sequences, read_sequence
 from ..outputs import add_to_manifest, append_line_durably, atomic_file, check_out_dir, plural, read_manifest
 from ..keypoints import Keypoints, check_detector_name, detect, resolve_keypoint_set
 from ..matching import match
 from ..features import Features
-from .external import ExternalFeatures, parse_features_option
+from .external import ExternalFeatures, check_one_source_per_frame, parse_features_option
 from .report import CURVES
 from ..descriptors.describer import Describer
 from ..groundtruth.sources import GroundTruth
@@ -423,6 +423,10 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
         raise ValueError(f"out: {out} is a file, not a folder")
     folders = [str(f) for f in find_sequences(datasets, unique_names=True)]
     check_tps_dir(config.tps_dir)
+    if config.features:  # before any work: a shared group would score a sequence with another's features
+        check_one_source_per_frame([ExternalFeatures(*parse_features_option(f)) for f in config.features],
+                                   {Path(f).name: [p.name[: -len(RGB_SUFFIX)] for p in sorted(Path(f).glob(f"*{RGB_SUFFIX}"))]
+                                    for f in folders})
     done = _open_results(out, config, overwrite, progress, folders)
     work = []
     for folder in folders:

@@ -1,0 +1,143 @@
+"""`geofeat bench --features NAME=PATH`: feature files written elsewhere that used to give wrong numbers
+without a word (geofeat.bench.external)."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+
+from geofeat.bench.external import ExternalFeatures
+
+SHAPE = (120, 160)  # (H, W)
+
+
+def _frame(n=40, seed=0):
+    rng = np.random.default_rng(seed)
+    kp = rng.uniform(5, 110, (n, 2)).astype(np.float32)
+    return kp, rng.normal(size=(n, 32)).astype(np.float32), rng.uniform(0, 1, n).astype(np.float32)
+
+
+def _h5(path, groups):
+    with h5py.File(path, "w") as fd:
+        for g, arrays in groups.items():
+            for k, v in arrays.items():
+                fd[f"{g}/{k}"] = v
+    return path
+
+
+def _load(path, frame="f0", n=None, sequence="seq"):
+    return ExternalFeatures("m", path).load(sequence, frame, n, shape=SHAPE)
+
+
+def test_more_keypoints_than_the_budget_without_scores_are_refused(tmp_path):
+    """Without `scores` nothing was cut to --keypoints: the method was scored at a larger budget than
+    the others (120 keypoints against 64), unsaid."""
+    kp, desc, scores = _frame()
+    path = _h5(tmp_path / "f.h5", {"f0": {"keypoints": kp, "descriptors": desc.T}})
+    with pytest.raises(ValueError, match="40 keypoints and no 'scores'.*--keypoints 20"):
+        _load(path, n=20)
+    assert len(_load(path, n=40)) == 40  # within the budget: kept as they are, in their order
+    _h5(path, {"f0": {"keypoints": kp, "descriptors": desc.T, "scores": scores}})
+    got = _load(path, n=20)
+    np.testing.assert_array_equal(got.keypoints, kp[np.sort(np.argsort(-scores)[:20])])
+
+
+@pytest.mark.parametrize("name, field", [("score", "scores"), ("Metric", "metric"), ("descriptor", "descriptors")])
+def test_a_misspelled_field_is_refused_not_ignored(tmp_path, name, field):
+    kp, desc, scores = _frame()
+    arrays = {"keypoints": kp, "descriptors": desc.T, "scores": scores}
+    arrays[name] = arrays.pop(field) if field in arrays else np.bytes_("l2")
+    if field == "descriptors":
+        arrays["descriptors"] = desc.T
+    with pytest.raises(ValueError, match=f"holds '{name}', which is not read; did you mean '{field}'"):
+        _load(_h5(tmp_path / "f.h5", {"f0": arrays}))
+    arrays.pop(name)
+    arrays["image_size"] = np.array([SHAPE[1], SHAPE[0]])  # hloc's other field is no near miss
+    _load(_h5(tmp_path / "g.h5", {"f0": arrays}))
+
+
+def test_sift_stored_as_uint8_without_metric_is_refused(tmp_path):
+    """Matched as packed bits by Hamming: another distance than SIFT's L2, and another score."""
+    kp, _, _ = _frame()
+    rng = np.random.default_rng(1)
+    sift = np.where(rng.uniform(size=(40, 128)) < 0.3, 0, rng.integers(1, 120, (40, 128))).astype(np.uint8)
+    with pytest.raises(ValueError, match="uint8 descriptors without 'metric', 3.% of their bytes 0"):
+        _load(_h5(tmp_path / "f.h5", {"f0": {"keypoints": kp, "descriptors": sift}}))
+    ex = ExternalFeatures("m", _h5(tmp_path / "g.h5", {"f0": {"keypoints": kp, "descriptors": sift, "metric": np.bytes_("l2")}}))
+    assert len(ex.load("seq", "f0", shape=SHAPE)) == 40 and ex.metric == "l2"
+    bits = rng.integers(0, 256, (40, 32)).astype(np.uint8)  # packed bits (ORB): read as before
+    _load(_h5(tmp_path / "h.h5", {"f0": {"keypoints": kp, "descriptors": bits}}))
+    unpacked = np.unpackbits(bits, axis=1)  # 0/1 bytes: Hamming over bytes equals Hamming over the bits
+    _load(_h5(tmp_path / "i.h5", {"f0": {"keypoints": kp, "descriptors": unpacked}}))
+
+
+def test_normalised_keypoints_and_another_image_size_are_refused(tmp_path):
+    """Keypoints in [0, 1] passed the on-image check and scored 0 (none on the object); keypoints of a
+    half-size image (hloc's image_size says so) scored near 0."""
+    kp, desc, scores = _frame()
+    with pytest.raises(ValueError, match="all 40 keypoints lie within 1 px of the origin: normalised"):
+        _load(_h5(tmp_path / "f.h5", {"f0": {"keypoints": kp / [160, 120], "descriptors": desc.T}}))
+    with pytest.raises(ValueError, match=r"image_size \[80, 60\] \(hloc's \(W, H\)\) is not the frame's \[160, 120\]"):
+        _load(_h5(tmp_path / "g.h5", {"f0": {"keypoints": kp / 2, "descriptors": desc.T, "image_size": np.array([80, 60])}}))
+    _load(_h5(tmp_path / "h.h5", {"f0": {"keypoints": kp, "descriptors": desc.T, "image_size": np.array([160, 120])}}))
+    _load(_h5(tmp_path / "i.h5", {"f0": {"keypoints": kp[:3] / 200, "descriptors": desc[:3].T}}))  # too few to tell
+
+
+def test_a_keypoint_stored_twice_is_refused(tmp_path):
+    """Copies took half the --keypoints budget and tied in matching: the matching score halved."""
+    kp, desc, scores = _frame()
+    with pytest.raises(ValueError, match="40 of 80 keypoints repeat an earlier one"):
+        _load(_h5(tmp_path / "f.h5", {"f0": {"keypoints": np.r_[kp, kp], "descriptors": np.r_[desc, desc].T}}))
+    other = desc.copy()
+    other[:, 0] += 1  # one position, another descriptor (SIFT's second orientation): kept
+    assert len(_load(_h5(tmp_path / "g.h5", {"f0": {"keypoints": np.r_[kp, kp], "descriptors": np.r_[desc, other].T}}))) == 80
+
+
+def test_groups_named_by_image_file_as_hloc_names_them(tmp_path):
+    kp, desc, _ = _frame()
+    for key in ("seq/f0-rgb.png", "f0-rgb.png"):
+        path = _h5(tmp_path / f"{key.replace('/', '_')}.h5", {key: {"keypoints": kp, "descriptors": desc.T}})
+        np.testing.assert_array_equal(_load(path).keypoints, kp)
+    path = _h5(tmp_path / "upper.h5", {"F0": {"keypoints": kp, "descriptors": desc.T}})
+    with pytest.raises(ValueError, match=r"no group 'seq/f0'.*holds e.g. \['F0'\]"):
+        _load(path)
+
+
+@pytest.mark.parametrize("npz", [False, True])
+def test_frames_without_the_sequence_in_their_name_serve_one_sequence_only(tmp_path, npz):
+    """Two sequences with the same frame names (every simulated one has frame-000-master...): the
+    second was scored with the first one's features, near 0, without a word."""
+    from geofeat.bench.external import check_one_source_per_frame
+
+    kp, desc, _ = _frame()
+    frames = ["frame-000-master", "frame-001"]
+    if npz:
+        path = tmp_path / "npz"
+        path.mkdir()
+        for f in frames:
+            np.savez(path / f"{f}.npz", keypoints=kp, descriptors=desc)
+    else:
+        path = _h5(tmp_path / "f.h5", {f: {"keypoints": kp, "descriptors": desc.T} for f in frames})
+    ex = ExternalFeatures("m", path)
+    check_one_source_per_frame([ex], {"a": frames})  # one sequence: fine
+    with pytest.raises(ValueError, match="frame-000-master of a and of b would both be read from"):
+        check_one_source_per_frame([ex], {"a": frames, "b": frames})
+    if not npz:
+        path = _h5(tmp_path / "g.h5", {f"{s}/{f}": {"keypoints": kp, "descriptors": desc.T} for s in "ab" for f in frames})
+        check_one_source_per_frame([ExternalFeatures("m", path)], {"a": frames, "b": frames})
+
+
+def test_bench_refuses_two_sequences_read_from_one_set_of_groups(tmp_path):
+    """The check runs in run_benchmark, before any sequence is read."""
+    from geofeat.bench.runner import BenchConfig, run_benchmark
+
+    kp, desc, _ = _frame()
+    for s in ("a", "b"):
+        for f in ("frame-000-master", "frame-001"):
+            (tmp_path / "data" / s).mkdir(parents=True, exist_ok=True)
+            (tmp_path / "data" / s / f"{f}-rgb.png").write_bytes(b"")
+    path = _h5(tmp_path / "f.h5", {f: {"keypoints": kp, "descriptors": desc.T} for f in ("frame-000-master", "frame-001")})
+    config = BenchConfig(descriptors=(), features=(f"m={path}",))
+    with pytest.raises(ValueError, match="would both be read from 'frame-000-master'"):
+        run_benchmark(tmp_path / "data", tmp_path / "out", config, progress=False)
