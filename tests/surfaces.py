@@ -111,3 +111,22 @@ def plane_frame(shape=(480, 640), z0: float = 1.0, seed: int = 0) -> geofeat.RGB
     K = K_VGA.copy()
     K[0, 2], K[1, 2] = (shape[1] - 1) / 2, (shape[0] - 1) / 2  # the principal point of this image size
     return geofeat.RGBDFrame(img, np.full(shape, z0, np.float32), K)
+
+
+def write_rolled_kinect_sequence(folder, angle_deg: float):
+    """Write the shipped Kinect frame (reference `cloud_ref`) and its copy with the camera rolled by
+    `angle_deg` (`cloud_roll<angle>`), with the shipped landmarks moved along, into `folder` in the
+    public layout (PNG colour and millimetre depth, intrinsics.xml, one landmark csv per frame)."""
+    from geofeat.frame import roll_camera
+    from geofeat.io import demo_data_dir, read_landmarks, write_frame, write_intrinsics, write_landmarks
+
+    frame = geofeat.read_demo_frame()
+    ids, xy, visible = read_landmarks(demo_data_dir() / "cloud_1.csv")
+    write_intrinsics(folder / "intrinsics.xml", frame.K)
+    write_frame(folder, "cloud_ref", frame.color, frame.depth)
+    write_landmarks(folder / "cloud_ref.csv", ids, xy, visible)
+    rolled, A = roll_camera(frame, angle_deg)
+    name = f"cloud_roll{angle_deg:g}"
+    write_frame(folder, name, rolled.color, rolled.depth)
+    write_landmarks(folder / f"{name}.csv", ids, xy @ A[:, :2].T + A[:, 2], visible)
+    return folder

@@ -14,6 +14,7 @@ from geofeat.groundtruth.sources import GroundTruth
 from geofeat.groundtruth.landmarks import landmark_spline
 from geofeat.cli import main
 from geofeat.sim import simulate_sequence
+from surfaces import write_rolled_kinect_sequence
 
 SMALL = dict(width=320, height=240, progress=False)
 
@@ -446,18 +447,8 @@ def test_table_says_when_an_oriented_descriptor_was_given_upright_keypoints():
 def _kinect_pair_naming(folder, profile):
     """The shipped Kinect frame and its copy rolled by 20 degrees, with landmarks (a thin-plate
     spline ground truth); geofeat.json names `profile` although the depth measures as kinect."""
-    from geofeat.frame import roll_camera
-    from geofeat.io import demo_data_dir, read_landmarks, write_frame, write_intrinsics, write_landmarks
-
-    frame = geofeat.read_demo_frame()
-    ids, xy, visible = read_landmarks(demo_data_dir() / "cloud_1.csv")
     folder.mkdir(parents=True)
-    write_intrinsics(folder / "intrinsics.xml", frame.K)
-    write_frame(folder, "cloud_ref", frame.color, frame.depth)
-    write_landmarks(folder / "cloud_ref.csv", ids, xy, visible)
-    rolled, A = roll_camera(frame, 20.0)
-    write_frame(folder, "cloud_roll20", rolled.color, rolled.depth)
-    write_landmarks(folder / "cloud_roll20.csv", ids, xy @ A[:, :2].T + A[:, 2], visible)
+    write_rolled_kinect_sequence(folder, 20.0)
     (folder / "geofeat.json").write_text(json.dumps({"depth_profile": profile}))
     return folder
 

@@ -7,23 +7,13 @@ import pytest
 import geofeat
 from geofeat.cli import main
 from geofeat.cli.demo import _check_demo_folder
-from geofeat.frame import roll_camera
-from geofeat.io import demo_data_dir, read_landmarks, write_frame, write_intrinsics, write_landmarks
+from surfaces import write_rolled_kinect_sequence
 
 
 @pytest.fixture(scope="module")
 def rolled_sequence(tmp_path_factory):
     """The Kinect frame (reference) and the camera rolled by 30 deg, with landmarks, in the public layout."""
-    folder = tmp_path_factory.mktemp("rolled")
-    frame = geofeat.read_demo_frame()
-    ids, xy, visible = read_landmarks(demo_data_dir() / "cloud_1.csv")
-    write_intrinsics(folder / "intrinsics.xml", frame.K)
-    write_frame(folder, "cloud_ref", frame.color, frame.depth)
-    write_landmarks(folder / "cloud_ref.csv", ids, xy, visible)
-    rolled, A = roll_camera(frame, 30.0)
-    write_frame(folder, "cloud_roll30", rolled.color, rolled.depth)
-    write_landmarks(folder / "cloud_roll30.csv", ids, xy @ A[:, :2].T + A[:, 2], visible)
-    return folder
+    return write_rolled_kinect_sequence(tmp_path_factory.mktemp("rolled"), 30.0)
 
 
 def test_demo_writes_pictures_and_reports(tmp_path, capsys):
