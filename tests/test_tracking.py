@@ -473,3 +473,28 @@ def test_a_descriptor_named_twice_is_refused(sequence, tmp_path):
     with pytest.raises(ValueError, match="'sift' is named twice"):
         write_tracking([sequence], tmp_path / "t", ("sift", "SIFT"), n_keypoints=300, progress=False, refine="none")
     assert not (tmp_path / "t").exists()
+
+
+def _public_copy(sequence, out, identical: str):
+    """`sequence` in the public layout only (no simulator ground truth), frame `identical` replaced by
+    a copy of the reference frame."""
+    out.mkdir()
+    for f in sequence.iterdir():
+        if f.name.endswith("-gt.npz") or f.name == "groundtruth.json":
+            continue
+        (out / f.name).write_bytes(f.read_bytes())
+    for suffix in ("-rgb.png", "-depth.png", ".csv"):
+        (out / f"{identical}{suffix}").write_bytes((sequence / f"frame-000-master{suffix}").read_bytes())
+    return out
+
+
+def test_a_frame_identical_to_the_reference_scores_zero_error_and_full_precision(sequence, tmp_path):
+    # ground truth from the csv landmarks covers only their convex hull: a kept match there is not
+    # "wrong", it is unscored; precision used to count it as wrong (0.77 on this identical frame)
+    folder = _public_copy(sequence, tmp_path / "public", "frame-001")
+    result = track_sequence(folder, ("sift",), n_keypoints=300, refine="none", progress=False)["sift"]
+    row = next(r for r in result.rows if r["frame"] == "frame-001")
+    assert not row["failed"] and row["inlier_rate"] == 1.0
+    assert row["grid_error_px"] == pytest.approx(0.0, abs=1e-6)
+    assert row["precision"] == pytest.approx(1.0)
+    np.testing.assert_allclose(result.points[1], result.reference_points, atol=1e-6)

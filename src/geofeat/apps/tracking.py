@@ -20,7 +20,7 @@ A template region of interest (ROI) of the reference frame is followed in every 
    when it keeps at least 10 % more inliers;
 3. per frame: matches, RANSAC inliers, inlier rate, the matching score of the kept matches (inliers
    that the bench's ground truth calls correct, over min(template, frame) keypoints as the bench's
-   MS; and their precision, correct over inliers), and the photometric
+   MS; and their precision, correct over the inliers that the ground truth covers), and the photometric
    similarity (SSIM, NCC) inside the ROI of the template and frame k warped back onto the template;
    a 10 x 10 grid over the ROI is carried into every frame by the fitted warp.
 4. optionally (`refine="photometric"`), the spline is refined densely and photometrically against the
@@ -508,7 +508,7 @@ class TrackResult:
 #: Columns of track.csv. n_template / n_frame: keypoints in the template ROI / in the frame; matches:
 #: template keypoints with a nearest neighbour; inliers: RANSAC inliers among them; ms: correct
 #: inliers / min(n_template, n_frame) (the bench's matching score applied to the kept matches);
-#: precision: correct inliers / inliers (correct: the bench's ground truth within 3 px, `geofeat.scoring.correct_matches`);
+#: precision: correct inliers / inliers that the ground truth covers (NaN when it covers none; correct: the bench's ground truth within 3 px, `geofeat.scoring.correct_matches`);
 #: grid_error_px: median over the grid of |ground truth(tracked point) - grid point|, reference pixels;
 #: grid_error_tps_px: the same for the RANSAC spline alone (before refinement); grid_error_visible_px:
 #: median over the grid points seen in the frame of |tracked point - true position|, frame pixels
@@ -792,18 +792,23 @@ def _track_frame(template: _Template, target: _Target, name: str, prior: Warp | 
 
 def _truth_figures(template: _Template, target: _Target, fit: _Fit, warp: Warp, points: np.ndarray) -> dict:
     """The ground-truth columns of a fitted frame's row: ms and precision of the RANSAC inliers
-    (correct: `geofeat.scoring.correct_matches`, the bench's 3 px rule), and the grid errors of the
+    (correct: `geofeat.scoring.correct_matches`, the bench's 3 px rule; precision over the inliers whose
+    frame keypoint has ground truth, NaN when none has), and the grid errors of the
     final warp (`points`: (G, 2) frame pixels) and of the RANSAC spline alone, reference pixels."""
     from ..scoring import correct_matches
 
     kept = fit.ransac.inliers
-    correct = int(correct_matches(template.keypoints.xy[fit.i0[kept]], target.to_ref[fit.i1[kept]]).sum())
+    in_ref = target.to_ref[fit.i1[kept]]
+    correct = int(correct_matches(template.keypoints.xy[fit.i0[kept]], in_ref).sum())
+    # precision over the inliers the ground truth can judge: one off the landmarks' hull or under a
+    # fold is unscored, not wrong (counting it wrong gave 0.77 on a frame identical to the reference)
+    scored = int(np.isfinite(in_ref).all(axis=1).sum())
     truth, grid = template.truth, template.grid
     grid_error = _grid_error(truth, target.name, points, grid)
     visible_error, visible_fraction = _visible_grid_error(target.grid_truth, points)
     return dict(
         ms=correct / max(min(len(template.keypoints), len(target.keypoints)), 1),
-        precision=correct / kept.sum() if kept.any() else 0.0,
+        precision=correct / scored if scored else float("nan"),
         grid_error_px=grid_error,
         grid_error_tps_px=(grid_error if warp is fit.ransac.warp
                            else _grid_error(truth, target.name, fit.ransac.warp(grid), grid)),
