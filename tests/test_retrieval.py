@@ -449,3 +449,21 @@ def test_report_notes_count_in_words():
     assert "skipped 1 query whose class" in notes
     assert "object masks: simulator, for 1 sequence" in notes and "depth profile: clean, for 1 sequence" in notes
     assert "for all 1" not in notes and "1 sequences" not in notes and "1 classes" not in notes
+
+
+def test_a_database_of_one_class_is_flagged_as_telling_descriptors_nothing(three_objects, tmp_path):
+    """Two sequences of one object (the docs' example): every frame a query may return is of its class,
+    so Acc@K was 1 for any descriptor, reported like a real result without a word."""
+    classes = tmp_path / "classes.csv"
+    classes.write_text("sequence,class\nblobs,cloth\ncheckers,cloth\n")
+    res, _ = run_retrieval([three_objects / "blobs", three_objects / "checkers"], tmp_path / "out", ("orb",),
+                           words=5, n_samples=500, n_keypoints=200, classes_file=str(classes), rerank_top=0,
+                           progress=False)
+    assert (res["orb"].accuracy == 1.0).all()
+    md = (tmp_path / "out" / "retrieval.md").read_text()
+    assert "1 whatever the descriptor" in md and "checkers/" in md and "blobs/" in md, md
+    # with a distractor of another class in the database nothing is flagged
+    classes.write_text("sequence,class\nblobs,cloth\ncheckers,cloth\nlines,tiles\n")
+    run_retrieval([three_objects], tmp_path / "out2", ("orb",), words=5, n_samples=500, n_keypoints=200,
+                  classes_file=str(classes), rerank_top=0, progress=False)
+    assert "whatever the descriptor" not in (tmp_path / "out2" / "retrieval.md").read_text()

@@ -740,12 +740,23 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
         except ValueError as e:
             raise ValueError(f"{e} (descriptor {name})") from None
     with output_folder(out) as tmp:
-        _write_retrieval(tmp, db, res, skipped, words, n_samples, include_own_sequence)
+        _write_retrieval(tmp, db, res, skipped, words, n_samples, include_own_sequence,
+                         _trivial_queries(db, q_idx, exclude))
     return res, db
 
 
+def _trivial_queries(db: "RetrievalDatabase", queries: np.ndarray, exclude: np.ndarray) -> list[str]:
+    """"sequence/frame" of each query (database indices (Q,), their (Q, N) `exclusion_mask`) whose
+    database holds frames of its own class only: every result it can get is correct, so its Acc@K is
+    1 whatever the descriptor (one class in the database, e.g. two sequences of one object)."""
+    cls = np.asarray(db.classes)
+    own = (cls[queries][:, None] == cls[None, :]) | exclude
+    return [f"{db.sequences[i]}/{db.frames[i]}" for i in np.asarray(queries)[own.all(axis=1)]]
+
+
 def _write_retrieval(out: Path, db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: list[str],
-                     words: int | None, n_samples: int, include_own_sequence: bool) -> None:
+                     words: int | None, n_samples: int, include_own_sequence: bool,
+                     trivial: list[str] | None = None) -> None:
     """The result files of `run_retrieval`, into `out`."""
     with open(out / "retrieval.csv", "w", newline="") as fh:
         w = csv.writer(fh)
@@ -755,7 +766,7 @@ def _write_retrieval(out: Path, db: RetrievalDatabase, res: dict[str, Descriptor
                         for k, (v, lo, hi) in enumerate(zip(r.accuracy, r.low, r.high)))
     _plot({n: r.accuracy for n, r in res.items()}, out / "acc_at_k.png")
     _top6_picture(db, {n: (r.queries, r.neighbours) for n, r in res.items()}, out / "top6.png")
-    (out / "retrieval.md").write_text(_report(db, res, skipped, words, n_samples, include_own_sequence))
+    (out / "retrieval.md").write_text(_report(db, res, skipped, words, n_samples, include_own_sequence, trivial))
 
 
 def _all_sequences(count: int) -> str:
@@ -764,7 +775,7 @@ def _all_sequences(count: int) -> str:
 
 
 def _report(db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: list[str], words: int | None,
-            n_samples: int, include_own_sequence: bool) -> str:
+            n_samples: int, include_own_sequence: bool, trivial: list[str] | None = None) -> str:
     """retrieval.md: Acc@K [95 % interval] per descriptor, then notes."""
     k_max = max(len(r.accuracy) for r in res.values())
     ks = [k for k in (1, 3, 5, 10) if k <= k_max]
@@ -802,6 +813,11 @@ def _report(db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: li
                          f"Acc@K on the other {len(r.queries)}")
     else:
         notes.append(f"K = {words} given")
+    if trivial:
+        n_queries = int(db.is_query.sum()) - len(skipped)
+        notes.append(f"WARNING: {len(trivial)} of {plural(n_queries, 'query', 'queries')} can return only frames of "
+                     "their own class (no other class left in their database), so their Acc@K is 1 whatever the "
+                     "descriptor; add sequences of other objects (distractors): " + ", ".join(trivial))
     if skipped:
         notes.append(f"skipped {plural(len(skipped), 'query', 'queries')} whose class has no other "
                      f"sequence: " + ", ".join(skipped))
