@@ -467,3 +467,16 @@ def test_a_database_of_one_class_is_flagged_as_telling_descriptors_nothing(three
     run_retrieval([three_objects], tmp_path / "out2", ("orb",), words=5, n_samples=500, n_keypoints=200,
                   classes_file=str(classes), rerank_top=0, progress=False)
     assert "whatever the descriptor" not in (tmp_path / "out2" / "retrieval.md").read_text()
+
+
+def test_classes_that_leave_no_query_are_named_not_answered_with_pass_classes(three_objects, tmp_path):
+    """--classes given with 'Cloth' and 'cloth': every query was skipped and the error said the classes
+    default to the folder names and to pass --classes."""
+    classes = tmp_path / "classes.csv"
+    classes.write_text("sequence,class\nblobs, Cloth\ncheckers,cloth\nlines,tiles\n")
+    with pytest.raises(ValueError) as error:
+        run_retrieval([three_objects], tmp_path / "out", ("orb",), words=5, n_samples=500, n_keypoints=200,
+                      classes_file=str(classes), rerank_top=0, progress=False)
+    message = str(error.value)
+    assert "pass --classes" not in message and "default to the sequence folder name" not in message
+    assert "blobs: 'Cloth'" in message and "checkers: 'cloth'" in message and "case-sensitive" in message

@@ -729,9 +729,20 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
                          "needs other frames to search among")
     q_idx, exclude, skipped = eligible_queries(db, include_own_sequence)
     if len(q_idx) == 0:
-        raise ValueError("datasets: no query has another sequence of its class in the database (classes default to "
-                         "the sequence folder name); pass --classes with a 'sequence,class' CSV, or "
-                         "--include-own-sequence")
+        if classes is None:
+            raise ValueError("datasets: no query has another sequence of its class in the database (classes default to "
+                             "the sequence folder name); pass --classes with a 'sequence,class' CSV, or "
+                             "--include-own-sequence")
+        # the classes were given: say which class each sequence got (it said "pass --classes")
+        given = {s: classes[s] for s in dict.fromkeys(db.sequences)}
+        folded = {}
+        for c in dict.fromkeys(given.values()):
+            folded.setdefault(c.casefold(), []).append(c)
+        same = [" and ".join(repr(c) for c in cs) for cs in folded.values() if len(cs) > 1]
+        raise ValueError(f"classes: no query has another sequence of its class in the database; {classes_file} gives "
+                         + ", ".join(f"{s}: {c!r}" for s, c in given.items())
+                         + (f" (class names are case-sensitive: {'; '.join(same)} are different classes)" if same else "")
+                         + "; give sequences of one object the same class, or pass --include-own-sequence")
     res: dict[str, DescriptorResult] = {}
     for name, feats in db.features.items():
         try:
