@@ -1,5 +1,7 @@
 """Tracking: TPS + RANSAC on synthetic matches, similarity measures, and a short simulated sequence."""
 
+import csv
+
 import numpy as np
 import pytest
 
@@ -498,3 +500,24 @@ def test_a_frame_identical_to_the_reference_scores_zero_error_and_full_precision
     assert row["grid_error_px"] == pytest.approx(0.0, abs=1e-6)
     assert row["precision"] == pytest.approx(1.0)
     np.testing.assert_allclose(result.points[1], result.reference_points, atol=1e-6)
+
+
+def test_a_skipped_frame_counts_as_lost_not_as_absent(sequence, tmp_path):
+    """A frame that a descriptor's detector could not use (no depth: GeoKey finds nothing) had no row,
+    so that descriptor's grid error and failed-frames count were taken over fewer frames than those of
+    a descriptor whose fit on the frame failed and counted as lost (GeoBit '0.0, 0/1' beside SIFT
+    'lost, 1/2' on one sequence)."""
+    import cv2
+
+    folder = _public_copy(sequence, tmp_path / "public", "frame-001")
+    depth = cv2.imread(str(folder / "frame-002-depth.png"), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(folder / "frame-002-depth.png"), np.zeros_like(depth))
+    skipped = []
+    _, table = write_tracking([folder], tmp_path / "out", ("sift",), n_keypoints=300, refine="none",
+                              progress=False, skipped=skipped)
+    assert skipped == ["public/frame-002"]
+    rows = list(csv.DictReader(open(tmp_path / "out" / "track.csv")))
+    assert [(r["frame"], r["failed"]) for r in rows] == [("frame-001", "False"), ("frame-002", "True")]
+    sift = next(line for line in table.splitlines() if line.startswith("| sift |"))
+    assert sift.endswith("| 1/2 |") and "| lost |" in sift, table
+    assert "SKIPPED frames: frame-002" in (tmp_path / "out" / "tracking.md").read_text()

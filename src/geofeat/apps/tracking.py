@@ -489,7 +489,8 @@ class TrackResult:
             itself), NaN where the fit failed.
         rows: one dict per target frame (see `TRACK_COLUMNS`).
         mask_source: where the object mask came from ("simulator", "objmask", "depth").
-        skipped: target frames that could not be read or described (no row; points stay NaN).
+        skipped: target frames that could not be read or described (a failed row with NaN figures, so
+            that they count as lost; points stay NaN).
         depth_profile: the depth profile the sequence was described with ("kinect", "quantised", "clean").
     """
 
@@ -580,8 +581,12 @@ def track_sequence(
             frame, keypoints, features = template.describe_frame(frame_name, n_keypoints, detector)
         except ValueError as error:  # reported by name; the other frames go on
             tqdm.write(skipped_frame_line(frame_name, error, seq.name))
-            for r in results.values():
+            for name, r in results.items():
                 r.skipped.append(frame_name)
+                # a failed row: the frame counts as lost, as a failed fit does. Without it a detector that
+                # found nothing on a frame (GeoKey on a frame without depth) left the frame out of its
+                # descriptor's figures, while another detector's failed fit on it counted as lost
+                r.rows.append(_skipped_row(template, frame_name, name))
             continue
         target = _Target(frame_name, frame, keypoints, features, template.to_reference(frame_name, keypoints.xy),
                          template.truth.project(frame_name, template.grid) if template.truth is not None else None)
@@ -756,6 +761,15 @@ def _match_and_fit(template: _Template, target: _Target, name: str, prior: Warp 
         if best is None or fit.inliers.sum() > best.ransac.inliers.sum():
             best = _Fit(i0, i1, fit)
     return best
+
+
+def _skipped_row(template: _Template, frame: str, name: str) -> dict:
+    """The track.csv row of a target frame that could not be read or described: failed, no
+    keypoints or matches, every figure NaN (the tables count it as lost)."""
+    row = {key: float("nan") for key in TRACK_COLUMNS}
+    row.update(sequence=template.seq.name, descriptor=name, frame=frame, n_template=len(template.keypoints),
+               n_frame=0, matches=0, inliers=0, refined=False, failed=True)
+    return row
 
 
 def _track_frame(template: _Template, target: _Target, name: str, prior: Warp | None, refine: str,
