@@ -519,5 +519,28 @@ def test_a_skipped_frame_counts_as_lost_not_as_absent(sequence, tmp_path):
     rows = list(csv.DictReader(open(tmp_path / "out" / "track.csv")))
     assert [(r["frame"], r["failed"]) for r in rows] == [("frame-001", "False"), ("frame-002", "True")]
     sift = next(line for line in table.splitlines() if line.startswith("| sift |"))
-    assert sift.endswith("| 1/2 |") and "| lost |" in sift, table
+    assert sift.endswith("| lost | – | 1/2 |"), table  # lost by the landmarks; no forward truth to be lost by
+    assert sift.startswith("| sift | 0.50 |"), table  # no matches: inlier rate 0, as a failed fit without matches
     assert "SKIPPED frames: frame-002" in (tmp_path / "out" / "tracking.md").read_text()
+
+
+def test_a_failed_frame_is_lost_only_by_the_errors_its_sequence_measures():
+    """A sequence without the simulator's forward truth has no visible-point error, yet one failed frame
+    made its cell read "lost" as if it had been measured; a sequence whose every frame failed must
+    still read "lost" (its failed rows carry inf where the truth exists)."""
+    from geofeat.apps.tracking import TRACK_COLUMNS, sequence_error_table, tracking_table
+
+    def row(sequence, error, visible, failed=False):
+        r = {c: "nan" for c in TRACK_COLUMNS}
+        r.update(sequence=sequence, descriptor="sift", frame="f", failed=str(failed), grid_error_px=str(error),
+                 grid_error_visible_px=str(visible))
+        return r
+
+    landmarks_only = [row("s", 0.5, "nan"), row("s", 0.5, "nan"), row("s", "inf", "nan", failed=True)]
+    cells = [c.strip() for c in tracking_table(landmarks_only).splitlines()[2].split("|")[1:-1]]
+    assert cells[6:9] == ["0.5", "–", "1/3"]
+    all_failed = [row("t", "inf", "inf", failed=True), row("t", "inf", "inf", failed=True)]
+    cells = [c.strip() for c in tracking_table(all_failed).splitlines()[2].split("|")[1:-1]]
+    assert cells[6:9] == ["lost", "lost", "2/2"]
+    assert sequence_error_table(landmarks_only) == ""
+    assert sequence_error_table(all_failed).splitlines()[2] == "| t | lost |"

@@ -519,6 +519,8 @@ class TrackResult:
 #: grid_error_visible_px leaves hidden points out. refined: the refined
 #: warp was kept; ssim, ncc: the frame's confidence, template vs frame warped back inside the ROI;
 #: seconds: this descriptor's matching, RANSAC, refinement and confidence for the frame.
+#: A failed (or skipped) frame's grid errors are inf (lost) where the sequence's ground truth measures them,
+#: NaN where it has none.
 TRACK_COLUMNS = ["sequence", "descriptor", "frame", "n_template", "n_frame", "matches", "inliers", "inlier_rate",
                  "ms", "precision", "ssim", "ncc", "grid_error_px", "grid_error_tps_px", "grid_error_visible_px",
                  "visible_grid", "refined", "seconds", "failed"]
@@ -765,11 +767,22 @@ def _match_and_fit(template: _Template, target: _Target, name: str, prior: Warp 
 
 def _skipped_row(template: _Template, frame: str, name: str) -> dict:
     """The track.csv row of a target frame that could not be read or described: failed, no
-    keypoints or matches, every figure NaN (the tables count it as lost)."""
+    keypoints or matches (inlier rate 0, as a failed fit without matches), the other figures NaN and
+    the grid errors lost (`_lost_errors`)."""
     row = {key: float("nan") for key in TRACK_COLUMNS}
     row.update(sequence=template.seq.name, descriptor=name, frame=frame, n_template=len(template.keypoints),
-               n_frame=0, matches=0, inliers=0, refined=False, failed=True)
+               n_frame=0, matches=0, inliers=0, inlier_rate=0.0, refined=False, failed=True)
+    truth = template.truth
+    row.update(_lost_errors(truth is not None, truth is not None and truth.exact))
     return row
+
+
+def _lost_errors(backward: bool, forward: bool) -> dict:
+    """The grid errors of a failed frame: inf (lost) for those the sequence's ground truth measures
+    (`backward`: frame -> reference, grid_error_px; `forward`: the simulator's, grid_error_visible_px),
+    NaN for the others, so that a table does not call a frame "lost" by a measure it never had."""
+    lost = lambda known: np.inf if known else float("nan")  # noqa: E731
+    return dict(grid_error_px=lost(backward), grid_error_tps_px=lost(backward), grid_error_visible_px=lost(forward))
 
 
 def _track_frame(template: _Template, target: _Target, name: str, prior: Warp | None, refine: str,
@@ -790,6 +803,10 @@ def _track_frame(template: _Template, target: _Target, name: str, prior: Warp | 
                grid_error_tps_px=float("nan"), grid_error_visible_px=float("nan"), visible_grid=float("nan"),
                refined=False, seconds=float("nan"), failed=not fit.ransac.ok)
     if not fit.ransac.ok:
+        # lost where the ground truth could have scored it (inf), NaN where there is none to score it by
+        row.update(_lost_errors(target.to_ref is not None, target.grid_truth is not None))
+        if target.grid_truth is not None:
+            row["visible_grid"] = float(target.grid_truth[1].mean())
         return row, None, None
     kept0, kept1 = fit.i0[fit.ransac.inliers], fit.i1[fit.ransac.inliers]  # the inliers' keypoint indices
     warp = fit.ransac.warp
@@ -890,10 +907,19 @@ def _failed(row: dict) -> bool:
     return str(row["failed"]) in ("True", "1")
 
 
-def _lost_median(rows: list[dict], key: str) -> float:
+def _lost_median(rows: list[dict], key: str, measured: bool = True) -> float:
     """Median of column `key` over `rows` (one sequence and descriptor), a failed frame counted as
-    lost (an infinite error, so that failing never scores better than a poor fit)."""
+    lost (an infinite error, so that failing never scores better than a poor fit); NaN when the
+    sequence has no ground truth for `key` (`measured` False: `_measured`)."""
+    if not measured:
+        return float("nan")
     return _median(np.inf if _failed(r) else _value(r, key) for r in rows)
+
+
+def _measured(rows: list[dict], key: str) -> bool:
+    """Whether column `key` was measured on these rows (one sequence, every descriptor): some row
+    holds a value (a failed frame's inf included); all NaN: the sequence has no ground truth for it."""
+    return any(not np.isnan(_value(r, key)) for r in rows)
 
 
 def _value(row: dict, key: str) -> float:
@@ -930,7 +956,7 @@ def tracking_table(rows: list[dict]) -> str:
             for key in ("inlier_rate", "ms", "precision", "ssim", "ncc"):
                 per[key].append(_mean(float(r[key]) for r in sel))
             for key in ("grid_error_px", "grid_error_visible_px"):
-                per[key].append(_lost_median(sel, key))
+                per[key].append(_lost_median(sel, key, _measured([r for r in rows if r["sequence"] == s], key)))
             failed += sum(_failed(r) for r in sel)
             total += len(sel)
         lines.append(f"| {name} | {_cell(_mean(per['inlier_rate']))} | {_cell(_mean(per['ms']))} | {_cell(_mean(per['precision']))} | "
@@ -946,14 +972,15 @@ def sequence_error_table(rows: list[dict], key: str = "grid_error_visible_px") -
     (a sequence without simulator ground truth)."""
     names = list(dict.fromkeys(r["descriptor"] for r in rows))
     seqs = list(dict.fromkeys(r["sequence"] for r in rows))
-    if not any(np.isfinite(_value(r, key)) for r in rows):
+    if not _measured(rows, key):
         return ""
     lines = ["| sequence | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
     for s in seqs:
         cells = []
+        measured = _measured([r for r in rows if r["sequence"] == s], key)
         for name in names:
             sel = [r for r in rows if r["descriptor"] == name and r["sequence"] == s]
-            cells.append(_cell(_lost_median(sel, key)) if sel else "–")
+            cells.append(_cell(_lost_median(sel, key, measured)) if sel else "–")
         lines.append(f"| {s} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
