@@ -544,3 +544,13 @@ def test_a_failed_frame_is_lost_only_by_the_errors_its_sequence_measures():
     assert cells[6:9] == ["lost", "lost", "2/2"]
     assert sequence_error_table(landmarks_only) == ""
     assert sequence_error_table(all_failed).splitlines()[2] == "| t | lost |"
+
+
+def test_tracking_md_names_the_template_frame(sequence, tmp_path):
+    """Without a `master`/`ref` frame name the first frame in sorted order is the template; tracking.md
+    did not say which frame it tracked from."""
+    folder = _public_copy(sequence, tmp_path / "public", "frame-002")
+    for f in list(folder.glob("frame-000-master*")):
+        f.rename(folder / f.name.replace("frame-000-master", "frame-000"))
+    write_tracking([folder], tmp_path / "out", ("sift",), n_keypoints=300, refine="none", progress=False)
+    assert "- public: template frame frame-000, ROI (" in (tmp_path / "out" / "tracking.md").read_text()

@@ -1079,7 +1079,10 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
                 first = next(iter(results.values()))
                 if skipped is not None:
                     skipped.extend(f"{first.sequence}/{f}" for f in skipped_here)
-                notes.append(f"{first.sequence}: ROI {first.roi}, object mask from {first.mask_source}, "
+                # the template frame by name: a sequence whose frames have no `master`/`ref` name is tracked
+                # from its first frame in sorted order, which the notes did not say
+                notes.append(f"{first.sequence}: template frame {first.frames[0]}, ROI {first.roi}, "
+                             f"object mask from {first.mask_source}, "
                              f"depth profile {first.depth_profile}"
                              + (f"; SKIPPED frames: {', '.join(skipped_here)}" if skipped_here else ""))
         table = tracking_table(rows)
