@@ -554,3 +554,27 @@ def test_tracking_md_names_the_template_frame(sequence, tmp_path):
         f.rename(folder / f.name.replace("frame-000-master", "frame-000"))
     write_tracking([folder], tmp_path / "out", ("sift",), n_keypoints=300, refine="none", progress=False)
     assert "- public: template frame frame-000, ROI (" in (tmp_path / "out" / "tracking.md").read_text()
+
+
+def test_frames_per_second_leave_out_the_template_set_up(sequence, tmp_path, monkeypatch):
+    """tracking.md's frames/s divided the target frames by a time that included the template's set-up
+    (reading, detecting and describing the reference), which dominates it when there are few frames."""
+    import re
+    import time
+
+    from geofeat.apps import tracking
+
+    build = tracking._Template.build.__func__
+
+    def slow_build(cls, *args):
+        time.sleep(3.0)
+        return build(cls, *args)
+
+    monkeypatch.setattr(tracking._Template, "build", classmethod(slow_build))
+    write_tracking([sequence], tmp_path, ("sift",), n_keypoints=300, refine="none", progress=False)
+    md = (tmp_path / "tracking.md").read_text()
+    found = re.search(r"2 target frames in ([\d.]+) s: ([\d.]+) frames/s .*set-up, ([\d.]+) s, not counted", md)
+    assert found, md
+    tracked, rate, setup = map(float, found.groups())
+    assert setup >= 3.0 and tracked < 3.0
+    assert 2 / (tracked + 0.05) <= rate <= 2 / max(tracked - 0.05, 1e-9)  # tracked is printed to 0.1 s
