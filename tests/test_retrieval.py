@@ -480,3 +480,17 @@ def test_classes_that_leave_no_query_are_named_not_answered_with_pass_classes(th
     message = str(error.value)
     assert "pass --classes" not in message and "default to the sequence folder name" not in message
     assert "blobs: 'Cloth'" in message and "checkers: 'cloth'" in message and "case-sensitive" in message
+
+
+def test_a_single_test_query_gets_no_interval(three_objects, tmp_path):
+    """Two sequences of one class: K chosen on one query, Acc@K reported on the other, with a 95 %
+    bootstrap interval of [1.00, 1.00] (every resample of one query is that query) that read as certainty."""
+    assert all(np.isnan(v).all() for v in bootstrap_interval(np.array([[1.0, 0.5]])))
+    classes = tmp_path / "classes.csv"
+    classes.write_text("sequence,class\nblobs,cloth\ncheckers,cloth\nlines,tiles\n")
+    res, _ = run_retrieval([three_objects], tmp_path / "out", ("orb",), n_samples=300, n_keypoints=200,
+                           classes_file=str(classes), rerank_top=0, progress=False)
+    assert len(res["orb"].queries) == 1 and np.isnan(res["orb"].low).all() and np.isnan(res["orb"].high).all()
+    md = (tmp_path / "out" / "retrieval.md").read_text()
+    table = md.splitlines()[2]
+    assert "[–]" in table and "[1.00, 1.00]" not in table and "[0.00, 0.00]" not in table, md

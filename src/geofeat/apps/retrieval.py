@@ -303,9 +303,10 @@ def bootstrap_interval(per_query: np.ndarray, n: int = N_BOOTSTRAP, level: float
     """Percentile bootstrap interval over queries of the mean of (Q, ...) per-query values.
 
     Returns (low, high), each of shape per_query.shape[1:]: the (1 - level) / 2 and (1 + level) / 2
-    quantiles of the means of `n` resamples of the Q queries with replacement."""
+    quantiles of the means of `n` resamples of the Q queries with replacement; NaN when Q < 2 (every
+    resample of one query is that query: a zero-width interval that looked like certainty)."""
     per_query = np.asarray(per_query, np.float64)
-    if len(per_query) == 0:
+    if len(per_query) < 2:
         nan = np.full(per_query.shape[1:], np.nan)
         return nan, nan.copy()
     rng = np.random.default_rng(seed)
@@ -785,6 +786,11 @@ def _all_sequences(count: int) -> str:
     return ("all " if count > 1 else "") + plural(count, "sequence")
 
 
+def _interval(low: float, high: float) -> str:
+    """A table cell's "[low, high]", or "[–]" where there is no interval (fewer than 2 queries)."""
+    return "[–]" if np.isnan(low) or np.isnan(high) else f"[{low:.2f}, {high:.2f}]"
+
+
 def _report(db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: list[str], words: int | None,
             n_samples: int, include_own_sequence: bool, trivial: list[str] | None = None) -> str:
     """retrieval.md: Acc@K [95 % interval] per descriptor, then notes."""
@@ -795,19 +801,19 @@ def _report(db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: li
     head += f" mean Acc@1–{k_max}, words only |" if reranked else ""
     lines = [head, "|---" * (len(ks) + 4 + reranked) + "|"]
     for n, r in res.items():
-        cells = [f"{r.accuracy[k - 1]:.3f} [{r.low[k - 1]:.2f}, {r.high[k - 1]:.2f}]" for k in ks]
+        cells = [f"{r.accuracy[k - 1]:.3f} {_interval(r.low[k - 1], r.high[k - 1])}" for k in ks]
         mlo, mhi = bootstrap_interval(r.per_query.mean(axis=1, keepdims=True))
-        cells.append(f"{r.per_query.mean():.3f} [{mlo[0]:.2f}, {mhi[0]:.2f}]")
+        cells.append(f"{r.per_query.mean():.3f} {_interval(mlo[0], mhi[0])}")
         if reranked:
             wlo, whi = bootstrap_interval(r.per_query_words.mean(axis=1, keepdims=True))
-            cells.append(f"{r.per_query_words.mean():.3f} [{wlo[0]:.2f}, {whi[0]:.2f}]")
+            cells.append(f"{r.per_query_words.mean():.3f} {_interval(wlo[0], whi[0])}")
         lines.append(f"| {n} | {r.words} | {len(r.queries)} | " + " | ".join(cells) + " |")
     n_cls = len(set(db.classes))
     n_desc = sum(int(f.valid.sum()) for f in next(iter(db.features.values())))
     notes = [f"{plural(len(db.frames), 'frame')} of {plural(len(set(db.sequences)), 'sequence')}, "
              f"{plural(n_cls, 'class', 'classes')}; database: "
              + ("every frame but the query" if include_own_sequence else "the frames of the other sequences")
-             + "; [95 % bootstrap interval over queries]",
+             + "; [95 % bootstrap interval over queries; – with a single query]",
              f"vocabulary from {plural(min(n_samples, n_desc), 'sampled descriptor')}; word weighting "
              f"{next(iter(res.values())).weighting} ({WEIGHTINGS[next(iter(res.values())).weighting]} distance)"]
     if reranked:
