@@ -578,3 +578,17 @@ def test_frames_per_second_leave_out_the_template_set_up(sequence, tmp_path, mon
     tracked, rate, setup = map(float, found.groups())
     assert setup >= 3.0 and tracked < 3.0
     assert 2 / (tracked + 0.05) <= rate <= 2 / max(tracked - 0.05, 1e-9)  # tracked is printed to 0.1 s
+
+
+def test_a_template_roi_without_depth_says_so(sequence, tmp_path):
+    """The reference frame without depth in the ROI: the error said only that the ROI "holds 0
+    keypoints", as if the template had no texture; keypoints are dropped where there is no depth."""
+    import cv2
+
+    folder = _public_copy(sequence, tmp_path / "public", "frame-001")
+    path = folder / "frame-000-master-depth.png"
+    depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    depth[60:180, 80:240] = 0
+    cv2.imwrite(str(path), depth)
+    with pytest.raises(ValueError, match=r"holds 0 keypoints .*0% of its pixels have depth"):
+        track_sequence(folder, ("sift",), roi=(80, 60, 239, 179), refine="none", progress=False)

@@ -667,7 +667,11 @@ class _Template:
                   & (keypoints.xy[:, 1] >= y0) & (keypoints.xy[:, 1] <= y1))
         keypoints = keypoints[inside]
         if len(keypoints) < MIN_ROI_KEYPOINTS:
-            raise ValueError(f"roi: {roi} holds {len(keypoints)} keypoints of {seq.reference}; expected at least {MIN_ROI_KEYPOINTS}")
+            # keypoints need depth: say so when the ROI has little, not only that it holds no keypoints
+            with_depth = float((ref.depth[y0 : y1 + 1, x0 : x1 + 1] > 0).mean())
+            raise ValueError(f"roi: {roi} holds {len(keypoints)} keypoints of {seq.reference}; expected at least "
+                             f"{MIN_ROI_KEYPOINTS}" + (f" (only {with_depth:.0%} of its pixels have depth, and a keypoint "
+                                                       "needs depth)" if with_depth < 0.5 else ""))
         try:
             truth = GroundTruth(seq, tps_dir)
         except ValueError:
