@@ -449,3 +449,48 @@ def test_report_notes_count_in_words():
     assert "skipped 1 query whose class" in notes
     assert "object masks: simulator, for 1 sequence" in notes and "depth profile: clean, for 1 sequence" in notes
     assert "for all 1" not in notes and "1 sequences" not in notes and "1 classes" not in notes
+
+
+def test_a_database_of_one_class_is_flagged_as_telling_descriptors_nothing(three_objects, tmp_path):
+    """Two sequences of one object (the docs' example): every frame a query may return is of its class,
+    so Acc@K was 1 for any descriptor, reported like a real result without a word."""
+    classes = tmp_path / "classes.csv"
+    classes.write_text("sequence,class\nblobs,cloth\ncheckers,cloth\n")
+    res, _ = run_retrieval([three_objects / "blobs", three_objects / "checkers"], tmp_path / "out", ("orb",),
+                           words=5, n_samples=500, n_keypoints=200, classes_file=str(classes), rerank_top=0,
+                           progress=False)
+    assert (res["orb"].accuracy == 1.0).all()
+    md = (tmp_path / "out" / "retrieval.md").read_text()
+    assert "1 whatever the descriptor" in md and "checkers/" in md and "blobs/" in md, md
+    # with a distractor of another class in the database nothing is flagged
+    classes.write_text("sequence,class\nblobs,cloth\ncheckers,cloth\nlines,tiles\n")
+    run_retrieval([three_objects], tmp_path / "out2", ("orb",), words=5, n_samples=500, n_keypoints=200,
+                  classes_file=str(classes), rerank_top=0, progress=False)
+    assert "whatever the descriptor" not in (tmp_path / "out2" / "retrieval.md").read_text()
+
+
+def test_classes_that_leave_no_query_are_named_not_answered_with_pass_classes(three_objects, tmp_path):
+    """--classes given with 'Cloth' and 'cloth': every query was skipped and the error said the classes
+    default to the folder names and to pass --classes."""
+    classes = tmp_path / "classes.csv"
+    classes.write_text("sequence,class\nblobs, Cloth\ncheckers,cloth\nlines,tiles\n")
+    with pytest.raises(ValueError) as error:
+        run_retrieval([three_objects], tmp_path / "out", ("orb",), words=5, n_samples=500, n_keypoints=200,
+                      classes_file=str(classes), rerank_top=0, progress=False)
+    message = str(error.value)
+    assert "pass --classes" not in message and "default to the sequence folder name" not in message
+    assert "blobs: 'Cloth'" in message and "checkers: 'cloth'" in message and "case-sensitive" in message
+
+
+def test_a_single_test_query_gets_no_interval(three_objects, tmp_path):
+    """Two sequences of one class: K chosen on one query, Acc@K reported on the other, with a 95 %
+    bootstrap interval of [1.00, 1.00] (every resample of one query is that query) that read as certainty."""
+    assert all(np.isnan(v).all() for v in bootstrap_interval(np.array([[1.0, 0.5]])))
+    classes = tmp_path / "classes.csv"
+    classes.write_text("sequence,class\nblobs,cloth\ncheckers,cloth\nlines,tiles\n")
+    res, _ = run_retrieval([three_objects], tmp_path / "out", ("orb",), n_samples=300, n_keypoints=200,
+                           classes_file=str(classes), rerank_top=0, progress=False)
+    assert len(res["orb"].queries) == 1 and np.isnan(res["orb"].low).all() and np.isnan(res["orb"].high).all()
+    md = (tmp_path / "out" / "retrieval.md").read_text()
+    table = md.splitlines()[2]
+    assert "[–]" in table and "[1.00, 1.00]" not in table and "[0.00, 0.00]" not in table, md

@@ -1,5 +1,7 @@
 """Tracking: TPS + RANSAC on synthetic matches, similarity measures, and a short simulated sequence."""
 
+import csv
+
 import numpy as np
 import pytest
 
@@ -473,3 +475,120 @@ def test_a_descriptor_named_twice_is_refused(sequence, tmp_path):
     with pytest.raises(ValueError, match="'sift' is named twice"):
         write_tracking([sequence], tmp_path / "t", ("sift", "SIFT"), n_keypoints=300, progress=False, refine="none")
     assert not (tmp_path / "t").exists()
+
+
+def _public_copy(sequence, out, identical: str):
+    """`sequence` in the public layout only (no simulator ground truth), frame `identical` replaced by
+    a copy of the reference frame."""
+    out.mkdir()
+    for f in sequence.iterdir():
+        if f.name.endswith("-gt.npz") or f.name == "groundtruth.json":
+            continue
+        (out / f.name).write_bytes(f.read_bytes())
+    for suffix in ("-rgb.png", "-depth.png", ".csv"):
+        (out / f"{identical}{suffix}").write_bytes((sequence / f"frame-000-master{suffix}").read_bytes())
+    return out
+
+
+def test_a_frame_identical_to_the_reference_scores_zero_error_and_full_precision(sequence, tmp_path):
+    # ground truth from the csv landmarks covers only their convex hull: a kept match there is not
+    # "wrong", it is unscored; precision used to count it as wrong (0.77 on this identical frame)
+    folder = _public_copy(sequence, tmp_path / "public", "frame-001")
+    result = track_sequence(folder, ("sift",), n_keypoints=300, refine="none", progress=False)["sift"]
+    row = next(r for r in result.rows if r["frame"] == "frame-001")
+    assert not row["failed"] and row["inlier_rate"] == 1.0
+    assert row["grid_error_px"] == pytest.approx(0.0, abs=1e-6)
+    assert row["precision"] == pytest.approx(1.0)
+    np.testing.assert_allclose(result.points[1], result.reference_points, atol=1e-6)
+
+
+def test_a_skipped_frame_counts_as_lost_not_as_absent(sequence, tmp_path):
+    """A frame that a descriptor's detector could not use (no depth: GeoKey finds nothing) had no row,
+    so that descriptor's grid error and failed-frames count were taken over fewer frames than those of
+    a descriptor whose fit on the frame failed and counted as lost (GeoBit '0.0, 0/1' beside SIFT
+    'lost, 1/2' on one sequence)."""
+    import cv2
+
+    folder = _public_copy(sequence, tmp_path / "public", "frame-001")
+    depth = cv2.imread(str(folder / "frame-002-depth.png"), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(folder / "frame-002-depth.png"), np.zeros_like(depth))
+    skipped = []
+    _, table = write_tracking([folder], tmp_path / "out", ("sift",), n_keypoints=300, refine="none",
+                              progress=False, skipped=skipped)
+    assert skipped == ["public/frame-002"]
+    rows = list(csv.DictReader(open(tmp_path / "out" / "track.csv")))
+    assert [(r["frame"], r["failed"]) for r in rows] == [("frame-001", "False"), ("frame-002", "True")]
+    sift = next(line for line in table.splitlines() if line.startswith("| sift |"))
+    assert sift.endswith("| lost | – | 1/2 |"), table  # lost by the landmarks; no forward truth to be lost by
+    assert sift.startswith("| sift | 0.50 |"), table  # no matches: inlier rate 0, as a failed fit without matches
+    assert "SKIPPED frames: frame-002" in (tmp_path / "out" / "tracking.md").read_text()
+
+
+def test_a_failed_frame_is_lost_only_by_the_errors_its_sequence_measures():
+    """A sequence without the simulator's forward truth has no visible-point error, yet one failed frame
+    made its cell read "lost" as if it had been measured; a sequence whose every frame failed must
+    still read "lost" (its failed rows carry inf where the truth exists)."""
+    from geofeat.apps.tracking import TRACK_COLUMNS, sequence_error_table, tracking_table
+
+    def row(sequence, error, visible, failed=False):
+        r = {c: "nan" for c in TRACK_COLUMNS}
+        r.update(sequence=sequence, descriptor="sift", frame="f", failed=str(failed), grid_error_px=str(error),
+                 grid_error_visible_px=str(visible))
+        return r
+
+    landmarks_only = [row("s", 0.5, "nan"), row("s", 0.5, "nan"), row("s", "inf", "nan", failed=True)]
+    cells = [c.strip() for c in tracking_table(landmarks_only).splitlines()[2].split("|")[1:-1]]
+    assert cells[6:9] == ["0.5", "–", "1/3"]
+    all_failed = [row("t", "inf", "inf", failed=True), row("t", "inf", "inf", failed=True)]
+    cells = [c.strip() for c in tracking_table(all_failed).splitlines()[2].split("|")[1:-1]]
+    assert cells[6:9] == ["lost", "lost", "2/2"]
+    assert sequence_error_table(landmarks_only) == ""
+    assert sequence_error_table(all_failed).splitlines()[2] == "| t | lost |"
+
+
+def test_tracking_md_names_the_template_frame(sequence, tmp_path):
+    """Without a `master`/`ref` frame name the first frame in sorted order is the template; tracking.md
+    did not say which frame it tracked from."""
+    folder = _public_copy(sequence, tmp_path / "public", "frame-002")
+    for f in list(folder.glob("frame-000-master*")):
+        f.rename(folder / f.name.replace("frame-000-master", "frame-000"))
+    write_tracking([folder], tmp_path / "out", ("sift",), n_keypoints=300, refine="none", progress=False)
+    assert "- public: template frame frame-000, ROI (" in (tmp_path / "out" / "tracking.md").read_text()
+
+
+def test_frames_per_second_leave_out_the_template_set_up(sequence, tmp_path, monkeypatch):
+    """tracking.md's frames/s divided the target frames by a time that included the template's set-up
+    (reading, detecting and describing the reference), which dominates it when there are few frames."""
+    import re
+    import time
+
+    from geofeat.apps import tracking
+
+    build = tracking._Template.build.__func__
+
+    def slow_build(cls, *args):
+        time.sleep(3.0)
+        return build(cls, *args)
+
+    monkeypatch.setattr(tracking._Template, "build", classmethod(slow_build))
+    write_tracking([sequence], tmp_path, ("sift",), n_keypoints=300, refine="none", progress=False)
+    md = (tmp_path / "tracking.md").read_text()
+    found = re.search(r"2 target frames in ([\d.]+) s: ([\d.]+) frames/s .*set-up, ([\d.]+) s, not counted", md)
+    assert found, md
+    tracked, rate, setup = map(float, found.groups())
+    assert setup >= 3.0 and tracked < 3.0
+    assert 2 / (tracked + 0.05) <= rate <= 2 / max(tracked - 0.05, 1e-9)  # tracked is printed to 0.1 s
+
+
+def test_a_template_roi_without_depth_says_so(sequence, tmp_path):
+    """The reference frame without depth in the ROI: the error said only that the ROI "holds 0
+    keypoints", as if the template had no texture; keypoints are dropped where there is no depth."""
+    import cv2
+
+    folder = _public_copy(sequence, tmp_path / "public", "frame-001")
+    path = folder / "frame-000-master-depth.png"
+    depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    depth[60:180, 80:240] = 0
+    cv2.imwrite(str(path), depth)
+    with pytest.raises(ValueError, match=r"holds 0 keypoints .*0% of its pixels have depth"):
+        track_sequence(folder, ("sift",), roi=(80, 60, 239, 179), refine="none", progress=False)

@@ -303,9 +303,10 @@ def bootstrap_interval(per_query: np.ndarray, n: int = N_BOOTSTRAP, level: float
     """Percentile bootstrap interval over queries of the mean of (Q, ...) per-query values.
 
     Returns (low, high), each of shape per_query.shape[1:]: the (1 - level) / 2 and (1 + level) / 2
-    quantiles of the means of `n` resamples of the Q queries with replacement."""
+    quantiles of the means of `n` resamples of the Q queries with replacement; NaN when Q < 2 (every
+    resample of one query is that query: a zero-width interval that looked like certainty)."""
     per_query = np.asarray(per_query, np.float64)
-    if len(per_query) == 0:
+    if len(per_query) < 2:
         nan = np.full(per_query.shape[1:], np.nan)
         return nan, nan.copy()
     rng = np.random.default_rng(seed)
@@ -729,9 +730,20 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
                          "needs other frames to search among")
     q_idx, exclude, skipped = eligible_queries(db, include_own_sequence)
     if len(q_idx) == 0:
-        raise ValueError("datasets: no query has another sequence of its class in the database (classes default to "
-                         "the sequence folder name); pass --classes with a 'sequence,class' CSV, or "
-                         "--include-own-sequence")
+        if classes is None:
+            raise ValueError("datasets: no query has another sequence of its class in the database (classes default to "
+                             "the sequence folder name); pass --classes with a 'sequence,class' CSV, or "
+                             "--include-own-sequence")
+        # the classes were given: say which class each sequence got (it said "pass --classes")
+        given = {s: classes[s] for s in dict.fromkeys(db.sequences)}
+        folded = {}
+        for c in dict.fromkeys(given.values()):
+            folded.setdefault(c.casefold(), []).append(c)
+        same = [" and ".join(repr(c) for c in cs) for cs in folded.values() if len(cs) > 1]
+        raise ValueError(f"classes: no query has another sequence of its class in the database; {classes_file} gives "
+                         + ", ".join(f"{s}: {c!r}" for s, c in given.items())
+                         + (f" (class names are case-sensitive: {'; '.join(same)} are different classes)" if same else "")
+                         + "; give sequences of one object the same class, or pass --include-own-sequence")
     res: dict[str, DescriptorResult] = {}
     for name, feats in db.features.items():
         try:
@@ -740,12 +752,23 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
         except ValueError as e:
             raise ValueError(f"{e} (descriptor {name})") from None
     with output_folder(out) as tmp:
-        _write_retrieval(tmp, db, res, skipped, words, n_samples, include_own_sequence)
+        _write_retrieval(tmp, db, res, skipped, words, n_samples, include_own_sequence,
+                         _trivial_queries(db, q_idx, exclude))
     return res, db
 
 
+def _trivial_queries(db: "RetrievalDatabase", queries: np.ndarray, exclude: np.ndarray) -> list[str]:
+    """"sequence/frame" of each query (database indices (Q,), their (Q, N) `exclusion_mask`) whose
+    database holds frames of its own class only: every result it can get is correct, so its Acc@K is
+    1 whatever the descriptor (one class in the database, e.g. two sequences of one object)."""
+    cls = np.asarray(db.classes)
+    own = (cls[queries][:, None] == cls[None, :]) | exclude
+    return [f"{db.sequences[i]}/{db.frames[i]}" for i in np.asarray(queries)[own.all(axis=1)]]
+
+
 def _write_retrieval(out: Path, db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: list[str],
-                     words: int | None, n_samples: int, include_own_sequence: bool) -> None:
+                     words: int | None, n_samples: int, include_own_sequence: bool,
+                     trivial: list[str] | None = None) -> None:
     """The result files of `run_retrieval`, into `out`."""
     with open(out / "retrieval.csv", "w", newline="") as fh:
         w = csv.writer(fh)
@@ -755,7 +778,7 @@ def _write_retrieval(out: Path, db: RetrievalDatabase, res: dict[str, Descriptor
                         for k, (v, lo, hi) in enumerate(zip(r.accuracy, r.low, r.high)))
     _plot({n: r.accuracy for n, r in res.items()}, out / "acc_at_k.png")
     _top6_picture(db, {n: (r.queries, r.neighbours) for n, r in res.items()}, out / "top6.png")
-    (out / "retrieval.md").write_text(_report(db, res, skipped, words, n_samples, include_own_sequence))
+    (out / "retrieval.md").write_text(_report(db, res, skipped, words, n_samples, include_own_sequence, trivial))
 
 
 def _all_sequences(count: int) -> str:
@@ -763,8 +786,13 @@ def _all_sequences(count: int) -> str:
     return ("all " if count > 1 else "") + plural(count, "sequence")
 
 
+def _interval(low: float, high: float) -> str:
+    """A table cell's "[low, high]", or "[–]" where there is no interval (fewer than 2 queries)."""
+    return "[–]" if np.isnan(low) or np.isnan(high) else f"[{low:.2f}, {high:.2f}]"
+
+
 def _report(db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: list[str], words: int | None,
-            n_samples: int, include_own_sequence: bool) -> str:
+            n_samples: int, include_own_sequence: bool, trivial: list[str] | None = None) -> str:
     """retrieval.md: Acc@K [95 % interval] per descriptor, then notes."""
     k_max = max(len(r.accuracy) for r in res.values())
     ks = [k for k in (1, 3, 5, 10) if k <= k_max]
@@ -773,19 +801,19 @@ def _report(db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: li
     head += f" mean Acc@1–{k_max}, words only |" if reranked else ""
     lines = [head, "|---" * (len(ks) + 4 + reranked) + "|"]
     for n, r in res.items():
-        cells = [f"{r.accuracy[k - 1]:.3f} [{r.low[k - 1]:.2f}, {r.high[k - 1]:.2f}]" for k in ks]
+        cells = [f"{r.accuracy[k - 1]:.3f} {_interval(r.low[k - 1], r.high[k - 1])}" for k in ks]
         mlo, mhi = bootstrap_interval(r.per_query.mean(axis=1, keepdims=True))
-        cells.append(f"{r.per_query.mean():.3f} [{mlo[0]:.2f}, {mhi[0]:.2f}]")
+        cells.append(f"{r.per_query.mean():.3f} {_interval(mlo[0], mhi[0])}")
         if reranked:
             wlo, whi = bootstrap_interval(r.per_query_words.mean(axis=1, keepdims=True))
-            cells.append(f"{r.per_query_words.mean():.3f} [{wlo[0]:.2f}, {whi[0]:.2f}]")
+            cells.append(f"{r.per_query_words.mean():.3f} {_interval(wlo[0], whi[0])}")
         lines.append(f"| {n} | {r.words} | {len(r.queries)} | " + " | ".join(cells) + " |")
     n_cls = len(set(db.classes))
     n_desc = sum(int(f.valid.sum()) for f in next(iter(db.features.values())))
     notes = [f"{plural(len(db.frames), 'frame')} of {plural(len(set(db.sequences)), 'sequence')}, "
              f"{plural(n_cls, 'class', 'classes')}; database: "
              + ("every frame but the query" if include_own_sequence else "the frames of the other sequences")
-             + "; [95 % bootstrap interval over queries]",
+             + "; [95 % bootstrap interval over queries; – with a single query]",
              f"vocabulary from {plural(min(n_samples, n_desc), 'sampled descriptor')}; word weighting "
              f"{next(iter(res.values())).weighting} ({WEIGHTINGS[next(iter(res.values())).weighting]} distance)"]
     if reranked:
@@ -802,6 +830,11 @@ def _report(db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: li
                          f"Acc@K on the other {len(r.queries)}")
     else:
         notes.append(f"K = {words} given")
+    if trivial:
+        n_queries = int(db.is_query.sum()) - len(skipped)
+        notes.append(f"WARNING: {len(trivial)} of {plural(n_queries, 'query', 'queries')} can return only frames of "
+                     "their own class (no other class left in their database), so their Acc@K is 1 whatever the "
+                     "descriptor; add sequences of other objects (distractors): " + ", ".join(trivial))
     if skipped:
         notes.append(f"skipped {plural(len(skipped), 'query', 'queries')} whose class has no other "
                      f"sequence: " + ", ".join(skipped))
