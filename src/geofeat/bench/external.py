@@ -222,13 +222,12 @@ class ExternalFeatures:
             raise ValueError(f"features {self.name}: no group '{sequence}/{frame}' or '{frame}' (or "
                              f"'{frame}{RGB_SUFFIX}') in {self.path}; it holds e.g. {some} (names are matched "
                              "exactly, case included)")
-        for candidate in ([Path(key)] if key is not None else []):
-            if candidate.is_file():
-                try:
-                    with np.load(candidate, allow_pickle=False) as data:
-                        return {k: data[k] for k in data.files}, str(candidate)
-                except (OSError, ValueError, zipfile.BadZipFile) as error:
-                    raise ValueError(f"features {self.name}: cannot read {candidate} ({error})") from None
+        if key is not None:  # an existing file (`source`)
+            try:
+                with np.load(key, allow_pickle=False) as data:
+                    return {k: data[k] for k in data.files}, key
+            except (OSError, ValueError, zipfile.BadZipFile) as error:
+                raise ValueError(f"features {self.name}: cannot read {key} ({error})") from None
         raise ValueError(f"features {self.name}: no {sequence}/{frame}.npz or {frame}.npz under {self.path}")
 
 

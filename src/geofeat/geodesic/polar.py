@@ -186,10 +186,11 @@ def polar_patches(
         blur_px: Gaussian blur of the gray image before sampling, pixels.
     """
     kp = check_patch_request(frame, keypoints, radius, n_angles, n_rings)
-    source = frame_fingerprint(frame)
     if mesh is None:
-        mesh = frame_mesh(frame, depth_config)
+        mesh = frame_mesh(frame, depth_config)  # checked against the frame's fingerprint, which it carries
+        source = mesh.source
     else:
+        source = frame_fingerprint(frame)
         check_mesh_shape(mesh, frame, source)
     starts = mesh.image_to_mesh(kp) + np.array([1.3e-6, 0.7e-6])  # keeps starts off vertices/edges
     local, edges = mesh.walk_tables
