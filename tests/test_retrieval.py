@@ -494,3 +494,13 @@ def test_a_single_test_query_gets_no_interval(three_objects, tmp_path):
     md = (tmp_path / "out" / "retrieval.md").read_text()
     table = md.splitlines()[2]
     assert "[–]" in table and "[1.00, 1.00]" not in table and "[0.00, 0.00]" not in table, md
+
+
+def test_classes_naming_sequences_not_given_are_reported(three_objects, tmp_path):
+    """A classes file that names a sequence the datasets lack (a folder left out of the command) was
+    ignored without a word; the run goes on, and says which ones it left out."""
+    classes = tmp_path / "classes.csv"
+    classes.write_text("sequence,class\nblobs,cloth\ncheckers,cloth\nlines,tiles\n")
+    with pytest.warns(UserWarning, match=r"1 sequence named in the classes file is not among the datasets.*: lines$"):
+        run_retrieval([three_objects / "blobs", three_objects / "checkers"], tmp_path / "out", ("orb",), words=5,
+                      n_samples=500, n_keypoints=200, classes_file=str(classes), rerank_top=0, progress=False)

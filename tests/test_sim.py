@@ -375,3 +375,16 @@ def test_simulated_sequences_raise_no_depth_units_warning(tmp_path, kw):
     with warnings.catch_warnings():
         warnings.simplefilter("error", DepthUnitsWarning)
         read_sequence(folder)
+
+
+def test_simulate_warns_when_the_reference_has_few_landmarks(tmp_path):
+    """At 33 x 47 pixels the cloth leaves no room for Harris corners 5 px inside its border: the
+    landmark CSVs come out empty, and `simulate` says so instead of writing them without a word."""
+    with pytest.warns(UserWarning, match="0 landmarks"):
+        folder = simulate_sequence(tmp_path / "tiny", n_frames=2, width=33, height=47, progress=False)
+    assert read_sequence(folder).landmarks(0)[0].size == 0
+    import warnings
+
+    with warnings.catch_warnings():  # a frame of the usual size has its landmarks, and no warning
+        warnings.simplefilter("error", UserWarning)
+        simulate_sequence(tmp_path / "usual", n_frames=2, width=320, height=240, progress=False)

@@ -38,6 +38,7 @@
 from __future__ import annotations
 
 import csv
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -426,6 +427,11 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
         missing = [s.name for s in seqs if s.name not in classes]
         if missing:
             raise ValueError(f"classes: no class for sequence(s) {', '.join(missing[:5])}")
+        absent = sorted(set(classes) - {s.name for s in seqs})
+        if absent:  # harmless for the scores, but a folder the user meant to include may be missing
+            warnings.warn(f"classes: {plural(len(absent), 'sequence')} named in the classes file "
+                          f"{'is' if len(absent) == 1 else 'are'} not among the datasets and left out: "
+                          f"{', '.join(absent[:5])}{', ...' if len(absent) > 5 else ''}", stacklevel=2)
     total = sum(len(s) for s in seqs)
     bar = tqdm(total=total, desc="retrieval: describe", unit="frame", disable=not progress)
     for seq in seqs:

@@ -21,6 +21,7 @@ import io
 import json
 import os
 import shutil
+import warnings
 import zipfile
 from pathlib import Path
 
@@ -30,12 +31,16 @@ import numpy as np
 from ..inputs import check_whole
 from ..io import write_intrinsics, write_landmarks
 from ..outputs import check_out_dir, replace_folder
+from ..groundtruth.landmarks import MIN_LANDMARKS
 from ..groundtruth.simulator import GT_JSON, GT_SUFFIX, FrameTruth, map_points
 from .scenes import SCENARIOS, ClothScene, SimFrame, default_intrinsics, get_preset
 from .textures import choose_texture
 
 REFERENCE_NAME = "frame-000-master"
 N_LANDMARKS = 100
+#: Fewer reference landmarks than this and `simulate` warns: `geofeat groundtruth` needs
+#: `MIN_LANDMARKS` of them visible in both frames, and its robust fit drops up to a third.
+FEW_LANDMARKS = 10
 FORMAT_VERSION = 1
 #: Image sides (pixels) the simulator renders: from 32 (landmarks need a border) to 8192.
 SIDE_RANGE_PX = (32, 8192)
@@ -189,6 +194,11 @@ def _write(folder: Path, scene: ClothScene, progress: bool, meta: dict) -> None:
         if frame.index == 0:
             ref_truth = truth
             landmarks = harris_landmarks(frame.image, frame.render.mask)
+            if len(landmarks) < FEW_LANDMARKS:
+                warnings.warn(f"{folder}: the reference frame has {len(landmarks)} landmarks (Harris corners at least "
+                              f"5 px inside the cloth; {N_LANDMARKS} wanted), so the landmark CSVs are of little use: "
+                              f"`geofeat groundtruth` needs {MIN_LANDMARKS} in both frames. A larger image or a "
+                              "richer texture gives more.", stacklevel=2)
         assert ref_truth is not None
         xy, visible = map_points(ref_truth, truth, scene.K, cfg.spacing_m, landmarks)
         xy = np.where(np.isfinite(xy), xy, -1.0)
