@@ -298,3 +298,29 @@ def test_the_command_line_shows_the_depth_units_warning_on_one_line(tmp_path, ca
     err = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
     assert len(err) == 1 and err[0].startswith(f"geofeat extract: warning: sequence {folder} "), err
     assert "median depth 0.1 m" in err[0] and "--depth-scale" in err[0]
+
+
+# ---------------------------------------------------------------- review-io: frames, colour, csv headers
+def test_frames_are_in_natural_order_and_hidden_files_are_not_frames(tmp_path):
+    """`frame-10` came before `frame-2` (tracking jumped through the sequence), and macOS's `._` resource
+    forks (copying to a USB disk) were frames: `._frame-001-rgb.png` sorted first, became the reference,
+    and the whole sequence was refused as an undecodable image."""
+    from geofeat.io import find_sequences
+
+    folder = _small_sequence(tmp_path / "seq")
+    for name in ("frame-10", "frame-2"):
+        for suffix in ("-rgb.png", "-depth.png"):
+            shutil.copy(folder / f"frame-001{suffix}", folder / f"{name}{suffix}")
+    for suffix in ("-rgb.png", "-depth.png"):
+        (folder / f"._frame-001{suffix}").write_bytes(b"\x00\x05\x16\x07 AppleDouble")
+    seq = geofeat.read_sequence(folder)
+    assert seq.names == ["frame-000-master", "frame-001", "frame-2", "frame-10"]
+    assert find_sequences(tmp_path) == [folder]
+
+
+def test_a_depth_png_without_its_colour_is_refused(tmp_path):
+    """A frame whose `-rgb.png` was missing was left out without a word (the converse was refused)."""
+    folder = _small_sequence(tmp_path / "seq")
+    shutil.copy(folder / "frame-001-depth.png", folder / "frame-002-depth.png")
+    with pytest.raises(ValueError, match=r"folder: frames without '-rgb.png' in .*seq: \['frame-002'\]"):
+        geofeat.read_sequence(folder)

@@ -6,11 +6,13 @@ A sequence folder holds, per frame `<name>`:
     `<name>.csv`        optional landmarks: a header line, then `id, x, y, valid` (pixels),
 and one `intrinsics.xml` (OpenCV FileStorage, node `intrinsics`, 3x3 matrix).
 The reference frame is the one whose name holds `master` or `ref` as a whole token (see
-`geofeat.inputs.is_reference_name`). Every reader validates what it reads (`geofeat.inputs`).
+`geofeat.inputs.is_reference_name`); the others follow in natural order (`frame-2` before `frame-10`).
+Hidden files (`._frame-001-rgb.png`) are not frames. Every reader validates what it reads (`geofeat.inputs`).
 """
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +26,20 @@ from .inputs import (check_depth_plausible, check_depth_scale, check_intrinsics_
 
 RGB_SUFFIX = "-rgb.png"
 DEPTH_SUFFIX = "-depth.png"
+
+
+def natural_key(name: str) -> tuple:
+    """Sort key that orders the runs of digits in a name by their value: `frame-2` before `frame-10`
+    (plain string order puts `frame-10` first, and a tracker would jump through the sequence)."""
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", name)], name
+
+
+def frame_names(folder: str | Path, suffix: str = RGB_SUFFIX) -> list[str]:
+    """Names of the frames in `folder` that have a `<name><suffix>` file, in `natural_key` order.
+    Hidden files (a leading `.`, such as macOS's `._frame-001-rgb.png` resource forks on a USB disk)
+    are not frames."""
+    return sorted((p.name[: -len(suffix)] for p in Path(folder).glob(f"*{suffix}") if not p.name.startswith(".")),
+                  key=natural_key)
 
 
 def _existing(path: str | Path, what: str) -> Path:
@@ -231,7 +247,7 @@ class Sequence:
 
     Attributes:
         folder: the sequence folder.
-        names: frame names, sorted, reference first.
+        names: frame names, reference first, then in natural order (`frame-2` before `frame-10`).
         K: (3, 3) intrinsics shared by all frames.
         depth_scale: metres per depth-PNG unit.
         depth_profile: the depth profile asked for by the folder's geofeat.json ("auto" when it
@@ -341,12 +357,15 @@ def read_sequence(folder: str | Path, depth_scale: float | None = None) -> Seque
     folder = Path(folder)
     if not folder.is_dir():
         raise ValueError(f"folder: not a directory: {folder}")
-    names = sorted(p.name[: -len(RGB_SUFFIX)] for p in folder.glob(f"*{RGB_SUFFIX}"))
+    names = frame_names(folder)
     if not names:
         raise ValueError(f"folder: no '*{RGB_SUFFIX}' frames in {folder}")
     missing = [n for n in names if not (folder / f"{n}{DEPTH_SUFFIX}").is_file()]
     if missing:
         raise ValueError(f"folder: frames without '{DEPTH_SUFFIX}' in {folder}: {missing[:5]}")
+    colourless = sorted(set(frame_names(folder, DEPTH_SUFFIX)) - set(names), key=natural_key)
+    if colourless:  # such a frame was left out without a word
+        raise ValueError(f"folder: frames without '{RGB_SUFFIX}' in {folder}: {colourless[:5]}")
     refs = [n for n in names if is_reference_name(n)]
     if len(refs) > 1:
         raise ValueError(f"folder: {folder} has several reference frames ({', '.join(refs[:5])}); "
@@ -393,10 +412,10 @@ def find_sequences(paths, unique_names: bool = False, what: str = "dataset") -> 
     for p in [Path(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]:
         if not p.is_dir():
             raise ValueError(f"{what}: not a directory: {p}")
-        if any(p.glob(f"*{RGB_SUFFIX}")):
+        if frame_names(p):
             found.append(p)
             continue
-        subs = sorted(d for d in p.iterdir() if d.is_dir() and any(d.glob(f"*{RGB_SUFFIX}")))
+        subs = sorted(d for d in p.iterdir() if d.is_dir() and frame_names(d))
         if not subs:
             raise ValueError(f"{what}: no sequence (folder of '*{RGB_SUFFIX}' frames) in {p}")
         found.extend(subs)
