@@ -324,3 +324,16 @@ def test_a_depth_png_without_its_colour_is_refused(tmp_path):
     shutil.copy(folder / "frame-001-depth.png", folder / "frame-002-depth.png")
     with pytest.raises(ValueError, match=r"folder: frames without '-rgb.png' in .*seq: \['frame-002'\]"):
         geofeat.read_sequence(folder)
+
+
+def test_a_16bit_colour_png_of_8bit_values_warns_naming_the_file(tmp_path):
+    """Such a PNG was read as 0-65535 and kept to its high byte: a black image (SIFT found nothing, the
+    frame was skipped as having no keypoints) without a word on why."""
+    from geofeat.io import read_image
+
+    color = cv2.imread(str(demo_data_dir() / "cloud_1-rgb.png"))
+    cv2.imwrite(str(tmp_path / "low-rgb.png"), color.astype(np.uint16))
+    with pytest.warns(UserWarning, match=r"rgb_path: .*low-rgb.png: nearly black .* 8-bit values in a uint16"):
+        read_image(tmp_path / "low-rgb.png")
+    cv2.imwrite(str(tmp_path / "full-rgb.png"), color.astype(np.uint16) * 257)  # a true 16-bit PNG reads as before
+    np.testing.assert_array_equal(read_image(tmp_path / "full-rgb.png"), color)

@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from .constants import DEFAULT_RADIUS_M, DEPTH_SCALE_M
-from .frame import RGBDFrame, check_depth
+from .frame import RGBDFrame, _warn_if_dark, check_depth
 from .inputs import (check_depth_plausible, check_depth_scale, check_intrinsics_for_image, check_landmarks,
                      check_unique_names, is_reference_name, read_config, warn_depth_units)
 
@@ -90,11 +90,18 @@ def write_intrinsics(path: str | Path, K: np.ndarray) -> None:
 
 
 def read_image(path: str | Path, what: str = "rgb_path") -> np.ndarray:
-    """Read an 8-bit colour image as (H, W, 3) uint8 BGR."""
+    """Read a colour image as (H, W, 3) uint8 BGR (grey and RGBA files too). A 16-bit file is read as
+    0-65535 and kept to its high byte; one that uses under 1/16 of that range (8-bit values stored
+    in 16 bits: read back nearly black) warns, naming the file."""
     path = _existing(path, what)
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
     if image is None:
         raise ValueError(f"{what}: cannot decode image {path}")
+    if image.dtype == np.uint16:
+        _warn_if_dark(image, float(image.max()) / 65535.0, f"{what}: {path}", stacklevel=3)
+        image = (image >> 8).astype(np.uint8)
+    elif image.dtype != np.uint8:
+        raise ValueError(f"{what}: {path} holds {image.dtype} values; expected an 8-bit (or 16-bit) colour image")
     return image
 
 
