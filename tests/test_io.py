@@ -179,6 +179,9 @@ def test_write_intrinsics_refuses_what_read_intrinsics_cannot_read(tmp_path):
     ("id,x,y,valid\n0,10,20,nan\n", r"valid must be 0 or 1, got \[nan\]"),  # silently invisible
     ("id,x,y,valid\n0,10,20,2\n1,10,20,0.5\n", r"valid must be 0 or 1, got \[2.0, 0.5\] for ids \[0, 1\]"),
     ("id,x,y,valid\n1e30,10,20,1\n", "ids must be integers"),  # id -9223372036854775808
+    ("id,y,x,valid\n0,20,10,1\n", "header 'id,y,x,valid' names the columns in another order"),  # x, y swapped
+    ("x,y,id,valid\n10,20,0,1\n", "header .x,y,id,valid. names the columns in another order"),
+    ("# X, Y, ID, valid\n10, 20, 0, 1\n", "names the columns in another order"),  # id 10 at (20, 0)
 ])
 def test_landmark_csv_that_was_read_as_something_else(tmp_path, text, message):
     (tmp_path / "f.csv").write_text(text)
