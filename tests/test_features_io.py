@@ -185,3 +185,15 @@ def test_a_truncated_or_foreign_file_is_refused_by_name(tmp_path, suffix):
             load_features(tmp_path / "arr.npz")
     with pytest.raises(FileNotFoundError, match=f"path: '.*missing{suffix}' does not exist"):
         load_features(tmp_path / f"missing{suffix}")
+
+
+def test_valid_flags_that_are_not_flags_are_refused(tmp_path):
+    """A `valid` array of scores (or visibility codes) from another tool was cast to bool: every
+    keypoint with a score above 0, however low, was read as valid."""
+    np.savez(tmp_path / "scores.npz", keypoints=np.zeros((3, 2)), descriptors=np.zeros((3, 4), np.float32),
+             valid=np.array([0.1, 0.9, 0.0]))
+    with pytest.raises(ValueError, match=r"valid: expected flags \(bool, or 0 and 1\), got float64 values such as "
+                                         r"\[0.1, 0.9\]"):
+        load_features(tmp_path / "scores.npz")
+    f = Features(np.zeros((3, 2)), np.zeros((3, 4), np.float32), np.array([1, 0, 1], np.uint8))  # 0/1 still read
+    assert f.valid.tolist() == [True, False, True]

@@ -41,6 +41,7 @@ class Features:
         keypoints: (N, 2) float64 image pixel coordinates (x, y), OpenCV convention.
         descriptors: (N, ...) array, e.g. (N, 16, 64) uint8 for GeoBit, (N, 128) float32 for GeoPatch.
         valid: (N,) bool; False where no descriptor could be computed (such keypoints never match).
+            Given as numbers, only 0 and 1 are flags: other values (scores) raise ValueError.
         angles: optional (N,) detector orientation, degrees as OpenCV reports it.
         sizes: optional (N,) detector keypoint diameter, pixels.
     """
@@ -61,7 +62,13 @@ class Features:
         desc = np.asarray(self.descriptors)
         if desc.ndim < 1 or desc.shape[0] != n:
             raise ValueError(f"descriptors: expected first axis N={n}, got shape {desc.shape}")
-        valid = np.ones(n, bool) if self.valid is None else np.asarray(self.valid, dtype=bool).reshape(-1)
+        valid = np.ones(n, bool) if self.valid is None else np.asarray(self.valid)
+        if valid.dtype != bool and valid.size and not np.isin(valid, (0, 1)).all():
+            # another tool's scores or visibility codes: 0.1 and 2 were both read as True
+            odd = np.unique(valid[~np.isin(valid, (0, 1))])
+            raise ValueError(f"valid: expected flags (bool, or 0 and 1), got {valid.dtype} values such as "
+                             f"{odd[:3].tolist()}; a score is not a flag")
+        valid = valid.astype(bool).reshape(-1)
         if valid.shape != (n,):
             raise ValueError(f"valid: expected shape ({n},), got {valid.shape}")
         self.keypoints, self.descriptors, self.valid = kp, desc, valid
