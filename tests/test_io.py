@@ -340,3 +340,18 @@ def test_a_16bit_colour_png_of_8bit_values_warns_naming_the_file(tmp_path):
         read_image(tmp_path / "low-rgb.png")
     cv2.imwrite(str(tmp_path / "full-rgb.png"), color.astype(np.uint16) * 257)  # a true 16-bit PNG reads as before
     np.testing.assert_array_equal(read_image(tmp_path / "full-rgb.png"), color)
+
+
+def test_landmarks_missing_for_some_frames_are_named(tmp_path, capsys):
+    """With a csv for the reference but not for a target, `match` said 'ground truth: none' and `bench`
+    'no csv landmarks': the user's landmarks were set aside without saying which file was missing."""
+    from geofeat.cli import main
+    from geofeat.groundtruth.sources import GroundTruth
+
+    folder = _small_sequence(tmp_path / "seq")
+    write_landmarks(folder / "frame-000-master.csv", [0], np.array([[10.0, 20.0]]), [1])
+    with pytest.raises(ValueError, match=r"no ground truth \(no simulator files, csv landmarks in 1 of 2 frames only, "
+                                         r"none for frame-001, no TPS files\)"):
+        GroundTruth(geofeat.read_sequence(folder), None)
+    with pytest.warns(UserWarning, match="none for frame-001, no TPS files.; matches are written without being judged"):
+        assert main(["match", str(folder), "--descriptor", "orb", "--keypoints", "50", "--out", str(tmp_path / "m")]) == 0

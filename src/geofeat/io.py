@@ -342,8 +342,13 @@ class Sequence:
 
         return has_ground_truth(self)
 
+    def without_landmarks(self) -> list[str]:
+        """The frames that have no `<name>.csv`."""
+        return [n for n in self.names if not (self.folder / f"{n}.csv").is_file()]
+
     def has_landmarks(self) -> bool:
-        return all((self.folder / f"{n}.csv").is_file() for n in self.names)
+        """True when every frame has its landmark csv (the thin-plate-spline ground truth needs them all)."""
+        return not self.without_landmarks()
 
     def __len__(self) -> int:
         return len(self.names)
