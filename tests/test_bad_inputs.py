@@ -413,6 +413,20 @@ def _extract_kept_other_frames(tmp):
     assert sorted(list_names(tmp / "f.h5")) == ["frame-000-master", "frame-002"]
 
 
+def extract_npz_rerun_skipping_a_frame(tmp):
+    """`--out f.npz --overwrite` over an earlier run, now skipping frame-001: its earlier
+    f-frame-001.npz was left beside this run's files (other keypoints, other settings) without a word."""
+    seq = make_sequence(tmp / "seq", names=("frame-000-master", "frame-001", "frame-002"))
+    args = ["extract", str(seq), "--descriptor", "sift", "--keypoints", "200", "--out", str(tmp / "f.npz")]
+    assert main(args) == 0 and (tmp / "f-frame-001.npz").is_file()
+    cv2.imwrite(str(seq / "frame-001-depth.png"), np.zeros((H, W), np.uint16))
+    return args + ["--overwrite"]
+
+
+def _no_stale_npz(tmp):
+    assert sorted(p.name for p in tmp.glob("f-*.npz")) == ["f-frame-000-master.npz", "f-frame-002.npz"]
+
+
 def _match_kept_other_frames(tmp):
     assert (tmp / "m" / "frame-000-master__frame-002__sift.png").is_file()
 
@@ -930,6 +944,8 @@ CASES = [
     # robustness (issue)
     Case("extract-frame-without-depth", _no_depth_frame("extract"), 1, "SKIPPED.*frame-001",
          _extract_kept_other_frames),
+    Case("extract-npz-overwrite-skipping-a-frame", extract_npz_rerun_skipping_a_frame, 1,
+         "SKIPPED.*frame-001.*removed .*f-frame-001.npz: features of an earlier run", _no_stale_npz),
     Case("match-frame-without-depth", _no_depth_frame("match"), 1, "SKIPPED.*frame-001", _match_kept_other_frames),
     Case("retrieval-frame-without-depth", _no_depth_frame("retrieval"), 1, "SKIPPED.*frame-001", _retrieval_written),
     Case("track-frame-without-depth", _no_depth_frame("track"), 1, "SKIPPED.*frame-001",

@@ -157,3 +157,43 @@ def test_loading_the_wrong_kind_of_file_names_it(tmp_path):
         load_features(tmp_path / "m.npz")
     with pytest.raises(ValueError, match=r"f.npz' holds no 'matches0', so it is not a matches file"):
         load_matches(tmp_path / "f.npz")
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".h5"])
+def test_a_truncated_or_foreign_file_is_refused_by_name(tmp_path, suffix):
+    """A truncated .npz raised a bare BadZipFile ("File is not a zip file"), a foreign one numpy's
+    advice to unpickle it, a truncated .h5 h5py's OSError: none named the file."""
+    good = tmp_path / f"good{suffix}"
+    save_features(good, make_features(), name="img")
+    save_matches(tmp_path / f"m{suffix}", Matches([0, -1], [1.0, np.inf]), name="a/b")
+    data = good.read_bytes()
+    (tmp_path / f"cut{suffix}").write_bytes(data[: len(data) // 2])
+    (tmp_path / f"text{suffix}").write_text("keypoints,descriptors\n")
+    for bad in ("cut", "text"):
+        path = tmp_path / f"{bad}{suffix}"
+        with pytest.raises(ValueError, match=f"path: cannot read '.*{bad}{suffix}' as"):
+            load_features(path)
+        with pytest.raises(ValueError, match=f"path: cannot read '.*{bad}{suffix}' as"):
+            load_matches(path)
+    if suffix == ".h5":  # adding to a damaged file
+        with pytest.raises(ValueError, match="path: cannot read '.*cut.h5' as HDF5"):
+            save_features(tmp_path / "cut.h5", make_features(), name="img")
+    else:
+        np.save(tmp_path / "arr.npy", np.zeros(3))
+        (tmp_path / "arr.npy").rename(tmp_path / "arr.npz")
+        with pytest.raises(ValueError, match="arr.npz' as an .npz archive .*single .npy array"):
+            load_features(tmp_path / "arr.npz")
+    with pytest.raises(FileNotFoundError, match=f"path: '.*missing{suffix}' does not exist"):
+        load_features(tmp_path / f"missing{suffix}")
+
+
+def test_valid_flags_that_are_not_flags_are_refused(tmp_path):
+    """A `valid` array of scores (or visibility codes) from another tool was cast to bool: every
+    keypoint with a score above 0, however low, was read as valid."""
+    np.savez(tmp_path / "scores.npz", keypoints=np.zeros((3, 2)), descriptors=np.zeros((3, 4), np.float32),
+             valid=np.array([0.1, 0.9, 0.0]))
+    with pytest.raises(ValueError, match=r"valid: expected flags \(bool, or 0 and 1\), got float64 values such as "
+                                         r"\[0.1, 0.9\]"):
+        load_features(tmp_path / "scores.npz")
+    f = Features(np.zeros((3, 2)), np.zeros((3, 4), np.float32), np.array([1, 0, 1], np.uint8))  # 0/1 still read
+    assert f.valid.tolist() == [True, False, True]

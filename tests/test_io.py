@@ -179,6 +179,9 @@ def test_write_intrinsics_refuses_what_read_intrinsics_cannot_read(tmp_path):
     ("id,x,y,valid\n0,10,20,nan\n", r"valid must be 0 or 1, got \[nan\]"),  # silently invisible
     ("id,x,y,valid\n0,10,20,2\n1,10,20,0.5\n", r"valid must be 0 or 1, got \[2.0, 0.5\] for ids \[0, 1\]"),
     ("id,x,y,valid\n1e30,10,20,1\n", "ids must be integers"),  # id -9223372036854775808
+    ("id,y,x,valid\n0,20,10,1\n", "header 'id,y,x,valid' names the columns in another order"),  # x, y swapped
+    ("x,y,id,valid\n10,20,0,1\n", "header .x,y,id,valid. names the columns in another order"),
+    ("# X, Y, ID, valid\n10, 20, 0, 1\n", "names the columns in another order"),  # id 10 at (20, 0)
 ])
 def test_landmark_csv_that_was_read_as_something_else(tmp_path, text, message):
     (tmp_path / "f.csv").write_text(text)
@@ -298,3 +301,57 @@ def test_the_command_line_shows_the_depth_units_warning_on_one_line(tmp_path, ca
     err = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
     assert len(err) == 1 and err[0].startswith(f"geofeat extract: warning: sequence {folder} "), err
     assert "median depth 0.1 m" in err[0] and "--depth-scale" in err[0]
+
+
+# ---------------------------------------------------------------- review-io: frames, colour, csv headers
+def test_frames_are_in_natural_order_and_hidden_files_are_not_frames(tmp_path):
+    """`frame-10` came before `frame-2` (tracking jumped through the sequence), and macOS's `._` resource
+    forks (copying to a USB disk) were frames: `._frame-001-rgb.png` sorted first, became the reference,
+    and the whole sequence was refused as an undecodable image."""
+    from geofeat.io import find_sequences
+
+    folder = _small_sequence(tmp_path / "seq")
+    for name in ("frame-10", "frame-2"):
+        for suffix in ("-rgb.png", "-depth.png"):
+            shutil.copy(folder / f"frame-001{suffix}", folder / f"{name}{suffix}")
+    for suffix in ("-rgb.png", "-depth.png"):
+        (folder / f"._frame-001{suffix}").write_bytes(b"\x00\x05\x16\x07 AppleDouble")
+    seq = geofeat.read_sequence(folder)
+    assert seq.names == ["frame-000-master", "frame-001", "frame-2", "frame-10"]
+    assert find_sequences(tmp_path) == [folder]
+
+
+def test_a_depth_png_without_its_colour_is_refused(tmp_path):
+    """A frame whose `-rgb.png` was missing was left out without a word (the converse was refused)."""
+    folder = _small_sequence(tmp_path / "seq")
+    shutil.copy(folder / "frame-001-depth.png", folder / "frame-002-depth.png")
+    with pytest.raises(ValueError, match=r"folder: frames without '-rgb.png' in .*seq: \['frame-002'\]"):
+        geofeat.read_sequence(folder)
+
+
+def test_a_16bit_colour_png_of_8bit_values_warns_naming_the_file(tmp_path):
+    """Such a PNG was read as 0-65535 and kept to its high byte: a black image (SIFT found nothing, the
+    frame was skipped as having no keypoints) without a word on why."""
+    from geofeat.io import read_image
+
+    color = cv2.imread(str(demo_data_dir() / "cloud_1-rgb.png"))
+    cv2.imwrite(str(tmp_path / "low-rgb.png"), color.astype(np.uint16))
+    with pytest.warns(UserWarning, match=r"rgb_path: .*low-rgb.png: nearly black .* 8-bit values in a uint16"):
+        read_image(tmp_path / "low-rgb.png")
+    cv2.imwrite(str(tmp_path / "full-rgb.png"), color.astype(np.uint16) * 257)  # a true 16-bit PNG reads as before
+    np.testing.assert_array_equal(read_image(tmp_path / "full-rgb.png"), color)
+
+
+def test_landmarks_missing_for_some_frames_are_named(tmp_path, capsys):
+    """With a csv for the reference but not for a target, `match` said 'ground truth: none' and `bench`
+    'no csv landmarks': the user's landmarks were set aside without saying which file was missing."""
+    from geofeat.cli import main
+    from geofeat.groundtruth.sources import GroundTruth
+
+    folder = _small_sequence(tmp_path / "seq")
+    write_landmarks(folder / "frame-000-master.csv", [0], np.array([[10.0, 20.0]]), [1])
+    with pytest.raises(ValueError, match=r"no ground truth \(no simulator files, csv landmarks in 1 of 2 frames only, "
+                                         r"none for frame-001, no TPS files\)"):
+        GroundTruth(geofeat.read_sequence(folder), None)
+    with pytest.warns(UserWarning, match="none for frame-001, no TPS files.; matches are written without being judged"):
+        assert main(["match", str(folder), "--descriptor", "orb", "--keypoints", "50", "--out", str(tmp_path / "m")]) == 0

@@ -13,11 +13,14 @@ at the top level of one archive per image (or pair).
 
 from __future__ import annotations
 
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from .inputs import error_summary
 from .outputs import write_npz
 
 __all__ = [
@@ -38,6 +41,7 @@ class Features:
         keypoints: (N, 2) float64 image pixel coordinates (x, y), OpenCV convention.
         descriptors: (N, ...) array, e.g. (N, 16, 64) uint8 for GeoBit, (N, 128) float32 for GeoPatch.
         valid: (N,) bool; False where no descriptor could be computed (such keypoints never match).
+            Given as numbers, only 0 and 1 are flags: other values (scores) raise ValueError.
         angles: optional (N,) detector orientation, degrees as OpenCV reports it.
         sizes: optional (N,) detector keypoint diameter, pixels.
     """
@@ -58,7 +62,13 @@ class Features:
         desc = np.asarray(self.descriptors)
         if desc.ndim < 1 or desc.shape[0] != n:
             raise ValueError(f"descriptors: expected first axis N={n}, got shape {desc.shape}")
-        valid = np.ones(n, bool) if self.valid is None else np.asarray(self.valid, dtype=bool).reshape(-1)
+        valid = np.ones(n, bool) if self.valid is None else np.asarray(self.valid)
+        if valid.dtype != bool and valid.size and not np.isin(valid, (0, 1)).all():
+            # another tool's scores or visibility codes: 0.1 and 2 were both read as True
+            odd = np.unique(valid[~np.isin(valid, (0, 1))])
+            raise ValueError(f"valid: expected flags (bool, or 0 and 1), got {valid.dtype} values such as "
+                             f"{odd[:3].tolist()}; a score is not a flag")
+        valid = valid.astype(bool).reshape(-1)
         if valid.shape != (n,):
             raise ValueError(f"valid: expected shape ({n},), got {valid.shape}")
         self.keypoints, self.descriptors, self.valid = kp, desc, valid
@@ -127,10 +137,36 @@ def _require_name(name: str | None, path: str | Path) -> str:
     return str(name)
 
 
+def read_npz(path: str | Path) -> dict[str, np.ndarray]:
+    """The arrays of an .npz archive (no pickled objects). FileNotFoundError for a missing file,
+    ValueError naming it for one that is not a whole .npz (truncated, another format, a bare .npy)."""
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"path: {str(path)!r} does not exist")
+    try:
+        data = np.load(str(path), allow_pickle=False)
+        if not isinstance(data, np.lib.npyio.NpzFile):  # an .npy under an .npz name
+            raise ValueError("a single .npy array, not an .npz archive")
+        with data:
+            return {k: data[k] for k in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as error:
+        raise ValueError(f"path: cannot read {str(path)!r} as an .npz archive ({error_summary(error)})") from None
+
+
+def _open_h5(path: str | Path, mode: str):
+    """h5py.File(path, mode); ValueError naming the file for one that is truncated or not HDF5 at all
+    (h5py's OSError names none)."""
+    import h5py
+
+    try:
+        return h5py.File(str(path), mode)
+    except OSError as error:
+        raise ValueError(f"path: cannot read {str(path)!r} as HDF5 ({error_summary(error)})") from None
+
+
 def _h5_write_group(path: str | Path, name: str, arrays: dict[str, np.ndarray]) -> None:
     import h5py
 
-    with h5py.File(str(path), "a") as fd:
+    with _open_h5(path, "a") as fd:
         grp = fd.require_group(name)
         for key in [k for k, v in grp.items() if isinstance(v, h5py.Dataset)]:
             del grp[key]  # the datasets of `name` only: a nested name ("name/other") is another image's group
@@ -143,7 +179,7 @@ def _h5_read_group(path: str | Path, name: str | None) -> dict[str, np.ndarray]:
 
     if not Path(path).exists():
         raise FileNotFoundError(f"path: {str(path)!r} does not exist")
-    with h5py.File(str(path), "r") as fd:
+    with _open_h5(path, "r") as fd:
         if name is None:
             names = _h5_leaf_groups(fd)
             if len(names) != 1:
@@ -175,9 +211,7 @@ def _h5_leaf_groups(fd) -> list[str]:
 
 def list_names(path: str | Path) -> list[str]:
     """Image (or pair) names stored in an .h5 features / matches file."""
-    import h5py
-
-    with h5py.File(str(path), "r") as fd:
+    with _open_h5(path, "r") as fd:
         return _h5_leaf_groups(fd)
 
 
@@ -241,8 +275,7 @@ def load_features(path: str | Path, name: str | None = None) -> Features:
     means every keypoint is valid, and float descriptors stored as hloc's (D, N) are read as
     (N, D)). For .h5, `name` may be omitted when the file holds one image."""
     if _suffix(path) == ".npz":
-        with np.load(str(path)) as data:
-            return _features_from({k: data[k] for k in data.files}, path)
+        return _features_from(read_npz(path), path)
     arrays = _h5_read_group(path, name)
     return _features_from(arrays, path, hloc="valid" not in arrays)
 
@@ -262,8 +295,7 @@ def save_matches(path: str | Path, matches: Matches, name: str | None = None) ->
 def load_matches(path: str | Path, name: str | None = None) -> Matches:
     """Read matches written by `save_matches` (a missing `distances` dataset reads as NaN)."""
     if _suffix(path) == ".npz":
-        with np.load(str(path)) as data:
-            arrays = {k: data[k] for k in data.files}
+        arrays = read_npz(path)
     else:
         arrays = _h5_read_group(path, name)
     _require_arrays(arrays, ("matches0",), path, "matches")

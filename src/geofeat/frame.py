@@ -45,7 +45,7 @@ def to_gray(image: np.ndarray) -> np.ndarray:
                 f"image: {image.dtype} images must lie in [0, 1], got range [{gray.min():.3g}, {gray.max():.3g}]"
                 " (pass 0-255 images as uint8, or divide by 255)"
             )
-    _warn_if_dark(image, gray)
+    _warn_if_dark(image, float(gray.max()))
     return np.ascontiguousarray(gray, dtype=np.float32)
 
 
@@ -53,13 +53,14 @@ def to_gray(image: np.ndarray) -> np.ndarray:
 DARK_IMAGE_FRACTION = 1.0 / 16.0
 
 
-def _warn_if_dark(image: np.ndarray, gray: np.ndarray) -> None:
+def _warn_if_dark(image: np.ndarray, brightest: float, where: str = "image", stacklevel: int = 4) -> None:
     """Warn of a uint16 or float image that uses under `DARK_IMAGE_FRACTION` of its full scale: 8-bit
-    values in a uint16 array (or a Kinect's 10-bit IR) read as 0-65535, or floats divided by 255
-    twice, give a nearly black gray image, on which SIFT finds nothing and patches hold no contrast."""
+    values in a uint16 array or PNG (or a Kinect's 10-bit IR) read as 0-65535, or floats divided by
+    255 twice, give a nearly black gray image, on which SIFT finds nothing and patches hold no
+    contrast. `brightest`: the image's brightest value as a fraction of its full scale; `where`
+    begins the message (the argument, or the file)."""
     if image.dtype == np.uint8 or image.dtype.kind not in "uf":
         return
-    brightest = float(gray.max())
     if not 0.0 < brightest < DARK_IMAGE_FRACTION:
         return
     if image.dtype == np.uint16:
@@ -68,8 +69,8 @@ def _warn_if_dark(image: np.ndarray, gray: np.ndarray) -> None:
     else:
         hint = (f"its brightest value is {brightest:.3g}: float images are read as 0-1 (1 = white); divided by "
                 "255 twice? scale the image to [0, 1]")
-    warnings.warn(f"image: nearly black ({brightest:.1%} of the full {image.dtype} scale); {hint}", UserWarning,
-                  stacklevel=4)
+    warnings.warn(f"{where}: nearly black ({brightest:.1%} of the full {image.dtype} scale); {hint}", UserWarning,
+                  stacklevel=stacklevel)
 
 
 def check_intrinsics(K: np.ndarray) -> np.ndarray:

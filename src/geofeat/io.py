@@ -6,11 +6,13 @@ A sequence folder holds, per frame `<name>`:
     `<name>.csv`        optional landmarks: a header line, then `id, x, y, valid` (pixels),
 and one `intrinsics.xml` (OpenCV FileStorage, node `intrinsics`, 3x3 matrix).
 The reference frame is the one whose name holds `master` or `ref` as a whole token (see
-`geofeat.inputs.is_reference_name`). Every reader validates what it reads (`geofeat.inputs`).
+`geofeat.inputs.is_reference_name`); the others follow in natural order (`frame-2` before `frame-10`).
+Hidden files (`._frame-001-rgb.png`) are not frames. Every reader validates what it reads (`geofeat.inputs`).
 """
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,12 +20,26 @@ import cv2
 import numpy as np
 
 from .constants import DEFAULT_RADIUS_M, DEPTH_SCALE_M
-from .frame import RGBDFrame, check_depth
+from .frame import RGBDFrame, _warn_if_dark, check_depth
 from .inputs import (check_depth_plausible, check_depth_scale, check_intrinsics_for_image, check_landmarks,
                      check_unique_names, is_reference_name, read_config, warn_depth_units)
 
 RGB_SUFFIX = "-rgb.png"
 DEPTH_SUFFIX = "-depth.png"
+
+
+def natural_key(name: str) -> tuple:
+    """Sort key that orders the runs of digits in a name by their value: `frame-2` before `frame-10`
+    (plain string order puts `frame-10` first, and a tracker would jump through the sequence)."""
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", name)], name
+
+
+def frame_names(folder: str | Path, suffix: str = RGB_SUFFIX) -> list[str]:
+    """Names of the frames in `folder` that have a `<name><suffix>` file, in `natural_key` order.
+    Hidden files (a leading `.`, such as macOS's `._frame-001-rgb.png` resource forks on a USB disk)
+    are not frames."""
+    return sorted((p.name[: -len(suffix)] for p in Path(folder).glob(f"*{suffix}") if not p.name.startswith(".")),
+                  key=natural_key)
 
 
 def _existing(path: str | Path, what: str) -> Path:
@@ -74,11 +90,18 @@ def write_intrinsics(path: str | Path, K: np.ndarray) -> None:
 
 
 def read_image(path: str | Path, what: str = "rgb_path") -> np.ndarray:
-    """Read an 8-bit colour image as (H, W, 3) uint8 BGR."""
+    """Read a colour image as (H, W, 3) uint8 BGR (grey and RGBA files too). A 16-bit file is read as
+    0-65535 and kept to its high byte; one that uses under 1/16 of that range (8-bit values stored
+    in 16 bits: read back nearly black) warns, naming the file."""
     path = _existing(path, what)
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
     if image is None:
         raise ValueError(f"{what}: cannot decode image {path}")
+    if image.dtype == np.uint16:
+        _warn_if_dark(image, float(image.max()) / 65535.0, f"{what}: {path}", stacklevel=3)
+        image = (image >> 8).astype(np.uint8)
+    elif image.dtype != np.uint8:
+        raise ValueError(f"{what}: {path} holds {image.dtype} values; expected an 8-bit (or 16-bit) colour image")
     return image
 
 
@@ -161,7 +184,7 @@ def _csv_fields(line: str) -> list[str]:
 
 def read_landmarks(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Read a landmark csv (`id, x, y, valid` after one header line; exactly these four fields a row,
-    valid 0 or 1).
+    valid 0 or 1). A header that names `id`, `x` or `y` in another column is refused.
 
     Returns:
         ids (N,) int64, xy (N, 2) float64 pixels, visible (N,) bool (valid flag set and x, y >= 0).
@@ -180,6 +203,11 @@ def read_landmarks(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
         if first is not None and len(first) == 4:
             raise ValueError(f"landmarks: {path}: the first line {lines[0].strip()!r} is a landmark, not a header; "
                              "the csv needs a header line such as 'id,x,y,valid'")
+        columns = [t.strip(" #\"'").lower() for t in _csv_fields(lines[0])]
+        if any(name in columns and columns.index(name) != i for i, name in enumerate(("id", "x", "y"))):
+            # the header is not otherwise read: 'id,y,x,valid' swapped x and y without a word
+            raise ValueError(f"landmarks: {path}: the header {lines[0].strip()!r} names the columns in another "
+                             "order; geofeat reads them as 'id, x, y, valid'")
     rows = []
     for line in lines[1:]:
         tokens = _csv_fields(line)
@@ -231,7 +259,7 @@ class Sequence:
 
     Attributes:
         folder: the sequence folder.
-        names: frame names, sorted, reference first.
+        names: frame names, reference first, then in natural order (`frame-2` before `frame-10`).
         K: (3, 3) intrinsics shared by all frames.
         depth_scale: metres per depth-PNG unit.
         depth_profile: the depth profile asked for by the folder's geofeat.json ("auto" when it
@@ -314,8 +342,13 @@ class Sequence:
 
         return has_ground_truth(self)
 
+    def without_landmarks(self) -> list[str]:
+        """The frames that have no `<name>.csv`."""
+        return [n for n in self.names if not (self.folder / f"{n}.csv").is_file()]
+
     def has_landmarks(self) -> bool:
-        return all((self.folder / f"{n}.csv").is_file() for n in self.names)
+        """True when every frame has its landmark csv (the thin-plate-spline ground truth needs them all)."""
+        return not self.without_landmarks()
 
     def __len__(self) -> int:
         return len(self.names)
@@ -341,12 +374,15 @@ def read_sequence(folder: str | Path, depth_scale: float | None = None) -> Seque
     folder = Path(folder)
     if not folder.is_dir():
         raise ValueError(f"folder: not a directory: {folder}")
-    names = sorted(p.name[: -len(RGB_SUFFIX)] for p in folder.glob(f"*{RGB_SUFFIX}"))
+    names = frame_names(folder)
     if not names:
         raise ValueError(f"folder: no '*{RGB_SUFFIX}' frames in {folder}")
     missing = [n for n in names if not (folder / f"{n}{DEPTH_SUFFIX}").is_file()]
     if missing:
         raise ValueError(f"folder: frames without '{DEPTH_SUFFIX}' in {folder}: {missing[:5]}")
+    colourless = sorted(set(frame_names(folder, DEPTH_SUFFIX)) - set(names), key=natural_key)
+    if colourless:  # such a frame was left out without a word
+        raise ValueError(f"folder: frames without '{RGB_SUFFIX}' in {folder}: {colourless[:5]}")
     refs = [n for n in names if is_reference_name(n)]
     if len(refs) > 1:
         raise ValueError(f"folder: {folder} has several reference frames ({', '.join(refs[:5])}); "
@@ -393,10 +429,10 @@ def find_sequences(paths, unique_names: bool = False, what: str = "dataset") -> 
     for p in [Path(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]:
         if not p.is_dir():
             raise ValueError(f"{what}: not a directory: {p}")
-        if any(p.glob(f"*{RGB_SUFFIX}")):
+        if frame_names(p):
             found.append(p)
             continue
-        subs = sorted(d for d in p.iterdir() if d.is_dir() and any(d.glob(f"*{RGB_SUFFIX}")))
+        subs = sorted(d for d in p.iterdir() if d.is_dir() and frame_names(d))
         if not subs:
             raise ValueError(f"{what}: no sequence (folder of '*{RGB_SUFFIX}' frames) in {p}")
         found.extend(subs)

@@ -26,12 +26,11 @@ is read as (D, N) whenever its second axis has one entry per keypoint, even when
 
 from __future__ import annotations
 
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from ..features import Features, _h5_leaf_groups, descriptors_n_by_d
+from ..features import Features, _h5_leaf_groups, descriptors_n_by_d, read_npz
 from ..io import RGB_SUFFIX
 from ..keypoints import as_keypoints
 from ..matching import METRICS, match
@@ -224,10 +223,9 @@ class ExternalFeatures:
                              "exactly, case included)")
         if key is not None:  # an existing file (`source`)
             try:
-                with np.load(key, allow_pickle=False) as data:
-                    return {k: data[k] for k in data.files}, key
-            except (OSError, ValueError, zipfile.BadZipFile) as error:
-                raise ValueError(f"features {self.name}: cannot read {key} ({error})") from None
+                return read_npz(key), key
+            except ValueError as error:
+                raise ValueError(f"features {self.name}: {error}") from None
         raise ValueError(f"features {self.name}: no {sequence}/{frame}.npz or {frame}.npz under {self.path}")
 
 

@@ -33,7 +33,7 @@ from ..constants import N_KEYPOINTS
 from ..depth import check_profile, sequence_depth_profile
 from ..descriptors import OpenCVDescriptor, check_descriptor_name, refuse_repeated
 from ..inputs import check_depth_scale, check_radius, check_tps_dir, check_whole, resolve_radius
-from ..io import RGB_SUFFIX, Sequence, find_sequences, read_sequence
+from ..io import Sequence, find_sequences, frame_names, read_sequence
 from ..outputs import add_to_manifest, append_line_durably, atomic_file, check_out_dir, plural, read_manifest
 from ..keypoints import Keypoints, check_detector_name, detect, resolve_keypoint_set
 from ..matching import match
@@ -425,8 +425,7 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
     check_tps_dir(config.tps_dir)
     if config.features:  # before any work: a shared group would score a sequence with another's features
         check_one_source_per_frame([ExternalFeatures(*parse_features_option(f)) for f in config.features],
-                                   {Path(f).name: [p.name[: -len(RGB_SUFFIX)] for p in sorted(Path(f).glob(f"*{RGB_SUFFIX}"))]
-                                    for f in folders})
+                                   {Path(f).name: frame_names(f) for f in folders})
     done = _open_results(out, config, overwrite, progress, folders)
     work = []
     for folder in folders:

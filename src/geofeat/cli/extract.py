@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from .common import features_path, file_label, finish_skipped, frame_and_keypoints, is_h5, skip_frame
@@ -67,6 +68,15 @@ def run(args: argparse.Namespace) -> int:
             for tmp, final in written:
                 os.replace(tmp, final)
             written.clear()
+            # as the .h5 (replaced whole) has no group for it: a skipped frame's file from an earlier run,
+            # which --overwrite let replace, would mix that run's features with this one's
+            stale = [] if is_h5(path) else [f for f in (path.with_name(f"{path.stem}-{n}.npz") for n in skipped)
+                                            if f.exists() or f.is_symlink()]
+            for final in stale:
+                final.unlink()
+            if stale:
+                print(f"removed {', '.join(str(f) for f in stale)}: features of an earlier run for the frames "
+                      "skipped in this one", file=sys.stderr)
         finally:
             for tmp, _ in written:
                 tmp.unlink(missing_ok=True)

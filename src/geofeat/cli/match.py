@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import warnings
 
 import cv2
 
@@ -50,6 +51,8 @@ def run(args: argparse.Namespace) -> int:
         if "no ground truth" not in str(error):
             raise
         truth = None  # no ground truth: matches are written, not judged
+        if "csv landmarks in" in str(error):  # the user's landmarks, left unused: say why
+            warnings.warn(f"{error}; matches are written without being judged")
     print(f"{seq.name}: depth profile {profile}, {detection}, "
           f"radius {radius:g} m, ground truth: "
           + ("none" if truth is None else "simulator (exact)" if truth.exact else "thin-plate spline on the landmarks"))

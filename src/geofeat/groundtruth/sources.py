@@ -74,7 +74,11 @@ class GroundTruth:
                              f"in {Path(tps_dir) / seq.name} or {Path(tps_dir)}/*/{seq.name}")
         self.exact = self.tps is None and seq.has_ground_truth()
         if self.tps is None and not self.exact and not seq.has_landmarks():
-            raise ValueError(f"sequence {seq.name}: no ground truth (no simulator files, no csv landmarks, no TPS files)")
+            missing = seq.without_landmarks()
+            csv = "no csv landmarks" if len(missing) == len(seq) else (  # some: the spline needs every frame's
+                f"csv landmarks in {len(seq) - len(missing)} of {len(seq)} frames only, none for "
+                f"{', '.join(missing[:5])}{', ...' if len(missing) > 5 else ''}")
+            raise ValueError(f"sequence {seq.name}: no ground truth (no simulator files, {csv}, no TPS files)")
 
     def _mask(self, frame: str) -> np.ndarray | None:
         if self.tps is None:
