@@ -66,3 +66,14 @@ def test_geobit_seed_is_a_whole_number(seed):
     """-1 and 2.5 were numpy's errors ("expected non-negative integer", "SeedSequence expects int")."""
     with pytest.raises(ValueError, match="^seed: "):
         GeoBit(seed=seed)
+
+
+@pytest.mark.parametrize("option, value", [("n_rotations", True), ("n_bits", 8.0), ("n_angles", 0), ("n_rings", 2.5),
+                                           ("sigma", -1.0), ("radius", "0.05"), ("radius", float("nan")),
+                                           ("radius", 75.0)])
+def test_geobit_settings_are_checked_by_name(option, value):
+    """n_rotations=True built a GeoBit of one rotation (not rotation-invariant) without a word, a radius
+    "0.05" was read as a number, NaN and 75 (millimetres) failed only when describing, n_bits=8.0 was a
+    TypeError from numpy and n_angles=0 an error about n_bits."""
+    with pytest.raises(ValueError, match=f"^{option}: "):
+        GeoBit(**{option: value})

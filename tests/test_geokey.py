@@ -425,3 +425,22 @@ def test_extract_on_a_frame_without_keypoints_names_the_frame():
     blank = geofeat.RGBDFrame(np.full(frame.shape, 0.5, np.float32), frame.depth, frame.K)
     with pytest.warns(UserWarning, match="geokey"), pytest.raises(ValueError, match="frame: no keypoints"):
         geofeat.extract(blank, 10, descriptor="geobit")
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_half_resolution_candidates_follow_a_rotated_frame(k):
+    """cv2.pyrDown centres half-resolution pixel i on full-resolution pixel 2 i: mapping it to 2 i + 0.5
+    put every half-resolution candidate 0.7 px off its corner, in the image's own (+x, +y) direction, so
+    that the same corner in a rotated frame came back about 1 px away (full-resolution ones: 0 px)."""
+    from geofeat.frame import rotate_points90
+
+    frame = geofeat.read_demo_frame()
+    turned = frame.rotated90(k)
+    a, b = candidates(frame), candidates(turned)
+    for level in (0, 1):
+        mapped = rotate_points90(a.xy[a.level == level], frame.shape, k)
+        dist, j = cKDTree(b.xy[b.level == level]).query(mapped)
+        near = dist < 1.5
+        offset = (b.xy[b.level == level][j[near]] - mapped[near]).mean(axis=0)
+        assert near.sum() > 200, (level, near.sum())
+        assert np.hypot(*offset) < 0.2, (level, offset)

@@ -98,3 +98,21 @@ def test_batch_size_must_be_a_positive_whole_number(batch_size):
     """0 failed with "range() arg 3 must not be zero", -1 with a descriptor-count mismatch, 2.5 ran as 2."""
     with pytest.raises(ValueError, match="^batch_size: "):
         ImagePatchDescriptor("tfeat", batch_size=batch_size)
+
+
+@pytest.mark.parametrize("radius", [10.0, 30.0, 60.0, 120.0])
+def test_patches_of_large_supports_stay_centred_on_the_keypoint(radius):
+    """Large supports are read from a Gaussian pyramid (cv2.pyrDown), whose pixel i lies on
+    full-resolution pixel 2^l i; reading it as 2^l i + (2^l - 1) / 2 moved every patch 0.5, 1.5 or 3.5 px
+    along the image's (+x, +y) at levels 1, 2, 3, so that a patch of the image rotated by 90 degrees about
+    the keypoint was another patch."""
+    rng = np.random.default_rng(0)
+    import cv2
+
+    image = cv2.GaussianBlur(rng.uniform(0, 1, (257, 257)).astype(np.float32), (0, 0), 4.0)
+    xy = np.array([[128.0, 128.0]])
+    grid = cartesian_grid(16)
+    p0 = sample_patches(image, xy, np.array([30.0]), np.array([radius]), grid)
+    rot = np.ascontiguousarray(np.rot90(image))  # about the keypoint: 257 = 2^8 + 1 keeps every level's grid
+    p1 = sample_patches(rot, xy, np.array([30.0 - 90.0]), np.array([radius]), grid)
+    np.testing.assert_allclose(p1, p0, atol=1e-4)

@@ -1,6 +1,7 @@
 """Geodesic polar patches: geometry on analytic surfaces, isometric invariance, real data, robustness."""
 
 import subprocess
+import warnings
 import sys
 
 import numpy as np
@@ -437,3 +438,16 @@ def test_depth_edited_in_place_is_checked_again_before_a_mesh_is_built(edit, mat
         frame.depth[100:120, 100:120] = edit
     with pytest.raises(ValueError, match=match):
         geofeat.polar_patches(frame, kp, depth_config=CLEAN)
+
+
+def test_depth_nearer_than_a_camera_sees_is_warned_of():
+    """Metres divided by 1000 again (a median of 1 mm) made a frame on which every patch left the surface:
+    `extract` returned features that were all invalid, without a word. Close but plausible depth does not warn."""
+    from geofeat.inputs import DepthUnitsWarning
+
+    image = np.full((120, 160), 0.5, np.float32)
+    with pytest.warns(DepthUnitsWarning, match=r"depth: median 0\.001 m is nearer than"):
+        geofeat.RGBDFrame(image, np.full((120, 160), 0.001, np.float32), K_VGA / [[4], [4], [1]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        geofeat.RGBDFrame(image, np.full((120, 160), 0.06, np.float32), K_VGA / [[4], [4], [1]])

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 
 from .constants import MAX_PLAUSIBLE_DEPTH_M
-from .inputs import as_points, check_focal_lengths, check_principal_point
+from .inputs import PLAUSIBLE_MEDIAN_DEPTH_M, DepthUnitsWarning, as_points, check_focal_lengths, check_principal_point
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
@@ -89,8 +89,11 @@ def check_intrinsics(K: np.ndarray) -> np.ndarray:
     return K
 
 
-def check_depth(depth: np.ndarray, shape: tuple[int, int] | None = None) -> np.ndarray:
-    """Validate an (H, W) depth map in metres (0 = missing) and return it as float32."""
+def check_depth(depth: np.ndarray, shape: tuple[int, int] | None = None, warn_near: bool = False) -> np.ndarray:
+    """Validate an (H, W) depth map in metres (0 = missing) and return it as float32. A median depth
+    above `MAX_PLAUSIBLE_DEPTH_M` (millimetres) is a ValueError; with `warn_near`, one below the
+    readers' smallest plausible median (`inputs.PLAUSIBLE_MEDIAN_DEPTH_M`, 5 cm) warns
+    (`DepthUnitsWarning`): metres divided by 1000 again make every geodesic patch leave the surface."""
     depth = np.asarray(depth)
     if depth.ndim != 2:
         raise ValueError(f"depth: expected shape (H, W), got {depth.shape}")
@@ -116,6 +119,12 @@ def check_depth(depth: np.ndarray, shape: tuple[int, int] | None = None) -> np.n
             f"depth: median {median:.1f} looks like millimetres; depth must be in metres "
             "(divide by 1000, or read it with read_frame(..., depth_scale=0.001))"
         )
+    nearest = PLAUSIBLE_MEDIAN_DEPTH_M[0]
+    if warn_near and median < nearest:
+        warnings.warn(f"depth: median {median:.3g} m is nearer than an RGB-D camera sees (expected at least "
+                      f"{nearest:g} m); is it in metres (not metres divided by 1000 again)? Geodesic patches "
+                      "of a few centimetres would leave the surface, and no keypoint would be described",
+                      DepthUnitsWarning, stacklevel=3)
     return np.ascontiguousarray(depth)
 
 
@@ -125,7 +134,8 @@ class RGBDFrame:
 
     Attributes:
         image: (H, W) float32 gray image in [0, 1].
-        depth: (H, W) float32 depth in metres, 0 where missing.
+        depth: (H, W) float32 depth in metres, 0 where missing: a median above 50 m (millimetres)
+            raises ValueError, one below 5 cm (metres divided by 1000 again?) warns.
         K: (3, 3) float64 pinhole intrinsics in pixels (OpenCV convention: the centre of the
             top-left pixel is (0, 0)), for this image's resolution: focal lengths implausible for
             the image size raise ValueError, a principal point far from the image centre (or off
@@ -145,7 +155,7 @@ class RGBDFrame:
         gray = to_gray(image)
         color = image if (image.ndim == 3 and image.dtype == np.uint8) else None
         object.__setattr__(self, "image", gray)
-        object.__setattr__(self, "depth", check_depth(depth, gray.shape))
+        object.__setattr__(self, "depth", check_depth(depth, gray.shape, warn_near=True))
         K = check_intrinsics(K).copy()  # the frame's own copy, as for the depth: not the caller's array
         check_focal_lengths(K, gray.shape, "K")
         check_principal_point(K, gray.shape, "K", strict=False)

@@ -3,7 +3,8 @@
 Metrics (chosen from the descriptor type when ``metric=None``):
 
 - ``"l2"``: float descriptors (N, D); Euclidean distance via a matrix product (numpy, float64 for
-  float64 input, float32 otherwise), computed in blocks of queries; one numba pass per block finds
+  float64 input, float32 otherwise) of the descriptors less their mean (so that a large common part
+  does not cancel their differences away), computed in blocks of queries; one numba pass per block finds
   the best and second-best target of each query and the best query of each target.
 - ``"hamming"``: uint8 descriptors (N, B) of B bytes = 8 B bits; distance in bits.
 - ``"hamming-rot"``: uint8 descriptors (N, R, B), R rotated copies of each descriptor (GeoBit:
@@ -705,14 +706,17 @@ def _hamming_search_torch(d0, d1, valid0, valid1, want_cols, device, block: int 
 
 def _l2_search_torch(d0, d1, valid0, valid1, want_cols):
     """`_l2_search` on torch tensors of one device (the GPU path): the same float32 (float64 for
-    float64 input) distances |a|^2 + |b|^2 - 2 a.b as one matrix product (TF32 off), the same
+    float64 input) distances |a|^2 + |b|^2 - 2 a.b of the descriptors less their valid rows' mean,
+    as one matrix product (TF32 off), the same
     tie rules (first index, as torch.argmin). Returns numpy arrays like `_l2_search`."""
     import torch
 
     dtype = torch.float64 if torch.float64 in (d0.dtype, d1.dtype) else torch.float32
-    a, b = d0.to(dtype), d1.to(dtype)
-    n1 = b.shape[0]
     valid0, valid1 = valid0.bool(), valid1.bool()
+    rows = torch.cat([d0[valid0], d1[valid1]]).double()
+    centre = (rows.mean(0).round() if len(rows) else rows.new_zeros(d0.shape[1])).to(dtype)  # as `_valid_mean`
+    a, b = d0.to(dtype) - centre, d1.to(dtype) - centre
+    n1 = b.shape[0]
     before = torch.backends.cuda.matmul.allow_tf32
     torch.backends.cuda.matmul.allow_tf32 = False
     try:
@@ -789,15 +793,31 @@ def _l2_block_cols(dist, offset, col_best, col_j):
                     col_j[j] = i + offset
 
 
+def _valid_mean(d0, d1, valid0, valid1) -> np.ndarray:
+    """(D,) float64 mean of the valid rows of d0 (N0, D) and d1 (N1, D), rounded to whole numbers
+    (zeros when none is valid). The L2 searches subtract it from both sides: the distances do not
+    change, but |a|^2 + |b|^2 - 2 a.b no longer cancels away the differences of descriptors that share
+    a large common part (float32 descriptors of mean 100 that differ by 0.01 found 0.5 % of their
+    nearest neighbours without it). Whole numbers keep whole-valued descriptors exact, so that equal
+    distances stay equal (ties go to the lowest index); unit-length ones (GeoPatch) are left as they are."""
+    total = np.zeros(d0.shape[1], np.float64)
+    for d, valid in ((d0, valid0), (d1, valid1)):
+        total += np.asarray(d)[np.asarray(valid, dtype=bool)].sum(axis=0, dtype=np.float64)
+    count = int(np.count_nonzero(valid0)) + int(np.count_nonzero(valid1))
+    return np.rint(total / max(count, 1))
+
+
 def _l2_search(d0, d1, valid0, valid1, want_cols, block: int = 1024):
     """d0 (N0, D), d1 (N1, D) float. Returns best_d, best_j, second_d (N0,), col_j (N1,) or None.
 
-    Distances are sqrt(|a|^2 + |b|^2 - 2 a.b) in float32 (float64 for float64 input), the matrix
-    product in blocks of `block` queries; one numba pass per block finds each row's best and second
-    distance, another the columns' best (first row among equals)."""
+    Distances are sqrt(|a|^2 + |b|^2 - 2 a.b) in float32 (float64 for float64 input) of the
+    descriptors less their mean (`_valid_mean`), the matrix product in blocks of `block` queries;
+    one numba pass per block finds each row's best and second distance, another the columns' best
+    (first row among equals)."""
     dtype = np.float64 if (d0.dtype == np.float64 or d1.dtype == np.float64) else np.float32
-    a = np.ascontiguousarray(d0, dtype=dtype)
-    b = np.ascontiguousarray(d1, dtype=dtype)
+    centre = _valid_mean(d0, d1, valid0, valid1).astype(dtype)
+    a = np.ascontiguousarray(np.asarray(d0, dtype=dtype) - centre)
+    b = np.ascontiguousarray(np.asarray(d1, dtype=dtype) - centre)
     n0, n1 = len(a), len(b)
     bb = np.einsum("ij,ij->i", b, b)
     two = dtype(2.0)

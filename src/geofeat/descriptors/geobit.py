@@ -71,7 +71,7 @@ from ..keypoints import as_keypoints
 from ..geodesic.mesh import GridMesh
 from ..geodesic.polar import PolarPatches, check_patches, polar_patches
 from .settings import PatchSettings, merge_settings
-from ..inputs import check_whole
+from ..inputs import check_positive, check_whole
 
 __all__ = ["GeoBit", "GeoBitSettings", "generate_pattern", "load_pattern", "DEFAULT_SIGMA_ROWS", "PATTERN_SEED"]
 
@@ -188,6 +188,10 @@ class GeoBit:
     def __init__(self, settings: GeoBitSettings | Mapping[str, Any] | None = None, **kwargs: Any) -> None:
         self.settings = s = merge_settings(GeoBitSettings, settings, kwargs)
         n_bits, n_rotations, seed, n_rings, n_angles = s.n_bits, s.n_rotations, s.seed, s.n_rings, s.n_angles
+        for name in ("n_bits", "n_rotations", "n_rings", "n_angles"):  # counts: True was 1 rotation
+            check_whole(getattr(s, name), name, 1)
+        if s.sigma is not None:
+            check_positive(s.sigma, "sigma")
         if n_bits < 8 or n_bits % 8:
             raise ValueError(f"n_bits: expected a positive multiple of 8, got {n_bits}")
         if n_rotations < 1 or n_angles % n_rotations:

@@ -95,9 +95,10 @@ def sample_patches(image: np.ndarray, xy: np.ndarray, angles_deg: np.ndarray, ra
         idx = np.flatnonzero(levels == level)
         for start in range(0, len(idx), _CHUNK):
             sel = idx[start:start + _CHUNK]
-            # pixel i of level l covers full-resolution pixel f * i + (f - 1) / 2
-            mx = ((X[sel] - (f - 1) / 2) / f).reshape(-1, Q).astype(np.float32)
-            my = ((Y[sel] - (f - 1) / 2) / f).reshape(-1, Q).astype(np.float32)
+            # cv2.pyrDown centres pixel i of a level on pixel 2 i of the level below: pixel i of
+            # level l on full-resolution pixel f * i
+            mx = (X[sel] / f).reshape(-1, Q).astype(np.float32)
+            my = (Y[sel] / f).reshape(-1, Q).astype(np.float32)
             out[sel] = cv2.remap(pyramid[level], mx, my, cv2.INTER_LINEAR,
                                  borderMode=cv2.BORDER_REPLICATE).reshape(len(sel), P, Q)
     return out

@@ -18,6 +18,7 @@ from typing import Any, TypeVar
 
 from ..constants import DEFAULT_RADIUS_M, SAMPLING_BLUR_PX
 from ..depth import DepthConfig, check_profile
+from ..inputs import check_radius
 
 __all__ = ["PatchSettings", "merge_settings", "takes_patch_settings"]
 
@@ -40,7 +41,7 @@ class PatchSettings:
     blur_px: float = SAMPLING_BLUR_PX
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "radius", float(self.radius))
+        object.__setattr__(self, "radius", check_radius(self.radius, "radius"))  # "0.05" was read as a number
         if not isinstance(self.depth_config, DepthConfig):
             object.__setattr__(self, "depth_config", check_profile(self.depth_config, "depth_config"))
 

@@ -229,8 +229,9 @@ def candidates(frame: RGBDFrame, max_candidates: tuple[int, ...] = MAX_CANDIDATE
         if pts is None:
             continue
         pts = refine_peaks(cv2.cornerMinEigenVal(image, CORNER_WINDOW_PX, 3), pts.reshape(-1, 2))
-        scale = 2.0**level
-        xy = (pts.astype(np.float64) + 0.5) * scale - 0.5  # pixel centres of level -> full resolution
+        # cv2.pyrDown centres pixel i of a level on pixel 2 i of the level below (not on 2 i + 0.5, as
+        # an area resize would), so level-l pixel i lies on full-resolution pixel 2^l i
+        xy = pts.astype(np.float64) * 2.0**level
         out_xy.append(xy)
         out_level.append(np.full(len(xy), level, np.int64))
     if not out_xy:
