@@ -146,13 +146,15 @@ class _Level:
         mask_l = _level_image(mask.astype(np.float32), level)
         self.tgt = torch.from_numpy(_level_image(tgt, level))[None, None]
         self.scale = s
-        lx0, ly0 = max(int(np.floor((x0 + 0.5) / s - 0.5)), 0), max(int(np.floor((y0 + 0.5) / s - 0.5)), 0)
-        lx1 = min(int(np.ceil((x1 + 0.5) / s - 0.5)) + 1, ref_l.shape[1])
-        ly1 = min(int(np.ceil((y1 + 0.5) / s - 0.5)) + 1, ref_l.shape[0])
+        # cv2.pyrDown centres pixel i of a level on pixel 2 i of the level below: level pixel i lies
+        # on full-resolution pixel s i (not s (i + 0.5) - 0.5, as an area resize would put it)
+        lx0, ly0 = max(int(np.floor(x0 / s)), 0), max(int(np.floor(y0 / s)), 0)
+        lx1 = min(int(np.ceil(x1 / s)) + 1, ref_l.shape[1])
+        ly1 = min(int(np.ceil(y1 / s)) + 1, ref_l.shape[0])
         self.ref = torch.from_numpy(np.ascontiguousarray(ref_l[ly0:ly1, lx0:lx1]))[None, None]
         self.mask = torch.from_numpy(np.ascontiguousarray(mask_l[ly0:ly1, lx0:lx1] > 0.5).astype(np.float32))[None, None]
-        xs = (np.arange(lx0, lx1) + 0.5) * s - 0.5  # full-resolution pixel coordinates of the crop
-        ys = (np.arange(ly0, ly1) + 0.5) * s - 0.5
+        xs = np.arange(lx0, lx1) * float(s)  # full-resolution pixel coordinates of the crop
+        ys = np.arange(ly0, ly1) * float(s)
         full = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
         self.f0 = torch.from_numpy(f0(full).reshape(len(ys), len(xs), 2).astype(np.float32))
         self.field = _Field(xs, ys, gx, gy)
@@ -167,8 +169,8 @@ def _warp(level: _Level, D: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     f = level.f0 + level.field.grid(D)
     s = level.scale
     H, W = level.tgt.shape[-2:]
-    xl = (f[..., 0] + 0.5) / s - 0.5
-    yl = (f[..., 1] + 0.5) / s - 0.5
+    xl = f[..., 0] / s  # full-resolution pixels -> this level's (`_Level`: pyrDown's pixel centres)
+    yl = f[..., 1] / s
     g = torch.stack([(xl + 0.5) / W * 2 - 1, (yl + 0.5) / H * 2 - 1], dim=-1)[None]
     warped = F.grid_sample(level.tgt, g, mode="bilinear", padding_mode="border", align_corners=False)
     inside = ((xl >= 0) & (xl <= W - 1) & (yl >= 0) & (yl <= H - 1)).float()[None, None]
