@@ -816,8 +816,12 @@ def _l2_search(d0, d1, valid0, valid1, want_cols, block: int = 1024):
     (first row among equals)."""
     dtype = np.float64 if (d0.dtype == np.float64 or d1.dtype == np.float64) else np.float32
     centre = _valid_mean(d0, d1, valid0, valid1).astype(dtype)
-    a = np.ascontiguousarray(np.asarray(d0, dtype=dtype) - centre)
-    b = np.ascontiguousarray(np.asarray(d1, dtype=dtype) - centre)
+    if centre.any():
+        a = np.ascontiguousarray(np.asarray(d0, dtype=dtype) - centre)
+        b = np.ascontiguousarray(np.asarray(d1, dtype=dtype) - centre)
+    else:  # unit-length descriptors (GeoPatch): a mean that rounds to 0, no copies
+        a = np.ascontiguousarray(d0, dtype=dtype)
+        b = np.ascontiguousarray(d1, dtype=dtype)
     n0, n1 = len(a), len(b)
     bb = np.einsum("ij,ij->i", b, b)
     two = dtype(2.0)
