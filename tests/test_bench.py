@@ -293,6 +293,19 @@ def test_curves_have_one_line_per_detector_and_descriptor(tmp_path):
     one = curve_series([r for r in rows if r["detector"] == "sift"], key, kind, bins)
     assert set(one) == {"geopatch", "geobit"}
     assert [p.name for p in plot_curves(rows, tmp_path)] == ["ms_vs_rotate.png"]
+    assert not [p.name for p in tmp_path.iterdir() if p.name != "ms_vs_rotate.png"]  # no partial file left
+
+
+def test_curve_titles_name_the_keypoints_and_what_the_points_average():
+    """With one detector the legend names only the descriptors: the plot said nowhere whose keypoints
+    (SIFT's, GeoKey's, the landmarks) the MS was measured on, nor over how many sequences."""
+    from geofeat.bench.report import curve_title
+
+    rows = [{"sequence": f"rotate-{k}", "reference": "r", "target": t, "descriptor": d, "detector": "geokey"}
+            for k in range(2) for t in ("a", "b", "c") for d in ("geopatch", "sift")]
+    assert curve_title(rows, "rotate") == "MS on 2 rotate sequences, 6 pairs; keypoints: geokey"
+    rows[0]["detector"] = "sift"  # several: the legend names them
+    assert curve_title(rows, "rotate") == "MS on 2 rotate sequences, 6 pairs"
 
 
 def test_detail_table_gives_the_denominator_of_ms():

@@ -183,3 +183,18 @@ def test_cli_init_without_channels_takes_the_init_weights_widths(tmp_path, capsy
     assert tuned.config == shipped.config
     assert main([*common, "--out", str(tmp_path / "x.pt"), "--channels", "16", "32", "64"]) == 2
     assert "--channels" in capsys.readouterr().err
+
+
+def test_the_training_plot_says_when_there_was_no_validation():
+    """Without validation pairs the MS axis of OUT.png was drawn empty, with nothing saying why."""
+    import matplotlib.pyplot as plt
+
+    from geofeat.train.loop import _figure
+
+    fig = _figure({"epoch": [1, 2], "loss": [0.5, 0.4], "val_ms": [float("nan")] * 2})
+    texts = [t.get_text() for ax in fig.axes for t in ax.texts]
+    plt.close(fig)
+    assert any("no validation pairs" in t for t in texts)
+    fig = _figure({"epoch": [1, 2], "loss": [0.5, 0.4], "val_ms": [0.3, 0.4]})
+    assert not [t for ax in fig.axes for t in ax.texts]
+    plt.close(fig)

@@ -5,7 +5,7 @@ import pytest
 
 import geofeat
 from geofeat.geodesic.polar import PolarPatches
-from geofeat.viz import draw_geodesic_support, draw_matches, patch_grid
+from geofeat.viz import CORRECT, draw_geodesic_support, draw_matches, match_key, patch_grid, ring_distances_mm
 
 
 def _no_patches() -> PolarPatches:
@@ -27,3 +27,75 @@ def test_patch_grid_refuses_meaningless_layouts(kwargs):
     # columns=0: ZeroDivisionError; zoom=0: an OpenCV assertion in resize; columns=-1: "negative dimensions"
     with pytest.raises(ValueError, match=next(iter(kwargs))):
         patch_grid(_no_patches(), **kwargs)
+
+
+def _flat_frame(bgr=(200, 60, 0), shape=(240, 320)) -> "geofeat.RGBDFrame":
+    """A frame of one colour (no grey in it, so that a label's grey pixels stand out)."""
+    H, W = shape
+    image = np.zeros((H, W, 3), np.uint8)
+    image[:] = bgr
+    K = np.array([[300.0, 0, (W - 1) / 2], [0, 300.0, (H - 1) / 2], [0, 0, 1]])
+    return geofeat.RGBDFrame(image, np.ones(shape, np.float32), K)
+
+
+def _label_pixels(picture: np.ndarray, frame_bgr, rows: slice) -> np.ndarray:
+    """(h, w) bool: pixels of picture[rows] that are not the frame's colour (a label's)."""
+    return np.abs(picture[rows].astype(int) - np.array(frame_bgr)).max(-1) > 40
+
+
+def test_a_title_sits_on_a_solid_box_so_that_it_reads_on_any_frame():
+    """The title used to be drawn twice, a thick dark outline then thin white text; OpenCV 5 widens its
+    glyphs with the thickness, so the two did not line up ("geobit: 660 correct" read as smudges, a
+    ghost "t" after the text) and the frame showed between the letters."""
+    frame = _flat_frame()
+    picture = draw_matches(frame, frame, np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64),
+                           title="geobit: 660 correct")
+    label = _label_pixels(picture, (200, 60, 0), slice(0, 24))
+    ys, xs = np.nonzero(label)
+    box = label[ys.min(): ys.max() + 1, xs.min(): xs.max() + 1]
+    assert box.all()  # no frame pixel inside the title's box
+    assert xs.max() - xs.min() > 100  # the whole title, not a dot
+
+
+def test_correct_matches_are_drawn_over_wrong_ones_and_a_subset_says_so():
+    frame = _flat_frame((90, 90, 90))
+    k0 = np.array([[50.0, 120.0], [50.0, 120.0], [60.0, 200.0]])
+    k1 = np.array([[100.0, 120.0], [100.0, 120.0], [110.0, 200.0]])
+    # keypoint 0 correct and keypoint 1 wrong share one line: the wrong one used to cover it
+    picture = draw_matches(frame, frame, k0, k1, np.array([0, 1, -1]), np.array([True, False, False]))
+    assert tuple(picture[120, 50]) == CORRECT
+    assert tuple(picture[120, 320 + 100]) == CORRECT  # the right frame's keypoint, at its own position
+    assert match_key(2, 1, 2, judged=True) == "green: correct, red: wrong"
+    assert match_key(1000, 700, 400, judged=True) == "green: correct, red: wrong; 400 of 1000 drawn"
+    assert match_key(5, 0, 5, judged=False) == "blue: not judged (no ground truth)"
+    assert match_key(0, 0, 0, judged=True) == "no matches"
+
+
+def test_ring_distances_follow_the_radius():
+    """`geofeat demo` printed "rings at 18/37/75 mm" whatever --radius was."""
+    patches = _no_patches()
+    np.testing.assert_allclose(ring_distances_mm(patches), [18.75, 37.5, 75.0])
+    patches.radius = 0.05
+    np.testing.assert_allclose(ring_distances_mm(patches, (15, 31, 40)), [25.0, 50.0])
+
+
+def test_tracking_frames_are_labelled_at_a_legible_size_when_shrunk():
+    """The label was drawn on the full frame and then halved with it: 6 px tall text in track.gif."""
+    from geofeat.apps.tracking import GRID_SIDE, TrackResult, grid_frames
+
+    colour = (200, 60, 0)
+    frame = _flat_frame(colour, (480, 640))
+
+    class Seq:
+        def frame(self, name):
+            return frame
+
+    g = np.stack(np.meshgrid(np.linspace(200, 400, GRID_SIDE), np.linspace(150, 300, GRID_SIDE)), -1).reshape(-1, 2)
+    result = TrackResult("s", "geopatch", (200, 150, 400, 300), ["a", "b"], g, np.stack([g, np.full_like(g, np.nan)]))
+    pictures = grid_frames(Seq(), result, scale=0.5)
+    assert [p.shape for p in pictures] == [(240, 320, 3)] * 2
+    for p in pictures:
+        band = p[:40, :, ::-1]  # RGB -> BGR
+        white = (band.min(-1) > 180) & (np.ptp(band, axis=-1) < 12)
+        rows = np.flatnonzero(white.any(axis=1))
+        assert rows.max() - rows.min() + 1 >= 9

@@ -10,6 +10,27 @@ from .geodesic.polar import PolarPatches
 from .inputs import check_whole
 
 
+#: BGR colours of `draw_matches`: a correct match under the ground truth, a wrong one, one not judged.
+CORRECT, WRONG, UNJUDGED = (0, 200, 0), (0, 0, 255), (255, 120, 0)
+
+
+def put_label(canvas: np.ndarray, text: str, origin: tuple[int, int] = (6, 6), scale: float = 0.5,
+              colour=(255, 255, 255)) -> tuple[int, int, int, int]:
+    """Write one line of `text` on `canvas` (an (H, W, 3) uint8 BGR image, changed in place) in `colour`
+    on a filled dark box whose top-left corner is `origin` (x, y pixels), so that it reads on any
+    background. The text is drawn once at thickness 1: an outline drawn at a larger thickness does not
+    line up with it in every OpenCV version (OpenCV 5 widens its glyphs with the thickness).
+    `scale`: OpenCV font scale (0.5 is about 10 px of capital height). Returns the box (x0, y0, x1, y1)."""
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    (w, h), base = cv2.getTextSize(text, font, scale, 1)
+    pad = max(2, int(round(4 * scale)))
+    x0, y0 = int(origin[0]), int(origin[1])
+    x1, y1 = x0 + w + 2 * pad, y0 + h + base + 2 * pad
+    cv2.rectangle(canvas, (x0, y0), (x1 - 1, y1 - 1), (30, 30, 30), -1)
+    cv2.putText(canvas, text, (x0 + pad, y0 + pad + h), font, scale, colour, 1, cv2.LINE_AA)
+    return x0, y0, x1, y1
+
+
 def to_bgr(frame: RGBDFrame) -> np.ndarray:
     """(H, W, 3) uint8 BGR picture of the frame (its colour image when it has one)."""
     if frame.color is not None:
@@ -18,39 +39,56 @@ def to_bgr(frame: RGBDFrame) -> np.ndarray:
     return cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
 
 
-def draw_geodesic_support(frame: RGBDFrame, patches: PolarPatches, rings=(7, 15, 31), max_keypoints: int = 64) -> np.ndarray:
-    """The frame with each keypoint, a few of its geodesic rings (isocurves) and its angle-0 ray.
+def ring_distances_mm(patches: PolarPatches, rings=(7, 15, 31)) -> list[float]:
+    """Geodesic distance of each of the patch rows `rings` from its keypoint, millimetres: row i is
+    the ring at (i + 1) * radius / n_rings (`geofeat.geodesic.polar`). Rows the patches lack are left out."""
+    n_rings = patches.values.shape[1]
+    return [(ring + 1) * patches.radius / n_rings * 1000 for ring in rings if ring < n_rings]
 
-    Invalid keypoints are drawn as red crosses. Returns an (H, W, 3) uint8 BGR image."""
+
+def draw_geodesic_support(frame: RGBDFrame, patches: PolarPatches, rings=(7, 15, 31), max_keypoints: int = 64) -> np.ndarray:
+    """The frame with each keypoint (white dot), a few of its geodesic rings (isocurves; patch rows
+    `rings`) and its angle-0 ray (red), the first `max_keypoints` of them. A key in the top-left corner
+    gives each ring's colour and geodesic distance (`ring_distances_mm`) and, when keypoints were left
+    out, how many are drawn. Invalid keypoints are drawn as red crosses. Returns an (H, W, 3) uint8 BGR
+    image; with no keypoints, the bare frame."""
     canvas = to_bgr(frame)
     colours = [(255, 200, 0), (0, 200, 255), (0, 255, 0)]
+    drawn = [(colour, ring) for colour, ring in zip(colours, rings) if ring < patches.coords.shape[1]]
     for k in range(min(len(patches), max_keypoints)):
         x, y = patches.keypoints[k]
         centre = (int(round(x)), int(round(y)))
         if not patches.valid[k]:
             cv2.drawMarker(canvas, centre, (0, 0, 255), cv2.MARKER_TILTED_CROSS, 10, 2)
             continue
-        for colour, ring in zip(colours, rings):
-            if ring >= patches.coords.shape[1]:
-                continue
+        for colour, ring in drawn:
             pts = np.round(patches.coords[k, ring]).astype(np.int32).reshape(-1, 1, 2)
             cv2.polylines(canvas, [pts], True, colour, 1, cv2.LINE_AA)
         ray = np.round(patches.coords[k, :, 0]).astype(np.int32).reshape(-1, 1, 2)
         cv2.polylines(canvas, [ray], False, (0, 0, 255), 1, cv2.LINE_AA)
         cv2.circle(canvas, centre, 2, (255, 255, 255), -1)
+    if len(patches):
+        y = 4
+        for (colour, ring), mm in zip(drawn, ring_distances_mm(patches, [r for _, r in drawn])):
+            y = put_label(canvas, f"ring at {mm:.0f} mm", (4, y), 0.45, colour)[3]
+        y = put_label(canvas, "angle-0 ray", (4, y), 0.45, (80, 80, 255))[3]
+        if len(patches) > max_keypoints:
+            put_label(canvas, f"first {max_keypoints} of {len(patches)} keypoints", (4, y), 0.45)
     return canvas
 
 
 def patch_grid(patches: PolarPatches, columns: int = 8, zoom: int = 3, max_patches: int = 64) -> np.ndarray:
-    """Tile polar patches (rows = rings, columns = angles) into one uint8 BGR picture, each labelled
-    with its keypoint index; invalid keypoints get a red tile."""
+    """Tile polar patches (rows = rings, inner ring on top; columns = angles) into one uint8 BGR
+    picture, each labelled with its keypoint index; invalid keypoints get a red tile. Only the first
+    `max_patches` are tiled; a last line then says how many of how many."""
     check_whole(columns, "columns", 1)
     check_whole(zoom, "zoom", 1)
     n = min(len(patches), max_patches)
     R, A = patches.values.shape[1:]
     th, tw = R * zoom + 14, A * zoom + 4
     rows = max(1, -(-n // columns))
-    canvas = np.full((rows * th, columns * tw, 3), 255, np.uint8)
+    note = f"first {n} of {len(patches)} keypoints" if n < len(patches) else ""
+    canvas = np.full((rows * th + (20 if note else 0), columns * tw, 3), 255, np.uint8)
     for k in range(n):
         r, c = divmod(k, columns)
         tile = np.clip(patches.values[k] * 255 + 0.5, 0, 255).astype(np.uint8)
@@ -61,6 +99,8 @@ def patch_grid(patches: PolarPatches, columns: int = 8, zoom: int = 3, max_patch
         y0, x0 = r * th + 12, c * tw + 2
         canvas[y0:y0 + R * zoom, x0:x0 + A * zoom] = tile
         cv2.putText(canvas, str(k), (x0, y0 - 2), cv2.FONT_HERSHEY_PLAIN, 0.8, (0, 0, 0), 1, cv2.LINE_AA)
+    if note:
+        put_label(canvas, note, (2, rows * th + 1), 0.45)
     return canvas
 
 
@@ -74,6 +114,19 @@ def side_by_side(left: np.ndarray, right: np.ndarray, gap: int = 8) -> np.ndarra
     return out
 
 
+def match_key(n_matches: int, n_correct: int, n_drawn: int, judged: bool) -> str:
+    """The key under `draw_matches`' title: the colours present ("green: correct, red: wrong", or
+    "blue: not judged (no ground truth)"), then "D of N drawn" when only some matches are drawn;
+    "no matches" when there is none."""
+    if not n_matches:
+        return "no matches"
+    if judged:
+        key = ", ".join(k for k, n in (("green: correct", n_correct), ("red: wrong", n_matches - n_correct)) if n)
+    else:
+        key = "blue: not judged (no ground truth)"
+    return key + (f"; {n_drawn} of {n_matches} drawn" if n_drawn < n_matches else "")
+
+
 def draw_matches(
     frame0: RGBDFrame,
     frame1: RGBDFrame,
@@ -84,23 +137,34 @@ def draw_matches(
     max_lines: int = 400,
     title: str = "",
 ) -> np.ndarray:
-    """Two frames side by side with a line per match: green correct, red wrong, blue unknown
-    (correct is None). keypoints (N, 2) pixels; matches0 (N0,) int, -1 = none. Returns uint8 BGR."""
+    """Two frames side by side, frame0 left, with a line per match: green (`CORRECT`) correct, red
+    (`WRONG`) wrong, blue (`UNJUDGED`) not judged (correct is None); correct matches are drawn last,
+    over the wrong ones. keypoints (N, 2) pixels of their own frame; matches0 (N0,) int, -1 = none;
+    correct (N0,) bool or None. At most `max_lines` matches are drawn (evenly spaced in index order);
+    the caption under `title` then says how many of how many, and names the colours used.
+    Returns an (H, W0 + W1, 3) uint8 BGR image, H = max(H0, H1)."""
     left, right = to_bgr(frame0), to_bgr(frame1)
     canvas = side_by_side(left, right, gap=0)
     offset = left.shape[1]
-    i0 = np.flatnonzero(np.asarray(matches0) >= 0)
-    if len(i0) > max_lines:
-        i0 = i0[np.linspace(0, len(i0) - 1, max_lines).astype(int)]
+    matches0 = np.asarray(matches0)
+    i0 = np.flatnonzero(matches0 >= 0)
+    total = len(i0)
+    if total > max_lines:
+        i0 = i0[np.linspace(0, total - 1, max_lines).astype(int)]
+    if correct is not None:
+        correct = np.asarray(correct, bool)
+        i0 = np.concatenate([i0[~correct[i0]], i0[correct[i0]]])  # the correct ones stay visible
     for i in i0:
         j = matches0[i]
-        colour = (255, 120, 0) if correct is None else ((0, 200, 0) if correct[i] else (0, 0, 255))
+        colour = UNJUDGED if correct is None else (CORRECT if correct[i] else WRONG)
         p = (int(round(keypoints0[i][0])), int(round(keypoints0[i][1])))
         q = (int(round(keypoints1[j][0])) + offset, int(round(keypoints1[j][1])))
         cv2.line(canvas, p, q, colour, 1, cv2.LINE_AA)
         cv2.circle(canvas, p, 2, colour, -1)
         cv2.circle(canvas, q, 2, colour, -1)
-    if title:
-        cv2.putText(canvas, title, (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 3, cv2.LINE_AA)
-        cv2.putText(canvas, title, (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
+    n_ok = 0 if correct is None else int(correct[matches0 >= 0].sum())
+    lines = [t for t in (title, match_key(total, n_ok, len(i0), correct is not None)) if t]
+    y = 4
+    for k, line in enumerate(lines):
+        y = put_label(canvas, line, (4, y), 0.55 if k == 0 else 0.45)[3]
     return canvas

@@ -876,33 +876,33 @@ def _visible_grid_error(grid_truth: tuple[np.ndarray, np.ndarray] | None, pts: n
     return (float(np.median(error)) if len(error) else float("nan")), float(visible.mean())
 
 
-def _draw_grid(image: np.ndarray, pts: np.ndarray, side: int, colour, label: str) -> np.ndarray:
+def _draw_grid(image: np.ndarray, pts: np.ndarray, side: int, colour) -> tuple[np.ndarray, bool]:
+    """(picture, drawn): a copy of the (H, W, 3) uint8 BGR `image` with the (side * side, 2) grid
+    `pts` (frame pixels) drawn in `colour`; drawn False (nothing drawn) when the fit failed (a NaN point)."""
     out = image.copy()
-    if np.isfinite(pts).all():
-        g = np.round(pts.reshape(side, side, 2) * 4).astype(np.int32)  # 2 fractional bits
-        for line in list(g) + list(g.transpose(1, 0, 2)):
-            cv2.polylines(out, [np.ascontiguousarray(line.reshape(-1, 1, 2))], False, colour, 2, cv2.LINE_AA, shift=2)
-    else:
-        label += " (fit failed)"
-    cv2.putText(out, label, (8, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 3, cv2.LINE_AA)
-    cv2.putText(out, label, (8, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
-    return out
+    if not np.isfinite(pts).all():
+        return out, False
+    g = np.round(pts.reshape(side, side, 2) * 4).astype(np.int32)  # 2 fractional bits
+    for line in list(g) + list(g.transpose(1, 0, 2)):
+        cv2.polylines(out, [np.ascontiguousarray(line.reshape(-1, 1, 2))], False, colour, 2, cv2.LINE_AA, shift=2)
+    return out, True
 
 
 def grid_frames(seq: Sequence, result: TrackResult, scale: float = 0.5) -> list[np.ndarray]:
-    """(h, w, 3) uint8 RGB pictures of every frame with the tracked grid drawn, resized by `scale`
-    (frames in `result.skipped` are left out)."""
-    from ..viz import to_bgr
+    """(h, w, 3) uint8 RGB pictures of every frame with the tracked grid drawn (the template's in
+    blue, the others in green), resized by `scale`, each labelled with the descriptor and the frame
+    name at a legible size whatever `scale` (frames in `result.skipped` are left out)."""
+    from ..viz import put_label, to_bgr
 
     pictures = []
     for k, name in enumerate(result.frames):
         if name in result.skipped:
             continue
         bgr = to_bgr(seq.frame(name))
-        pic = _draw_grid(bgr, result.points[k], GRID_SIDE, (0, 255, 0) if k else (255, 200, 0),
-                         f"{result.descriptor}  {name}")
+        pic, drawn = _draw_grid(bgr, result.points[k], GRID_SIDE, (0, 255, 0) if k else (255, 200, 0))
         if scale != 1:
             pic = cv2.resize(pic, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        put_label(pic, f"{result.descriptor}  {name}" + ("" if drawn else " (fit failed)"), (4, 4), 0.45)
         pictures.append(cv2.cvtColor(pic, cv2.COLOR_BGR2RGB))
     return pictures
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..descriptors.baselines import USES_GIVEN_ANGLE
-from ..outputs import plural
+from ..outputs import atomic_file, plural
 
 
 def read_results(path: str | Path) -> list[dict]:
@@ -197,13 +197,29 @@ def plot_curves(rows: list[dict], path: str | Path, group_of=sequence_group) -> 
             colour = f"C{descriptors.index(lab.split(' + ')[-1]) % 10}"  # one colour per descriptor
             ax.plot(x, y, style, color=colour, label=lab)
         ax.set_xlabel(axis_label)
-        ax.set_ylabel("matching score")
+        ax.set_ylabel("matching score (MS)")
         ax.set_ylim(0, 1)
         ax.grid(alpha=0.3)
         ax.legend()
+        ax.set_title(curve_title(rows, kind, group_of), fontsize=10)
         fig.tight_layout()
         out = Path(path) / f"ms_vs_{kind}.png"
-        fig.savefig(out, dpi=100)
+        with atomic_file(out) as tmp:  # whole or not at all
+            fig.savefig(tmp, dpi=100, format="png")
         plt.close(fig)
         written.append(out)
     return written
+
+
+def curve_title(rows: list[dict], kind: str, group_of=sequence_group) -> str:
+    """The title of `plot_curves`' plot of the `kind` sequences: how many sequences and pairs the
+    points average, and the detector (its keypoints decide the MS as much as the descriptor does;
+    the legend names it only when there are several)."""
+    sel = [r for r in rows if group_of(r["sequence"]) == kind]
+    detectors = list(dict.fromkeys(r.get("detector") or "sift" for r in sel))
+    n_seq = len(dict.fromkeys(r["sequence"] for r in sel))
+    n_pairs = len(dict.fromkeys((r["sequence"], r.get("reference"), r.get("target")) for r in sel))
+    title = f"MS on {plural(n_seq, f'{kind} sequence')}, {plural(n_pairs, 'pair')}"
+    if len(detectors) == 1:
+        title += f"; keypoints: {detectors[0]}"
+    return title

@@ -27,7 +27,7 @@ def _demo_patches(out: Path, radius: float, profile: str) -> None:
     from ..geodesic.mesh import build_mesh
     from ..geodesic.polar import polar_patches
     from ..io import demo_data_dir, read_demo_frame, read_landmarks
-    from ..viz import draw_geodesic_support, patch_grid, side_by_side
+    from ..viz import draw_geodesic_support, patch_grid, ring_distances_mm, side_by_side
 
     frame = read_demo_frame()
     _, landmarks, _ = read_landmarks(demo_data_dir() / "cloud_1.csv")
@@ -46,7 +46,9 @@ def _demo_patches(out: Path, radius: float, profile: str) -> None:
           f"radius {radius * 1000:.0f} mm, {t2 - t1:.3f} s (the first run compiles the numba kernels)")
     picture = side_by_side(draw_geodesic_support(frame, patches), patch_grid(patches, columns=8))
     write_picture(out / "polar_patches.png", picture)
-    print(f"wrote {out / 'polar_patches.png'} (geodesic rings at 18/37/75 mm, and the 32x32 polar patches)")
+    rings = "/".join(f"{mm:.0f}" for mm in ring_distances_mm(patches))
+    size = "x".join(str(n) for n in patches.values.shape[1:])
+    print(f"wrote {out / 'polar_patches.png'} (geodesic rings at {rings} mm, and the {size} polar patches)")
 
 
 def _demo_match_pair(out: Path, picture_name: str, frame0, frame1, k0, k1, truth: np.ndarray,

@@ -177,8 +177,11 @@ def _evaluate(tps_inv: ThinPlateSpline, ref: RGBDFrame, ref_mask: np.ndarray, tg
 
 
 def _overlay(tgt: RGBDFrame, ev: _Warped, lines: np.ndarray | None, lm_in: np.ndarray, lm_out: np.ndarray) -> np.ndarray:
-    """Frame with the control-point grid (red) and landmarks (green inliers, red rejected), next to a
-    checkerboard of the frame and the warped reference (object only)."""
+    """Frame with the control-point grid (red) and landmarks (green inliers, red rejected), keyed in
+    its top-left corner, next to a checkerboard of the frame and the warped reference (object only).
+    Returns an (H, 2 W, 3) uint8 BGR image."""
+    from ..viz import put_label
+
     gray = (tgt.image * 255).astype(np.uint8)
     left = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
     if lines is not None:
@@ -193,7 +196,11 @@ def _overlay(tgt: RGBDFrame, ev: _Warped, lines: np.ndarray | None, lm_in: np.nd
     checker = ((yy // 24 + xx // 24) % 2 == 0) & ev.mask
     right = np.where(checker, (ev.warped * 255).astype(np.uint8), gray)
     right = cv2.cvtColor(right, cv2.COLOR_GRAY2BGR)
-    cv2.putText(right, "checkerboard: frame / warped reference", (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 255, 255), 1)
+    y = put_label(left, "red grid: control points", (4, 4), 0.45, (80, 80, 255))[3]
+    y = put_label(left, f"landmarks: {len(lm_in)} inliers (green o)", (4, y), 0.45, (0, 220, 0))[3]
+    if len(lm_out):
+        put_label(left, f"{len(lm_out)} rejected (red x)", (4, y), 0.45, (80, 80, 255))
+    put_label(right, "checkerboard: frame / warped reference", (4, 4), 0.45, (0, 255, 255))
     return np.concatenate([left, right], axis=1)
 
 

@@ -10,6 +10,7 @@ import numpy as np
 from ..io import read_sequence
 from ..groundtruth.simulator import correspondences
 from ..outputs import write_picture
+from ..viz import put_label
 
 
 def contact_sheet(folder: str | Path, out_png: str | Path, n_frames: int = 6, n_tracks: int = 16,
@@ -38,7 +39,7 @@ def contact_sheet(folder: str | Path, out_png: str | Path, n_frames: int = 6, n_
                 continue
             c = (int(round((x + 0.5) * scale - 0.5)), int(round((y + 0.5) * scale - 0.5)))
             cv2.circle(tile, c, 4, col, -1 if v else 1, cv2.LINE_AA)
-        cv2.putText(tile, seq.names[i], (5, 15), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
+        put_label(tile, seq.names[i], (4, 4), 0.45)
         tiles.append(tile)
     while len(tiles) % 2 and len(tiles) > 1:
         tiles.append(np.zeros_like(tiles[0]))

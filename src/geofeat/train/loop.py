@@ -296,19 +296,35 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
     return history
 
 
-def _plot(history: dict, path: Path) -> None:
+def _figure(history: dict):
+    """The matplotlib figure of `_plot`: training loss (left axis) and validation MS (right axis,
+    0-1) per epoch; without validation pairs (MS all NaN) the right axis says so instead of staying empty."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
 
     fig, ax = plt.subplots(figsize=(6, 3.5))
     ax.plot(history["epoch"], history["loss"], "o-", color="tab:blue", label="training loss")
     ax.set_xlabel("epoch")
+    ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))  # no epoch 1.2
     ax.set_ylabel("triplet loss", color="tab:blue")
     ax2 = ax.twinx()
     ax2.plot(history["epoch"], history["val_ms"], "s-", color="tab:green", label="validation MS")
     ax2.set_ylabel("validation matching score", color="tab:green")
+    if not np.isfinite(np.asarray(history["val_ms"], float)).any():
+        ax2.set_ylim(0, 1)
+        ax2.text(0.5, 0.5, "no validation pairs: no validation MS", transform=ax2.transAxes, ha="center",
+                 va="center", color="tab:green")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    return fig
+
+
+def _plot(history: dict, path: Path) -> None:
+    """Write `_figure(history)` as a PNG at `path` (whatever its name's extension)."""
+    import matplotlib.pyplot as plt
+
+    fig = _figure(history)
+    fig.savefig(path, dpi=100, format="png")
     plt.close(fig)
