@@ -1370,6 +1370,30 @@ def test_overwrite_never_deletes_or_writes_through_a_linked_subfolder(tmp_path):
     assert sorted(p.name for p in user.iterdir()) == ["holiday.png"]
 
 
+@pytest.mark.parametrize("command", [
+    ["match", "{seq}", "--descriptor", "orb", "--out", "{seq}"],
+    ["track", "{seq}", "--descriptors", "orb", "--out", "{seq}"],
+    ["retrieval", "{data}", "--descriptors", "orb", "--out", "{seq}"],
+    ["groundtruth", "{seq}", "--no-refine", "--out", "{data}"],  # its result folder is --out/<sequence>
+], ids=["match", "track", "retrieval", "groundtruth"])
+@pytest.mark.parametrize("overwrite", [False, True])
+def test_output_folder_that_is_the_input_sequence_is_refused(tmp_path, capsys, command, overwrite):
+    """A sequence geofeat simulated (its files in its manifest) named as the result folder: before,
+    --overwrite deleted every frame of it and left only the results (and without it the error advised
+    --overwrite). Now one line naming the input, with or without --overwrite, and the sequence intact."""
+    from geofeat.outputs import write_manifest
+
+    seq = make_sequence(tmp_path / "data" / "seq")
+    write_manifest(seq, [p.name for p in seq.iterdir()])
+    before = {p.name: p.read_bytes() for p in seq.iterdir()}
+    argv = [a.format(seq=seq, data=seq.parent) for a in command] + ["--overwrite"] * overwrite
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert "input folder" in err and "--overwrite to" not in err and len(err.splitlines()) == 1
+    assert {p.name: p.read_bytes() for p in seq.iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data"]
+
+
 def test_interrupt_while_replacing_a_folder_keeps_the_earlier_result(tmp_path, monkeypatch):
     """Ctrl-C between the moves of replace_folder: the earlier result is back whole, its manifest lists
     it, and no temporary folder is left (before: the earlier files were gone and the new ones half moved)."""

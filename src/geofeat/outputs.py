@@ -113,16 +113,36 @@ def _refuse_clashes(folder: Path, clashes: list[str], what: str) -> None:
                          "another folder")
 
 
+def _input_clash(folder: Path, inputs: Iterable[str | Path]) -> str | None:
+    """Why writing the result folder `folder` would replace one of the folders `inputs` the command
+    reads: `folder` is one of them (through any link), or its manifest lists a file inside one (so
+    `replace_folder` would remove it); None when it would not."""
+    here = folder.resolve()
+    listed = [(folder / rel).resolve() for rel in read_manifest(folder)] if folder.is_dir() else []
+    for given in inputs:
+        source = Path(given).resolve()
+        if source == here:
+            return f"{folder} is the input folder {given}"
+        if any(source in f.parents for f in listed):
+            return f"{folder} holds the input folder {given}, with files geofeat wrote"
+    return None
+
+
 def check_out_dir(path: str | Path, overwrite: bool = False, what: str = "--out", strict: bool = False,
-                  files: Iterable[str] = ()) -> Path:
+                  files: Iterable[str] = (), inputs: Iterable[str | Path] = ()) -> Path:
     """Check an output folder before any work: it must not be a file, and an existing non-empty folder
     needs `overwrite`. With `strict`, a folder holding files geofeat did not write (not in its
     manifest) is refused even with `overwrite`, because leftovers would mix with the new output.
     `files`: the result files the command writes at fixed names (relative paths); with `overwrite`,
-    one of them that geofeat did not write is refused (`foreign_clashes`) rather than replaced."""
+    one of them that geofeat did not write is refused (`foreign_clashes`) rather than replaced.
+    `inputs`: the folders the command reads; an output folder that is one of them (a simulated
+    sequence, whose files geofeat wrote) is refused, with or without `overwrite`, which would delete it."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise ValueError(f"{what}: {path} is a file, not a folder")
+    clash = _input_clash(path, inputs)
+    if clash:  # before the "pass --overwrite" advice, which would delete the input
+        raise ValueError(f"{what}: {clash}; writing the result there would replace it: choose another folder")
     for parent in path.parents:
         if parent.exists() and not parent.is_dir():
             raise ValueError(f"{what}: {parent} is a file, so the folder {path} cannot be created")
