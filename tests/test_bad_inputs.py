@@ -1430,6 +1430,38 @@ def test_interrupt_while_replacing_a_folder_keeps_the_earlier_result(tmp_path, m
     assert sorted(p.name for p in out.iterdir() if p.name != ".geofeat-manifest.json") == ["a.txt", "notes.txt"]
 
 
+def test_a_rerun_removes_what_a_killed_run_left_half_written(tmp_path):
+    """SIGKILL runs no clean-up: a killed run leaves its temporary folder (and files) beside the output
+    in the user's folder; before, every rerun left them there for good. Now the next write of the same
+    output removes those of a process no longer running, and nothing else."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from geofeat.outputs import atomic_file, output_folder
+
+    out, table = tmp_path / "out", tmp_path / "table.md"
+    script = ("import sys, time\nfrom geofeat.outputs import atomic_file, output_folder\n"
+              "with output_folder(sys.argv[1]) as tmp, atomic_file(sys.argv[2]) as t:\n"
+              "    (tmp / 'track.csv').write_text('half'); t.write_text('half'); print(flush=True); time.sleep(60)\n")
+    child = subprocess.Popen([sys.executable, "-c", script, str(out), str(table)], stdout=subprocess.PIPE,
+                             env={**os.environ, "PYTHONPATH": str(Path(geofeat.__file__).parents[1])})
+    child.stdout.readline()  # both temporaries written
+    os.kill(child.pid, signal.SIGKILL)
+    child.wait()
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert left == [f".geofeat-partial-{child.pid}-out", f".geofeat-partial-{child.pid}-table.md"]
+    (tmp_path / ".geofeat-partial-1-out").mkdir()  # a running process's (pid 1): perhaps a concurrent run
+    (tmp_path / ".geofeat-partial-mine-out").write_text("a user's")
+    with output_folder(out) as tmp:
+        (tmp / "track.csv").write_text("whole")
+    with atomic_file(table) as tmp:
+        tmp.write_text("whole")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".geofeat-partial-1-out", ".geofeat-partial-mine-out",
+                                                          "out", "table.md"]
+
+
 def test_output_folder_may_be_the_current_folder(tmp_path, monkeypatch):
     """`--out .` (the current folder): the result is written beside the user's files, which stay;
     before, a bare ValueError "PosixPath('.') has an empty name"."""

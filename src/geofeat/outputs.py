@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import glob
 import json
 import os
 import shutil
@@ -188,12 +189,43 @@ def partial_name(path: Path) -> Path:
     return path.with_name(f".geofeat-partial-{os.getpid()}-{path.name}")
 
 
+def _running(pid: int) -> bool:
+    """Whether a process `pid` exists here (on Windows, where signal 0 would end it, always True)."""
+    if os.name == "nt":
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process
+        return True
+    return True
+
+
+def clear_stale_partials(path: str | Path) -> None:
+    """Remove the temporary siblings of `path` (`partial_name`) that a geofeat process killed while
+    writing it left behind (SIGKILL or a power cut run no clean-up): those of a process id no longer
+    running; a running one's may be a concurrent run's and stay."""
+    path = Path(path)
+    if path.name in ("", ".", ".."):  # as in `partial_name`
+        path = Path(os.path.abspath(path))
+    prefix = ".geofeat-partial-"
+    for sibling in path.parent.glob(f"{prefix}*-{glob.escape(path.name)}"):
+        pid = sibling.name[len(prefix):-len(path.name) - 1]
+        if pid.isdigit() and int(pid) != os.getpid() and not _running(int(pid)):
+            if sibling.is_dir() and not sibling.is_symlink():
+                shutil.rmtree(sibling, ignore_errors=True)
+            else:
+                sibling.unlink(missing_ok=True)
+
+
 @contextmanager
 def atomic_file(path: str | Path) -> Iterator[Path]:
     """Yield a temporary sibling path to write; on success it replaces `path` (os.replace), on any
     error (or interrupt) it is removed and `path` is left as it was."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    clear_stale_partials(path)
     tmp = partial_name(path)
     if tmp.exists():
         tmp.unlink()
@@ -210,6 +242,7 @@ def temporary_folder(out: str | Path) -> Path:
     """A fresh, empty temporary sibling folder of `out` to build a result folder in."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
+    clear_stale_partials(out)
     tmp = partial_name(out)
     if tmp.exists():
         shutil.rmtree(tmp)
