@@ -1370,6 +1370,30 @@ def test_overwrite_never_deletes_or_writes_through_a_linked_subfolder(tmp_path):
     assert sorted(p.name for p in user.iterdir()) == ["holiday.png"]
 
 
+@pytest.mark.parametrize("command", [
+    ["match", "{seq}", "--descriptor", "orb", "--out", "{seq}"],
+    ["track", "{seq}", "--descriptors", "orb", "--out", "{seq}"],
+    ["retrieval", "{data}", "--descriptors", "orb", "--out", "{seq}"],
+    ["groundtruth", "{seq}", "--no-refine", "--out", "{data}"],  # its result folder is --out/<sequence>
+], ids=["match", "track", "retrieval", "groundtruth"])
+@pytest.mark.parametrize("overwrite", [False, True])
+def test_output_folder_that_is_the_input_sequence_is_refused(tmp_path, capsys, command, overwrite):
+    """A sequence geofeat simulated (its files in its manifest) named as the result folder: before,
+    --overwrite deleted every frame of it and left only the results (and without it the error advised
+    --overwrite). Now one line naming the input, with or without --overwrite, and the sequence intact."""
+    from geofeat.outputs import write_manifest
+
+    seq = make_sequence(tmp_path / "data" / "seq")
+    write_manifest(seq, [p.name for p in seq.iterdir()])
+    before = {p.name: p.read_bytes() for p in seq.iterdir()}
+    argv = [a.format(seq=seq, data=seq.parent) for a in command] + ["--overwrite"] * overwrite
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert "input folder" in err and "--overwrite to" not in err and len(err.splitlines()) == 1
+    assert {p.name: p.read_bytes() for p in seq.iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data"]
+
+
 def test_interrupt_while_replacing_a_folder_keeps_the_earlier_result(tmp_path, monkeypatch):
     """Ctrl-C between the moves of replace_folder: the earlier result is back whole, its manifest lists
     it, and no temporary folder is left (before: the earlier files were gone and the new ones half moved)."""
@@ -1404,6 +1428,38 @@ def test_interrupt_while_replacing_a_folder_keeps_the_earlier_result(tmp_path, m
     with output_folder(out) as tmp:
         (tmp / "a.txt").write_text("new")
     assert sorted(p.name for p in out.iterdir() if p.name != ".geofeat-manifest.json") == ["a.txt", "notes.txt"]
+
+
+def test_a_rerun_removes_what_a_killed_run_left_half_written(tmp_path):
+    """SIGKILL runs no clean-up: a killed run leaves its temporary folder (and files) beside the output
+    in the user's folder; before, every rerun left them there for good. Now the next write of the same
+    output removes those of a process no longer running, and nothing else."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from geofeat.outputs import atomic_file, output_folder
+
+    out, table = tmp_path / "out", tmp_path / "table.md"
+    script = ("import sys, time\nfrom geofeat.outputs import atomic_file, output_folder\n"
+              "with output_folder(sys.argv[1]) as tmp, atomic_file(sys.argv[2]) as t:\n"
+              "    (tmp / 'track.csv').write_text('half'); t.write_text('half'); print(flush=True); time.sleep(60)\n")
+    child = subprocess.Popen([sys.executable, "-c", script, str(out), str(table)], stdout=subprocess.PIPE,
+                             env={**os.environ, "PYTHONPATH": str(Path(geofeat.__file__).parents[1])})
+    child.stdout.readline()  # both temporaries written
+    os.kill(child.pid, signal.SIGKILL)
+    child.wait()
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert left == [f".geofeat-partial-{child.pid}-out", f".geofeat-partial-{child.pid}-table.md"]
+    (tmp_path / ".geofeat-partial-1-out").mkdir()  # a running process's (pid 1): perhaps a concurrent run
+    (tmp_path / ".geofeat-partial-mine-out").write_text("a user's")
+    with output_folder(out) as tmp:
+        (tmp / "track.csv").write_text("whole")
+    with atomic_file(table) as tmp:
+        tmp.write_text("whole")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".geofeat-partial-1-out", ".geofeat-partial-mine-out",
+                                                          "out", "table.md"]
 
 
 def test_output_folder_may_be_the_current_folder(tmp_path, monkeypatch):

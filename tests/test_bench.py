@@ -228,6 +228,29 @@ def test_rerun_refuses_weights_retrained_at_the_same_path(datasets, tmp_path):
     run_benchmark(datasets / "seqs", out, config, progress=False, overwrite=True)
 
 
+def test_a_rerun_refuses_another_sequence_of_a_finished_ones_name(datasets, tmp_path):
+    """Results are keyed by the sequence name: before, a rerun on another folder named like a finished
+    sequence skipped it and reported the first folder's numbers for it. Now refused by name; a
+    rerun on the same folders, through a link or with more sequences, still resumes."""
+    config = BenchConfig(descriptors=("orb",), n_keypoints=200)
+    out = tmp_path / "out"
+    csv_path, _ = run_benchmark(datasets / "seqs" / "a-deform", out, config, progress=False)
+    rows = read_rows(csv_path)
+    link = tmp_path / "link"
+    link.symlink_to(datasets / "seqs", target_is_directory=True)
+    run_benchmark(link, out, config, progress=False)  # the same a-deform, and b-rotate added
+    assert read_rows(csv_path)[:len(rows)] == rows and {r["sequence"] for r in read_rows(csv_path)} == {"a-deform",
+                                                                                                       "b-rotate"}
+    other = tmp_path / "elsewhere" / "a-deform"
+    shutil.copytree(datasets / "same" / "c-same", other)
+    with pytest.raises(ValueError, match=f"another sequence of the same name.*a-deform read from .*seqs/a-deform there, "
+                                         f"from {other} now"):
+        run_benchmark(other, out, config, progress=False)
+    run_benchmark(other, out, config, progress=False, overwrite=True)
+    # the copy of identical frames: one target (the deformed a-deform had two)
+    assert [(r["sequence"], r["target"]) for r in read_rows(csv_path)] == [("a-deform", "frame-001")]
+
+
 def test_changed_weights_compares_only_what_both_runs_recorded():
     from geofeat.bench.runner import _changed_weights
 

@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import glob
 import json
 import os
 import shutil
@@ -113,16 +114,36 @@ def _refuse_clashes(folder: Path, clashes: list[str], what: str) -> None:
                          "another folder")
 
 
+def _input_clash(folder: Path, inputs: Iterable[str | Path]) -> str | None:
+    """Why writing the result folder `folder` would replace one of the folders `inputs` the command
+    reads: `folder` is one of them (through any link), or its manifest lists a file inside one (so
+    `replace_folder` would remove it); None when it would not."""
+    here = folder.resolve()
+    listed = [(folder / rel).resolve() for rel in read_manifest(folder)] if folder.is_dir() else []
+    for given in inputs:
+        source = Path(given).resolve()
+        if source == here:
+            return f"{folder} is the input folder {given}"
+        if any(source in f.parents for f in listed):
+            return f"{folder} holds the input folder {given}, with files geofeat wrote"
+    return None
+
+
 def check_out_dir(path: str | Path, overwrite: bool = False, what: str = "--out", strict: bool = False,
-                  files: Iterable[str] = ()) -> Path:
+                  files: Iterable[str] = (), inputs: Iterable[str | Path] = ()) -> Path:
     """Check an output folder before any work: it must not be a file, and an existing non-empty folder
     needs `overwrite`. With `strict`, a folder holding files geofeat did not write (not in its
     manifest) is refused even with `overwrite`, because leftovers would mix with the new output.
     `files`: the result files the command writes at fixed names (relative paths); with `overwrite`,
-    one of them that geofeat did not write is refused (`foreign_clashes`) rather than replaced."""
+    one of them that geofeat did not write is refused (`foreign_clashes`) rather than replaced.
+    `inputs`: the folders the command reads; an output folder that is one of them (a simulated
+    sequence, whose files geofeat wrote) is refused, with or without `overwrite`, which would delete it."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise ValueError(f"{what}: {path} is a file, not a folder")
+    clash = _input_clash(path, inputs)
+    if clash:  # before the "pass --overwrite" advice, which would delete the input
+        raise ValueError(f"{what}: {clash}; writing the result there would replace it: choose another folder")
     for parent in path.parents:
         if parent.exists() and not parent.is_dir():
             raise ValueError(f"{what}: {parent} is a file, so the folder {path} cannot be created")
@@ -168,12 +189,43 @@ def partial_name(path: Path) -> Path:
     return path.with_name(f".geofeat-partial-{os.getpid()}-{path.name}")
 
 
+def _running(pid: int) -> bool:
+    """Whether a process `pid` exists here (on Windows, where signal 0 would end it, always True)."""
+    if os.name == "nt":
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process
+        return True
+    return True
+
+
+def clear_stale_partials(path: str | Path) -> None:
+    """Remove the temporary siblings of `path` (`partial_name`) that a geofeat process killed while
+    writing it left behind (SIGKILL or a power cut run no clean-up): those of a process id no longer
+    running; a running one's may be a concurrent run's and stay."""
+    path = Path(path)
+    if path.name in ("", ".", ".."):  # as in `partial_name`
+        path = Path(os.path.abspath(path))
+    prefix = ".geofeat-partial-"
+    for sibling in path.parent.glob(f"{prefix}*-{glob.escape(path.name)}"):
+        pid = sibling.name[len(prefix):-len(path.name) - 1]
+        if pid.isdigit() and int(pid) != os.getpid() and not _running(int(pid)):
+            if sibling.is_dir() and not sibling.is_symlink():
+                shutil.rmtree(sibling, ignore_errors=True)
+            else:
+                sibling.unlink(missing_ok=True)
+
+
 @contextmanager
 def atomic_file(path: str | Path) -> Iterator[Path]:
     """Yield a temporary sibling path to write; on success it replaces `path` (os.replace), on any
     error (or interrupt) it is removed and `path` is left as it was."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    clear_stale_partials(path)
     tmp = partial_name(path)
     if tmp.exists():
         tmp.unlink()
@@ -190,6 +242,7 @@ def temporary_folder(out: str | Path) -> Path:
     """A fresh, empty temporary sibling folder of `out` to build a result folder in."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
+    clear_stale_partials(out)
     tmp = partial_name(out)
     if tmp.exists():
         shutil.rmtree(tmp)

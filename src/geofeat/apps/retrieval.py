@@ -712,12 +712,13 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
         rerank_top: results per query reordered by verified matches (`rerank`; 0: none).
         detector: the keypoints of every descriptor; None: each descriptor's own (`describe_datasets`).
     Returns ({descriptor: DescriptorResult}, the described database)."""
+    from ..io import find_sequences
     from ..outputs import check_out_dir, output_folder
 
     _check_weighting(weighting)
     if isinstance(rerank_top, bool) or not isinstance(rerank_top, (int, np.integer)) or rerank_top < 0:
         raise ValueError(f"rerank: expected a whole number of results >= 0 (0 = the words' order), got {rerank_top!r}")
-    out = check_out_dir(out, overwrite, files=RESULT_FILES)
+    out = check_out_dir(out, overwrite, files=RESULT_FILES, inputs=find_sequences(datasets, unique_names=True))
     if n_keypoints is not None:
         check_whole(n_keypoints, "keypoints", 1)
     check_whole(seed, "seed", 0)

@@ -1057,8 +1057,8 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
 
     names = check_descriptor_names(descriptors)  # unknown or repeated names fail before any work
     groups = group_by_detector(names, detector)
-    out = check_out_dir(out, overwrite, files=("track.csv", "tracking.md"))
     sequences = find_sequences(sequences, unique_names=True)
+    out = check_out_dir(out, overwrite, files=("track.csv", "tracking.md"), inputs=sequences)
     check_tps_dir(tps_dir)
     rows: list[dict] = []
     notes = []

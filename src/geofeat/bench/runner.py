@@ -455,8 +455,9 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
 def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: bool,
                   folders: list[str]) -> set[tuple[str, str]]:
     """Make OUT/results.csv ready for `run_benchmark` on the sequence `folders`: resume it (same
-    settings, `settings_differences`, and columns; a row cut short is dropped) unless `overwrite`,
-    else start it with its header; write OUT/config.json and record both files in the manifest.
+    settings, `settings_differences`, columns, and folders for the finished sequences' names; a row
+    cut short is dropped) unless `overwrite`, else start it with its header; write OUT/config.json
+    (with the folder of each sequence) and record both files in the manifest.
     Returns the (sequence, descriptor) results already there."""
     csv_path = out / "results.csv"
     config_path = out / "config.json"
@@ -492,19 +493,35 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
             tqdm.write(f"bench: dropped {plural(dropped, 'incomplete row')} at the end of {csv_path}; "
                        + ("it is" if dropped == 1 else "they are") + " recomputed")
         done = _finished(csv_path)
+        # a finished sequence's name read from another folder now: its rows would be taken for this one's
+        read_from = before.get("sequences") if isinstance(before.get("sequences"), dict) else {}
+        finished = {name for name, _ in done}
+        moved = [f"{name} read from {read_from[name]} there, from {path} now"
+                 for name, path in _read_from(folders).items() if name in finished and read_from.get(name, path) != path]
+        if moved:
+            raise ValueError(f"out: {out} holds results of another sequence of the same name ({'; '.join(moved)}); "
+                             "use --overwrite or another --out")
+        read_from = {**read_from, **_read_from(folders)}
     else:
         with atomic_file(csv_path) as tmp:
             with open(tmp, "w", newline="") as fh:
                 csv.DictWriter(fh, COLUMNS, lineterminator="\n").writeheader()
         done = set()
+        read_from = _read_from(folders)
         ours = read_manifest(out)
         for name in REPORTS:  # the earlier run's reports, which this run may not rewrite (details.md, a curve)
             if name in ours:
                 (out / name).unlink(missing_ok=True)
     with atomic_file(config_path) as tmp:
-        tmp.write_text(json.dumps({**asdict(config), "provenance": made_by}, indent=1))
+        tmp.write_text(json.dumps({**asdict(config), "provenance": made_by, "sequences": read_from}, indent=1))
     add_to_manifest(out, ["results.csv", "config.json"])
     return done
+
+
+def _read_from(folders: list[str]) -> dict[str, str]:
+    """For config.json: the folder (absolute, links resolved) each sequence name was read from, so
+    that a rerun does not take the results of one sequence for another's of the same name."""
+    return {Path(f).name: str(Path(f).resolve()) for f in folders}
 
 
 def provenance(config: BenchConfig) -> dict:

@@ -32,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
     from ..features import save_features
     from ..inputs import resolve_radius
     from ..io import read_sequence
-    from ..outputs import atomic_file, check_out_file, partial_name, plural
+    from ..outputs import atomic_file, check_out_file, clear_stale_partials, partial_name, plural
 
     seq = read_sequence(args.folder, depth_scale=args.depth_scale)
     radius = resolve_radius(args.radius, seq)
@@ -61,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
                     save_features(h5_tmp, features, name=name)
                 else:
                     final = path.with_name(f"{path.stem}-{name}.npz")
+                    clear_stale_partials(final)
                     tmp = partial_name(final)
                     save_features(tmp, features)
                     written.append((tmp, final))

@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     for folder in folders:  # every input and output is checked before the first frame is refined
         seq = read_sequence(folder)
         check_sequence(seq, config)
-        check_out_dir(args.out / folder.name, args.overwrite, files=result_files(seq))
+        check_out_dir(args.out / folder.name, args.overwrite, files=result_files(seq), inputs=folders)
     failed = []
     for folder in folders:
         out = args.out / folder.name

@@ -40,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
     seq = read_sequence(args.folder, depth_scale=args.depth_scale)
     if len(seq) < 2:
         raise ValueError(f"folder: {seq.folder} has a single frame; matching needs a reference and a target")
-    out = check_out_dir(args.out, args.overwrite)
+    out = check_out_dir(args.out, args.overwrite, inputs=[seq.folder])
     radius = resolve_radius(args.radius, seq)
     profile = sequence_depth_profile(seq, args.depth_profile)
     descriptor = make_descriptor(args.descriptor, radius=radius, depth_config=PROFILES[profile])

@@ -42,11 +42,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Object retrieval on the datasets; writes retrieval.csv/md, acc_at_k.png, top6.png."""
     from ..apps.retrieval import RESULT_FILES, check_samples, run_retrieval
+    from ..io import find_sequences
     from ..outputs import check_out_dir
 
     # before any work, after the refusal of a non-empty --out (which `run_retrieval` repeats): a
     # sample no larger than K, in the words of the flags
-    check_out_dir(args.out, args.overwrite, files=RESULT_FILES)
+    check_out_dir(args.out, args.overwrite, files=RESULT_FILES, inputs=find_sequences(args.datasets, unique_names=True))
     check_samples(args.samples, args.words, "--samples", "--words")
     acc, db = run_retrieval(args.datasets, args.out, names(args.descriptors),
                             words=args.words, n_samples=args.samples, seed=args.seed, classes_file=args.classes,

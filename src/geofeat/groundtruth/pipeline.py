@@ -379,7 +379,7 @@ def generate_ground_truth(sequence: str | Path | Sequence, out: str | Path, conf
     check_config(config)
     seq = sequence if isinstance(sequence, Sequence) else read_sequence(sequence)
     ref, lms, ref_mask = check_sequence(seq, config)
-    out = check_out_dir(out, overwrite, files=result_files(seq))
+    out = check_out_dir(out, overwrite, files=result_files(seq), inputs=[seq.folder])
     names = seq.targets
     if progress:
         from tqdm import tqdm
