@@ -528,3 +528,27 @@ def test_report_counts_read_as_words():
                depth_profile="clean", ms=0.5, mma=0.5)
     table = markdown_table([row, dict(row, sequence="b-deform", depth_profile="kinect"), dict(row, sequence="c-deform")])
     assert "Depth profile: clean (2 sequences), kinect (1 sequence)." in table
+
+
+def test_table_bolds_every_cell_that_prints_the_best_value():
+    """Bold went to the larger unrounded mean only: 0.4144 and 0.4141 both print as 0.414, and only
+    one of the two equal numbers was marked best."""
+    from geofeat.bench.report import markdown_table
+
+    rows = [dict(sequence="a-deform", descriptor=d, ms=ms, mma=ms) for d, ms in
+            (("geobit", 0.4141), ("geopatch", 0.4144), ("sift", 0.3))]
+    assert markdown_table(rows).splitlines()[2] == "| deform (1) | **0.414** | **0.414** | 0.300 |"
+
+
+def test_detail_table_names_the_keypoints_it_counts():
+    """The column "keypoints / frame" is the mean of n_ref, the reference frame's keypoints kept on
+    the object: with --keypoints 300 it read 254 beside 269 target keypoints, as if each frame had 254."""
+    from geofeat.bench.report import detail_table
+
+    rows = [dict(descriptor="sift", detector="sift", sequence="a", ms=0.1, mma=0.2, repeatability=0.3,
+                 n_ref=254, n_tgt=n_tgt, hits=10) for n_tgt in (285, 236)]
+    header, _, first = detail_table(rows).splitlines()[:3]
+    columns = [c.strip() for c in header.split("|")[1:-1]]
+    cells = dict(zip(columns, (c.strip() for c in first.split("|")[1:-1])))
+    assert cells["reference keypoints / frame"] == f"{np.mean([r['n_ref'] for r in rows]):.0f}"
+    assert cells["target keypoints kept / pair"] == f"{np.mean([r['n_tgt'] for r in rows]):.0f}"

@@ -444,3 +444,23 @@ def test_half_resolution_candidates_follow_a_rotated_frame(k):
         offset = (b.xy[b.level == level][j[near]] - mapped[near]).mean(axis=0)
         assert near.sum() > 200, (level, near.sum())
         assert np.hypot(*offset) < 0.2, (level, offset)
+
+
+def test_a_pair_without_target_keypoints_scores_zero_not_nan(tiny):
+    """A target frame where the detector keeps no keypoint gave the pair an MS of NaN, which made its
+    sequence's mean and the validation MS NaN (train-detector printed "nan"; `max` then chose among
+    NaN at random), while the bench scores such a pair 0 and repeatability already counted it as 0."""
+    from geofeat.train.detector import validation_scores
+
+    def detector(frame, n):  # nothing on the last target frame
+        k = geofeat.detect(frame, n, detector="sift")
+        return k[:0] if frame.image.tobytes() == last else k
+
+    seq = geofeat.read_sequence(tiny / "a-deform")
+    last = seq.frame(seq.targets[-1]).image.tobytes()
+    scores = validation_scores([tiny / "a-deform"], detector, 200, descriptor="orb")
+    everyone = validation_scores([tiny / "a-deform"], lambda frame, n: geofeat.detect(frame, n, detector="sift"), 200,
+                                 descriptor="orb")
+    assert np.isfinite([scores["ms"], scores["mma"], scores["hits"]]).all()
+    assert 0 < scores["ms"] < everyone["ms"]  # the other pair's MS averaged with a 0
+    assert scores["repeatability"] < everyone["repeatability"]  # which repeatability already counted

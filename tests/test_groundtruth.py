@@ -385,3 +385,31 @@ def test_the_exact_warp_leaves_no_residual_at_coarse_levels(level):
     core = (lvl.mask[0, 0] > 0) & (inside[0, 0] > 0)
     err = (warped[0, 0] - lvl.ref[0, 0])[core].abs().max().item()
     assert err < 1e-4, err  # 7.5e-4 (level 1) and 2.3e-3 (level 2) before
+
+
+def test_a_frame_whose_refined_spline_fails_reports_the_time_it_took(tmp_path, monkeypatch):
+    """A frame whose refined spline could not be fitted returned from its refinement with seconds 0.0
+    in report.csv/json, however long the refinement had run."""
+    import time
+
+    from geofeat.groundtruth import pipeline
+
+    authors_tps, refine, calls = pipeline.authors_tps, pipeline.refine, []
+
+    def failing_second(*args):
+        calls.append(1)
+        if len(calls) == 2:  # the spline through the refined nodes
+            raise ValueError("no spline")
+        return authors_tps(*args)
+
+    def slow_refine(*args, **kw):
+        time.sleep(0.3)
+        return refine(*args, **kw)
+
+    monkeypatch.setattr(pipeline, "authors_tps", failing_second)
+    monkeypatch.setattr(pipeline, "refine", slow_refine)
+    folder = _write_pair(tmp_path / "seq", _grid_landmarks(3))
+    reports = generate_ground_truth(folder, tmp_path / "out", GroundTruthConfig(spacing=16, refine_config=FAST),
+                                    progress=False)
+    assert reports[0].status == "failed" and "refinement diverged: no spline" in reports[0].reason
+    assert reports[0].seconds >= 0.3

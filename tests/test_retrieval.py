@@ -504,3 +504,24 @@ def test_classes_naming_sequences_not_given_are_reported(three_objects, tmp_path
     with pytest.warns(UserWarning, match=r"1 sequence named in the classes file is not among the datasets.*: lines$"):
         run_retrieval([three_objects / "blobs", three_objects / "checkers"], tmp_path / "out", ("orb",), words=5,
                       n_samples=500, n_keypoints=200, classes_file=str(classes), rerank_top=0, progress=False)
+
+
+def test_report_gives_each_descriptors_vocabulary_sample():
+    """"vocabulary from N sampled descriptors" counted the first descriptor's valid descriptors only:
+    a second descriptor with fewer (its own detector, invalid patches) was said to have as many."""
+    from geofeat.apps.retrieval import DescriptorResult, RetrievalDatabase, _report, sample_descriptors
+
+    def frames(valid):
+        return [Features(np.zeros((4, 2)), np.zeros((4, 8), np.uint8), np.arange(4) < valid) for _ in range(3)]
+
+    features = {"orb": frames(4), "sift": frames(2)}
+    db = RetrievalDatabase(sequences=["s", "s", "t"], frames=["a-ref", "b", "c"], classes=["cloth"] * 3,
+                           is_query=np.array([True, False, False]), folders=[], mask_sources={"s": "simulator"},
+                           features=features)
+    per_query = np.ones((1, 2))
+    result = DescriptorResult(words=2, validation={}, queries=np.array([0]), neighbours=np.array([[1, 2]]),
+                              per_query=per_query, accuracy=np.ones(2), low=np.ones(2), high=np.ones(2))
+    notes = _report(db, {"orb": result, "sift": result}, skipped=[], words=2, n_samples=10, include_own_sequence=True)
+    sampled = {n: len(sample_descriptors(f, 10)) for n, f in features.items()}
+    assert sampled == {"orb": 10, "sift": 6}
+    assert "vocabulary from 10 sampled descriptors (orb), 6 (sift);" in notes

@@ -592,3 +592,31 @@ def test_a_template_roi_without_depth_says_so(sequence, tmp_path):
     cv2.imwrite(str(path), depth)
     with pytest.raises(ValueError, match=r"holds 0 keypoints .*0% of its pixels have depth"):
         track_sequence(folder, ("sift",), roi=(80, 60, 239, 179), refine="none", progress=False)
+
+
+def test_a_failed_fit_counts_in_the_seconds_per_frame(sequence, tmp_path, monkeypatch):
+    """A frame whose fit failed had seconds = NaN in track.csv, so tracking.md's "per frame, matching +
+    RANSAC" time was the mean over the fitted frames only ("nan s" when every fit failed), although the
+    failed frame had been matched and fitted too."""
+    import re
+    import time
+
+    from geofeat.apps import tracking
+
+    match_and_fit = tracking._match_and_fit
+
+    def failing(template, target, name, *args):
+        fit = match_and_fit(template, target, name, *args)
+        if target.name == "frame-002":  # a slow fit that fails
+            time.sleep(0.4)
+            fit = tracking._Fit(fit.i0, fit.i1, tracking.RansacResult(None, np.zeros(len(fit.i0), bool)))
+        return fit
+
+    monkeypatch.setattr(tracking, "_match_and_fit", failing)
+    write_tracking([sequence], tmp_path, ("sift",), n_keypoints=300, refine="none", progress=False)
+    rows = list(csv.DictReader(open(tmp_path / "track.csv")))
+    assert [(r["frame"], r["failed"]) for r in rows] == [("frame-001", "False"), ("frame-002", "True")]
+    seconds = [float(r["seconds"]) for r in rows]
+    assert seconds[1] >= 0.4  # its matching and RANSAC took time
+    shown = re.search(r"per frame, matching \+ RANSAC[^:]*: sift ([\d.]+) s", (tmp_path / "tracking.md").read_text())
+    assert shown and float(shown.group(1)) == pytest.approx(np.mean(seconds), abs=1e-3)

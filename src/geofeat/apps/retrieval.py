@@ -816,12 +816,18 @@ def _report(db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: li
             cells.append(f"{r.per_query_words.mean():.3f} {_interval(wlo[0], whi[0])}")
         lines.append(f"| {n} | {r.words} | {len(r.queries)} | " + " | ".join(cells) + " |")
     n_cls = len(set(db.classes))
-    n_desc = sum(int(f.valid.sum()) for f in next(iter(db.features.values())))
+    # each descriptor's vocabulary sample (`sample_descriptors`): its own valid descriptors may be fewer
+    sampled = {n: min(n_samples, sum(int(f.valid.sum()) for f in db.features[n])) for n in res}
+    if len(set(sampled.values())) == 1:
+        vocab = plural(next(iter(sampled.values())), "sampled descriptor")
+    else:
+        vocab = ", ".join(f"{plural(v, 'sampled descriptor') if i == 0 else v} ({n})"
+                          for i, (n, v) in enumerate(sampled.items()))
     notes = [f"{plural(len(db.frames), 'frame')} of {plural(len(set(db.sequences)), 'sequence')}, "
              f"{plural(n_cls, 'class', 'classes')}; database: "
              + ("every frame but the query" if include_own_sequence else "the frames of the other sequences")
              + "; [95 % bootstrap interval over queries; – with a single query]",
-             f"vocabulary from {plural(min(n_samples, n_desc), 'sampled descriptor')}; word weighting "
+             f"vocabulary from {vocab}; word weighting "
              f"{next(iter(res.values())).weighting} ({WEIGHTINGS[next(iter(res.values())).weighting]} distance)"]
     if reranked:
         top = next(r.rerank for r in res.values())

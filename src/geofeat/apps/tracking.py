@@ -521,7 +521,8 @@ class TrackResult:
 #: hidden under a fold is scored at the surface that covers it, however well it is tracked;
 #: grid_error_visible_px leaves hidden points out. refined: the refined
 #: warp was kept; ssim, ncc: the frame's confidence, template vs frame warped back inside the ROI;
-#: seconds: this descriptor's matching, RANSAC, refinement and confidence for the frame.
+#: seconds: this descriptor's matching, RANSAC, refinement and confidence for the frame (a failed fit:
+#: its matching and RANSAC; NaN only for a frame that could not be read or described).
 #: A failed (or skipped) frame's grid errors are inf (lost) where the sequence's ground truth measures them,
 #: NaN where it has none.
 TRACK_COLUMNS = ["sequence", "descriptor", "frame", "n_template", "n_frame", "matches", "inliers", "inlier_rate",
@@ -814,6 +815,7 @@ def _track_frame(template: _Template, target: _Target, name: str, prior: Warp | 
                grid_error_tps_px=float("nan"), grid_error_visible_px=float("nan"), visible_grid=float("nan"),
                refined=False, seconds=float("nan"), failed=not fit.ransac.ok)
     if not fit.ransac.ok:
+        row["seconds"] = time.perf_counter() - t0  # its matching and RANSAC: a failure costs time too
         # lost where the ground truth could have scored it (inf), NaN where there is none to score it by
         row.update(_lost_errors(target.to_ref is not None, target.grid_truth is not None))
         if target.grid_truth is not None:
@@ -1040,7 +1042,7 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
     `<sequence>/<descriptor>/grid.npz` (reference_points (G, 2), points (F, G, 2), frames (F,),
     roi (4,)) and `<sequence>/<descriptor>/track.gif`, and `tracking.md` (the averaged table, and
     the speed: target frames per second of wall time, every descriptor included (the templates' set-up timed apart), and each
-    descriptor's mean seconds per frame for matching, RANSAC and refinement).
+    descriptor's mean seconds per frame for matching, RANSAC, refinement and SSIM/NCC, failed fits included).
     The folder is built aside and moved into place at the end (`geofeat.outputs`); an existing
     non-empty `out` needs `overwrite`. Frames that could not be described are listed in
     `tracking.md` and appended as "sequence/frame" to `skipped` when a list is given. `detector`:
@@ -1108,7 +1110,7 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
         notes.append(f"detector: {detectors}; refine: {refine}; {plural(n_frames, 'target frame')} in {tracked:.1f} s: "
                      f"{n_frames / max(tracked, 1e-9):.2f} frames/s (reading, detection, description and every "
                      f"descriptor; the templates' set-up, {setup:.1f} s, not counted); "
-                     f"per frame, matching + RANSAC{' + refinement' if refine != 'none' else ''}: {per}")
+                     f"per frame, matching + RANSAC{' + refinement' if refine != 'none' else ''} + SSIM/NCC: {per}")
         paper = paper_table_iv(dict.fromkeys(r["descriptor"] for r in rows))
         per_sequence = sequence_error_table(rows)
         if per_sequence:

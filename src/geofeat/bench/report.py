@@ -33,7 +33,7 @@ def detail_table(rows: list[dict]) -> str:
     the protocol drops the others, so with n_ref they set the denominator min(n_ref, n_tgt) of MS and
     repeatability, and a detector whose points fall off the surface is not charged for them) and
     correct matches (hits) per pair. Markdown."""
-    lines = ["| descriptor | detector | sequence | MS | MMA | repeatability | keypoints / frame "
+    lines = ["| descriptor | detector | sequence | MS | MMA | repeatability | reference keypoints / frame "
              "| target keypoints kept / pair | correct matches / pair |",
              "|---|---|---|---|---|---|---|---|---|"]
     keys = ("ms", "mma", "repeatability", "n_ref", "n_tgt", "hits")
@@ -100,7 +100,8 @@ def scenario_groups(folders) -> Callable[[str], str]:
 
 def markdown_table(rows: list[dict], group_of=sequence_group) -> str:
     """Table 1 style: matching score per descriptor (columns) for each group of sequences (rows, e.g.
-    the scenario suffix of simulated sequence names) and overall; best of each row in bold. A cell
+    the scenario suffix of simulated sequence names) and overall; best of each row in bold (every cell
+    that shows the best value as printed, so that equal numbers are marked alike). A cell
     whose descriptor has results on fewer of the row's sequences than the row counts says so
     ("(1 of 2)"): its mean is over those only."""
     groups = {}
@@ -111,7 +112,7 @@ def markdown_table(rows: list[dict], group_of=sequence_group) -> str:
     lines = ["| sequences | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
     for group, grows in groups.items():
         s = summary(grows)
-        best = max(s[n]["ms"] for n in names if n in s)
+        best = max(float(f"{s[n]['ms']:.3f}") for n in names if n in s)  # as printed: 0.4144 and 0.4141 tie
         n_seq = len({r["sequence"] for r in grows})
         cells = []
         for n in names:
@@ -119,7 +120,7 @@ def markdown_table(rows: list[dict], group_of=sequence_group) -> str:
                 cells.append("-")
                 continue
             text = f"{s[n]['ms']:.3f}"
-            text = f"**{text}**" if s[n]["ms"] == best else text
+            text = f"**{text}**" if float(text) == best else text
             cells.append(text + (f" ({s[n]['sequences']} of {n_seq})" if s[n]["sequences"] < n_seq else ""))
         lines.append(f"| {group} ({n_seq}) | " + " | ".join(cells) + " |")
     # protocol landmarks describes the annotated positions: no keypoint set applies (its rows still record one)

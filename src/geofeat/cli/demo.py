@@ -94,6 +94,9 @@ def _demo_rolled_pair(out: Path, angle: float, n: int, profile: str) -> None:
     frame1, A = roll_camera(frame0, angle)
     k0, k1 = detect(frame0, n, detector="sift"), detect(frame1, n, detector="sift")
     truth = k0.xy @ A[:, :2].T + A[:, 2]  # where each reference keypoint really is in frame 1
+    H, W = frame0.shape
+    gone = ~((truth >= 0).all(axis=1) & (truth[:, 0] <= W - 1) & (truth[:, 1] <= H - 1))
+    truth[gone] = np.nan  # rolled out of the image: nothing there to match, not counted
     print(f"\nrolled pair: the Kinect frame vs the camera rolled by {angle:g} deg; SIFT keypoints "
           f"detected independently: {len(k0)} and {len(k1)}")
     _demo_match_pair(out, "rolled_pair_matches.png", frame0, frame1, k0, k1, truth, ["geobit", "orb"], profile)

@@ -300,6 +300,7 @@ def _frame(seq: Sequence, name: str, ref: RGBDFrame, ref_mask: np.ndarray, lms: 
             tps_inv = authors_tps(r.mapped[keep], r.nodes[keep], size)
         except ValueError as error:
             rep.status, rep.reason = "failed", f"refinement diverged: {error}"
+            rep.seconds = time.perf_counter() - t0  # the refinement it ran
             return rep
         ev = _evaluate(tps_inv, ref, ref_mask, tgt, zrange)
         lines = _grid_lines(r.mapped, keep)

@@ -263,6 +263,8 @@ def validation_scores(folders: list[Path], detector, n: int, descriptor: str | N
             if f_ref is not None and len(tgt):
                 s = score_detect(match(f_ref, describe(frame, tgt)).matches0, pairs, len(ref), len(tgt))
                 row[1:4] = [s.ms, s.mma, s.hits]
+            elif describe is not None:  # no keypoint on one side: the pair scores 0, as in the bench (not NaN)
+                row[1:4] = [0.0, 0.0, 0]
             rows.append(row)
         per_seq.append(np.mean(rows, axis=0))
     means = np.mean(per_seq, axis=0)
