@@ -525,3 +525,19 @@ def test_report_gives_each_descriptors_vocabulary_sample():
     sampled = {n: len(sample_descriptors(f, 10)) for n, f in features.items()}
     assert sampled == {"orb": 10, "sift": 6}
     assert "vocabulary from 10 sampled descriptors (orb), 6 (sift);" in notes
+
+
+def test_top6_picture_names_its_columns(three_objects, tmp_path):
+    """top6.png marked the query only by its border colour: a header row now names the columns
+    (query, top 1-6) above the tiles and the colours' meaning, in dark text on white."""
+    from geofeat.apps.retrieval import TOP6_HEADER_PX
+
+    run_retrieval([three_objects], tmp_path, ("orb",), words=40, n_samples=2000, n_keypoints=300, max_k=2,
+                  include_own_sequence=True, rerank_top=0, progress=False)
+    picture = cv2.imread(str(tmp_path / "top6.png"))
+    rows = (picture.shape[0] - TOP6_HEADER_PX) / 120  # thumbnails 160 x 120, one row per (descriptor, query)
+    assert rows == int(rows) and rows >= 1, picture.shape
+    header = picture[:TOP6_HEADER_PX]
+    query_label = header[:20, 110:270]  # above the query's column
+    assert (query_label.min(axis=2) < 100).any() and (header[20:, 110:] < 100).any()
+    assert (picture[TOP6_HEADER_PX:TOP6_HEADER_PX + 120, 110:270, 0] > 200).any()  # the query tile's blue border below it

@@ -481,9 +481,14 @@ def _thumbnail(folder: Path, name: str, size: tuple[int, int], colour) -> np.nda
     return img
 
 
+#: Height of top6.png's header row (column names and colour key), pixels.
+TOP6_HEADER_PX = 42
+
+
 def _top6_picture(db: RetrievalDatabase, results: dict[str, tuple[np.ndarray, np.ndarray]], path: Path,
                   queries_per: int = 2) -> None:
-    """Rows: descriptor x query; query thumbnail (blue frame), then its top 6 (green = same class).
+    """Rows: descriptor x query; query thumbnail (blue frame), then its top 6 (green = same class),
+    under a header that names the columns (`TOP6_HEADER_PX` tall) and the colours.
 
     results: {descriptor: (query database indices (Q,), neighbours (Q, k))}."""
     import cv2
@@ -505,7 +510,14 @@ def _top6_picture(db: RetrievalDatabase, results: dict[str, tuple[np.ndarray, np
             cv2.putText(label, name[:12], (4, size[1] // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
             rows.append(np.concatenate([label] + tiles, axis=1))
     if rows:
-        cv2.imwrite(str(path), np.concatenate(rows, axis=0))
+        # a header names the columns: the query, then its results in rank order, and the colours
+        header = np.full((TOP6_HEADER_PX, rows[0].shape[1], 3), 255, np.uint8)
+        text = [("descriptor", 4), ("query", 110 + 4)] + [(f"top {k}", 110 + k * size[0] + 4) for k in range(1, 7)]
+        for words, x in text:
+            cv2.putText(header, words, (x, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+        cv2.putText(header, "blue: the query; green: the same object; red: another", (110 + 4, 35),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+        cv2.imwrite(str(path), np.concatenate([header] + rows, axis=0))
 
 
 def _plot(acc: dict[str, np.ndarray], path: Path) -> None:
