@@ -369,3 +369,18 @@ def test_l2_matching_of_descriptors_with_a_large_common_part(device):
     assert np.array_equal(got.matches0, np.arange(200))
     exact = np.linalg.norm(a.astype(np.float64) - b.astype(np.float64), axis=1)
     np.testing.assert_allclose(got.distances0, exact, rtol=1e-3)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(ratio=True), "ratio: expected a number"),  # ran as ratio 1.0
+    (dict(ratio="0.8"), "ratio: expected a number"),  # a TypeError from the comparison
+    (dict(mutual="no"), "mutual: expected True or False"),  # a non-empty string is truthy: mutual ran
+    (dict(mutual=None), "mutual: expected True or False"),
+])
+def test_match_options_are_checked_by_name(kwargs, message):
+    rng = np.random.default_rng(0)
+    f0 = Features(rng.random((5, 2)), rng.random((5, 8)).astype(np.float32), np.ones(5, bool))
+    f1 = Features(rng.random((6, 2)), rng.random((6, 8)).astype(np.float32), np.ones(6, bool))
+    with pytest.raises(ValueError, match=message):
+        match(f0, f1, **kwargs)
+    assert (match(f0, f1, mutual=np.bool_(True), ratio=np.float64(0.9)).matches0 >= -1).all()  # numpy scalars pass

@@ -29,6 +29,8 @@ lowest target index wins; ``matches0 == -1`` means no match and its distance is 
 
 from __future__ import annotations
 
+import numbers
+
 import numba
 import numpy as np
 from numba import njit, prange
@@ -933,8 +935,10 @@ def match(
         metric = metric_of_pair(d0, d1)
     if metric not in METRICS:
         raise ValueError(f"metric: expected one of {METRICS} or None, got {metric!r}")
-    if ratio is not None and not (0 < ratio <= 1):
-        raise ValueError(f"ratio: expected a number in (0, 1], got {ratio}")
+    if ratio is not None and (isinstance(ratio, bool) or not isinstance(ratio, numbers.Real) or not 0 < ratio <= 1):
+        raise ValueError(f"ratio: expected a number in (0, 1] or None, got {ratio!r}")  # True ran as 1.0
+    if not isinstance(mutual, (bool, np.bool_)):
+        raise ValueError(f"mutual: expected True or False, got {mutual!r}")  # "no" was truthy
     n0, n1 = d0.shape[0], d1.shape[0]
     if metric == "l2":
         if d0.ndim != 2:
