@@ -12,9 +12,9 @@
 
 from __future__ import annotations
 
-import glob
 import json
 import os
+import re
 import shutil
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
@@ -202,21 +202,32 @@ def _running(pid: int) -> bool:
     return True
 
 
-def clear_stale_partials(path: str | Path) -> None:
-    """Remove the temporary siblings of `path` (`partial_name`) that a geofeat process killed while
-    writing it left behind (SIGKILL or a power cut run no clean-up): those of a process id no longer
-    running; a running one's may be a concurrent run's and stay."""
-    path = Path(path)
-    if path.name in ("", ".", ".."):  # as in `partial_name`
-        path = Path(os.path.abspath(path))
-    prefix = ".geofeat-partial-"
-    for sibling in path.parent.glob(f"{prefix}*-{glob.escape(path.name)}"):
-        pid = sibling.name[len(prefix):-len(path.name) - 1]
-        if pid.isdigit() and int(pid) != os.getpid() and not _running(int(pid)):
-            if sibling.is_dir() and not sibling.is_symlink():
-                shutil.rmtree(sibling, ignore_errors=True)
-            else:
-                sibling.unlink(missing_ok=True)
+_PARTIAL = re.compile(r"\.geofeat-partial-(\d+)-(.+)")  # `partial_name`: process id, then the final name
+
+
+def clear_stale_partials(*paths: str | Path) -> None:
+    """Remove the temporary siblings of `paths` (`partial_name`) that a geofeat process killed while
+    writing them left behind (SIGKILL or a power cut run no clean-up): those of a process id no longer
+    running; a running one's may be a concurrent run's and stay. Each folder is listed once, however
+    many of its files are given (`geofeat extract` gives one per frame)."""
+    wanted: dict[Path, set[str]] = {}
+    for path in map(Path, paths):
+        if path.name in ("", ".", ".."):  # as in `partial_name`
+            path = Path(os.path.abspath(path))
+        wanted.setdefault(path.parent, set()).add(path.name)
+    for folder, names in wanted.items():
+        if not folder.is_dir():
+            continue
+        for sibling in folder.iterdir():
+            found = _PARTIAL.fullmatch(sibling.name)
+            if found is None or found[2] not in names:
+                continue
+            pid = int(found[1])
+            if pid != os.getpid() and not _running(pid):
+                if sibling.is_dir() and not sibling.is_symlink():
+                    shutil.rmtree(sibling, ignore_errors=True)
+                else:
+                    sibling.unlink(missing_ok=True)
 
 
 @contextmanager

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..features import Features, _h5_leaf_groups, descriptors_n_by_d, read_npz
+from ..features import Features, _h5_leaf_groups, _h5_read_group, _open_h5, descriptors_n_by_d, read_npz
 from ..io import RGB_SUFFIX
 from ..keypoints import as_keypoints
 from ..matching import METRICS, match
@@ -123,13 +123,11 @@ class ExternalFeatures:
 
     def _h5_groups(self) -> set[str]:
         if self._groups is None:
-            import h5py
-
             try:
-                with h5py.File(str(self.path), "r") as fd:
+                with _open_h5(self.path, "r") as fd:
                     self._groups = set(_h5_leaf_groups(fd))
-            except OSError as error:
-                raise ValueError(f"features {self.name}: cannot read {self.path} as HDF5 ({error})") from None
+            except ValueError as error:  # not HDF5, or truncated: the file named
+                raise ValueError(f"features {self.name}: {error}") from None
         return self._groups
 
     def load(self, sequence: str, frame: str, n: int | None = None,
@@ -212,11 +210,8 @@ class ExternalFeatures:
         """The arrays of `frame` and where they come from (for messages)."""
         key = self.source(sequence, frame)
         if self.path.is_file():
-            if key is not None:
-                import h5py
-
-                with h5py.File(str(self.path), "r") as fd:
-                    return {k: np.asarray(v[()]) for k, v in fd[key].items()}, f"{self.path}, group {key}"
+            if key is not None:  # a group `_h5_groups` listed
+                return _h5_read_group(self.path, key), f"{self.path}, group {key}"
             some = sorted(self._h5_groups())[:3]
             raise ValueError(f"features {self.name}: no group '{sequence}/{frame}' or '{frame}' (or "
                              f"'{frame}{RGB_SUFFIX}') in {self.path}; it holds e.g. {some} (names are matched "

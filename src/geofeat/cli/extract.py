@@ -40,6 +40,8 @@ def run(args: argparse.Namespace) -> int:
     finals = [path] if is_h5(path) else [path.with_name(f"{path.stem}-{n}.npz") for n in seq.names]
     for final in finals:
         check_out_file(final, args.overwrite)
+    if not is_h5(path):  # a killed run's half-written .npz files (the .h5's `atomic_file` clears its own)
+        clear_stale_partials(*finals)
     profile = sequence_depth_profile(seq, args.depth_profile)
     descriptor = make_descriptor(args.descriptor, radius=radius, depth_config=PROFILES[profile])
     print(f"{seq.name}: depth profile {profile}, {detection}, "
@@ -61,7 +63,6 @@ def run(args: argparse.Namespace) -> int:
                     save_features(h5_tmp, features, name=name)
                 else:
                     final = path.with_name(f"{path.stem}-{name}.npz")
-                    clear_stale_partials(final)
                     tmp = partial_name(final)
                     save_features(tmp, features)
                     written.append((tmp, final))
