@@ -5,6 +5,7 @@ import csv
 import json
 import shutil
 
+import cv2
 import numpy as np
 import pytest
 
@@ -249,6 +250,65 @@ def test_a_rerun_refuses_another_sequence_of_a_finished_ones_name(datasets, tmp_
     run_benchmark(other, out, config, progress=False, overwrite=True)
     # the copy of identical frames: one target (the deformed a-deform had two)
     assert [(r["sequence"], r["target"]) for r in read_rows(csv_path)] == [("a-deform", "frame-001")]
+
+
+def test_a_rerun_refuses_a_finished_sequence_whose_frames_were_replaced(datasets, tmp_path):
+    """Before, a rerun checked settings, weights and the folder's path, not its files: a sequence
+    re-simulated or re-annotated in place kept its old rows, mixed with new sequences' ones. Now the
+    files' digest is compared; touching the files (same contents) still resumes."""
+    import os
+
+    config = BenchConfig(descriptors=("orb",), n_keypoints=200)
+    seq = tmp_path / "seqs" / "a-deform"
+    shutil.copytree(datasets / "seqs" / "a-deform", seq)
+    out = tmp_path / "out"
+    csv_path, _ = run_benchmark(seq, out, config, progress=False)
+    rows = read_rows(csv_path)
+    for f in seq.iterdir():  # same contents, new times: resumed, nothing recomputed
+        os.utime(f, ns=(f.stat().st_atime_ns, f.stat().st_mtime_ns + 10**9))
+    run_benchmark(seq, out, config, progress=False)
+    assert read_rows(csv_path) == rows
+    target = sorted(seq.glob("*-rgb.png"))[-1]
+    image = cv2.imread(str(target))
+    cv2.imwrite(str(target), np.ascontiguousarray(image[::-1]))  # the frame replaced in place
+    with pytest.raises(ValueError, match="holds results of a-deform, whose files changed since"):
+        run_benchmark(seq, out, config, progress=False)
+    run_benchmark(seq, out, config, progress=False, overwrite=True)
+
+
+def test_sequence_digest_follows_the_files_a_reader_uses(datasets, tmp_path):
+    from geofeat.io import sequence_digest
+
+    seq = tmp_path / "s"
+    shutil.copytree(datasets / "seqs" / "a-deform", seq)
+    before = sequence_digest(seq)
+    assert sequence_digest(datasets / "seqs" / "a-deform") == before  # a copy: the same
+    (seq / "notes.txt").write_text("not read by geofeat")
+    (seq / ".DS_Store").write_bytes(b"x")
+    assert sequence_digest(seq) == before
+    (seq / "intrinsics.xml").write_text((seq / "intrinsics.xml").read_text() + "\n")
+    assert sequence_digest(seq) != before
+
+
+def test_features_written_by_extract_as_npz_are_scored_as_the_h5(datasets, tmp_path, capsys):
+    """`geofeat extract --out DIR/f.npz` writes DIR/f-<frame>.npz; `bench --features m=DIR/f.npz` now
+    reads them (before: "does not exist", and a folder of them: no <frame>.npz), with the same scores as
+    the .h5 that extract writes for the same frames."""
+    seq = datasets / "seqs" / "a-deform"
+    for out in ("f.npz", "f.h5"):
+        assert main(["extract", str(seq), "--descriptor", "sift", "--keypoints", "200", "--out", str(tmp_path / out)]) == 0
+    assert sorted(p.name for p in tmp_path.glob("f-*.npz")) == [f"f-{n}.npz" for n in geofeat.read_sequence(seq).names]
+    scores = {}
+    for out in ("f.npz", "f.h5"):
+        bench_out = tmp_path / f"bench-{out}"
+        assert main(["bench", str(seq), "--descriptors", "orb", "--keypoints", "200", "--features",
+                     f"mine={tmp_path / out}", "--out", str(bench_out)]) == 0
+        scores[out] = [(r["target"], r["ms"]) for r in read_rows(bench_out / "results.csv") if r["descriptor"] == "mine"]
+    assert len(scores["f.npz"]) == 2 and scores["f.npz"] == scores["f.h5"]
+    # a stem nothing was written under: refused, naming the layout looked for
+    assert main(["bench", str(seq), "--descriptors", "orb", "--features", f"mine={tmp_path / 'g.npz'}", "--out",
+                 str(tmp_path / "b3")]) == 2
+    assert "nor any g-<frame>.npz beside it" in capsys.readouterr().err
 
 
 def test_changed_weights_compares_only_what_both_runs_recorded():

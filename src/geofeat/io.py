@@ -12,6 +12,7 @@ Hidden files (`._frame-001-rgb.png`) are not frames. Every reader validates what
 
 from __future__ import annotations
 
+import hashlib
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,6 +41,28 @@ def frame_names(folder: str | Path, suffix: str = RGB_SUFFIX) -> list[str]:
     are not frames."""
     return sorted((p.name[: -len(suffix)] for p in Path(folder).glob(f"*{suffix}") if not p.name.startswith(".")),
                   key=natural_key)
+
+
+#: Files of a sequence folder that are not per-frame but are read with it (`read_sequence`).
+SEQUENCE_FILES = ("intrinsics.xml", "geofeat.json")
+
+
+def sequence_digest(folder: str | Path) -> str:
+    """SHA-1 (hex) of the files a reader of the sequence in `folder` uses: every non-hidden file whose
+    name starts with a frame's name (colour, depth, landmark CSV, ground truth), `intrinsics.xml` and
+    `geofeat.json`, names and contents in order. It changes when a frame is replaced, added or removed
+    in place, and not when the folder is copied or touched (`geofeat bench` resumes by it)."""
+    folder = Path(folder)
+    prefixes = tuple(f"{n}{sep}" for n in frame_names(folder) for sep in "-.")
+    files = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".")
+                   and (p.name in SEQUENCE_FILES or p.name.startswith(prefixes)))
+    digest = hashlib.sha1()
+    for path in files:
+        digest.update(path.name.encode() + b"\0" + str(path.stat().st_size).encode() + b"\0")
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                digest.update(block)
+    return digest.hexdigest()
 
 
 def _existing(path: str | Path, what: str) -> Path:

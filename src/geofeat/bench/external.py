@@ -5,7 +5,9 @@ PATH is either
 - an hloc-style `.h5` file: one group per frame, named `<sequence>/<frame>` or `<frame>` (the frame
   name as in the sequence folder, e.g. `frame-003` for `frame-003-rgb.png`), or by the colour image's
   file name as hloc names them (`<sequence>/frame-003-rgb.png` or `frame-003-rgb.png`), or
-- a folder of `.npz` files: `PATH/<sequence>/<frame>.npz` or `PATH/<frame>.npz`.
+- a folder of `.npz` files: `PATH/<sequence>/<frame>.npz` or `PATH/<frame>.npz`, or
+- the `.npz` path given to `geofeat extract --out DIR/NAME.npz`, which writes `DIR/NAME-<frame>.npz`
+  (read from `DIR/<sequence>/NAME-<frame>.npz` or `DIR/NAME-<frame>.npz`).
 A name without the sequence may serve one sequence only: two benched sequences whose frames would be
 read from one group or file are refused (`check_one_source_per_frame`).
 
@@ -26,6 +28,7 @@ is read as (D, N) whenever its second axis has one entry per keypoint, even when
 
 from __future__ import annotations
 
+import glob
 from pathlib import Path
 
 import numpy as np
@@ -42,11 +45,27 @@ def parse_features_option(text: str) -> tuple[str, Path]:
     if not sep or not name or not path:
         raise ValueError(f"features: expected NAME=PATH (an .h5 file or a folder of .npz files), got {text!r}")
     p = Path(path)
+    if not p.exists() and _is_extract_prefix(p):
+        return name, p
     if not p.exists():
-        raise ValueError(f"features: {p} does not exist")
+        raise ValueError(f"features: {p} does not exist" + (f" (nor any {p.stem}-<frame>.npz beside it, as `geofeat "
+                                                             f"extract --out {p}` writes)" if _npz_named(p) else ""))
     if p.is_file() and p.suffix.lower() not in (".h5", ".hdf5"):
         raise ValueError(f"features: {p} is neither an .h5 file nor a folder of .npz files")
     return name, p
+
+
+def _npz_named(path: Path) -> bool:
+    return path.suffix.lower() == ".npz"
+
+
+def _is_extract_prefix(path: Path) -> bool:
+    """Whether `path` (DIR/NAME.npz, not a file) names the files `geofeat extract --out DIR/NAME.npz` writes:
+    some `DIR/NAME-<frame>.npz` or `DIR/<sequence>/NAME-<frame>.npz`."""
+    if not _npz_named(path) or not path.parent.is_dir():
+        return False
+    pattern = f"{glob.escape(path.stem)}-*{path.suffix}"
+    return any(path.parent.glob(pattern)) or any(path.parent.glob(f"*/{pattern}"))
 
 
 #: the arrays a group or file may hold that are read (`angles`, `sizes`: as `geofeat extract` writes them)
@@ -201,7 +220,12 @@ class ExternalFeatures:
                 if key in groups:
                     return key
             return None
-        for candidate in (self.path / sequence / f"{frame}.npz", self.path / f"{frame}.npz"):
+        if self.path.is_dir():
+            candidates = (self.path / sequence / f"{frame}.npz", self.path / f"{frame}.npz")
+        else:  # `geofeat extract --out DIR/NAME.npz`'s files
+            where, file = self.path.parent, f"{self.path.stem}-{frame}{self.path.suffix}"
+            candidates = (where / sequence / file, where / file)
+        for candidate in candidates:
             if candidate.is_file():
                 return str(candidate)
         return None
@@ -221,6 +245,9 @@ class ExternalFeatures:
                 return read_npz(key), key
             except ValueError as error:
                 raise ValueError(f"features {self.name}: {error}") from None
+        if not self.path.is_dir():
+            file = f"{self.path.stem}-{frame}{self.path.suffix}"
+            raise ValueError(f"features {self.name}: no {sequence}/{file} or {file} in {self.path.parent}")
         raise ValueError(f"features {self.name}: no {sequence}/{frame}.npz or {frame}.npz under {self.path}")
 
 

@@ -33,7 +33,7 @@ from ..constants import N_KEYPOINTS
 from ..depth import check_profile, sequence_depth_profile
 from ..descriptors import OpenCVDescriptor, check_descriptor_name, refuse_repeated
 from ..inputs import check_depth_scale, check_radius, check_tps_dir, check_whole, resolve_radius
-from ..io import Sequence, find_sequences, frame_names, read_sequence
+from ..io import Sequence, find_sequences, frame_names, read_sequence, sequence_digest
 from ..outputs import add_to_manifest, append_line_durably, atomic_file, check_out_dir, plural, read_manifest
 from ..keypoints import Keypoints, check_detector_name, detect, resolve_keypoint_set
 from ..matching import match
@@ -502,18 +502,27 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
             raise ValueError(f"out: {out} holds results of another sequence of the same name ({'; '.join(moved)}); "
                              "use --overwrite or another --out")
         read_from = {**read_from, **_read_from(folders)}
+        digests = _digests(folders)
+        stored = before.get("sequence_digests") if isinstance(before.get("sequence_digests"), dict) else {}
+        changed = sorted(name for name in finished if name in digests and stored.get(name, digests[name]) != digests[name])
+        if changed:  # their rows describe the frames that were there before
+            raise ValueError(f"out: {out} holds results of {', '.join(changed)}, whose files changed since (a frame "
+                             "replaced, added or removed); use --overwrite or another --out")
+        digests = {**stored, **digests}
     else:
         with atomic_file(csv_path) as tmp:
             with open(tmp, "w", newline="") as fh:
                 csv.DictWriter(fh, COLUMNS, lineterminator="\n").writeheader()
         done = set()
         read_from = _read_from(folders)
+        digests = _digests(folders)
         ours = read_manifest(out)
         for name in REPORTS:  # the earlier run's reports, which this run may not rewrite (details.md, a curve)
             if name in ours:
                 (out / name).unlink(missing_ok=True)
     with atomic_file(config_path) as tmp:
-        tmp.write_text(json.dumps({**asdict(config), "provenance": made_by, "sequences": read_from}, indent=1))
+        tmp.write_text(json.dumps({**asdict(config), "provenance": made_by, "sequences": read_from,
+                                   "sequence_digests": digests}, indent=1))
     add_to_manifest(out, ["results.csv", "config.json"])
     return done
 
@@ -522,6 +531,12 @@ def _read_from(folders: list[str]) -> dict[str, str]:
     """For config.json: the folder (absolute, links resolved) each sequence name was read from, so
     that a rerun does not take the results of one sequence for another's of the same name."""
     return {Path(f).name: str(Path(f).resolve()) for f in folders}
+
+
+def _digests(folders: list[str]) -> dict[str, str]:
+    """For config.json: each sequence's `io.sequence_digest`, so that a rerun does not keep the rows of
+    a sequence whose frames were replaced in place since."""
+    return {Path(f).name: sequence_digest(f) for f in folders}
 
 
 def provenance(config: BenchConfig) -> dict:

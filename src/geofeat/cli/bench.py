@@ -26,7 +26,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     detector_option(p)
     p.add_argument("--features", action="append", metavar="NAME=PATH",
                    help="also score features computed elsewhere: an hloc-style .h5 (groups <sequence>/<frame>) "
-                        "or a folder of <frame>.npz with keypoints, descriptors and optional scores (repeatable)")
+                        "or a folder of <frame>.npz with keypoints, descriptors and optional scores, or the DIR/NAME.npz "
+                        "given to `geofeat extract --out` (repeatable)")
     p.add_argument("--tps-dir", default=None, help="the authors' published TPS ground truth, one folder per sequence")
     p.add_argument("--workers", type=whole_number(1), default=1, help="local worker processes (sequences in parallel)")
     p.add_argument("--scheduler", default=None, help="Dask scheduler address (e.g. tcp://host:8786); needs geofeat[dask]")
