@@ -3,6 +3,8 @@ exact ground truth (an analytic warp, and the cloth simulator), the bench readin
 
 from __future__ import annotations
 
+import json
+import re
 from pathlib import Path
 
 import cv2
@@ -165,7 +167,13 @@ def test_cli_writes_layout_and_report(tmp_path, capsys):
                  "frame-001_ctrlpts.npy", "frame-001_SSIM.png", "frame-001_overlay.png", "report.csv", "report.json"]:
         assert (out / name).is_file(), name
     assert np.load(out / "frame-001_theta.npy").shape == (1, 9 + 3, 2)
-    assert "seq: 1 of 1 frame, landmark residual" in capsys.readouterr().out  # it said "1/1 frames"
+    printed = capsys.readouterr().out
+    assert "seq: 1 of 1 frame, landmark residual" in printed  # it said "1/1 frames"
+    # the in-sample residual was printed alone, as if it were the ground truth's accuracy
+    loo = float(re.search(r"leave-one-out ([0-9.]+) px", printed).group(1))
+    report = json.loads((out / "report.json").read_text())
+    frames = report["frames"] if isinstance(report, dict) else report
+    assert loo == pytest.approx(frames[0]["loo_median_px"], abs=0.006)
 
 
 def test_too_few_landmarks_mark_the_frame_failed(tmp_path, capsys):

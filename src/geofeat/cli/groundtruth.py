@@ -61,8 +61,11 @@ def run(args: argparse.Namespace) -> int:
         ok = [r for r in reports if r.status == "ok"]
         bad = [r for r in reports if r.status != "ok"]
         if ok:
+            # the residual is in-sample (the landmarks made the spline); leave-one-out tells how well it
+            # predicts a point between landmarks, so both are printed, named
             print(f"{folder.name}: {len(ok)} of {plural(len(reports), 'frame')}, landmark residual median "
-                  f"{sum(r.landmark_median_px for r in ok) / len(ok):.2f} px, SSIM "
+                  f"{sum(r.landmark_median_px for r in ok) / len(ok):.2f} px (in-sample; leave-one-out "
+                  f"{_mean_finite([r.loo_median_px for r in ok])}), SSIM "
                   f"{sum(r.ssim_before for r in ok) / len(ok):.3f} -> {sum(r.ssim_after for r in ok) / len(ok):.3f}, "
                   f"{sum(r.seconds for r in ok) / len(ok):.2f} s/frame; wrote {out}")
         for r in bad:
@@ -71,3 +74,9 @@ def run(args: argparse.Namespace) -> int:
     if failed:
         print(f"{plural(len(failed), 'frame')} failed; see report.csv in each output folder")
     return 1 if failed else 0
+
+
+def _mean_finite(values: list[float]) -> str:
+    """The mean of the finite `values` in pixels, "n/a" when none is (too few landmarks to leave one out)."""
+    finite = [v for v in values if v == v and abs(v) != float("inf")]
+    return f"{sum(finite) / len(finite):.2f} px" if finite else "n/a"
