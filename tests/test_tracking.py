@@ -522,6 +522,13 @@ def test_a_skipped_frame_counts_as_lost_not_as_absent(sequence, tmp_path):
     assert sift.endswith("| lost | – | 1/2 |"), table  # lost by the landmarks; no forward truth to be lost by
     assert sift.startswith("| sift | 0.50 |"), table  # no matches: inlier rate 0, as a failed fit without matches
     assert "SKIPPED frames: frame-002" in (tmp_path / "out" / "tracking.md").read_text()
+    # track.gif left the frame out, so the animation jumped without a word; now a dark placeholder holds its place
+    import imageio.v2 as imageio
+
+    gif = imageio.mimread(tmp_path / "out" / "public" / "sift" / "track.gif")
+    assert len(gif) == 3 and gif[2].shape == gif[1].shape
+    below_label = slice(gif[2].shape[0] // 3, None)
+    assert gif[2][below_label, :, :3].std() < 1 < gif[1][below_label, :, :3].std()  # a plain placeholder
 
 
 def test_a_failed_frame_is_lost_only_by_the_errors_its_sequence_measures():

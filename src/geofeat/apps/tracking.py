@@ -893,19 +893,31 @@ def _draw_grid(image: np.ndarray, pts: np.ndarray, side: int, colour) -> tuple[n
 def grid_frames(seq: Sequence, result: TrackResult, scale: float = 0.5) -> list[np.ndarray]:
     """(h, w, 3) uint8 RGB pictures of every frame with the tracked grid drawn (the template's in
     blue, the others in green), resized by `scale`, each labelled with the descriptor and the frame
-    name at a legible size whatever `scale` (frames in `result.skipped` are left out)."""
+    name at a legible size whatever `scale`. A frame in `result.skipped` (it could not be read or
+    described) gets a dark placeholder that says so, so that the animation keeps every frame's place."""
     from ..viz import put_label, to_bgr
 
     pictures = []
+    shape = None  # (H, W) of the frames read
     for k, name in enumerate(result.frames):
         if name in result.skipped:
+            pictures.append(name)  # drawn below, once a readable frame gave the size
             continue
         bgr = to_bgr(seq.frame(name))
+        shape = bgr.shape[:2]
         pic, drawn = _draw_grid(bgr, result.points[k], GRID_SIDE, (0, 255, 0) if k else (255, 200, 0))
         if scale != 1:
             pic = cv2.resize(pic, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
         put_label(pic, f"{result.descriptor}  {name}" + ("" if drawn else " (fit failed)"), (4, 4), 0.45)
         pictures.append(cv2.cvtColor(pic, cv2.COLOR_BGR2RGB))
+    if shape is None:  # the template is always read, so this is a result without frames
+        return [p for p in pictures if not isinstance(p, str)]
+    for k, p in enumerate(pictures):
+        if isinstance(p, str):
+            h, w = max(1, round(shape[0] * scale)), max(1, round(shape[1] * scale))
+            pic = np.full((h, w, 3), 40, np.uint8)
+            put_label(pic, f"{result.descriptor}  {p} (skipped: not read or described)", (4, 4), 0.45)
+            pictures[k] = cv2.cvtColor(pic, cv2.COLOR_BGR2RGB)
     return pictures
 
 
