@@ -78,6 +78,18 @@ def test_missing_and_unreadable_files(tmp_path):
         geofeat.read_frame(src / "cloud_1-rgb.png", src / "cloud_1-depth.png", src / "intrinsics.xml", depth_scale=1.0)
 
 
+def test_depth_in_centimetres_is_not_called_millimetres():
+    """80 cm as depth was refused as "looks like millimetres; divide by 1000", which gives 8 cm. Now
+    the message gives each plausible reading with its depth_scale."""
+    image = np.zeros((48, 64, 3), np.uint8)
+    K = np.array([[60.0, 0, 32], [0, 60.0, 24], [0, 0, 1]])
+    with pytest.raises(ValueError, match=r"as millimetres 0.08 m \(depth_scale=0.001\), or as centimetres 0.80 m "
+                                         r"\(depth_scale=0.01\)"):
+        geofeat.RGBDFrame(image, np.full((48, 64), 80.0), K)
+    with pytest.raises(ValueError, match=r"as millimetres 9.00 m .*tenths of a millimetre 0.90 m"):
+        geofeat.RGBDFrame(image, np.full((48, 64), 9000.0), K)
+
+
 def test_sequence_without_intrinsics(tmp_path):
     src = demo_data_dir()
     shutil.copy(src / "cloud_1-rgb.png", tmp_path / "ref-rgb.png")
