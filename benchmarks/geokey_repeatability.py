@@ -22,6 +22,9 @@ score every variant):
   image (their own scale), shifted to the full-resolution cue's median over those candidates.
 - `blur-0.7`, `blur-1.0`: the whole detection (candidates and cues) on the gray image blurred by a
   Gaussian of 0.7 / 1.0 px: fewer corners made by the image noise.
+- `bilateral-2`, `bilateral-4`, `nlmeans-1`, `nlmeans-2`: the whole detection on the image denoised
+  by a filter that keeps edges and corners, scaled to the frame's noise level sigma: a bilateral
+  filter (range 2 / 4 x sigma) or non-local means (h = 1 / 2 x sigma).
 - `noise-floor-1`, `noise-floor-3`: candidates whose cornerness (3 px window, at their level) is below
   1 / 3 x the 99th percentile that pure noise of the frame's level would give are dropped. The noise
   level is the frame's robust estimate (median absolute 3 x 3 Laplacian, Immerkaer's mask).
@@ -150,6 +153,39 @@ def blurred_detector(sigma: float):
     return detect
 
 
+def denoised_detector(method: str, strength: float, diameter: int = 5, space: float = 1.5):
+    """`geokey.detect_geokey` on the image denoised edge-preservingly, scaled to the frame's noise
+    level sigma (Immerkaer): "bilateral" (5 px, range sigma `strength` x sigma, space 1.5 px) or
+    "nlmeans" (OpenCV's non-local means, h = `strength` x sigma)."""
+    from geofeat.frame import RGBDFrame
+
+    def detect(frame, n):
+        g = frame.image.astype(np.float32)  # gray, 0..1
+        sigma = max(float(np.median(np.abs(cv2.filter2D(g, -1, NOISE_MASK))[1:-1, 1:-1])) / (0.6745 * 6.0), 1e-4)
+        if method == "bilateral":
+            image = cv2.bilateralFilter(g, diameter, strength * sigma, space)
+        else:
+            as_bytes = np.clip(np.rint(g * 255), 0, 255).astype(np.uint8)
+            image = cv2.fastNlMeansDenoising(as_bytes, None, max(strength * sigma * 255, 0.1), 5, 15).astype(np.float32) / 255
+        return DETECT(RGBDFrame(image, frame.depth, frame.K), n)
+
+    return detect
+
+
+def denoised_candidates(strength: float, diameter: int = 5, space: float = 1.5):
+    """`geokey.candidates` found and localised on the bilaterally denoised image (as
+    `denoised_detector`), while the scorer's cues stay on the image as it is."""
+    from geofeat.frame import RGBDFrame
+
+    def candidates(frame, max_candidates=geokey.MAX_CANDIDATES):
+        g = frame.image.astype(np.float32)
+        sigma = max(float(np.median(np.abs(cv2.filter2D(g, -1, NOISE_MASK))[1:-1, 1:-1])) / (0.6745 * 6.0), 1e-4)
+        image = cv2.bilateralFilter(g, diameter, strength * sigma, space)
+        return CANDIDATES(RGBDFrame(image, frame.depth, frame.K), max_candidates)
+
+    return candidates
+
+
 #: Immerkaer's noise mask: the 3 x 3 Laplacian difference whose response to white noise of unit
 #: standard deviation has standard deviation 6 (the root of the sum of its squared weights).
 NOISE_MASK = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
@@ -201,6 +237,18 @@ VARIANTS = {
     "blur-1.0": {"detector": lambda: blurred_detector(1.0)},
     "noise-floor-1": {"candidates": lambda: noise_floor_candidates(1.0)},
     "noise-floor-3": {"candidates": lambda: noise_floor_candidates(3.0)},
+    "bilateral-2": {"detector": lambda: denoised_detector("bilateral", 2.0)},
+    "bilateral-4": {"detector": lambda: denoised_detector("bilateral", 4.0)},
+    "bilateral-3": {"detector": lambda: denoised_detector("bilateral", 3.0)},
+    "bilateral-6": {"detector": lambda: denoised_detector("bilateral", 6.0)},
+    "bilateral-8": {"detector": lambda: denoised_detector("bilateral", 8.0)},
+    "bilateral-4-d3": {"detector": lambda: denoised_detector("bilateral", 4.0, 3, 1.0)},
+    "bilateral-4-d7": {"detector": lambda: denoised_detector("bilateral", 4.0, 7, 2.0)},
+    "bilateral-cands-2": {"candidates": lambda: denoised_candidates(2.0)},
+    "bilateral-cands-4": {"candidates": lambda: denoised_candidates(4.0)},
+    "bilateral-cands-4-d7": {"candidates": lambda: denoised_candidates(4.0, 7, 2.0)},
+    "nlmeans-1": {"detector": lambda: denoised_detector("nlmeans", 1.0)},
+    "nlmeans-2": {"detector": lambda: denoised_detector("nlmeans", 2.0)},
 }
 
 

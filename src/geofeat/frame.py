@@ -177,6 +177,18 @@ class RGBDFrame:
         """(H, W) in pixels."""
         return self.image.shape  # type: ignore[return-value]
 
+    def with_image(self, image: np.ndarray) -> "RGBDFrame":
+        """This frame's depth and intrinsics (checked already, and shared, not copied) with another
+        (H, W) gray image of the same shape, e.g. a filtered copy for a detector. The colour image is
+        kept for display."""
+        image = np.asarray(image, np.float32)
+        if image.shape != self.shape:
+            raise ValueError(f"image: expected shape {self.shape}, got {image.shape}")
+        frame = object.__new__(RGBDFrame)
+        for name, value in (("image", image), ("depth", self.depth), ("K", self.K), ("color", self.color)):
+            object.__setattr__(frame, name, value)
+        return frame
+
     def rotated90(self, k: int = 1) -> "RGBDFrame":
         """The same frame seen by a camera rolled by k * 90 degrees (image rotated counter-clockwise
         as displayed), with intrinsics changed consistently. Used to test rotation invariance.

@@ -228,8 +228,10 @@ def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = DEFAUL
         **options: options of `detect_sift` (keypoint_set, contrast_threshold, mask, ...); GeoKey
             takes `keypoint_set` only as "unique" (what its keypoints are), `mask`, `threshold`
             (its minimum logit; default the weights' own, chosen on validation; -inf returns the
-            `n` best whatever their score) and `min_fraction` (the best this fraction of the
-            frame's candidates are kept whatever the threshold; default the weights' own).
+            `n` best whatever their score), `min_fraction` (the best this fraction of the
+            frame's candidates are kept whatever the threshold; default the weights' own) and
+            `denoise` (the edge-preserving filter's range before detection, in noise levels; 0 =
+            none; default the weights' own).
 
     Returns:
         `Keypoints` sorted best first; fewer than `n` when the detector's threshold stops it (SIFT's
@@ -248,11 +250,12 @@ def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = DEFAUL
     mask = options.pop("mask", None)
     threshold = options.pop("threshold", None)
     min_fraction = options.pop("min_fraction", None)
+    denoise = options.pop("denoise", None)
     resolve_keypoint_set(name, options.pop("keypoint_set", None))  # only "unique" applies to GeoKey
     if options:
         raise TypeError(f"detector: options {sorted(options)} apply to 'sift' only")
     return detect_geokey(frame, n, load_geokey(weights or None), mask=mask, threshold=threshold,
-                         min_fraction=min_fraction)
+                         min_fraction=min_fraction, denoise=denoise)
 
 
 def detect_sift(

@@ -65,6 +65,16 @@ DEPTH_EDGE_MARGIN_PX = 3.0
 DEPTH_EDGE_STEP_FOOTPRINTS = 10.0
 
 
+#: Immerkaer's noise mask: a 3 x 3 difference of Laplacians whose response to white noise of unit
+#: standard deviation has standard deviation 6 (the root of the sum of its squared weights) and which
+#: cancels on planes and on most smooth shading.
+NOISE_MASK = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+#: The edge-preserving filter of `detection_image`: a bilateral filter of this diameter and spatial
+#: sigma, pixels (its range sigma is the model's `denoise` x the frame's noise level).
+BILATERAL_DIAMETER_PX = 5
+BILATERAL_SPACE_PX = 1.5
+
+
 @dataclass(frozen=True)
 class GeoKeyModel:
     """The learned scorer, numpy arrays.
@@ -81,6 +91,10 @@ class GeoKeyModel:
         min_fraction: the best this fraction of the frame's candidates (after suppression) are kept
             whatever their logit. The threshold is calibrated on renders, and real images score
             lower overall; this floor keeps their keypoint count (0: no floor).
+        denoise: the range of the bilateral filter applied to the image before detection, in
+            multiples of the frame's noise level (`noise_level`); 0 = the image as it is (weights
+            files written before the setting existed load with 0). Noise moves 3 px corners between
+            views; the filter smooths it out and keeps the corners (`detection_image`).
     """
 
     mean: np.ndarray
@@ -91,6 +105,7 @@ class GeoKeyModel:
     nms_radius: float = NMS_RADIUS_PX
     threshold: float = -np.inf
     min_fraction: float = 0.0
+    denoise: float = 0.0
 
     def score(self, features: np.ndarray) -> np.ndarray:
         """(N, D) cue features -> (N,) float32 logits (higher = more likely found again and matched)."""
@@ -118,7 +133,7 @@ class GeoKeyModel:
 
         arrays = {"mean": self.mean, "std": self.std, "linear": self.linear,
                   "nms_radius": np.float32(self.nms_radius), "threshold": np.float32(self.threshold),
-                  "min_fraction": np.float32(self.min_fraction),
+                  "min_fraction": np.float32(self.min_fraction), "denoise": np.float32(self.denoise),
                   "cue_names": np.array(CUE_NAMES)}
         for k, (w, b) in enumerate(zip(self.weights, self.biases)):
             arrays[f"w{k}"], arrays[f"b{k}"] = w, b
@@ -142,9 +157,10 @@ def load_geokey(path: str | Path | None = None) -> GeoKeyModel:
     return _load(str(path), (stat.st_mtime_ns, stat.st_size, stat.st_ino))
 
 
-def check_settings(nms_radius, threshold, min_fraction) -> tuple[float, float, float]:
+def check_settings(nms_radius, threshold, min_fraction, denoise=0.0) -> tuple[float, float, float, float]:
     """The selection settings as floats: `nms_radius` a finite number of pixels >= 0, `threshold` a
-    number (not NaN; +-inf allowed), `min_fraction` in [0, 1]. ValueError naming the setting otherwise."""
+    number (not NaN; +-inf allowed), `min_fraction` in [0, 1], `denoise` a finite number >= 0.
+    ValueError naming the setting otherwise."""
     def number(value, what: str, expected: str) -> float:
         if isinstance(value, bool) or not isinstance(value, numbers.Real) or np.isnan(value):
             raise ValueError(f"{what}: expected {expected}, got {value!r}")
@@ -155,7 +171,8 @@ def check_settings(nms_radius, threshold, min_fraction) -> tuple[float, float, f
     min_fraction = number(min_fraction, "min_fraction", "a fraction in [0, 1]")
     if not 0.0 <= min_fraction <= 1.0:
         raise ValueError(f"min_fraction: expected a fraction in [0, 1], got {min_fraction}")
-    return nms_radius, threshold, min_fraction
+    denoise = check_non_negative(denoise, "denoise")
+    return nms_radius, threshold, min_fraction, denoise
 
 
 @lru_cache(maxsize=4)
@@ -176,7 +193,8 @@ def _load(path: str, stamp: tuple[int, int, int]) -> GeoKeyModel:
         biases = tuple(arrays[f"b{i}"].astype(np.float32) for i in range(k))
         model = GeoKeyModel(arrays["mean"].astype(np.float32), arrays["std"].astype(np.float32),
                             arrays["linear"].astype(np.float32), weights, biases, float(arrays["nms_radius"]),
-                            float(arrays.get("threshold", -np.inf)), float(arrays.get("min_fraction", 0.0)))
+                            float(arrays.get("threshold", -np.inf)), float(arrays.get("min_fraction", 0.0)),
+                            float(arrays.get("denoise", 0.0)))
         shapes = (model.mean.shape, model.std.shape, model.linear.shape)
         if shapes != ((len(CUE_NAMES),),) * 2 + ((len(IMAGE_CUES),),):
             raise ValueError(f"mean, std, linear of shapes {shapes}")
@@ -186,7 +204,7 @@ def _load(path: str, stamp: tuple[int, int, int]) -> GeoKeyModel:
         if not all(np.isfinite(a).all() for a in every) or not (model.std > 0).all():
             raise ValueError("arrays with NaN or infinite values, or a std that is not positive")
         model.score(np.zeros((1, len(CUE_NAMES)), np.float32))  # the layers chain (a ValueError otherwise)
-        check_settings(model.nms_radius, model.threshold, model.min_fraction)
+        check_settings(model.nms_radius, model.threshold, model.min_fraction, model.denoise)
     except (KeyError, TypeError, ValueError) as error:  # a missing array, or arrays of the wrong shapes
         raise ValueError(f"detector weights: {path} is not a complete GeoKey weights file ({error})") from None
     return model
@@ -210,6 +228,30 @@ class Candidates:
     def size(self) -> np.ndarray:
         """(N,) nominal diameter, pixels: 8 x 2^level."""
         return 8.0 * 2.0 ** self.level
+
+
+def noise_level(image: np.ndarray) -> float:
+    """Robust standard deviation of the noise of a (H, W) gray image, in its own units: the median
+    absolute response to `NOISE_MASK` (Immerkaer's mask; the median instead of the mean, so that
+    texture and edges weigh less), / 0.6745 / 6. 0 for images smaller than 3 x 3."""
+    g = np.asarray(image, np.float32)
+    if min(g.shape) < 3:
+        return 0.0
+    response = cv2.filter2D(g, -1, NOISE_MASK)[1:-1, 1:-1]
+    return float(np.median(np.abs(response))) / (0.6745 * 6.0)
+
+
+def detection_image(frame: RGBDFrame, denoise: float) -> RGBDFrame:
+    """The frame GeoKey detects on: with `denoise` > 0, its gray image through a bilateral filter of
+    BILATERAL_DIAMETER_PX and BILATERAL_SPACE_PX whose range sigma is `denoise` x `noise_level`, so
+    that noise of any level is smoothed while corners, whose contrast is many noise levels, stay
+    (same depth and intrinsics); the frame itself when `denoise` is 0 or the image has no noise."""
+    sigma = noise_level(frame.image) if denoise > 0 else 0.0
+    if sigma <= 0.0:
+        return frame
+    image = cv2.bilateralFilter(np.asarray(frame.image, np.float32), BILATERAL_DIAMETER_PX, denoise * sigma,
+                                BILATERAL_SPACE_PX)
+    return frame.with_image(image)
 
 
 def candidates(frame: RGBDFrame, max_candidates: tuple[int, ...] = MAX_CANDIDATES) -> Candidates:
@@ -302,7 +344,8 @@ def suppress(xy: np.ndarray, score: np.ndarray, radius: float, shape: tuple[int,
 
 def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
                   nms_radius: float | None = None, mask: np.ndarray | None = None,
-                  threshold: float | None = None, min_fraction: float | None = None) -> Keypoints:
+                  threshold: float | None = None, min_fraction: float | None = None,
+                  denoise: float | None = None) -> Keypoints:
     """At most `n` GeoKey keypoints of `frame`, best first (0 = all that survive suppression and the
     threshold).
 
@@ -316,6 +359,8 @@ def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
             whatever their score).
         min_fraction: the best this fraction of the candidates that survive suppression are kept
             whatever the threshold (default: the model's; 0 = none).
+        denoise: range of the edge-preserving filter applied before detection, in multiples of the
+            frame's noise level (default: the model's; 0 = none; `detection_image`).
 
     Returns `Keypoints` with angles 0 (GeoKey gives no orientation: geodesic descriptors are
     rotation-invariant), sizes 2^level x 8 px, and responses = the learned score (logit).
@@ -323,9 +368,10 @@ def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
     """
     n = _check_n(n, zero_is_all=True)
     model = model or load_geokey()
-    nms_radius, threshold, min_fraction = check_settings(
+    nms_radius, threshold, min_fraction, denoise = check_settings(
         model.nms_radius if nms_radius is None else nms_radius, model.threshold if threshold is None else threshold,
-        model.min_fraction if min_fraction is None else min_fraction)
+        model.min_fraction if min_fraction is None else min_fraction, model.denoise if denoise is None else denoise)
+    frame = detection_image(frame, denoise)
     cands = candidates(frame)
     if mask is not None:
         mask = np.asarray(mask)

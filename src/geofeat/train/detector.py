@@ -27,7 +27,7 @@ from scipy.spatial import cKDTree
 from tqdm import tqdm
 
 from ..detectors.cues import CUE_NAMES, IMAGE_CUES
-from ..detectors.geokey import GeoKeyModel, candidate_features, candidates, detect_geokey
+from ..detectors.geokey import GeoKeyModel, candidate_features, candidates, detect_geokey, detection_image
 from ..inputs import check_whole
 from ..io import Sequence, read_sequence
 from ..outputs import plural
@@ -78,14 +78,17 @@ class FrameCandidates:
     descriptors: np.ndarray | None  # (N, 128) float32 GeoPatch descriptors (NaN rows where invalid)
 
 
-def _frame_candidates(seq: Sequence, name: str, descriptor=None) -> FrameCandidates:
+def _frame_candidates(seq: Sequence, name: str, descriptor=None, denoise: float = 0.0) -> FrameCandidates:
+    """The candidates of frame `name` and their cues, found on GeoKey's detection image (`denoise`,
+    `detection_image`), and their descriptors on the frame itself."""
     frame = seq.frame(name)
-    cands = candidates(frame)
+    seen = detection_image(frame, denoise)
+    cands = candidates(seen)
     desc = None
     if descriptor is not None and len(cands):
         f = descriptor.compute(frame, cands.xy)
         desc = np.where(f.valid[:, None], f.descriptors, np.nan).astype(np.float32)
-    return FrameCandidates(cands.xy, candidate_features(frame, cands), desc)
+    return FrameCandidates(cands.xy, candidate_features(seen, cands), desc)
 
 
 def _nearest_descriptor(da: np.ndarray, db: np.ndarray) -> np.ndarray:
@@ -100,7 +103,8 @@ def _nearest_descriptor(da: np.ndarray, db: np.ndarray) -> np.ndarray:
 
 
 def sequence_samples(seq: Sequence, match_px: float = MATCH_PX, labels: str = "repeatable",
-                     descriptor=None, max_targets: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+                     descriptor=None, max_targets: int | None = None, denoise: float = 0.0
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """Features (M, D) float32 and labels (M,) float32 in {0, 1} of every candidate of every
     (reference, target) pair of a simulated sequence, in both directions.
 
@@ -109,6 +113,7 @@ def sequence_samples(seq: Sequence, match_px: float = MATCH_PX, labels: str = "r
         descriptor: the `Descriptor` that decides "matchable" (default: the shipped GeoPatch with the
             sequence's radius and depth profile).
         max_targets: use only the first this many target frames (None: all).
+        denoise: GeoKey's `denoise` setting the candidates and cues are found with.
     """
     if not seq.has_ground_truth():
         raise ValueError(f"data: {seq.folder} has no simulator ground truth (geofeat simulate writes it)")
@@ -123,7 +128,7 @@ def sequence_samples(seq: Sequence, match_px: float = MATCH_PX, labels: str = "r
     if labels == "repeatable":
         descriptor = None
     targets = seq.targets[:max_targets] if max_targets else seq.targets
-    frames = {name: _frame_candidates(seq, name, descriptor) for name in [seq.reference, *targets]}
+    frames = {name: _frame_candidates(seq, name, descriptor, denoise) for name in [seq.reference, *targets]}
     xs, ys = [], []
     for target in targets:
         for a, b in ((seq.reference, target), (target, seq.reference)):
@@ -148,11 +153,11 @@ def sequence_samples(seq: Sequence, match_px: float = MATCH_PX, labels: str = "r
 
 
 def collect(folders: list[Path], labels: str = "repeatable", max_targets: int | None = None,
-            progress: bool = True) -> tuple[np.ndarray, np.ndarray]:
+            progress: bool = True, denoise: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """`sequence_samples` of every simulated sequence under `folders`, concatenated."""
     xs, ys = [], []
     for folder in tqdm(folders, desc="candidates", unit="seq", disable=not progress):
-        x, y = sequence_samples(read_sequence(folder), labels=labels, max_targets=max_targets)
+        x, y = sequence_samples(read_sequence(folder), labels=labels, max_targets=max_targets, denoise=denoise)
         xs.append(x)
         ys.append(y)
     return np.concatenate(xs), np.concatenate(ys)
