@@ -44,3 +44,42 @@ def test_sequences_simulated_with_the_same_seed_are_not_held_out(tmp_path, monke
         warnings.filterwarnings("error", message=".*(held out|same frames)")
         main(["train", "--data", str(tmp_path / "train" / "a"), "--val", str(tmp_path / "val" / "d"),
               "--out", str(tmp_path / "w2.pt")])
+
+
+def _patches():
+    import numpy as np
+
+    from geofeat.train.dataset import PatchSet
+
+    rng = np.random.default_rng(0)
+    base = rng.integers(0, 256, (40, 32, 32)).astype(np.uint8)
+    noisy = np.clip(base.astype(int) + rng.integers(-10, 11, base.shape), 0, 255).astype(np.uint8)
+    return PatchSet(np.concatenate([base, noisy]), np.concatenate([np.arange(40), np.arange(40)]))
+
+
+def test_a_diverged_training_stops_and_nan_weights_are_refused_on_loading(tmp_path):
+    """--lr 1e6 turned the loss NaN after a few steps; training went on and wrote NaN weights (the
+    run printed 'final loss nan' and exit 0), which `bench --descriptors geopatch=W.pt` then failed on
+    in every sequence with 'features0 has NaN or infinite values', naming neither the weights nor --lr."""
+    import torch
+
+    from geofeat import make_descriptor
+    from geofeat.descriptors.geopatch import GeoPatchConfig, GeoPatchNet, load_network, save_checkpoint
+    from geofeat.train.loop import TrainConfig, train
+
+    net = GeoPatchConfig(channels=(4, 8, 8), dim=16)
+    with pytest.raises(ValueError, match=r"lr: training diverged at epoch \d+, step \d+ .*smaller learning rate.*--lr"):
+        train(_patches(), tmp_path / "w.pt", TrainConfig(epochs=3, steps_per_epoch=5, batch_size=16, lr=1e6, net=net),
+              progress=False, device="cpu")
+    assert not (tmp_path / "w.pt").exists()
+    bad = GeoPatchNet(net)
+    with torch.no_grad():
+        next(bad.parameters())[0] = float("nan")
+    save_checkpoint(tmp_path / "nan.pt", bad)
+    for load in (lambda: load_network(tmp_path / "nan.pt"), lambda: make_descriptor(f"geopatch={tmp_path / 'nan.pt'}")):
+        with pytest.raises(ValueError, match=r"nan\.pt holds NaN or infinite weights.*--lr"):
+            load()
+    # a run that trains well is unchanged
+    history = train(_patches(), tmp_path / "ok.pt", TrainConfig(epochs=1, steps_per_epoch=3, batch_size=16, net=net),
+                    progress=False, device="cpu")
+    assert len(history["loss"]) == 1 and load_network(tmp_path / "ok.pt")[0].config == net

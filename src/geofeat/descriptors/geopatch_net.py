@@ -108,6 +108,9 @@ def load_checkpoint(path: str | Path, build, what: str) -> tuple[nn.Module, dict
 
         raise ValueError(f"weights: {path} is not a {what} checkpoint of `geofeat train` ({error_summary(error)})") \
             from None
+    if not all(torch.isfinite(t).all() for t in net.state_dict().values() if t.is_floating_point()):
+        raise ValueError(f"weights: {path} holds NaN or infinite weights (its training diverged); train again with "
+                         "a smaller --lr")
     return net, ckpt
 
 
