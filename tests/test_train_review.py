@@ -83,3 +83,21 @@ def test_a_diverged_training_stops_and_nan_weights_are_refused_on_loading(tmp_pa
     history = train(_patches(), tmp_path / "ok.pt", TrainConfig(epochs=1, steps_per_epoch=3, batch_size=16, net=net),
                     progress=False, device="cpu")
     assert len(history["loss"]) == 1 and load_network(tmp_path / "ok.pt")[0].config == net
+
+
+def test_bench_reads_descriptor_weights_once_before_any_sequence(tmp_path, capsys):
+    """A truncated (or foreign) --descriptors geopatch=W.pt failed in every sequence in turn ('FAILED
+    a: ...', 'FAILED b: ...') after config.json and results.csv were started; a --detector
+    geokey=W file was already refused before any work."""
+    from geofeat.descriptors.geopatch import GeoPatchConfig, GeoPatchNet, save_checkpoint
+
+    for name in ("a", "b"):
+        assert main(["simulate", str(tmp_path / "seqs" / name), *TINY, "--seed", str(ord(name))]) == 0
+    save_checkpoint(tmp_path / "w.pt", GeoPatchNet(GeoPatchConfig(channels=(4, 8, 8), dim=16)))
+    (tmp_path / "trunc.pt").write_bytes((tmp_path / "w.pt").read_bytes()[:3000])
+    capsys.readouterr()
+    code = main(["bench", str(tmp_path / "seqs"), "--descriptors", f"geobit,geopatch={tmp_path / 'trunc.pt'}",
+                 "--out", str(tmp_path / "bench"), "--keypoints", "50"])
+    err = capsys.readouterr().err
+    assert code == 2 and "trunc.pt is not a GeoPatch checkpoint" in err and "FAILED" not in err, err
+    assert not (tmp_path / "bench" / "results.csv").exists()
