@@ -101,3 +101,19 @@ def test_bench_reads_descriptor_weights_once_before_any_sequence(tmp_path, capsy
     err = capsys.readouterr().err
     assert code == 2 and "trunc.pt is not a GeoPatch checkpoint" in err and "FAILED" not in err, err
     assert not (tmp_path / "bench" / "results.csv").exists()
+
+
+def test_geopatch_weights_given_as_a_detector_are_named_as_such(tmp_path):
+    """`--detector geokey=geopatch.pt` said 'not a GeoKey weights file for this version (cues ()...,
+    expected ('level', ...))', as if the file were GeoKey weights of an older geofeat."""
+    import numpy as np
+
+    from geofeat.descriptors.geopatch import GeoPatchConfig, GeoPatchNet, save_checkpoint
+    from geofeat.detectors.geokey import load_geokey
+
+    save_checkpoint(tmp_path / "geopatch.pt", GeoPatchNet(GeoPatchConfig(channels=(4, 8, 8), dim=16)))
+    with pytest.raises(ValueError, match=r"geopatch\.pt holds PyTorch weights.*--descriptors geopatch=PATH"):
+        load_geokey(tmp_path / "geopatch.pt")
+    np.savez(tmp_path / "other.npz", a=np.zeros(3))
+    with pytest.raises(ValueError, match=r"other\.npz is not a GeoKey weights file \(no cue_names array\)"):
+        load_geokey(tmp_path / "other.npz")
