@@ -117,3 +117,13 @@ def test_geopatch_weights_given_as_a_detector_are_named_as_such(tmp_path):
     np.savez(tmp_path / "other.npz", a=np.zeros(3))
     with pytest.raises(ValueError, match=r"other\.npz is not a GeoKey weights file \(no cue_names array\)"):
         load_geokey(tmp_path / "other.npz")
+
+
+@pytest.mark.parametrize("extra", [["--channels", "8", "8", "8"], ["--no-angle-pool"], ["--depth-profile", "clean"]])
+def test_train_refuses_geopatch_options_with_an_image_patch_net(extra, tmp_path, capsys):
+    """`train --net tfeat --channels 8 8 8` (or --no-angle-pool, --depth-profile) trained the fixed
+    tfeat network on image patches, the option silently ignored."""
+    code = main(["train", "--data", str(tmp_path), "--out", str(tmp_path / "w.pt"), "--net", "tfeat", *extra])
+    err = capsys.readouterr().err
+    assert code == 2 and f"error: {extra[0]}: GeoPatch's options" in err and "--net tfeat" in err, err
+    assert not (tmp_path / "w.pt").exists()

@@ -58,6 +58,12 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--batch-size: --mining hardest takes its negatives from the batch's other pairs, so it "
                          f"needs at least 2 triplets per batch, got {args.batch_size}")
     channels_given = args.channels is not None
+    if args.net != "geopatch":  # the image-patch nets have their own fixed widths and read no depth
+        unused = [flag for flag, given in (("--channels", channels_given), ("--no-angle-pool", args.no_angle_pool),
+                                           ("--depth-profile", args.depth_profile is not None)) if given]
+        if unused:
+            raise ValueError(f"{', '.join(unused)}: GeoPatch's options, which --net {args.net} (an image-patch "
+                             "network of fixed widths on image patches) would ignore; leave them out")
     if not channels_given:  # fine-tuning takes the widths of the weights it starts from
         args.channels = (16, 32, 64)
         if args.init is not None and args.net == "geopatch":
