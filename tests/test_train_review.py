@@ -127,3 +127,20 @@ def test_train_refuses_geopatch_options_with_an_image_patch_net(extra, tmp_path,
     err = capsys.readouterr().err
     assert code == 2 and f"error: {extra[0]}: GeoPatch's options" in err and "--net tfeat" in err, err
     assert not (tmp_path / "w.pt").exists()
+
+
+def test_train_on_too_few_points_says_what_to_do_and_leaves_no_cache(tmp_path, capsys):
+    """`--keypoints 1` (or a tiny sequence) gave 'data: need at least 2 surface points ...' after
+    writing OUT.patches.npz, so the rerun with more keypoints was refused over that cache ('exists;
+    pass --resume ... or --overwrite'); the count read '2 of 1 surface points'."""
+    assert main(["simulate", str(tmp_path / "seq"), *TINY]) == 0
+    capsys.readouterr()
+    base = ["train", "--data", str(tmp_path / "seq"), "--out", str(tmp_path / "w.pt"), "--epochs", "1", "--steps", "1",
+            "--batch-size", "4", "--channels", "4", "4", "4", "--device", "cpu"]
+    assert main([*base, "--keypoints", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "error: --data: 1 surface point seen in 2 frames or more" in err and "raise --keypoints (1 now)" in err, err
+    assert not list(tmp_path.glob("w.pt*"))
+    assert main([*base, "--keypoints", "8"]) == 0
+    out = capsys.readouterr().out
+    assert "training patches: " in out and " surface points (cached in" in out, out

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..outputs import plural
 from .options import depth_profile_option, keypoint_count, positive_number, whole_number
 
 
@@ -119,9 +120,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"training patches: {len(data)} from {cache}")
     else:
         data = build(args.data, n_keypoints=args.keypoints)
+        _check_triplets(data, args.keypoints)  # before the cache, which a rerun would have to --overwrite
         data.source = source
         data.save(cache)
-        print(f"training patches: {len(data)} of {len(np.unique(data.ids))} surface points (cached in {cache})")
+        print(f"training patches: {len(data)} of {plural(len(np.unique(data.ids)), 'surface point')} "
+              f"(cached in {cache})")
     validation = make_validation(args.val) if args.val else None
     history = train(data, args.out, config, validation=validation, resume=args.resume, device=args.device, net=net,
                     init=args.init, overwrite=args.overwrite)
@@ -129,6 +132,20 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {args.out} (final loss {history['loss'][-1]:.4f}, {scored}), "
           f"{args.out}.png and {args.out}.json")
     return 0
+
+
+def _check_triplets(data, keypoints: int) -> None:
+    """ValueError naming --data and --keypoints when the patches cannot form a triplet (fewer than 2
+    surface points seen in 2 frames); it came after the patch cache was written, as 'data: ...'."""
+    from ..train.loop import TripletSampler
+
+    try:
+        TripletSampler(data.ids, np.random.default_rng(0))
+    except ValueError:
+        _, counts = np.unique(data.ids, return_counts=True)
+        raise ValueError(f"--data: {plural(int((counts >= 2).sum()), 'surface point')} seen in 2 frames or more "
+                         "(a triplet needs 2); simulate more or larger sequences, or raise --keypoints "
+                         f"({keypoints} now)") from None
 
 
 def _check_cached_source(cache: Path, cached: dict | None, wanted: dict) -> None:
