@@ -144,3 +144,16 @@ def test_train_on_too_few_points_says_what_to_do_and_leaves_no_cache(tmp_path, c
     assert main([*base, "--keypoints", "8"]) == 0
     out = capsys.readouterr().out
     assert "training patches: " in out and " surface points (cached in" in out, out
+
+
+def test_motion_blur_with_a_preset_that_has_none_is_refused(tmp_path, capsys):
+    """`simulate --motion-blur` with the default mild preset blurred nothing (mild's longest blur is
+    0 px) and wrote "motion_blur": true into groundtruth.json."""
+    from geofeat.sim import simulate_sequence
+
+    assert main(["simulate", str(tmp_path / "m"), *TINY, "--motion-blur"]) == 2
+    err = capsys.readouterr().err
+    assert "error: --motion-blur: the mild preset has no motion blur; add --preset paper" in err, err
+    with pytest.raises(ValueError, match="motion_blur: the mild preset has no motion blur"):
+        simulate_sequence(tmp_path / "m", n_frames=2, width=64, height=48, progress=False, motion_blur=True)
+    assert not (tmp_path / "m").exists()
