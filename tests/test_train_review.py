@@ -157,3 +157,22 @@ def test_motion_blur_with_a_preset_that_has_none_is_refused(tmp_path, capsys):
     with pytest.raises(ValueError, match="motion_blur: the mild preset has no motion blur"):
         simulate_sequence(tmp_path / "m", n_frames=2, width=64, height=48, progress=False, motion_blur=True)
     assert not (tmp_path / "m").exists()
+
+
+def test_train_says_when_its_val_sequences_give_no_pair(tmp_path, monkeypatch, capsys):
+    """--val sequences without a scorable pair trained without validation, saying only 'no
+    validation pairs' per epoch and 'validation MS nan' at the end."""
+    import geofeat.train.dataset as dataset
+    import geofeat.train.loop as loop
+
+    for name, seed in (("data", "1"), ("val", "2")):
+        assert main(["simulate", str(tmp_path / name), *TINY, "--seed", seed]) == 0
+    monkeypatch.setattr(dataset, "validation_pairs", lambda *a, **k: [])
+    monkeypatch.setattr(dataset, "build_patch_set", lambda *a, **k: _patches())
+    monkeypatch.setattr(loop, "train", lambda *a, **k: {"loss": [0.5], "val_ms": [float("nan")]})
+    capsys.readouterr()
+    with pytest.warns(UserWarning, match="--val: no pair of these sequences could be scored"):
+        assert main(["train", "--data", str(tmp_path / "data"), "--val", str(tmp_path / "val"),
+                     "--out", str(tmp_path / "w.pt")]) == 0
+    out = capsys.readouterr().out
+    assert "no validation pairs in --val" in out and "nan" not in out, out

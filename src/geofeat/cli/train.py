@@ -126,9 +126,16 @@ def run(args: argparse.Namespace) -> int:
         print(f"training patches: {len(data)} of {plural(len(np.unique(data.ids)), 'surface point')} "
               f"(cached in {cache})")
     validation = make_validation(args.val) if args.val else None
+    if args.val and not validation:  # each epoch then said "no validation pairs", the end "validation MS nan"
+        import warnings
+
+        warnings.warn("--val: no pair of these sequences could be scored (no SIFT keypoint of a target frame has "
+                      "ground truth in a reference with keypoints), so this run has no validation MS; larger or "
+                      "more textured --val sequences give pairs", UserWarning, stacklevel=2)
     history = train(data, args.out, config, validation=validation, resume=args.resume, device=args.device, net=net,
                     init=args.init, overwrite=args.overwrite)
-    scored = f"validation MS {history['val_ms'][-1]:.3f}" if args.val else "no --val sequences"
+    scored = (f"validation MS {history['val_ms'][-1]:.3f}" if validation else
+              "no validation pairs in --val" if args.val else "no --val sequences")
     print(f"wrote {args.out} (final loss {history['loss'][-1]:.4f}, {scored}), "
           f"{args.out}.png and {args.out}.json")
     return 0
