@@ -176,3 +176,12 @@ def test_train_says_when_its_val_sequences_give_no_pair(tmp_path, monkeypatch, c
                      "--out", str(tmp_path / "w.pt")]) == 0
     out = capsys.readouterr().out
     assert "no validation pairs in --val" in out and "nan" not in out, out
+
+
+def test_train_detector_refuses_a_keypoint_count_given_twice(tmp_path, capsys):
+    """`--keypoints 1024 1024` scored 1024 once and reported 'chosen by the mean validation MS at
+    1024, 1024 keypoints per frame'."""
+    code = main(["train-detector", "--data", str(tmp_path), "--val", str(tmp_path), "--out", str(tmp_path / "k.npz"),
+                 "--keypoints", "100", "200", "100"])
+    err = capsys.readouterr().err
+    assert code == 2 and "error: --keypoints: 100 given twice" in err, err
