@@ -185,3 +185,20 @@ def test_train_detector_refuses_a_keypoint_count_given_twice(tmp_path, capsys):
                  "--keypoints", "100", "200", "100"])
     err = capsys.readouterr().err
     assert code == 2 and "error: --keypoints: 100 given twice" in err, err
+
+
+def test_weights_of_another_network_name_the_descriptor_they_belong_to(tmp_path):
+    """`train --net tfeat` weights given as geopatch=W.pt, or GeoPatch weights as tfeat-sim=W.pt, said
+    'not a GeoPatch checkpoint (TypeError: GeoPatchConfig.__init__() got an unexpected keyword
+    argument 'arch')', not which descriptor they are for."""
+    from geofeat import make_descriptor
+    from geofeat.descriptors.geopatch import GeoPatchConfig, GeoPatchNet, save_checkpoint
+    from geofeat.descriptors.image_patch_nets import ImagePatchNet, default_config
+
+    save_checkpoint(tmp_path / "geopatch.pt", GeoPatchNet(GeoPatchConfig(channels=(4, 8, 8), dim=16)))
+    save_checkpoint(tmp_path / "tfeat.pt", ImagePatchNet(default_config("tfeat")))
+    with pytest.raises(ValueError, match=r"tfeat\.pt holds tfeat-sim weights .*not GeoPatch; name them tfeat-sim=PATH"):
+        make_descriptor(f"geopatch={tmp_path / 'tfeat.pt'}")
+    for name in ("tfeat-sim", "logpolar-sim"):
+        with pytest.raises(ValueError, match=r"geopatch\.pt holds geopatch weights .*name them geopatch=PATH"):
+            make_descriptor(f"{name}={tmp_path / 'geopatch.pt'}")
