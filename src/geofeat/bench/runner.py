@@ -31,7 +31,7 @@ from tqdm import tqdm
 
 from ..constants import N_KEYPOINTS
 from ..depth import check_profile, sequence_depth_profile
-from ..descriptors import OpenCVDescriptor, check_descriptor_name, refuse_repeated
+from ..descriptors import OpenCVDescriptor, check_descriptor_name, make_descriptor, refuse_repeated
 from ..inputs import check_depth_scale, check_radius, check_tps_dir, check_whole, resolve_radius
 from ..io import Sequence, find_sequences, frame_names, read_sequence, sequence_digest
 from ..outputs import add_to_manifest, append_line_durably, atomic_file, check_out_dir, plural, read_manifest
@@ -423,6 +423,9 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
         raise ValueError(f"out: {out} is a file, not a folder")
     folders = [str(f) for f in find_sequences(datasets, unique_names=True)]
     check_tps_dir(config.tps_dir)
+    for name in config.descriptors:  # weights that cannot be read: one error naming them, not one per sequence
+        if "=" in name:
+            make_descriptor(name)
     if config.features:  # before any work: a shared group would score a sequence with another's features
         check_one_source_per_frame([ExternalFeatures(*parse_features_option(f)) for f in config.features],
                                    {Path(f).name: frame_names(f) for f in folders})

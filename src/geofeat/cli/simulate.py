@@ -32,7 +32,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--fov", type=number_between(*FOV_RANGE_DEG), default=None,
                    help="vertical field of view in degrees, in (20, 120) (default: Kinect-like f = 525 px at "
                    "640 x 480, 49.1 deg; the paper authors rendered 90)")
-    p.add_argument("--motion-blur", action="store_true", help="motion blur on the target frames (paper, hard)")
+    p.add_argument("--motion-blur", action="store_true", help="motion blur on the target frames (--preset paper or hard; mild has none)")
     p.add_argument("--frames", type=whole_number(1), default=30, help="number of frames, reference included (default 30)")
     p.add_argument("--seed", type=whole_number(0), default=0, help="random seed (default 0)")
     tex = p.add_mutually_exclusive_group()
@@ -55,6 +55,9 @@ def run(args: argparse.Namespace) -> int:
     """Run `simulate`; ValueError on bad input. Returns the exit code."""
     from ..sim.writer import simulate_sequence
 
+    if args.motion_blur and not PRESETS[args.preset].blur_px > 0:
+        raise ValueError(f"--motion-blur: the {args.preset} preset has no motion blur; add --preset paper or "
+                         "--preset hard, or leave --motion-blur out")
     if args.contact_sheet is not None:  # checked before the simulation, which takes minutes
         import cv2
 

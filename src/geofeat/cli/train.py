@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..outputs import plural
 from .options import depth_profile_option, keypoint_count, positive_number, whole_number
 
 
@@ -58,6 +59,12 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--batch-size: --mining hardest takes its negatives from the batch's other pairs, so it "
                          f"needs at least 2 triplets per batch, got {args.batch_size}")
     channels_given = args.channels is not None
+    if args.net != "geopatch":  # the image-patch nets have their own fixed widths and read no depth
+        unused = [flag for flag, given in (("--channels", channels_given), ("--no-angle-pool", args.no_angle_pool),
+                                           ("--depth-profile", args.depth_profile is not None)) if given]
+        if unused:
+            raise ValueError(f"{', '.join(unused)}: GeoPatch's options, which --net {args.net} (an image-patch "
+                             "network of fixed widths on image patches) would ignore; leave them out")
     if not channels_given:  # fine-tuning takes the widths of the weights it starts from
         args.channels = (16, 32, 64)
         if args.init is not None and args.net == "geopatch":
@@ -113,16 +120,39 @@ def run(args: argparse.Namespace) -> int:
         print(f"training patches: {len(data)} from {cache}")
     else:
         data = build(args.data, n_keypoints=args.keypoints)
+        _check_triplets(data, args.keypoints)  # before the cache, which a rerun would have to --overwrite
         data.source = source
         data.save(cache)
-        print(f"training patches: {len(data)} of {len(np.unique(data.ids))} surface points (cached in {cache})")
+        print(f"training patches: {len(data)} of {plural(len(np.unique(data.ids)), 'surface point')} "
+              f"(cached in {cache})")
     validation = make_validation(args.val) if args.val else None
+    if args.val and not validation:  # each epoch then said "no validation pairs", the end "validation MS nan"
+        import warnings
+
+        warnings.warn("--val: no pair of these sequences could be scored (no SIFT keypoint of a target frame has "
+                      "ground truth in a reference with keypoints), so this run has no validation MS; larger or "
+                      "more textured --val sequences give pairs", UserWarning, stacklevel=2)
     history = train(data, args.out, config, validation=validation, resume=args.resume, device=args.device, net=net,
                     init=args.init, overwrite=args.overwrite)
-    scored = f"validation MS {history['val_ms'][-1]:.3f}" if args.val else "no --val sequences"
+    scored = (f"validation MS {history['val_ms'][-1]:.3f}" if validation else
+              "no validation pairs in --val" if args.val else "no --val sequences")
     print(f"wrote {args.out} (final loss {history['loss'][-1]:.4f}, {scored}), "
           f"{args.out}.png and {args.out}.json")
     return 0
+
+
+def _check_triplets(data, keypoints: int) -> None:
+    """ValueError naming --data and --keypoints when the patches cannot form a triplet (fewer than 2
+    surface points seen in 2 frames); it came after the patch cache was written, as 'data: ...'."""
+    from ..train.loop import TripletSampler
+
+    try:
+        TripletSampler(data.ids, np.random.default_rng(0))
+    except ValueError:
+        _, counts = np.unique(data.ids, return_counts=True)
+        raise ValueError(f"--data: {plural(int((counts >= 2).sum()), 'surface point')} seen in 2 frames or more "
+                         "(a triplet needs 2); simulate more or larger sequences, or raise --keypoints "
+                         f"({keypoints} now)") from None
 
 
 def _check_cached_source(cache: Path, cached: dict | None, wanted: dict) -> None:

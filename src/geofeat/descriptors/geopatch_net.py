@@ -99,6 +99,7 @@ def load_checkpoint(path: str | Path, build, what: str) -> tuple[nn.Module, dict
     network from the checkpoint's config, which then takes its state dict. ValueError naming the file
     when it is corrupt, not a checkpoint, or holds another network's weights (`what` names the one
     expected, e.g. "GeoPatch")."""
+    ckpt = None
     try:
         ckpt = torch.load(str(path), map_location="cpu", weights_only=False)
         net = build(dict(ckpt["config"]))
@@ -106,9 +107,27 @@ def load_checkpoint(path: str | Path, build, what: str) -> tuple[nn.Module, dict
     except Exception as error:  # noqa: BLE001 - unpickling, a missing key, another architecture: all one user error
         from ..inputs import error_summary
 
+        other = _trained_name(ckpt)  # `geofeat train --net` wrote another network's weights
+        if other is not None and other not in what.lower():
+            raise ValueError(f"weights: {path} holds {other} weights (geofeat train --net), not {what}; name them "
+                             f"{other}=PATH") from None
         raise ValueError(f"weights: {path} is not a {what} checkpoint of `geofeat train` ({error_summary(error)})") \
             from None
+    if not all(torch.isfinite(t).all() for t in net.state_dict().values() if t.is_floating_point()):
+        raise ValueError(f"weights: {path} holds NaN or infinite weights (its training diverged); train again with "
+                         "a smaller --lr")
     return net, ckpt
+
+
+def _trained_name(ckpt) -> str | None:
+    """The descriptor name ("geopatch", "tfeat-sim", "logpolar-sim") of a checkpoint `geofeat train`
+    wrote, from its config; None when it is not one."""
+    config = ckpt.get("config") if isinstance(ckpt, dict) else None
+    if not isinstance(config, dict):
+        return None
+    if "channels" in config:
+        return "geopatch"
+    return f"{config['arch']}-sim" if config.get("arch") in ("tfeat", "logpolar") else None
 
 
 def load_network(path: str | Path | None = None, device: str | torch.device | None = None) -> tuple[GeoPatchNet, dict]:

@@ -183,7 +183,14 @@ def _load(path: str, stamp: tuple[int, int, int]) -> GeoKeyModel:
             arrays = {k: a[k] for k in a.files}
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
         raise ValueError(f"detector weights: {path} is not a GeoKey weights file ({error})") from None
-    names = tuple(str(s) for s in arrays.get("cue_names", ()))
+    if any(name.endswith("data.pkl") for name in arrays):  # a torch archive is a zip too, read as arrays
+        raise ValueError(f"detector weights: {path} holds PyTorch weights (a descriptor's, from `geofeat train`?), "
+                         "not a detector's: pass GeoPatch weights as --descriptors geopatch=PATH, and GeoKey "
+                         "weights from `geofeat train-detector` as --detector geokey=PATH")
+    if "cue_names" not in arrays:
+        raise ValueError(f"detector weights: {path} is not a GeoKey weights file (no cue_names array); "
+                         "`geofeat train-detector` writes them")
+    names = tuple(str(s) for s in arrays["cue_names"])
     if names != CUE_NAMES or "linear" not in arrays:
         raise ValueError(f"detector weights: {path} is not a GeoKey weights file for this version "
                          f"(cues {names[:3]}..., expected {CUE_NAMES[:3]}...)")

@@ -143,10 +143,14 @@ def simulate_sequence(
             `geofeat.sim.scenes.PRESETS`.
         fov: vertical field of view in degrees, strictly between 20 and 120 (None: Kinect-like
             f = 525 px at 640 x 480, 49.1 deg; the paper authors' renders: 90).
-        motion_blur: blur the target frames along a random direction (up to the preset's length).
+        motion_blur: blur the target frames along a random direction (up to the preset's length;
+            `paper` and `hard` only, `mild` has none).
     """
     _check_args(scenario, n_frames, width, height, seed, steps_per_frame)
     preset_obj = get_preset(preset)
+    if motion_blur and not preset_obj.blur_px > 0:  # it blurred nothing, and groundtruth.json said motion_blur true
+        raise ValueError(f"motion_blur: the {preset_obj.name} preset has no motion blur; simulate with the paper or "
+                         "hard preset, or without motion blur")
     K = default_intrinsics(width, height, fov)
     out_dir = Path(out_dir)
     # overwrite replaces only what geofeat wrote there; a folder holding other files is refused

@@ -127,18 +127,53 @@ def check_simulated(paths, what: str) -> list[Path]:
     return folders
 
 
+def _frames_digest(folder: Path) -> str:
+    """A digest of a sequence's colour frames (the bytes of every `*-rgb.png`): equal for two copies of
+    one sequence, or two simulations with the same seed and settings (`geofeat simulate` writes the
+    same frames again; its default seed is 0 every time)."""
+    import hashlib
+
+    digest = hashlib.sha1()
+    for path in sorted(Path(folder).glob("*-rgb.png")):
+        digest.update(path.name.encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
 def warn_if_not_held_out(data_folders: list[Path], val_folders: list[Path], what: str = "val",
                          data_what: str = "data") -> None:
     """A UserWarning when validation sequences are also training sequences (the same folder given
-    twice, or inside a folder of sequences given as data): validation is then not held out, and its
-    scores flatter what was trained (train-detector also chooses its settings on them)."""
-    trained = {Path(f).resolve() for f in data_folders}
-    shared = [str(f) for f in val_folders if Path(f).resolve() in trained]
-    if shared:
-        import warnings
+    twice, inside a folder of sequences given as data, or a copy of one: the same frames, such as two
+    simulations with the same --seed): validation is then not held out, and its scores flatter what
+    was trained (train-detector also chooses its settings on them). Another when two training
+    sequences are one: its points are trained twice, and `train` draws one point's two copies as
+    each other's negatives."""
+    import warnings
 
+    digests = {}
+    for f in data_folders:
+        digests.setdefault(_frames_digest(f), []).append(Path(f))
+    twice = [group for group in digests.values() if len(group) > 1]
+    if twice:
+        pairs = ", ".join(f"{a} and {b}" for a, *rest in twice[:3] for b in rest[:1])
+        warnings.warn(f"{data_what}: {pairs} hold the same frames (copies, or simulated with the same --seed and "
+                      "settings), so their points are trained twice as if they were different points; simulate "
+                      "each sequence with its own --seed", UserWarning, stacklevel=2)
+    trained = {Path(f).resolve() for f in data_folders}
+    shared, same = [], []
+    for f in val_folders:
+        if Path(f).resolve() in trained:
+            shared.append(str(f))
+        elif (twin := digests.get(_frames_digest(f))) is not None:
+            same.append(f"{f} (= {twin[0]})")
+    if shared:
         warnings.warn(f"{what}: {', '.join(shared[:3])}{', ...' if len(shared) > 3 else ''} is also under {data_what}, "
                       "so validation is not held out and its scores flatter the training", UserWarning, stacklevel=2)
+    if same:
+        warnings.warn(f"{what}: {', '.join(same[:3])}{', ...' if len(same) > 3 else ''} holds the same frames as a "
+                      f"sequence under {data_what} (a copy, or simulated with the same --seed and settings), so "
+                      "validation is not held out and its scores flatter the training; simulate the validation "
+                      "sequences with seeds of their own", UserWarning, stacklevel=2)
 
 
 @dataclass

@@ -258,7 +258,7 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
     for epoch in range(start_epoch, config.epochs):
         losses = []
         bar = tqdm(range(config.steps_per_epoch), desc=f"epoch {epoch + 1}/{config.epochs}", disable=not progress)
-        for _ in bar:
+        for step in bar:
             a, p, n = sampler.sample(config.batch_size)
             aug = (config.augment_shift, config.augment_photometric)
             xa = _batch(data.patches, a, rng, *aug).to(device)
@@ -269,6 +269,10 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
             else:
                 (da, dp), dn = net(torch.cat([xa, xp])).split(len(a)), None
             loss = triplet_loss(da, dp, dn, config.margin, config.mining, ids=torch.from_numpy(data.ids[a]).to(device))
+            if not torch.isfinite(loss):  # its step would make every weight NaN, and OUT with them
+                raise ValueError(f"lr: training diverged at epoch {epoch + 1}, step {step + 1} (loss {loss.item()}); "
+                                 f"nothing written for this epoch; train anew with a smaller learning rate than "
+                                 f"{config.lr:g} (--lr)")
             opt.zero_grad()
             loss.backward()
             opt.step()

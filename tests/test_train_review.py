@@ -1,0 +1,204 @@
+"""Review of the commands that make data and weights (`simulate`, `train`, `train-detector`) and of
+loading what they write: results that were silently wrong, and failures that did not say what to do."""
+
+from __future__ import annotations
+
+import warnings
+
+import pytest
+
+from geofeat.cli import main
+
+TINY = ["--frames", "2", "--width", "64", "--height", "48", "--no-progress", "--texture", "procedural"]
+
+
+class _Stop(Exception):
+    """Raised by a patched step to end a run once its checks are done."""
+
+
+def _stop(*args, **kwargs):
+    raise _Stop
+
+
+def test_sequences_simulated_with_the_same_seed_are_not_held_out(tmp_path, monkeypatch):
+    """`geofeat simulate` without --seed uses seed 0 every time: three runs into train/a, train/b and
+    val/c write the same frames three times. Validation on c then scored the training data (no warning:
+    the folders differ), and `train` drew a's and b's copies of one point as each other's negatives."""
+    import geofeat.train.dataset as dataset
+    import geofeat.train.detector as detector
+
+    for name in ("train/a", "train/b", "val/c", "val/d"):
+        seed = ["--seed", "5"] if name == "val/d" else []
+        assert main(["simulate", str(tmp_path / name), *TINY, *seed]) == 0
+    monkeypatch.setattr(dataset, "build_patch_set", _stop)
+    monkeypatch.setattr(detector, "collect", _stop)
+    for command, out in (("train", "w.pt"), ("train-detector", "k.npz")):
+        with pytest.warns(UserWarning) as caught, pytest.raises(_Stop):
+            main([command, "--data", str(tmp_path / "train"), "--val", str(tmp_path / "val"),
+                  "--out", str(tmp_path / out)])
+        text = " | ".join(str(w.message) for w in caught)
+        assert "--data: " in text and "hold the same frames" in text and "--seed" in text, text
+        assert "--val: " in text and "c (= " in text and "not held out" in text, text
+        assert "val/d" not in text, text  # its own seed: held out
+    with pytest.raises(_Stop), warnings.catch_warnings():  # sequences of their own: no warning
+        warnings.filterwarnings("error", message=".*(held out|same frames)")
+        main(["train", "--data", str(tmp_path / "train" / "a"), "--val", str(tmp_path / "val" / "d"),
+              "--out", str(tmp_path / "w2.pt")])
+
+
+def _patches():
+    import numpy as np
+
+    from geofeat.train.dataset import PatchSet
+
+    rng = np.random.default_rng(0)
+    base = rng.integers(0, 256, (40, 32, 32)).astype(np.uint8)
+    noisy = np.clip(base.astype(int) + rng.integers(-10, 11, base.shape), 0, 255).astype(np.uint8)
+    return PatchSet(np.concatenate([base, noisy]), np.concatenate([np.arange(40), np.arange(40)]))
+
+
+def test_a_diverged_training_stops_and_nan_weights_are_refused_on_loading(tmp_path):
+    """--lr 1e6 turned the loss NaN after a few steps; training went on and wrote NaN weights (the
+    run printed 'final loss nan' and exit 0), which `bench --descriptors geopatch=W.pt` then failed on
+    in every sequence with 'features0 has NaN or infinite values', naming neither the weights nor --lr."""
+    import torch
+
+    from geofeat import make_descriptor
+    from geofeat.descriptors.geopatch import GeoPatchConfig, GeoPatchNet, load_network, save_checkpoint
+    from geofeat.train.loop import TrainConfig, train
+
+    net = GeoPatchConfig(channels=(4, 8, 8), dim=16)
+    with pytest.raises(ValueError, match=r"lr: training diverged at epoch \d+, step \d+ .*smaller learning rate.*--lr"):
+        train(_patches(), tmp_path / "w.pt", TrainConfig(epochs=3, steps_per_epoch=5, batch_size=16, lr=1e6, net=net),
+              progress=False, device="cpu")
+    assert not (tmp_path / "w.pt").exists()
+    bad = GeoPatchNet(net)
+    with torch.no_grad():
+        next(bad.parameters())[0] = float("nan")
+    save_checkpoint(tmp_path / "nan.pt", bad)
+    for load in (lambda: load_network(tmp_path / "nan.pt"), lambda: make_descriptor(f"geopatch={tmp_path / 'nan.pt'}")):
+        with pytest.raises(ValueError, match=r"nan\.pt holds NaN or infinite weights.*--lr"):
+            load()
+    # a run that trains well is unchanged
+    history = train(_patches(), tmp_path / "ok.pt", TrainConfig(epochs=1, steps_per_epoch=3, batch_size=16, net=net),
+                    progress=False, device="cpu")
+    assert len(history["loss"]) == 1 and load_network(tmp_path / "ok.pt")[0].config == net
+
+
+def test_bench_reads_descriptor_weights_once_before_any_sequence(tmp_path, capsys):
+    """A truncated (or foreign) --descriptors geopatch=W.pt failed in every sequence in turn ('FAILED
+    a: ...', 'FAILED b: ...') after config.json and results.csv were started; a --detector
+    geokey=W file was already refused before any work."""
+    from geofeat.descriptors.geopatch import GeoPatchConfig, GeoPatchNet, save_checkpoint
+
+    for name in ("a", "b"):
+        assert main(["simulate", str(tmp_path / "seqs" / name), *TINY, "--seed", str(ord(name))]) == 0
+    save_checkpoint(tmp_path / "w.pt", GeoPatchNet(GeoPatchConfig(channels=(4, 8, 8), dim=16)))
+    (tmp_path / "trunc.pt").write_bytes((tmp_path / "w.pt").read_bytes()[:3000])
+    capsys.readouterr()
+    code = main(["bench", str(tmp_path / "seqs"), "--descriptors", f"geobit,geopatch={tmp_path / 'trunc.pt'}",
+                 "--out", str(tmp_path / "bench"), "--keypoints", "50"])
+    err = capsys.readouterr().err
+    assert code == 2 and "trunc.pt is not a GeoPatch checkpoint" in err and "FAILED" not in err, err
+    assert not (tmp_path / "bench" / "results.csv").exists()
+
+
+def test_geopatch_weights_given_as_a_detector_are_named_as_such(tmp_path):
+    """`--detector geokey=geopatch.pt` said 'not a GeoKey weights file for this version (cues ()...,
+    expected ('level', ...))', as if the file were GeoKey weights of an older geofeat."""
+    import numpy as np
+
+    from geofeat.descriptors.geopatch import GeoPatchConfig, GeoPatchNet, save_checkpoint
+    from geofeat.detectors.geokey import load_geokey
+
+    save_checkpoint(tmp_path / "geopatch.pt", GeoPatchNet(GeoPatchConfig(channels=(4, 8, 8), dim=16)))
+    with pytest.raises(ValueError, match=r"geopatch\.pt holds PyTorch weights.*--descriptors geopatch=PATH"):
+        load_geokey(tmp_path / "geopatch.pt")
+    np.savez(tmp_path / "other.npz", a=np.zeros(3))
+    with pytest.raises(ValueError, match=r"other\.npz is not a GeoKey weights file \(no cue_names array\)"):
+        load_geokey(tmp_path / "other.npz")
+
+
+@pytest.mark.parametrize("extra", [["--channels", "8", "8", "8"], ["--no-angle-pool"], ["--depth-profile", "clean"]])
+def test_train_refuses_geopatch_options_with_an_image_patch_net(extra, tmp_path, capsys):
+    """`train --net tfeat --channels 8 8 8` (or --no-angle-pool, --depth-profile) trained the fixed
+    tfeat network on image patches, the option silently ignored."""
+    code = main(["train", "--data", str(tmp_path), "--out", str(tmp_path / "w.pt"), "--net", "tfeat", *extra])
+    err = capsys.readouterr().err
+    assert code == 2 and f"error: {extra[0]}: GeoPatch's options" in err and "--net tfeat" in err, err
+    assert not (tmp_path / "w.pt").exists()
+
+
+def test_train_on_too_few_points_says_what_to_do_and_leaves_no_cache(tmp_path, capsys):
+    """`--keypoints 1` (or a tiny sequence) gave 'data: need at least 2 surface points ...' after
+    writing OUT.patches.npz, so the rerun with more keypoints was refused over that cache ('exists;
+    pass --resume ... or --overwrite'); the count read '2 of 1 surface points'."""
+    assert main(["simulate", str(tmp_path / "seq"), *TINY]) == 0
+    capsys.readouterr()
+    base = ["train", "--data", str(tmp_path / "seq"), "--out", str(tmp_path / "w.pt"), "--epochs", "1", "--steps", "1",
+            "--batch-size", "4", "--channels", "4", "4", "4", "--device", "cpu"]
+    assert main([*base, "--keypoints", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "error: --data: 1 surface point seen in 2 frames or more" in err and "raise --keypoints (1 now)" in err, err
+    assert not list(tmp_path.glob("w.pt*"))
+    assert main([*base, "--keypoints", "8"]) == 0
+    out = capsys.readouterr().out
+    assert "training patches: " in out and " surface points (cached in" in out, out
+
+
+def test_motion_blur_with_a_preset_that_has_none_is_refused(tmp_path, capsys):
+    """`simulate --motion-blur` with the default mild preset blurred nothing (mild's longest blur is
+    0 px) and wrote "motion_blur": true into groundtruth.json."""
+    from geofeat.sim import simulate_sequence
+
+    assert main(["simulate", str(tmp_path / "m"), *TINY, "--motion-blur"]) == 2
+    err = capsys.readouterr().err
+    assert "error: --motion-blur: the mild preset has no motion blur; add --preset paper" in err, err
+    with pytest.raises(ValueError, match="motion_blur: the mild preset has no motion blur"):
+        simulate_sequence(tmp_path / "m", n_frames=2, width=64, height=48, progress=False, motion_blur=True)
+    assert not (tmp_path / "m").exists()
+
+
+def test_train_says_when_its_val_sequences_give_no_pair(tmp_path, monkeypatch, capsys):
+    """--val sequences without a scorable pair trained without validation, saying only 'no
+    validation pairs' per epoch and 'validation MS nan' at the end."""
+    import geofeat.train.dataset as dataset
+    import geofeat.train.loop as loop
+
+    for name, seed in (("data", "1"), ("val", "2")):
+        assert main(["simulate", str(tmp_path / name), *TINY, "--seed", seed]) == 0
+    monkeypatch.setattr(dataset, "validation_pairs", lambda *a, **k: [])
+    monkeypatch.setattr(dataset, "build_patch_set", lambda *a, **k: _patches())
+    monkeypatch.setattr(loop, "train", lambda *a, **k: {"loss": [0.5], "val_ms": [float("nan")]})
+    capsys.readouterr()
+    with pytest.warns(UserWarning, match="--val: no pair of these sequences could be scored"):
+        assert main(["train", "--data", str(tmp_path / "data"), "--val", str(tmp_path / "val"),
+                     "--out", str(tmp_path / "w.pt")]) == 0
+    out = capsys.readouterr().out
+    assert "no validation pairs in --val" in out and "nan" not in out, out
+
+
+def test_train_detector_refuses_a_keypoint_count_given_twice(tmp_path, capsys):
+    """`--keypoints 1024 1024` scored 1024 once and reported 'chosen by the mean validation MS at
+    1024, 1024 keypoints per frame'."""
+    code = main(["train-detector", "--data", str(tmp_path), "--val", str(tmp_path), "--out", str(tmp_path / "k.npz"),
+                 "--keypoints", "100", "200", "100"])
+    err = capsys.readouterr().err
+    assert code == 2 and "error: --keypoints: 100 given twice" in err, err
+
+
+def test_weights_of_another_network_name_the_descriptor_they_belong_to(tmp_path):
+    """`train --net tfeat` weights given as geopatch=W.pt, or GeoPatch weights as tfeat-sim=W.pt, said
+    'not a GeoPatch checkpoint (TypeError: GeoPatchConfig.__init__() got an unexpected keyword
+    argument 'arch')', not which descriptor they are for."""
+    from geofeat import make_descriptor
+    from geofeat.descriptors.geopatch import GeoPatchConfig, GeoPatchNet, save_checkpoint
+    from geofeat.descriptors.image_patch_nets import ImagePatchNet, default_config
+
+    save_checkpoint(tmp_path / "geopatch.pt", GeoPatchNet(GeoPatchConfig(channels=(4, 8, 8), dim=16)))
+    save_checkpoint(tmp_path / "tfeat.pt", ImagePatchNet(default_config("tfeat")))
+    with pytest.raises(ValueError, match=r"tfeat\.pt holds tfeat-sim weights .*not GeoPatch; name them tfeat-sim=PATH"):
+        make_descriptor(f"geopatch={tmp_path / 'tfeat.pt'}")
+    for name in ("tfeat-sim", "logpolar-sim"):
+        with pytest.raises(ValueError, match=r"geopatch\.pt holds geopatch weights .*name them geopatch=PATH"):
+            make_descriptor(f"{name}={tmp_path / 'geopatch.pt'}")
