@@ -376,7 +376,8 @@ def test_detect_geokey_refuses_a_bad_n(n):
 
 @pytest.mark.parametrize("option, value", [("nms_radius", float("nan")), ("nms_radius", float("inf")),
                                            ("nms_radius", -1.0), ("threshold", [1, 2]), ("threshold", "1"),
-                                           ("min_fraction", "0.5"), ("min_fraction", True)])
+                                           ("min_fraction", "0.5"), ("min_fraction", True), ("denoise", -1.0),
+                                           ("denoise", float("nan")), ("denoise", "2")])
 def test_detect_geokey_options_must_be_numbers(option, value):
     """NaN and inf radii failed converting to int (inf an OverflowError); a list threshold was
     float()'s TypeError; strings and bools passed as numbers."""
@@ -464,3 +465,56 @@ def test_a_pair_without_target_keypoints_scores_zero_not_nan(tiny):
     assert np.isfinite([scores["ms"], scores["mma"], scores["hits"]]).all()
     assert 0 < scores["ms"] < everyone["ms"]  # the other pair's MS averaged with a 0
     assert scores["repeatability"] < everyone["repeatability"]  # which repeatability already counted
+
+
+def test_noise_level_measures_added_noise_and_ignores_shading():
+    from geofeat.detectors.geokey import noise_level
+
+    rng = np.random.default_rng(0)
+    y, x = np.mgrid[0:240, 0:320].astype(np.float32)
+    shading = 0.3 + 0.4 * x / 320 + 0.1 * np.sin(y / 40)  # smooth: the mask cancels it
+    assert noise_level(shading) < 1e-3
+    for sigma in (1 / 255, 5 / 255):
+        assert noise_level(shading + rng.normal(0, sigma, shading.shape)) == pytest.approx(sigma, rel=0.1)
+    assert noise_level(np.zeros((2, 50))) == 0.0
+
+
+def test_denoising_before_detection_keeps_corners_under_image_noise():
+    """Noise of a few grey levels moves 3 px corners: the same textured view with two draws of noise
+    gave GeoKey keypoints found again less often than the edge-preserving filter's."""
+    from geofeat.detectors.geokey import detection_image
+
+    frame = render_flat(make_texture(3), Z0)
+    rng = np.random.default_rng(1)
+
+    def noisy():
+        return frame.with_image(np.clip(frame.image + rng.normal(0, 6 / 255, frame.shape), 0, 1))
+
+    a, b = noisy(), noisy()
+    shipped = load_geokey()
+
+    def found_again(denoise: float) -> float:
+        ka = detect_geokey(a, 400, shipped, denoise=denoise, threshold=-np.inf)
+        kb = detect_geokey(b, 400, shipped, denoise=denoise, threshold=-np.inf)
+        return float(np.mean(cKDTree(kb.xy).query(ka.xy)[0] < 1.5))
+
+    raw, filtered = found_again(0.0), found_again(4.0)
+    assert filtered > raw + 0.05, (raw, filtered)
+    denoised = detection_image(a, 4.0)
+    assert denoised.depth is a.depth and denoised.K is a.K and denoised.shape == a.shape
+    assert detection_image(a, 0.0) is a
+
+
+def test_the_denoise_setting_travels_with_the_weights(tmp_path):
+    from dataclasses import replace
+
+    frame = geofeat.read_demo_frame()
+    model = replace(load_geokey(), denoise=3.0)
+    model.save(tmp_path / "d.npz")
+    assert load_geokey(tmp_path / "d.npz").denoise == pytest.approx(3.0)
+    np.testing.assert_array_equal(geofeat.detect(frame, 500, detector=f"geokey={tmp_path / 'd.npz'}").xy,
+                                  geofeat.detect(frame, 500, detector="geokey", denoise=3.0).xy)
+    old = dict(np.load(tmp_path / "d.npz"))
+    del old["denoise"]  # weights written before the setting existed: no filter
+    np.savez(open(tmp_path / "old.npz", "wb"), **old)
+    assert load_geokey(tmp_path / "old.npz").denoise == 0.0
