@@ -201,6 +201,9 @@ def test_training_labels_and_same_seed_same_weights(tiny, tmp_path):
     seq = geofeat.read_sequence(tiny / "a-deform")
     x, y = sequence_samples(seq)
     assert x.shape[0] == y.shape[0] > 100 and 0 < y.mean() < 1
+    x_filtered, _ = sequence_samples(seq, denoise=4.0, max_targets=1)  # candidates and cues of the filtered image
+    x_one, _ = sequence_samples(seq, max_targets=1)
+    assert x_filtered.shape != x_one.shape or not np.array_equal(x_filtered, x_one)
     a = fit(x, y, hidden=(8,), steps=30, batch=256, seed=3, device="cpu", progress=False)
     b = fit(x, y, hidden=(8,), steps=30, batch=256, seed=3, device="cpu", progress=False)
     for wa, wb in zip(a.weights, b.weights):
@@ -358,11 +361,15 @@ def test_train_detector_command_writes_weights_chosen_over_both_counts(tiny, tmp
 
     out = tmp_path / "gk.npz"
     assert main(["train-detector", "--data", str(tiny), "--val", str(tiny), "--out", str(out),
-                 "--keypoints", "100", "200", "--steps", "20", "--hidden", "4"]) == 0
+                 "--keypoints", "100", "200", "--steps", "20", "--hidden", "4", "--denoise", "2"]) == 0
     table = capsys.readouterr().out
     assert "(chosen)" in table and "| 100 |" in table and "| 200 |" in table
     model = load_geokey(out)
     assert model.nms_radius in (2.0, 3.0, 4.0, 5.0)
+    assert model.denoise == 2.0  # trained on the filtered image, and detects on it
+    with pytest.raises(SystemExit):  # argparse's usage error, naming --denoise
+        main(["train-detector", "--data", str(tiny), "--val", str(tiny), "--out", str(out), "--denoise", "-1"])
+    assert "--denoise" in capsys.readouterr().err
     assert len(geofeat.detect(geofeat.read_sequence(tiny / "a-deform").frame(0), 50, detector=f"geokey={out}")) > 0
 
 

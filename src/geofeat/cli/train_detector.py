@@ -6,7 +6,7 @@ import argparse
 
 import numpy as np
 
-from .options import keypoint_count, whole_number
+from .options import keypoint_count, number_at_least, whole_number
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -22,6 +22,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--hidden", type=whole_number(1), nargs="+", default=(32, 32), help="hidden layer widths (default 32 32)")
     p.add_argument("--steps", type=whole_number(1), default=3000, help="Adam steps (default 3000)")
     p.add_argument("--seed", type=whole_number(0), default=0, help="random seed (default 0)")
+    p.add_argument("--denoise", type=number_at_least(0.0), default=0.0,
+                   help="detect on the image through an edge-preserving (bilateral) filter whose range is this many "
+                        "times the frame's noise level, in training and in the weights written (default 0: none)")
     p.add_argument("--labels", choices=("repeatable", "matchable"), default="repeatable",
                    help="training labels: found again within 1 px (default), or also matched by GeoPatch (slower)")
     p.set_defaults(func=run)
@@ -37,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
     if twice:  # scored once, yet the last line said "at 1024, 1024 keypoints per frame"
         raise ValueError(f"--keypoints: {', '.join(map(str, twice))} given twice; name each count once")
     model, results, chosen = train_detector(args.data, args.val, args.out, n=counts, hidden=tuple(args.hidden),
-                                    steps=args.steps, seed=args.seed, labels=args.labels,
+                                    steps=args.steps, seed=args.seed, labels=args.labels, denoise=args.denoise,
                                     overwrite=args.overwrite, names=("--data", "--val"))
     print("| scorer | NMS radius (px) | keypoints | GeoPatch MS | MMA | repeatability | correct matches / pair "
           "| reference keypoints / frame |")

@@ -27,7 +27,8 @@ from scipy.spatial import cKDTree
 from tqdm import tqdm
 
 from ..detectors.cues import CUE_NAMES, IMAGE_CUES
-from ..detectors.geokey import GeoKeyModel, candidate_features, candidates, detect_geokey, detection_image
+from ..detectors.geokey import (NMS_RADIUS_PX, GeoKeyModel, candidate_features, candidates, check_settings,
+                                detect_geokey, detection_image)
 from ..inputs import check_whole
 from ..io import Sequence, read_sequence
 from ..outputs import plural
@@ -387,7 +388,7 @@ def mean_ms(per_count: dict) -> float:
 def train_detector(data, val, out: str | Path, n: int | tuple[int, ...] = VALIDATION_COUNTS, hidden: tuple[int, ...] = (32, 32),
                    steps: int = 3000, seed: int = 0, labels: str = "repeatable",
                    radii: tuple[float, ...] = NMS_CHOICES, progress: bool = True,
-                   overwrite: bool = False, names: tuple[str, str] = ("data", "val"),
+                   overwrite: bool = False, names: tuple[str, str] = ("data", "val"), denoise: float = 0.0,
                    ) -> tuple[GeoKeyModel, dict, tuple]:
     """Collect candidates from `data`, fit two scorers (image cues only, and image + depth cues),
     choose the scorer, the suppression radius, the level-1 bias and the score threshold on `val` by
@@ -395,12 +396,14 @@ def train_detector(data, val, out: str | Path, n: int | tuple[int, ...] = VALIDA
     weights to `out` (written whole or not at all; an existing file only with `overwrite`). The
     options are checked before any work; errors and warnings name `data` and `val` by `names` (the
     command line passes its flags). Returns the model, the validation figures per (scorer, radius)
-    and count, and the chosen (scorer, radius) key."""
+    and count, and the chosen (scorer, radius) key. `denoise`: GeoKey's edge-preserving filter
+    (`GeoKeyModel.denoise`), applied to the training candidates and written with the weights."""
     from ..outputs import check_out_file
 
     out = check_out_file(out, overwrite)
     n = check_counts(n)
     check_whole(steps, "steps", 1)  # Adam steps
+    denoise = check_settings(NMS_RADIUS_PX, -np.inf, 0.0, denoise)[3]
     if hidden is not None and (not hidden or any(int(h) < 1 for h in hidden)):
         raise ValueError(f"hidden: expected positive layer widths, got {hidden!r}")
     data_name, val_name = names
@@ -411,12 +414,13 @@ def train_detector(data, val, out: str | Path, n: int | tuple[int, ...] = VALIDA
     if not val_folders:
         raise ValueError(f"{val_name}: no sequences under {val}")
     warn_if_not_held_out(train_folders, val_folders, val_name, data_name)
-    x, y = collect(train_folders, labels, progress=progress)
+    x, y = collect(train_folders, labels, progress=progress, denoise=denoise)
     if progress:
         tqdm.write(f"train-detector: {plural(len(x), 'candidate')} from {plural(len(train_folders), 'sequence')}, "
                    f"{y.mean():.3f} positive ({labels})")
     models = {"image cues": fit(x, y, hidden=None, steps=steps, seed=seed, progress=progress),
               "image + depth cues": fit(x, y, hidden=hidden, steps=steps, seed=seed, progress=progress)}
+    models = {name: replace(m, denoise=denoise) for name, m in models.items()}
     model, results, chosen = choose_model(models, val_folders, n, radii, progress=progress)
     model.save(out)  # whole or not at all
     return model, results, chosen
