@@ -1,0 +1,122 @@
+"""Where results go: read-only folders, folders of sequences that hold a killed run's leftovers, and
+folder names with spaces and non-ASCII letters."""
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from geofeat.cli import main
+from geofeat.io import find_sequences
+from geofeat.outputs import check_out_dir, check_out_file, foreign_entries, output_folder, read_manifest
+from geofeat.sim import writer as writer_mod
+from geofeat.sim.writer import simulate_sequence
+
+
+@pytest.fixture
+def read_only(monkeypatch):
+    """Make folders read-only (chmod 555); as root, whom the mode does not stop, `os.access` is made
+    to answer as for another user, so the checks see what a user would."""
+    folders = []
+
+    def access(path, mode, *args, **kwargs):
+        if mode & os.W_OK and any(os.path.samefile(path, f) for f in folders if os.path.exists(path)):
+            return False
+        return real_access(path, mode, *args, **kwargs)
+
+    real_access = os.access
+    monkeypatch.setattr(os, "access", access)
+
+    def make(folder):
+        folder.mkdir(parents=True, exist_ok=True)
+        folder.chmod(0o555)
+        folders.append(folder)
+        return folder
+
+    yield make
+    for folder in folders:
+        folder.chmod(0o755)
+
+
+def _dead_pid() -> int:
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    child.wait()
+    return child.pid
+
+
+def test_a_read_only_output_folder_is_refused_before_any_work(tmp_path, read_only, capsys):
+    """A read-only --out (or the read-only folder an --out would be made in) failed only at the end,
+    after all the work, naming a temporary file: "[Errno 13] Permission denied:
+    '.../.geofeat-partial-1597-.geofeat-manifest.json'". Now one line naming the folder, first."""
+    ro = read_only(tmp_path / "nur lesen ü")
+    for check in (lambda: check_out_dir(ro), lambda: check_out_dir(ro / "neu" / "tief"),
+                  lambda: check_out_file(ro / "w.pt"), lambda: check_out_file(ro / "neu" / "w.pt")):
+        with pytest.raises(ValueError, match=r"--out: cannot write into .*nur lesen ü.*permission denied"):
+            check()
+    check_out_dir(tmp_path / "neu")  # a writable parent: fine
+    assert main(["simulate", str(ro / "tücher 1"), "--frames", "2", "--width", "64", "--height", "48",
+                 "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "cannot write into" in err and "nur lesen ü" in err
+    assert "partial" not in err and list(ro.iterdir()) == []
+
+
+def test_an_existing_output_folder_under_a_read_only_parent_is_written(tmp_path, read_only):
+    """`--out /scratch/me`, writable, under a read-only /scratch: the result folder was built in a
+    sibling of --out, which cannot be made there, so every run failed at its end. Now it is built
+    inside --out and leaves nothing behind."""
+    scratch = tmp_path / "scratch"
+    mine = scratch / "mein ordner"
+    mine.mkdir(parents=True)
+    (mine / "notes.txt").write_text("user")
+    read_only(scratch)
+    check_out_dir(mine, overwrite=True)
+    for text in ("first", "second"):
+        with output_folder(mine) as tmp:
+            assert tmp.parent == mine
+            (tmp / "sub").mkdir()
+            (tmp / "sub" / "result.txt").write_text(text)
+    assert (mine / "sub" / "result.txt").read_text() == "second" and (mine / "notes.txt").read_text() == "user"
+    assert sorted(p.name for p in mine.iterdir()) == [".geofeat-manifest.json", "notes.txt", "sub"]
+    assert read_manifest(mine) == ["sub/result.txt"] and list(scratch.iterdir()) == [mine]
+    # what a killed run left inside is not taken for the user's files, and the next run removes it
+    left = mine / f".geofeat-partial-{_dead_pid()}-mein ordner"
+    (left / "sub").mkdir(parents=True)
+    (left / "sub" / "result.txt").write_text("half")
+    assert foreign_entries(mine) == ["notes.txt"]
+    with output_folder(mine) as tmp:
+        (tmp / "result.txt").write_text("third")
+    assert not left.exists()
+
+
+@pytest.mark.filterwarnings("ignore:.*landmarks")
+def test_a_killed_simulate_leaves_nothing_that_is_read_as_a_sequence(tmp_path, monkeypatch):
+    """`simulate` built the sequence in ".<name>.partial-<pid>", which a SIGKILL left for good, and
+    a folder of sequences then read it as a sequence: half its frames, and without its geofeat.json
+    the depth scale 10 times too large (bench scored it, train trained on it). Now it is geofeat's
+    temporary folder, which `find_sequences` passes over and the next run removes."""
+    data = tmp_path / "daten ü"
+    simulate_sequence(data / "tücher 1", n_frames=2, width=64, height=48, texture="procedural", progress=False)
+    killed = data / f".geofeat-partial-{_dead_pid()}-tücher 2"  # as a SIGKILL while writing leaves it
+    killed.mkdir()
+    for name in ("frame-000-master-rgb.png", "frame-000-master-depth.png", "intrinsics.xml"):
+        (killed / name).write_bytes((data / "tücher 1" / name).read_bytes())
+    old_style = data / ".tücher 3.partial-12345"  # an earlier geofeat's
+    old_style.mkdir()
+    (old_style / "frame-000-master-rgb.png").write_bytes(b"")
+    assert find_sequences([data]) == [data / "tücher 1"]
+    built = []
+    real_write = writer_mod._write
+    monkeypatch.setattr(writer_mod, "_write", lambda folder, *a, **kw: (built.append(folder), real_write(folder, *a, **kw)))
+    simulate_sequence(data / "tücher 2", n_frames=2, width=64, height=48, texture="procedural", progress=False)
+    assert built[0].name.startswith(".geofeat-partial-") and not killed.exists()
+    assert find_sequences([data]) == [data / "tücher 1", data / "tücher 2"]
+
+
+def test_simulate_warnings_name_the_folder_given_not_a_temporary_one(tmp_path):
+    """The few-landmarks warning named ".<name>.partial-<pid>", a folder the user never sees."""
+    out = tmp_path / "tücher klein"
+    with pytest.warns(UserWarning, match="landmarks") as caught:
+        simulate_sequence(out, n_frames=2, width=33, height=47, progress=False)
+    assert str(caught[0].message).startswith(f"{out}: ")
