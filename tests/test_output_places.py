@@ -120,3 +120,29 @@ def test_simulate_warnings_name_the_folder_given_not_a_temporary_one(tmp_path):
     with pytest.warns(UserWarning, match="landmarks") as caught:
         simulate_sequence(out, n_frames=2, width=33, height=47, progress=False)
     assert str(caught[0].message).startswith(f"{out}: ")
+
+
+def test_result_files_are_utf8_whatever_the_locale(tmp_path):
+    """bench appends its rows to results.csv as UTF-8 but read the file back (resuming, repairing,
+    the tables) in the locale's encoding: on Windows (cp1252) "tücher 1" came back as "tÃ¼cher 1",
+    so a rerun took no finished sequence for done and scored it again; in an ASCII locale it stopped
+    with UnicodeDecodeError. Now every text result is written and read as UTF-8. The locale here is
+    ASCII (Python's own UTF-8 defaults turned off), the one a test can choose on any Linux."""
+    script = (
+        "import sys\nfrom pathlib import Path\n"
+        "from geofeat.bench.runner import COLUMNS, _append_rows, _finished, repair_results\n"
+        "from geofeat.bench.report import read_results\n"
+        "path = Path(sys.argv[1])\n"
+        "path.write_bytes((','.join(COLUMNS) + '\\n').encode())\n"
+        "row = {**dict.fromkeys(COLUMNS, '1'), 'sequence': 't\\u00fccher 1', 'descriptor': 'sift'}\n"
+        "_append_rows(path, [row])\n"
+        "assert repair_results(path) == 0\n"
+        "assert _finished(path) == {('t\\u00fccher 1', 'sift')}, _finished(path)\n"
+        "assert read_results(path)[0]['sequence'] == 't\\u00fccher 1'\n"
+    )
+    env = {**os.environ, "LC_ALL": "C", "LANG": "C", "PYTHONCOERCECLOCALE": "0", "PYTHONUTF8": "0",
+           "PYTHONPATH": os.pathsep.join(sys.path)}
+    done = subprocess.run([sys.executable, "-X", "utf8=0", "-c", script, str(tmp_path / "results.csv")], env=env,
+                          capture_output=True, text=True, encoding="utf-8")
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert (tmp_path / "results.csv").read_bytes().decode("utf-8").splitlines()[1].startswith("tücher 1,")

@@ -8,6 +8,8 @@
 - An existing non-empty output folder is refused unless the user passes `--overwrite`
   (`check_out_dir`); `--overwrite` then removes only the files the manifest lists, never a file
   geofeat did not write.
+- Text results (csv, md, json) are written and read back as UTF-8 whatever the locale, as
+  `append_line_durably` appends them: sequence names are folder names, which may be any letters.
 """
 
 from __future__ import annotations

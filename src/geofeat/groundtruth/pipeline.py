@@ -445,11 +445,11 @@ def check_config(config: GroundTruthConfig, shape: tuple[int, int] | None = None
 
 def _write_report(out: Path, seq: Sequence, config: GroundTruthConfig, reports: list[FrameReport]) -> None:
     rows = [asdict(r) for r in reports]
-    with open(out / "report.csv", "w", newline="") as fh:
+    with open(out / "report.csv", "w", newline="", encoding="utf-8") as fh:
         writer = csv.DictWriter(fh, list(rows[0].keys()) if rows else ["frame"])
         writer.writeheader()
         for row in rows:
             writer.writerow({k: (" ".join(map(str, v)) if isinstance(v, list) else v) for k, v in row.items()})
     (out / "report.json").write_text(json.dumps(
         {"sequence": str(seq.folder), "reference": seq.reference, "config": asdict(config), "frames": rows},
-        indent=1, default=float))
+        indent=1, default=float), encoding="utf-8")

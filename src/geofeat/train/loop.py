@@ -290,7 +290,7 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
     with atomic_file(out) as tmp:
         save_checkpoint(tmp, net.cpu(), history=history)
     with atomic_file(Path(str(out) + ".json")) as tmp:
-        tmp.write_text(json.dumps(history, indent=1))
+        tmp.write_text(json.dumps(history, indent=1), encoding="utf-8")
     with atomic_file(Path(str(out) + ".png")) as tmp:
         _plot(history, tmp)
     return history
