@@ -146,3 +146,42 @@ def test_result_files_are_utf8_whatever_the_locale(tmp_path):
                           capture_output=True, text=True, encoding="utf-8")
     assert done.returncode == 0, done.stderr[-2000:]
     assert (tmp_path / "results.csv").read_bytes().decode("utf-8").splitlines()[1].startswith("tücher 1,")
+
+
+def _strict_json(path):
+    """The file read as JSON proper: NaN and Infinity, which Python writes and reads but JSON has not, refused."""
+    import json
+
+    def refuse(token):
+        raise ValueError(f"{path}: {token} is not JSON")
+
+    return json.loads(path.read_text(encoding="utf-8"), parse_constant=refuse)
+
+
+def test_json_reports_are_json_without_nan(tmp_path):
+    """train's history (val_ms of a run without --val) and groundtruth's report.json (the figures of a
+    failed frame) held the bare token NaN, so jq, JavaScript and other strict readers refused them.
+    Now such a figure is null."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from geofeat.descriptors.geopatch import GeoPatchConfig
+    from geofeat.groundtruth.pipeline import FrameReport, GroundTruthConfig, _write_report
+    from geofeat.train.dataset import PatchSet
+    from geofeat.train.loop import TrainConfig, train
+
+    rng = np.random.default_rng(0)
+    patches = rng.integers(0, 256, (20, 32, 32)).astype(np.uint8)
+    data = PatchSet(np.concatenate([patches, patches]), np.concatenate([np.arange(20), np.arange(20)]))
+    config = TrainConfig(epochs=1, steps_per_epoch=1, batch_size=8, net=GeoPatchConfig(channels=(4, 8, 8), dim=16))
+    train(data, tmp_path / "w ü.pt", config, progress=False, device="cpu")
+    history = _strict_json(tmp_path / "w ü.pt.json")
+    assert history["val_ms"] == [None] and isinstance(history["loss"][0], float)
+
+    seq = SimpleNamespace(folder=tmp_path / "tücher 1", reference="frame-000-master")
+    failed = FrameReport("frame-001", status="failed", reason="too few landmarks", ssim_before=np.float32("nan"))
+    _write_report(tmp_path, seq, GroundTruthConfig(), [FrameReport("frame-002", ssim_before=0.5), failed])
+    frames = _strict_json(tmp_path / "report.json")["frames"]
+    assert frames[0]["ssim_before"] == 0.5 and frames[1]["ssim_before"] is None and frames[1]["status"] == "failed"
+    assert _strict_json(tmp_path / "report.json")["sequence"].endswith("tücher 1")

@@ -32,6 +32,25 @@ def plural(count: int, noun: str, nouns: str | None = None) -> str:
     return f"{count} {noun if count == 1 else nouns or noun + 's'}"
 
 
+def json_text(value, **kwargs) -> str:
+    """`json.dumps(value, **kwargs)` with every NaN or infinite float written as null: json.dumps wrote
+    the bare token NaN (an epoch without validation, a frame that failed), which is not JSON, so jq,
+    JavaScript and other strict readers refused the whole report."""
+    import math
+    from numbers import Real
+
+    def clean(v):
+        if isinstance(v, Real) and not math.isfinite(v):  # numpy's floats too
+            return None
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [clean(x) for x in v]
+        return v
+
+    return json.dumps(clean(value), allow_nan=False, **kwargs)
+
+
 def read_manifest(folder: str | Path) -> list[str]:
     """Relative paths of the files geofeat wrote into `folder` (empty when it has no readable manifest)."""
     path = Path(folder) / MANIFEST
