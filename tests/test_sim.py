@@ -346,7 +346,7 @@ def test_a_refused_or_interrupted_move_into_place_leaves_no_partial_folder(tmp_p
     def refuse(tmp, out):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(writer_mod, "_write", lambda folder, scene, progress, meta: (folder / "x.txt").write_text("x"))
+    monkeypatch.setattr(writer_mod, "_write", lambda folder, scene, progress, meta, **kw: (folder / "x.txt").write_text("x"))
     monkeypatch.setattr(writer_mod, "replace_folder", refuse)
     with pytest.raises(KeyboardInterrupt):
         simulate_sequence(tmp_path / "seq", n_frames=2, width=64, height=48, progress=False)

@@ -444,7 +444,7 @@ def read_demo_frame() -> RGBDFrame:
 
 def find_sequences(paths, unique_names: bool = False, what: str = "dataset") -> list[Path]:
     """Sequence folders under the given paths: a path that holds `*-rgb.png` frames is a sequence,
-    otherwise its sub-folders that do are (one level down), sorted by name. A folder reached twice is
+    otherwise its sub-folders that do are (one level down, hidden ones left out), sorted by name. A folder reached twice is
     listed once; with `unique_names`, two different folders with one name are refused (commands key
     their results by the sequence name). ValueError naming `what` (an option such as --data) for a
     path that is no folder or holds no sequence."""
@@ -455,7 +455,10 @@ def find_sequences(paths, unique_names: bool = False, what: str = "dataset") -> 
         if frame_names(p):
             found.append(p)
             continue
-        subs = sorted(d for d in p.iterdir() if d.is_dir() and frame_names(d))
+        # a hidden sub-folder (as hidden frame files, `frame_names`) is not a sequence: above all the
+        # temporary folder of a `simulate` or a result still being written, or left by a killed run,
+        # which was read as a sequence, half-written and without its geofeat.json (its depth scale)
+        subs = sorted(d for d in p.iterdir() if d.is_dir() and not d.name.startswith(".") and frame_names(d))
         if not subs:
             raise ValueError(f"{what}: no sequence (folder of '*{RGB_SUFFIX}' frames) in {p}")
         found.extend(subs)

@@ -8,6 +8,8 @@
 - An existing non-empty output folder is refused unless the user passes `--overwrite`
   (`check_out_dir`); `--overwrite` then removes only the files the manifest lists, never a file
   geofeat did not write.
+- Text results (csv, md, json) are written and read back as UTF-8 whatever the locale, as
+  `append_line_durably` appends them: sequence names are folder names, which may be any letters.
 """
 
 from __future__ import annotations
@@ -28,6 +30,25 @@ def plural(count: int, noun: str, nouns: str | None = None) -> str:
     """A count and its noun for report text: "1 sequence", "3 sequences", "0 sequences"; `nouns` is
     the plural where adding "s" is wrong ("class" -> "classes", "query" -> "queries")."""
     return f"{count} {noun if count == 1 else nouns or noun + 's'}"
+
+
+def json_text(value, **kwargs) -> str:
+    """`json.dumps(value, **kwargs)` with every NaN or infinite float written as null: json.dumps wrote
+    the bare token NaN (an epoch without validation, a frame that failed), which is not JSON, so jq,
+    JavaScript and other strict readers refused the whole report."""
+    import math
+    from numbers import Real
+
+    def clean(v):
+        if isinstance(v, Real) and not math.isfinite(v):  # numpy's floats too
+            return None
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [clean(x) for x in v]
+        return v
+
+    return json.dumps(clean(value), allow_nan=False, **kwargs)
 
 
 def read_manifest(folder: str | Path) -> list[str]:
@@ -66,7 +87,8 @@ def foreign_entries(folder: str | Path) -> list[str]:
         rel = str(path.relative_to(folder))
         if path.is_dir() and not path.is_symlink():
             continue
-        if rel not in ours and not Path(rel).name.startswith(".geofeat-partial"):
+        # a killed run's temporary file or folder (`partial_name`), and what is in it, is not the user's
+        if rel not in ours and not any(part.startswith(".geofeat-partial") for part in Path(rel).parts):
             foreign.append(rel)
     return foreign
 
@@ -88,7 +110,23 @@ def check_out_file(path: str | Path, overwrite: bool = False, what: str = "--out
             raise ValueError(f"{what}: {parent} is a file, so {path} cannot be written")
     if (path.exists() or path.is_symlink()) and not overwrite:
         raise ValueError(f"{what}: {path} exists; pass --overwrite to replace it, or choose another name")
+    check_writable(path.parent, what)
     return path
+
+
+def check_writable(folder: str | Path, what: str = "--out") -> None:
+    """Refuse, before any work, a folder that the results cannot be written into: `folder` itself
+    when it exists, else its nearest existing parent (where the missing folders are made) must be
+    writable. Without this check a read-only folder failed only at the end, after all the work
+    (hours, for `groundtruth` or `train`), naming a temporary file (".geofeat-partial-...")."""
+    folder = Path(os.path.abspath(folder))
+    existing = next((p for p in (folder, *folder.parents) if p.exists()), None)
+    if existing is None or not existing.is_dir():
+        return  # a file in the way: `check_out_file` and `check_out_dir` name it
+    if not os.access(existing, os.W_OK | os.X_OK):
+        made = "" if existing == folder else f", where {folder} would be made"
+        raise ValueError(f"{what}: cannot write into {existing}{made} (permission denied); make it writable or "
+                         "choose another folder")
 
 
 def foreign_clashes(folder: str | Path, files: Iterable[str]) -> list[str]:
@@ -157,6 +195,7 @@ def check_out_dir(path: str | Path, overwrite: bool = False, what: str = "--out"
                              f"{', ...' if len(foreign) > 5 else ''}); --overwrite never deletes those: move them "
                              "away or choose another folder")
         _refuse_clashes(path, foreign_clashes(path, files), what)
+    check_writable(path, what)
     return path
 
 
@@ -250,11 +289,16 @@ def atomic_file(path: str | Path) -> Iterator[Path]:
 
 
 def temporary_folder(out: str | Path) -> Path:
-    """A fresh, empty temporary sibling folder of `out` to build a result folder in."""
+    """A fresh, empty temporary sibling folder of `out` to build a result folder in; inside `out`
+    when `out` is an existing folder whose parent is not writable (`--out /scratch/me` under a
+    read-only /scratch), where a sibling failed at the end of the run (`replace_folder` moves the
+    files out of it)."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    clear_stale_partials(out)
     tmp = partial_name(out)
+    if out.is_dir() and not os.access(tmp.parent, os.W_OK | os.X_OK):
+        tmp = out / tmp.name
+    clear_stale_partials(tmp.parent / Path(os.path.abspath(out)).name)
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir()

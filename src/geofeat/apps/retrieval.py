@@ -789,7 +789,7 @@ def _write_retrieval(out: Path, db: RetrievalDatabase, res: dict[str, Descriptor
                      words: int | None, n_samples: int, include_own_sequence: bool,
                      trivial: list[str] | None = None) -> None:
     """The result files of `run_retrieval`, into `out`."""
-    with open(out / "retrieval.csv", "w", newline="") as fh:
+    with open(out / "retrieval.csv", "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow(["descriptor", "words", "weighting", "k", "accuracy", "low", "high"])
         for name, r in res.items():
@@ -797,7 +797,8 @@ def _write_retrieval(out: Path, db: RetrievalDatabase, res: dict[str, Descriptor
                         for k, (v, lo, hi) in enumerate(zip(r.accuracy, r.low, r.high)))
     _plot({n: r.accuracy for n, r in res.items()}, out / "acc_at_k.png")
     _top6_picture(db, {n: (r.queries, r.neighbours) for n, r in res.items()}, out / "top6.png")
-    (out / "retrieval.md").write_text(_report(db, res, skipped, words, n_samples, include_own_sequence, trivial))
+    (out / "retrieval.md").write_text(_report(db, res, skipped, words, n_samples, include_own_sequence, trivial),
+                                       encoding="utf-8")
 
 
 def _all_sequences(count: int) -> str:

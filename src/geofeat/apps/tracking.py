@@ -1078,7 +1078,7 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
     notes = []
     seconds = setup = 0.0
     with output_folder(out) as tmp:
-        with open(tmp / "track.csv", "w", newline="") as fh:
+        with open(tmp / "track.csv", "w", newline="", encoding="utf-8") as fh:
             writer = csv.DictWriter(fh, TRACK_COLUMNS)
             writer.writeheader()
             for folder in sequences:
@@ -1130,5 +1130,5 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
                             "pixels; a failed frame is lost):\n\n" + per_sequence)
         (tmp / "tracking.md").write_text(table + ("\n" + paper if paper else "")
                                          + ("\n" + per_sequence if per_sequence else "") + "\n"
-                                         + "\n".join(f"- {n}" for n in notes) + "\n")
+                                         + "\n".join(f"- {n}" for n in notes) + "\n", encoding="utf-8")
     return out / "track.csv", table

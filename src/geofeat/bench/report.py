@@ -14,7 +14,7 @@ from ..outputs import atomic_file, plural
 
 
 def read_results(path: str | Path) -> list[dict]:
-    with open(path, newline="") as fh:
+    with open(path, newline="", encoding="utf-8") as fh:
         rows = list(csv.DictReader(fh))
     for r in rows:
         for key in ("ms", "mma", "repeatability", "seconds_extract", "seconds_match", "angle_deg", "scale"):

@@ -289,7 +289,7 @@ def repair_results(csv_path: Path) -> int:
     and any unparsable row, together with the other rows of that sequence just before it (rows of
     one sequence are appended in one write, so a torn write cuts only the end of that block). The
     dropped results are recomputed by the rerun. Returns the number of lines dropped."""
-    text = csv_path.read_text()
+    text = csv_path.read_text(encoding="utf-8")
     lines = text.splitlines(keepends=True)
     if not lines:
         return 0
@@ -309,7 +309,7 @@ def repair_results(csv_path: Path) -> int:
                 dropped += 1
     if dropped:
         with atomic_file(csv_path) as tmp:
-            tmp.write_text("".join(kept))
+            tmp.write_text("".join(kept), encoding="utf-8")
     return dropped
 
 
@@ -317,7 +317,7 @@ def _finished(csv_path: Path) -> set[tuple[str, str]]:
     """(sequence, descriptor) pairs whose rows are in results.csv (a sequence's rows are appended at once)."""
     if not csv_path.is_file():
         return set()
-    with open(csv_path, newline="") as fh:
+    with open(csv_path, newline="", encoding="utf-8") as fh:
         return {(row["sequence"], row["descriptor"]) for row in csv.DictReader(fh)}
 
 
@@ -370,7 +370,7 @@ def _profile_differences(there: str | None, now: str | None, csv_path: Path, fol
     said = f"depth_profile {_shown('depth_profile', there)} there, {_shown('depth_profile', now)} now"
     if not (_chosen_per_sequence(there) and _chosen_per_sequence(now)):
         return [said]
-    with open(csv_path, newline="") as fh:  # complete rows only: a torn last line is dropped on resuming
+    with open(csv_path, newline="", encoding="utf-8") as fh:  # complete rows only: a torn last line is dropped on resuming
         rows = [dict(zip(COLUMNS, row)) for row in list(csv.reader(fh))[1:] if _parses(row)]
     recorded = {row["sequence"]: row["depth_profile"] for row in rows if row["depth_profile"]}
     for folder in folders:
@@ -468,14 +468,14 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
     made_by = provenance(config)  # hashes the weights files once
     header = None
     if csv_path.is_file():
-        with open(csv_path, newline="") as fh:
+        with open(csv_path, newline="", encoding="utf-8") as fh:
             header = next(csv.reader(fh), None)
     if overwrite and header is not None and header != COLUMNS and "results.csv" not in read_manifest(out):
         raise ValueError(f"out: {csv_path} is not a geofeat bench result (other columns); --overwrite never "
                          "replaces a file geofeat did not write: choose another --out")
     if resume:
         try:
-            before = json.loads(config_path.read_text()) if config_path.is_file() else {}
+            before = json.loads(config_path.read_text(encoding="utf-8")) if config_path.is_file() else {}
         except ValueError:
             raise ValueError(f"out: {config_path} is not valid JSON; use --overwrite or another --out") from None
         if not isinstance(before, dict):
@@ -514,7 +514,7 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
         digests = {**stored, **digests}
     else:
         with atomic_file(csv_path) as tmp:
-            with open(tmp, "w", newline="") as fh:
+            with open(tmp, "w", newline="", encoding="utf-8") as fh:
                 csv.DictWriter(fh, COLUMNS, lineterminator="\n").writeheader()
         done = set()
         read_from = _read_from(folders)
@@ -525,7 +525,7 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
                 (out / name).unlink(missing_ok=True)
     with atomic_file(config_path) as tmp:
         tmp.write_text(json.dumps({**asdict(config), "provenance": made_by, "sequences": read_from,
-                                   "sequence_digests": digests}, indent=1))
+                                   "sequence_digests": digests}, indent=1), encoding="utf-8")
     add_to_manifest(out, ["results.csv", "config.json"])
     return done
 

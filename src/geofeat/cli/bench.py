@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
 
     def write(path: Path, text: str) -> None:
         with atomic_file(path) as tmp:
-            tmp.write_text(text)
+            tmp.write_text(text, encoding="utf-8")
         add_to_manifest(path.parent, [path.name])
 
     if args.protocol == "landmarks":  # the annotated landmarks are described: nothing is detected

@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
                             overwrite=args.overwrite, detector=args.detector,
                             weighting=args.weighting, rerank_top=args.rerank)
     out = Path(args.out)
-    print((out / "retrieval.md").read_text())
+    print((out / "retrieval.md").read_text(encoding="utf-8"))
     print(f"wrote {', '.join(str(out / name) for name in RESULT_FILES)}")
     if db.skipped:
         print(f"{plural(len(db.skipped), 'frame')} SKIPPED: {', '.join(db.skipped)}", file=sys.stderr)

@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
                                      depth_scale=args.depth_scale, threshold_px=args.threshold,
                                      overwrite=args.overwrite, skipped=skipped, refine=args.refine,
                                      detector=args.detector)
-    print((Path(args.out) / "tracking.md").read_text())
+    print((Path(args.out) / "tracking.md").read_text(encoding="utf-8"))
     print(f"wrote {csv_path}, {Path(args.out) / 'tracking.md'} and per sequence/descriptor grid.npz + track.gif")
     if skipped:
         print(f"{plural(len(skipped), 'frame')} SKIPPED: {', '.join(skipped)}", file=sys.stderr)

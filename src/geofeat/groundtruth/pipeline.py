@@ -20,7 +20,6 @@ the reason; the others are written.
 from __future__ import annotations
 
 import csv
-import json
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -32,7 +31,7 @@ from ..frame import RGBDFrame
 from ..imagequality import ssim_map
 from ..inputs import check_landmarks
 from ..io import Sequence, read_sequence
-from ..outputs import check_out_dir, output_folder
+from ..outputs import check_out_dir, json_text, output_folder
 from .defaults import DEFAULT_DEPTH_MARGIN_M, DEFAULT_MARGIN_PX, DEFAULT_SPACING_PX
 from .photometric import RefineConfig, check_refine_config, refine
 from ..tps import ThinPlateSpline, authors_tps, spans_plane
@@ -445,11 +444,12 @@ def check_config(config: GroundTruthConfig, shape: tuple[int, int] | None = None
 
 def _write_report(out: Path, seq: Sequence, config: GroundTruthConfig, reports: list[FrameReport]) -> None:
     rows = [asdict(r) for r in reports]
-    with open(out / "report.csv", "w", newline="") as fh:
+    with open(out / "report.csv", "w", newline="", encoding="utf-8") as fh:
         writer = csv.DictWriter(fh, list(rows[0].keys()) if rows else ["frame"])
         writer.writeheader()
         for row in rows:
             writer.writerow({k: (" ".join(map(str, v)) if isinstance(v, list) else v) for k, v in row.items()})
-    (out / "report.json").write_text(json.dumps(
+    # a failed frame's figures: null, not NaN (`json_text`)
+    (out / "report.json").write_text(json_text(
         {"sequence": str(seq.folder), "reference": seq.reference, "config": asdict(config), "frames": rows},
-        indent=1, default=float))
+        indent=1, default=float), encoding="utf-8")

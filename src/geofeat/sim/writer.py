@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import io
 import json
-import os
 import shutil
 import warnings
 import zipfile
@@ -30,7 +29,7 @@ import numpy as np
 
 from ..inputs import check_whole
 from ..io import write_intrinsics, write_landmarks
-from ..outputs import check_out_dir, replace_folder
+from ..outputs import check_out_dir, replace_folder, temporary_folder
 from ..groundtruth.landmarks import MIN_LANDMARKS
 from ..groundtruth.simulator import GT_JSON, GT_SUFFIX, FrameTruth, map_points
 from .scenes import SCENARIOS, ClothScene, SimFrame, default_intrinsics, get_preset
@@ -160,13 +159,13 @@ def simulate_sequence(
     scene = ClothScene(scenario, int(n_frames), rng, tex_image, (height, width), K=K, steps_per_frame=steps_per_frame,
                        preset=preset_obj, motion_blur=motion_blur)
 
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out_dir.parent / f".{out_dir.name}.partial-{os.getpid()}"
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    tmp.mkdir()
+    # built in geofeat's temporary folder (`partial_name`), which `find_sequences` passes over and a
+    # rerun removes when a kill left it: the ".<name>.partial-<pid>" folder of a killed run stayed
+    # for good, and a folder of sequences read it as a sequence (without geofeat.json, so with
+    # the wrong depth scale)
+    tmp = temporary_folder(out_dir)
     try:
-        _write(tmp, scene, progress, meta={
+        _write(tmp, scene, progress, shown=out_dir, meta={
             "generator": "geofeat.sim", "format_version": FORMAT_VERSION, "scenario": scenario, "seed": int(seed),
             "texture": tex_name, "kinect_noise": bool(kinect_noise), "preset": preset_obj.name,
             "fov_deg": None if fov is None else float(fov), "motion_blur": bool(motion_blur),
@@ -180,7 +179,9 @@ def simulate_sequence(
     return out_dir
 
 
-def _write(folder: Path, scene: ClothScene, progress: bool, meta: dict) -> None:
+def _write(folder: Path, scene: ClothScene, progress: bool, meta: dict, shown: Path | None = None) -> None:
+    """Write the sequence into `folder`; `shown`: the folder its messages name (the sequence folder
+    the user gave, not the temporary folder it is built in)."""
     scene.kinect_noise = bool(meta["kinect_noise"])
     cfg = scene.config
     write_intrinsics(folder / "intrinsics.xml", scene.K)
@@ -199,7 +200,7 @@ def _write(folder: Path, scene: ClothScene, progress: bool, meta: dict) -> None:
             ref_truth = truth
             landmarks = harris_landmarks(frame.image, frame.render.mask)
             if len(landmarks) < FEW_LANDMARKS:
-                warnings.warn(f"{folder}: the reference frame has {len(landmarks)} landmarks (Harris corners at least "
+                warnings.warn(f"{shown or folder}: the reference frame has {len(landmarks)} landmarks (Harris corners at least "
                               f"5 px inside the cloth; {N_LANDMARKS} wanted), so the landmark CSVs are of little use: "
                               f"`geofeat groundtruth` needs {MIN_LANDMARKS} in both frames. A larger image or a "
                               "richer texture gives more.", stacklevel=2)

@@ -3,7 +3,6 @@ Training"), SGD, a validation matching score per epoch, checkpoints to resume fr
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -17,7 +16,7 @@ from ..descriptors.geopatch import GeoPatchConfig, GeoPatchNet, save_checkpoint
 from ..gpu import torch_device
 from ..inputs import check_non_negative, check_positive, check_whole, error_summary
 from ..matching import match
-from ..outputs import atomic_file, check_out_file
+from ..outputs import atomic_file, check_out_file, json_text
 from .dataset import PatchSet, ValidationPair
 
 
@@ -294,7 +293,7 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
     with atomic_file(out) as tmp:
         save_checkpoint(tmp, net.cpu(), history=history)
     with atomic_file(Path(str(out) + ".json")) as tmp:
-        tmp.write_text(json.dumps(history, indent=1))
+        tmp.write_text(json_text(history, indent=1), encoding="utf-8")  # no validation: null, not NaN
     with atomic_file(Path(str(out) + ".png")) as tmp:
         _plot(history, tmp)
     return history
