@@ -155,19 +155,18 @@ def blurred_detector(sigma: float):
 
 def denoised_detector(method: str, strength: float, diameter: int = 5, space: float = 1.5):
     """`geokey.detect_geokey` on the image denoised edge-preservingly, scaled to the frame's noise
-    level sigma (Immerkaer): "bilateral" (5 px, range sigma `strength` x sigma, space 1.5 px) or
-    "nlmeans" (OpenCV's non-local means, h = `strength` x sigma)."""
-    from geofeat.frame import RGBDFrame
-
+    level sigma (`geokey.noise_level`): "bilateral" (`diameter` px, range sigma `strength` x sigma,
+    spatial sigma `space` px; the defaults are `geokey.detection_image`'s) or "nlmeans" (OpenCV's
+    non-local means on the 8-bit image, h = `strength` x sigma)."""
     def detect(frame, n):
         g = frame.image.astype(np.float32)  # gray, 0..1
-        sigma = max(float(np.median(np.abs(cv2.filter2D(g, -1, NOISE_MASK))[1:-1, 1:-1])) / (0.6745 * 6.0), 1e-4)
+        sigma = max(geokey.noise_level(g), 1e-4)
         if method == "bilateral":
             image = cv2.bilateralFilter(g, diameter, strength * sigma, space)
         else:
             as_bytes = np.clip(np.rint(g * 255), 0, 255).astype(np.uint8)
             image = cv2.fastNlMeansDenoising(as_bytes, None, max(strength * sigma * 255, 0.1), 5, 15).astype(np.float32) / 255
-        return DETECT(RGBDFrame(image, frame.depth, frame.K), n)
+        return DETECT(frame.with_image(image), n, denoise=0.0)
 
     return detect
 
@@ -175,20 +174,12 @@ def denoised_detector(method: str, strength: float, diameter: int = 5, space: fl
 def denoised_candidates(strength: float, diameter: int = 5, space: float = 1.5):
     """`geokey.candidates` found and localised on the bilaterally denoised image (as
     `denoised_detector`), while the scorer's cues stay on the image as it is."""
-    from geofeat.frame import RGBDFrame
-
     def candidates(frame, max_candidates=geokey.MAX_CANDIDATES):
         g = frame.image.astype(np.float32)
-        sigma = max(float(np.median(np.abs(cv2.filter2D(g, -1, NOISE_MASK))[1:-1, 1:-1])) / (0.6745 * 6.0), 1e-4)
-        image = cv2.bilateralFilter(g, diameter, strength * sigma, space)
-        return CANDIDATES(RGBDFrame(image, frame.depth, frame.K), max_candidates)
+        image = cv2.bilateralFilter(g, diameter, strength * max(geokey.noise_level(g), 1e-4), space)
+        return CANDIDATES(frame.with_image(image), max_candidates)
 
     return candidates
-
-
-#: Immerkaer's noise mask: the 3 x 3 Laplacian difference whose response to white noise of unit
-#: standard deviation has standard deviation 6 (the root of the sum of its squared weights).
-NOISE_MASK = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
 
 
 def noise_floor_candidates(factor: float, quantile: float = 0.99):
@@ -199,7 +190,7 @@ def noise_floor_candidates(factor: float, quantile: float = 0.99):
     def candidates(frame, max_candidates=geokey.MAX_CANDIDATES):
         cands = CANDIDATES(frame, max_candidates)
         g = frame.image.astype(np.float32)
-        sigma = float(np.median(np.abs(cv2.filter2D(g, -1, NOISE_MASK))[1:-1, 1:-1])) / (0.6745 * 6.0)
+        sigma = geokey.noise_level(g)
         if g.shape not in unit:  # cornerness quantiles of unit-variance noise at each level
             noise, unit[g.shape] = np.random.default_rng(0).normal(0.0, 1.0, g.shape).astype(np.float32), []
             for level in range(len(max_candidates)):
