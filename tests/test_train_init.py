@@ -92,6 +92,15 @@ def test_resume_refuses_a_corrupt_checkpoint_or_other_settings(tmp_path):
                   progress=False, device="cpu")
 
 
+def test_resume_without_a_checkpoint_says_it_starts_from_the_first_epoch(tmp_path):
+    """--resume with nothing to resume trained from scratch without a word (a typo in --out, or a run
+    that had already finished and removed its checkpoint)."""
+    config = TrainConfig(epochs=1, steps_per_epoch=1, batch_size=8, net=NET)
+    with pytest.warns(UserWarning, match=r"resume: no .*w.pt.ckpt to resume from.*first epoch"):
+        train(_data(), tmp_path / "w.pt", config, resume=True, progress=False, device="cpu")
+    assert load_network(tmp_path / "w.pt")[0].config == NET
+
+
 def test_a_corrupt_patch_cache_is_one_error(tmp_path):
     (tmp_path / "w.pt.patches.npz").write_bytes(b"not an archive")
     with pytest.raises(ValueError, match="patches: cannot read .*w.pt.patches.npz"):

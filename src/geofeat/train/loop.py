@@ -3,6 +3,8 @@ Training"), SGD, a validation matching score per epoch, checkpoints to resume fr
 
 from __future__ import annotations
 
+import warnings
+
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -239,6 +241,9 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=config.epochs * config.steps_per_epoch)
     history = {"epoch": [], "loss": [], "val_ms": [], "config": asdict(config)}
     start_epoch = 0
+    if resume and not ckpt_path.is_file():  # it started from the first epoch without a word
+        warnings.warn(f"resume: no {ckpt_path} to resume from (no earlier run stopped here); training from the "
+                      "first epoch", UserWarning, stacklevel=2)
     if resume and ckpt_path.is_file():
         state = load_resume_state(ckpt_path, config, device)
         try:
