@@ -19,6 +19,10 @@ Three steps, all vectorised:
    with little good surface gives fewer keypoints), except the best `min_fraction` of the frame's
    candidates, which are always kept; then the `n` best.
 
+Weights trained with `train-detector --denoise K` first pass the image through an edge-preserving
+filter scaled to its noise level (`detection_image`); the shipped weights do not (K = 0: on our
+validation sets it moved matching score from clean renders to noisy ones, BENCHMARKS.md).
+
 The weights are a small `.npz` archive (whatever the file's extension) of numpy arrays: inference
 needs neither torch nor a GPU.
 """
