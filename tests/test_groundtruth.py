@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 from pathlib import Path
 
 import cv2
@@ -157,6 +158,30 @@ def test_bench_reads_the_generated_files(simulated):
     assert np.median(err) < 0.5
     ref_mask = cv2.imread(str(out[True] / f"{seq.reference}_objmask.png"), cv2.IMREAD_GRAYSCALE)
     assert ref_mask is not None and (ref_mask > 0).any()
+
+
+def test_resume_keeps_the_sequences_an_interrupted_run_finished(tmp_path, capsys):
+    """An interrupted run over several sequences could not be continued: a plain rerun was refused
+    (the first sequence's folder exists) and --overwrite made every sequence again."""
+    for name in ("a", "b"):
+        _write_pair(tmp_path / "seqs" / name, _grid_landmarks(3))
+    out = tmp_path / "out"
+    args = ["groundtruth", str(tmp_path / "seqs"), "--out", str(out), "--no-refine", "--no-progress"]
+    assert main(args) == 0
+    kept = (out / "a" / "report.json").stat().st_mtime_ns
+    shutil.rmtree(out / "b")  # as if the run had been stopped during b
+    capsys.readouterr()
+    assert main(args) == 2
+    assert "or pass --resume" in capsys.readouterr().err
+    assert main(args + ["--resume"]) == 0
+    assert "kept 1 sequence finished by an earlier run: a" in capsys.readouterr().out
+    assert (out / "a" / "report.json").stat().st_mtime_ns == kept and (out / "b" / "report.json").is_file()
+    # what --resume cannot keep is refused by name, before any work
+    assert main(args + ["--resume", "--spacing", "12"]) == 2
+    assert "other settings (spacing)" in capsys.readouterr().err
+    cv2.imwrite(str(tmp_path / "seqs" / "a" / "frame-001-rgb.png"), np.zeros((H, W, 3), np.uint8))
+    assert main(args + ["--resume"]) == 2
+    assert "frames or landmarks changed since" in capsys.readouterr().err
 
 
 def test_cli_writes_layout_and_report(tmp_path, capsys):

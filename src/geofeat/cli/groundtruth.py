@@ -30,8 +30,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help=f"object mask: pixels beyond the landmarks' convex hull (default {DEFAULT_MARGIN_PX:g})")
     p.add_argument("--depth-margin", type=number_at_least(0), default=DEFAULT_DEPTH_MARGIN_M,
                    help=f"object mask: metres beyond the landmarks' depth range (default {DEFAULT_DEPTH_MARGIN_M:g})")
-    p.add_argument("--overwrite", action="store_true",
-                   help="replace what geofeat wrote in existing OUT/<sequence> folders (other files stay)")
+    again = p.add_mutually_exclusive_group()
+    again.add_argument("--overwrite", action="store_true",
+                       help="replace what geofeat wrote in existing OUT/<sequence> folders (other files stay)")
+    again.add_argument("--resume", action="store_true",
+                       help="keep the OUT/<sequence> folders an earlier (interrupted) run finished with the same "
+                            "settings, and make the others")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
     return p
@@ -41,8 +45,8 @@ def run(args: argparse.Namespace) -> int:
     """Run `groundtruth`; ValueError on bad input. Returns 0, or 1 when a frame failed."""
     from ..io import find_sequences, read_sequence
     from ..outputs import check_out_dir
-    from ..groundtruth.pipeline import (GroundTruthConfig, check_config, check_sequence, generate_ground_truth,
-                                       result_files)
+    from ..groundtruth.pipeline import (GroundTruthConfig, check_config, check_sequence, finished_result,
+                                       generate_ground_truth, result_files)
 
     config = GroundTruthConfig(refine=not args.no_refine, spacing=args.spacing, margin_px=args.margin,
                                depth_margin_m=args.depth_margin)
@@ -50,12 +54,25 @@ def run(args: argparse.Namespace) -> int:
     folders = find_sequences(args.sequences, unique_names=True)
     if args.out.exists() and not args.out.is_dir():
         raise ValueError(f"--out: {args.out} is a file, not a folder")
+    done = []  # sequences an earlier run finished (--resume)
     for folder in folders:  # every input and output is checked before the first frame is refined
         seq = read_sequence(folder)
         check_sequence(seq, config)
-        check_out_dir(args.out / folder.name, args.overwrite, files=result_files(seq), inputs=folders)
+        if args.resume and finished_result(args.out / folder.name, seq, config):
+            done.append(folder)
+            continue
+        try:
+            check_out_dir(args.out / folder.name, args.overwrite, files=result_files(seq), inputs=folders)
+        except ValueError as error:  # a rerun after an interrupt: say how to keep what was finished
+            if (args.out / folder.name / "report.json").is_file() and not args.resume:
+                raise ValueError(f"{error}; or pass --resume to keep the sequences an earlier run finished") from None
+            raise
+    if done:
+        print(f"kept {plural(len(done), 'sequence')} finished by an earlier run: {', '.join(f.name for f in done)}")
     failed = []
     for folder in folders:
+        if folder in done:
+            continue
         out = args.out / folder.name
         reports = generate_ground_truth(folder, out, config, progress=not args.no_progress, overwrite=args.overwrite)
         ok = [r for r in reports if r.status == "ok"]

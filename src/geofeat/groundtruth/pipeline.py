@@ -20,6 +20,7 @@ the reason; the others are written.
 from __future__ import annotations
 
 import csv
+import json
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -30,8 +31,8 @@ import numpy as np
 from ..frame import RGBDFrame
 from ..imagequality import ssim_map
 from ..inputs import check_landmarks
-from ..io import Sequence, read_sequence
-from ..outputs import check_out_dir, json_text, output_folder
+from ..io import Sequence, read_sequence, sequence_digest
+from ..outputs import check_out_dir, json_text, output_folder, read_manifest
 from .defaults import DEFAULT_DEPTH_MARGIN_M, DEFAULT_MARGIN_PX, DEFAULT_SPACING_PX
 from .photometric import RefineConfig, check_refine_config, refine
 from ..tps import ThinPlateSpline, authors_tps, spans_plane
@@ -451,5 +452,36 @@ def _write_report(out: Path, seq: Sequence, config: GroundTruthConfig, reports: 
             writer.writerow({k: (" ".join(map(str, v)) if isinstance(v, list) else v) for k, v in row.items()})
     # a failed frame's figures: null, not NaN (`json_text`)
     (out / "report.json").write_text(json_text(
-        {"sequence": str(seq.folder), "reference": seq.reference, "config": asdict(config), "frames": rows},
-        indent=1, default=float), encoding="utf-8")
+        {"sequence": str(seq.folder), "sequence_digest": sequence_digest(seq.folder), "reference": seq.reference,
+         "config": asdict(config), "frames": rows}, indent=1, default=float), encoding="utf-8")
+
+
+def finished_result(out: str | Path, seq: Sequence, config: GroundTruthConfig) -> bool:
+    """Whether the folder `out` holds this sequence's finished ground truth made with `config` (its
+    report.json, written last and listed in the folder's manifest, names the same sequence folder, the
+    same files (`io.sequence_digest`) and the same settings): `geofeat groundtruth --resume` skips it.
+    False when `out` holds no finished result. ValueError, naming what differs, when it holds one made
+    from another sequence, from files changed since, or with other settings."""
+    out = Path(out)
+    report = out / "report.json"
+    if not report.is_file() or "report.json" not in read_manifest(out):
+        return False
+    try:
+        made = json.loads(report.read_text(encoding="utf-8"))
+    except ValueError:
+        raise ValueError(f"--out: {report} is not valid JSON; use --overwrite to make {out} again") from None
+    differences = []
+    if not isinstance(made, dict) or made.get("sequence") != str(seq.folder):
+        differences.append(f"it was made from {made.get('sequence') if isinstance(made, dict) else '?'}, "
+                           f"not {seq.folder}")
+    elif made.get("sequence_digest") not in (None, sequence_digest(seq.folder)):
+        differences.append("the sequence's frames or landmarks changed since")
+    there = json.loads(json.dumps(made.get("config"))) if isinstance(made, dict) else None
+    now = json.loads(json_text(asdict(config)))
+    if there != now and not differences:
+        changed = sorted(k for k in now if (there or {}).get(k) != now[k])
+        differences.append(f"other settings ({', '.join(changed) or 'all'})")
+    if differences:
+        raise ValueError(f"--out: {out} holds ground truth that --resume cannot keep: {'; '.join(differences)}; use "
+                         "--overwrite to make it again")
+    return True
