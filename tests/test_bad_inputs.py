@@ -1232,10 +1232,11 @@ DATA = Path(geofeat.__file__).parent / "data"
 
 @pytest.mark.parametrize("name, weights, message", [
     ("geopatch", "corrupt.pt", "corrupt.pt is not a GeoPatch checkpoint"),
-    ("geopatch", DATA / "logpolar_sim.pt", "logpolar_sim.pt is not a GeoPatch checkpoint"),
+    ("geopatch", DATA / "logpolar_sim.pt", "logpolar_sim.pt holds logpolar-sim weights .*not GeoPatch; name them "
+                                           "logpolar-sim=PATH"),
     ("geopatch", DATA / "geokey.npz", "geokey.npz is not a GeoPatch checkpoint"),
     ("geopatch", "corrupt.onnx", "corrupt.onnx is not a GeoPatch ONNX model"),
-    ("tfeat-sim", DATA / "geopatch.pt", "geopatch.pt is not a tfeat-sim checkpoint"),
+    ("tfeat-sim", DATA / "geopatch.pt", "geopatch.pt holds geopatch weights .*not tfeat-sim; name them geopatch=PATH"),
     ("tfeat-sim", DATA / "logpolar_sim.pt", "holds a logpolar-sim network, not tfeat-sim"),
 ])
 def test_descriptor_weights_of_another_network_are_one_error(name: str, weights, message: str, tmp_path: Path) -> None:
