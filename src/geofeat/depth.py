@@ -15,7 +15,7 @@ import numpy as np
 
 from .constants import DEPTH_PROFILE_NAMES, HOLE_MAX_PERIMETER_PX, IDW_POWER, MESH_SCALE, SMOOTH_LEVELS, SMOOTH_WINDOW_PX
 from .frame import check_intrinsics
-from .inputs import check_positive, check_whole
+from .inputs import check_positive, check_whole, unmask_depth
 
 FILL_METHODS = ("idw", "simple", "none")
 
@@ -252,8 +252,9 @@ def resolve_depth_config(depth_config, frame=None) -> DepthConfig:
 
 def _check_depth_map(depth, what: str = "depth", finite: bool = True) -> np.ndarray:
     """An (H, W) numeric depth map as an array (ValueError / TypeError naming `what` otherwise; with
-    `finite`, NaN or infinite values are refused too: missing depth is 0 here)."""
-    depth = np.asarray(depth)
+    `finite`, NaN or infinite values are refused too: missing depth is 0 here, and so are the masked
+    pixels of a masked array)."""
+    depth = np.asarray(unmask_depth(depth))
     if depth.ndim != 2:
         raise ValueError(f"{what}: expected an (H, W) depth map, got shape {depth.shape}")
     if depth.size == 0:

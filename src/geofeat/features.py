@@ -53,7 +53,14 @@ class Features:
     sizes: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        kp = np.asarray(self.keypoints, dtype=np.float64)
+        try:
+            kp = np.asarray(self.keypoints, dtype=np.float64)
+        except (TypeError, ValueError) as error:  # cv2.KeyPoints: "float() argument must be ...", naming nothing
+            what = type(self.keypoints).__name__
+            if isinstance(self.keypoints, (list, tuple)) and self.keypoints:
+                what = f"a {what} of {type(self.keypoints[0]).__module__}.{type(self.keypoints[0]).__name__}"
+            raise TypeError(f"keypoints: expected an (N, 2) array of (x, y) pixels, got {what} (for cv2.KeyPoints: "
+                            "geofeat.as_keypoints(keypoints).xy)") from error
         if kp.size == 0:
             kp = kp.reshape(0, 2)
         if kp.ndim != 2 or kp.shape[1] != 2:

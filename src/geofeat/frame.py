@@ -9,7 +9,8 @@ import cv2
 import numpy as np
 
 from .constants import MAX_PLAUSIBLE_DEPTH_M
-from .inputs import PLAUSIBLE_MEDIAN_DEPTH_M, DepthUnitsWarning, as_points, check_focal_lengths, check_principal_point
+from .inputs import (PLAUSIBLE_MEDIAN_DEPTH_M, DepthUnitsWarning, as_points, check_focal_lengths, check_principal_point,
+                     unmask_depth)
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
@@ -90,11 +91,12 @@ def check_intrinsics(K: np.ndarray) -> np.ndarray:
 
 
 def check_depth(depth: np.ndarray, shape: tuple[int, int] | None = None, warn_near: bool = False) -> np.ndarray:
-    """Validate an (H, W) depth map in metres (0 = missing) and return it as float32. A median depth
+    """Validate an (H, W) depth map in metres (0 = missing; so are the masked pixels of a masked
+    array) and return it as float32. A median depth
     above `MAX_PLAUSIBLE_DEPTH_M` (millimetres) is a ValueError; with `warn_near`, one below the
     readers' smallest plausible median (`inputs.PLAUSIBLE_MEDIAN_DEPTH_M`, 5 cm) warns
     (`DepthUnitsWarning`): metres divided by 1000 again make every geodesic patch leave the surface."""
-    depth = np.asarray(depth)
+    depth = np.asarray(unmask_depth(depth))
     if depth.ndim != 2:
         raise ValueError(f"depth: expected shape (H, W), got {depth.shape}")
     if shape is not None and depth.shape != shape:
@@ -144,13 +146,14 @@ class RGBDFrame:
 
     Attributes:
         image: (H, W) float32 gray image in [0, 1].
-        depth: (H, W) float32 depth in metres, 0 where missing: a median above 50 m (millimetres)
+        depth: (H, W) float32 depth in metres, 0 where missing (and where a masked array is masked):
+            a median above 50 m (millimetres)
             raises ValueError, one below 5 cm (metres divided by 1000 again?) warns.
         K: (3, 3) float64 pinhole intrinsics in pixels (OpenCV convention: the centre of the
             top-left pixel is (0, 0)), for this image's resolution: focal lengths implausible for
             the image size raise ValueError, a principal point far from the image centre (or off
             it: intrinsics of another resolution?) warns.
-        color: optional (H, W, 3) uint8 BGR image, kept for display.
+        color: optional (H, W, 3) uint8 BGR image (a copy of the one given), kept for display.
     """
 
     image: np.ndarray
@@ -163,7 +166,9 @@ class RGBDFrame:
         if image.ndim not in (2, 3):
             raise ValueError(f"image: expected shape (H, W) or (H, W, 3), got {image.shape}")
         gray = to_gray(image)
-        color = image if (image.ndim == 3 and image.dtype == np.uint8) else None
+        # the frame's own copy, as for the depth and K: the caller may draw on its array afterwards
+        # (H, W, 3) only: an (H, W, 1) image is gray, shown (`geofeat.viz.to_bgr`) from `image` as an (H, W) one
+        color = image.copy() if (image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.uint8) else None
         object.__setattr__(self, "image", gray)
         object.__setattr__(self, "depth", check_depth(depth, gray.shape, warn_near=True))
         K = check_intrinsics(K).copy()  # the frame's own copy, as for the depth: not the caller's array
@@ -211,6 +216,14 @@ class RGBDFrame:
         else:  # new (x', y') = (H - 1 - y, x)
             Kn = np.array([[fy, 0, H - 1 - cy], [0, fx, cx], [0, 0, 1.0]])
         return RGBDFrame(np.ascontiguousarray(np.rot90(image, k)), np.ascontiguousarray(np.rot90(self.depth, k)), Kn)
+
+
+def check_frame(frame, what: str = "frame") -> RGBDFrame:
+    """`frame` when it is an RGBDFrame, else TypeError naming `what` (arguments swapped,
+    compute(keypoints, frame), or a bare image were an AttributeError from deep inside)."""
+    if not isinstance(frame, RGBDFrame):
+        raise TypeError(f"{what}: expected an RGBDFrame, got {type(frame).__name__}")
+    return frame
 
 
 def roll_camera(frame: RGBDFrame, angle_deg: float) -> tuple[RGBDFrame, np.ndarray]:

@@ -218,6 +218,13 @@ def check_principal_point(K: np.ndarray, shape: tuple[int, int], where: str, str
                       "this)", UserWarning, stacklevel=3)
 
 
+def unmask_depth(depth: Any) -> Any:
+    """A depth map with the masked pixels of a numpy masked array as 0 (missing depth), not as the
+    values stored under the mask (a sensor's no-data code, or NaN from `np.ma.masked_invalid`),
+    which `np.asarray` would keep; anything else is returned as it is."""
+    return depth.filled(0) if isinstance(depth, np.ma.MaskedArray) else depth
+
+
 def as_points(xy: Any, what: str = "xy") -> np.ndarray:
     """An (N, 2) array of (x, y) pixels as float64 (an empty one as (0, 2)); NaN rows are kept for the
     caller to read as unknown. Any other shape is a ValueError naming `what`: reshaping a (2, N) array

@@ -13,6 +13,7 @@ Hidden files (`._frame-001-rgb.png`) are not frames. Every reader validates what
 from __future__ import annotations
 
 import hashlib
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,7 +24,7 @@ import numpy as np
 from .constants import DEFAULT_RADIUS_M, DEPTH_SCALE_M
 from .frame import RGBDFrame, _warn_if_dark, check_depth
 from .inputs import (check_depth_plausible, check_depth_scale, check_intrinsics_for_image, check_landmarks,
-                     check_unique_names, is_reference_name, read_config, warn_depth_units)
+                     check_unique_names, is_reference_name, read_config, unmask_depth, warn_depth_units)
 
 RGB_SUFFIX = "-rgb.png"
 DEPTH_SUFFIX = "-depth.png"
@@ -66,6 +67,9 @@ def sequence_digest(folder: str | Path) -> str:
 
 
 def _existing(path: str | Path, what: str) -> Path:
+    if not isinstance(path, (str, os.PathLike)):  # an array for a path: pathlib's TypeError names nothing
+        hint = "" if what == "landmarks" else "; for an image, depth or K in memory, use RGBDFrame(image, depth, K)"
+        raise TypeError(f"{what}: expected a file path, got {type(path).__name__}{hint}")
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"{what}: file not found: {path}")
@@ -174,7 +178,7 @@ def write_frame(folder: str | Path, name: str, color: np.ndarray, depth: np.ndar
     checked before either file is written."""
     folder = Path(folder)
     check_depth_scale(depth_scale, "depth_scale")
-    color, depth = np.asarray(color), np.asarray(depth)
+    color, depth = np.asarray(color), np.asarray(unmask_depth(depth))  # masked pixels: missing depth (0)
     if depth.ndim != 2 or depth.dtype.kind not in "fiu":
         raise ValueError(f"depth: expected an (H, W) array of metres, got shape {depth.shape}, dtype {depth.dtype}")
     if color.shape[:2] != depth.shape or color.ndim not in (2, 3) or (color.ndim == 3 and color.shape[2] not in (1, 3, 4)):

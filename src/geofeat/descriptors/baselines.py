@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 
 from ..features import Features
-from ..frame import RGBDFrame
+from ..frame import RGBDFrame, check_frame
 from ..keypoints import as_keypoints, to_uint8
 
 #: SIFT diameter -> descriptor size factors (see module docstring).
@@ -93,7 +93,7 @@ class OpenCVDescriptor:
         """Describe `keypoints` (see `geofeat.keypoints.as_keypoints`) on `frame.image`; a keypoint
         without a size (an (N, 2) array) gets `DEFAULT_SIZE_PX`, without an angle 0. Returns Features
         with (N, D) descriptors (uint8 for the binary ones, float32 for SIFT and DAISY)."""
-        kps = as_keypoints(keypoints, frame.shape)
+        kps = as_keypoints(keypoints, check_frame(frame).shape)
         n = len(kps)
         if self.use_angle and self.name in USES_GIVEN_ANGLE and n > 1 and not np.any(kps.angles):
             warnings.warn(f"{self.name}: every keypoint has angle 0 (GeoKey's keypoints and (N, 2) arrays carry "

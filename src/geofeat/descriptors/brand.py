@@ -116,6 +116,8 @@ class BRAND:
 
     def compute(self, frame: RGBDFrame, keypoints) -> Features:
         """BRAND features of `keypoints` (Keypoints / cv2.KeyPoint list / (N, 2) pixels: angle 0)."""
+        if not (hasattr(frame, "image") and hasattr(frame, "K")):  # keypoints and frame swapped, a bare image
+            raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
         depth = getattr(frame, "depth", None)
         if depth is None or not hasattr(frame, "image") or not hasattr(frame, "K"):
             raise ValueError("frame: BRAND needs an RGB-D frame with a depth map (frame.depth), got none")

@@ -66,7 +66,7 @@ from numba import njit, prange
 
 from ..constants import N_ANGLES, N_RINGS
 from ..features import Features
-from ..frame import RGBDFrame
+from ..frame import RGBDFrame, check_frame
 from ..keypoints import as_keypoints
 from ..geodesic.mesh import GridMesh
 from ..geodesic.polar import PolarPatches, check_patches, polar_patches
@@ -277,7 +277,7 @@ class GeoBit:
         Returns:
             `Features` with descriptors (N, n_rotations, n_bits // 8) uint8 and valid from the patches.
         """
-        kps = as_keypoints(keypoints, frame.shape)
+        kps = as_keypoints(keypoints, check_frame(frame).shape)
         if patches is None:
             patches = polar_patches(
                 frame,

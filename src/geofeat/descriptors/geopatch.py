@@ -46,7 +46,7 @@ import numpy as np
 
 from ..constants import N_ANGLES, N_RINGS
 from ..features import Features
-from ..frame import RGBDFrame
+from ..frame import RGBDFrame, check_frame
 from ..keypoints import as_keypoints
 from ..geodesic.mesh import GridMesh
 from ..geodesic.polar import PolarPatches, check_patches, polar_patches
@@ -331,7 +331,7 @@ class GeoPatch:
     def compute(self, frame: RGBDFrame, keypoints, patches: PolarPatches | None = None,
                 mesh: GridMesh | None = None) -> Features:
         """GeoPatch features of `keypoints` ((N, 2) pixels, cv2.KeyPoint list or `Keypoints`)."""
-        kps = as_keypoints(keypoints, frame.shape)
+        kps = as_keypoints(keypoints, check_frame(frame).shape)
         if patches is None:  # of the size the network takes (the checkpoint's n_rings x n_angles)
             patches = polar_patches(frame, kps, radius=self.radius, n_angles=self.config.n_angles,
                                     n_rings=self.config.n_rings, depth_config=self.depth_config, mesh=mesh,

@@ -23,7 +23,7 @@ from numba import njit, prange
 
 from ..constants import MAX_EDGE_STRETCH
 from ..depth import DepthConfig, backproject, preprocess_depth, resolve_depth_config, scale_intrinsics
-from ..frame import RGBDFrame, check_depth, check_intrinsics
+from ..frame import RGBDFrame, check_depth, check_frame, check_intrinsics
 from .walk import _shared
 
 
@@ -155,6 +155,7 @@ def check_frame_arrays(frame: RGBDFrame) -> None:
     """The frame's depth and intrinsics are checked when the frame is made, but both are plain
     arrays that can be edited in place afterwards (`frame_mesh` notices such edits): check them
     again before a mesh is built from them (NaN, negative or millimetre depth: ValueError)."""
+    check_frame(frame)
     check_depth(frame.depth, frame.shape)
     check_intrinsics(frame.K)
 

@@ -1,0 +1,153 @@
+"""Unusual but plausible inputs to the public Python API, as a researcher passes them from a notebook
+(masked depth maps, a colour array edited after the frame is made, arrays where paths are expected,
+arguments in the wrong order): each either works as the user means or is a one-line error naming
+the argument, never a silently wrong result or an AttributeError from deep inside."""
+
+from __future__ import annotations
+
+import warnings
+
+import cv2
+import numpy as np
+import pytest
+
+import geofeat
+from geofeat import Features, RGBDFrame
+from geofeat.io import read_depth
+
+H, W = 120, 160
+K = np.array([[150.0, 0.0, 79.5], [0.0, 150.0, 59.5], [0.0, 0.0, 1.0]])
+
+
+def _colour(seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    img = cv2.GaussianBlur(rng.standard_normal((H, W)).astype(np.float32), (0, 0), 2.0)
+    gray = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    return np.dstack([gray, np.roll(gray, 7, axis=1), np.roll(gray, 5, axis=0)])
+
+
+def _depth() -> np.ndarray:
+    y, x = np.mgrid[0:H, 0:W]
+    depth = (1.0 + 0.1 * np.sin(x / 20.0) * np.cos(y / 25.0)).astype(np.float32)
+    depth[40:60, 60:90] = 0.0  # a hole
+    return depth
+
+
+# ---------------------------------------------------------------- masked depth maps
+def _masked(fill: float) -> np.ma.MaskedArray:
+    """The depth with its hole masked, and `fill` stored under the mask (a sensor's no-data code)."""
+    depth = _depth()
+    return np.ma.masked_array(np.where(depth > 0, depth, fill), mask=depth == 0)
+
+
+@pytest.mark.parametrize("fill", [0.0, 9.0, -1.0, np.nan])
+def test_masked_depth_pixels_are_missing_depth(fill):
+    """RGBDFrame(image, np.ma.masked_array(depth, mask=no_data), K) used the values stored under the
+    mask: a no-data code of 9.0 became a surface 9 m away (silently), -1 or NaN (np.ma.masked_invalid)
+    were refused as 'negative values' / 'NaN' although the user had masked them."""
+    frame = RGBDFrame(_colour(), _masked(fill), K)
+    np.testing.assert_array_equal(frame.depth, _depth())
+
+
+def test_depth_noise_reads_masked_pixels_as_missing():
+    """depth_noise(masked depth, K) measured the no-data values under the mask as a surface: no
+    holes, and the step into them as slope noise."""
+    expected = geofeat.depth_noise(_depth(), K)
+    assert geofeat.depth_noise(_masked(9.0), K) == expected
+
+
+def test_write_frame_writes_masked_depth_as_missing(tmp_path):
+    """write_frame(..., masked depth) wrote the values under the mask into the depth PNG."""
+    geofeat.write_frame(tmp_path, "f", _colour(), _masked(9.0))
+    written = read_depth(tmp_path / "f-depth.png")
+    np.testing.assert_array_equal(written == 0, _depth() == 0)
+
+
+# ---------------------------------------------------------------- the frame's colour image
+def test_a_frame_keeps_its_own_colour_image():
+    """The frame kept the caller's colour array itself (its depth and K are copies): drawing the
+    detections on that array afterwards (cv2.circle(img, ...), as notebooks do) changed
+    frame.color, and frame.rotated90() / roll_camera, which start from the colour image, then
+    described the drawing, not the frame."""
+    img = _colour()
+    frame = RGBDFrame(img, _depth(), K)
+    before = frame.image.copy()
+    img[:] = 255  # the caller draws on (here: blanks) its own array
+    assert frame.color is not img
+    assert (frame.color != 255).any()
+    np.testing.assert_array_equal(frame.rotated90(4).image, before)
+
+
+# ---------------------------------------------------------------- arrays where paths are expected
+def test_read_frame_names_an_array_given_for_a_path(tmp_path):
+    """read_frame(rgb, depth, K) with the camera matrix (an array) for intrinsics_path was a bare
+    "TypeError: expected str, bytes or os.PathLike object, not ndarray" from pathlib."""
+    geofeat.write_frame(tmp_path, "f", _colour(), _depth())
+    with pytest.raises(TypeError, match=r"^intrinsics_path: expected a file path.*RGBDFrame"):
+        geofeat.read_frame(tmp_path / "f-rgb.png", tmp_path / "f-depth.png", K)
+    with pytest.raises(TypeError, match=r"^rgb_path: expected a file path"):
+        geofeat.read_frame(_colour(), tmp_path / "f-depth.png", tmp_path / "intrinsics.xml")
+
+
+def test_features_name_cv2_keypoints():
+    """Features(list of cv2.KeyPoint, ...) was "TypeError: float() argument must be a string or a
+    real number, not 'cv2.KeyPoint'", naming no argument."""
+    kps = [cv2.KeyPoint(10.0, 20.0, 5.0), cv2.KeyPoint(30.0, 40.0, 5.0)]
+    with pytest.raises(TypeError, match=r"^keypoints: .*cv2.KeyPoint"):
+        Features(kps, np.zeros((2, 4), np.float32), None)
+
+
+# ---------------------------------------------------------------- arguments in the wrong order
+@pytest.mark.parametrize("name", ["geobit", "geopatch", "orb", "brand"])
+def test_compute_names_a_frame_that_is_not_one(name):
+    """descriptor.compute(keypoints, frame) (arguments swapped) or compute(image, keypoints) was an
+    AttributeError ("'Keypoints' object has no attribute 'shape'") for GeoBit, GeoPatch and the
+    OpenCV baselines, and for BRAND a ValueError saying the frame had no depth map."""
+    frame = RGBDFrame(_colour(), _depth(), K)
+    keypoints = np.array([[40.0, 30.0], [120.0, 90.0]])
+    descriptor = geofeat.make_descriptor(name)
+    with pytest.raises(TypeError, match=r"^frame: expected an RGBDFrame, got ndarray"):
+        descriptor.compute(keypoints, frame)
+    with pytest.raises(TypeError, match=r"^frame: expected an RGBDFrame, got ndarray"):
+        descriptor.compute(frame.image, keypoints)
+
+
+def test_build_mesh_names_a_frame_that_is_not_one():
+    """build_mesh(depth) was "AttributeError: 'numpy.ndarray' object has no attribute 'depth'"."""
+    with pytest.raises(TypeError, match=r"^frame: expected an RGBDFrame, got ndarray"):
+        geofeat.build_mesh(_depth())
+
+
+def test_valid_inputs_in_other_forms_give_the_same_results():
+    """Plain checks of what already worked: the same frame from uint8, uint16 and float colour, and
+    the same keypoints as float64, float32, int, a list of tuples and cv2.KeyPoints, read-only or
+    Fortran-ordered, give the same descriptors."""
+    colour = _colour()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        frames = [RGBDFrame(colour, _depth(), K), RGBDFrame(colour.astype(np.uint16) * 257, _depth(), K),
+                  RGBDFrame(colour / 255.0, _depth(), K)]
+    assert max(float(np.abs(f.image - frames[0].image).max()) for f in frames) < 1.0 / 255
+    xy = np.array([[40.0, 30.0], [120.0, 90.0], [100.0, 20.0]])
+    read_only = xy.copy()
+    read_only.setflags(write=False)
+    describer = geofeat.GeoBit()
+    ref = describer.compute(frames[0], xy)
+    for keypoints in (xy.astype(np.float32), xy.astype(int), [tuple(p) for p in xy], read_only,
+                      np.asfortranarray(xy), [cv2.KeyPoint(float(x), float(y), 8.0) for x, y in xy]):
+        got = describer.compute(frames[0], keypoints)
+        np.testing.assert_array_equal(got.descriptors, ref.descriptors)
+        np.testing.assert_array_equal(got.valid, ref.valid)
+
+
+def test_a_one_channel_image_gives_no_one_channel_colour_image():
+    """RGBDFrame(gray[:, :, None], ...) kept the (H, W, 1) array as `frame.color`, documented as
+    (H, W, 3) BGR: the pictures of `geofeat.viz` drawn on it came back (H, W, 1), their coloured
+    rings and match lines grey."""
+    from geofeat.viz import to_bgr
+
+    gray = cv2.cvtColor(_colour(), cv2.COLOR_BGR2GRAY)
+    frame = RGBDFrame(gray[:, :, None], _depth(), K)
+    np.testing.assert_array_equal(frame.image, RGBDFrame(gray, _depth(), K).image)
+    assert frame.color is None or frame.color.shape == (H, W, 3)
+    assert to_bgr(frame).shape == (H, W, 3)
