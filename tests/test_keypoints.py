@@ -220,3 +220,20 @@ def test_detector_names_in_any_case_are_recorded_lower_case(frame):
         check_detector_name("surf")
     with pytest.raises(ValueError, match="got 'SIFT=w.npz'"):
         check_detector_name("SIFT=w.npz")
+
+
+@pytest.mark.parametrize("detector", ["sift", "geokey"])
+def test_a_mask_with_nan_or_of_another_kind_is_refused(detector):
+    """NaN is nonzero, so a float mask with NaN for "unknown" allowed those pixels without a word."""
+    frame = geofeat.read_demo_frame()
+    mask = np.zeros(frame.shape, np.float32)
+    mask[100:300, 100:400] = 1.0
+    kept = geofeat.detect(frame, 200, detector=detector, mask=mask)
+    assert len(kept) and (kept.xy[:, 0] >= 99).all() and (kept.xy[:, 0] <= 400).all()
+    mask[0:50, 0:50] = np.nan
+    with pytest.raises(ValueError, match="mask: contains NaN"):
+        geofeat.detect(frame, 200, detector=detector, mask=mask)
+    with pytest.raises(ValueError, match="mask: expected a bool or numeric array"):
+        geofeat.detect(frame, 200, detector=detector, mask=np.full(frame.shape, "x"))
+    with pytest.raises(ValueError, match="mask: expected shape"):
+        geofeat.detect(frame, 200, detector=detector, mask=np.ones((10, 10)))

@@ -258,6 +258,20 @@ def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = DEFAUL
                          min_fraction=min_fraction, denoise=denoise)
 
 
+def check_mask(mask, shape: tuple[int, int]) -> np.ndarray:
+    """A detection mask as an (H, W) bool array, True where keypoints are allowed (nonzero).
+    ValueError naming `mask` for another shape, a non-numeric array, or NaN values: NaN is nonzero,
+    so a float mask with NaN for "unknown" allowed those pixels without a word."""
+    mask = np.asarray(mask)
+    if mask.shape != tuple(shape):
+        raise ValueError(f"mask: expected shape {tuple(shape)}, got {mask.shape}")
+    if mask.dtype.kind not in "biuf":
+        raise ValueError(f"mask: expected a bool or numeric array (nonzero = allowed), got dtype {mask.dtype}")
+    if mask.dtype.kind == "f" and np.isnan(mask).any():
+        raise ValueError("mask: contains NaN; use 0 where keypoints are not allowed and nonzero where they are")
+    return mask != 0
+
+
 def detect_sift(
     frame: RGBDFrame,
     n: int = N_KEYPOINTS,
@@ -294,10 +308,7 @@ def detect_sift(
     border_px = check_whole(border_px, "border_px", minimum=0)
     H, W = frame.shape
     if mask is not None:
-        mask = np.asarray(mask)
-        if mask.shape != (H, W):
-            raise ValueError(f"mask: expected shape {(H, W)}, got {mask.shape}")
-        mask = (mask != 0).astype(np.uint8)
+        mask = check_mask(mask, (H, W)).astype(np.uint8)
     if keypoint_set not in KEYPOINT_SETS:
         raise ValueError(f"keypoint_set: expected one of {', '.join(KEYPOINT_SETS)}, got {keypoint_set!r}")
     where = "in this frame" if mask is None else "inside the mask"

@@ -42,7 +42,7 @@ import numpy as np
 
 from ..frame import RGBDFrame
 from ..inputs import check_non_negative
-from ..keypoints import Keypoints, _check_n
+from ..keypoints import Keypoints, _check_n, check_mask
 from .cues import CUE_NAMES, IMAGE_CUES, cue_features, cue_maps, depth_edge_distance
 
 #: The shipped weights.
@@ -382,14 +382,12 @@ def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
     nms_radius, threshold, min_fraction, denoise = check_settings(
         model.nms_radius if nms_radius is None else nms_radius, model.threshold if threshold is None else threshold,
         model.min_fraction if min_fraction is None else min_fraction, model.denoise if denoise is None else denoise)
+    mask = None if mask is None else check_mask(mask, frame.shape)  # before any work
     frame = detection_image(frame, denoise)
     cands = candidates(frame)
     if mask is not None:
-        mask = np.asarray(mask)
-        if mask.shape != frame.shape:
-            raise ValueError(f"mask: expected shape {frame.shape}, got {mask.shape}")
         xi, yi = np.rint(cands.xy[:, 0]).astype(np.int64), np.rint(cands.xy[:, 1]).astype(np.int64)
-        cands = cands[mask[yi, xi] != 0]
+        cands = cands[mask[yi, xi]]
     if len(cands) == 0:
         warnings.warn("geokey: no candidate with depth under it in this frame (no texture or no depth)", stacklevel=2)
         return Keypoints(np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0))
