@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from ..outputs import plural
@@ -95,5 +96,5 @@ def run(args: argparse.Namespace) -> int:
 
 def _mean_finite(values: list[float]) -> str:
     """The mean of the finite `values` in pixels, "n/a" when none is (too few landmarks to leave one out)."""
-    finite = [v for v in values if v == v and abs(v) != float("inf")]
+    finite = [v for v in values if math.isfinite(v)]
     return f"{sum(finite) / len(finite):.2f} px" if finite else "n/a"

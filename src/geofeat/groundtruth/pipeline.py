@@ -476,8 +476,8 @@ def finished_result(out: str | Path, seq: Sequence, config: GroundTruthConfig) -
                            f"not {seq.folder}")
     elif made.get("sequence_digest") not in (None, sequence_digest(seq.folder)):
         differences.append("the sequence's frames or landmarks changed since")
-    there = json.loads(json.dumps(made.get("config"))) if isinstance(made, dict) else None
-    now = json.loads(json_text(asdict(config)))
+    there = made.get("config") if isinstance(made, dict) else None
+    now = json.loads(json_text(asdict(config)))  # as report.json holds it: lists for tuples, null for NaN
     if there != now and not differences:
         changed = sorted(k for k in now if (there or {}).get(k) != now[k])
         differences.append(f"other settings ({', '.join(changed) or 'all'})")

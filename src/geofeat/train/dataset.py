@@ -17,7 +17,7 @@ from ..scoring import ground_truth_pairs
 from ..constants import DEFAULT_RADIUS_M
 from ..depth import DepthConfig, PROFILES, sequence_depth_profile
 from ..geodesic.polar import polar_patches
-from ..io import Sequence, find_sequences, read_sequence
+from ..io import Sequence, find_sequences, read_sequence, sequence_digest
 from ..keypoints import detect
 
 
@@ -127,19 +127,6 @@ def check_simulated(paths, what: str) -> list[Path]:
     return folders
 
 
-def _frames_digest(folder: Path) -> str:
-    """A digest of a sequence's colour frames (the bytes of every `*-rgb.png`): equal for two copies of
-    one sequence, or two simulations with the same seed and settings (`geofeat simulate` writes the
-    same frames again; its default seed is 0 every time)."""
-    import hashlib
-
-    digest = hashlib.sha1()
-    for path in sorted(Path(folder).glob("*-rgb.png")):
-        digest.update(path.name.encode())
-        digest.update(path.read_bytes())
-    return digest.hexdigest()
-
-
 def warn_if_not_held_out(data_folders: list[Path], val_folders: list[Path], what: str = "val",
                          data_what: str = "data") -> None:
     """A UserWarning when validation sequences are also training sequences (the same folder given
@@ -150,9 +137,9 @@ def warn_if_not_held_out(data_folders: list[Path], val_folders: list[Path], what
     each other's negatives."""
     import warnings
 
-    digests = {}
+    digests = {}  # `sequence_digest`: equal for two copies, or two simulations with the same seed and settings
     for f in data_folders:
-        digests.setdefault(_frames_digest(f), []).append(Path(f))
+        digests.setdefault(sequence_digest(f), []).append(Path(f))
     twice = [group for group in digests.values() if len(group) > 1]
     if twice:
         pairs = ", ".join(f"{a} and {b}" for a, *rest in twice[:3] for b in rest[:1])
@@ -164,7 +151,7 @@ def warn_if_not_held_out(data_folders: list[Path], val_folders: list[Path], what
     for f in val_folders:
         if Path(f).resolve() in trained:
             shared.append(str(f))
-        elif (twin := digests.get(_frames_digest(f))) is not None:
+        elif (twin := digests.get(sequence_digest(f))) is not None:
             same.append(f"{f} (= {twin[0]})")
     if shared:
         warnings.warn(f"{what}: {', '.join(shared[:3])}{', ...' if len(shared) > 3 else ''} is also under {data_what}, "

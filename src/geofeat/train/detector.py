@@ -27,9 +27,8 @@ from scipy.spatial import cKDTree
 from tqdm import tqdm
 
 from ..detectors.cues import CUE_NAMES, IMAGE_CUES
-from ..detectors.geokey import (NMS_RADIUS_PX, GeoKeyModel, candidate_features, candidates, check_settings,
-                                detect_geokey, detection_image)
-from ..inputs import check_whole
+from ..detectors.geokey import GeoKeyModel, candidate_features, candidates, detect_geokey, detection_image
+from ..inputs import check_non_negative, check_whole
 from ..io import Sequence, read_sequence
 from ..outputs import plural
 from ..scoring import GT_THRESHOLD_PX, ground_truth_pairs
@@ -403,7 +402,7 @@ def train_detector(data, val, out: str | Path, n: int | tuple[int, ...] = VALIDA
     out = check_out_file(out, overwrite)
     n = check_counts(n)
     check_whole(steps, "steps", 1)  # Adam steps
-    denoise = check_settings(NMS_RADIUS_PX, -np.inf, 0.0, denoise)[3]
+    denoise = check_non_negative(denoise, "denoise")
     if hidden is not None and (not hidden or any(int(h) < 1 for h in hidden)):
         raise ValueError(f"hidden: expected positive layer widths, got {hidden!r}")
     data_name, val_name = names
