@@ -784,6 +784,29 @@ def train_resume_with_other_keypoints(tmp):
     return _train(tmp, "--resume", "--keypoints", "60")
 
 
+def _val_sim(tmp, name="val", seed=1, overwrite=False):
+    assert main(["simulate", str(tmp / name), "--frames", "2", "--width", "64", "--height", "48", "--no-progress",
+                 "--texture", "procedural", "--seed", str(seed)] + ["--overwrite"] * overwrite) == 0
+    return str(tmp / name)
+
+
+def train_resume_with_other_val(tmp):
+    """--val was not compared: a resumed run scored its later epochs on other sequences than its
+    first ones, and its validation curve joined two measures."""
+    assert main(_train(tmp, "--val", _val_sim(tmp, "val-a", 1))) == 0
+    return _train(tmp, "--resume", "--val", _val_sim(tmp, "val-b", 2))
+
+
+def train_resume_with_val_simulated_again(tmp):
+    assert main(_train(tmp, "--val", _val_sim(tmp))) == 0
+    return _train(tmp, "--resume", "--val", _val_sim(tmp, seed=2, overwrite=True))
+
+
+def train_resume_with_val_left_out(tmp):
+    assert main(_train(tmp, "--val", _val_sim(tmp))) == 0
+    return _train(tmp, "--resume")
+
+
 def train_beside_user_patch_archive(tmp):
     (tmp / "w.pt.patches.npz").write_text("my own archive")
     return _train(tmp)
@@ -1067,6 +1090,13 @@ CASES = [
          lambda t: not (t / "w.pt").exists() or pytest.fail("trained"), _no_patches),  # reported before the patches
     Case("train-resume-with-other-keypoints", train_resume_with_other_keypoints, 2,
          r"--resume: .*w.pt.patches.npz holds the patches of a run with other options \(--keypoints 50, not 60\)",
+         None, _no_patches),
+    Case("train-resume-with-other-val", train_resume_with_other_val, 2,
+         r"--resume: .*w.pt.patches.npz holds the patches of a run with other options \(--val val-a, not val-b\)",
+         None, _no_patches),
+    Case("train-resume-with-val-simulated-again", train_resume_with_val_simulated_again, 2,
+         r"\(--val val: other frames than that run's \(simulated again or edited since\)\)", None, _no_patches),
+    Case("train-resume-with-val-left-out", train_resume_with_val_left_out, 2, r"\(--val val, not left out\)",
          None, _no_patches),
     Case("train-beside-user-patch-archive", train_beside_user_patch_archive, 2, "w.pt.patches.npz exists",
          lambda t: (t / "w.pt.patches.npz").read_text() == "my own archive" or pytest.fail("overwritten"),

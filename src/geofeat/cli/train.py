@@ -51,6 +51,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..descriptors.geopatch import GeoPatchConfig
     from ..gpu import torch_device
+    from ..io import sequence_digest
     from ..train.dataset import PatchSet, build_patch_set, check_simulated, validation_pairs, warn_if_not_held_out
     from ..train.loop import TrainConfig, check_train_config, check_train_out, load_init, load_resume_state, train
 
@@ -111,9 +112,11 @@ def run(args: argparse.Namespace) -> int:
     val_folders = check_simulated(args.val, "--val") if args.val else []
     data_folders = check_simulated(args.data, "--data")
     warn_if_not_held_out(data_folders, val_folders, "--val", "--data")
-    # what the patches are built from: a resumed run takes the cached patches only when they match
+    # what the patches are built from, and the --val sequences that score every epoch (folders and their
+    # frames' `sequence_digest`): a resumed run takes the cached patches only when they match
     source = {"data": [str(f.resolve()) for f in data_folders], "keypoints": args.keypoints,
-              "depth_profile": args.depth_profile, "net": args.net}
+              "depth_profile": args.depth_profile, "net": args.net,
+              "val": [[str(f.resolve()), sequence_digest(f)] for f in val_folders]}
     if args.resume and cache.is_file():
         data = PatchSet.load(cache)
         _check_cached_source(cache, data.source, source)
@@ -158,18 +161,33 @@ def _check_triplets(data, keypoints: int) -> None:
 def _check_cached_source(cache: Path, cached: dict | None, wanted: dict) -> None:
     """--resume trains on the patches cached by the run it resumes: refuse them when they were built
     from other --data, --keypoints, --depth-profile or --net than this run names (they were used
-    silently, and the new options ignored). A cache that records nothing (an older geofeat's) is used."""
-    if cached is None or cached == wanted:
+    silently, and the new options ignored), or when the run scored its epochs on other --val
+    sequences, or on the same folders with other frames (its validation curve would join two
+    measures). A cache that records nothing (an older geofeat's) is used; one without --val (from
+    before it was recorded) is not checked for it."""
+    if cached is None:
         return
-    flags = {"data": "--data", "keypoints": "--keypoints", "depth_profile": "--depth-profile", "net": "--net"}
+    flags = {"data": "--data", "keypoints": "--keypoints", "depth_profile": "--depth-profile", "net": "--net",
+             "val": "--val"}
 
     def shown(key: str, value) -> str:
+        if key == "val":  # [[folder, digest], ...]
+            return " ".join(Path(p).name for p, _ in value) or "left out"
         if key == "data":
             return " ".join(Path(p).name for p in value)
         return "left out" if value is None else str(value)
 
-    changed = [f"{flag} {shown(k, cached.get(k))}, not {shown(k, wanted.get(k))}"
-               for k, flag in flags.items() if cached.get(k) != wanted.get(k)]
+    def change(key: str, flag: str) -> str:
+        before, now = cached.get(key), wanted.get(key)
+        if key == "val" and [p for p, _ in before] == [p for p, _ in now]:  # the same folders, other frames
+            moved = [Path(p).name for (p, d), (_, e) in zip(before, now) if d != e]
+            return f"{flag} {' '.join(moved)}: other frames than that run's (simulated again or edited since)"
+        return f"{flag} {shown(key, before)}, not {shown(key, now)}"
+
+    changed = [change(k, flag) for k, flag in flags.items()
+               if (k in cached or k != "val") and cached.get(k) != wanted.get(k)]
+    if not changed:
+        return
     raise ValueError(f"--resume: {cache} holds the patches of a run with other options ({'; '.join(changed)}); "
                      "resume with that run's options, or pass --overwrite (without --resume) to start anew")
 
