@@ -18,7 +18,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--val", nargs="*", default=None, help="held-out simulated sequences for the per-epoch matching score")
     p.add_argument("--out", required=True, help="weights file to write (e.g. geopatch.pt)")
     p.add_argument("--overwrite", action="store_true",
-                   help="replace an existing OUT file (and OUT.ckpt, OUT.json, OUT.png of an earlier run)")
+                   help="start anew over an earlier run: replace an existing OUT file (and OUT.ckpt, OUT.json, "
+                        "OUT.png, OUT.patches.npz); the earlier OUT, OUT.ckpt, OUT.json and OUT.png are removed "
+                        "when this run writes its first file, so an interrupted run leaves no earlier weights "
+                        "beside its own checkpoint")
     p.add_argument("--epochs", type=whole_number(1), default=10, help="passes of --steps batches (default 10)")
     p.add_argument("--steps", type=whole_number(1), default=200, help="batches per epoch (default 200)")
     p.add_argument("--batch-size", type=whole_number(1), default=1000,
@@ -53,7 +56,8 @@ def run(args: argparse.Namespace) -> int:
     from ..gpu import torch_device
     from ..io import sequence_digest
     from ..train.dataset import PatchSet, build_patch_set, check_simulated, validation_pairs, warn_if_not_held_out
-    from ..train.loop import TrainConfig, check_train_config, check_train_out, load_init, load_resume_state, train
+    from ..train.loop import (TrainConfig, check_train_config, check_train_out, load_init, load_resume_state,
+                              remove_earlier_run, removed_line, train)
 
     # the numbers are checked by their argparse types; one rule spans two options
     if args.mining == "hardest" and args.batch_size < 2:
@@ -124,6 +128,10 @@ def run(args: argparse.Namespace) -> int:
     else:
         data = build(args.data, n_keypoints=args.keypoints)
         _check_triplets(data, args.keypoints)  # before the cache, which a rerun would have to --overwrite
+        if args.overwrite and not args.resume:  # this run's first file: the earlier run's weights go with it
+            removed = remove_earlier_run(args.out)
+            if removed:
+                print(removed_line(removed))
         data.source = source
         data.save(cache)
         print(f"training patches: {len(data)} of {plural(len(np.unique(data.ids)), 'surface point')} "

@@ -82,13 +82,36 @@ def check_train_out(out: str | Path, overwrite: bool = False, resume: bool = Fal
         raise ValueError(f"--out: {out}: `train` writes PyTorch weights, and a .onnx name is read as an ONNX model "
                          "(geopatch=WEIGHTS); name it .pt")
     check_out_file(out, overwrite or (resume and out.with_suffix(out.suffix + ".ckpt").is_file()))
-    for beside in (".ckpt", ".json", ".png", *also):
+    for beside in (*BESIDE, *also):
         path = Path(str(out) + beside)  # as `train` names them
         if not (overwrite or resume) and (path.exists() or path.is_symlink()):
             raise ValueError(f"--out: {path} exists (an earlier run's?); pass --resume to continue that run, "
                              "--overwrite to start anew over it, or choose another name")
         check_out_file(path, True)  # not a folder, not under a file
     return out
+
+
+#: The files `train` writes beside its weights file `out` (suffixes of its name).
+BESIDE = (".ckpt", ".json", ".png")
+
+
+def remove_earlier_run(out: str | Path) -> list[Path]:
+    """Remove the files of an earlier run at `out` (`out` itself, `out`.ckpt, `out`.json, `out`.png),
+    which an `overwrite` run replaces anyway: called when the new run writes its first file, so that
+    one interrupted before its end leaves no earlier weights beside its own checkpoint, to be taken
+    for its result. Returns the paths removed (a symbolic link is removed, not what it points to)."""
+    removed = []
+    for path in (Path(out), *(Path(str(out) + beside) for beside in BESIDE)):
+        if path.is_file() or path.is_symlink():
+            path.unlink()
+            removed.append(path)
+    return removed
+
+
+def removed_line(removed: list[Path]) -> str:
+    """What `remove_earlier_run` did, in words, for the output of `train`."""
+    return (f"--overwrite: removed the earlier run's {', '.join(str(p) for p in removed)} (an interrupted run "
+            "leaves no weights but its own)")
 
 
 def load_init(init: str | Path, config: GeoPatchConfig) -> GeoPatchNet:
@@ -219,7 +242,8 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
     """Train GeoPatchNet (or `net`, any module mapping (B, 1, H, W) patches to unit (B, dim)
     descriptors with a dataclass `config` holding `dim`, e.g. the image-patch baselines); writes
     `out` (final weights), `out`.ckpt (resumable state after every epoch), `out`.json (history) and
-    `out`.png (loss / validation plot). Returns the history. `init`: start GeoPatchNet from these
+    `out`.png (loss / validation plot). Returns the history. With `overwrite` (and not `resume`), an
+    earlier run's `out` and files beside it are removed before the first epoch (`remove_earlier_run`). `init`: start GeoPatchNet from these
     weights ("shipped" = geofeat's own) instead of at random (fine-tuning; the network shape must
     match `config.net`). The settings and `out` are checked first (`check_train_config`,
     `check_train_out`: an existing `out`, or files beside it, only with `overwrite`, or when resuming
@@ -258,6 +282,10 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
         history = state["history"]
         start_epoch = state["epoch"] + 1
     sampler = TripletSampler(data.ids, rng)
+    if overwrite and not resume:  # before the first checkpoint of this run (the `train` command removed them sooner)
+        removed = remove_earlier_run(out)
+        if removed and progress:
+            tqdm.write(removed_line(removed))
     net.train()
     for epoch in range(start_epoch, config.epochs):
         losses = []
