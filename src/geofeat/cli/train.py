@@ -15,7 +15,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add `train` to an argparse subparsers object; returns its parser."""
     p = subparsers.add_parser("train", help="train GeoPatch on simulated sequences (see `geofeat simulate`)")
     p.add_argument("--data", nargs="+", required=True, help="simulated sequence folders, or folders of them")
-    p.add_argument("--val", nargs="*", default=None, help="held-out simulated sequences for the per-epoch matching score")
+    p.add_argument("--val", nargs="*", default=None, help="held-out simulated sequences for the per-epoch matching score (of SIFT keypoints "
+                        "with one-way nearest-neighbour matches, not the benchmark's figure)")
     p.add_argument("--out", required=True, help="weights file to write (e.g. geopatch.pt)")
     p.add_argument("--overwrite", action="store_true",
                    help="start anew over an earlier run: replace an existing OUT file (and OUT.ckpt, OUT.json, "
@@ -145,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
                       "more textured --val sequences give pairs", UserWarning, stacklevel=2)
     history = train(data, args.out, config, validation=validation, resume=args.resume, device=args.device, net=net,
                     init=args.init, overwrite=args.overwrite)
-    scored = (f"validation MS {history['val_ms'][-1]:.3f}" if validation else
+    scored = (f"validation MS {history['val_ms'][-1]:.3f} ({history['val_measure']})" if validation else
               "no validation pairs in --val" if args.val else "no --val sequences")
     print(f"wrote {args.out} (final loss {history['loss'][-1]:.4f}, {scored}), "
           f"{args.out}.png and {args.out}.json")
