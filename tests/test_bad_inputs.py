@@ -5,6 +5,7 @@ anything a user had. One table row per case; a property test of `polar_patches` 
 from __future__ import annotations
 
 import json
+import re
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -1264,7 +1265,7 @@ DATA = Path(geofeat.__file__).parent / "data"
     ("geopatch", "corrupt.pt", "corrupt.pt is not a GeoPatch checkpoint"),
     ("geopatch", DATA / "logpolar_sim.pt", "logpolar_sim.pt holds logpolar-sim weights .*not GeoPatch; name them "
                                            "logpolar-sim=PATH"),
-    ("geopatch", DATA / "geokey.npz", "geokey.npz is not a GeoPatch checkpoint"),
+    ("geopatch", DATA / "geokey.npz", "geokey.npz holds GeoKey detector weights .*--detector geokey=PATH"),
     ("geopatch", "corrupt.onnx", "corrupt.onnx is not a GeoPatch ONNX model"),
     ("tfeat-sim", DATA / "geopatch.pt", "geopatch.pt holds geopatch weights .*not tfeat-sim; name them geopatch=PATH"),
     ("tfeat-sim", DATA / "logpolar_sim.pt", "holds a logpolar-sim network, not tfeat-sim"),
@@ -1278,6 +1279,19 @@ def test_descriptor_weights_of_another_network_are_one_error(name: str, weights,
     frame = geofeat.RGBDFrame(_texture(), np.ones((H, W)), K)
     with pytest.raises(ValueError, match=message):
         geofeat.extract(frame, 10, descriptor=f"{name}={weights}")
+
+
+def test_train_init_with_geokey_weights_names_the_file_and_what_it_holds(tmp_path: Path, capsys) -> None:
+    """`train --init geokey.npz` (a detector's weights for a GeoPatch checkpoint) was refused with torch's
+    message inside ("RuntimeError: [enforce fail at inline_container.cc:180] ... not in a subdirectory: mean.npy")."""
+    np.savez(tmp_path / "other.npz", a=np.zeros(3))
+    for weights, holds in ((DATA / "geokey.npz", r"holds GeoKey detector weights \(from `geofeat train-detector`\)"),
+                           (tmp_path / "other.npz", r"is a NumPy .npz archive \(arrays a\)")):
+        assert main(_train(tmp_path, "--init", str(weights))) == 2
+        err = capsys.readouterr().err.strip()
+        assert re.fullmatch(f"geofeat train: error: --init: {re.escape(str(weights))} {holds}, not a GeoPatch "
+                            "checkpoint of `geofeat train`.*", err), err
+        assert "RuntimeError" not in err and ".npy" not in err and len(err.splitlines()) == 1
 
 
 def _geokey_arrays(**change) -> dict:

@@ -102,6 +102,8 @@ def run(args: argparse.Namespace) -> int:
         except ValueError as error:
             if channels_given and "differs from the requested" in str(error):
                 raise ValueError(f"--init: {error}; leave --channels out to train the weights' own widths") from None
+            if str(error).startswith("weights: "):  # the file's own message, named by the flag that gave it
+                raise ValueError(f"--init: {str(error).removeprefix('weights: ')}") from None
             raise
 
     net = None  # geodesic polar patches with the depth profile asked for (default: per sequence)
