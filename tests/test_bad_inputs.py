@@ -1420,7 +1420,10 @@ def test_overwrite_never_deletes_or_writes_through_a_linked_subfolder(tmp_path):
     ["track", "{seq}", "--descriptors", "orb", "--out", "{seq}"],
     ["retrieval", "{data}", "--descriptors", "orb", "--out", "{seq}"],
     ["groundtruth", "{seq}", "--no-refine", "--out", "{data}"],  # its result folder is --out/<sequence>
-], ids=["match", "track", "retrieval", "groundtruth"])
+    ["bench", "{seq}", "--descriptors", "orb", "--out", "{seq}"],  # results.csv and tables among the frames
+    ["extract", "{seq}", "--descriptor", "orb", "--out", "{seq}"],  # {seq}/features-orb.h5
+    ["extract", "{seq}", "--descriptor", "orb", "--out", "{seq}/f.npz"],  # {seq}/f-<frame>.npz beside each frame
+], ids=["match", "track", "retrieval", "groundtruth", "bench", "extract-folder", "extract-npz-prefix"])
 @pytest.mark.parametrize("overwrite", [False, True])
 def test_output_folder_that_is_the_input_sequence_is_refused(tmp_path, capsys, command, overwrite):
     """A sequence geofeat simulated (its files in its manifest) named as the result folder: before,
@@ -1437,6 +1440,19 @@ def test_output_folder_that_is_the_input_sequence_is_refused(tmp_path, capsys, c
     assert "input folder" in err and "--overwrite to" not in err and len(err.splitlines()) == 1
     assert {p.name: p.read_bytes() for p in seq.iterdir()} == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data"]
+
+
+def test_bench_rerun_into_its_input_sequence_is_refused_and_extract_may_name_an_h5_file_there(tmp_path, capsys):
+    """A bench that wrote into the sequence (before this was refused) is not resumed there; extract's
+    .h5 file named inside the sequence is one file of the user's choosing (no frame's), and is written,
+    as is a .npz prefix beside the sequence folder."""
+    seq = make_sequence(tmp_path / "data" / "seq")
+    (seq / "results.csv").write_text("sequence,descriptor\n")
+    assert main(["bench", str(seq), "--descriptors", "orb", "--out", str(seq)]) == 2
+    assert "--out: " in capsys.readouterr().err
+    assert main(["extract", str(seq), "--descriptor", "orb", "--out", str(seq / "f.h5")]) == 0
+    assert main(["extract", str(seq), "--descriptor", "orb", "--out", str(tmp_path / "data" / "seq.npz")]) == 0
+    assert (seq / "f.h5").is_file() and (tmp_path / "data" / "seq-frame-001.npz").is_file()
 
 
 def test_interrupt_while_replacing_a_folder_keeps_the_earlier_result(tmp_path, monkeypatch):
