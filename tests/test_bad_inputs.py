@@ -5,6 +5,7 @@ anything a user had. One table row per case; a property test of `polar_patches` 
 from __future__ import annotations
 
 import json
+import re
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -784,6 +785,29 @@ def train_resume_with_other_keypoints(tmp):
     return _train(tmp, "--resume", "--keypoints", "60")
 
 
+def _val_sim(tmp, name="val", seed=1, overwrite=False):
+    assert main(["simulate", str(tmp / name), "--frames", "2", "--width", "64", "--height", "48", "--no-progress",
+                 "--texture", "procedural", "--seed", str(seed)] + ["--overwrite"] * overwrite) == 0
+    return str(tmp / name)
+
+
+def train_resume_with_other_val(tmp):
+    """--val was not compared: a resumed run scored its later epochs on other sequences than its
+    first ones, and its validation curve joined two measures."""
+    assert main(_train(tmp, "--val", _val_sim(tmp, "val-a", 1))) == 0
+    return _train(tmp, "--resume", "--val", _val_sim(tmp, "val-b", 2))
+
+
+def train_resume_with_val_simulated_again(tmp):
+    assert main(_train(tmp, "--val", _val_sim(tmp))) == 0
+    return _train(tmp, "--resume", "--val", _val_sim(tmp, seed=2, overwrite=True))
+
+
+def train_resume_with_val_left_out(tmp):
+    assert main(_train(tmp, "--val", _val_sim(tmp))) == 0
+    return _train(tmp, "--resume")
+
+
 def train_beside_user_patch_archive(tmp):
     (tmp / "w.pt.patches.npz").write_text("my own archive")
     return _train(tmp)
@@ -1068,6 +1092,13 @@ CASES = [
     Case("train-resume-with-other-keypoints", train_resume_with_other_keypoints, 2,
          r"--resume: .*w.pt.patches.npz holds the patches of a run with other options \(--keypoints 50, not 60\)",
          None, _no_patches),
+    Case("train-resume-with-other-val", train_resume_with_other_val, 2,
+         r"--resume: .*w.pt.patches.npz holds the patches of a run with other options \(--val val-a, not val-b\)",
+         None, _no_patches),
+    Case("train-resume-with-val-simulated-again", train_resume_with_val_simulated_again, 2,
+         r"\(--val val: other frames than that run's \(simulated again or edited since\)\)", None, _no_patches),
+    Case("train-resume-with-val-left-out", train_resume_with_val_left_out, 2, r"\(--val val, not left out\)",
+         None, _no_patches),
     Case("train-beside-user-patch-archive", train_beside_user_patch_archive, 2, "w.pt.patches.npz exists",
          lambda t: (t / "w.pt.patches.npz").read_text() == "my own archive" or pytest.fail("overwritten"),
          _no_patches),
@@ -1234,7 +1265,7 @@ DATA = Path(geofeat.__file__).parent / "data"
     ("geopatch", "corrupt.pt", "corrupt.pt is not a GeoPatch checkpoint"),
     ("geopatch", DATA / "logpolar_sim.pt", "logpolar_sim.pt holds logpolar-sim weights .*not GeoPatch; name them "
                                            "logpolar-sim=PATH"),
-    ("geopatch", DATA / "geokey.npz", "geokey.npz is not a GeoPatch checkpoint"),
+    ("geopatch", DATA / "geokey.npz", "geokey.npz holds GeoKey detector weights .*--detector geokey=PATH"),
     ("geopatch", "corrupt.onnx", "corrupt.onnx is not a GeoPatch ONNX model"),
     ("tfeat-sim", DATA / "geopatch.pt", "geopatch.pt holds geopatch weights .*not tfeat-sim; name them geopatch=PATH"),
     ("tfeat-sim", DATA / "logpolar_sim.pt", "holds a logpolar-sim network, not tfeat-sim"),
@@ -1248,6 +1279,19 @@ def test_descriptor_weights_of_another_network_are_one_error(name: str, weights,
     frame = geofeat.RGBDFrame(_texture(), np.ones((H, W)), K)
     with pytest.raises(ValueError, match=message):
         geofeat.extract(frame, 10, descriptor=f"{name}={weights}")
+
+
+def test_train_init_with_geokey_weights_names_the_file_and_what_it_holds(tmp_path: Path, capsys) -> None:
+    """`train --init geokey.npz` (a detector's weights for a GeoPatch checkpoint) was refused with torch's
+    message inside ("RuntimeError: [enforce fail at inline_container.cc:180] ... not in a subdirectory: mean.npy")."""
+    np.savez(tmp_path / "other.npz", a=np.zeros(3))
+    for weights, holds in ((DATA / "geokey.npz", r"holds GeoKey detector weights \(from `geofeat train-detector`\)"),
+                           (tmp_path / "other.npz", r"is a NumPy .npz archive \(arrays a\)")):
+        assert main(_train(tmp_path, "--init", str(weights))) == 2
+        err = capsys.readouterr().err.strip()
+        assert re.fullmatch(f"geofeat train: error: --init: {re.escape(str(weights))} {holds}, not a GeoPatch "
+                            "checkpoint of `geofeat train`.*", err), err
+        assert "RuntimeError" not in err and ".npy" not in err and len(err.splitlines()) == 1
 
 
 def _geokey_arrays(**change) -> dict:
@@ -1376,7 +1420,10 @@ def test_overwrite_never_deletes_or_writes_through_a_linked_subfolder(tmp_path):
     ["track", "{seq}", "--descriptors", "orb", "--out", "{seq}"],
     ["retrieval", "{data}", "--descriptors", "orb", "--out", "{seq}"],
     ["groundtruth", "{seq}", "--no-refine", "--out", "{data}"],  # its result folder is --out/<sequence>
-], ids=["match", "track", "retrieval", "groundtruth"])
+    ["bench", "{seq}", "--descriptors", "orb", "--out", "{seq}"],  # results.csv and tables among the frames
+    ["extract", "{seq}", "--descriptor", "orb", "--out", "{seq}"],  # {seq}/features-orb.h5
+    ["extract", "{seq}", "--descriptor", "orb", "--out", "{seq}/f.npz"],  # {seq}/f-<frame>.npz beside each frame
+], ids=["match", "track", "retrieval", "groundtruth", "bench", "extract-folder", "extract-npz-prefix"])
 @pytest.mark.parametrize("overwrite", [False, True])
 def test_output_folder_that_is_the_input_sequence_is_refused(tmp_path, capsys, command, overwrite):
     """A sequence geofeat simulated (its files in its manifest) named as the result folder: before,
@@ -1393,6 +1440,19 @@ def test_output_folder_that_is_the_input_sequence_is_refused(tmp_path, capsys, c
     assert "input folder" in err and "--overwrite to" not in err and len(err.splitlines()) == 1
     assert {p.name: p.read_bytes() for p in seq.iterdir()} == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data"]
+
+
+def test_bench_rerun_into_its_input_sequence_is_refused_and_extract_may_name_an_h5_file_there(tmp_path, capsys):
+    """A bench that wrote into the sequence (before this was refused) is not resumed there; extract's
+    .h5 file named inside the sequence is one file of the user's choosing (no frame's), and is written,
+    as is a .npz prefix beside the sequence folder."""
+    seq = make_sequence(tmp_path / "data" / "seq")
+    (seq / "results.csv").write_text("sequence,descriptor\n")
+    assert main(["bench", str(seq), "--descriptors", "orb", "--out", str(seq)]) == 2
+    assert "--out: " in capsys.readouterr().err
+    assert main(["extract", str(seq), "--descriptor", "orb", "--out", str(seq / "f.h5")]) == 0
+    assert main(["extract", str(seq), "--descriptor", "orb", "--out", str(tmp_path / "data" / "seq.npz")]) == 0
+    assert (seq / "f.h5").is_file() and (tmp_path / "data" / "seq-frame-001.npz").is_file()
 
 
 def test_interrupt_while_replacing_a_folder_keeps_the_earlier_result(tmp_path, monkeypatch):

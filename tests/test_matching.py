@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -71,7 +73,9 @@ def test_match_equals_brute_force(metric, n0, n1, n_bytes, mutual, ratio, seed):
     rng = np.random.default_rng(seed)
     f0 = random_features(rng, n0, metric, n_bytes=n_bytes)
     f1 = random_features(rng, n1, metric, n_bytes=n_bytes)
-    got = match(f0, f1, mutual=mutual, ratio=ratio)
+    with warnings.catch_warnings():  # bytes 0-3 (for ties) look like a quantised histogram, and say so
+        warnings.filterwarnings("ignore", "descriptors: uint8 .* quantised histogram", UserWarning)
+        got = match(f0, f1, mutual=mutual, ratio=ratio)
     assert got.matches0.dtype == np.int64 and got.matches0.shape == (n0,)
     m, dist = reference_match(f0, f1, metric, mutual=mutual, ratio=ratio)
     assert np.array_equal(got.matches0, m)
@@ -384,3 +388,46 @@ def test_match_options_are_checked_by_name(kwargs, message):
     with pytest.raises(ValueError, match=message):
         match(f0, f1, **kwargs)
     assert (match(f0, f1, mutual=np.bool_(True), ratio=np.float64(0.9)).matches0 >= -1).all()  # numpy scalars pass
+
+
+def _demo_gray() -> np.ndarray:
+    import geofeat
+
+    return (np.clip(geofeat.read_demo_frame().image, 0, 1) * 255).astype(np.uint8)
+
+
+def test_uint8_sift_matched_by_hamming_is_warned_of_and_bits_are_not():
+    """uint8 (N, 128) SIFT (COLMAP's L2-normalised x 512, or OpenCV's values cast) was matched by Hamming
+    distance without a word; packed bits (ORB, GeoBit, random bytes) and unpacked 0/1 bits must not warn."""
+    import cv2
+
+    import geofeat
+
+    gray = _demo_gray()
+    _, sift = cv2.SIFT_create(500).detectAndCompute(gray, None)
+    unit = sift / np.linalg.norm(sift, axis=1, keepdims=True)
+    colmap = np.clip(np.round(unit * 512), 0, 255).astype(np.uint8)
+    for quantised in (colmap, sift.astype(np.uint8)):
+        with pytest.warns(UserWarning, match=r"zero bytes .*quantised histogram.*metric=\"l2\"") as record:
+            match(quantised[:250], quantised[250:])
+        assert record[0].filename == __file__  # points at the caller of match
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            match(quantised[:250], quantised[250:], metric="l2")  # the metric named: nothing to say
+    _, orb = cv2.ORB_create(500).detectAndCompute(gray, None)
+    frame = geofeat.read_demo_frame()
+    geobit = geofeat.extract(frame, 300, descriptor="geobit")
+    ours = geofeat.extract(frame, 300, descriptor="orb")
+    random = np.random.default_rng(0).integers(0, 256, (300, 128), dtype=np.uint8)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        match(orb[:250], orb[250:])
+        match(geobit, geobit)  # (N, 16, 64): every rotation
+        match(geobit.descriptors[:, 0], geobit.descriptors[:, 3])  # one rotation as (N, 64) bits
+        match(ours, ours)
+        match(random[:150], random[150:])
+        match(np.unpackbits(orb[:50], axis=1), np.unpackbits(orb[50:100], axis=1))
+        # invalid rows (zeros, as descriptors that could not be computed) are not judged
+        padded = Features(np.zeros((600, 2)), np.concatenate([orb[:300], np.zeros((300, 32), np.uint8)]),
+                          np.r_[np.ones(300, bool), np.zeros(300, bool)])
+        match(padded, padded)

@@ -207,3 +207,27 @@ def test_the_training_plot_says_when_there_was_no_validation():
     fig = _figure({"epoch": [1, 2], "loss": [0.5, 0.4], "val_ms": [0.3, 0.4]})
     assert not [t for ax in fig.axes for t in ax.texts]
     plt.close(fig)
+
+
+def test_the_validation_score_says_what_it_measures(tmp_path, capsys):
+    """The per-epoch 'validation MS' (one-way nearest-neighbour matches of 1024 SIFT keypoints per frame,
+    not the benchmark's 2048 with its matching) was printed, plotted and written unqualified."""
+    import json
+
+    import matplotlib.pyplot as plt
+
+    from geofeat.train.dataset import ValidationPair
+    from geofeat.train.loop import _figure
+
+    rng = np.random.default_rng(1)
+    patches = rng.random((6, 32, 32)).astype(np.float32)
+    pair = ValidationPair(patches, np.ones(6, bool), patches, np.ones(6, bool), np.stack([np.arange(6)] * 2, 1))
+    config = TrainConfig(epochs=1, steps_per_epoch=1, batch_size=8, net=NET)
+    history = train(_data(), tmp_path / "w.pt", config, validation=[pair], device="cpu")
+    measure = "1024 SIFT keypoints per frame, one-way nearest-neighbour matches"
+    assert f"validation MS 1.000 ({measure})" in capsys.readouterr().out  # the line of the epoch
+    written = json.loads((tmp_path / "w.pt.json").read_text())
+    assert written["val_measure"] == history["val_measure"] == measure
+    fig = _figure(written)
+    assert measure in fig.axes[0].get_title()
+    plt.close(fig)

@@ -202,3 +202,35 @@ def test_weights_of_another_network_name_the_descriptor_they_belong_to(tmp_path)
     for name in ("tfeat-sim", "logpolar-sim"):
         with pytest.raises(ValueError, match=r"geopatch\.pt holds geopatch weights .*name them geopatch=PATH"):
             make_descriptor(f"{name}={tmp_path / 'geopatch.pt'}")
+
+
+def test_an_interrupted_overwrite_run_leaves_no_earlier_weights_beside_its_checkpoint(tmp_path, monkeypatch, capsys):
+    """`train --overwrite` stopped after its first epoch left the earlier run's w.pt (and w.pt.json,
+    w.pt.png) beside its own w.pt.ckpt, to be taken for the new run's weights."""
+    import geofeat.train.loop as loop
+
+    assert main(["simulate", str(tmp_path / "sim"), *TINY]) == 0
+    run = ["train", "--data", str(tmp_path / "sim"), "--out", str(tmp_path / "w.pt"), "--epochs", "2", "--steps", "1",
+           "--batch-size", "8", "--keypoints", "50"]
+    assert main(run) == 0
+    assert (tmp_path / "w.pt").is_file() and (tmp_path / "w.pt.json").is_file()
+    capsys.readouterr()
+    write = loop.atomic_file
+    written = []
+
+    def stop_after_first_checkpoint(path):
+        if written:
+            raise KeyboardInterrupt
+        written.append(path)
+        return write(path)
+
+    monkeypatch.setattr(loop, "atomic_file", stop_after_first_checkpoint)
+    assert main(run + ["--overwrite"]) == 130
+    assert written == [tmp_path / "w.pt.ckpt"]
+    left = sorted(p.name for p in tmp_path.iterdir() if p.name != "sim")
+    assert left == ["w.pt.ckpt", "w.pt.patches.npz"], left
+    out = capsys.readouterr().out
+    assert "removed the earlier run's" in out and "w.pt.json" in out
+    monkeypatch.setattr(loop, "atomic_file", write)
+    assert main(run + ["--resume"]) == 0  # the new run goes on from its own checkpoint
+    assert (tmp_path / "w.pt").is_file()

@@ -5,7 +5,8 @@ import pytest
 
 import geofeat
 from geofeat.geodesic.polar import PolarPatches
-from geofeat.viz import CORRECT, draw_geodesic_support, draw_matches, match_key, patch_grid, ring_distances_mm
+from geofeat.viz import (CORRECT, UNJUDGED, WRONG, draw_geodesic_support, draw_matches, match_key, patch_grid,
+                         ring_distances_mm)
 
 
 def _no_patches() -> PolarPatches:
@@ -99,3 +100,32 @@ def test_tracking_frames_are_labelled_at_a_legible_size_when_shrunk():
         white = (band.min(-1) > 180) & (np.ptp(band, axis=-1) < 12)
         rows = np.flatnonzero(white.any(axis=1))
         assert rows.max() - rows.min() + 1 >= 9
+
+
+def test_matches_without_ground_truth_are_drawn_apart_from_wrong_ones_and_counted(tmp_path):
+    """A match whose target keypoint has no ground truth (occluded, off the surface, outside the
+    landmarks' hull) was drawn red as wrong; the protocol does not score it. Now blue, counted in the key."""
+    from geofeat.groundtruth import GroundTruth, correct_matches, judged_matches
+    from geofeat.io import read_sequence
+    from test_bad_inputs import make_sequence
+
+    frame = _flat_frame((90, 90, 90))
+    k0 = np.array([[50.0, 60.0], [50.0, 120.0], [60.0, 200.0]])
+    k1 = np.array([[100.0, 60.0], [100.0, 120.0], [110.0, 200.0]])
+    picture = draw_matches(frame, frame, k0, k1, np.array([0, 1, 2]), np.array([True, False, False]),
+                           judged=np.array([True, True, False]))
+    assert tuple(picture[60, 50]) == CORRECT and tuple(picture[120, 50]) == WRONG
+    assert tuple(picture[200, 60]) == UNJUDGED
+    assert match_key(3, 1, 3, judged=True, n_unjudged=1) == \
+        "green: correct, red: wrong, blue: 1 not judged (no ground truth)"
+    assert match_key(3, 1, 3, judged=True, n_unjudged=2) == "green: correct, blue: 2 not judged (no ground truth)"
+    # the landmarks' hull: a target keypoint outside it has no ground truth, and its match is not judged
+    seq = read_sequence(make_sequence(tmp_path / "seq"))
+    truth = GroundTruth(seq, None)
+    inside, outside = [80.0, 60.0], [3.0, 3.0]
+    tgt = np.array([inside, outside])
+    ref = tgt - [3.0, 0.0]  # the target is the reference moved 3 px right
+    matches0 = np.array([0, 1])
+    assert judged_matches(truth, "frame-001", tgt, matches0).tolist() == [True, False]
+    assert correct_matches(truth, "frame-001", ref, tgt, matches0).tolist() == [True, False]
+    assert judged_matches(truth, "frame-001", tgt, np.array([-1, 0])).tolist() == [False, True]

@@ -199,7 +199,10 @@ def _h5_read_group(path: str | Path, name: str | None) -> dict[str, np.ndarray]:
         arrays = {} if not isinstance(group, h5py.Group) else \
             {key: np.asarray(ds[()]) for key, ds in group.items() if isinstance(ds, h5py.Dataset)}
         if not arrays:  # missing, a dataset, or a folder of other names ("dir" of "dir/img.png")
-            raise KeyError(f"name: no group {name!r} in {str(path)!r}; it holds {_h5_leaf_groups(fd)[:5]}")
+            held = _h5_leaf_groups(fd)
+            listed = ", ".join(map(repr, held[:5])) + (f", ... ({len(held)} in all)" if len(held) > 5 else "")
+            raise ValueError(f"name: {str(path)!r} has no group {name!r}; " + (
+                f"it holds {listed} (names are matched exactly, case included)" if held else "it holds no group"))
         return arrays
 
 
@@ -280,7 +283,8 @@ def _features_from(arrays: dict[str, np.ndarray], path, hloc: bool = False) -> F
 def load_features(path: str | Path, name: str | None = None) -> Features:
     """Read features written by `save_features` (or an hloc features.h5 group: a missing `valid`
     means every keypoint is valid, and float descriptors stored as hloc's (D, N) are read as
-    (N, D)). For .h5, `name` may be omitted when the file holds one image."""
+    (N, D)). For .h5, `name` may be omitted when the file holds one image; a `name` the file has no
+    group of is a ValueError naming the file and the groups it holds."""
     if _suffix(path) == ".npz":
         return _features_from(read_npz(path), path)
     arrays = _h5_read_group(path, name)

@@ -846,13 +846,49 @@ def _l2_search(d0, d1, valid0, valid1, want_cols, block: int = 1024):
     return best_d.astype(np.float64), best_j, second_d.astype(np.float64), (col_j if want_cols else None)
 
 
-def metric_of_pair(d0: np.ndarray, d1: np.ndarray, names: tuple[str, str] = ("features0", "features1")) -> str:
+#: uint8 (N, B) descriptors are taken for a quantised histogram (SIFT stored as uint8, as COLMAP
+#: does), not packed bits, when more than this share of their bytes is 0 and over half of them are
+#: below `SMALL_BYTE`. Measured on the demo frame: ORB (OpenCV's and geofeat's), GeoBit (any one
+#: rotation) and random bytes have 0.3-0.7 % zero bytes and a median byte of 127-145; SIFT stored as
+#: uint8 (OpenCV's values cast, COLMAP's L2 or L1-root x 512) 25 % zero bytes and a median of 5-23.
+ZERO_BYTES_NOT_BITS = 0.1
+SMALL_BYTE = 64
+
+
+def quantised_zero_share(descriptors: np.ndarray) -> float | None:
+    """The share of zero bytes of uint8 `descriptors` that look like a quantised histogram rather than
+    packed bits (`ZERO_BYTES_NOT_BITS`, `SMALL_BYTE`); None when they look like bits, are not uint8,
+    are empty, or hold only 0 and 1 (unpacked bits, for which Hamming over bytes is exact)."""
+    d = np.asarray(descriptors)
+    if d.dtype != np.uint8 or not d.size or d.max() <= 1:
+        return None
+    zeros = np.count_nonzero(d == 0) / d.size
+    small = np.count_nonzero(d < SMALL_BYTE) / d.size
+    return float(zeros) if zeros > ZERO_BYTES_NOT_BITS and small > 0.5 else None
+
+
+def metric_of_pair(d0: np.ndarray, d1: np.ndarray, names: tuple[str, str] = ("features0", "features1"),
+                   valid: tuple[np.ndarray, np.ndarray] | None = None) -> str:
     """The metric `match` chooses for two descriptor arrays (from the dtype and rank), which must be of
-    one kind: float against uint8 bits has no common distance. ValueError naming both otherwise."""
+    one kind: float against uint8 bits has no common distance. ValueError naming both otherwise.
+    A UserWarning when uint8 (N, B) descriptors, matched by Hamming, look like a quantised histogram
+    (`quantised_zero_share`, over the rows `valid` (N0,), (N1,) bool; None: all) rather than packed
+    bits: SIFT stored as uint8 wants metric "l2"."""
     metric = _default_metric(d0)
     if _default_metric(d1) != metric:  # e.g. float GeoPatch against uint8 ORB
         raise ValueError(f"descriptors: {names[0]} ({d0.dtype}) and {names[1]} ({d1.dtype}) are of different kinds; "
                          "use descriptors of one type, or pass metric=")
+    if metric == "hamming":
+        rows = (d0, d1) if valid is None else (d0[np.asarray(valid[0], bool)], d1[np.asarray(valid[1], bool)])
+        zeros = quantised_zero_share(np.concatenate(rows))
+        if zeros is not None:
+            import warnings
+
+            warnings.warn(f"descriptors: uint8 {names[0]} and {names[1]} have {zeros:.0%} zero bytes and mostly "
+                          f"small values, as a quantised histogram (SIFT stored as uint8) has, not packed bits "
+                          f"(about 0.4 % zero bytes), and are matched by Hamming distance; pass metric=\"l2\" to "
+                          f"match them as vectors (or metric=\"hamming\", if they are bits, to silence this)",
+                          UserWarning, stacklevel=3)
     return metric
 
 
@@ -932,7 +968,7 @@ def match(
             f"descriptors: trailing shapes differ: features0 {d0.shape} vs features1 {d1.shape}"
         )
     if metric is None:
-        metric = metric_of_pair(d0, d1)
+        metric = metric_of_pair(d0, d1, valid=(valid0, valid1))
     if metric not in METRICS:
         raise ValueError(f"metric: expected one of {METRICS} or None, got {metric!r}")
     if ratio is not None and (isinstance(ratio, bool) or not isinstance(ratio, numbers.Real) or not 0 < ratio <= 1):

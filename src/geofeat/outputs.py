@@ -152,12 +152,12 @@ def _refuse_clashes(folder: Path, clashes: list[str], what: str) -> None:
                          "another folder")
 
 
-def _input_clash(folder: Path, inputs: Iterable[str | Path]) -> str | None:
+def _input_clash(folder: Path, inputs: Iterable[str | Path], replaced: bool = True) -> str | None:
     """Why writing the result folder `folder` would replace one of the folders `inputs` the command
-    reads: `folder` is one of them (through any link), or its manifest lists a file inside one (so
-    `replace_folder` would remove it); None when it would not."""
+    reads: `folder` is one of them (through any link), or (when the result `replaced` the folder's
+    earlier files, as `replace_folder` does) its manifest lists a file inside one; None when neither."""
     here = folder.resolve()
-    listed = [(folder / rel).resolve() for rel in read_manifest(folder)] if folder.is_dir() else []
+    listed = [(folder / rel).resolve() for rel in read_manifest(folder)] if replaced and folder.is_dir() else []
     for given in inputs:
         source = Path(given).resolve()
         if source == here:
@@ -165,6 +165,18 @@ def _input_clash(folder: Path, inputs: Iterable[str | Path]) -> str | None:
         if any(source in f.parents for f in listed):
             return f"{folder} holds the input folder {given}, with files geofeat wrote"
     return None
+
+
+def refuse_input_folder(folder: str | Path, inputs: Iterable[str | Path], what: str = "--out",
+                        harm: str | None = None) -> None:
+    """ValueError when the output folder `folder` is one of the folders `inputs` a command reads, or
+    holds one among files geofeat wrote (`_input_clash`), whatever `--overwrite` says. `harm`: what
+    a command that adds its files to the folder (bench, extract) would do there, for the message;
+    None: the command replaces the folder's earlier files (`replace_folder`), and would delete it."""
+    clash = _input_clash(Path(folder), inputs, replaced=harm is None)
+    harm = harm or "writing the result there would replace it"
+    if clash:  # before the "pass --overwrite" advice, which would delete the input
+        raise ValueError(f"{what}: {clash}; {harm}: choose another folder")
 
 
 def check_out_dir(path: str | Path, overwrite: bool = False, what: str = "--out", strict: bool = False,
@@ -179,9 +191,7 @@ def check_out_dir(path: str | Path, overwrite: bool = False, what: str = "--out"
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise ValueError(f"{what}: {path} is a file, not a folder")
-    clash = _input_clash(path, inputs)
-    if clash:  # before the "pass --overwrite" advice, which would delete the input
-        raise ValueError(f"{what}: {clash}; writing the result there would replace it: choose another folder")
+    refuse_input_folder(path, inputs, what)
     for parent in path.parents:
         if parent.exists() and not parent.is_dir():
             raise ValueError(f"{what}: {parent} is a file, so the folder {path} cannot be created")

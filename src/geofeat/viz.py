@@ -114,14 +114,16 @@ def side_by_side(left: np.ndarray, right: np.ndarray, gap: int = 8) -> np.ndarra
     return out
 
 
-def match_key(n_matches: int, n_correct: int, n_drawn: int, judged: bool) -> str:
-    """The key under `draw_matches`' title: the colours present ("green: correct, red: wrong", or
-    "blue: not judged (no ground truth)"), then "D of N drawn" when only some matches are drawn;
-    "no matches" when there is none."""
+def match_key(n_matches: int, n_correct: int, n_drawn: int, judged: bool, n_unjudged: int = 0) -> str:
+    """The key under `draw_matches`' title: the colours present ("green: correct, red: wrong", with
+    "blue: U not judged (no ground truth)" for the `n_unjudged` of them whose keypoint has none; or
+    "blue: not judged (no ground truth)" when none was judged), then "D of N drawn" when only some
+    matches are drawn; "no matches" when there is none."""
     if not n_matches:
         return "no matches"
     if judged:
-        key = ", ".join(k for k, n in (("green: correct", n_correct), ("red: wrong", n_matches - n_correct)) if n)
+        key = ", ".join(k for k, n in (("green: correct", n_correct), ("red: wrong", n_matches - n_correct - n_unjudged),
+                                       (f"blue: {n_unjudged} not judged (no ground truth)", n_unjudged)) if n)
     else:
         key = "blue: not judged (no ground truth)"
     return key + (f"; {n_drawn} of {n_matches} drawn" if n_drawn < n_matches else "")
@@ -136,12 +138,15 @@ def draw_matches(
     correct: np.ndarray | None = None,
     max_lines: int = 400,
     title: str = "",
+    judged: np.ndarray | None = None,
 ) -> np.ndarray:
     """Two frames side by side, frame0 left, with a line per match: green (`CORRECT`) correct, red
-    (`WRONG`) wrong, blue (`UNJUDGED`) not judged (correct is None); correct matches are drawn last,
-    over the wrong ones. keypoints (N, 2) pixels of their own frame; matches0 (N0,) int, -1 = none;
-    correct (N0,) bool or None. At most `max_lines` matches are drawn (evenly spaced in index order);
-    the caption under `title` then says how many of how many, and names the colours used.
+    (`WRONG`) wrong, blue (`UNJUDGED`) not judged (correct is None, or `judged` False: no ground
+    truth for it, such as an occluded keypoint's; `groundtruth.judged_matches`); correct matches are
+    drawn last, over the wrong ones, and those not judged first. keypoints (N, 2) pixels of their own
+    frame; matches0 (N0,) int, -1 = none; correct, judged (N0,) bool or None (judged None: every one
+    judged). At most `max_lines` matches are drawn (evenly spaced in index order); the caption under
+    `title` then says how many of how many, and names the colours used (with the count not judged).
     Returns an (H, W0 + W1, 3) uint8 BGR image, H = max(H0, H1)."""
     left, right = to_bgr(frame0), to_bgr(frame1)
     canvas = side_by_side(left, right, gap=0)
@@ -151,19 +156,24 @@ def draw_matches(
     total = len(i0)
     if total > max_lines:
         i0 = i0[np.linspace(0, total - 1, max_lines).astype(int)]
+    unjudged = np.zeros(len(matches0), bool)
     if correct is not None:
         correct = np.asarray(correct, bool)
-        i0 = np.concatenate([i0[~correct[i0]], i0[correct[i0]]])  # the correct ones stay visible
+        if judged is not None:
+            unjudged = ~np.asarray(judged, bool) & ~correct
+        # those not judged under the wrong ones, the correct ones over both: the correct ones stay visible
+        i0 = np.concatenate([i0[unjudged[i0]], i0[~correct[i0] & ~unjudged[i0]], i0[correct[i0]]])
     for i in i0:
         j = matches0[i]
-        colour = UNJUDGED if correct is None else (CORRECT if correct[i] else WRONG)
+        colour = UNJUDGED if correct is None or unjudged[i] else (CORRECT if correct[i] else WRONG)
         p = (int(round(keypoints0[i][0])), int(round(keypoints0[i][1])))
         q = (int(round(keypoints1[j][0])) + offset, int(round(keypoints1[j][1])))
         cv2.line(canvas, p, q, colour, 1, cv2.LINE_AA)
         cv2.circle(canvas, p, 2, colour, -1)
         cv2.circle(canvas, q, 2, colour, -1)
     n_ok = 0 if correct is None else int(correct[matches0 >= 0].sum())
-    lines = [t for t in (title, match_key(total, n_ok, len(i0), correct is not None)) if t]
+    key = match_key(total, n_ok, len(i0), correct is not None, int(unjudged[matches0 >= 0].sum()))
+    lines = [t for t in (title, key) if t]
     y = 4
     for k, line in enumerate(lines):
         y = put_label(canvas, line, (4, y), 0.55 if k == 0 else 0.45)[3]

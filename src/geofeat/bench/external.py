@@ -36,7 +36,7 @@ import numpy as np
 from ..features import Features, _h5_leaf_groups, _h5_read_group, _open_h5, descriptors_n_by_d, read_npz
 from ..io import RGB_SUFFIX
 from ..keypoints import as_keypoints
-from ..matching import METRICS, match
+from ..matching import METRICS, match, quantised_zero_share
 
 
 def parse_features_option(text: str) -> tuple[str, Path]:
@@ -70,9 +70,6 @@ def _is_extract_prefix(path: Path) -> bool:
 
 #: the arrays a group or file may hold that are read (`angles`, `sizes`: as `geofeat extract` writes them)
 FIELDS = ("keypoints", "descriptors", "scores", "valid", "metric", "image_size", "angles", "sizes")
-#: uint8 descriptors without `metric` whose bytes are 0 this often are not packed bits (random bits make
-#: a zero byte 1 in 256; ORB and GeoBit measure under 1 %, SIFT stored as uint8 about 30 %)
-_ZERO_BYTES_NOT_BITS = 0.1
 
 
 def _check_field_names(arrays: dict) -> None:
@@ -108,10 +105,8 @@ def _check_pixels(kp: np.ndarray, image_size, shape: tuple[int, int] | None) -> 
 def _check_bytes_are_bits(desc: np.ndarray) -> None:
     """uint8 descriptors without `metric` are matched as packed bits; SIFT or another quantised float
     descriptor stored as uint8 would then be matched by a wrong distance without a word said."""
-    if desc.dtype != np.uint8 or not desc.size or np.isin(desc, (0, 1)).all():  # 0/1 bytes: Hamming is exact
-        return
-    zeros = float((desc == 0).mean())
-    if zeros > _ZERO_BYTES_NOT_BITS:
+    zeros = quantised_zero_share(desc)  # the rule `geofeat.match` warns by
+    if zeros is not None:
         raise ValueError(f"uint8 descriptors without 'metric', {zeros:.0%} of their bytes 0: packed bits have "
                          "about 0.4 %; store 'metric' 'l2' for a quantised descriptor such as SIFT, or 'hamming' "
                          "for packed bits")

@@ -34,7 +34,8 @@ from ..depth import check_profile, sequence_depth_profile
 from ..descriptors import OpenCVDescriptor, check_descriptor_name, make_descriptor, refuse_repeated
 from ..inputs import check_depth_scale, check_radius, check_tps_dir, check_whole, resolve_radius
 from ..io import Sequence, find_sequences, frame_names, read_sequence, sequence_digest
-from ..outputs import add_to_manifest, append_line_durably, atomic_file, check_out_dir, plural, read_manifest
+from ..outputs import (add_to_manifest, append_line_durably, atomic_file, check_out_dir, plural, read_manifest,
+                       refuse_input_folder)
 from ..keypoints import Keypoints, check_detector_name, detect, resolve_keypoint_set
 from ..matching import match
 from ..features import Features
@@ -416,12 +417,14 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
     reasons printed)."""
     out = Path(out)
     csv_path = out / "results.csv"
+    folders = [str(f) for f in find_sequences(datasets, unique_names=True)]
+    # a sequence folder for `out`, resumed or not: the results would be written among its frames
+    refuse_input_folder(out, folders, "--out", "bench would write its results among the sequence's files")
     if not csv_path.is_file():
         # a non-empty folder without results.csv is not a bench to resume; --overwrite replaces none of the user's files
         check_out_dir(out, overwrite, files=OUTPUT_FILES)
     elif out.exists() and not out.is_dir():
         raise ValueError(f"out: {out} is a file, not a folder")
-    folders = [str(f) for f in find_sequences(datasets, unique_names=True)]
     check_tps_dir(config.tps_dir)
     for name in config.descriptors:  # weights that cannot be read: one error naming them, not one per sequence
         if "=" in name:

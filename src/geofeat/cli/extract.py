@@ -32,12 +32,19 @@ def run(args: argparse.Namespace) -> int:
     from ..features import save_features
     from ..inputs import resolve_radius
     from ..io import read_sequence
-    from ..outputs import atomic_file, check_out_file, clear_stale_partials, partial_name, plural
+    from ..outputs import (atomic_file, check_out_file, clear_stale_partials, partial_name, plural,
+                           refuse_input_folder)
 
     seq = read_sequence(args.folder, depth_scale=args.depth_scale)
     radius = resolve_radius(args.radius, seq)
     path = features_path(Path(args.out), file_label(args.descriptor))
     finals = [path] if is_h5(path) else [path.with_name(f"{path.stem}-{n}.npz") for n in seq.names]
+    # --out naming the sequence folder, or a .npz prefix in it (one file per frame): among its frames.
+    # An .h5 file named there is one file of the user's choosing, which no reader takes for a frame's.
+    if not (is_h5(path) and path == Path(args.out)):
+        refuse_input_folder(path.parent, [seq.folder], "--out",
+                            f"extract would write {path.name if is_h5(path) else f'{path.stem}-<frame>.npz'} "
+                            "among its frames")
     for final in finals:
         check_out_file(final, args.overwrite)
     if not is_h5(path):  # a killed run's half-written .npz files (the .h5's `atomic_file` clears its own)

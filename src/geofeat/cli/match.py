@@ -27,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
     detection = resolve_detection(args)  # resolved once, for every frame
     from tqdm import tqdm
 
-    from ..groundtruth.sources import GroundTruth, correct_matches
+    from ..groundtruth.sources import GroundTruth, correct_matches, judged_matches
     from ..depth import PROFILES, sequence_depth_profile
     from ..descriptors import make_descriptor
     from ..features import save_matches
@@ -79,11 +79,14 @@ def run(args: argparse.Namespace) -> int:
             n_matches = int((m.matches0 >= 0).sum())
             total_matches += n_matches
             summary = plural(n_matches, "match", "matches")
-            correct = None if truth is None else correct_matches(truth, name, k_ref.xy, k_tgt.xy, m.matches0)
-            if correct is not None:
+            correct = judged = None
+            if truth is not None:
+                correct = correct_matches(truth, name, k_ref.xy, k_tgt.xy, m.matches0)
+                judged = judged_matches(truth, name, k_tgt.xy, m.matches0)  # the others are not wrong, but unknown
                 total_correct += int(correct.sum())
                 summary += f", {int(correct.sum())} correct"
-            picture = draw_matches(ref, tgt, k_ref.xy, k_tgt.xy, m.matches0, correct, title=f"{args.descriptor}: {summary}")
+            picture = draw_matches(ref, tgt, k_ref.xy, k_tgt.xy, m.matches0, correct, title=f"{args.descriptor}: {summary}",
+                                   judged=judged)
             cv2.imwrite(str(tmp / f"{seq.reference}__{name}__{label}.png"), picture)
             tqdm.write(f"{seq.reference} -> {name}: {summary}")
         status = finish_skipped(skipped, len(seq.targets), "match")

@@ -15,10 +15,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add `train` to an argparse subparsers object; returns its parser."""
     p = subparsers.add_parser("train", help="train GeoPatch on simulated sequences (see `geofeat simulate`)")
     p.add_argument("--data", nargs="+", required=True, help="simulated sequence folders, or folders of them")
-    p.add_argument("--val", nargs="*", default=None, help="held-out simulated sequences for the per-epoch matching score")
+    p.add_argument("--val", nargs="*", default=None,
+                   help="held-out simulated sequences for the per-epoch matching score (of SIFT keypoints with "
+                        "one-way nearest-neighbour matches, not the benchmark's figure)")
     p.add_argument("--out", required=True, help="weights file to write (e.g. geopatch.pt)")
     p.add_argument("--overwrite", action="store_true",
-                   help="replace an existing OUT file (and OUT.ckpt, OUT.json, OUT.png of an earlier run)")
+                   help="start anew over an earlier run: replace an existing OUT file (and OUT.ckpt, OUT.json, "
+                        "OUT.png, OUT.patches.npz); the earlier OUT, OUT.ckpt, OUT.json and OUT.png are removed "
+                        "when this run writes its first file, so an interrupted run leaves no earlier weights "
+                        "beside its own checkpoint")
     p.add_argument("--epochs", type=whole_number(1), default=10, help="passes of --steps batches (default 10)")
     p.add_argument("--steps", type=whole_number(1), default=200, help="batches per epoch (default 200)")
     p.add_argument("--batch-size", type=whole_number(1), default=1000,
@@ -51,8 +56,10 @@ def run(args: argparse.Namespace) -> int:
 
     from ..descriptors.geopatch import GeoPatchConfig
     from ..gpu import torch_device
+    from ..io import sequence_digest
     from ..train.dataset import PatchSet, build_patch_set, check_simulated, validation_pairs, warn_if_not_held_out
-    from ..train.loop import TrainConfig, check_train_config, check_train_out, load_init, load_resume_state, train
+    from ..train.loop import (TrainConfig, check_train_config, check_train_out, load_init, load_resume_state,
+                              remove_earlier_run, removed_line, train)
 
     # the numbers are checked by their argparse types; one rule spans two options
     if args.mining == "hardest" and args.batch_size < 2:
@@ -96,6 +103,8 @@ def run(args: argparse.Namespace) -> int:
         except ValueError as error:
             if channels_given and "differs from the requested" in str(error):
                 raise ValueError(f"--init: {error}; leave --channels out to train the weights' own widths") from None
+            if str(error).startswith("weights: "):  # the file's own message, named by the flag that gave it
+                raise ValueError(f"--init: {str(error).removeprefix('weights: ')}") from None
             raise
 
     net = None  # geodesic polar patches with the depth profile asked for (default: per sequence)
@@ -111,9 +120,11 @@ def run(args: argparse.Namespace) -> int:
     val_folders = check_simulated(args.val, "--val") if args.val else []
     data_folders = check_simulated(args.data, "--data")
     warn_if_not_held_out(data_folders, val_folders, "--val", "--data")
-    # what the patches are built from: a resumed run takes the cached patches only when they match
+    # what the patches are built from, and the --val sequences that score every epoch (folders and their
+    # frames' `sequence_digest`): a resumed run takes the cached patches only when they match
     source = {"data": [str(f.resolve()) for f in data_folders], "keypoints": args.keypoints,
-              "depth_profile": args.depth_profile, "net": args.net}
+              "depth_profile": args.depth_profile, "net": args.net,
+              "val": [[str(f.resolve()), sequence_digest(f)] for f in val_folders]}
     if args.resume and cache.is_file():
         data = PatchSet.load(cache)
         _check_cached_source(cache, data.source, source)
@@ -121,6 +132,10 @@ def run(args: argparse.Namespace) -> int:
     else:
         data = build(args.data, n_keypoints=args.keypoints)
         _check_triplets(data, args.keypoints)  # before the cache, which a rerun would have to --overwrite
+        if args.overwrite and not args.resume:  # this run's first file: the earlier run's weights go with it
+            removed = remove_earlier_run(args.out)
+            if removed:
+                print(removed_line(removed))
         data.source = source
         data.save(cache)
         print(f"training patches: {len(data)} of {plural(len(np.unique(data.ids)), 'surface point')} "
@@ -134,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
                       "more textured --val sequences give pairs", UserWarning, stacklevel=2)
     history = train(data, args.out, config, validation=validation, resume=args.resume, device=args.device, net=net,
                     init=args.init, overwrite=args.overwrite)
-    scored = (f"validation MS {history['val_ms'][-1]:.3f}" if validation else
+    scored = (f"validation MS {history['val_ms'][-1]:.3f} ({history['val_measure']})" if validation else
               "no validation pairs in --val" if args.val else "no --val sequences")
     print(f"wrote {args.out} (final loss {history['loss'][-1]:.4f}, {scored}), "
           f"{args.out}.png and {args.out}.json")
@@ -158,18 +173,33 @@ def _check_triplets(data, keypoints: int) -> None:
 def _check_cached_source(cache: Path, cached: dict | None, wanted: dict) -> None:
     """--resume trains on the patches cached by the run it resumes: refuse them when they were built
     from other --data, --keypoints, --depth-profile or --net than this run names (they were used
-    silently, and the new options ignored). A cache that records nothing (an older geofeat's) is used."""
-    if cached is None or cached == wanted:
+    silently, and the new options ignored), or when the run scored its epochs on other --val
+    sequences, or on the same folders with other frames (its validation curve would join two
+    measures). A cache that records nothing (an older geofeat's) is used; one without --val (from
+    before it was recorded) is not checked for it."""
+    if cached is None:
         return
-    flags = {"data": "--data", "keypoints": "--keypoints", "depth_profile": "--depth-profile", "net": "--net"}
+    flags = {"data": "--data", "keypoints": "--keypoints", "depth_profile": "--depth-profile", "net": "--net",
+             "val": "--val"}
 
     def shown(key: str, value) -> str:
+        if key == "val":  # [[folder, digest], ...]
+            return " ".join(Path(p).name for p, _ in value) or "left out"
         if key == "data":
             return " ".join(Path(p).name for p in value)
         return "left out" if value is None else str(value)
 
-    changed = [f"{flag} {shown(k, cached.get(k))}, not {shown(k, wanted.get(k))}"
-               for k, flag in flags.items() if cached.get(k) != wanted.get(k)]
+    def change(key: str, flag: str) -> str:
+        before, now = cached.get(key), wanted.get(key)
+        if key == "val" and [p for p, _ in before] == [p for p, _ in now]:  # the same folders, other frames
+            moved = [Path(p).name for (p, d), (_, e) in zip(before, now) if d != e]
+            return f"{flag} {' '.join(moved)}: other frames than that run's (simulated again or edited since)"
+        return f"{flag} {shown(key, before)}, not {shown(key, now)}"
+
+    changed = [change(k, flag) for k, flag in flags.items()
+               if (k in cached or k != "val") and cached.get(k) != wanted.get(k)]
+    if not changed:
+        return
     raise ValueError(f"--resume: {cache} holds the patches of a run with other options ({'; '.join(changed)}); "
                      "resume with that run's options, or pass --overwrite (without --resume) to start anew")
 

@@ -111,12 +111,32 @@ def load_checkpoint(path: str | Path, build, what: str) -> tuple[nn.Module, dict
         if other is not None and other not in what.lower():
             raise ValueError(f"weights: {path} holds {other} weights (geofeat train --net), not {what}; name them "
                              f"{other}=PATH") from None
+        archive = _numpy_archive(path)  # torch's message named an array of it ("not in a subdirectory: mean.npy")
+        if archive is not None:
+            what_it_is, hint = archive
+            raise ValueError(f"weights: {path} {what_it_is}, not a {what} checkpoint of `geofeat train`{hint}") \
+                from None
         raise ValueError(f"weights: {path} is not a {what} checkpoint of `geofeat train` ({error_summary(error)})") \
             from None
     if not all(torch.isfinite(t).all() for t in net.state_dict().values() if t.is_floating_point()):
         raise ValueError(f"weights: {path} holds NaN or infinite weights (its training diverged); train again with "
                          "a smaller --lr")
     return net, ckpt
+
+
+def _numpy_archive(path: str | Path) -> tuple[str, str] | None:
+    """(what, advice) in words for a NumPy .npz archive given for a checkpoint (GeoKey's weights, from
+    `geofeat train-detector`, are one); None when the file is not such an archive."""
+    from ..features import read_npz
+
+    try:
+        arrays = read_npz(path)
+    except (OSError, ValueError):
+        return None
+    if "cue_names" in arrays:
+        return ("holds GeoKey detector weights (from `geofeat train-detector`)",
+                '; detector weights are given as --detector geokey=PATH (detector="geokey=PATH" in Python)')
+    return f"is a NumPy .npz archive (arrays {', '.join(sorted(arrays)[:5])})", ""
 
 
 def _trained_name(ckpt) -> str | None:

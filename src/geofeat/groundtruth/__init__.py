@@ -14,7 +14,7 @@ _WHERE = {
     "FrameReport": "pipeline", "GroundTruthConfig": "pipeline", "generate_ground_truth": "pipeline",
     "reference_mask": "pipeline", "RefineConfig": "photometric", "refine": "photometric",
     "RobustFit": "landmarks", "robust_landmark_tps": "landmarks", "landmark_spline": "landmarks",
-    "GroundTruth": "sources", "correct_matches": "sources", "load_authors_spline": "sources",
+    "GroundTruth": "sources", "correct_matches": "sources", "judged_matches": "sources", "load_authors_spline": "sources",
 }
 
 __all__ = ["DEFAULT_DEPTH_MARGIN_M", "DEFAULT_MARGIN_PX", "DEFAULT_SPACING_PX", *_WHERE]

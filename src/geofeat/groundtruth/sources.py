@@ -17,7 +17,7 @@ from ..scoring import ground_truth_pairs
 from ..tps import ThinPlateSpline
 from .landmarks import MIN_LANDMARKS, inside_hull, landmark_spline
 
-__all__ = ["GroundTruth", "correct_matches", "tps_folder", "load_authors_spline"]
+__all__ = ["GroundTruth", "correct_matches", "judged_matches", "tps_folder", "load_authors_spline"]
 
 
 def _has_tps_files(folder: Path) -> bool:
@@ -169,3 +169,16 @@ def correct_matches(truth: GroundTruth, target: str, ref_xy: np.ndarray, tgt_xy:
     partner = np.full(len(ref_xy), -2, np.int64)
     partner[pairs[:, 0]] = pairs[:, 1]
     return np.asarray(matches0) == partner
+
+
+def judged_matches(truth: GroundTruth, target: str, tgt_xy: np.ndarray, matches0: np.ndarray) -> np.ndarray:
+    """(n_ref,) bool: can reference keypoint i's match (matches0[i], -1 = none: False) be judged, its
+    target keypoint having a ground-truth position in the reference (`GroundTruth.map`: not occluded,
+    off the surface or outside the landmarks' hull)? The protocol drops the others before scoring,
+    so `correct_matches`' False means wrong only where this is True."""
+    matches0 = np.asarray(matches0)
+    known = truth.map(target, tgt_xy)[1]
+    has = matches0 >= 0
+    judged = np.zeros(len(matches0), bool)
+    judged[has] = known[matches0[has]]
+    return judged

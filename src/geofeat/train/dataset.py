@@ -163,20 +163,27 @@ def warn_if_not_held_out(data_folders: list[Path], val_folders: list[Path], what
                       "sequences with seeds of their own", UserWarning, stacklevel=2)
 
 
+#: SIFT keypoints asked for per frame of the validation pairs (`validation_pairs`) that score each
+#: epoch of `train`.
+VALIDATION_KEYPOINTS = 1024
+
+
 @dataclass
 class ValidationPair:
     """Everything protocol "detect" needs for one pair, with patches precomputed.
 
-    ref_patches (n_ref, R, A) float32, ref_valid (n_ref,), tgt_patches, tgt_valid, gt_pairs (M, 2)."""
+    ref_patches (n_ref, R, A) float32, ref_valid (n_ref,), tgt_patches, tgt_valid, gt_pairs (M, 2);
+    n_keypoints: the SIFT keypoints asked for per frame (for the label of the score, `validation_measure`)."""
 
     ref_patches: np.ndarray
     ref_valid: np.ndarray
     tgt_patches: np.ndarray
     tgt_valid: np.ndarray
     gt_pairs: np.ndarray
+    n_keypoints: int = VALIDATION_KEYPOINTS
 
 
-def validation_keypoints(paths, n_keypoints: int = 1024, max_pairs_per_sequence: int = 2, progress: bool = True):
+def validation_keypoints(paths, n_keypoints: int = VALIDATION_KEYPOINTS, max_pairs_per_sequence: int = 2, progress: bool = True):
     """Held-out pairs as protocol "detect" sees them, per sequence under `paths`: yields
     (seq, reference frame, its SIFT keypoints, [(target frame, its SIFT keypoints with ground truth,
     their (M, 2) ground-truth positions in the reference, pixels)]). Target keypoints without ground
@@ -195,7 +202,7 @@ def validation_keypoints(paths, n_keypoints: int = 1024, max_pairs_per_sequence:
         yield seq, ref, detect(ref, n_keypoints, detector="sift"), targets
 
 
-def validation_pairs(paths, n_keypoints: int = 1024, radius: float = DEFAULT_RADIUS_M,
+def validation_pairs(paths, n_keypoints: int = VALIDATION_KEYPOINTS, radius: float = DEFAULT_RADIUS_M,
                      depth_config: DepthConfig | str | None = None, max_pairs_per_sequence: int = 2) -> list[ValidationPair]:
     """Reference-target pairs of held-out sequences with independently detected SIFT keypoints and
     the simulator's ground truth, geodesic polar patches precomputed, for a per-epoch matching score."""
@@ -208,5 +215,5 @@ def validation_pairs(paths, n_keypoints: int = 1024, radius: float = DEFAULT_RAD
         for tgt, k_tgt, mapped in targets:
             p_tgt = polar_patches(tgt, k_tgt.xy, radius=radius, depth_config=config)
             pairs.append(ValidationPair(p_ref.values, p_ref.valid, p_tgt.values, p_tgt.valid,
-                                        ground_truth_pairs(k_ref.xy, mapped)))
+                                        ground_truth_pairs(k_ref.xy, mapped), n_keypoints))
     return pairs

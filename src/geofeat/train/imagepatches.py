@@ -17,7 +17,7 @@ from ..scoring import ground_truth_pairs
 from ..descriptors.image_patch_nets import image_patches
 from ..io import Sequence, find_sequences, read_sequence
 from ..keypoints import detect
-from .dataset import PatchSet, ValidationPair, validation_keypoints
+from .dataset import VALIDATION_KEYPOINTS, PatchSet, ValidationPair, validation_keypoints
 
 
 def _to_uint8(values: np.ndarray) -> np.ndarray:
@@ -53,7 +53,7 @@ def build_image_patch_set(paths, arch: str, n_keypoints: int = 512, progress: bo
     return PatchSet(np.concatenate([s.patches for s in sets]), np.concatenate([s.ids for s in sets]))
 
 
-def image_validation_pairs(paths, arch: str, n_keypoints: int = 1024, max_pairs_per_sequence: int = 2) -> list[ValidationPair]:
+def image_validation_pairs(paths, arch: str, n_keypoints: int = VALIDATION_KEYPOINTS, max_pairs_per_sequence: int = 2) -> list[ValidationPair]:
     """Held-out reference-target pairs (protocol "detect", independent SIFT keypoints) with `arch`
     patches precomputed, for the training loop's per-epoch matching score."""
     pairs = []
@@ -64,5 +64,5 @@ def image_validation_pairs(paths, arch: str, n_keypoints: int = 1024, max_pairs_
         for tgt, k_tgt, mapped in targets:
             p_tgt = image_patches(tgt.image, k_tgt, arch)
             pairs.append(ValidationPair(p_ref, np.ones(len(p_ref), bool), p_tgt, np.ones(len(p_tgt), bool),
-                                        ground_truth_pairs(k_ref.xy, mapped)))
+                                        ground_truth_pairs(k_ref.xy, mapped), n_keypoints))
     return pairs

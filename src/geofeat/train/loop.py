@@ -82,13 +82,36 @@ def check_train_out(out: str | Path, overwrite: bool = False, resume: bool = Fal
         raise ValueError(f"--out: {out}: `train` writes PyTorch weights, and a .onnx name is read as an ONNX model "
                          "(geopatch=WEIGHTS); name it .pt")
     check_out_file(out, overwrite or (resume and out.with_suffix(out.suffix + ".ckpt").is_file()))
-    for beside in (".ckpt", ".json", ".png", *also):
+    for beside in (*BESIDE, *also):
         path = Path(str(out) + beside)  # as `train` names them
         if not (overwrite or resume) and (path.exists() or path.is_symlink()):
             raise ValueError(f"--out: {path} exists (an earlier run's?); pass --resume to continue that run, "
                              "--overwrite to start anew over it, or choose another name")
         check_out_file(path, True)  # not a folder, not under a file
     return out
+
+
+#: The files `train` writes beside its weights file `out` (suffixes of its name).
+BESIDE = (".ckpt", ".json", ".png")
+
+
+def remove_earlier_run(out: str | Path) -> list[Path]:
+    """Remove the files of an earlier run at `out` (`out` itself, `out`.ckpt, `out`.json, `out`.png),
+    which an `overwrite` run replaces anyway: called when the new run writes its first file, so that
+    one interrupted before its end leaves no earlier weights beside its own checkpoint, to be taken
+    for its result. Returns the paths removed (a symbolic link is removed, not what it points to)."""
+    removed = []
+    for path in (Path(out), *(Path(str(out) + beside) for beside in BESIDE)):
+        if path.is_file() or path.is_symlink():
+            path.unlink()
+            removed.append(path)
+    return removed
+
+
+def removed_line(removed: list[Path]) -> str:
+    """What `remove_earlier_run` did, in words, for the output of `train`."""
+    return (f"--overwrite: removed the earlier run's {', '.join(str(p) for p in removed)} (an interrupted run "
+            "leaves no weights but its own)")
 
 
 def load_init(init: str | Path, config: GeoPatchConfig) -> GeoPatchNet:
@@ -175,9 +198,18 @@ class TripletSampler:
         return a, p, n
 
 
+def validation_measure(pairs: list[ValidationPair]) -> str:
+    """What `validation_score` measures on `pairs`, in words, for the lines, plot and history of
+    `train`: the matching score of protocol "detect" with one-way nearest-neighbour matches (no ratio
+    test, no mutual check) between the SIFT keypoints of each pair, not the benchmark's 2048."""
+    counts = "/".join(str(n) for n in sorted({int(p.n_keypoints) for p in pairs})) or "no"
+    return f"{counts} SIFT keypoints per frame, one-way nearest-neighbour matches"
+
+
 @torch.no_grad()
 def validation_score(net: GeoPatchNet, pairs: list[ValidationPair], device) -> float:
-    """Mean matching score (protocol "detect", MS) of the network over validation pairs."""
+    """Mean matching score (protocol "detect", MS) of the network over validation pairs, with one-way
+    nearest-neighbour matches (`validation_measure`)."""
     net.eval()
     scores = []
     for pair in pairs:
@@ -219,7 +251,8 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
     """Train GeoPatchNet (or `net`, any module mapping (B, 1, H, W) patches to unit (B, dim)
     descriptors with a dataclass `config` holding `dim`, e.g. the image-patch baselines); writes
     `out` (final weights), `out`.ckpt (resumable state after every epoch), `out`.json (history) and
-    `out`.png (loss / validation plot). Returns the history. `init`: start GeoPatchNet from these
+    `out`.png (loss / validation plot). Returns the history. With `overwrite` (and not `resume`), an
+    earlier run's `out` and files beside it are removed before the first epoch (`remove_earlier_run`). `init`: start GeoPatchNet from these
     weights ("shipped" = geofeat's own) instead of at random (fine-tuning; the network shape must
     match `config.net`). The settings and `out` are checked first (`check_train_config`,
     `check_train_out`: an existing `out`, or files beside it, only with `overwrite`, or when resuming
@@ -240,6 +273,7 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
     opt = torch.optim.SGD(net.parameters(), lr=config.lr, momentum=config.momentum, weight_decay=config.weight_decay)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=config.epochs * config.steps_per_epoch)
     history = {"epoch": [], "loss": [], "val_ms": [], "config": asdict(config)}
+    measure = validation_measure(validation) if validation else None
     start_epoch = 0
     if resume and not ckpt_path.is_file():  # it started from the first epoch without a word
         warnings.warn(f"resume: no {ckpt_path} to resume from (no earlier run stopped here); training from the "
@@ -257,7 +291,13 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
                              f"({error_summary(error)})") from None
         history = state["history"]
         start_epoch = state["epoch"] + 1
+    if measure is not None:  # what "val_ms" is, in <out>.json and on the plot
+        history["val_measure"] = measure
     sampler = TripletSampler(data.ids, rng)
+    if overwrite and not resume:  # before the first checkpoint of this run (the `train` command removed them sooner)
+        removed = remove_earlier_run(out)
+        if removed and progress:
+            tqdm.write(removed_line(removed))
     net.train()
     for epoch in range(start_epoch, config.epochs):
         losses = []
@@ -288,7 +328,7 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
         history["loss"].append(float(np.mean(losses)) if losses else float("nan"))
         history["val_ms"].append(val)
         if progress:
-            scored = f"validation MS {val:.3f}" if validation else "no validation pairs"
+            scored = f"validation MS {val:.3f} ({measure})" if validation else "no validation pairs"
             tqdm.write(f"epoch {epoch + 1}: loss {history['loss'][-1]:.4f}, {scored}")
         with atomic_file(ckpt_path) as tmp, open(tmp, "wb") as fh:  # a file object: see `save_checkpoint`
             torch.save({"state_dict": net.state_dict(), "optimizer": opt.state_dict(),
@@ -306,7 +346,7 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
 
 def _figure(history: dict):
     """The matplotlib figure of `_plot`: training loss (left axis) and validation MS (right axis,
-    0-1) per epoch; without validation pairs (MS all NaN) the right axis says so instead of staying empty."""
+    0-1, labelled with what it measures, `validation_measure`) per epoch; without validation pairs (MS all NaN) the right axis says so instead of staying empty."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -321,6 +361,8 @@ def _figure(history: dict):
     ax2 = ax.twinx()
     ax2.plot(history["epoch"], history["val_ms"], "s-", color="tab:green", label="validation MS")
     ax2.set_ylabel("validation matching score", color="tab:green")
+    if history.get("val_measure"):  # `validation_measure`: not the benchmark's score
+        ax.set_title(f"validation MS: {history['val_measure']}", fontsize=9, color="tab:green")
     if not np.isfinite(np.asarray(history["val_ms"], float)).any():
         ax2.set_ylim(0, 1)
         ax2.text(0.5, 0.5, "no validation pairs: no validation MS", transform=ax2.transAxes, ha="center",
