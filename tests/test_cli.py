@@ -218,3 +218,15 @@ def test_an_unknown_option_is_reported_with_the_command_usage(tmp_path, capsys):
     assert stop.value.code == 2
     assert err.startswith("usage: geofeat extract ") and "--keypoints KEYPOINTS" in err
     assert err.strip().splitlines()[-1] == "geofeat extract: error: unrecognized arguments: -n 128"
+
+
+def test_every_option_of_every_command_has_help():
+    """`geofeat bench --help` listed `--protocol {detect,landmarks}` with no word on what either does."""
+    import argparse
+
+    from geofeat.cli import build_parser
+
+    commands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    bare = [f"{name} {a.option_strings or a.dest}" for name, sub in commands.choices.items() for a in sub._actions
+            if not a.help]
+    assert not bare
