@@ -466,6 +466,14 @@ def test_intrinsics_saved_in_another_format_are_named_with_the_fix(tmp_path, nam
         assert "exception set" not in str(error.value)
 
 
+def test_a_folder_of_sequences_given_for_one_sequence_names_them(tmp_path):
+    """`geofeat extract DATASET` (a folder of sequences) was "no '*-rgb.png' frames in DATASET"."""
+    _small_sequence(tmp_path / "data" / "cloth")
+    with pytest.raises(ValueError, match=r"no '\*-rgb.png' frames in .*data: it holds the sequence folders cloth: name "
+                                         r"one of them"):
+        geofeat.read_sequence(tmp_path / "data")
+
+
 def test_intrinsics_under_another_node_name_it(tmp_path):
     """`camera_matrix` (OpenCV's calibration sample) instead of `intrinsics`: the error said the node
     was missing, not which nodes the file holds."""

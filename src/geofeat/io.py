@@ -100,6 +100,10 @@ def layout_problem(folder: Path) -> str:
     colour = _near_misses(folder, RGB_SUFFIX)
     images = [p for p in entries if p.is_file() and p.suffix.lower() in (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")]
     subs = [p for p in entries if p.is_dir()]
+    sequences = [p for p in subs if frame_names(p)]
+    if sequences:  # a folder of sequences where one sequence is read
+        return (f"it holds the sequence folders {_listing(sequences)}: name one of them (extract, match and "
+                "read_sequence read one sequence; bench, track, retrieval and groundtruth also take a folder of them)")
     if colour:
         found = f"found {_listing(colour)}: colour frames must be PNG files named exactly <name>{RGB_SUFFIX}"
     elif images:
