@@ -151,3 +151,31 @@ def test_a_one_channel_image_gives_no_one_channel_colour_image():
     np.testing.assert_array_equal(frame.image, RGBDFrame(gray, _depth(), K).image)
     assert frame.color is None or frame.color.shape == (H, W, 3)
     assert to_bgr(frame).shape == (H, W, 3)
+
+
+# ---------------------------------------------------------------- review-newuser: images from PIL and torch
+def test_a_pil_image_is_read_as_rgb():
+    """RGBDFrame(PIL.Image.open(path), ...) was np.asarray'ed and read as BGR: red and blue swapped in
+    the gray image the detectors and descriptors see, and in the colour copy drawn by geofeat.viz,
+    without a word. A PIL image knows it holds RGB."""
+    Image = pytest.importorskip("PIL.Image")
+    colour = _colour()  # BGR
+    ref = RGBDFrame(colour, _depth(), K)
+    rgb = Image.fromarray(np.ascontiguousarray(colour[:, :, ::-1]), "RGB")
+    for image in (rgb, rgb.convert("RGBA")):
+        frame = RGBDFrame(image, _depth(), K)
+        np.testing.assert_array_equal(frame.color, ref.color)
+        np.testing.assert_array_equal(frame.image, ref.image)
+    gray = Image.fromarray(cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY), "L")
+    np.testing.assert_array_equal(RGBDFrame(gray, _depth(), K).image, RGBDFrame(np.asarray(gray), _depth(), K).image)
+
+
+@pytest.mark.parametrize("image, hint", [
+    (lambda c: np.ascontiguousarray(c.transpose(2, 0, 1)), r"channels first\? transpose it to \(H, W, C\)"),
+    (lambda c: np.dstack([c, c[:, :, :1]]), r"drop the alpha channel"),
+])
+def test_an_image_of_another_layout_says_how_to_fix_it(image, hint):
+    """A (3, H, W) torch-style array or an (H, W, 4) RGBA one: "expected shape (H, W) or (H, W, 3),
+    got (3, 120, 160)" said what was wrong but not the likely cause and its fix."""
+    with pytest.raises(ValueError, match=rf"image: expected shape \(H, W\) or \(H, W, 3\), got .*; {hint}"):
+        RGBDFrame(image(_colour()), _depth(), K)

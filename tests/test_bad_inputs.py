@@ -345,7 +345,7 @@ def _report_finite_ok(tmp):
 
 def retrieval_single_frame(tmp):
     make_sequence(tmp / "seq", names=("frame-000-master",))
-    return ["retrieval", str(tmp / "seq"), "--descriptors", "sift", "--out", str(tmp / "r")]
+    return ["retrieval", str(tmp / "seq"), "--descriptors", "sift", "--include-own-sequence", "--out", str(tmp / "r")]
 
 
 def retrieval_negative_rerank(tmp):

@@ -207,3 +207,26 @@ def test_demo_rolled_pair_counts_only_keypoints_that_stay_in_the_frame(tmp_path,
     known = np.isfinite(seen["truth"]).all(axis=1)
     np.testing.assert_array_equal(known, inside)
     np.testing.assert_allclose(seen["truth"][known], where[inside])
+
+
+def test_an_unknown_option_is_reported_with_the_command_usage(tmp_path, capsys):
+    """`geofeat extract SEQ -n 128` printed the top-level usage (the list of commands) and
+    "geofeat: error: unrecognized arguments: -n 128", not the options extract does take."""
+    with pytest.raises(SystemExit) as stop:
+        main(["extract", str(tmp_path), "--out", str(tmp_path / "f.h5"), "-n", "128"])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2
+    assert err.startswith("usage: geofeat extract ") and "--keypoints KEYPOINTS" in err
+    assert err.strip().splitlines()[-1] == "geofeat extract: error: unrecognized arguments: -n 128"
+
+
+def test_every_option_of_every_command_has_help():
+    """`geofeat bench --help` listed `--protocol {detect,landmarks}` with no word on what either does."""
+    import argparse
+
+    from geofeat.cli import build_parser
+
+    commands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    bare = [f"{name} {a.option_strings or a.dest}" for name, sub in commands.choices.items() for a in sub._actions
+            if not a.help]
+    assert not bare

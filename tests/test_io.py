@@ -367,3 +367,120 @@ def test_landmarks_missing_for_some_frames_are_named(tmp_path, capsys):
         GroundTruth(geofeat.read_sequence(folder), None)
     with pytest.warns(UserWarning, match="none for frame-001, no TPS files.; matches are written without being judged"):
         assert main(["match", str(folder), "--descriptor", "orb", "--keypoints", "50", "--out", str(tmp_path / "m")]) == 0
+
+
+# ---------------------------------------------------------------- review-newuser: a folder in another layout
+def _renamed(folder, rename):
+    """`rename(path) -> new name or None` applied to every file of `folder` (None: removed)."""
+    for path in sorted(folder.iterdir()):
+        new = rename(path)
+        if new is None:
+            path.unlink()
+        elif new != path.name:
+            path.rename(folder / new)
+    return folder
+
+
+def _colour_as_jpeg(folder):
+    for name in ("frame-000-master", "frame-001"):
+        cv2.imwrite(str(folder / f"{name}-rgb.jpg"), cv2.imread(str(folder / f"{name}-rgb.png")))
+        (folder / f"{name}-rgb.png").unlink()
+
+
+def _plain_numbers(folder):
+    _renamed(folder, lambda p: None if p.name.endswith("-depth.png") else p.name)
+    for i, p in enumerate(sorted(folder.glob("*-rgb.png")), 1):
+        p.rename(folder / f"{i}.png")
+
+
+def _subfolders(folder):
+    for kind in ("rgb", "depth"):
+        (folder / kind).mkdir()
+        for p in folder.glob(f"*-{kind}.png"):
+            p.rename(folder / kind / p.name.replace(f"-{kind}", ""))
+
+
+@pytest.mark.parametrize("change, found", [
+    (_colour_as_jpeg, r"found frame-000-master-rgb.jpg, frame-001-rgb.jpg: colour frames must be PNG files named "
+                      r"exactly <name>-rgb.png"),
+    (lambda f: _renamed(f, lambda p: p.name.replace(".png", ".PNG")), r"found frame-000-master-rgb.PNG, frame-001-rgb.PNG"),
+    (_plain_numbers, r"found images not named <name>-rgb.png \(1.png, 2.png\)"),
+    (_subfolders, r"found sub-folders \(depth, rgb\) but no sequence one level down"),
+    (lambda f: _renamed(f, lambda p: None), "the folder is empty"),
+], ids=["jpeg-colour", "upper-case-extension", "plain-numbers", "rgb-and-depth-sub-folders", "empty"])
+def test_a_folder_without_frames_says_what_it_holds_and_the_layout(tmp_path, change, found):
+    """A robotics user's own recording (JPEG colour, 1.png ... 10.png, rgb/ and depth/ folders) was
+    refused as "no '*-rgb.png' frames in FOLDER", which names neither what geofeat found there nor the
+    layout it reads, nor how to write that layout from arrays."""
+    from geofeat.io import find_sequences
+
+    folder = _small_sequence(tmp_path / "seq")
+    change(folder)
+    layout = r"a sequence folder holds <name>-rgb.png \(8-bit colour\), <name>-depth.png .* geofeat.write_frame"
+    with pytest.raises(ValueError, match=rf"folder: no '\*-rgb.png' frames in .*seq: {found}.*; {layout}"):
+        geofeat.read_sequence(folder)
+    with pytest.raises(ValueError, match=rf"--data: no sequence \(folder of '\*-rgb.png' frames\) in .*seq: {found}"):
+        find_sequences(folder, what="--data")
+
+
+@pytest.mark.parametrize("suffix", [".tiff", ".npy"])
+def test_depth_saved_in_another_format_is_named_with_the_fix(tmp_path, suffix):
+    """Depth in metres as a float TIFF or a .npy beside the colour: "frames without '-depth.png'" named
+    neither the file found nor what depth geofeat reads."""
+    folder = _small_sequence(tmp_path / "seq")
+    for name in ("frame-000-master", "frame-001"):
+        metres = read_depth(folder / f"{name}-depth.png")
+        (folder / f"{name}-depth.png").unlink()
+        if suffix == ".npy":
+            np.save(folder / f"{name}-depth.npy", metres)
+        else:
+            cv2.imwrite(str(folder / f"{name}-depth{suffix}"), metres)
+    with pytest.raises(ValueError, match=rf"frames without '-depth.png' in .*\['frame-000-master', 'frame-001'\] \(found "
+                                         rf"frame-000-master-depth{suffix}, frame-001-depth{suffix}: depth must be a "
+                                         r"16-bit PNG.*geofeat.write_frame\(folder, name, color, depth_m\)"):
+        geofeat.read_sequence(folder)
+    if suffix == ".npy":
+        with pytest.raises(ValueError, match=r"cannot decode image .*\.npy; for depth as an array \(np.load\), build the "
+                                             r"frame with geofeat.RGBDFrame\(image, depth_m, K\)"):
+            read_depth(folder / "frame-001-depth.npy")
+
+
+@pytest.mark.parametrize("name, save", [
+    ("intrinsics.txt", lambda p: np.savetxt(p, K_SMALL)),
+    ("intrinsics.npy", lambda p: np.save(p, K_SMALL)),
+    ("K.yml", lambda p: write_intrinsics(p, K_SMALL)),
+])
+def test_intrinsics_saved_in_another_format_are_named_with_the_fix(tmp_path, name, save):
+    """A K saved as text or NumPy beside the frames: the sequence said "file not found: intrinsics.xml",
+    and read_frame on the file itself "cannot parse ... as OpenCV FileStorage (<class 'cv2.FileStorage'>
+    returned a result with an exception set)"; neither said how to make a file geofeat reads."""
+    folder = _small_sequence(tmp_path / "seq")
+    (folder / "intrinsics.xml").unlink()
+    save(folder / name)
+    fix = r"geofeat.write_intrinsics\(path, K\), or build the frame with geofeat.RGBDFrame\(image, depth_m, K\)"
+    with pytest.raises(ValueError, match=rf"intrinsics_path: file not found: .*intrinsics.xml \(found {name}\); .*{fix}"):
+        geofeat.read_sequence(folder)
+    if not name.endswith(".yml"):  # a YAML FileStorage is read as it is
+        with pytest.raises(ValueError, match=rf"cannot parse .*{name} as OpenCV FileStorage; .*{fix}") as error:
+            read_intrinsics(folder / name)
+        assert "exception set" not in str(error.value)
+
+
+def test_a_folder_of_sequences_given_for_one_sequence_names_them(tmp_path):
+    """`geofeat extract DATASET` (a folder of sequences) was "no '*-rgb.png' frames in DATASET"."""
+    _small_sequence(tmp_path / "data" / "cloth")
+    with pytest.raises(ValueError, match=r"no '\*-rgb.png' frames in .*data: it holds the sequence folders cloth: name "
+                                         r"one of them"):
+        geofeat.read_sequence(tmp_path / "data")
+
+
+def test_intrinsics_under_another_node_name_it(tmp_path):
+    """`camera_matrix` (OpenCV's calibration sample) instead of `intrinsics`: the error said the node
+    was missing, not which nodes the file holds."""
+    fs = cv2.FileStorage(str(tmp_path / "intrinsics.xml"), cv2.FILE_STORAGE_WRITE)
+    fs.write("camera_matrix", K_SMALL)
+    fs.write("distortion_coefficients", np.zeros((1, 5)))
+    fs.release()
+    with pytest.raises(ValueError, match=r"no 3x3 matrix under the node 'intrinsics' \(its nodes: camera_matrix, "
+                                         r"distortion_coefficients; rename"):
+        read_intrinsics(tmp_path / "intrinsics.xml")

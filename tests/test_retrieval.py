@@ -541,3 +541,23 @@ def test_top6_picture_names_its_columns(three_objects, tmp_path):
     query_label = header[:20, 110:270]  # above the query's column
     assert (query_label.min(axis=2) < 100).any() and (header[20:, 110:] < 100).any()
     assert (picture[TOP6_HEADER_PX:TOP6_HEADER_PX + 120, 110:270, 0] > 200).any()  # the query tile's blue border below it
+
+
+def test_retrieval_without_class_mates_is_refused_before_describing(three_objects, tmp_path, monkeypatch):
+    """Without --classes every sequence is a class of its own, so no query can be answered: the command
+    said so only after detecting and describing every frame of every sequence (minutes on a real set).
+    Classes given that put every sequence in a class of its own are refused as early."""
+    import geofeat.apps.retrieval as retrieval
+
+    def no_describing(*args, **kwargs):
+        raise AssertionError("described the frames first")
+
+    monkeypatch.setattr(retrieval, "describe_datasets", no_describing)
+    with pytest.raises(ValueError, match=r"no query has another sequence .*pass --classes .* or --include-own-sequence"):
+        run_retrieval([three_objects], tmp_path / "a", ("sift",), progress=False)
+    classes = tmp_path / "classes.csv"
+    classes.write_text("blobs,a\ncheckers,b\nlines,c\n")
+    with pytest.raises(ValueError, match=r"classes: no query has another sequence of its class"):
+        run_retrieval([three_objects], tmp_path / "b", ("sift",), classes_file=str(classes), progress=False)
+    with pytest.raises(ValueError, match="descriptor"):  # a bad name is still the first error
+        run_retrieval([three_objects], tmp_path / "c", ("nope",), progress=False)

@@ -37,7 +37,12 @@ def to_gray(image: np.ndarray) -> np.ndarray:
         elif image.dtype == np.uint16:
             gray /= 65535.0
     else:
-        raise ValueError(f"image: expected shape (H, W) or (H, W, 3), got {image.shape}")
+        hint = ""
+        if image.ndim == 3 and image.shape[0] in (1, 3, 4) and image.shape[2] > 4:  # a torch / CHW layout
+            hint = "; channels first? transpose it to (H, W, C) (a torch tensor: image.permute(1, 2, 0))"
+        elif image.ndim == 3 and image.shape[2] == 4:
+            hint = "; drop the alpha channel (image[:, :, :3])"
+        raise ValueError(f"image: expected shape (H, W) or (H, W, 3), got {image.shape}{hint}")
     if image.dtype != np.uint8 and image.dtype != np.uint16:  # those are finite and in [0, 1] by construction
         if not np.isfinite(gray).all():
             raise ValueError("image: contains NaN or infinite values")
@@ -48,6 +53,17 @@ def to_gray(image: np.ndarray) -> np.ndarray:
             )
     _warn_if_dark(image, float(gray.max()))
     return np.ascontiguousarray(gray, dtype=np.float32)
+
+
+def from_pil(image):
+    """A PIL image as the array geofeat reads: colour as (H, W, 3) BGR (PIL holds RGB: read as BGR, its
+    red and blue would swap in the gray image and the colour copy without a word), one-band modes
+    (L, I;16, F) as (H, W); anything else is returned as it is."""
+    if not all(hasattr(image, a) for a in ("getbands", "convert", "mode")):
+        return image
+    if len(image.getbands()) == 1:
+        return np.asarray(image)
+    return np.ascontiguousarray(np.asarray(image.convert("RGB"))[:, :, ::-1])  # RGBA, P, CMYK, ... -> RGB -> BGR
 
 
 #: A uint16 or float image whose brightest pixel is below this fraction of its full scale is warned of.
@@ -154,6 +170,8 @@ class RGBDFrame:
             the image size raise ValueError, a principal point far from the image centre (or off
             it: intrinsics of another resolution?) warns.
         color: optional (H, W, 3) uint8 BGR image (a copy of the one given), kept for display.
+
+    `image` may also be a PIL image: its RGB is turned into BGR (`from_pil`).
     """
 
     image: np.ndarray
@@ -162,7 +180,7 @@ class RGBDFrame:
     color: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def __init__(self, image: np.ndarray, depth: np.ndarray, K: np.ndarray) -> None:
-        image = np.asarray(image)
+        image = np.asarray(from_pil(image))
         if image.ndim not in (2, 3):
             raise ValueError(f"image: expected shape (H, W) or (H, W, 3), got {image.shape}")
         gray = to_gray(image)

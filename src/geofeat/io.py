@@ -66,6 +66,55 @@ def sequence_digest(folder: str | Path) -> str:
     return digest.hexdigest()
 
 
+#: What a sequence folder holds, for the errors that find something else there.
+LAYOUT = (f"a sequence folder holds <name>{RGB_SUFFIX} (8-bit colour), <name>{DEPTH_SUFFIX} (16-bit, "
+          "millimetres unless geofeat.json gives depth_scale) and intrinsics.xml; geofeat.write_frame and "
+          "geofeat.write_intrinsics write them from arrays")
+#: The file names a K in memory could have been saved under, beside a missing intrinsics.xml.
+_K_FILES = ("intrinsics", "camera", "camera_matrix", "K", "calib", "calibration")
+_INTRINSICS_HINT = ("geofeat reads OpenCV FileStorage XML or YAML with the 3x3 matrix under the node 'intrinsics'; "
+                    "for a K you have as numbers (np.loadtxt, np.load), write it with geofeat.write_intrinsics(path, K), "
+                    "or build the frame with geofeat.RGBDFrame(image, depth_m, K)")
+
+
+def _listing(paths: list[Path], limit: int = 3) -> str:
+    """'a.jpg, b.jpg and 3 more' of the names of `paths` (sorted naturally)."""
+    names = sorted((p.name for p in paths), key=natural_key)
+    more = f" and {len(names) - limit} more" if len(names) > limit else ""
+    return ", ".join(names[:limit]) + more
+
+
+def _near_misses(folder: Path, suffix: str) -> list[Path]:
+    """Non-hidden files of `folder` named like `<name><suffix>` but for the extension's case or kind
+    (`frame-0-rgb.jpg`, `frame-0-depth.tiff`, `frame-0-rgb.PNG`): a frame geofeat does not read."""
+    stem = suffix.rsplit(".", 1)[0].lower()  # '-rgb'
+    return [p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".") and not p.name.endswith(suffix)
+            and p.stem.lower().endswith(stem)]
+
+
+def layout_problem(folder: Path) -> str:
+    """Why `folder` holds no `*-rgb.png` frame, from what it holds instead: colour files of another
+    type (`-rgb.jpg`), images not named `<name>-rgb.png`, sub-folders (`rgb/`, `depth/`), or nothing;
+    then the layout geofeat reads (`LAYOUT`)."""
+    entries = [p for p in folder.iterdir() if not p.name.startswith(".")]
+    colour = _near_misses(folder, RGB_SUFFIX)
+    images = [p for p in entries if p.is_file() and p.suffix.lower() in (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")]
+    subs = [p for p in entries if p.is_dir()]
+    sequences = [p for p in subs if frame_names(p)]
+    if sequences:  # a folder of sequences where one sequence is read
+        return (f"it holds the sequence folders {_listing(sequences)}: name one of them (extract, match and "
+                "read_sequence read one sequence; bench, track, retrieval and groundtruth also take a folder of them)")
+    if colour:
+        found = f"found {_listing(colour)}: colour frames must be PNG files named exactly <name>{RGB_SUFFIX}"
+    elif images:
+        found = f"found images not named <name>{RGB_SUFFIX} ({_listing(images)})"
+    elif subs:
+        found = f"found sub-folders ({_listing(subs)}) but no sequence one level down"
+    else:
+        found = "the folder is empty" if not entries else f"found {_listing(entries)}"
+    return f"{found}; {LAYOUT}"
+
+
 def _existing(path: str | Path, what: str) -> Path:
     if not isinstance(path, (str, os.PathLike)):  # an array for a path: pathlib's TypeError names nothing
         hint = "" if what == "landmarks" else "; for an image, depth or K in memory, use RGBDFrame(image, depth, K)"
@@ -78,24 +127,30 @@ def _existing(path: str | Path, what: str) -> Path:
 
 def read_intrinsics(path: str | Path) -> np.ndarray:
     """Read the (3, 3) camera matrix from an OpenCV FileStorage `intrinsics.xml` (node `intrinsics`)."""
+    if isinstance(path, (str, os.PathLike)) and not Path(path).is_file():
+        others = [p for p in Path(path).parent.glob("*") if p.is_file() and not p.name.startswith(".")
+                  and p.stem.lower() in {n.lower() for n in _K_FILES} and p != Path(path)] if Path(path).parent.is_dir() else []
+        if others:  # a K saved as text, NumPy or YAML beside the intrinsics.xml a sequence needs
+            raise ValueError(f"intrinsics_path: file not found: {path} (found {_listing(others)}); {_INTRINSICS_HINT}")
     path = _existing(path, "intrinsics_path")
-    try:  # a malformed or truncated file makes OpenCV raise cv2.error (or SystemError)
+    try:  # a malformed or truncated file makes OpenCV raise cv2.error (or a SystemError that says nothing)
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except (cv2.error, SystemError) as error:
-        raise ValueError(f"intrinsics_path: cannot parse {path} as OpenCV FileStorage "
-                         f"({str(error).strip().splitlines()[-1] if str(error).strip() else type(error).__name__})") from None
+    except (cv2.error, SystemError):
+        fs = None
+    if fs is None or not fs.isOpened():
+        raise ValueError(f"intrinsics_path: cannot parse {path} as OpenCV FileStorage; {_INTRINSICS_HINT}")
     try:
-        if not fs.isOpened():
-            raise ValueError(f"intrinsics_path: cannot parse {path} as OpenCV FileStorage")
         node = fs.getNode("intrinsics")
         try:
             K = None if node.empty() else node.mat()
         except (cv2.error, SystemError):
             K = None
+        nodes = [] if K is not None else list(fs.root().keys())
     finally:
         fs.release()
     if K is None or np.asarray(K).shape != (3, 3):
-        raise ValueError(f"intrinsics_path: {path} has no 3x3 matrix under the node 'intrinsics'")
+        holds = f" (its nodes: {', '.join(nodes[:5])}; rename the camera matrix's to 'intrinsics')" if nodes else ""
+        raise ValueError(f"intrinsics_path: {path} has no 3x3 matrix under the node 'intrinsics'{holds}")
     return np.asarray(K, dtype=np.float64)
 
 
@@ -136,9 +191,11 @@ def read_depth(path: str | Path, depth_scale: float = DEPTH_SCALE_M) -> np.ndarr
     """Read a 16-bit depth PNG as (H, W) float32 metres (value * depth_scale; 0 = missing)."""
     path = _existing(path, "depth_path")
     # ANYCOLOR keeps the channels: IMREAD_ANYDEPTH alone turns a 3-channel 16-bit PNG into its luminance
-    raw = cv2.imread(str(path), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
+    raw = None if path.suffix.lower() == ".npy" else cv2.imread(str(path), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
     if raw is None:
-        raise ValueError(f"depth_path: cannot decode image {path}")
+        hint = ("; for depth as an array (np.load), build the frame with geofeat.RGBDFrame(image, depth_m, K), or write "
+                "16-bit PNGs with geofeat.write_frame") if path.suffix.lower() in (".npy", ".npz", ".exr") else ""
+        raise ValueError(f"depth_path: cannot decode image {path}{hint}")
     if raw.ndim != 2:
         raise ValueError(f"depth_path: {path} has {raw.shape[2]} channels; depth must be a single-channel 16-bit PNG")
     if raw.dtype == np.uint8:
@@ -403,10 +460,13 @@ def read_sequence(folder: str | Path, depth_scale: float | None = None) -> Seque
         raise ValueError(f"folder: not a directory: {folder}")
     names = frame_names(folder)
     if not names:
-        raise ValueError(f"folder: no '*{RGB_SUFFIX}' frames in {folder}")
+        raise ValueError(f"folder: no '*{RGB_SUFFIX}' frames in {folder}: {layout_problem(folder)}")
     missing = [n for n in names if not (folder / f"{n}{DEPTH_SUFFIX}").is_file()]
     if missing:
-        raise ValueError(f"folder: frames without '{DEPTH_SUFFIX}' in {folder}: {missing[:5]}")
+        others = [p for p in _near_misses(folder, DEPTH_SUFFIX) if p.name.startswith(tuple(missing))]
+        found = (f" (found {_listing(others)}: depth must be a 16-bit PNG, millimetres unless geofeat.json gives "
+                 "depth_scale; geofeat.write_frame(folder, name, color, depth_m) writes one from metres)") if others else ""
+        raise ValueError(f"folder: frames without '{DEPTH_SUFFIX}' in {folder}: {missing[:5]}{found}")
     colourless = sorted(set(frame_names(folder, DEPTH_SUFFIX)) - set(names), key=natural_key)
     if colourless:  # such a frame was left out without a word
         raise ValueError(f"folder: frames without '{RGB_SUFFIX}' in {folder}: {colourless[:5]}")
@@ -464,7 +524,7 @@ def find_sequences(paths, unique_names: bool = False, what: str = "dataset") -> 
         # which was read as a sequence, half-written and without its geofeat.json (its depth scale)
         subs = sorted(d for d in p.iterdir() if d.is_dir() and not d.name.startswith(".") and frame_names(d))
         if not subs:
-            raise ValueError(f"{what}: no sequence (folder of '*{RGB_SUFFIX}' frames) in {p}")
+            raise ValueError(f"{what}: no sequence (folder of '*{RGB_SUFFIX}' frames) in {p}: {layout_problem(p)}")
         found.extend(subs)
     seen: set[Path] = set()
     unique = [f for f in found if not (f.resolve() in seen or seen.add(f.resolve()))]

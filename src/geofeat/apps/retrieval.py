@@ -329,6 +329,28 @@ def exclusion_mask(sequences, queries: np.ndarray, include_own_sequence: bool = 
     return seqs[queries][:, None] == seqs[None, :]
 
 
+def _check_class_mates(sequences: list[str], classes: dict[str, str] | None, classes_file, every: bool = False) -> None:
+    """ValueError when no two of `sequences` share a class (the folder name without `classes`), so that no
+    query has an answer in a database of the other sequences; with `every`, whatever the classes (the
+    queries were found to have none, e.g. after frames were skipped)."""
+    given = {s: (classes[s] if classes is not None else s) for s in dict.fromkeys(sequences)}
+    if not every and len(set(given.values())) < len(given):
+        return
+    if classes is None:
+        raise ValueError("datasets: no query has another sequence of its class in the database (classes default to "
+                         "the sequence folder name); pass --classes with a 'sequence,class' CSV, or "
+                         "--include-own-sequence")
+    # the classes were given: say which class each sequence got (it said "pass --classes")
+    folded = {}
+    for c in dict.fromkeys(given.values()):
+        folded.setdefault(c.casefold(), []).append(c)
+    same = [" and ".join(repr(c) for c in cs) for cs in folded.values() if len(cs) > 1]
+    raise ValueError(f"classes: no query has another sequence of its class in the database; {classes_file} gives "
+                     + ", ".join(f"{s}: {c!r}" for s, c in given.items())
+                     + (f" (class names are case-sensitive: {'; '.join(same)} are different classes)" if same else "")
+                     + "; give sequences of one object the same class, or pass --include-own-sequence")
+
+
 def eligible_queries(db: "RetrievalDatabase", include_own_sequence: bool = False
                      ) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """The queries (reference frames) that still have a frame of their class in the database.
@@ -738,6 +760,17 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
         check_whole(words, "words", 2)
     check_samples(n_samples, words)
     classes = read_classes(classes_file) if classes_file else None
+    if not include_own_sequence:  # the classes decide now, not after every frame is described, whether a query has an answer
+        from ..descriptors import check_descriptor_names
+        from ..inputs import check_tps_dir
+        from ..keypoints import group_by_detector
+
+        # a bad name, weights file or --tps-dir is the first error, as in describe_datasets
+        group_by_detector(check_descriptor_names(descriptors), detector)
+        check_tps_dir(tps_dir)
+        names = [f.name for f in find_sequences(datasets, unique_names=True)]
+        if classes is None or all(n in classes for n in names):  # a sequence without a class: describe_datasets says so
+            _check_class_mates(names, classes, classes_file)
     db = describe_datasets(datasets, descriptors, n_keypoints, classes, tps_dir, radius, depth_scale, progress, detector)
     if not db.frames:
         raise ValueError(f"datasets: every frame was skipped ({', '.join(db.skipped[:5])}"
@@ -749,20 +782,7 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
                          "needs other frames to search among")
     q_idx, exclude, skipped = eligible_queries(db, include_own_sequence)
     if len(q_idx) == 0:
-        if classes is None:
-            raise ValueError("datasets: no query has another sequence of its class in the database (classes default to "
-                             "the sequence folder name); pass --classes with a 'sequence,class' CSV, or "
-                             "--include-own-sequence")
-        # the classes were given: say which class each sequence got (it said "pass --classes")
-        given = {s: classes[s] for s in dict.fromkeys(db.sequences)}
-        folded = {}
-        for c in dict.fromkeys(given.values()):
-            folded.setdefault(c.casefold(), []).append(c)
-        same = [" and ".join(repr(c) for c in cs) for cs in folded.values() if len(cs) > 1]
-        raise ValueError(f"classes: no query has another sequence of its class in the database; {classes_file} gives "
-                         + ", ".join(f"{s}: {c!r}" for s, c in given.items())
-                         + (f" (class names are case-sensitive: {'; '.join(same)} are different classes)" if same else "")
-                         + "; give sequences of one object the same class, or pass --include-own-sequence")
+        _check_class_mates(db.sequences, classes, classes_file, every=True)
     res: dict[str, DescriptorResult] = {}
     for name, feats in db.features.items():
         try:

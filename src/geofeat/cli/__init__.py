@@ -46,7 +46,10 @@ def main(argv: list[str] | None = None) -> int:
     """Run the command line: 0 success, 1 something was skipped or failed (named in the output),
     2 bad input (one-line error), 130 interrupted (finished results are kept)."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:  # argparse reports them with the top-level usage, which lists the commands, not the command's options
+        commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        commands.choices[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")
     plain = warnings.formatwarning
     # a warning (the depth units, an upright descriptor) reads as one line of the command's, without
     # the source line that Python's default format quotes

@@ -18,7 +18,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("datasets", nargs="+", help="sequence folders, or folders of sequences")
     p.add_argument("--descriptors", default="geobit,geopatch,orb,sift",
                    help=f"comma-separated, from {','.join(available_descriptors())} (default geobit,geopatch,orb,sift)")
-    p.add_argument("--protocol", choices=("detect", "landmarks"), default="detect")
+    p.add_argument("--protocol", choices=("detect", "landmarks"), default="detect",
+                   help="detect: keypoints detected independently in each frame, the paper's protocol (default); "
+                        "landmarks: the csv landmarks of every frame are described and matched")
     p.add_argument("--out", required=True, help="output folder: results.csv, table.md, plots, timing.md")
     radius_option(p)
     depth_scale_option(p)
