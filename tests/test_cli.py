@@ -80,6 +80,34 @@ def test_extract_and_match_on_a_sequence(rolled_sequence, tmp_path, capsys):
     assert (tmp_path / "m" / "cloud_ref__cloud_roll30__geobit.png").exists()
 
 
+def test_match_prints_the_matches_without_ground_truth_apart_from_the_wrong_ones(rolled_sequence, tmp_path, capsys,
+                                                                                 monkeypatch):
+    """`match` printed "N matches, C correct", so matches whose target keypoint has no ground truth
+    (occluded, off the surface, outside the landmarks' hull) read as wrong. With the ground truth of
+    the left half of the target only, the right half's matches are counted as not judged."""
+    import numpy as np
+
+    from geofeat.groundtruth.sources import GroundTruth
+
+    known_map = GroundTruth.map
+
+    def left_half_only(self, target, xy):
+        xy_ref, valid = known_map(self, target, xy)
+        right = np.asarray(xy)[:, 0] >= 320  # the 640 px wide Kinect frame's right half
+        xy_ref = xy_ref.copy()
+        xy_ref[right] = np.nan
+        return xy_ref, valid & ~right
+
+    monkeypatch.setattr(GroundTruth, "map", left_half_only)
+    assert main(["match", str(rolled_sequence), "--out", str(tmp_path / "m"), "--keypoints", "300"]) == 0
+    out = capsys.readouterr().out
+    pair = re.search(r"cloud_ref -> cloud_roll30: (\d+) matches, (\d+) correct, (\d+) not judged \(no ground truth\)", out)
+    total = re.search(r"total: (\d+) matches, (\d+) correct, (\d+) not judged \(no ground truth\)", out)
+    assert pair and total and pair.groups() == total.groups()
+    n, correct, unjudged = map(int, total.groups())
+    assert 0 < unjudged < n and correct + unjudged <= n and correct > 20
+
+
 def test_errors_are_one_line_and_exit_2(tmp_path, capsys):
     assert main(["extract", str(tmp_path / "missing"), "--out", str(tmp_path / "f.h5")]) == 2
     err = capsys.readouterr().err.strip().splitlines()

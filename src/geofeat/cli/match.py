@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as error:
         raise ValueError(f"frame {seq.reference}: the reference frame cannot be used ({error}); nothing to match") from None
     f_ref = descriptor.compute(ref, k_ref)
-    total_matches, total_correct = 0, 0
+    total_matches, total_correct, total_unjudged = 0, 0, 0
     skipped: list[str] = []
     with output_folder(out) as tmp:
         matches_path = tmp / f"matches-{label}.h5"
@@ -84,12 +84,16 @@ def run(args: argparse.Namespace) -> int:
                 correct = correct_matches(truth, name, k_ref.xy, k_tgt.xy, m.matches0)
                 judged = judged_matches(truth, name, k_tgt.xy, m.matches0)  # the others are not wrong, but unknown
                 total_correct += int(correct.sum())
-                summary += f", {int(correct.sum())} correct"
+                unjudged = n_matches - int(judged.sum())  # drawn blue: neither counted correct nor wrong
+                total_unjudged += unjudged
+                summary += f", {int(correct.sum())} correct" + (f", {unjudged} not judged (no ground truth)" if unjudged else "")
             picture = draw_matches(ref, tgt, k_ref.xy, k_tgt.xy, m.matches0, correct, title=f"{args.descriptor}: {summary}",
                                    judged=judged)
             cv2.imwrite(str(tmp / f"{seq.reference}__{name}__{label}.png"), picture)
             tqdm.write(f"{seq.reference} -> {name}: {summary}")
         status = finish_skipped(skipped, len(seq.targets), "match")
-    print(f"total: {plural(total_matches, 'match', 'matches')}" + (f", {total_correct} correct" if truth is not None else " (no ground truth)"))
+    judged_total = (f", {total_correct} correct" + (f", {total_unjudged} not judged (no ground truth)" if total_unjudged else "")
+                    if truth is not None else " (no ground truth)")
+    print(f"total: {plural(total_matches, 'match', 'matches')}{judged_total}")
     print(f"wrote {out / f'matches-{label}.h5'} and one match picture per pair in {out}")
     return status
