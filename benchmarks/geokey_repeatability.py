@@ -18,6 +18,10 @@ score every variant):
 - `normalised-8`, `normalised-4`: the cornerness cues measured on the image with its local contrast
   normalised, (I - mean) / (std + 0.02) over a Gaussian of 8 / 4 px, rescaled to the image cue's
   median: corners ranked regardless of shading.
+- `shading-24`, `shading-48`: every cue that scales with the image's contrast divided by the local
+  mean brightness (a Gaussian of 24 / 48 px, plus 5 grey levels; the image is in [0, 1]), squared for the cornerness cues,
+  rescaled to the cue's median: corners ranked as if the cloth were evenly lit (moving lights and
+  folds shade it).
 - `half-res-cornerness`: the half-resolution candidates' cornerness cues read on the half-resolution
   image (their own scale), shifted to the full-resolution cue's median over those candidates.
 - `blur-0.7`, `blur-1.0`: the whole detection (candidates and cues) on the gray image blurred by a
@@ -97,6 +101,31 @@ def normalised_cue_maps(sigma: float):
             ok = (frame.depth > 0) & (image > 0) & (new > 0)
             if ok.any():
                 maps[f"log_eig_{w}"] = (new * (np.median(image[ok]) / np.median(new[ok]))).astype(np.float32)
+        return maps
+
+    return cue_maps
+
+
+#: the intensity-linear image cues of `cues.cue_maps`, and the two that are quadratic in it (cornerness)
+LINEAR_CUES = ("log_grad_1", "log_grad_3", "log_dog", "log_std_9", "log_std_21")
+QUADRATIC_CUES = ("log_eig_3", "log_eig_7")
+
+
+def shading_normalised_cue_maps(sigma: float, floor: float = 5.0 / 255.0):
+    """A `cues.cue_maps` whose contrast cues are divided by the local mean brightness (squared for the
+    cornerness), rescaled to their median over pixels with depth."""
+    image_cue_maps = cues.cue_maps
+
+    def cue_maps(frame, depth_cues=True):
+        maps = image_cue_maps(frame, depth_cues)
+        mean = cv2.GaussianBlur(frame.image.astype(np.float32), (0, 0), sigma) + floor
+        for name in LINEAR_CUES + QUADRATIC_CUES:
+            old = maps[name]
+            new = old / mean ** (2 if name in QUADRATIC_CUES else 1)
+            ok = (frame.depth > 0) & (old > 0)
+            if ok.any():
+                new = new * (np.median(old[ok]) / max(float(np.median(new[ok])), 1e-12))
+            maps[name] = new.astype(np.float32)
         return maps
 
     return cue_maps
@@ -224,6 +253,8 @@ VARIANTS = {
     "normalised-8": {"cue_maps": lambda: normalised_cue_maps(8.0)},
     "normalised-4": {"cue_maps": lambda: normalised_cue_maps(4.0)},
     "half-res-cornerness": {"candidate_features": lambda: half_res_features},
+    "shading-24": {"cue_maps": lambda: shading_normalised_cue_maps(24.0)},
+    "shading-48": {"cue_maps": lambda: shading_normalised_cue_maps(48.0)},
     "blur-0.7": {"detector": lambda: blurred_detector(0.7)},
     "blur-1.0": {"detector": lambda: blurred_detector(1.0)},
     "noise-floor-1": {"candidates": lambda: noise_floor_candidates(1.0)},
