@@ -106,48 +106,55 @@ def test_one_openvino_geopatch_serves_several_threads():
         assert not errors, (backend, errors[:3])
 
 
-def _hold(net, inside, wait_for):
-    """Make `net`'s forward pass set `inside` and wait for `wait_for` (a threading.Event) first."""
-    forward = net.forward
+def _overlap(first, second, first_net, second_net):
+    """Run `first()` and `second()` in two threads so that their calls overlap, `second` starting
+    while `first` is inside its network's forward pass (`first_net`) and finishing after `first`
+    (its network, `second_net`, waits for it): the order in which a restore of the other's value
+    shows."""
+    first_inside, second_inside, first_done = threading.Event(), threading.Event(), threading.Event()
 
-    def held(x):
-        inside.set()
-        assert wait_for.wait(10)
-        return forward(x)
+    def hold(net, inside, wait_for):
+        forward = net.forward
 
-    net.forward = held
+        def held(x):
+            inside.set()
+            assert wait_for.wait(10)
+            return forward(x)
+
+        net.forward = held
+
+    hold(first_net, first_inside, second_inside)
+    hold(second_net, second_inside, first_done)
+
+    def run_first():
+        first()
+        first_done.set()
+
+    a, b = threading.Thread(target=run_first), threading.Thread(target=second)
+    a.start()
+    assert first_inside.wait(10)
+    b.start()
+    a.join()
+    b.join()
 
 
 def test_overlapping_describe_calls_restore_the_callers_torch_threads():
     """GeoPatch(threads=1) sets torch's thread count for its call (the calling thread's, and the
-    process's, which threads started later take). A call of another GeoPatch that started meanwhile
-    saved that 1 and put it back after the first had restored the caller's value: threads started
-    afterwards ran torch on 1 thread for good."""
+    process's, which threads take when they first run torch). A call of another GeoPatch that
+    started meanwhile saved that 1 and put it back after the first had restored the caller's
+    value: threads started afterwards ran torch on 1 thread for good."""
     torch = pytest.importorskip("torch")
     from geofeat.descriptors.geopatch import GeoPatch
 
     one = GeoPatch(device="cpu", backend="torch", threads=1)
     free = GeoPatch(device="cpu", backend="torch")  # leaves torch's threads as they are
-    one_inside, free_inside, one_done = threading.Event(), threading.Event(), threading.Event()
-    _hold(one.net, one_inside, free_inside)  # `one` waits inside its call for `free` to start
-    _hold(free.net, free_inside, one_done)  # `free` waits inside its call for `one` to finish
     patches = np.random.default_rng(1).random((4, 32, 32)).astype(np.float32)
     caller = torch.get_num_threads()
     torch.set_num_threads(3)
     try:
-        def first():
-            one.describe(patches)
-            one_done.set()
-
-        a = threading.Thread(target=first)
-        b = threading.Thread(target=free.describe, args=(patches,))
-        a.start()
-        assert one_inside.wait(10)
-        b.start()
-        a.join()
-        b.join()
+        _overlap(lambda: one.describe(patches), lambda: free.describe(patches), one.net, free.net)
         assert torch.get_num_threads() == 3
-        seen = []  # torch's count is also the process's, taken by threads started later
+        seen = []  # the process's count, taken by a thread started now
         later = threading.Thread(target=lambda: seen.append(torch.get_num_threads()))
         later.start()
         later.join()
@@ -162,25 +169,12 @@ def test_overlapping_gpu_path_calls_restore_the_callers_tf32_switches():
     torch = pytest.importorskip("torch")
     from geofeat.descriptors.geopatch import GeoPatch
 
-    a_net, b_net = GeoPatch(device="cpu", backend="torch"), GeoPatch(device="cpu", backend="torch")
-    a_inside, b_inside, a_done = threading.Event(), threading.Event(), threading.Event()
-    _hold(a_net.net, a_inside, b_inside)
-    _hold(b_net.net, b_inside, a_done)
+    a, b = GeoPatch(device="cpu", backend="torch"), GeoPatch(device="cpu", backend="torch")
     values = torch.rand(4, 32, 32)
     flags = torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32
     torch.backends.cudnn.allow_tf32 = torch.backends.cuda.matmul.allow_tf32 = True
     try:
-        def first():
-            a_net.describe_tensor(values)
-            a_done.set()
-
-        a = threading.Thread(target=first)
-        b = threading.Thread(target=b_net.describe_tensor, args=(values,))
-        a.start()
-        assert a_inside.wait(10)
-        b.start()
-        a.join()
-        b.join()
+        _overlap(lambda: a.describe_tensor(values), lambda: b.describe_tensor(values), a.net, b.net)
         assert (torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32) == (True, True)
     finally:
         torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32 = flags
