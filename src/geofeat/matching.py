@@ -719,12 +719,10 @@ def _l2_search_torch(d0, d1, valid0, valid1, want_cols):
     centre = (rows.mean(0).round() if len(rows) else rows.new_zeros(d0.shape[1])).to(dtype)  # as `_valid_mean`
     a, b = d0.to(dtype) - centre, d1.to(dtype) - centre
     n1 = b.shape[0]
-    before = torch.backends.cuda.matmul.allow_tf32
-    torch.backends.cuda.matmul.allow_tf32 = False
-    try:
+    from .process_settings import no_tf32
+
+    with no_tf32(cudnn=False):
         ab = a @ b.T
-    finally:
-        torch.backends.cuda.matmul.allow_tf32 = before
     dist = ((a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2.0 * ab).clamp_min(0.0).sqrt().double()
     inf = torch.tensor(float("inf"), dtype=dist.dtype, device=dist.device)
     dist = torch.where(valid1[None, :] & valid0[:, None], dist, inf)

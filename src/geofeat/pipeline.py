@@ -85,11 +85,14 @@ def _mesh_prefetch(frame: RGBDFrame, depth_config, device=None):
     preprocessing is mostly serial numpy and OpenCV work, and the detector leaves a core free
     often enough, so this hides part of it. The same mesh is built either way: results are
     unchanged. depth_config None (a descriptor without geodesic patches): nothing is prefetched.
+    The thread has ended when the call returns or raises (KeyboardInterrupt included).
     `device` "cuda[:N]": the GPU path's mesh (`frame_mesh(..., device=device)`) is built instead."""
     if depth_config is None:
         yield
         return
     from .geodesic.mesh import frame_mesh
+
+    built = threading.Event()
 
     def build() -> None:
         try:
@@ -98,10 +101,21 @@ def _mesh_prefetch(frame: RGBDFrame, depth_config, device=None):
                 mesh.walk_tables
         except Exception:  # noqa: BLE001 - the describer's own frame_mesh call raises it again, in the caller's thread
             pass
+        finally:
+            built.set()
 
     worker = threading.Thread(target=build, name="geofeat-mesh", daemon=True)
     worker.start()
     try:
         yield
     finally:
-        worker.join()
+        try:
+            worker.join()
+        except KeyboardInterrupt:
+            # Ctrl-C while waiting for the mesh: the build cannot be stopped, so wait for it before
+            # the interrupt goes on, and no work of this call outlives it (a second Ctrl-C leaves at
+            # once). On `built`: Python before 3.13 marks a thread whose join was interrupted as
+            # ended, while it runs on, and a second join returns at once
+            built.wait()
+            worker.join()
+            raise

@@ -288,9 +288,9 @@ class GeoPatch:
         cfg = self.config
         if values.ndim != 3 or tuple(values.shape[1:]) != (cfg.n_rings, cfg.n_angles):
             raise ValueError(f"values: expected shape (N, {cfg.n_rings}, {cfg.n_angles}), got {tuple(values.shape)}")
-        flags = torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32
-        torch.backends.cudnn.allow_tf32 = torch.backends.cuda.matmul.allow_tf32 = False
-        try:
+        from ..process_settings import no_tf32
+
+        with no_tf32():
             autocast = torch.autocast("cuda", dtype=torch.float16, enabled=bool(half) and self.device.type == "cuda")
             with torch.inference_mode(), autocast:
                 x = values.to(self.device, torch.float32).unsqueeze(1)
@@ -300,8 +300,6 @@ class GeoPatch:
                 if valid is not None:
                     y = torch.where(valid.to(self.device).bool()[:, None], y, torch.zeros((), device=self.device))
                 return y.float()
-        finally:
-            torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32 = flags
 
     def compute_cuda(self, frame: RGBDFrame, keypoints, mesh=None):
         """`compute` with the mesh (unless `mesh`, a host GridMesh or a `geofeat.gpu.DeviceMesh`, is
@@ -314,18 +312,17 @@ class GeoPatch:
     def _describe_torch(self, x: np.ndarray) -> np.ndarray:
         import torch
 
+        from ..process_settings import torch_threads
+
         # one transfer each way: the patches to the device, the descriptors back (on CUDA the
         # per-batch copies and synchronisations would cost more than the network)
         with torch.inference_mode():
             t = torch.from_numpy(x).to(self.device).unsqueeze(1)
             batch = self.batch_size if self.device.type == "cpu" else max(self.batch_size, 4096)
-            before = torch.get_num_threads()
-            if self.threads is not None:
-                torch.set_num_threads(self.threads)
-            try:
+            # torch's threads are the process's: set for the call, restored after it, also when
+            # calls overlap in several threads (`process_settings`)
+            with torch_threads(self.threads):
                 y = torch.cat([self.net(t[start:start + batch]) for start in range(0, len(t), batch)])
-            finally:
-                torch.set_num_threads(before)
             return y.float().cpu().numpy()
 
     def compute(self, frame: RGBDFrame, keypoints, patches: PolarPatches | None = None,

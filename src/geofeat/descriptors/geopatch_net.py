@@ -98,11 +98,14 @@ def load_checkpoint(path: str | Path, build, what: str) -> tuple[nn.Module, dict
     """(network, checkpoint) of a checkpoint written by `geofeat train`: `build(config)` makes the
     network from the checkpoint's config, which then takes its state dict. ValueError naming the file
     when it is corrupt, not a checkpoint, or holds another network's weights (`what` names the one
-    expected, e.g. "GeoPatch")."""
+    expected, e.g. "GeoPatch"). Loading draws nothing from the caller's torch random generator: the
+    network's random initial weights, replaced at once by the checkpoint's, come from a copy of it
+    (a host application that seeded torch gets the same random numbers after making a descriptor)."""
     ckpt = None
     try:
         ckpt = torch.load(str(path), map_location="cpu", weights_only=False)
-        net = build(dict(ckpt["config"]))
+        with torch.random.fork_rng(devices=[]):  # the network is built on the CPU
+            net = build(dict(ckpt["config"]))
         net.load_state_dict(ckpt["state_dict"])
     except Exception as error:  # noqa: BLE001 - unpickling, a missing key, another architecture: all one user error
         from ..inputs import error_summary

@@ -28,6 +28,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import threading
 from functools import lru_cache
 from pathlib import Path
 
@@ -136,8 +137,11 @@ class OpenVinoGeoPatch:
                                            os.getpid())
         self.metadata = dict(metadata)
         self.config = json.loads(metadata["config"])
-        # one request per instance (requests are not shared); with several threads, one per stream
+        # one request per instance (requests are not shared); with several threads, one per stream.
+        # A request runs one inference at a time ("Infer Request is busy" otherwise), so calls of
+        # one instance from several threads (a GeoPatch shared by a node's callbacks) take turns
         self.request = self.compiled.create_infer_request()
+        self._busy = threading.Lock()
         self.queue = None
         if self.threads > 1:
             import openvino as ov
@@ -150,15 +154,16 @@ class OpenVinoGeoPatch:
         (the batches spread over the streams when there are several)."""
         if self.bf16:
             x = zscore_patches(x)
-        if self.queue is None or len(x) <= batch_size:
-            # the request reuses its output buffer: copy each batch's descriptors out of it
-            return run_in_batches(lambda b: np.array(self.request.infer({0: b})[0], copy=True), x, batch_size)
-        x = np.ascontiguousarray(x, dtype=np.float32)
-        out = np.empty((len(x), int(self.config["dim"])), np.float32)
-        for start in range(0, len(x), batch_size):
-            self.queue.start_async({0: x[start:start + batch_size]}, (out, start))
-        self.queue.wait_all()
-        return out
+        with self._busy:
+            if self.queue is None or len(x) <= batch_size:
+                # the request reuses its output buffer: copy each batch's descriptors out of it
+                return run_in_batches(lambda b: np.array(self.request.infer({0: b})[0], copy=True), x, batch_size)
+            x = np.ascontiguousarray(x, dtype=np.float32)
+            out = np.empty((len(x), int(self.config["dim"])), np.float32)
+            for start in range(0, len(x), batch_size):
+                self.queue.start_async({0: x[start:start + batch_size]}, (out, start))
+            self.queue.wait_all()
+            return out
 
 
 def _copy_out(request, userdata) -> None:
