@@ -22,7 +22,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..constants import MAX_EDGE_STRETCH
-from ..depth import DepthConfig, backproject, preprocess_depth, resolve_depth_config, scale_intrinsics
+from ..depth import DepthConfig, backproject, mean_focal, preprocess_depth, resolve_depth_config, scale_intrinsics
 from ..frame import RGBDFrame, check_depth, check_frame, check_intrinsics
 from .walk import _shared
 
@@ -146,7 +146,7 @@ def mesh_from_points(
     """Build the GridMesh of an (Hm, Wm, 3) grid of camera-frame points (NaN = missing); `source`: the
     `frame_fingerprint` of the frame they come from, when known."""
     points = np.ascontiguousarray(points, dtype=np.float64)
-    face_ok, normals = _faces(points, 0.5 * (K[0, 0] + K[1, 1]), float(max_edge_stretch))
+    face_ok, normals = _faces(points, mean_focal(K), float(max_edge_stretch))
     return GridMesh(points=points, face_ok=face_ok, normals=normals, K=K, scale=scale, image_shape=image_shape,
                     source=source)
 
