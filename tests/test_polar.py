@@ -141,6 +141,29 @@ def test_rays_stop_at_depth_discontinuities():
     assert P.rings_reached[0].min() < 32  # the rays towards +x ended at the step
 
 
+
+@pytest.mark.parametrize("step", [0.05, 0.4])
+@pytest.mark.parametrize("profile", ["kinect", "quantised"])
+def test_rays_stop_at_depth_steps_that_the_smoothing_blurs(profile, step):
+    """An object 5 cm (a hand before a body) or 40 cm in front of a wall: the smoothing pyramid of
+    the "kinect" and "quantised" profiles blurred a 5 cm step into a ramp that the mesh kept as
+    surface, and rays from keypoints near the silhouette walked down it onto the wall (every keypoint
+    within 20 px of the step had samples on the other side). The cells a step of the frame's depth
+    crosses are cut now: no sample crosses the step. (The ramp's own half on each side is still
+    walked on: a 40 cm step's rays climb it rather than reach the silhouette.)"""
+    depth = np.full((240, 320), 1.0 + step, np.float32)
+    depth[:, :160] = 1.0
+    K = np.array([[262.5, 0, 159.5], [0, 262.5, 119.5], [0, 0, 1.0]])
+    image = np.random.default_rng(0).random((240, 320)).astype(np.float32)
+    frame = geofeat.RGBDFrame(image, depth, K)
+    xs = np.array([140.0, 150.0, 155.0, 157.0, 162.0, 165.0, 170.0, 180.0])
+    P = geofeat.polar_patches(frame, np.stack([xs, np.full(len(xs), 120.0)], axis=1), depth_config=profile)
+    assert P.valid[[0, 1, -2, -1]].all()  # 10 px from the step and more
+    on_object = xs < 159.5
+    for i in np.flatnonzero(P.valid):
+        x = P.coords[i, ..., 0]
+        assert ((x < 160.5) if on_object[i] else (x > 158.5)).all(), f"keypoint at x = {xs[i]:g} crossed the step"
+
 @pytest.mark.parametrize(
     "kwargs, match",
     [
