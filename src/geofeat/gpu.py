@@ -269,7 +269,7 @@ def build_mesh_cuda(frame: RGBDFrame, config: DepthConfig | str = "auto", max_ed
     tables = tuple(_as_numba(t) for t in tensors)
     mesh_faces_cuda(tables[0], mean_focal(K), float(max_edge_stretch), out=tables[1:],
                     stream=_numba_stream(dev))
-    cut = torch.from_numpy(step_cells(depth, frame.K, scale, (Hm, Wm), max_edge_stretch)).to(dev)
+    cut = torch.from_numpy(step_cells(depth, frame.K, scale, (Hm, Wm))).to(dev)
     for table in (face_ok, normals, local, edges):  # as the host mesh: the faces a depth step crosses do not exist
         table[cut] = 0
     return DeviceMesh(tensors, tables, K, scale, (H, W), dev)

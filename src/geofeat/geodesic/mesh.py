@@ -23,7 +23,7 @@ from functools import cached_property
 import numpy as np
 from numba import njit, prange
 
-from ..constants import MAX_EDGE_STRETCH
+from ..constants import DEPTH_STEP_CUT, MAX_EDGE_STRETCH
 from ..depth import (DepthConfig, backproject, depth_steps, filled_depth, mean_focal, resolve_depth_config, scale_intrinsics,
                      smooth)
 from ..frame import RGBDFrame, check_depth, check_frame, check_intrinsics
@@ -143,14 +143,14 @@ def _faces(points, fx, max_edge_stretch):
 
 
 def step_cells(depth: np.ndarray, K: np.ndarray, scale: tuple[float, float], mesh_shape: tuple[int, int],
-               max_edge_stretch: float = MAX_EDGE_STRETCH) -> np.ndarray:
+               max_step: float = DEPTH_STEP_CUT) -> np.ndarray:
     """(Hm - 1, Wm - 1) bool: the cells of an (Hm, Wm) mesh grid of `scale` = (sx, sy) mesh pixels per
-    image pixel that a step of the frame's (H, W) depth crosses: a step of more than
-    `max_edge_stretch` pixel footprints (`depth.depth_steps`, K the frame's intrinsics) between two
-    4-neighbours that both have depth, the mesh's own edge test at the frame's resolution. The cell
+    image pixel that a step of the frame's (H, W) depth crosses: a step of more than `max_step` pixel
+    footprints (`depth.depth_steps`, K the frame's intrinsics; `DEPTH_STEP_CUT`) between two
+    4-neighbours that both have depth. The cell
     holding the midpoint of each such pair is marked; the marked cells of a silhouette form an
     8-connected chain, which no ray crosses (rays cross edges, not vertices)."""
-    right, down = depth_steps(depth, K[0, 0], K[1, 1], max_edge_stretch)
+    right, down = depth_steps(depth, K[0, 0], K[1, 1], max_step)
     has = depth > 0
     right &= has[:, :-1] & has[:, 1:]
     down &= has[:-1] & has[1:]
@@ -202,7 +202,7 @@ def build_mesh(frame: RGBDFrame, config: DepthConfig | str = "auto",
     Hm, Wm = depth.shape
     scale = (Wm / W, Hm / H)
     K = scale_intrinsics(frame.K, *scale)
-    cut = step_cells(filled, frame.K, scale, (Hm, Wm), max_edge_stretch)
+    cut = step_cells(filled, frame.K, scale, (Hm, Wm))
     return mesh_from_points(backproject(depth, K), K, scale, (H, W), max_edge_stretch, frame_fingerprint(frame), cut)
 
 
