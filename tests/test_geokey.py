@@ -525,3 +525,31 @@ def test_the_denoise_setting_travels_with_the_weights(tmp_path):
     del old["denoise"]  # weights written before the setting existed: no filter
     np.savez(open(tmp_path / "old.npz", "wb"), **old)
     assert load_geokey(tmp_path / "old.npz").denoise == 0.0
+
+
+def test_depth_cues_of_non_square_pixels_measure_each_axis_in_its_own_footprints():
+    """With fx = 1.2 fy the depth cues measured steps along y in x footprints (z / fx): a plane tilted
+    by 74 degrees about the image x axis read a slope of 4.2 instead of tan 74 = 3.5, and a depth
+    discontinuity (over 4 footprints) where there is none; the same camera rolled by a quarter turn
+    (fx and fy swap) gave other slopes, curvatures and contours."""
+    from geofeat.detectors.cues import cue_maps, depth_edge_distance
+
+    H, W = 120, 160
+    K = np.array([[1.2 * 300.0, 0, (W - 1) / 2], [0, 300.0, (H - 1) / 2], [0, 0, 1]])
+    v = np.mgrid[0:H, 0:W][0].astype(np.float64)
+    a = np.radians(74)
+    # the plane through (0, 0, 1) tilted by a about the image x axis: Z = 1 + tan(a) Y
+    depth = 1.0 / (1.0 - np.tan(a) * (v - K[1, 2]) / K[1, 1])
+    depth[:, 120:] += 0.5  # a step behind the plane on the right
+    frame = geofeat.RGBDFrame(make_texture(3, 256)[:H, :W].astype(np.float32), depth.astype(np.float32), K)
+    maps = cue_maps(frame)
+    assert maps["slope"][60, 60] == pytest.approx(np.tan(a), rel=0.03)
+    edges = depth_edge_distance(frame.depth, K[0, 0], 4.0, fy=K[1, 1])
+    assert edges[60, 60] >= 5  # the slope steepens to 76 degrees (4 footprints) 10 rows lower
+    turned = cue_maps(frame.rotated90(1))  # the same camera rolled: fx and fy swap, the maps turn with the image
+    inner = (slice(10, -10), slice(10, -10))
+    for name in ("slope", "log_curv_2", "log_curv_6"):
+        np.testing.assert_allclose(np.rot90(maps[name])[inner], turned[name][inner], rtol=1e-2, atol=5e-3,
+                                   err_msg=name)
+    # a step is flagged on its left or upper pixel: turned, it may sit one pixel over
+    np.testing.assert_allclose(np.rot90(maps["log_edge_dist"]), turned["log_edge_dist"], atol=1.0)

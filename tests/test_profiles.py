@@ -185,3 +185,19 @@ def test_an_explicit_auto_measures_even_where_geofeat_json_names_a_profile(tmp_p
     assert "depth profile kinect," in capsys.readouterr().out
     assert main(common + ["--out", str(tmp_path / "c.h5"), "--depth-profile", "Quantised"]) == 0
     assert "depth profile quantised," in capsys.readouterr().out
+
+
+def test_depth_noise_of_non_square_pixels_does_not_change_with_a_quarter_roll():
+    """The pixel footprint was z / fx: with fx = 1.2 fy the same camera rolled by a quarter turn (fx
+    and fy swap) measured a fifth more or less slope noise and step per footprint, and could pick
+    another depth profile. The footprint is z over the mean of fx and fy now."""
+    H, W = 120, 160
+    K = np.array([[1.2 * 150.0, 0, (W - 1) / 2], [0, 150.0, (H - 1) / 2], [0, 0, 1]])
+    rng = np.random.default_rng(0)
+    depth = np.round((1.0 + 0.002 * rng.standard_normal((H, W))) / 0.001) * 0.001  # millimetre steps
+    frame = geofeat.RGBDFrame(np.zeros((H, W), np.float32), depth.astype(np.float32), K)
+    turned = frame.rotated90(1)
+    a, b = depth_noise(frame.depth, frame.K), depth_noise(turned.depth, turned.K)
+    assert b.slope_noise == pytest.approx(a.slope_noise, rel=1e-3)
+    assert b.step_per_footprint == pytest.approx(a.step_per_footprint, rel=1e-3)
+    assert a.step_per_footprint == pytest.approx(0.001 / (1.0 / 165.0), rel=0.02)  # f = (180 + 150) / 2

@@ -78,6 +78,27 @@ STEP_THRESHOLD = 0.3
 MIN_NOISE_WINDOWS = 500
 
 
+def mean_focal(K: np.ndarray) -> float:
+    """The focal length, pixels, that sizes a pixel's footprint (z / f metres at depth z) where one
+    size serves both axes: the mean of fx and fy, so that a camera rolled by a quarter turn (fx and fy
+    swap) measures the same (K[0, 0] alone made non-square pixels a fifth larger or smaller by roll)."""
+    return 0.5 * (float(K[0, 0]) + float(K[1, 1]))
+
+
+def depth_steps(depth: np.ndarray, fx: float, fy: float, step_footprints: float) -> tuple[np.ndarray, np.ndarray]:
+    """Where an (H, W) depth map (metres, 0 = missing) steps by more than `step_footprints` pixel
+    footprints between 4-neighbours: (H, W - 1) bool to the right-hand neighbour, (H - 1, W) bool to
+    the neighbour below. The footprint is z / fx across and z / fy down, z the depth of the left or
+    upper pixel (a footprint of 1 m where it has none). A surface inclined by an angle a to the image
+    plane steps by tan(a) footprints per pixel."""
+    depth = np.asarray(depth, np.float32)
+    right = np.abs(depth[:, 1:] - depth[:, :-1])  # metres
+    right /= np.where(depth > 0, depth / np.float32(fx), np.float32(1.0))[:, :-1]  # in footprints, z / fx
+    down = np.abs(depth[1:] - depth[:-1])
+    down /= np.where(depth > 0, depth / np.float32(fy), np.float32(1.0))[:-1]  # in footprints, z / fy
+    return right > step_footprints, down > step_footprints
+
+
 def check_profile(profile: str, what: str = "depth_profile") -> str:
     """Return `profile` lower-cased if it names a depth profile, else raise ValueError naming `what`."""
     name = str(profile).strip().lower() if isinstance(profile, str) else None
@@ -99,7 +120,7 @@ class DepthNoise:
     """Noise of a depth map measured on itself.
 
     Attributes:
-        slope_noise: depth noise in units of the pixel footprint (sigma_z / (z / fx)): the noise of
+        slope_noise: depth noise in units of the pixel footprint (sigma_z / (z / f), f = `mean_focal`): the noise of
             the surface slope between neighbouring pixels, with the depth map's own quantisation
             step (a 16-bit PNG's millimetre) taken out. Dimensionless.
         relative_noise: sigma_z / z (quantisation taken out the same way), dimensionless.
@@ -165,9 +186,9 @@ class _NoiseMeasure:
 
     @property
     def footprint(self) -> np.ndarray:
-        """Lateral size of a pixel at each sampled window's centre, z / fx, metres."""
+        """Lateral size of a pixel at each sampled window's centre, z / f (`mean_focal`), metres."""
         if self._footprint is None:
-            self._footprint = self.depth[self.sample] / self.K[0, 0]
+            self._footprint = self.depth[self.sample] / mean_focal(self.K)
         return self._footprint
 
     def step_per_footprint(self) -> float:
@@ -175,7 +196,7 @@ class _NoiseMeasure:
         return float(self.step / np.median(self.footprint))
 
     def slope_noise(self) -> float:
-        """sigma_z / (z / fx) from the centre residuals of the 5 x 5 quadratic fits (needs windows > 0)."""
+        """sigma_z / (z / f) from the centre residuals of the 5 x 5 quadratic fits (needs windows > 0)."""
         kernel = _quadratic_fit_kernel()
         fitted = cv2.filter2D(self.depth, -1, kernel, borderType=cv2.BORDER_REFLECT)
         residual = self.depth[self.sample] - fitted[self.sample]
@@ -199,9 +220,9 @@ def depth_noise(depth: np.ndarray, K: np.ndarray) -> DepthNoise:
     if measure.windows == 0:
         return DepthNoise(float("nan"), float("nan"), measure.step, float("nan"), measure.holes, 0)
     slope = measure.slope_noise()
-    # residual / z = (residual / footprint) / fx, and the same for the floor: the relative noise is
-    # the slope noise over fx (one winsorised quantile fewer)
-    return DepthNoise(slope, slope / float(measure.K[0, 0]), measure.step, measure.step_per_footprint(),
+    # residual / z = (residual / footprint) / f, and the same for the floor: the relative noise is
+    # the slope noise over f (one winsorised quantile fewer)
+    return DepthNoise(slope, slope / mean_focal(measure.K), measure.step, measure.step_per_footprint(),
                       measure.holes, measure.windows)
 
 

@@ -3,7 +3,8 @@ that slides along a fold edge, a silhouette or a foreshortened slope.
 
 Every cue is a dense (H, W) float32 map computed with a few OpenCV filters (no Python loops), read
 at the candidate keypoints by `cue_features`. Image cues are on the gray image in [0, 1]; depth cues
-are in units of the pixel footprint z / fx, so they do not depend on the distance to the camera.
+are in units of the pixel footprint (z / fx across, z / fy down), so they do not depend on the distance
+to the camera.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..depth import depth_steps
 from ..frame import RGBDFrame
 
 #: A depth discontinuity: a raw-depth step of more than this many pixel footprints between neighbours.
@@ -78,7 +80,10 @@ def cue_maps(frame: RGBDFrame, depth_cues: bool = True) -> dict[str, np.ndarray]
     depth = frame.depth.astype(np.float32)
     valid = (depth > 0).astype(np.float32)
     maps["valid_frac_31"] = cv2.blur(valid, (31, 31))
-    fx = float(frame.K[0, 0])
+    # a pixel's footprint is z / fx across and z / fy down: with non-square pixels (fx != fy) the
+    # steps along y are measured in y footprints, or a plane tilted about the image x axis read
+    # fx / fy times steeper than the same plane tilted about y
+    fx, fy = float(frame.K[0, 0]), float(frame.K[1, 1])
 
     def smooth_depth(sigma: float) -> np.ndarray:
         # normalised convolution: holes do not pull the depth towards 0
@@ -87,41 +92,51 @@ def cue_maps(frame: RGBDFrame, depth_cues: bool = True) -> dict[str, np.ndarray]
         return np.where(den > 1e-3, num / np.maximum(den, 1e-3), 0.0).astype(np.float32)
 
     z2 = smooth_depth(2.0)
-    footprint = np.where(z2 > 0, z2 / fx, 1.0).astype(np.float32)  # metres per pixel
-    zx = cv2.Sobel(z2, cv2.CV_32F, 1, 0, ksize=3) / 8.0
-    zy = cv2.Sobel(z2, cv2.CV_32F, 0, 1, ksize=3) / 8.0
-    slope = np.sqrt(zx * zx + zy * zy) / footprint
+    # metres per pixel across and down (1 where there is no depth)
+    footprint_x = np.where(z2 > 0, z2 / np.float32(fx), np.float32(1.0)).astype(np.float32)
+    footprint_y = footprint_x if fx == fy else np.where(z2 > 0, z2 / np.float32(fy), np.float32(1.0)).astype(np.float32)
+    zx = cv2.Sobel(z2, cv2.CV_32F, 1, 0, ksize=3) / 8.0 / footprint_x
+    zy = cv2.Sobel(z2, cv2.CV_32F, 0, 1, ksize=3) / 8.0 / footprint_y
+    slope = np.sqrt(zx * zx + zy * zy)
     maps["slope"] = np.minimum(slope, 20.0).astype(np.float32)
-    maps["log_curv_2"] = cv2.Laplacian(z2, cv2.CV_32F, ksize=3) / footprint
+    maps["log_curv_2"] = _laplacian_footprints(z2, footprint_x, footprint_y)
     z6 = smooth_depth(6.0)
-    maps["log_curv_6"] = cv2.Laplacian(z6, cv2.CV_32F, ksize=3) / footprint
-    maps["log_edge_dist"] = depth_edge_distance(depth, fx)
+    maps["log_curv_6"] = _laplacian_footprints(z6, footprint_x, footprint_y)
+    maps["log_edge_dist"] = depth_edge_distance(depth, fx, fy=fy)
     return maps
 
 
-def depth_edge_distance(depth: np.ndarray, fx: float, step_footprints: float = DEPTH_STEP_FOOTPRINTS) -> np.ndarray:
+def _laplacian_footprints(z: np.ndarray, footprint_x: np.ndarray, footprint_y: np.ndarray) -> np.ndarray:
+    """z_xx / footprint_x + z_yy / footprint_y of an (H, W) depth map (the 3 x 3 Laplacian's two second
+    derivatives, each in its own axis's footprints): cv2.Laplacian(z, ksize=3) / footprint for square
+    pixels, as before non-square ones were told apart."""
+    if footprint_x is footprint_y:
+        return cv2.Laplacian(z, cv2.CV_32F, ksize=3) / footprint_x
+    return (cv2.Sobel(z, cv2.CV_32F, 2, 0, ksize=3) / footprint_x
+            + cv2.Sobel(z, cv2.CV_32F, 0, 2, ksize=3) / footprint_y)
+
+
+def depth_edge_distance(depth: np.ndarray, fx: float, step_footprints: float = DEPTH_STEP_FOOTPRINTS,
+                        fy: float | None = None) -> np.ndarray:
     """(H, W) float32 distance, pixels, to the nearest depth discontinuity or hole.
 
     A discontinuity is a raw-depth step between 4-neighbouring pixels of more than
-    `step_footprints` pixel footprints (depth / fx, metres per pixel): a silhouette or a fold that
-    hides part of the surface. A surface inclined by an angle a to the image plane steps by tan(a)
-    footprints per pixel, so 4 footprints also flags slopes steeper than 76 degrees, 10 only those
-    steeper than 84. A hole is depth 0.
+    `step_footprints` pixel footprints (depth / fx across, depth / fy down, metres per pixel): a
+    silhouette or a fold that hides part of the surface. A surface inclined by an angle a to the
+    image plane steps by tan(a) footprints per pixel, so 4 footprints also flags slopes steeper than
+    76 degrees, 10 only those steeper than 84. A hole is depth 0.
 
     Args:
         depth: (H, W) depth, metres; 0 = no depth.
-        fx: focal length, pixels.
+        fx: focal length along x, pixels.
         step_footprints: the smallest step that makes a discontinuity, pixel footprints.
+        fy: focal length along y, pixels (None: fx, square pixels).
     """
     depth = np.asarray(depth, np.float32)
-    footprint = np.where(depth > 0, depth / np.float32(fx), np.float32(1.0))  # metres per pixel
+    right, down = depth_steps(depth, fx, fx if fy is None else fy, step_footprints)
     edge = depth <= 0
-    step = np.abs(depth[:, 1:] - depth[:, :-1])  # to the right-hand neighbour, metres
-    step /= footprint[:, :-1]
-    edge[:, :-1] |= step > step_footprints
-    step = np.abs(depth[1:] - depth[:-1])  # to the neighbour below
-    step /= footprint[:-1]
-    edge[:-1] |= step > step_footprints
+    edge[:, :-1] |= right  # a step is marked on its left or upper pixel
+    edge[:-1] |= down
     np.logical_not(edge, out=edge)  # now: not an edge
     return cv2.distanceTransform(edge.view(np.uint8), cv2.DIST_L2, 3)
 

@@ -295,7 +295,8 @@ def candidates(frame: RGBDFrame, max_candidates: tuple[int, ...] = MAX_CANDIDATE
               & (xy[:, 1] >= BORDER_PX) & (xy[:, 1] <= H - 1 - BORDER_PX))
     cands = cands[inside]
     xi, yi = np.rint(cands.xy[:, 0]).astype(np.int64), np.rint(cands.xy[:, 1]).astype(np.int64)
-    edge_distance = depth_edge_distance(frame.depth, float(frame.K[0, 0]), DEPTH_EDGE_STEP_FOOTPRINTS)
+    edge_distance = depth_edge_distance(frame.depth, float(frame.K[0, 0]), DEPTH_EDGE_STEP_FOOTPRINTS,
+                                        fy=float(frame.K[1, 1]))
     keep = edge_distance[yi, xi] >= DEPTH_EDGE_MARGIN_PX  # on a pixel with depth, too
     return cands[keep]
 
