@@ -141,44 +141,6 @@ def test_rays_stop_at_depth_discontinuities():
     assert P.rings_reached[0].min() < 32  # the rays towards +x ended at the step
 
 
-
-@pytest.mark.parametrize("step", [0.05, 0.4])
-@pytest.mark.parametrize("profile", ["kinect", "quantised"])
-def test_rays_stop_at_depth_steps_that_the_smoothing_blurs(profile, step):
-    """An object 5 cm (a hand before a body) or 40 cm in front of a wall, 1 m from a Kinect-like
-    camera (640 x 480, f = 525 px: steps of 26 and 210 pixel footprints): the smoothing pyramid of
-    the "kinect" and "quantised" profiles blurred a 5 cm step into a ramp that the mesh kept as
-    surface, and rays from keypoints near the silhouette walked down it onto the wall (every keypoint
-    within 20 px of the step had samples on the other side). The cells a step of the frame's depth
-    crosses are cut now: no sample crosses the step. (The ramp's own half on each side is still
-    walked on: a 40 cm step's rays climb it rather than reach the silhouette.)"""
-    depth = np.full((480, 640), 1.0 + step, np.float32)
-    depth[:, :320] = 1.0
-    image = np.random.default_rng(0).random((480, 640)).astype(np.float32)
-    frame = geofeat.RGBDFrame(image, depth, K_VGA)
-    xs = np.array([280.0, 300.0, 310.0, 314.0, 325.0, 330.0, 340.0, 360.0])
-    P = geofeat.polar_patches(frame, np.stack([xs, np.full(len(xs), 240.0)], axis=1), depth_config=profile)
-    assert P.valid[[0, 1, -2, -1]].all()  # 10 px from the step and more
-    on_object = xs < 319.5
-    for i in np.flatnonzero(P.valid):
-        x = P.coords[i, ..., 0]
-        assert ((x < 320.5) if on_object[i] else (x > 318.5)).all(), f"keypoint at x = {xs[i]:g} crossed the step"
-
-
-def test_steep_surfaces_are_not_cut_as_depth_steps():
-    """The cut is for steps, not for steep surfaces: a plane at 85 degrees to the view (11 pixel
-    footprints of depth per pixel) keeps every cell, as the edge test keeps it."""
-    from geofeat.geodesic.mesh import step_cells
-
-    v = np.arange(480, dtype=np.float32)[:, None]
-    depth = np.repeat(1.0 + 11.0 * (v - 240) / 525.0 * 0.05, 640, axis=1).astype(np.float32)  # z grows down the rows
-    depth = np.maximum(depth, 0.2)
-    assert not step_cells(depth, K_VGA, (0.5, 0.5), (240, 320)).any()
-    depth[:, 320:] += 0.1  # and a 10 cm step at 1 m is cut, along the whole column
-    cut = step_cells(depth, K_VGA, (0.5, 0.5), (240, 320))
-    assert cut[:, 158:161].any(axis=1).all() and cut.sum() < 2 * 239
-
-
 @pytest.mark.parametrize(
     "kwargs, match",
     [

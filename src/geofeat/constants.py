@@ -23,13 +23,6 @@ SMOOTH_WINDOW_PX = 7
 #: A mesh triangle is cut when an edge is longer than this many times the lateral size of a
 #: mesh pixel at that depth (about an 83 degree slope): this keeps rays off the background.
 MAX_EDGE_STRETCH = 8.0
-#: The mesh cell that a step of the frame's own depth crosses is cut when the step, between two
-#: neighbouring pixels, exceeds this many pixel footprints (z / f): 4.6 % of the depth with a Kinect's
-#: f = 525 px, 4.6 cm at 1 m (`geodesic.mesh.step_cells`). The smoothing pyramid blurs such a step into a
-#: ramp that the edge test keeps. 8 footprints (the edge test's own) also cut steep cloth (83-88
-#: degrees to the view): the matching score of our millimetre test copies fell by 0.002-0.005; at 24 it
-#: is unchanged (BENCHMARKS.md, "Depth steps cut from the mesh").
-DEPTH_STEP_CUT = 24.0
 #: Depth profile names: "auto" (chosen from the frame's measured depth noise), "kinect", "quantised",
 #: "clean" (see `geofeat.depth.PROFILES`).
 DEPTH_PROFILE_NAMES = ("auto", "kinect", "quantised", "clean")

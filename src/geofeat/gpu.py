@@ -41,7 +41,7 @@ from .constants import DEFAULT_RADIUS_M, MAX_EDGE_STRETCH, N_ANGLES, N_RINGS, SA
 from .depth import DepthConfig, mean_focal
 from .features import Features, Matches
 from .frame import RGBDFrame
-from .geodesic.mesh import GridMesh, frame_mesh, image_to_mesh, step_cells
+from .geodesic.mesh import GridMesh, frame_mesh, image_to_mesh
 from .geodesic.polar import check_mesh_shape, check_patch_request
 
 #: Attribute of a GridMesh under which its device tables are kept, per device.
@@ -269,9 +269,6 @@ def build_mesh_cuda(frame: RGBDFrame, config: DepthConfig | str = "auto", max_ed
     tables = tuple(_as_numba(t) for t in tensors)
     mesh_faces_cuda(tables[0], mean_focal(K), float(max_edge_stretch), out=tables[1:],
                     stream=_numba_stream(dev))
-    cut = torch.from_numpy(step_cells(depth, frame.K, scale, (Hm, Wm))).to(dev)
-    for table in (face_ok, normals, local, edges):  # as the host mesh: the faces a depth step crosses do not exist
-        table[cut] = 0
     return DeviceMesh(tensors, tables, K, scale, (H, W), dev)
 
 

@@ -7,9 +7,7 @@ holds two triangles with the diagonal from (x + 1, y) to (x, y + 1):
     face 1: d = (x + 1, y + 1), b = (x + 1, y), c = (x, y + 1)
 
 A face exists when its three vertices have depth and it does not straddle a depth discontinuity
-(an edge longer than `max_edge_stretch` times the lateral size of a mesh pixel at that depth), nor
-lies on a cell that a step of the frame's depth crosses (`step_cells`: the smoothing pyramid blurs an
-object's silhouette into a ramp down to the wall behind it, which the edge test alone kept as surface).
+(an edge longer than `max_edge_stretch` times the lateral size of a mesh pixel at that depth).
 Normals point towards the camera.
 """
 
@@ -23,9 +21,8 @@ from functools import cached_property
 import numpy as np
 from numba import njit, prange
 
-from ..constants import DEPTH_STEP_CUT, MAX_EDGE_STRETCH
-from ..depth import (DepthConfig, backproject, depth_steps, filled_depth, mean_focal, resolve_depth_config, scale_intrinsics,
-                     smooth)
+from ..constants import MAX_EDGE_STRETCH
+from ..depth import DepthConfig, backproject, mean_focal, preprocess_depth, resolve_depth_config, scale_intrinsics
 from ..frame import RGBDFrame, check_depth, check_frame, check_intrinsics
 from .walk import _shared
 
@@ -142,41 +139,14 @@ def _faces(points, fx, max_edge_stretch):
     return ok, normals
 
 
-def step_cells(depth: np.ndarray, K: np.ndarray, scale: tuple[float, float], mesh_shape: tuple[int, int],
-               max_step: float = DEPTH_STEP_CUT) -> np.ndarray:
-    """(Hm - 1, Wm - 1) bool: the cells of an (Hm, Wm) mesh grid of `scale` = (sx, sy) mesh pixels per
-    image pixel that a step of the frame's (H, W) depth crosses: a step of more than `max_step` pixel
-    footprints (`depth.depth_steps`, K the frame's intrinsics; `DEPTH_STEP_CUT`) between two
-    4-neighbours that both have depth. The cell
-    holding the midpoint of each such pair is marked; the marked cells of a silhouette form an
-    8-connected chain, which no ray crosses (rays cross edges, not vertices)."""
-    right, down = depth_steps(depth, K[0, 0], K[1, 1], max_step)
-    has = depth > 0
-    right &= has[:, :-1] & has[:, 1:]
-    down &= has[:-1] & has[1:]
-    i, j = np.nonzero(right)
-    i2, j2 = np.nonzero(down)
-    sx, sy = scale
-    mx = np.concatenate([(j + 1.0) * sx, (j2 + 0.5) * sx]) - 0.5  # image -> mesh pixels, as `image_to_mesh`
-    my = np.concatenate([(i + 0.5) * sy, (i2 + 1.0) * sy]) - 0.5
-    Hc, Wc = mesh_shape[0] - 1, mesh_shape[1] - 1
-    cells = np.zeros((Hc, Wc), bool)
-    cells[np.clip(np.floor(my).astype(np.int64), 0, Hc - 1), np.clip(np.floor(mx).astype(np.int64), 0, Wc - 1)] = True
-    return cells
-
-
 def mesh_from_points(
     points: np.ndarray, K: np.ndarray, scale: tuple[float, float], image_shape: tuple[int, int],
-    max_edge_stretch: float = MAX_EDGE_STRETCH, source: tuple | None = None, cut: np.ndarray | None = None,
+    max_edge_stretch: float = MAX_EDGE_STRETCH, source: tuple | None = None,
 ) -> GridMesh:
     """Build the GridMesh of an (Hm, Wm, 3) grid of camera-frame points (NaN = missing); `source`: the
-    `frame_fingerprint` of the frame they come from, when known; `cut`: (Hm - 1, Wm - 1) bool cells
-    whose faces are dropped (`step_cells`), None for none."""
+    `frame_fingerprint` of the frame they come from, when known."""
     points = np.ascontiguousarray(points, dtype=np.float64)
     face_ok, normals = _faces(points, mean_focal(K), float(max_edge_stretch))
-    if cut is not None:
-        face_ok[cut] = False
-        normals[cut] = 0.0  # as a face that does not exist
     return GridMesh(points=points, face_ok=face_ok, normals=normals, K=K, scale=scale, image_shape=image_shape,
                     source=source)
 
@@ -195,15 +165,12 @@ def build_mesh(frame: RGBDFrame, config: DepthConfig | str = "auto",
     """Preprocess the frame's depth (a `DepthConfig`, or a profile name: "auto", "kinect", "quantised",
     "clean"; see `geofeat.depth.depth_profile`) and build its GridMesh."""
     check_frame_arrays(frame)
-    config = resolve_depth_config(config, frame)
-    filled = filled_depth(frame.depth, config)
-    depth = smooth(filled, config.smooth_levels, config.mesh_scale)  # `depth.preprocess_depth`
+    depth = preprocess_depth(frame.depth, resolve_depth_config(config, frame))
     H, W = frame.shape
     Hm, Wm = depth.shape
     scale = (Wm / W, Hm / H)
     K = scale_intrinsics(frame.K, *scale)
-    cut = step_cells(filled, frame.K, scale, (Hm, Wm))
-    return mesh_from_points(backproject(depth, K), K, scale, (H, W), max_edge_stretch, frame_fingerprint(frame), cut)
+    return mesh_from_points(backproject(depth, K), K, scale, (H, W), max_edge_stretch, frame_fingerprint(frame))
 
 
 #: Attribute of an RGBDFrame under which `frame_mesh` keeps its meshes.
