@@ -431,3 +431,179 @@ def test_uint8_sift_matched_by_hamming_is_warned_of_and_bits_are_not():
         padded = Features(np.zeros((600, 2)), np.concatenate([orb[:300], np.zeros((300, 32), np.uint8)]),
                           np.r_[np.ones(300, bool), np.zeros(300, bool)])
         match(padded, padded)
+
+
+# --- ties and degenerate inputs: every path against the brute-force rule (lowest index wins) -------------
+
+#: Whole-number 3-D points. From the origin, A and B are at squared distances 4204753 and 4204754, whose
+#: float32 square roots are equal (a float32 distance made them a tie, and the lower index won); (4, 4, 0)
+#: and (5, 5, 0) are at sqrt(32) = 0.8 sqrt(50) (the ratio test's threshold); (3, 4, 0) and (5, 0, 0)
+#: tie at 5; (-0.0, 0, -0.0) is the origin again.
+TIE_POINTS = np.array([[0, 0, 0], [2049, 73, 32], [2049, 76, 24], [4, 4, 0], [5, 5, 0], [3, 4, 0], [5, 0, 0],
+                       [-0.0, 0, -0.0]])
+
+
+def _tie_features(rows, valid, dtype, offset):
+    return Features(np.zeros((len(rows), 2)), (TIE_POINTS[np.asarray(rows, int)] + offset).astype(dtype),
+                    np.asarray(valid, bool))
+
+
+@pytest.mark.parametrize("device", [None, "cpu"])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_l2_whole_number_ties_and_ratio_threshold(device, dtype):
+    """Squared distances are exact for whole-number descriptors: the nearest neighbour, the column's
+    nearest query and the ratio test follow them, as brute force does. A float32 square root made
+    squared distances 4204753 and 4204754 equal (the lower index won, in rows and in the mutual check),
+    and sqrt(32) >= 0.8 sqrt(50) false in float32 (and in torch's float64 sqrt)."""
+    if device is not None:
+        pytest.importorskip("torch")
+    origin = np.zeros((1, 3), dtype)
+    far = TIE_POINTS[[1, 2]].astype(dtype)  # B (4204754) before A (4204753)
+    got = match(origin, far, device=device)
+    assert got.matches0.tolist() == [1] and got.distances0[0] == np.sqrt(4204753.0)
+    got = match(far, origin, mutual=True, device=device)  # the origin's nearest query is A, not B
+    assert got.matches0.tolist() == [-1, 0]
+    got = match(origin, TIE_POINTS[[3, 4]].astype(dtype), ratio=0.8, device=device)
+    assert got.matches0.tolist() == [-1]  # sqrt(32) < 0.8 sqrt(50) is false
+    got = match(origin, TIE_POINTS[[5, 6, 6, 0, 7]].astype(dtype), device=device)
+    assert got.matches0.tolist() == [3] and got.distances0[0] == 0.0
+
+
+@settings(max_examples=120, deadline=None)
+@given(
+    rows0=st.lists(st.integers(0, len(TIE_POINTS) - 1), max_size=9),
+    rows1=st.lists(st.integers(0, len(TIE_POINTS) - 1), max_size=9),
+    invalid=st.sets(st.integers(0, 17), max_size=4),
+    dtype=st.sampled_from([np.float32, np.float64]),
+    offset=st.sampled_from([0.0, 2.0**20, -3e6]),  # a large common part, taken away by the centring
+    mutual=st.booleans(),
+    ratio=st.sampled_from([None, 0.5, 0.8, 1.0]),
+    device=st.sampled_from([None, "cpu"]),
+)
+def test_l2_ties_equal_brute_force(rows0, rows1, invalid, dtype, offset, mutual, ratio, device):
+    """Duplicate rows, exact ties, the ratio threshold, distances whose float32 square roots tie,
+    -0.0, invalid rows, a large common offset, empty sides: both L2 paths give the brute-force matches
+    (exact squared distances, lowest index first) and its distances."""
+    if device is not None:
+        pytest.importorskip("torch")
+    n0 = len(rows0)
+    f0 = _tie_features(rows0, [i not in invalid for i in range(n0)], dtype, offset)
+    f1 = _tie_features(rows1, [n0 + j not in invalid for j in range(len(rows1))], dtype, offset)
+    got = match(f0, f1, mutual=mutual, ratio=ratio, device=device)
+    m, dist = reference_match(f0, f1, "l2", mutual=mutual, ratio=ratio)
+    assert np.array_equal(got.matches0, m)
+    assert np.array_equal(got.distances0, dist)
+
+
+_POPCOUNT8 = np.unpackbits(np.arange(256, dtype=np.uint8)[:, None], axis=1).sum(1)
+
+
+def hamming_matrix(d0, d1, valid0, valid1):
+    """(N0, N1) Hamming distances, min over rotations for (N, R, B) (query rotation 0), brute force;
+    inf where either side is invalid."""
+    q = d0[:, 0] if d0.ndim == 3 else d0
+    t = d1 if d1.ndim == 3 else d1[:, None]
+    D = np.concatenate([_POPCOUNT8[q[s:s + 32, None, None] ^ t[None]].sum(-1).min(-1) for s in range(0, len(q), 32)])
+    return np.where(valid0[:, None] & valid1[None, :], D.astype(np.float64), np.inf)
+
+
+def brute_force(D, mutual, ratio):
+    """The documented rule on a full distance matrix, vectorised: np.argmin (first index) of each row
+    and column, the ratio test against the best of the other valid targets."""
+    rows = np.arange(len(D))
+    j = D.argmin(1)
+    best = D[rows, j]
+    others = D.copy()
+    others[rows, j] = np.inf
+    keep = np.isfinite(best)
+    if ratio is not None:
+        keep &= best < ratio * others.min(1)
+    if mutual:
+        keep &= D.argmin(0)[j] == rows
+    return np.where(keep, j, -1), np.where(keep, best, np.inf)
+
+
+# hamming; > 8 words (the generic kernel); GeoBit; 3 rotations; > 16 rotations; > 8 words with rotations
+@pytest.mark.parametrize("shape", [(32,), (72,), (16, 64), (3, 64), (20, 8), (2, 72)])
+def test_hamming_duplicates_tie_alike_on_every_path(shape):
+    """Many duplicate rows built of bytes 0, 1 and 255 (rotations shifted, so ties also come from other
+    rotations), all-zero rows, invalid rows at both ends and in the middle, N0 != N1 across query
+    chunks and target blocks: every path (numba kernels with 1 and 2 threads, both rotation searches,
+    torch on the CPU) gives brute force's matches, the lowest index winning every tie."""
+    import numba
+
+    from geofeat.matching import _finish_matches, _hamming_search
+
+    rng = np.random.default_rng(len(shape) + shape[0])
+    base = rng.choice(np.array([0, 1, 255], np.uint8), size=(4, *shape))
+    base[0] = 0
+
+    def make(n):
+        d = base[rng.integers(0, 4, n)]
+        if len(shape) == 2:  # the same descriptor seen at another rotation
+            d = np.stack([np.roll(r, k, axis=0) for r, k in zip(d, rng.integers(0, shape[0], n))])
+        valid = rng.random(n) < 0.9
+        valid[[0, n // 2, -1]] = False
+        return Features(np.zeros((n, 2)), d, valid)
+
+    f0, f1 = (make(1025), make(300)) if shape[0] <= 3 or len(shape) == 1 else (make(300), make(257))
+    metric = "hamming" if len(shape) == 1 else "hamming-rot"
+    D = hamming_matrix(f0.descriptors, f1.descriptors, f0.valid, f1.valid)
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        torch = None
+    threads = numba.get_num_threads()
+    try:
+        for mutual, ratio in ((False, None), (True, None), (False, 1.0), (True, 0.8)):
+            want, dist = brute_force(D, mutual, ratio)
+            got = {}
+            for n_threads in sorted({1, threads}):
+                numba.set_num_threads(n_threads)
+                got[f"numba{n_threads}"] = match(f0, f1, metric=metric, mutual=mutual, ratio=ratio)
+                if metric == "hamming-rot" and shape[0] <= 16:
+                    for method in ("two-stage", "blocked"):
+                        res = _hamming_search(f0.descriptors, f1.descriptors, f0.valid, f1.valid, mutual, ratio,
+                                              method=method)
+                        got[f"{method}{n_threads}"] = _finish_matches(*res, ratio=ratio, mutual=mutual)
+            if torch is not None:
+                got["torch"] = match(f0, f1, metric=metric, mutual=mutual, ratio=ratio, device="cpu")
+            for path, g in got.items():
+                assert np.array_equal(g.matches0, want), (path, mutual, ratio)
+                assert np.array_equal(g.distances0, dist), (path, mutual, ratio)
+    finally:
+        numba.set_num_threads(threads)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    n0=st.integers(0, 3),
+    n1=st.integers(0, 3),
+    shape=st.sampled_from([(1,), (8,), (16, 64), (3, 9)]),
+    data=st.data(),
+    mutual=st.booleans(),
+    ratio=st.sampled_from([None, 0.5, 1.0]),
+    device=st.sampled_from([None, "cpu"]),
+)
+def test_hamming_degenerate_inputs_equal_brute_force(n0, n1, shape, data, mutual, ratio, device):
+    """Zero, one or a few rows of bytes 0, 1 and 255 (all-zero rows, duplicates, single bytes), any
+    valid mask: the numba and torch paths give brute force's matches and distances."""
+    if device is not None:
+        pytest.importorskip("torch")
+    byte = st.sampled_from([0, 1, 255])
+
+    def make(n):
+        d = np.array(data.draw(st.lists(byte, min_size=n * int(np.prod(shape)), max_size=n * int(np.prod(shape)))),
+                     np.uint8).reshape(n, *shape)
+        valid = np.array(data.draw(st.lists(st.booleans(), min_size=n, max_size=n)), bool)
+        return Features(np.zeros((n, 2)), d, valid)
+
+    f0, f1 = make(n0), make(n1)
+    metric = "hamming" if len(shape) == 1 else "hamming-rot"  # named: bytes 0 and 1 look like a histogram
+    got = match(f0, f1, metric=metric, mutual=mutual, ratio=ratio, device=device)
+    if n0 == 0 or n1 == 0:
+        want, dist = np.full(n0, -1), np.full(n0, np.inf)
+    else:
+        want, dist = brute_force(hamming_matrix(f0.descriptors, f1.descriptors, f0.valid, f1.valid), mutual, ratio)
+    assert np.array_equal(got.matches0, want)
+    assert np.array_equal(got.distances0, dist)

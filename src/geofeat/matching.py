@@ -5,7 +5,8 @@ Metrics (chosen from the descriptor type when ``metric=None``):
 - ``"l2"``: float descriptors (N, D); Euclidean distance via a matrix product (numpy, float64 for
   float64 input, float32 otherwise) of the descriptors less their mean (so that a large common part
   does not cancel their differences away), computed in blocks of queries; one numba pass per block finds
-  the best and second-best target of each query and the best query of each target.
+  the best and second-best target of each query and the best query of each target, comparing squared
+  distances (square roots, in float64, of the two best only).
 - ``"hamming"``: uint8 descriptors (N, B) of B bytes = 8 B bits; distance in bits.
 - ``"hamming-rot"``: uint8 descriptors (N, R, B), R rotated copies of each descriptor (GeoBit:
   R = 16, B = 64). d(i, j) = min over k of Hamming(query i rotation 0, target j rotation k).
@@ -708,9 +709,10 @@ def _hamming_search_torch(d0, d1, valid0, valid1, want_cols, device, block: int 
 
 def _l2_search_torch(d0, d1, valid0, valid1, want_cols):
     """`_l2_search` on torch tensors of one device (the GPU path): the same float32 (float64 for
-    float64 input) distances |a|^2 + |b|^2 - 2 a.b of the descriptors less their valid rows' mean,
-    as one matrix product (TF32 off), the same
-    tie rules (first index, as torch.argmin). Returns numpy arrays like `_l2_search`."""
+    float64 input) squared distances |a|^2 + |b|^2 - 2 a.b of the descriptors less their valid rows'
+    mean, as one matrix product (TF32 off), the same tie rules (first index, as torch.argmin) on the
+    squared distances, and the square roots of the best two in float64 on the host. Returns numpy
+    arrays like `_l2_search`."""
     import torch
 
     dtype = torch.float64 if torch.float64 in (d0.dtype, d1.dtype) else torch.float32
@@ -723,7 +725,10 @@ def _l2_search_torch(d0, d1, valid0, valid1, want_cols):
 
     with no_tf32(cudnn=False):
         ab = a @ b.T
-    dist = ((a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2.0 * ab).clamp_min(0.0).sqrt().double()
+    # squared distances: the order and the ties of the exact ones for whole-number descriptors (a
+    # float32 square root merges neighbours at distances above 2048, and torch's float64 one on the
+    # CPU gave sqrt(32) one unit in the last place low, which flipped the ratio test at 0.8 sqrt(50))
+    dist = ((a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2.0 * ab).clamp_min(0.0)
     inf = torch.tensor(float("inf"), dtype=dist.dtype, device=dist.device)
     dist = torch.where(valid1[None, :] & valid0[:, None], dist, inf)
     j = dist.argmin(1)
@@ -736,16 +741,21 @@ def _l2_search_torch(d0, d1, valid0, valid1, want_cols):
         second = dist.amin(1)
     else:
         second = torch.full_like(bd, float("inf"))
-    return (bd.cpu().numpy(), best_j.cpu().numpy(), second.cpu().numpy(),
-            None if col_j is None else col_j.cpu().numpy())
+
+    def root(x):  # numpy's float64 square root (correctly rounded), as `_l2_search`
+        return np.sqrt(x.cpu().numpy().astype(np.float64))
+
+    return (root(bd), best_j.cpu().numpy(), root(second), None if col_j is None else col_j.cpu().numpy())
 
 
 @njit(parallel=True, cache=True)
 def _l2_block_rows(ab, aa, bb, two, zero, valid0, valid1, keep, dist, best_d, best_j, second_d):
-    """One block of queries: the distances sqrt(max(aa[i] + bb[j] - two * ab[i, j], 0)) in the
+    """One block of queries: the squared distances max(aa[i] + bb[j] - two * ab[i, j], 0) in the
     descriptors' float type (inf where either side is invalid), stored in dist when `keep` (for the
     columns' pass), and per row the first minimum (best_d, best_j; -1 where none is finite) and the
-    minimum of the other entries (second_d).
+    minimum of the other entries (second_d), all squared. The square root is the caller's, in float64:
+    a float32 one maps neighbouring squared distances (exact for whole-number descriptors) of
+    distances above 2048 to one value, a tie that the exact distances do not have.
     `two` and `zero` are 2 and 0 of that type (numba would promote a float32 times a Python
     number to float64)."""
     n, n1 = ab.shape
@@ -757,8 +767,7 @@ def _l2_block_rows(ab, aa, bb, two, zero, valid0, valid1, keep, dist, best_d, be
         if valid0[i]:
             for j in range(n1):
                 if valid1[j]:
-                    d2 = (aa[i] + bb[j]) - two * ab[i, j]
-                    d = np.sqrt(max(d2, zero))
+                    d = max((aa[i] + bb[j]) - two * ab[i, j], zero)
                 else:
                     d = inf
                 if keep:
@@ -810,10 +819,12 @@ def _valid_mean(d0, d1, valid0, valid1) -> np.ndarray:
 def _l2_search(d0, d1, valid0, valid1, want_cols, block: int = 1024):
     """d0 (N0, D), d1 (N1, D) float. Returns best_d, best_j, second_d (N0,), col_j (N1,) or None.
 
-    Distances are sqrt(|a|^2 + |b|^2 - 2 a.b) in float32 (float64 for float64 input) of the
-    descriptors less their mean (`_valid_mean`), the matrix product in blocks of `block` queries;
-    one numba pass per block finds each row's best and second distance, another the columns' best
-    (first row among equals)."""
+    Squared distances are max(|a|^2 + |b|^2 - 2 a.b, 0) in float32 (float64 for float64 input) of
+    the descriptors less their mean (`_valid_mean`), the matrix product in blocks of `block` queries;
+    one numba pass per block finds each row's best and second squared distance, another the columns'
+    best (first row among equals). Only the returned best and second distances get a square root, in
+    float64: whole-number descriptors then give the exact distances, ties and ratio test of brute
+    force (a float32 square root merged squared distances such as 4204753 and 4204754)."""
     dtype = np.float64 if (d0.dtype == np.float64 or d1.dtype == np.float64) else np.float32
     centre = _valid_mean(d0, d1, valid0, valid1).astype(dtype)
     if centre.any():
@@ -841,7 +852,9 @@ def _l2_search(d0, d1, valid0, valid1, want_cols, block: int = 1024):
                        best_d[s : s + block], best_j[s : s + block], second_d[s : s + block])
         if want_cols:
             _l2_block_cols(rows, s, col_best, col_j)
-    return best_d.astype(np.float64), best_j, second_d.astype(np.float64), (col_j if want_cols else None)
+    # square roots in float64 of the squared distances: exact ties stay ties, and no others appear
+    return (np.sqrt(best_d.astype(np.float64)), best_j, np.sqrt(second_d.astype(np.float64)),
+            (col_j if want_cols else None))
 
 
 #: uint8 (N, B) descriptors are taken for a quantised histogram (SIFT stored as uint8, as COLMAP
@@ -945,11 +958,20 @@ def match(
         mutual: keep i -> j only if i is also the nearest neighbour of j among image 0's keypoints
             (under the same distance d(i, j)).
         ratio: Lowe's ratio test: keep i -> j only if d(i, j) < ratio * d(i, second nearest).
-            A match with no second candidate passes.
+            A match with no second candidate passes. The second nearest is the best of the other
+            valid targets, so a tie for the nearest (duplicate targets) fails the test at any ratio.
         device: None: the numba kernels (Hamming) and numpy (L2) on the CPU. A torch device
             ("cuda", "cuda:1", "cpu"): every metric as matrix products there (`_hamming_search_torch`,
             `_l2_search_torch`; the same matches). For descriptors already on the GPU see
             `geofeat.gpu.match_cuda`.
+
+    Ties: the result is brute force's, on every path (numba, numpy, torch; any thread count, chunking
+    or pruning): the nearest target is the lowest index among the valid targets at the smallest
+    distance (``np.argmin`` of the row), and under ``mutual`` the nearest query of target j is the
+    lowest index among the valid queries at its smallest distance (``np.argmin`` of the column).
+    Hamming distances are exact integers; L2 ones are compared squared, which is exact for
+    whole-number descriptors whose squared norms after the centring stay below 2**22 in float32
+    (2**51 in float64), and otherwise rounded as the float32 (float64) matrix product rounds them.
 
     Returns:
         `Matches` with matches0 (N0,) int64 (-1 = no match) and distances0 (N0,) float64 (bits for
