@@ -971,7 +971,10 @@ def match(
     lowest index among the valid queries at its smallest distance (``np.argmin`` of the column).
     Hamming distances are exact integers; L2 ones are compared squared, which is exact for
     whole-number descriptors whose squared norms after the centring stay below 2**22 in float32
-    (2**51 in float64), and otherwise rounded as the float32 (float64) matrix product rounds them.
+    (2**51 in float64), and otherwise rounded as the float32 (float64) matrix product rounds them:
+    two identical non-whole-number descriptors in different blocks of 1024 queries can then differ
+    in the last bit, so under ``mutual`` the later copy may win a column (computing each distinct
+    descriptor once fixed that, and made L2 matching 2.5 times slower: not done).
 
     Returns:
         `Matches` with matches0 (N0,) int64 (-1 = no match) and distances0 (N0,) float64 (bits for
