@@ -129,3 +129,31 @@ def test_matches_without_ground_truth_are_drawn_apart_from_wrong_ones_and_counte
     assert judged_matches(truth, "frame-001", tgt, matches0).tolist() == [True, False]
     assert correct_matches(truth, "frame-001", ref, tgt, matches0).tolist() == [True, False]
     assert judged_matches(truth, "frame-001", tgt, np.array([-1, 0])).tolist() == [False, True]
+
+
+def test_report_plots_leave_the_callers_matplotlib_backend_alone(tmp_path):
+    """bench's curves, retrieval's Acc@K plot and train's loss plot switched matplotlib to "Agg"
+    (matplotlib.use), so a notebook that ran a benchmark lost its inline plots. They now draw on a
+    Figure made without pyplot; each writes a PNG."""
+    import cv2
+    import matplotlib
+
+    from geofeat.apps.retrieval import _plot as plot_retrieval
+    from geofeat.bench.report import plot_curves
+    from geofeat.train.loop import _plot as plot_training
+
+    before = matplotlib.get_backend()
+    matplotlib.use("pdf")  # a backend none of them would pick
+    try:
+        plot_training({"epoch": [1, 2], "loss": [0.5, 0.4], "val_ms": [0.3, 0.4]}, tmp_path / "train.png")
+        plot_retrieval({"geopatch": np.array([0.9, 0.8, 0.7]), "sift": np.array([0.8, 0.7, 0.6])},
+                       tmp_path / "acc.png")
+        rows = [{"sequence": "rotate-0", "descriptor": "geopatch", "detector": "geokey", "angle_deg": angle,
+                 "scale": float("nan"), "ms": ms} for angle, ms in ((10.0, 0.6), (90.0, 0.5))]
+        assert [p.name for p in plot_curves(rows, tmp_path)] == ["ms_vs_rotate.png"]
+        assert matplotlib.get_backend() == "pdf"
+    finally:
+        matplotlib.use(before)
+    for name in ("train.png", "acc.png", "ms_vs_rotate.png"):
+        image = cv2.imread(str(tmp_path / name))
+        assert image is not None and image.shape[0] > 100 and image.std() > 5

@@ -14,6 +14,16 @@ from .inputs import check_whole
 CORRECT, WRONG, UNJUDGED = (0, 200, 0), (0, 0, 255), (255, 120, 0)
 
 
+def plot_figure(figsize: tuple[float, float]):
+    """(fig, ax): a matplotlib Figure of `figsize` inches with one axes, made without pyplot, so no
+    backend is chosen or switched (a notebook's or a GUI application's stays as it was) and nothing
+    needs closing; `fig.savefig` writes it."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots()
+
+
 def put_label(canvas: np.ndarray, text: str, origin: tuple[int, int] = (6, 6), scale: float = 0.5,
               colour=(255, 255, 255)) -> tuple[int, int, int, int]:
     """Write one line of `text` on `canvas` (an (H, W, 3) uint8 BGR image, changed in place) in `colour`

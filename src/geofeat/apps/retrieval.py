@@ -543,12 +543,9 @@ def _top6_picture(db: RetrievalDatabase, results: dict[str, tuple[np.ndarray, np
 
 
 def _plot(acc: dict[str, np.ndarray], path: Path) -> None:
-    import matplotlib
+    from ..viz import plot_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(5.5, 4))
+    fig, ax = plot_figure((5.5, 4))
     styles = [("o", "-", 9), ("s", "--", 7), ("^", ":", 6), ("D", "-.", 4), ("v", "-", 4), ("x", "--", 6)]
     for i, (name, a) in enumerate(acc.items()):  # distinct markers and sizes keep equal curves visible
         marker, line, size = styles[i % len(styles)]
@@ -561,7 +558,6 @@ def _plot(acc: dict[str, np.ndarray], path: Path) -> None:
     ax.set_title("Object retrieval, bag of visual words")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def match_counts(features0: Features, features1: Features, ratio: float | None = RERANK_RATIO) -> tuple[int, int]:

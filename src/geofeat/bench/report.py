@@ -179,10 +179,7 @@ def plot_curves(rows: list[dict], path: str | Path, group_of=sequence_group) -> 
 
     One line per descriptor; when the rows come from several detectors, one line per
     (detector, descriptor) pair, with one line style per detector."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from ..viz import plot_figure
 
     written = []
     styles = ("o-", "s--", "^:", "d-.")
@@ -191,7 +188,7 @@ def plot_curves(rows: list[dict], path: str | Path, group_of=sequence_group) -> 
         if not series:
             continue
         detectors = list(dict.fromkeys(lab.split(" + ")[0] for lab in series if " + " in lab))
-        fig, ax = plt.subplots(figsize=(6, 4))
+        fig, ax = plot_figure((6, 4))
         descriptors = list(dict.fromkeys(lab.split(" + ")[-1] for lab in series))
         for lab, (x, y) in series.items():
             style = styles[detectors.index(lab.split(" + ")[0]) % len(styles)] if " + " in lab else "o-"
@@ -207,7 +204,6 @@ def plot_curves(rows: list[dict], path: str | Path, group_of=sequence_group) -> 
         out = Path(path) / f"ms_vs_{kind}.png"
         with atomic_file(out) as tmp:  # whole or not at all
             fig.savefig(tmp, dpi=100, format="png")
-        plt.close(fig)
         written.append(out)
     return written
 

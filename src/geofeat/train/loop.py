@@ -347,13 +347,11 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
 def _figure(history: dict):
     """The matplotlib figure of `_plot`: training loss (left axis) and validation MS (right axis,
     0-1, labelled with what it measures, `validation_measure`) per epoch; without validation pairs (MS all NaN) the right axis says so instead of staying empty."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import matplotlib.ticker
 
-    fig, ax = plt.subplots(figsize=(6, 3.5))
+    from ..viz import plot_figure
+
+    fig, ax = plot_figure((6, 3.5))
     ax.plot(history["epoch"], history["loss"], "o-", color="tab:blue", label="training loss")
     ax.set_xlabel("epoch")
     ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))  # no epoch 1.2
@@ -373,8 +371,4 @@ def _figure(history: dict):
 
 def _plot(history: dict, path: Path) -> None:
     """Write `_figure(history)` as a PNG at `path` (whatever its name's extension)."""
-    import matplotlib.pyplot as plt
-
-    fig = _figure(history)
-    fig.savefig(path, dpi=100, format="png")
-    plt.close(fig)
+    _figure(history).savefig(path, dpi=100, format="png")
