@@ -70,8 +70,9 @@ def sequence_digest(folder: str | Path) -> str:
 LAYOUT = (f"a sequence folder holds <name>{RGB_SUFFIX} (8-bit colour), <name>{DEPTH_SUFFIX} (16-bit, "
           "millimetres unless geofeat.json gives depth_scale) and intrinsics.xml; geofeat.write_frame and "
           "geofeat.write_intrinsics write them from arrays")
-#: The file names a K in memory could have been saved under, beside a missing intrinsics.xml.
-_K_FILES = ("intrinsics", "camera", "camera_matrix", "K", "calib", "calibration")
+#: The file names (lower-case, without extension) a K in memory could have been saved under, beside a
+#: missing intrinsics.xml.
+_K_STEMS = frozenset(("intrinsics", "camera", "camera_matrix", "k", "calib", "calibration"))
 _INTRINSICS_HINT = ("geofeat reads OpenCV FileStorage XML or YAML with the 3x3 matrix under the node 'intrinsics'; "
                     "for a K you have as numbers (np.loadtxt, np.load), write it with geofeat.write_intrinsics(path, K), "
                     "or build the frame with geofeat.RGBDFrame(image, depth_m, K)")
@@ -127,10 +128,11 @@ def _existing(path: str | Path, what: str) -> Path:
 
 def read_intrinsics(path: str | Path) -> np.ndarray:
     """Read the (3, 3) camera matrix from an OpenCV FileStorage `intrinsics.xml` (node `intrinsics`)."""
-    if isinstance(path, (str, os.PathLike)) and not Path(path).is_file():
-        others = [p for p in Path(path).parent.glob("*") if p.is_file() and not p.name.startswith(".")
-                  and p.stem.lower() in {n.lower() for n in _K_FILES} and p != Path(path)] if Path(path).parent.is_dir() else []
-        if others:  # a K saved as text, NumPy or YAML beside the intrinsics.xml a sequence needs
+    if isinstance(path, (str, os.PathLike)) and not Path(path).is_file() and Path(path).parent.is_dir():
+        # a K saved as text, NumPy or YAML beside the intrinsics.xml a sequence needs
+        others = [p for p in Path(path).parent.iterdir()
+                  if p.is_file() and not p.name.startswith(".") and p.stem.lower() in _K_STEMS]
+        if others:
             raise ValueError(f"intrinsics_path: file not found: {path} (found {_listing(others)}); {_INTRINSICS_HINT}")
     path = _existing(path, "intrinsics_path")
     try:  # a malformed or truncated file makes OpenCV raise cv2.error (or a SystemError that says nothing)
