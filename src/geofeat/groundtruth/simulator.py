@@ -13,8 +13,9 @@ Because the cloth is isometric (up to the constraint tolerance), the geodesic di
 two surface points is the Euclidean distance of their (u, v).
 
 Mapping a point p of frame i to frame j:
- 1. the (u, v) of p: the triangle seen at the nearest pixel centre is intersected with the ray
-    through p (exact sub-pixel surface coordinate); p is off-surface if that pixel is background;
+ 1. the (u, v) of p: where the ray through p meets the cloth (exact sub-pixel surface coordinate),
+    found by walking from the triangle seen at the nearest pixel centre to the triangle the ray
+    hits; p is off-surface if that pixel is background;
  2. (u, v) -> 3D point on the same triangle of the piecewise-linear surface in frame j -> pinhole
     projection;
  3. visible in j if the projection lands in the image, in front of the camera, and the surface
@@ -93,20 +94,20 @@ def _pixel_lookup(uv_map: np.ndarray, points: np.ndarray):
     return uv, inside & (uv[:, 0] >= 0)
 
 
-def surface_coordinates(truth: FrameTruth, K: np.ndarray, spacing: float, points: np.ndarray):
-    """Exact (u, v) in metres of sub-pixel points (N, 2) of a frame.
+#: Triangles visited at most when walking from the triangle seen at the nearest pixel centre to the
+#: one the ray through a sub-pixel point hits (`surface_coordinates`).
+MAX_WALK = 8
+
+
+def _ray_in_triangle(vertices: np.ndarray, ray: np.ndarray, r, c, upper):
+    """Intersect rays (N, 3) through the camera centre with the planes of grid triangles (r, c, upper).
 
     Returns:
-        uv (N, 2) float64 metres (-1 where off-surface), on_surface (N,) bool.
+        fu, fv (N,) the intersection's fractional position in cell (r, c) (outside [0, 1] or on the
+        wrong side of the diagonal when the ray misses the triangle), good (N,) bool: the ray is not
+        parallel to the plane and the triangle is not degenerate.
     """
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    uv, ok = _pixel_lookup(truth.uv, points)
-    if not ok.any():
-        return uv, ok
-    rows, cols = truth.vertices.shape[:2]
-    r, c, fu, fv, upper = _triangles_of(uv[ok], rows, cols, spacing)
-    a, b, cc = _triangle_vertices(truth.vertices, r, c, upper)
-    ray = np.stack([(points[ok, 0] - K[0, 2]) / K[0, 0], (points[ok, 1] - K[1, 2]) / K[1, 1], np.ones(ok.sum())], axis=1)
+    a, b, cc = _triangle_vertices(vertices, r, c, upper)
     e1, e2 = b - a, cc - b
     n = np.cross(e1, e2)
     denom = np.einsum("ij,ij->i", n, ray)
@@ -124,14 +125,52 @@ def surface_coordinates(truth: FrameTruth, K: np.ndarray, spacing: float, points
     det = np.where(good, det, 1.0)
     s = (g22 * h1 - g12 * h2) / det
     q = (g11 * h2 - g12 * h1) / det
-    fu_new = np.where(upper, s, q)
-    fv_new = np.where(upper, q, s)
-    refined = np.stack([(c + fu_new) * spacing, (r + fv_new) * spacing], axis=1)
-    # keep the pixel-centre value where the ray is degenerate or the refinement jumps (silhouettes)
-    jump = np.linalg.norm(refined - uv[ok], axis=1) > 2 * spacing
-    keep = ~good | jump
-    refined[keep] = uv[ok][keep]
-    uv[ok] = refined
+    return np.where(upper, s, q), np.where(upper, q, s), good
+
+
+def surface_coordinates(truth: FrameTruth, K: np.ndarray, spacing: float, points: np.ndarray):
+    """Exact (u, v) in metres of sub-pixel points (N, 2) of a frame: where the ray through the point
+    meets the rendered (piecewise-flat) cloth.
+
+    The triangle seen at the nearest pixel centre is a start: when the ray meets its plane outside
+    it (the point lies over a neighbouring triangle, common where triangles are a few pixels wide),
+    the search walks to the triangle holding that intersection, up to `MAX_WALK` triangles.
+
+    Returns:
+        uv (N, 2) float64 metres (-1 where off-surface), on_surface (N,) bool.
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    uv, ok = _pixel_lookup(truth.uv, points)
+    if not ok.any():
+        return uv, ok
+    rows, cols = truth.vertices.shape[:2]
+    seed = uv[ok]
+    ray = np.stack([(points[ok, 0] - K[0, 2]) / K[0, 0], (points[ok, 1] - K[1, 2]) / K[1, 1], np.ones(ok.sum())], axis=1)
+    # fallback where no visited triangle holds the intersection (the ray passes a silhouette or the
+    # cloth border): the intersection with the seed triangle's plane, or the pixel-centre value
+    # where that jumps (it is then an extrapolation far off the triangle)
+    r, c, _, _, upper = _triangles_of(seed, rows, cols, spacing)
+    fu, fv, good = _ray_in_triangle(truth.vertices, ray, r, c, upper)
+    result = np.stack([(c + fu) * spacing, (r + fv) * spacing], axis=1)
+    keep = ~good | (np.linalg.norm(result - seed, axis=1) > 2 * spacing)
+    result[keep] = seed[keep]
+    current, todo = seed.copy(), np.arange(len(seed))
+    extent = np.array([cols - 1, rows - 1]) * spacing
+    for _ in range(MAX_WALK):
+        r, c, _, _, upper = _triangles_of(current[todo], rows, cols, spacing)
+        fu, fv, good = _ray_in_triangle(truth.vertices, ray[todo], r, c, upper)
+        hit = np.stack([(c + fu) * spacing, (r + fv) * spacing], axis=1)
+        # inside the triangle: 0 <= fv <= fu <= 1 (upper) or 0 <= fu <= fv <= 1 (lower), with slack
+        lo, hi = np.where(upper, fv, fu), np.where(upper, fu, fv)
+        inside = good & (lo >= -1e-9) & (hi <= 1 + 1e-9) & (np.where(upper, fu - fv, fv - fu) >= -1e-9)
+        result[todo[inside]] = hit[inside]
+        # walk on to the triangle holding the intersection, unless it is off the cloth
+        go = ~inside & good & (hit >= 0).all(axis=1) & (hit <= extent).all(axis=1)
+        todo = todo[go]
+        current[todo] = hit[go]
+        if not len(todo):
+            break
+    uv[ok] = result
     return uv, ok
 
 
