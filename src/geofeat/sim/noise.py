@@ -72,7 +72,8 @@ def motion_blur(color: np.ndarray, length_px: float, angle: float) -> np.ndarray
         return color
     size = (int(np.ceil(length_px)) | 1) + 2  # odd, with a margin for the splat
     c, h = (size - 1) // 2, (length_px - 1) / 2.0
-    t = (np.arange(64) + 0.5) / 64 * 2 - 1  # symmetric about 0 in (-1, 1)
+    samples = max(64, 4 * size)  # well under a pixel apart along the segment
+    t = (np.arange(samples) + 0.5) / samples * 2 - 1  # symmetric about 0 in (-1, 1)
     x, y = c + t * h * np.cos(angle), c + t * h * np.sin(angle)
     x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
     fx, fy = x - x0, y - y0
