@@ -58,3 +58,63 @@ def test_pyproject_version_is_the_package_version():
     assert re.search(r'^version = "([^"]+)"', text, re.M).group(1) == geofeat.__version__
 
 
+# ---------------------------------------------------------------- the wheel and the sdist
+@pytest.fixture(scope="module")
+def dists(tmp_path_factory):
+    """The wheel and sdist that setuptools builds from the files git would commit (tracked, or
+    untracked and not ignored), in a copy of the tree: nothing is written into the checkout."""
+    setuptools = pytest.importorskip("setuptools", minversion="77")  # pyproject's build-system
+    assert setuptools
+    listed = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], cwd=ROOT,
+                            capture_output=True)
+    if listed.returncode != 0:
+        pytest.skip("needs the git checkout")
+    tree, out = tmp_path_factory.mktemp("tree"), tmp_path_factory.mktemp("dist")
+    for name in filter(None, listed.stdout.decode().split("\0")):
+        if (ROOT / name).is_file():
+            (tree / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(ROOT / name, tree / name)
+    # (build_meta rewrites sys.argv: the folder is read first)
+    code = "import sys; from setuptools import build_meta as b; d = sys.argv[1]; b.build_wheel(d); b.build_sdist(d)"
+    run = subprocess.run([sys.executable, "-c", code, str(out)], cwd=tree, capture_output=True, text=True,
+                         timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    (wheel,), (sdist,) = out.glob("*.whl"), out.glob("*.tar.gz")
+    with zipfile.ZipFile(wheel) as z:
+        wheel_names = z.namelist()
+        entry_points = z.read(next(n for n in wheel_names if n.endswith(".dist-info/entry_points.txt"))).decode()
+    with tarfile.open(sdist) as t:
+        sdist_names = [m.name.split("/", 1)[1] for m in t.getmembers() if m.isfile()]
+    return {"wheel": wheel_names, "entry_points": entry_points, "sdist": sdist_names,
+            "tree": sorted(p.relative_to(tree / "src").as_posix() for p in (tree / "src" / "geofeat").rglob("*")
+                           if p.is_file())}
+
+
+def test_wheel_ships_every_module_and_data_file_and_nothing_else(dists):
+    names = set(dists["wheel"])
+    package = {n for n in names if n.startswith("geofeat/")}
+    assert package == set(dists["tree"])  # every module and data file of src/geofeat, nothing more
+    for name in DATA_FILES:
+        assert f"geofeat/data/{name}" in names
+    assert len([n for n in names if n.startswith("geofeat/data/textures/") and n.endswith(".jpg")]) >= 10
+    assert "geofeat/__main__.py" in names and "geofeat/cli/__main__.py" in names
+    shipped = [n for n in names if not n.startswith("geofeat-")]
+    assert not [n for n in shipped if not n.startswith("geofeat/")]  # no tests/, benchmarks/, docs/
+    assert not [n for n in names if "__pycache__" in n or n.endswith((".pyc", ".nbi", ".nbc"))]
+    assert re.search(r"^geofeat = geofeat\.cli:main$", dists["entry_points"], re.M)
+
+
+def test_sdist_builds_a_complete_package_and_no_test_that_cannot_import(dists):
+    """The sdist carried tests/test_*.py without the helper modules they import (surfaces.py,
+    sheets.py): a test suite that failed at collection."""
+    names = set(dists["sdist"])
+    assert {f"src/{n}" for n in dists["tree"]} <= names
+    assert {"pyproject.toml", "README.md", "LICENSE", "PKG-INFO"} <= names
+    local = {p.stem for p in (ROOT / "tests").glob("*.py")}
+    for name in sorted(n for n in names if n.startswith("tests/") and n.endswith(".py")):
+        text = (ROOT / name).read_text()
+        imported = set(re.findall(r"^\s*(?:from|import) (\w+)", text, re.M)) & local
+        missing = sorted(m for m in imported if f"tests/{m}.py" not in names)
+        assert not missing, f"{name} imports {missing}, which the sdist lacks"
+
+
