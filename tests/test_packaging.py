@@ -118,3 +118,34 @@ def test_sdist_builds_a_complete_package_and_no_test_that_cannot_import(dists):
         assert not missing, f"{name} imports {missing}, which the sdist lacks"
 
 
+# ---------------------------------------------------------------- optional packages missing
+@pytest.fixture
+def no_onnxruntime(monkeypatch):
+    from geofeat.descriptors import geopatch
+    from geofeat.descriptors.geopatch_onnx import BACKEND_ENV
+
+    monkeypatch.setitem(sys.modules, "onnxruntime", None)  # import fails, find_spec says None
+    monkeypatch.delenv(BACKEND_ENV, raising=False)
+    monkeypatch.setattr(geopatch, "_warned_no_onnxruntime", False, raising=False)
+    return geopatch
+
+
+def test_without_onnxruntime_the_default_falls_back_to_torch_and_says_so_once(no_onnxruntime):
+    """Without onnxruntime the shipped weights silently ran on torch (descriptors differing from the
+    default int8 backend's, several times slower)."""
+    with pytest.warns(RuntimeWarning, match="onnxruntime is not installed.*run on torch"):
+        assert no_onnxruntime.resolve_backend(None, None, "cpu") == "torch"
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert no_onnxruntime.resolve_backend(None, None, "cpu") == "torch"
+        assert no_onnxruntime.resolve_backend("torch", None, "cpu") == "torch"
+
+
+@pytest.mark.parametrize("backend", ["onnx", "onnx-int8"])
+def test_onnx_backend_without_onnxruntime_names_the_package(no_onnxruntime, backend):
+    """backend='onnx-int8' without onnxruntime was a ModuleNotFoundError from deep inside (a traceback
+    from the command line), where a missing openvino is a one-line ValueError."""
+    with pytest.raises(ValueError, match=f"backend: {backend} needs the onnxruntime package"):
+        no_onnxruntime.GeoPatch(backend=backend)
