@@ -149,3 +149,23 @@ def test_onnx_backend_without_onnxruntime_names_the_package(no_onnxruntime, back
     from the command line), where a missing openvino is a one-line ValueError."""
     with pytest.raises(ValueError, match=f"backend: {backend} needs the onnxruntime package"):
         no_onnxruntime.GeoPatch(backend=backend)
+
+
+def test_bench_scheduler_without_dask_is_one_error_before_anything_is_written(tmp_path, monkeypatch, capsys):
+    """`geofeat bench --scheduler ADDR` without dask wrote config.json and results.csv, then died in a
+    ModuleNotFoundError traceback."""
+    from geofeat.cli import main
+    from geofeat.io import demo_data_dir
+
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    for name in ("cloud_1-rgb.png", "cloud_1-depth.png", "intrinsics.xml"):
+        shutil.copy(demo_data_dir() / name, seq / name)
+    shutil.copy(seq / "cloud_1-rgb.png", seq / "cloud_2-rgb.png")
+    shutil.copy(seq / "cloud_1-depth.png", seq / "cloud_2-depth.png")
+    monkeypatch.setitem(sys.modules, "dask", None)
+    monkeypatch.setitem(sys.modules, "dask.distributed", None)
+    out = tmp_path / "out"
+    assert main(["bench", str(seq), "--descriptors", "orb", "--scheduler", "tcp://127.0.0.1:9", "--out", str(out)]) == 2
+    assert "geofeat[dask]" in capsys.readouterr().err
+    assert not out.exists()
