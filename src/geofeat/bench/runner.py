@@ -415,6 +415,12 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
     `out` without results.csv needs `overwrite`; files geofeat did not write are never replaced. Sequence names must be unique (results are keyed by them). Ctrl-C stops the
     run (KeyboardInterrupt) and leaves the finished rows in place. Returns the csv path and the names of failed sequences (with
     reasons printed)."""
+    if scheduler:  # before any folder is written: a missing optional package is bad input, not a traceback
+        try:
+            import dask.distributed  # noqa: F401
+        except ImportError as error:
+            raise ValueError(f"scheduler: a Dask scheduler needs dask[distributed] (pip install 'geofeat[dask]'): "
+                             f"{error}") from None
     out = Path(out)
     csv_path = out / "results.csv"
     folders = [str(f) for f in find_sequences(datasets, unique_names=True)]

@@ -18,7 +18,10 @@ COMMANDS = ("demo", "extract", "match", "bench", "train", "train_detector", "ret
 
 def build_parser() -> argparse.ArgumentParser:
     """The `geofeat` parser with every command of `COMMANDS` registered."""
+    from .. import __version__
+
     parser = argparse.ArgumentParser(prog="geofeat", description="Geodesic-aware local features on RGB-D images.")
+    parser.add_argument("--version", action="version", version=f"geofeat {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     for name in COMMANDS:
         import_module(f".{name}", __name__).add_parser(sub)

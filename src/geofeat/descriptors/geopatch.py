@@ -41,6 +41,7 @@ from typing import Any
 
 import importlib.util
 import os
+import warnings
 
 import numpy as np
 
@@ -100,6 +101,24 @@ def _cuda_visible() -> bool:
     return torch.cuda.is_available()
 
 
+_warned_no_onnxruntime = False
+
+
+def _warn_no_onnxruntime() -> None:
+    """Say once per process that the shipped weights run on torch because onnxruntime (a declared
+    dependency) is missing: the default backend's descriptors differ from torch's by the int8 rounding."""
+    global _warned_no_onnxruntime
+    if _warned_no_onnxruntime:
+        return
+    _warned_no_onnxruntime = True
+    from .geopatch_onnx import BACKEND_ENV
+
+    warnings.warn(f"GeoPatch: onnxruntime is not installed, so the shipped weights run on torch instead of the "
+                  f"default {DEFAULT_BACKEND} backend (slower; descriptors within the int8 rounding of the "
+                  f"default's); pip install onnxruntime, or set {BACKEND_ENV}=torch to choose torch",
+                  RuntimeWarning, stacklevel=3)
+
+
 def resolve_backend(backend: str | None, weights: str | Path | None, device: str | None) -> str:
     """The backend GeoPatch uses: `backend` if given, else $GEOFEAT_GEOPATCH_BACKEND, else torch
     on a CUDA device, for user .pt weights, or without onnxruntime; "onnx" for .onnx weights;
@@ -119,7 +138,10 @@ def resolve_backend(backend: str | None, weights: str | Path | None, device: str
         return "onnx"
     if (device is not None and str(device).split(":")[0] != "cpu") or (device is None and _cuda_visible()):
         return "torch"
-    if weights is not None or not onnx_available():
+    if weights is not None:
+        return "torch"
+    if not onnx_available():
+        _warn_no_onnxruntime()
         return "torch"
     from .geopatch_openvino import cpu_has_bf16, openvino_available
 
@@ -212,7 +234,8 @@ class GeoPatch:
         self.batch_size = int(DEFAULT_BATCH[self.backend] if batch_size is None else batch_size)
 
     def _onnx_session(self, weights):
-        from .geopatch_onnx import ONNX_INT8_NAME, ONNX_NAME, OnnxGeoPatch, data_path, export_checkpoint
+        from .geopatch_onnx import (ONNX_INT8_NAME, ONNX_NAME, OnnxGeoPatch, data_path, export_checkpoint,
+                                    onnx_available)
         from .geopatch_openvino import OpenVinoGeoPatch, openvino_available
 
         int8 = self.backend in ("onnx-int8", "openvino-int8")
@@ -222,6 +245,9 @@ class GeoPatch:
                                  "or use backend='onnx-int8'")
             runtime = partial(OpenVinoGeoPatch, bf16=self.backend == "openvino-bf16")
         else:
+            if not onnx_available():
+                raise ValueError(f"backend: {self.backend} needs the onnxruntime package (pip install onnxruntime); "
+                                 "or use backend='torch'")
             runtime = OnnxGeoPatch
         if weights is None:
             path = data_path(ONNX_INT8_NAME if int8 else ONNX_NAME)
