@@ -107,3 +107,15 @@ def test_texture_splits_are_disjoint_and_deterministic(scripts):
     assert len(val) == sd.N_VAL_TEXTURES and test
     assert not train & val and not train & test and not val & test
     assert [p.stem for p in held] == sorted(p.stem for p in held)  # name order: the same split every run
+
+
+def test_simulate_says_its_default_textures_are_trained_on():
+    """`geofeat simulate` draws, by default, the textures the shipped weights were trained on; its help
+    said only "a packaged photo", and a user's "held-out" test made that way was not held out."""
+    import argparse
+
+    from geofeat.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    text = " ".join(sub.choices["simulate"].format_help().split())
+    assert "trained on" in text and "held-out" in text and "--texture-dir" in text
