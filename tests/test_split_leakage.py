@@ -1,5 +1,5 @@
 """Held-out splits stay held out: no training or validation scene replays a test scene (seeds), the
-texture splits are disjoint."""
+texture splits are disjoint, and `geofeat retrieval` chooses K on other objects than it tests on."""
 
 from __future__ import annotations
 
@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from geofeat.apps.retrieval import split_queries
 
 
 BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
@@ -119,3 +121,19 @@ def test_simulate_says_its_default_textures_are_trained_on():
     sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
     text = " ".join(sub.choices["simulate"].format_help().split())
     assert "trained on" in text and "held-out" in text and "--texture-dir" in text
+
+
+def test_retrieval_validation_and_test_halves_hold_different_objects():
+    """K was chosen on a random half of the queries: with 3 sequences per object, a test query's own
+    object almost always had a query in the validation half. Whole classes are split now."""
+    classes = np.repeat([f"object-{i:02d}" for i in range(20)], 3)  # 60 queries, 3 per object
+    for seed in range(5):
+        val, test = split_queries(len(classes), seed, groups=classes)
+        assert sorted(np.concatenate([val, test]).tolist()) == list(range(60))
+        assert not set(classes[val]) & set(classes[test])
+        assert len(set(classes[val])) == 10 and len(set(classes[test])) == 10
+    one = np.array(["cloth", "cloth"])  # a single class: split query by query (nothing else to split by)
+    val, test = split_queries(2, 0, groups=one)
+    assert len(val) == 1 and len(test) == 1
+    with pytest.raises(ValueError, match="groups"):
+        split_queries(3, 0, groups=["a", "b"])
