@@ -57,7 +57,7 @@ def cached_retrieval(cache):
     with open(cache, "rb") as fh:
         db = pickle.load(fh)
     queries, exclude, _ = eligible_queries(db)
-    val, test = split_queries(len(queries), 0)
+    val, test = split_queries(len(queries), 0, groups=np.asarray(db.classes)[queries])
     return db, queries, exclude, val, test, np.asarray(db.classes)
 
 

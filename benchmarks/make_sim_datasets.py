@@ -23,10 +23,30 @@ import numpy as np
 from tqdm import tqdm
 
 from geofeat.sim import simulate_sequence
-from sim_difficulty import N_VAL_TEXTURES
+from sim_difficulty import N_VAL_TEXTURES, TEST_SEEDS
 from geofeat.sim.textures import list_textures, packaged_texture_dir
 
 SCENARIOS = ("deform", "rotate", "scale")
+#: Each split's seeds start at --seed plus its offset; a split holds at most SPLIT_BLOCK sequences,
+#: so that the three splits of one run never share a seed.
+SPLIT_OFFSET = {"train": 0, "val": 1000, "test": 2000}
+SPLIT_BLOCK = 1000
+
+
+def split_seeds(split: str, count: int, seed0: int) -> range:
+    """Seeds of the `count` sequences of `split` (train, val or test) for --seed `seed0`:
+    seed0 + SPLIT_OFFSET[split] + i. ValueError when count exceeds SPLIT_BLOCK (the split would run
+    into the next one's seeds) or when a train or val seed is one of sim_difficulty.py's reserved
+    TEST_SEEDS (that sequence would replay a test scene: same cloth, wind, lights and camera path)."""
+    if count > SPLIT_BLOCK:
+        raise ValueError(f"--{split} {count}: at most {SPLIT_BLOCK} sequences per split (the next split's seeds "
+                         f"start {SPLIT_BLOCK} later)")
+    seeds = range(seed0 + SPLIT_OFFSET[split], seed0 + SPLIT_OFFSET[split] + count)
+    if split != "test" and count and seeds.start < TEST_SEEDS.stop and TEST_SEEDS.start < seeds.stop:
+        raise ValueError(f"--seed {seed0}: the {split} seeds {seeds.start}-{seeds.stop - 1} meet the seeds reserved "
+                         f"for test scenes, {TEST_SEEDS.start}-{TEST_SEEDS.stop - 1} (sim_difficulty.py); pick a "
+                         "--seed whose train and val blocks avoid them")
+    return seeds
 
 
 def heldout_textures(folder: Path) -> list[Path]:
@@ -37,8 +57,11 @@ def heldout_textures(folder: Path) -> list[Path]:
 
 def make(split: str, count: int, out: Path, frames: int, seed0: int, textures: list[Path] | None,
          presets: tuple[str, ...] = ("mild",)) -> None:
+    """Simulate the `count` sequences of `split` under out/split/, seeds `split_seeds(split, count, seed0)`
+    (the first seed also shuffles the packaged photographs of a training split)."""
+    seeds = split_seeds(split, count, seed0)
     packaged = list_textures(packaged_texture_dir())
-    photos = [packaged[k] for k in np.random.default_rng(seed0).permutation(len(packaged))]
+    photos = [packaged[k] for k in np.random.default_rng(seeds.start).permutation(len(packaged))]
     for i in tqdm(range(count), desc=split, unit="seq"):
         preset = presets[(i // 3) % len(presets)]
         folder = out / split / f"{split}{i:03d}-{preset}-{SCENARIOS[i % 3]}"
@@ -50,7 +73,7 @@ def make(split: str, count: int, out: Path, frames: int, seed0: int, textures: l
             kwargs = dict(texture="procedural" if i % 8 == 3 else "fabric")
         else:  # every packaged photograph in turn, in an order shuffled by the first seed
             kwargs = dict(texture=str(photos[(i - i // 4) % len(photos)]))
-        simulate_sequence(folder, scenario=SCENARIOS[i % 3], n_frames=frames, seed=seed0 + i, preset=preset,
+        simulate_sequence(folder, scenario=SCENARIOS[i % 3], n_frames=frames, seed=seeds[i], preset=preset,
                           kinect_noise=bool(i % 2), progress=False, **kwargs)
 
 
@@ -63,7 +86,8 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=8)
     parser.add_argument("--seed", type=int, default=1000,
                         help="first training seed (val starts at seed + 1000, test at seed + 2000); "
-                             "a new seed gives new scenes")
+                             "a new seed gives new scenes; train and val seeds may not meet the test seeds "
+                             "5000-5999 that sim_difficulty.py reserves")
     shared = next((p / "shared/data/textures" for p in Path(__file__).resolve().parents
                    if (p / "shared/data/textures").is_dir()), Path("shared/data/textures"))
     parser.add_argument("--heldout-dir", type=Path, default=shared)
@@ -74,9 +98,14 @@ def main() -> None:
     held = heldout_textures(args.heldout_dir)
     if len(held) <= N_VAL_TEXTURES:
         raise SystemExit(f"need more than {N_VAL_TEXTURES} held-out textures in {args.heldout_dir}, found {len(held)}")
+    try:  # every split's seeds checked before the first simulation
+        for split in SPLIT_OFFSET:
+            split_seeds(split, getattr(args, split), args.seed)
+    except ValueError as error:
+        raise SystemExit(str(error)) from None
     make("train", args.train, args.out, args.frames, args.seed, None, tuple(args.train_presets.split(",")))
-    make("val", args.val, args.out, args.frames, args.seed + 1000, held[:N_VAL_TEXTURES], tuple(args.val_presets.split(",")))
-    make("test", args.test, args.out, args.frames, args.seed + 2000, held[N_VAL_TEXTURES:], (args.test_preset,))
+    make("val", args.val, args.out, args.frames, args.seed, held[:N_VAL_TEXTURES], tuple(args.val_presets.split(",")))
+    make("test", args.test, args.out, args.frames, args.seed, held[N_VAL_TEXTURES:], (args.test_preset,))
     print(f"datasets in {args.out}: train {args.train}, val {args.val}, test {args.test} sequences of {args.frames} frames")
 
 

@@ -90,7 +90,7 @@ def main() -> None:
         chance = ((fam[None, :] == fam[queries][:, None]) & other).sum(1) / other.sum(1)
         print(f"{name}: wrong results in the top 10: {wrong.sum()} ({wrong.mean():.1%}); of them of the query's "
               f"fabric family {(wrong & same).sum() / max(wrong.sum(), 1):.2f} (chance {chance.mean():.3f})")
-    val, test = split_queries(len(per_query[names[0]]), 0)
+    val, test = split_queries(len(per_query[names[0]]), 0, groups=cls[queries])
     for label, idx in (("test half", test), ("validation half", val), ("all", np.arange(len(per_query[names[0]])))):
         cells = ", ".join(f"{n} {per_query[n][idx].mean():.3f}" for n in names)
         diffs = []

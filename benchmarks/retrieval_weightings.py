@@ -49,7 +49,7 @@ def load_or_describe(datasets: list[str], classes: str | None, descriptors: tupl
 def score(db: RetrievalDatabase, name: str, words: list[int], seed: int, n_samples: int) -> list[dict]:
     """One row per (K, weighting): mean Acc@1-10 on the validation and the test half."""
     queries, exclude, _ = eligible_queries(db)
-    val, test = split_queries(len(queries), 0)
+    val, test = split_queries(len(queries), 0, groups=np.asarray(db.classes)[queries])
     features = db.features[name]
     sample = sample_descriptors(features, n_samples, seed)
     D = sample_distances(sample)

@@ -49,6 +49,26 @@ SHARED_TEXTURES = next((p / "shared/data/textures" for p in Path(__file__).resol
 #: The first held-out photographs texture the validation sequences (make_sim_datasets.py --val 4).
 N_VAL_TEXTURES = 4
 
+#: Seeds reserved for the test scenes. A seed fixes a scene's cloth, wind, pins, lights and camera
+#: path (an explicit texture file draws nothing from it), so two sequences with one seed, preset,
+#: scenario and frame count replay one scene under two textures. Every sequence of this script
+#: takes its seed from here (`scene_seed`), and make_sim_datasets.py refuses training and
+#: validation seeds here, so that no training or validation sequence replays a test scene, whatever
+#: the counts and --seed of either script. (GeoPatch v8's training set `out/sim3`, made with
+#: `--seed 5000` before this rule, replays paper/{deform,rotate,scale}-0: see BENCHMARKS.md.)
+TEST_SEEDS = range(5000, 6000)
+
+
+def scene_seed(seed0: int, i: int, scenario: str) -> int:
+    """Seed of sequence `i` (0-based) of `scenario` (one of SCENARIOS): seed0 + 100 i + the
+    scenario's index. ValueError when it falls outside TEST_SEEDS (seed0 5000 holds i < 10)."""
+    seed = seed0 + 100 * i + SCENARIOS.index(scenario)
+    if seed not in TEST_SEEDS:
+        raise ValueError(f"--seed0 {seed0}, --per-scenario {i + 1}: test seed {seed} is outside the reserved "
+                         f"test seeds {TEST_SEEDS.start}-{TEST_SEEDS.stop - 1} (training and validation avoid "
+                         "only those)")
+    return seed
+
 
 def test_textures(folder: Path) -> list[Path]:
     """Photographs of `folder` that are neither packaged (trained on) nor validation textures."""
@@ -178,17 +198,22 @@ def main() -> None:
     ap.add_argument("--fov", type=float, default=None)
     ap.add_argument("--texture-dir", type=Path, default=SHARED_TEXTURES)
     ap.add_argument("--sheets", type=Path, default=None, help="write one contact sheet per preset here (PNG)")
-    ap.add_argument("--seed0", type=int, default=5000)
+    ap.add_argument("--seed0", type=int, default=5000,
+                    help="seed of the first sequence; all seeds must lie in the reserved test seeds 5000-5999")
     a = ap.parse_args()
     textures = test_textures(a.texture_dir)
     presets = a.presets.split(",")
+    try:  # every seed checked before the first simulation
+        [scene_seed(a.seed0, i, s) for i in range(a.per_scenario) for s in SCENARIOS]
+    except ValueError as error:
+        raise SystemExit(str(error)) from None
     table, k = {}, 0
     for preset in presets:
         for scenario in SCENARIOS:
             results = []
             for i in tqdm(range(a.per_scenario), desc=f"{preset} {scenario}", unit="seq"):
                 folder = a.out / preset / f"{scenario}-{i}"
-                seed = a.seed0 + 100 * i + SCENARIOS.index(scenario)
+                seed = scene_seed(a.seed0, i, scenario)
                 if not (folder / "groundtruth.json").is_file():
                     simulate_sequence(folder, scenario=scenario, n_frames=a.frames, seed=seed, preset=preset,
                                       texture=str(textures[(seed * 7) % len(textures)]), fov=a.fov, progress=False)

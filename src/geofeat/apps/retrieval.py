@@ -24,7 +24,8 @@
    Acc@K is the fraction of the top K results of the query's class, averaged over queries, with a
    95 % bootstrap interval over queries (`bootstrap_interval`).
 6. `evaluate_descriptor`: unless K is given, it is chosen per descriptor by validation: the queries
-   are split at random in two halves; the K of `WORD_CANDIDATES` (5 to 2560 words, those below the
+   are split at random in two halves by class (all queries of one object fall in one half, so that
+   no test query's object informs K; one class alone is split query by query); the K of `WORD_CANDIDATES` (5 to 2560 words, those below the
    number of sampled descriptors) with the best mean Acc@1..10 on the validation half is kept, and
    Acc@K is reported on the other (test) half only.
 7. `rerank`: each test query's best RERANK database frames by the words are then reordered by
@@ -369,10 +370,25 @@ def eligible_queries(db: "RetrievalDatabase", include_own_sequence: bool = False
     return q_all[eligible], exclude[eligible], skipped
 
 
-def split_queries(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """(validation, test) sorted indices into n queries: a random half (floor(n / 2)) and the rest."""
+def split_queries(n: int, seed: int = 0, groups=None) -> tuple[np.ndarray, np.ndarray]:
+    """(validation, test) sorted indices into n queries: a random half (floor(n / 2)) and the rest.
+
+    groups: optional (n,) labels (the queries' classes, i.e. objects). Then whole groups are split: a
+    random floor(G / 2) of the G groups give the validation queries and the rest the test queries, so
+    that no test query's object also has a query in the validation half (which chooses K). With fewer
+    than two groups there is nothing to split by, and the queries are split one by one."""
     n, seed = check_whole(n, "n", 0), check_whole(seed, "seed", 0)
-    perm = np.random.default_rng(seed).permutation(n)
+    rng = np.random.default_rng(seed)
+    if groups is not None:
+        groups = np.asarray(groups)
+        if groups.shape != (n,):
+            raise ValueError(f"groups: expected {n} labels, one per query, got shape {groups.shape}")
+        names, label = np.unique(groups, return_inverse=True)
+        if len(names) >= 2:
+            held = rng.permutation(len(names))[: len(names) // 2]
+            in_val = np.isin(label, held)
+            return np.flatnonzero(in_val), np.flatnonzero(~in_val)
+    perm = rng.permutation(n)
     return np.sort(perm[: n // 2]), np.sort(perm[n // 2 :])
 
 
@@ -652,8 +668,8 @@ def evaluate_descriptor(features: list[Features], db: RetrievalDatabase, queries
         features: one Features record per database frame (N frames, the whole database).
         queries: (Q,) database indices of the eligible queries; exclude: their (Q, N) `exclusion_mask`.
         words: K; None chooses it among `candidates` (those below the number of sampled descriptors)
-            by validation on a random half of the queries (`split_queries`) and reports Acc@K on the
-            other half.
+            by validation on the queries of a random half of the classes (objects; `split_queries`)
+            and reports Acc@K on the queries of the other half.
         weighting: see `weight_histograms`; the idf comes from the N database frames.
         rerank_top: each test query's best `rerank_top` results by the words are reordered by
             `rerank` (K is chosen on the words' order); 0 keeps the words' order.
@@ -684,7 +700,7 @@ def evaluate_descriptor(features: list[Features], db: RetrievalDatabase, queries
     if words is None:
         if len(queries) < 2:
             raise ValueError(f"queries: {len(queries)} eligible query, too few to choose K by validation; pass --words")
-        val, test = split_queries(len(queries), seed)
+        val, test = split_queries(len(queries), seed, groups=np.asarray(db.classes)[queries])
         best = None
         for k in ks:
             _, acc = run(k)

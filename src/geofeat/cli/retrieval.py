@@ -18,8 +18,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     app_options(p)
     p.add_argument("--words", type=whole_number(2), default=None,
                    help="visual words K (default: chosen per descriptor among "
-                        f"{','.join(map(str, WORD_CANDIDATES))} (those below --samples) by validation on a random "
-                        "half of the queries; Acc@K is then reported on the other half)")
+                        f"{','.join(map(str, WORD_CANDIDATES))} (those below --samples) by validation on the queries "
+                        "of a random half of the classes; Acc@K is then reported on the other half's queries, so that "
+                        "no test query's object informs K)")
     p.add_argument("--weighting", choices=tuple(WEIGHTINGS), default=DEFAULT_WEIGHTING,
                    help="word weighting and distance: none (L1-normalised histograms, L2: the paper's), hellinger "
                         "(square roots, L2), tfidf (tf-idf, cosine), tfidf-sqrt (square-root tf times idf, cosine), "

@@ -37,7 +37,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--seed", type=whole_number(0), default=0, help="random seed (default 0)")
     tex = p.add_mutually_exclusive_group()
     tex.add_argument("--texture", help="texture image file, 'procedural', or 'fabric' or 'fabric:KIND' (a generated fabric; "
-                     f"KIND one of {', '.join(FABRIC_KINDS)}) (default: a packaged photo or a procedural texture)")
+                     f"KIND one of {', '.join(FABRIC_KINDS)}) (default: a packaged photo or a procedural texture, the "
+                     "textures the shipped weights were trained on, so not a held-out test of them: for that, give "
+                     "photographs of your own with --texture or --texture-dir)")
     tex.add_argument("--texture-dir", type=Path, help="draw the texture at random from this folder")
     p.add_argument("--width", type=whole_number(*SIDE_RANGE_PX), default=640, help="image width in pixels, 32 to 8192 (default 640)")
     p.add_argument("--height", type=whole_number(*SIDE_RANGE_PX), default=480, help="image height in pixels, 32 to 8192 (default 480)")
