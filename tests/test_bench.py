@@ -612,3 +612,26 @@ def test_detail_table_names_the_keypoints_it_counts():
     cells = dict(zip(columns, (c.strip() for c in first.split("|")[1:-1])))
     assert cells["reference keypoints / frame"] == f"{np.mean([r['n_ref'] for r in rows]):.0f}"
     assert cells["target keypoints kept / pair"] == f"{np.mean([r['n_tgt'] for r in rows]):.0f}"
+
+
+def test_report_keeps_one_descriptor_on_two_detectors_apart():
+    """benchmarks/merge_bench.py merges a `--detector geokey` and a `--detector sift` run of the same
+    descriptors (BENCHMARKS.md, docs/detector.md): summary, table.md and details.md averaged the two
+    detectors' pairs into one "geopatch" (0.4 here, a figure neither run had)."""
+    from geofeat.bench.report import detail_table, markdown_table, summary
+
+    row = dict(sequence="a-deform", reference="ref", target="t1", descriptor="geopatch", protocol="detect",
+               keypoint_set="unique", depth_profile="clean", mma=0.9, repeatability=0.7, hits=300, n_gt=400,
+               n_ref=1000, n_tgt=1000)
+    rows = [dict(row, detector="geokey", ms=0.6), dict(row, detector="geokey", sequence="b-rotate", ms=0.6),
+            dict(row, detector="sift", ms=0.2), dict(row, detector="sift", sequence="b-rotate", ms=0.2),
+            dict(row, descriptor="geobit", detector="geokey", ms=0.5)]
+    s = summary(rows)
+    assert {k: v["ms"] for k, v in s.items()} == {"geokey + geopatch": 0.6, "sift + geopatch": 0.2, "geobit": 0.5}
+    table = markdown_table(rows)
+    assert table.splitlines()[0] == "| sequences | geokey + geopatch | sift + geopatch | geobit |"
+    assert "0.400" not in table
+    details = [line for line in detail_table(rows).splitlines() if "**all**" in line]
+    assert [line.split(" | ")[:4] for line in details] == [["| geopatch", "geokey", "**all**", "0.600"],
+                                                           ["| geopatch", "sift", "**all**", "0.200"],
+                                                           ["| geobit", "geokey", "**all**", "0.500"]]

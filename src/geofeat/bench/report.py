@@ -32,14 +32,17 @@ def detail_table(rows: list[dict]) -> str:
     frame, target keypoints kept per pair (those whose surface point is visible in the reference:
     the protocol drops the others, so with n_ref they set the denominator min(n_ref, n_tgt) of MS and
     repeatability, and a detector whose points fall off the surface is not charged for them) and
-    correct matches (hits) per pair. Markdown."""
+    correct matches (hits) per pair. A descriptor with rows from several detectors (runs merged by
+    benchmarks/merge_bench.py) gets one block per detector (`result_labels`). Markdown."""
     lines = ["| descriptor | detector | sequence | MS | MMA | repeatability | reference keypoints / frame "
              "| target keypoints kept / pair | correct matches / pair |",
              "|---|---|---|---|---|---|---|---|---|"]
     keys = ("ms", "mma", "repeatability", "n_ref", "n_tgt", "hits")
-    for name in dict.fromkeys(r["descriptor"] for r in rows):
-        mine = [r for r in rows if r["descriptor"] == name]
-        detector = ", ".join(dict.fromkeys(r.get("detector", "sift") for r in mine))
+    label_of = result_labels(rows)
+    for label in dict.fromkeys(label_of(r) for r in rows):
+        mine = [r for r in rows if label_of(r) == label]
+        name = mine[0]["descriptor"]
+        detector = ", ".join(dict.fromkeys(_detector(r) for r in mine))
         per_seq = {}
         for r in mine:
             per_seq.setdefault(r["sequence"], []).append([float(r.get(k, "nan")) for k in keys])
@@ -49,13 +52,30 @@ def detail_table(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def summary(rows: list[dict]) -> dict[str, dict[str, float]]:
-    """Per descriptor: mean over sequences of the per-sequence mean MS and MMA (the paper's rule)."""
+def _detector(row: dict) -> str:
+    return row.get("detector") or "sift"
+
+
+def result_labels(rows: list[dict]) -> Callable[[dict], str]:
+    """The name a row's result goes by in the tables: its descriptor, or "detector + descriptor" when
+    `rows` hold that descriptor from several detectors (runs merged by benchmarks/merge_bench.py, e.g.
+    `--detector geokey` and `--detector sift`), so that two detectors' pairs are never averaged together."""
+    detectors: dict[str, set[str]] = {}
+    for r in rows:
+        detectors.setdefault(r["descriptor"], set()).add(_detector(r))
+    return lambda r: f"{_detector(r)} + {r['descriptor']}" if len(detectors[r["descriptor"]]) > 1 else r["descriptor"]
+
+
+def summary(rows: list[dict], label_of: Callable[[dict], str] | None = None) -> dict[str, dict[str, float]]:
+    """Per descriptor (`result_labels`: per detector and descriptor where a descriptor comes from several
+    detectors; `label_of` to give the labels): mean over sequences of the per-sequence mean MS and MMA
+    (the paper's rule)."""
+    label_of = result_labels(rows) if label_of is None else label_of
     out: dict[str, dict[str, float]] = {}
-    for name in dict.fromkeys(r["descriptor"] for r in rows):
+    for name in dict.fromkeys(label_of(r) for r in rows):
         per_seq = {}
         for r in rows:
-            if r["descriptor"] == name:
+            if label_of(r) == name:
                 per_seq.setdefault(r["sequence"], []).append((r["ms"], r["mma"]))
         means = np.array([np.mean(v, axis=0) for v in per_seq.values()])
         out[name] = {"ms": float(means[:, 0].mean()), "mma": float(means[:, 1].mean()), "sequences": len(per_seq)}
@@ -99,7 +119,8 @@ def scenario_groups(folders) -> Callable[[str], str]:
 
 
 def markdown_table(rows: list[dict], group_of=sequence_group) -> str:
-    """Table 1 style: matching score per descriptor (columns) for each group of sequences (rows, e.g.
+    """Table 1 style: matching score per descriptor (columns; per detector and descriptor where a
+    descriptor comes from several detectors, `result_labels`) for each group of sequences (rows, e.g.
     the scenario suffix of simulated sequence names) and overall; best of each row in bold (every cell
     that shows the best value as printed, so that equal numbers are marked alike). A cell
     whose descriptor has results on fewer of the row's sequences than the row counts says so
@@ -108,10 +129,11 @@ def markdown_table(rows: list[dict], group_of=sequence_group) -> str:
     for r in rows:
         groups.setdefault(group_of(r["sequence"]), []).append(r)
     groups["all"] = rows
-    names = list(dict.fromkeys(r["descriptor"] for r in rows))
+    label_of = result_labels(rows)  # one descriptor from two merged runs' detectors: two columns
+    names = list(dict.fromkeys(label_of(r) for r in rows))
     lines = ["| sequences | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
     for group, grows in groups.items():
-        s = summary(grows)
+        s = summary(grows, label_of)
         best = max(float(f"{s[n]['ms']:.3f}") for n in names if n in s)  # as printed: 0.4144 and 0.4141 tie
         n_seq = len({r["sequence"] for r in grows})
         cells = []
