@@ -242,7 +242,7 @@ def search_matches(f0, f1, method, mutual, ratio):
     levels=st.sampled_from([2, 4, 256]),  # few byte values: many exact ties and distances above 127
     valid_frac=st.sampled_from([0.0, 0.5, 1.0]),
     mutual=st.booleans(),
-    ratio=st.sampled_from([None, 0.5, 0.8, 1.0]),
+    ratio=st.sampled_from([None, 1e-300, 0.5, 0.8, 1.0]),  # 1e-300: best / ratio far beyond uint64
     seed=st.integers(0, 2**31 - 1),
 )
 def test_rotation_search_methods_equal_brute_force(method, n0, n1, n_rot, n_bytes, levels, valid_frac, mutual,
@@ -477,7 +477,7 @@ def test_l2_whole_number_ties_and_ratio_threshold(device, dtype):
     dtype=st.sampled_from([np.float32, np.float64]),
     offset=st.sampled_from([0.0, 2.0**20, -3e6]),  # a large common part, taken away by the centring
     mutual=st.booleans(),
-    ratio=st.sampled_from([None, 0.5, 0.8, 1.0]),
+    ratio=st.sampled_from([None, 1e-300, 0.5, 0.8, 1.0]),  # 1e-300: best / ratio far beyond uint64
     device=st.sampled_from([None, "cpu"]),
 )
 def test_l2_ties_equal_brute_force(rows0, rows1, invalid, dtype, offset, mutual, ratio, device):

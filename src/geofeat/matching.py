@@ -484,7 +484,8 @@ def _verify_ratio(q, t, valid1, lb, seeds, best_d, best_j, ratio, second_d):
         bj = best_j[i]
         if bj >= 0:
             best = best_d[i]
-            thr = min(np.uint64(np.float64(best) / ratio) + np.uint64(1), np.uint64(127))
+            # capped in float64 before the conversion: best / ratio overflows uint64 for a tiny ratio
+            thr = np.uint64(min(np.float64(best) / ratio + 1.0, 127.0))
             s0, s1 = seeds[i, 0], seeds[i, 1]
             for j in (s0, s1):  # valid targets (or -1)
                 if j >= 0 and j != bj and second == _BIG:
