@@ -635,3 +635,14 @@ def test_report_keeps_one_descriptor_on_two_detectors_apart():
     assert [line.split(" | ")[:4] for line in details] == [["| geopatch", "geokey", "**all**", "0.600"],
                                                            ["| geopatch", "sift", "**all**", "0.200"],
                                                            ["| geobit", "geokey", "**all**", "0.500"]]
+
+
+def test_sequences_of_one_frame_only_are_one_error_before_anything_is_written(tmp_path):
+    """A folder whose every sequence has a single frame (the shipped Kinect frame) cannot be scored:
+    one error naming them, and no config.json or header-only results.csv left behind."""
+    seq = tmp_path / "data" / "bag"
+    shutil.copytree(geofeat.io.demo_data_dir(), seq)
+    out = tmp_path / "out"
+    with pytest.raises(ValueError, match="no sequence has a reference and a target frame.*bag"):
+        run_benchmark([str(tmp_path / "data")], out, BenchConfig(descriptors=("geobit",)), progress=False)
+    assert not out.exists()

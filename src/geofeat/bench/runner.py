@@ -431,6 +431,10 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
         check_out_dir(out, overwrite, files=OUTPUT_FILES)
     elif out.exists() and not out.is_dir():
         raise ValueError(f"out: {out} is a file, not a folder")
+    short = [Path(f).name for f in folders if len(frame_names(f)) < 2]
+    if short and len(short) == len(folders):  # nothing to evaluate: say so before writing config.json and results.csv
+        raise ValueError(f"datasets: no sequence has a reference and a target frame ({plural(len(short), 'sequence')} "
+                         f"of one frame or none: {', '.join(short[:5])}{', ...' if len(short) > 5 else ''})")
     check_tps_dir(config.tps_dir)
     for name in config.descriptors:  # weights that cannot be read: one error naming them, not one per sequence
         if "=" in name:
