@@ -126,3 +126,20 @@ def test_daisy_takes_angles_outside_0_to_360():
     assert got.valid.all()
     np.testing.assert_allclose(got.descriptors, ref.descriptors, atol=1e-6)
     assert cv2.KeyPoint(1.0, 2.0, 3.0).angle == -1  # what a user gets without an angle
+
+
+def test_daisy_is_invariant_to_image_contrast():
+    """DAISY normalises each of its histograms (Tola et al.); OpenCV's default (NRM_NONE) returned raw
+    gradient magnitudes, so halving the image's contrast halved the descriptor (a relative change of
+    0.5), and shading on a deforming surface moved descriptors as much."""
+    frame = geofeat.read_demo_frame()
+    dim = geofeat.RGBDFrame(0.25 + 0.5 * frame.image, frame.depth, frame.K)
+    kps = detect(frame, 200, detector="sift", require_depth=False, border_px=20)
+    d = OpenCVDescriptor("daisy")
+    a, b = d.compute(frame, kps), d.compute(dim, kps)
+    assert a.valid.all() and b.valid.all()
+    diff = np.linalg.norm(a.descriptors - b.descriptors, axis=1) / np.linalg.norm(a.descriptors, axis=1)
+    assert np.median(diff) < 0.05, np.median(diff)
+    # each of the 25 histograms (8 bins) has unit length
+    norms = np.linalg.norm(a.descriptors.reshape(len(kps), 25, 8), axis=2)
+    assert np.median(np.abs(norms - 1)) < 1e-3

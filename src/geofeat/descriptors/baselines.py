@@ -9,7 +9,10 @@ support size derived from SIFT's size where the descriptor uses one. Factors (me
   their correct-match rate is 0.20/0.25 at 1x SIFT's size, 0.81/0.86 at 4x and 0.98/0.99 from 6x on
   (plateau up to 12x), so they get 6x. Both estimate their own orientation from the pattern (the
   given angle changes nothing).
-- DAISY: fixed radius (15 px), no size; uses the given angle when `use_orientation=True`.
+- DAISY: fixed radius (15 px), no size; uses the given angle when `use_orientation=True`. Each of
+  its 25 histograms is normalised to unit length (`norm=DAISY_NRM_PARTIAL`, the normalisation of
+  Tola et al.'s DAISY and of their reference code; OpenCV's default, NRM_NONE, leaves raw gradient
+  magnitudes, which change with the image's contrast and shading).
 - SIFT: uses size and angle as detected.
 
 OpenCV drops keypoints it cannot describe (too close to the border); those come back with
@@ -45,7 +48,7 @@ def _make_extractor(name: str):
     if name == "freak":
         return cv2.xfeatures2d.FREAK_create()
     if name == "daisy":
-        return cv2.xfeatures2d.DAISY_create(use_orientation=True)
+        return cv2.xfeatures2d.DAISY_create(norm=cv2.xfeatures2d.DAISY_NRM_PARTIAL, use_orientation=True)
     if name == "sift":
         return cv2.SIFT_create()
     raise ValueError(f"descriptor: unknown OpenCV baseline {name!r}; expected one of {sorted(SIZE_FACTORS)}")
