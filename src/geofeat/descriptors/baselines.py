@@ -13,7 +13,10 @@ support size derived from SIFT's size where the descriptor uses one. Factors (me
   its 25 histograms is normalised to unit length (`norm=DAISY_NRM_PARTIAL`, the normalisation of
   Tola et al.'s DAISY and of their reference code; OpenCV's default, NRM_NONE, leaves raw gradient
   magnitudes, which change with the image's contrast and shading).
-- SIFT: uses size and angle as detected.
+- SIFT: uses size and angle as detected, and the pyramid octave and layer its size was detected at
+  (`sift_octave`): OpenCV's SIFT `compute` reads them from `cv2.KeyPoint.octave`, which
+  `Keypoints` does not keep; at octave 0 every keypoint would be described on the first, least
+  blurred pyramid image, not SIFT's own descriptor.
 
 OpenCV drops keypoints it cannot describe (too close to the border); those come back with
 `valid = False` and zero descriptors, in the input order. So do DAISY's keypoints at x < 0 or y < 0
@@ -38,6 +41,23 @@ from ..keypoints import as_keypoints, to_uint8
 SIZE_FACTORS = {"orb": 1.0, "brisk": 6.0, "freak": 6.0, "daisy": 1.0, "sift": 1.0}
 #: Keypoint size used when the caller gives none (pixels).
 DEFAULT_SIZE_PX = 8.0
+#: OpenCV SIFT's defaults (`cv2.SIFT_create()`): layers per octave and base blur (sigma, pixels).
+SIFT_LAYERS, SIFT_SIGMA = 3, 1.6
+
+
+def sift_octave(sizes: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """OpenCV SIFT's packed `cv2.KeyPoint.octave` (octave & 255 | layer << 8) of keypoints of
+    diameter `sizes` (pixels) on an image of `shape` (H, W): SIFT detects a keypoint of octave o
+    (-1 = the upsampled image) and layer l (1..3) with diameter 2 sigma 2^(o + (l + xi) / 3),
+    |xi| <= 1/2, so 3 log2(size / (2 sigma)) rounds to 3 o + l. Octaves are clipped to those the
+    image has (o <= log2(min(H, W)) - 3)."""
+    q = np.rint(SIFT_LAYERS * np.log2(np.maximum(np.asarray(sizes, np.float64), 1e-3) / (2.0 * SIFT_SIGMA)))
+    q = np.clip(q, 1 - SIFT_LAYERS, None).astype(np.int64)  # octave -1, layer 1 at the least
+    octave = np.floor_divide(q - 1, SIFT_LAYERS)
+    top = max(int(np.round(np.log2(max(min(shape), 1)))) - 3, 0)
+    layer = np.where(octave > top, SIFT_LAYERS, q - SIFT_LAYERS * octave)
+    octave = np.minimum(octave, top)
+    return (octave & 255) | (layer << 8)
 
 
 def _make_extractor(name: str):
@@ -109,9 +129,11 @@ class OpenCVDescriptor:
             # the same angle in [0, 360): DAISY asserts that range (cv2.KeyPoint's default angle is -1)
             angles = np.mod(kps.angles, 360.0).astype(np.float32)
             angles[angles >= 360.0] = 0.0  # -1e-9 % 360 rounds to 360 in float32
+        sizes = np.maximum(sizes * self.size_factor, 1.0)
+        octaves = sift_octave(sizes, frame.shape) if self.name == "sift" else np.zeros(n, np.int64)
         cv_kps = [
-            cv2.KeyPoint(float(x), float(y), float(max(s * self.size_factor, 1.0)), float(a), 0.0, 0, i)
-            for i, ((x, y), s, a) in enumerate(zip(kps.xy, sizes, angles))
+            cv2.KeyPoint(float(x), float(y), float(s), float(a), 0.0, int(o), i)
+            for i, ((x, y), s, a, o) in enumerate(zip(kps.xy, sizes, angles, octaves))
             # DAISY asserts x, y >= 0 (an OpenCV error); the first pixel row and column reach -0.5
             if self.name != "daisy" or (x >= 0 and y >= 0)
         ]
