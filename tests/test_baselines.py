@@ -142,6 +142,10 @@ def test_sift_describes_each_keypoint_as_opencv_sift_does():
     assert (sizes > 8).sum() > 20 and (sizes < 3.2).sum() > 20  # octaves -1 (upsampled image) to >= 1
     diff = np.linalg.norm(F.descriptors - expected, axis=1) / np.linalg.norm(expected, axis=1)
     assert np.median(diff) < 1e-3 and np.percentile(diff, 95) < 0.05, (np.median(diff), np.percentile(diff, 95))
+    # a keypoint is described alike alone (OpenCV would build the pyramid from octave 0, not -1)
+    big = int(np.argmax(sizes))
+    alone = OpenCVDescriptor("sift").compute(frame, Keypoints.from_cv([kps[big]]))
+    np.testing.assert_allclose(alone.descriptors[0], F.descriptors[big], atol=1e-4)
 
 
 def test_sift_octave_from_size_round_trips_opencvs_packing():
@@ -189,3 +193,4 @@ def test_brisk_and_freak_keep_their_border_keypoints_and_their_scale_invariance(
     d = OpenCVDescriptor(name)
     m = match(d.compute(frame, k0), d.compute(small, k1))
     assert (m.matches0 == np.arange(len(k0))).mean() > 0.5
+

@@ -144,6 +144,12 @@ class OpenCVDescriptor:
             # DAISY asserts x, y >= 0 (an OpenCV error); the first pixel row and column reach -0.5
             if self.name != "daisy" or (x >= 0 and y >= 0)
         ]
+        if self.name == "sift" and cv_kps:
+            # OpenCV's SIFT builds its pyramid from octave min(0, lowest octave given): one keypoint of
+            # octave -1 (dropped below) makes it always the upsampled image, as detectAndCompute does,
+            # so a keypoint's descriptor does not depend on the other keypoints of the call
+            H, W = frame.shape
+            cv_kps.append(cv2.KeyPoint(W / 2.0, H / 2.0, 2.0, 0.0, 0.0, 255 | 1 << 8, -1))
         kept, desc = self._extractor.compute(to_uint8(frame.image), cv_kps)
         dim = self._extractor.descriptorSize()
         dtype = np.uint8 if self._extractor.descriptorType() == cv2.CV_8U else np.float32
@@ -151,8 +157,9 @@ class OpenCVDescriptor:
         valid = np.zeros(n, bool)
         if desc is not None and len(kept):
             index = np.array([k.class_id for k in kept], dtype=np.int64)
-            out[index] = desc.astype(dtype)
-            valid[index] = True
+            mine = index >= 0  # not the octave -1 keypoint added for SIFT
+            out[index[mine]] = desc[mine].astype(dtype)
+            valid[index[mine]] = True
         return Features(kps.xy, out, valid, angles=kps.angles, sizes=kps.sizes)
 
 
