@@ -1,6 +1,9 @@
 """Which keypoint size and angle each OpenCV baseline needs: correct-match rate of the same SIFT
 keypoints on the Kinect image vs a copy rotated by 45 deg and a copy scaled by 0.6, for several
-size factors, with and without SIFT's angle.
+size factors, with and without SIFT's angle. Every keypoint counts: one that OpenCV drops on either
+side (valid = False, as near the border at large factors) is a miss, as in the matching score.
+The rigid pairs measure scale and rotation invariance only; the BRISK / FREAK factor was chosen by
+matching score on held-out simulated sequences (see geofeat/descriptors/baselines.py).
 Run: .venv/bin/python benchmarks/bench_baseline_scaling.py
 """
 
@@ -34,8 +37,7 @@ def rate(name, factor, use_angle, f0, f1, k0, k1) -> float:
     d = OpenCVDescriptor(name, use_angle=use_angle, size_factor=factor)
     F0, F1 = d.compute(f0, k0), d.compute(f1, k1)
     m = match(F0, F1)
-    both = F0.valid & F1.valid
-    return float((m.matches0[both] == np.flatnonzero(both)).mean()) if both.any() else 0.0
+    return float((m.matches0 == np.arange(len(k0))).mean()) if len(k0) else 0.0
 
 
 def main() -> None:

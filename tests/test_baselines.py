@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 import geofeat
-from geofeat.descriptors.baselines import BASELINES, OpenCVDescriptor
-from geofeat.keypoints import Keypoints, detect
+from geofeat.descriptors.baselines import BASELINES, OpenCVDescriptor, orb_level, sift_octave
+from geofeat.keypoints import Keypoints, detect, to_uint8
 from geofeat.matching import match
 
 
@@ -126,3 +126,87 @@ def test_daisy_takes_angles_outside_0_to_360():
     assert got.valid.all()
     np.testing.assert_allclose(got.descriptors, ref.descriptors, atol=1e-6)
     assert cv2.KeyPoint(1.0, 2.0, 3.0).angle == -1  # what a user gets without an angle
+
+
+def test_sift_describes_each_keypoint_as_opencv_sift_does():
+    """The "sift" baseline on SIFT's own keypoints is OpenCV's SIFT descriptor (detectAndCompute).
+    OpenCV's `compute` reads the pyramid octave and layer from cv2.KeyPoint.octave, which Keypoints
+    does not keep: with octave 0 every keypoint was described on the first pyramid image (for the
+    keypoints larger than 8 px, a median relative difference of ~0.5 from SIFT's own descriptor)."""
+    frame = geofeat.read_demo_frame()
+    sift = cv2.SIFT_create(nfeatures=300)
+    kps, expected = sift.detectAndCompute(to_uint8(frame.image), None)
+    F = OpenCVDescriptor("sift").compute(frame, Keypoints.from_cv(kps))
+    assert F.valid.all()
+    sizes = np.array([k.size for k in kps])
+    assert (sizes > 8).sum() > 20 and (sizes < 3.2).sum() > 20  # octaves -1 (upsampled image) to >= 1
+    diff = np.linalg.norm(F.descriptors - expected, axis=1) / np.linalg.norm(expected, axis=1)
+    assert np.median(diff) < 1e-3 and np.percentile(diff, 95) < 0.05, (np.median(diff), np.percentile(diff, 95))
+    # a keypoint is described alike alone (OpenCV would build the pyramid from octave 0, not -1)
+    big = int(np.argmax(sizes))
+    alone = OpenCVDescriptor("sift").compute(frame, Keypoints.from_cv([kps[big]]))
+    np.testing.assert_allclose(alone.descriptors[0], F.descriptors[big], atol=1e-4)
+
+
+def test_sift_octave_from_size_round_trips_opencvs_packing():
+    frame = geofeat.read_demo_frame()
+    kps = cv2.SIFT_create(nfeatures=500).detect(to_uint8(frame.image), None)
+    packed = sift_octave(np.array([k.size for k in kps]), frame.shape)
+    np.testing.assert_array_equal(packed, [k.octave & 0xFFFF for k in kps])  # byte 3 holds SIFT's sub-layer offset
+    # tiny and huge sizes stay within the octaves the image has
+    extreme = sift_octave(np.array([0.1, 1e5]), (480, 640))
+    assert (extreme & 255).tolist() == [255, 6] and (extreme >> 8).tolist() == [1, 3]
+
+
+def test_daisy_is_invariant_to_image_contrast():
+    """DAISY normalises each of its histograms (Tola et al.); OpenCV's default (NRM_NONE) returned raw
+    gradient magnitudes, so halving the image's contrast halved the descriptor (a relative change of
+    0.5), and shading on a deforming surface moved descriptors as much."""
+    frame = geofeat.read_demo_frame()
+    dim = geofeat.RGBDFrame(0.25 + 0.5 * frame.image, frame.depth, frame.K)
+    kps = detect(frame, 200, detector="sift", require_depth=False, border_px=20)
+    d = OpenCVDescriptor("daisy")
+    a, b = d.compute(frame, kps), d.compute(dim, kps)
+    assert a.valid.all() and b.valid.all()
+    diff = np.linalg.norm(a.descriptors - b.descriptors, axis=1) / np.linalg.norm(a.descriptors, axis=1)
+    assert np.median(diff) < 0.05, np.median(diff)
+    # each of the 25 histograms (8 bins) has unit length
+    norms = np.linalg.norm(a.descriptors.reshape(len(kps), 25, 8), axis=2)
+    assert np.median(np.abs(norms - 1)) < 1e-3
+
+
+@pytest.mark.parametrize("name, least_valid", [("brisk", 0.9), ("freak", 0.8)])
+def test_brisk_and_freak_keep_their_border_keypoints_and_their_scale_invariance(name, least_valid):
+    """BRISK and FREAK drop keypoints whose (size-scaled) pattern leaves the image; the protocol counts
+    them as misses. At 6x SIFT's size they dropped 12% / 23% of the demo frame's 2048 protocol
+    keypoints (FREAK's matching score on held-out simulated sequences: 0.190 at 6x, 0.211 at 4x).
+    The factor must still be large enough for a 0.6x scaled copy to match (at 1x: 0.12 / 0.15)."""
+    frame = geofeat.read_demo_frame()
+    kps = detect(frame, 2048, detector="sift", keypoint_set="protocol")
+    assert OpenCVDescriptor(name).compute(frame, kps).valid.mean() >= least_valid
+    # the same keypoints on a copy scaled by 0.6 about the centre; every keypoint counts (invalid = miss)
+    H, W = frame.shape
+    A = cv2.getRotationMatrix2D(((W - 1) / 2, (H - 1) / 2), 0.0, 0.6)
+    small = geofeat.RGBDFrame(cv2.warpAffine(frame.image, A, (W, H), flags=cv2.INTER_AREA), frame.depth, frame.K)
+    k0 = detect(frame, 500, detector="sift", require_depth=False, border_px=3)
+    k1 = Keypoints(k0.xy @ A[:, :2].T + A[:, 2], k0.angles, k0.sizes * 0.6, k0.responses)
+    d = OpenCVDescriptor(name)
+    m = match(d.compute(frame, k0), d.compute(small, k1))
+    assert (m.matches0 == np.arange(len(k0))).mean() > 0.5
+
+
+def test_orb_describes_at_the_pyramid_level_of_the_keypoint_size():
+    """ORB describes a keypoint on the pyramid level its size says (cv2.KeyPoint.octave); at level 0
+    for every keypoint (as before) it could not follow a scale change: 0.23 of the demo frame's
+    keypoints matched on a 0.6x copy, 0.53 now."""
+    assert orb_level(np.array([1.0, 31.0, 37.2, 31 * 1.2 ** 3, 1e4]), 31, 1.2, 8).tolist() == [0, 0, 1, 3, 7]
+    frame = geofeat.read_demo_frame()
+    H, W = frame.shape
+    A = cv2.getRotationMatrix2D(((W - 1) / 2, (H - 1) / 2), 0.0, 0.6)
+    small = geofeat.RGBDFrame(cv2.warpAffine(frame.image, A, (W, H), flags=cv2.INTER_AREA), frame.depth, frame.K)
+    k0 = detect(frame, 500, detector="sift", require_depth=False, border_px=40)
+    k1 = Keypoints(k0.xy @ A[:, :2].T + A[:, 2], k0.angles, k0.sizes * 0.6, k0.responses)
+    d = OpenCVDescriptor("orb")
+    F0, F1 = d.compute(frame, k0), d.compute(small, k1)
+    assert F0.valid.mean() > 0.95 and F1.valid.mean() > 0.95
+    assert (match(F0, F1).matches0 == np.arange(len(k0))).mean() > 0.45

@@ -1,16 +1,35 @@
 """OpenCV baselines behind the same interface as GeoBit / GeoPatch: `compute(frame, keypoints)`.
 
 Every baseline describes the given keypoints (usually SIFT's) with SIFT's orientation, and with a
-support size derived from SIFT's size where the descriptor uses one. Factors (measured by
-`benchmarks/bench_baseline_scaling.py` on a rotated and a scaled image pair, see BENCHMARKS.md):
+support size derived from SIFT's size where the descriptor uses one (`SIZE_FACTORS`, chosen as each
+entry says; `benchmarks/bench_baseline_scaling.py` measures their rotation and scale invariance on a
+rotated and a scaled copy of the demo frame):
 
-- ORB: ignores the size (fixed 31 px patch at pyramid level 0); uses the given angle.
-- BRISK, FREAK: scale their sampling pattern with the keypoint size. Under a 0.6x scale change
-  their correct-match rate is 0.20/0.25 at 1x SIFT's size, 0.81/0.86 at 4x and 0.98/0.99 from 6x on
-  (plateau up to 12x), so they get 6x. Both estimate their own orientation from the pattern (the
-  given angle changes nothing).
-- DAISY: fixed radius (15 px), no size; uses the given angle when `use_orientation=True`.
-- SIFT: uses size and angle as detected.
+- ORB: uses the given angle, and describes each keypoint on the level of its own pyramid
+  (8 levels, factor 1.2) where its 31-pixel patch is closest to 12x SIFT's size (`orb_level`), as
+  ORB describes the keypoints it detects: OpenCV reads the level from `cv2.KeyPoint.octave`, and at
+  level 0 (what it got before) every keypoint had the same 31 px patch whatever its size, so ORB
+  could not follow a scale change. 12x was chosen by matching score on the six validation sequences
+  named below (mean 0.151 at level 0; 0.168 / 0.178 / 0.193 / 0.189 at 6 / 8 / 12 / 16x).
+- BRISK, FREAK: scale their sampling pattern with the keypoint size, and estimate their own
+  orientation from the pattern (the given angle changes nothing). They get 4x SIFT's size: the
+  factor with the best matching score under the benchmark's protocol on six held-out `paper`
+  validation sequences (`benchmarks/make_sim_datasets.py --train 0 --val 6 --test 0
+  --val-presets paper`, seeds 2000-2005, 2048 protocol keypoints; BRISK 0.161 / 0.190 / 0.223 /
+  0.228 / 0.225 / 0.223 / 0.213 and FREAK 0.163 / 0.191 / 0.214 / 0.211 / 0.202 / 0.190 / 0.163
+  at 1 / 2 / 3 / 4 / 5 / 6 / 8x). Small factors lose scale invariance (BRISK and FREAK clamp small
+  sizes to their smallest pattern); large ones lose keypoints near the image border, which OpenCV
+  drops (valid = False, a miss in the matching score: FREAK keeps 0.89 of them at 4x on val000,
+  0.75 at 6x) and deformation-robustness. The earlier 6x was chosen on the correct-match rate of
+  the keypoints both sides kept, 40 px inside a rigidly scaled image, which hid both costs.
+- DAISY: fixed radius (15 px), no size; uses the given angle when `use_orientation=True`. Each of
+  its 25 histograms is normalised to unit length (`norm=DAISY_NRM_PARTIAL`, the normalisation of
+  Tola et al.'s DAISY and of their reference code; OpenCV's default, NRM_NONE, leaves raw gradient
+  magnitudes, which change with the image's contrast and shading).
+- SIFT: uses size and angle as detected, and the pyramid octave and layer its size was detected at
+  (`sift_octave`): OpenCV's SIFT `compute` reads them from `cv2.KeyPoint.octave`, which
+  `Keypoints` does not keep; at octave 0 every keypoint would be described on the first, least
+  blurred pyramid image, not SIFT's own descriptor.
 
 OpenCV drops keypoints it cannot describe (too close to the border); those come back with
 `valid = False` and zero descriptors, in the input order. So do DAISY's keypoints at x < 0 or y < 0
@@ -32,9 +51,33 @@ from ..frame import RGBDFrame, check_frame
 from ..keypoints import as_keypoints, to_uint8
 
 #: SIFT diameter -> descriptor size factors (see module docstring).
-SIZE_FACTORS = {"orb": 1.0, "brisk": 6.0, "freak": 6.0, "daisy": 1.0, "sift": 1.0}
+SIZE_FACTORS = {"orb": 12.0, "brisk": 4.0, "freak": 4.0, "daisy": 1.0, "sift": 1.0}
 #: Keypoint size used when the caller gives none (pixels).
 DEFAULT_SIZE_PX = 8.0
+#: OpenCV SIFT's defaults (`cv2.SIFT_create()`): layers per octave and base blur (sigma, pixels).
+SIFT_LAYERS, SIFT_SIGMA = 3, 1.6
+
+
+def sift_octave(sizes: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """OpenCV SIFT's packed `cv2.KeyPoint.octave` (octave & 255 | layer << 8) of keypoints of
+    diameter `sizes` (pixels) on an image of `shape` (H, W): SIFT detects a keypoint of octave o
+    (-1 = the upsampled image) and layer l (1..3) with diameter 2 sigma 2^(o + (l + xi) / 3),
+    |xi| <= 1/2, so 3 log2(size / (2 sigma)) rounds to 3 o + l. Octaves are clipped to those the
+    image has (o <= log2(min(H, W)) - 3)."""
+    q = np.rint(SIFT_LAYERS * np.log2(np.maximum(np.asarray(sizes, np.float64), 1e-3) / (2.0 * SIFT_SIGMA)))
+    q = np.clip(q, 1 - SIFT_LAYERS, None).astype(np.int64)  # octave -1, layer 1 at the least
+    octave = np.floor_divide(q - 1, SIFT_LAYERS)
+    top = max(int(np.round(np.log2(max(min(shape), 1)))) - 3, 0)
+    layer = np.where(octave > top, SIFT_LAYERS, q - SIFT_LAYERS * octave)
+    octave = np.minimum(octave, top)
+    return (octave & 255) | (layer << 8)
+
+
+def orb_level(sizes: np.ndarray, patch_size: int, scale_factor: float, n_levels: int) -> np.ndarray:
+    """ORB's pyramid level (`cv2.KeyPoint.octave`) for supports of `sizes` pixels: the level whose
+    patch, `patch_size` x `scale_factor` ** level pixels of the image, is nearest in log scale."""
+    level = np.rint(np.log(np.maximum(np.asarray(sizes, np.float64), 1e-3) / patch_size) / np.log(scale_factor))
+    return np.clip(level, 0, n_levels - 1).astype(np.int64)
 
 
 def _make_extractor(name: str):
@@ -45,7 +88,7 @@ def _make_extractor(name: str):
     if name == "freak":
         return cv2.xfeatures2d.FREAK_create()
     if name == "daisy":
-        return cv2.xfeatures2d.DAISY_create(use_orientation=True)
+        return cv2.xfeatures2d.DAISY_create(norm=cv2.xfeatures2d.DAISY_NRM_PARTIAL, use_orientation=True)
     if name == "sift":
         return cv2.SIFT_create()
     raise ValueError(f"descriptor: unknown OpenCV baseline {name!r}; expected one of {sorted(SIZE_FACTORS)}")
@@ -106,12 +149,26 @@ class OpenCVDescriptor:
             # the same angle in [0, 360): DAISY asserts that range (cv2.KeyPoint's default angle is -1)
             angles = np.mod(kps.angles, 360.0).astype(np.float32)
             angles[angles >= 360.0] = 0.0  # -1e-9 % 360 rounds to 360 in float32
+        sizes = np.maximum(sizes * self.size_factor, 1.0)
+        octaves = np.zeros(n, np.int64)
+        if self.name == "sift":
+            octaves = sift_octave(sizes, frame.shape)
+        elif self.name == "orb":
+            orb = self._extractor
+            octaves = orb_level(sizes, orb.getPatchSize(), orb.getScaleFactor(), orb.getNLevels())
+            sizes = orb.getPatchSize() * orb.getScaleFactor() ** octaves.astype(np.float64)  # what ORB describes
         cv_kps = [
-            cv2.KeyPoint(float(x), float(y), float(max(s * self.size_factor, 1.0)), float(a), 0.0, 0, i)
-            for i, ((x, y), s, a) in enumerate(zip(kps.xy, sizes, angles))
+            cv2.KeyPoint(float(x), float(y), float(s), float(a), 0.0, int(o), i)
+            for i, ((x, y), s, a, o) in enumerate(zip(kps.xy, sizes, angles, octaves))
             # DAISY asserts x, y >= 0 (an OpenCV error); the first pixel row and column reach -0.5
             if self.name != "daisy" or (x >= 0 and y >= 0)
         ]
+        if self.name == "sift" and cv_kps:
+            # OpenCV's SIFT builds its pyramid from octave min(0, lowest octave given): one keypoint of
+            # octave -1 (dropped below) makes it always the upsampled image, as detectAndCompute does,
+            # so a keypoint's descriptor does not depend on the other keypoints of the call
+            H, W = frame.shape
+            cv_kps.append(cv2.KeyPoint(W / 2.0, H / 2.0, 2.0, 0.0, 0.0, 255 | 1 << 8, -1))
         kept, desc = self._extractor.compute(to_uint8(frame.image), cv_kps)
         dim = self._extractor.descriptorSize()
         dtype = np.uint8 if self._extractor.descriptorType() == cv2.CV_8U else np.float32
@@ -119,8 +176,9 @@ class OpenCVDescriptor:
         valid = np.zeros(n, bool)
         if desc is not None and len(kept):
             index = np.array([k.class_id for k in kept], dtype=np.int64)
-            out[index] = desc.astype(dtype)
-            valid[index] = True
+            mine = index >= 0  # not the octave -1 keypoint added for SIFT
+            out[index[mine]] = desc[mine].astype(dtype)
+            valid[index[mine]] = True
         return Features(kps.xy, out, valid, angles=kps.angles, sizes=kps.sizes)
 
 
