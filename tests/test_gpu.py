@@ -107,6 +107,42 @@ def test_hamming_on_tensors_equals_cpu(pair):
     np.testing.assert_array_equal(got.distances0, ref.distances0)
 
 
+@pytest.mark.parametrize("n_bytes,rotations", [(256, 1), (256, 4), (512, 1), (512, 4)])
+def test_hamming_in_the_cuda_dtype_equals_cpu(n_bytes, rotations):
+    """The GPU's Hamming search multiplies {0, 1} bit matrices in the dtype `_hamming_dot_dtype` picks
+    for CUDA, run here on CPU tensors: the same matches and distances as the CPU's numba search, for
+    descriptors of 256 bytes (2048 bits, float16 on CUDA: exact) and 512 bytes. It was float16 at any
+    width: dot products above 2048 rounded to even numbers, so 4096-bit distances were off by up to 2
+    and matches changed (checked below on these same descriptors: they do reach such dot products)."""
+    from geofeat.matching import FP16_EXACT_BITS, _finish_matches, _hamming_dot_dtype, _hamming_search_torch
+
+    rng = np.random.default_rng(n_bytes + rotations)
+    n0, n1 = 60, 70
+    # bits set with probability 3/4, so that dot products of 4096 bits exceed 2048
+    d0, d1 = ((rng.integers(0, 256, (n, rotations, n_bytes), dtype=np.uint8)
+               | rng.integers(0, 256, (n, rotations, n_bytes), dtype=np.uint8)) for n in (n0, n1))
+    d1[5] = d1[3]  # a tie between two targets
+    d0[7, 0] = d1[11, rotations - 1]  # an exact match, in the last rotation
+    v0, v1 = np.arange(n0) % 9 != 4, np.arange(n1) % 13 != 6
+    f0, f1 = (geofeat.Features(np.zeros((len(d), 2)), d if rotations > 1 else d[:, 0], v)
+              for d, v in ((d0, v0), (d1, v1)))
+    dtype = _hamming_dot_dtype("cuda", 8 * n_bytes)
+    assert (dtype == torch.float16) == (8 * n_bytes <= FP16_EXACT_BITS)
+    t = [torch.from_numpy(x) for x in (d0, d1, v0, v1)]
+    for mutual, ratio in ((False, None), (True, None), (True, 0.9)):
+        ref = match(f0, f1, mutual=mutual, ratio=ratio)
+        got = _finish_matches(*_hamming_search_torch(*t, mutual, "cpu", dtype=dtype), ratio=ratio, mutual=mutual)
+        np.testing.assert_array_equal(got.matches0, ref.matches0)
+        np.testing.assert_array_equal(got.distances0, ref.distances0)
+    assert ref.matches0[7] == 11 and ref.distances0[7] == 0
+    half = _finish_matches(*_hamming_search_torch(*t, False, "cpu", dtype=torch.float16), ratio=None, mutual=False)
+    plain = match(f0, f1)
+    if 8 * n_bytes > FP16_EXACT_BITS:  # the float16 product the GPU ran before: distances rounded
+        assert (half.distances0[v0] != plain.distances0[v0]).any()
+    else:
+        np.testing.assert_array_equal(half.distances0, plain.distances0)
+
+
 @pytest.mark.skipif(CUDA, reason="checks the error without a GPU")
 def test_cuda_requests_fail_clearly_without_gpu(pair):
     frame, kps = pair[0]
