@@ -54,6 +54,33 @@ def test_blur_and_sampling_equal_opencv(pair):
     assert (nan == 0).all()
 
 
+def test_sampling_in_opencv_4s_subpixel_steps(pair):
+    """OpenCV 4's cv2.remap (pyproject allows >= 4.8) rounds float coordinates to 1/32 pixel before
+    interpolating; OpenCV 5's does not. The GPU sampler follows the installed OpenCV
+    (`remap_subpixel_steps`): under OpenCV 4.10 the test above failed by 4.6e-3 on this frame, the
+    CPU's values quantised and the GPU's not. Here the 1/32 form, whatever OpenCV is installed,
+    against a float64 reference of OpenCV 4's rule (round half to even, products of the fractions
+    as weights, border replicated), within 1e-6."""
+    from geofeat.gpu import remap_subpixel_steps
+
+    assert remap_subpixel_steps() in (None, 32)
+    img = sampling_image(pair[0][0], 1.0)
+    H, W = img.shape
+    rng = np.random.default_rng(1)
+    coords = np.concatenate([rng.uniform([-3, -3], [W + 3, H + 3], (20000, 2)),
+                             (rng.integers(-64, 32 * W + 64, (2000, 2)) + 0.5) / 32,  # halfway: ties to even
+                             [[W - 1 + 31.5 / 32, H - 1], [-0.5 / 32, 0.0]]]).astype(np.float32)
+    got = sample_bilinear_torch(torch.from_numpy(img), torch.from_numpy(coords), steps=32).numpy()
+    q = np.rint(coords.astype(np.float64) * 32).astype(np.int64)
+    x0, y0 = q[:, 0] // 32, q[:, 1] // 32
+    fx, fy = (q[:, 0] % 32) / 32, (q[:, 1] % 32) / 32
+    xa, xb, ya, yb = np.clip(x0, 0, W - 1), np.clip(x0 + 1, 0, W - 1), np.clip(y0, 0, H - 1), np.clip(y0 + 1, 0, H - 1)
+    ref = ((1 - fy) * ((1 - fx) * img[ya, xa] + fx * img[ya, xb]) + fy * ((1 - fx) * img[yb, xa] + fx * img[yb, xb]))
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-6)
+    exact = sample_bilinear_torch(torch.from_numpy(img), torch.from_numpy(coords), steps=None).numpy()
+    assert np.abs(exact - got).max() > 1e-3  # the rounding matters on this image
+
+
 def test_depth_smoothing_on_tensors_equals_opencv(pair):
     """The GPU path's depth preprocessing (`smooth_depth_torch`, `backproject_torch`) on CPU tensors
     against `depth.smooth` / `depth.backproject`, on the real Kinect frame (holes filled first, as

@@ -321,29 +321,69 @@ def gaussian_blur_torch(image, sigma: float):
     return out
 
 
-def sample_bilinear_torch(image, coords):
+def remap_subpixel_steps() -> int | None:
+    """How finely the installed OpenCV's `cv2.remap` (INTER_LINEAR, float32 maps) places a sample
+    between pixels: None when it interpolates at the float coordinates themselves (OpenCV 5), else
+    the number of positions per pixel it rounds them to (32, OpenCV 4's INTER_TAB_SIZE: the
+    coordinates rounded to 1/32 pixel). Measured once, on a 2-pixel ramp."""
+    global _REMAP_STEPS
+    if _REMAP_STEPS == 0:
+        import cv2
+
+        ramp = np.array([[0.0, 1.0], [0.0, 1.0]], np.float32)
+        x = (np.arange(1024, dtype=np.float32) / 1024)[None, :]
+        got = cv2.remap(ramp, x, np.full_like(x, 0.5), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        levels = len(np.unique(got))  # 1024 distinct values, or steps + 1 (0, 1/32, ..., 1)
+        _REMAP_STEPS = None if levels > 256 else levels - 1
+    return _REMAP_STEPS
+
+
+#: `remap_subpixel_steps()` once measured (0: not yet).
+_REMAP_STEPS: int | None = 0
+
+
+def sample_bilinear_torch(image, coords, steps: int | None | str = "opencv"):
     """`geodesic.polar.sample_bilinear` (cv2.remap, INTER_LINEAR, BORDER_REPLICATE) on torch tensors:
     (H, W) float32 image, (..., 2) float32 pixel coordinates (x, y) -> (...) float32.
 
     Float32 bilinear interpolation in OpenCV 5's form (two lerps along x, then one along y, on the
     fractional parts of the coordinates), neighbours off the image clamped to the border: equal to
     cv2.remap's values within 1e-6 (OpenCV's SIMD code fuses some multiply-adds). NaN coordinates
-    give 0 (the caller masks them)."""
+    give 0 (the caller masks them).
+
+    `steps`: "opencv" follows the installed OpenCV (`remap_subpixel_steps`): OpenCV 4's remap rounds
+    the coordinates to 1/32 pixel (round half to even) and weighs the four neighbours with products
+    of those fractions, and so does this then; without it the GPU's patch values differed from the
+    CPU's by up to 4.6e-3 on the Kinect frame under OpenCV 4.10 (pyproject allows >= 4.8).
+    None: no rounding; a number: that many positions per pixel."""
     import torch
 
+    if steps == "opencv":
+        steps = remap_subpixel_steps()
     H, W = image.shape
     ok = torch.isfinite(coords).all(-1)
     c = torch.where(ok[..., None], coords, torch.zeros((), dtype=coords.dtype, device=coords.device)).float()
-    f = torch.floor(c)
-    fx, fy = c[..., 0] - f[..., 0], c[..., 1] - f[..., 1]
-    x0, y0 = f[..., 0].to(torch.int64), f[..., 1].to(torch.int64)
+    flat = image.reshape(-1)
+    if steps:  # OpenCV 4: fixed-point positions, a weight table of float products
+        q = torch.round(c * float(steps)).to(torch.int64)
+        f = torch.div(q, steps, rounding_mode="floor")
+        frac = (q - f * steps).float() * (1.0 / steps)
+        x0, y0 = f[..., 0], f[..., 1]
+        fx, fy = frac[..., 0], frac[..., 1]
+    else:
+        f = torch.floor(c)
+        fx, fy = c[..., 0] - f[..., 0], c[..., 1] - f[..., 1]
+        x0, y0 = f[..., 0].to(torch.int64), f[..., 1].to(torch.int64)
     xa, xb = x0.clamp(0, W - 1), (x0 + 1).clamp(0, W - 1)
     ya, yb = y0.clamp(0, H - 1), (y0 + 1).clamp(0, H - 1)
-    flat = image.reshape(-1)
     s00, s01 = flat[ya * W + xa], flat[ya * W + xb]
     s10, s11 = flat[yb * W + xa], flat[yb * W + xb]
-    top = s00 + fx * (s01 - s00)
-    v = top + fy * ((s10 + fx * (s11 - s10)) - top)
+    if steps:
+        gx, gy = 1.0 - fx, 1.0 - fy
+        v = ((s00 * (gy * gx) + s01 * (gy * fx)) + s10 * (fy * gx)) + s11 * (fy * fx)
+    else:
+        top = s00 + fx * (s01 - s00)
+        v = top + fy * ((s10 + fx * (s11 - s10)) - top)
     return torch.where(ok, v, torch.zeros((), dtype=v.dtype, device=v.device))
 
 
