@@ -323,6 +323,25 @@ def test_match_cuda_checks_its_features(monkeypatch):
         match_cuda(d, f)
 
 
+def test_a_device_mesh_of_another_frame_is_refused(pair, monkeypatch):
+    """`polar_patches(frame, kps, mesh=...)` refuses a mesh built from another frame of the same size
+    (its `source` fingerprint differs); `polar_patches_cuda` took a `DeviceMesh` of another frame
+    (the frame rolled by 180 degrees, say) without a word, the patches walked on the wrong surface.
+    A DeviceMesh now carries its frame's fingerprint as GridMesh does (`build_mesh_cuda` sets it: tested
+    in the simulator, tests/test_walk_cuda.py). On CPU tensors in the simulator's setting: the check
+    comes before any kernel."""
+    from geofeat.geodesic.mesh import frame_fingerprint
+    from geofeat.gpu import DeviceMesh, polar_patches_cuda
+
+    monkeypatch.setenv("NUMBA_ENABLE_CUDASIM", "1")
+    frame, kps = pair[0]
+    other = frame.rotated90(2)  # the same size, another depth
+    assert other.shape == frame.shape
+    mesh = DeviceMesh((), (), frame.K, (0.5, 0.5), frame.shape, torch.device("cpu"), frame_fingerprint(other))
+    with pytest.raises(ValueError, match="mesh: built from another frame"):
+        polar_patches_cuda(frame, kps[:4], mesh=mesh)
+
+
 def test_a_cuda_index_torch_does_not_see_is_a_value_error(monkeypatch):
     """device='cuda:7' on a machine with one GPU passed the checks and failed later in torch with
     "CUDA error: invalid device ordinal"; now one ValueError naming the device and the GPUs there are.

@@ -198,6 +198,14 @@ for name, cfg in PROFILES.items():
     np.testing.assert_allclose(dev.values, cpu.values, rtol=0, atol=1e-5)
 m = frame_mesh(frame, "kinect", device="cuda")
 assert frame_mesh(frame, "kinect", device="cuda") is m  # cached on the frame
+from geofeat.geodesic.mesh import frame_fingerprint
+assert m.source == frame_fingerprint(frame) and m.to_host().source == m.source
+flipped = frame.rotated90(2)  # the same size, another depth: its mesh is refused, as on the CPU
+try:
+    polar_patches_cuda(flipped, kps[:1], mesh=m)
+    raise AssertionError("a DeviceMesh of another frame was accepted")
+except ValueError as exc:
+    assert "another frame" in str(exc)
 frame.depth[10, 10] += 0.01
 assert frame_mesh(frame, "kinect", device="cuda") is not m  # an edited depth is noticed
 print("ok")

@@ -22,8 +22,9 @@ the smoothed depth within two float32 ulp of OpenCV's (the same depth, bit for b
 profile, which does not smooth), the same faces on the tested frames,
 walk coordinates within 1e-4 px (the GPU's cos/sin and fused multiply-adds may differ from the CPU's
 in the last bits of float64; on an H100 the Kinect pair's coordinates and rings reached were
-identical), patch values within 1e-5 where the coordinates agree, descriptors within 1e-4, the
-same matches on the tested frames. Nothing here is imported by `import geofeat`;
+identical), patch values within 1e-5 where the coordinates agree, descriptors within 1e-4 (of the CPU's
+torch backend, `GeoPatch(backend="torch")`; the CPU's default int8 / bfloat16 backends differ from
+both by their rounding), the same matches on the tested frames. Nothing here is imported by `import geofeat`;
 torch and numba.cuda load on first use.
 
 Under numba's CUDA simulator (NUMBA_ENABLE_CUDASIM=1, no GPU needed) the same code runs with torch
@@ -41,7 +42,7 @@ from .constants import DEFAULT_RADIUS_M, MAX_EDGE_STRETCH, N_ANGLES, N_RINGS, SA
 from .depth import DepthConfig, mean_focal
 from .features import Features, Matches
 from .frame import RGBDFrame
-from .geodesic.mesh import GridMesh, frame_mesh, image_to_mesh
+from .geodesic.mesh import GridMesh, frame_fingerprint, frame_mesh, image_to_mesh
 from .geodesic.polar import check_mesh_shape, check_patch_request
 
 #: Attribute of a GridMesh under which its device tables are kept, per device.
@@ -211,6 +212,8 @@ class DeviceMesh:
         tables: the same five as numba device arrays (views, no copy), the walk kernel's inputs.
         K: (3, 3) intrinsics of the mesh grid. scale: (sx, sy) mesh pixels per image pixel.
         image_shape: (H, W) of the frame. device: the torch device.
+        source: `mesh.frame_fingerprint` of that frame (None when unknown), as `GridMesh.source`:
+            `polar_patches_cuda` refuses the mesh for another frame, as the CPU path does.
     """
 
     tensors: tuple
@@ -219,6 +222,7 @@ class DeviceMesh:
     scale: tuple[float, float]
     image_shape: tuple[int, int]
     device: object
+    source: tuple | None = None
 
     def image_to_mesh(self, xy: np.ndarray) -> np.ndarray:
         """(N, 2) image pixel coordinates -> (N, 2) mesh pixel coordinates."""
@@ -228,7 +232,7 @@ class DeviceMesh:
         """The `GridMesh` (walk tables included) on the host."""
         points, face_ok, normals, local, edges = (t.cpu().numpy() for t in self.tensors)
         mesh = GridMesh(points=points, face_ok=face_ok, normals=normals, K=self.K, scale=self.scale,
-                        image_shape=self.image_shape)
+                        image_shape=self.image_shape, source=self.source)
         mesh.__dict__["walk_tables"] = (local, edges)
         return mesh
 
@@ -269,7 +273,7 @@ def build_mesh_cuda(frame: RGBDFrame, config: DepthConfig | str = "auto", max_ed
     tables = tuple(_as_numba(t) for t in tensors)
     mesh_faces_cuda(tables[0], mean_focal(K), float(max_edge_stretch), out=tables[1:],
                     stream=_numba_stream(dev))
-    return DeviceMesh(tensors, tables, K, scale, (H, W), dev)
+    return DeviceMesh(tensors, tables, K, scale, (H, W), dev, frame_fingerprint(frame))
 
 
 def device_mesh_tables(mesh, dev) -> tuple:
