@@ -316,6 +316,11 @@ def test_match_cuda_checks_its_features(monkeypatch):
     masked = Features(np.zeros((6, 2)), nan, np.arange(6) != 2)  # NaN at an invalid keypoint is fine
     got = match_cuda(f, masked).matches0
     assert 2 not in got.tolist() and got.tolist() == match(f, masked).matches0.tolist()
+    for bad in (dict(ratio=True), dict(ratio=1.5), dict(ratio="0.8"), dict(mutual="no"), dict(mutual=1)):
+        with pytest.raises(ValueError, match="ratio|mutual"):  # as geofeat.match refuses them
+            match(f, f, **bad)
+        with pytest.raises(ValueError, match="ratio|mutual"):
+            match_cuda(f, f, **bad)
     short = torch.ones(4, dtype=torch.bool)
     with pytest.raises(ValueError, match="features0: expected"):
         match_cuda(type("F", (), {"descriptors": torch.from_numpy(d), "valid": short})(), f)
@@ -340,6 +345,20 @@ def test_a_device_mesh_of_another_frame_is_refused(pair, monkeypatch):
     mesh = DeviceMesh((), (), frame.K, (0.5, 0.5), frame.shape, torch.device("cpu"), frame_fingerprint(other))
     with pytest.raises(ValueError, match="mesh: built from another frame"):
         polar_patches_cuda(frame, kps[:4], mesh=mesh)
+
+
+def test_polar_patches_cuda_checks_blur_as_the_cpu_does(pair, monkeypatch):
+    """A sampling blur outside 0-20 px: the CPU's `polar_patches` refuses it; `polar_patches_cuda`
+    ran a negative one as no blur and a larger one as asked. Checked before any kernel (the
+    simulator's setting, CPU tensors)."""
+    from geofeat.gpu import polar_patches_cuda
+
+    monkeypatch.setenv("NUMBA_ENABLE_CUDASIM", "1")
+    frame, kps = pair[0]
+    for blur in (-1.0, 25.0, True):
+        for call in (geofeat.polar_patches, polar_patches_cuda):
+            with pytest.raises(ValueError, match="blur_px"):
+                call(frame, kps[:4], blur_px=blur)
 
 
 def test_a_cuda_index_torch_does_not_see_is_a_value_error(monkeypatch):

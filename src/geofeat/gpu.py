@@ -33,6 +33,7 @@ CPU tensors and the walk kernel simulated: that is how the tests run the whole p
 
 from __future__ import annotations
 
+import numbers
 import os
 from dataclasses import dataclass
 
@@ -43,7 +44,7 @@ from .depth import DepthConfig, mean_focal
 from .features import Features, Matches
 from .frame import RGBDFrame
 from .geodesic.mesh import GridMesh, frame_fingerprint, frame_mesh, image_to_mesh
-from .geodesic.polar import check_mesh_shape, check_patch_request
+from .geodesic.polar import check_blur_px, check_mesh_shape, check_patch_request
 
 #: Attribute of a GridMesh under which its device tables are kept, per device.
 _MESH_ATTR = "_geofeat_device_tables"
@@ -431,6 +432,7 @@ def polar_patches_cuda(frame: RGBDFrame, keypoints, radius: float = DEFAULT_RADI
 
     dev = require_cuda(device)
     kp = check_patch_request(frame, keypoints, radius, n_angles, n_rings)
+    check_blur_px(blur_px)  # as the CPU's `sampling_image` (a negative one was no blur, one over 20 px ran)
     if mesh is None:  # built on the GPU (the simulator's "GPU" is the CPU), cached on the frame
         mesh = frame_mesh(frame, depth_config, device=mesh_device(dev))
     else:  # of this frame (a host GridMesh also knows its frame's depth and intrinsics)
@@ -526,8 +528,11 @@ def match_cuda(features0, features1, mutual: bool = False, ratio: float | None =
 
     d0, v0 = unpack(features0, "features0")
     d1, v1 = unpack(features1, "features1")
-    if ratio is not None and not (0 < ratio <= 1):
-        raise ValueError(f"ratio: expected a number in (0, 1], got {ratio}")
+    # as `geofeat.match` checks them: ratio=True ran as 1.0, and a truthy mutual="no" as mutual
+    if ratio is not None and (isinstance(ratio, bool) or not isinstance(ratio, numbers.Real) or not 0 < ratio <= 1):
+        raise ValueError(f"ratio: expected a number in (0, 1] or None, got {ratio!r}")
+    if not isinstance(mutual, (bool, np.bool_)):
+        raise ValueError(f"mutual: expected True or False, got {mutual!r}")
     if d0.shape[1:] != d1.shape[1:]:
         raise ValueError(f"descriptors: trailing shapes differ: features0 {tuple(d0.shape)} vs features1 "
                          f"{tuple(d1.shape)}")

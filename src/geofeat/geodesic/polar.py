@@ -122,11 +122,17 @@ def patch_validity(rings_reached: np.ndarray) -> np.ndarray:
 MAX_BLUR_PX = 20.0
 
 
+def check_blur_px(blur_px) -> None:
+    """A sampling blur of 0 to `MAX_BLUR_PX` pixels (ValueError naming `blur_px` otherwise); the GPU
+    path (`geofeat.gpu.polar_patches_cuda`) checks it the same way."""
+    if isinstance(blur_px, bool) or not isinstance(blur_px, numbers.Real) or not 0 <= blur_px <= MAX_BLUR_PX:
+        raise ValueError(f"blur_px: expected a Gaussian blur of 0 to {MAX_BLUR_PX} pixels, got {blur_px!r}")
+
+
 def sampling_image(frame: RGBDFrame, blur_px: float = SAMPLING_BLUR_PX) -> np.ndarray:
     """The gray image that patches are read from: (H, W) float32, lightly blurred against aliasing
     (a Gaussian of `blur_px` pixels, 0 = none)."""
-    if isinstance(blur_px, bool) or not isinstance(blur_px, numbers.Real) or not 0 <= blur_px <= MAX_BLUR_PX:
-        raise ValueError(f"blur_px: expected a Gaussian blur of 0 to {MAX_BLUR_PX} pixels, got {blur_px!r}")
+    check_blur_px(blur_px)
     if blur_px <= 0:
         return frame.image
     return cv2.GaussianBlur(frame.image, (0, 0), blur_px)
