@@ -101,6 +101,27 @@ def test_depth_smoothing_on_tensors_equals_opencv(pair):
                                       backproject(ref, frame.K))
 
 
+def test_gpu_pyramid_reads_the_cpu_pyramids_rules(pair, monkeypatch):
+    """The pyramid's rules are constants of `geofeat.depth` (HALVE_MIN_VALID, RESIZE_MIN_WEIGHT) that
+    the GPU pyramid reads rather than repeats (they were literals in both files): changed on the
+    CPU side, the GPU follows, the same missing pixels on the Kinect frame (both resize branches:
+    640 x 480, covered by the pyramid, and a 637 x 478 crop, which is not)."""
+    from geofeat import depth as host
+    from geofeat.depth import fill_holes, smooth
+    from geofeat.gpu import smooth_depth_torch
+
+    depth = fill_holes(pair[0][0].depth)
+    monkeypatch.setattr(host, "HALVE_MIN_VALID", 4)
+    monkeypatch.setattr(host, "RESIZE_MIN_WEIGHT", 0.9)
+    for d in (depth, np.ascontiguousarray(depth[:478, :637])):
+        ref = smooth(d, 2, 0.5)
+        got = smooth_depth_torch(torch.from_numpy(d), 2, 0.5).numpy()
+        np.testing.assert_array_equal(got > 0, ref > 0)
+        np.testing.assert_allclose(got, ref, rtol=0, atol=2 * np.spacing(np.float32(ref.max())))
+    monkeypatch.undo()
+    assert (ref > 0).sum() < (smooth(np.ascontiguousarray(depth[:478, :637]), 2, 0.5) > 0).sum()  # they mattered
+
+
 def test_describe_tensor_equals_describe(pair):
     frame, kps = pair[0]
     p = geofeat.polar_patches(frame, kps)

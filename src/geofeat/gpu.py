@@ -44,7 +44,7 @@ from .depth import DepthConfig, mean_focal
 from .features import Features, Matches
 from .frame import RGBDFrame
 from .geodesic.mesh import GridMesh, frame_fingerprint, frame_mesh, image_to_mesh
-from .geodesic.polar import check_blur_px, check_mesh_shape, check_patch_request
+from .geodesic.polar import MIN_DIRECTION_SHARE, check_blur_px, check_mesh_shape, check_patch_request, walk_starts
 
 #: Attribute of a GridMesh under which its device tables are kept, per device.
 _MESH_ATTR = "_geofeat_device_tables"
@@ -149,6 +149,7 @@ def smooth_depth_torch(depth, levels: int, out_scale: float, window: int = SMOOT
     import torch
     import torch.nn.functional as F
 
+    from . import depth as host  # the CPU pyramid's rules, read at call time: HALVE_MIN_VALID, RESIZE_MIN_WEIGHT
     from .depth import pyramid_resampling
 
     H, W = depth.shape
@@ -170,21 +171,21 @@ def smooth_depth_torch(depth, levels: int, out_scale: float, window: int = SMOOT
         a, b, c, e = d[0:h:2, 0:w:2], d[0:h:2, 1:w:2], d[1:h:2, 0:w:2], d[1:h:2, 1:w:2]
         count = (a > 0).double() + (b > 0).double() + (c > 0).double() + (e > 0).double()
         total = (a + b) + (c + e)
-        d = torch.where(count >= 2, total.double() / torch.clamp(count, min=1.0), torch.zeros((), dtype=torch.float64,
-                                                                                            device=d.device)).float()
+        zero = torch.zeros((), dtype=torch.float64, device=d.device)
+        d = torch.where(count >= host.HALVE_MIN_VALID, total.double() / torch.clamp(count, min=1.0), zero).float()
     matrices = pyramid_resampling((H, W), tuple(d.shape), halvings, size[::-1])
     if matrices is not None:  # a frame the pyramid does not cover: the CPU's exact resampling
         Ry, Rx = (torch.as_tensor(m, dtype=torch.float64, device=d.device) for m in matrices)
         valid = (d > 0).double()
         num, den = Ry @ (d.double() * valid) @ Rx.T, Ry @ valid @ Rx.T
-        return torch.where(den >= 0.5, num / torch.clamp(den, min=1e-12), torch.zeros((), dtype=torch.float64,
-                                                                                     device=d.device)).float()
+        zero = torch.zeros((), dtype=torch.float64, device=d.device)
+        return torch.where(den >= host.RESIZE_MIN_WEIGHT, num / torch.clamp(den, min=1e-12), zero).float()
     if tuple(d.shape) == size:
         return d
     valid = (d > 0).float()
     both = torch.stack([d * valid, valid])[:, None]
     num, den = F.interpolate(both, size=size, mode="bilinear", align_corners=False)[:, 0]
-    return torch.where(den >= 0.5, num / torch.clamp(den, min=1e-12), torch.zeros((), device=d.device))
+    return torch.where(den >= host.RESIZE_MIN_WEIGHT, num / torch.clamp(den, min=1e-12), torch.zeros((), device=d.device))
 
 
 def backproject_torch(depth, K: np.ndarray):
@@ -438,7 +439,7 @@ def polar_patches_cuda(frame: RGBDFrame, keypoints, radius: float = DEFAULT_RADI
     else:  # of this frame (a host GridMesh also knows its frame's depth and intrinsics)
         check_mesh_shape(mesh, frame)
     points, face_ok, normals, local, edges = device_mesh_tables(mesh, dev)
-    starts = mesh.image_to_mesh(kp) + np.array([1.3e-6, 0.7e-6])
+    starts = walk_starts(mesh, kp)
     host = torch.from_numpy(np.concatenate([starts.ravel(), np.asarray(frame.K, np.float64).ravel()]))
     upload = host.to(dev, non_blocking=False)
     starts_t, K_t = upload[:starts.size].view(-1, 2), upload[starts.size:].view(3, 3)
@@ -452,7 +453,7 @@ def polar_patches_cuda(frame: RGBDFrame, keypoints, radius: float = DEFAULT_RADI
     out = tuple(_as_numba(t) for t in (samples, coords, reached, faces, centre, frames))
     walk_polar_cuda(points, face_ok, normals, local, edges, _as_numba(starts_t), _as_numba(K_t), float(radius),
                     int(n_angles), int(n_rings), MAX_CROSSINGS, out=out, stream=_numba_stream(dev))
-    valid = (reached >= 1).sum(1) * 2 >= n_angles  # patch_validity: half of the directions reach ring 1
+    valid = (reached >= 1).double().mean(1) >= MIN_DIRECTION_SHARE  # patch_validity, the same float64 mean
     coords = torch.where(valid[:, None, None, None], coords, torch.full((), float("nan"), device=dev))
     if image is None:
         image = gaussian_blur_torch(torch.from_numpy(np.ascontiguousarray(frame.image, np.float32)).to(dev),

@@ -108,6 +108,20 @@ def check_mesh_shape(mesh: GridMesh, frame: RGBDFrame, fingerprint: tuple | None
                          "build it with build_mesh(frame), or leave mesh out")
 
 
+#: Added to every keypoint's mesh position before the walk (mesh pixels, x and y): keeps starts off
+#: the mesh's vertices and edges. The GPU walk starts from the same points (`walk_starts`).
+START_OFFSET_PX = (1.3e-6, 0.7e-6)
+#: A patch is valid when at least this share of its directions reach the first ring (`patch_validity`,
+#: also the GPU path's rule).
+MIN_DIRECTION_SHARE = 0.5
+
+
+def walk_starts(mesh, keypoints: np.ndarray) -> np.ndarray:
+    """(N, 2) float64 mesh pixel coordinates where the walk starts for (N, 2) image `keypoints`:
+    `mesh.image_to_mesh` plus `START_OFFSET_PX`; shared by the CPU and GPU paths."""
+    return mesh.image_to_mesh(keypoints) + np.array(START_OFFSET_PX)
+
+
 def patch_validity(rings_reached: np.ndarray) -> np.ndarray:
     """(N, A) rings reached per direction -> (N,) bool: at least half of the directions reach the
     first ring. A keypoint at the edge of the surface (a silhouette, a hole) keeps the half of its
@@ -115,7 +129,7 @@ def patch_validity(rings_reached: np.ndarray) -> np.ndarray:
     one with surface in fewer than half of its directions is not described."""
     if rings_reached.shape[0] == 0:
         return np.zeros(0, bool)
-    return (rings_reached >= 1).mean(axis=1) >= 0.5
+    return (rings_reached >= 1).mean(axis=1) >= MIN_DIRECTION_SHARE
 
 
 #: The largest sampling blur accepted, pixels (a larger one blurs the patch away).
@@ -198,7 +212,7 @@ def polar_patches(
     else:
         source = frame_fingerprint(frame)
         check_mesh_shape(mesh, frame, source)
-    starts = mesh.image_to_mesh(kp) + np.array([1.3e-6, 0.7e-6])  # keeps starts off vertices/edges
+    starts = walk_starts(mesh, kp)  # kept off vertices/edges
     local, edges = mesh.walk_tables
     samples, coords, reached, _ = walk_polar(
         mesh.points, mesh.face_ok, mesh.normals, local, edges, starts, frame.K, float(radius), int(n_angles),
