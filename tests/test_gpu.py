@@ -54,6 +54,33 @@ def test_blur_and_sampling_equal_opencv(pair):
     assert (nan == 0).all()
 
 
+def test_sampling_in_opencv_4s_subpixel_steps(pair):
+    """OpenCV 4's cv2.remap (pyproject allows >= 4.8) rounds float coordinates to 1/32 pixel before
+    interpolating; OpenCV 5's does not. The GPU sampler follows the installed OpenCV
+    (`remap_subpixel_steps`): under OpenCV 4.10 the test above failed by 4.6e-3 on this frame, the
+    CPU's values quantised and the GPU's not. Here the 1/32 form, whatever OpenCV is installed,
+    against a float64 reference of OpenCV 4's rule (round half to even, products of the fractions
+    as weights, border replicated), within 1e-6."""
+    from geofeat.gpu import remap_subpixel_steps
+
+    assert remap_subpixel_steps() in (None, 32)
+    img = sampling_image(pair[0][0], 1.0)
+    H, W = img.shape
+    rng = np.random.default_rng(1)
+    coords = np.concatenate([rng.uniform([-3, -3], [W + 3, H + 3], (20000, 2)),
+                             (rng.integers(-64, 32 * W + 64, (2000, 2)) + 0.5) / 32,  # halfway: ties to even
+                             [[W - 1 + 31.5 / 32, H - 1], [-0.5 / 32, 0.0]]]).astype(np.float32)
+    got = sample_bilinear_torch(torch.from_numpy(img), torch.from_numpy(coords), steps=32).numpy()
+    q = np.rint(coords.astype(np.float64) * 32).astype(np.int64)
+    x0, y0 = q[:, 0] // 32, q[:, 1] // 32
+    fx, fy = (q[:, 0] % 32) / 32, (q[:, 1] % 32) / 32
+    xa, xb, ya, yb = np.clip(x0, 0, W - 1), np.clip(x0 + 1, 0, W - 1), np.clip(y0, 0, H - 1), np.clip(y0 + 1, 0, H - 1)
+    ref = ((1 - fy) * ((1 - fx) * img[ya, xa] + fx * img[ya, xb]) + fy * ((1 - fx) * img[yb, xa] + fx * img[yb, xb]))
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-6)
+    exact = sample_bilinear_torch(torch.from_numpy(img), torch.from_numpy(coords), steps=None).numpy()
+    assert np.abs(exact - got).max() > 1e-3  # the rounding matters on this image
+
+
 def test_depth_smoothing_on_tensors_equals_opencv(pair):
     """The GPU path's depth preprocessing (`smooth_depth_torch`, `backproject_torch`) on CPU tensors
     against `depth.smooth` / `depth.backproject`, on the real Kinect frame (holes filled first, as
@@ -72,6 +99,27 @@ def test_depth_smoothing_on_tensors_equals_opencv(pair):
         np.testing.assert_allclose(got, ref, rtol=0, atol=2 * np.spacing(np.float32(ref.max())))
         np.testing.assert_array_equal(backproject_torch(torch.from_numpy(ref), frame.K).numpy(),
                                       backproject(ref, frame.K))
+
+
+def test_gpu_pyramid_reads_the_cpu_pyramids_rules(pair, monkeypatch):
+    """The pyramid's rules are constants of `geofeat.depth` (HALVE_MIN_VALID, RESIZE_MIN_WEIGHT) that
+    the GPU pyramid reads rather than repeats (they were literals in both files): changed on the
+    CPU side, the GPU follows, the same missing pixels on the Kinect frame (both resize branches:
+    640 x 480, covered by the pyramid, and a 637 x 478 crop, which is not)."""
+    from geofeat import depth as host
+    from geofeat.depth import fill_holes, smooth
+    from geofeat.gpu import smooth_depth_torch
+
+    depth = fill_holes(pair[0][0].depth)
+    monkeypatch.setattr(host, "HALVE_MIN_VALID", 4)
+    monkeypatch.setattr(host, "RESIZE_MIN_WEIGHT", 0.9)
+    for d in (depth, np.ascontiguousarray(depth[:478, :637])):
+        ref = smooth(d, 2, 0.5)
+        got = smooth_depth_torch(torch.from_numpy(d), 2, 0.5).numpy()
+        np.testing.assert_array_equal(got > 0, ref > 0)
+        np.testing.assert_allclose(got, ref, rtol=0, atol=2 * np.spacing(np.float32(ref.max())))
+    monkeypatch.undo()
+    assert (ref > 0).sum() < (smooth(np.ascontiguousarray(depth[:478, :637]), 2, 0.5) > 0).sum()  # they mattered
 
 
 def test_describe_tensor_equals_describe(pair):
@@ -105,6 +153,42 @@ def test_hamming_on_tensors_equals_cpu(pair):
     got = _finish_matches(*_hamming_search_torch(*t, True, "cpu"), ratio=None, mutual=True)
     np.testing.assert_array_equal(got.matches0, ref.matches0)
     np.testing.assert_array_equal(got.distances0, ref.distances0)
+
+
+@pytest.mark.parametrize("n_bytes,rotations", [(256, 1), (256, 4), (512, 1), (512, 4)])
+def test_hamming_in_the_cuda_dtype_equals_cpu(n_bytes, rotations):
+    """The GPU's Hamming search multiplies {0, 1} bit matrices in the dtype `_hamming_dot_dtype` picks
+    for CUDA, run here on CPU tensors: the same matches and distances as the CPU's numba search, for
+    descriptors of 256 bytes (2048 bits, float16 on CUDA: exact) and 512 bytes. It was float16 at any
+    width: dot products above 2048 rounded to even numbers, so 4096-bit distances were off by up to 2
+    and matches changed (checked below on these same descriptors: they do reach such dot products)."""
+    from geofeat.matching import FP16_EXACT_BITS, _finish_matches, _hamming_dot_dtype, _hamming_search_torch
+
+    rng = np.random.default_rng(n_bytes + rotations)
+    n0, n1 = 60, 70
+    # bits set with probability 3/4, so that dot products of 4096 bits exceed 2048
+    d0, d1 = ((rng.integers(0, 256, (n, rotations, n_bytes), dtype=np.uint8)
+               | rng.integers(0, 256, (n, rotations, n_bytes), dtype=np.uint8)) for n in (n0, n1))
+    d1[5] = d1[3]  # a tie between two targets
+    d0[7, 0] = d1[11, rotations - 1]  # an exact match, in the last rotation
+    v0, v1 = np.arange(n0) % 9 != 4, np.arange(n1) % 13 != 6
+    f0, f1 = (geofeat.Features(np.zeros((len(d), 2)), d if rotations > 1 else d[:, 0], v)
+              for d, v in ((d0, v0), (d1, v1)))
+    dtype = _hamming_dot_dtype("cuda", 8 * n_bytes)
+    assert (dtype == torch.float16) == (8 * n_bytes <= FP16_EXACT_BITS)
+    t = [torch.from_numpy(x) for x in (d0, d1, v0, v1)]
+    for mutual, ratio in ((False, None), (True, None), (True, 0.9)):
+        ref = match(f0, f1, mutual=mutual, ratio=ratio)
+        got = _finish_matches(*_hamming_search_torch(*t, mutual, "cpu", dtype=dtype), ratio=ratio, mutual=mutual)
+        np.testing.assert_array_equal(got.matches0, ref.matches0)
+        np.testing.assert_array_equal(got.distances0, ref.distances0)
+    assert ref.matches0[7] == 11 and ref.distances0[7] == 0
+    half = _finish_matches(*_hamming_search_torch(*t, False, "cpu", dtype=torch.float16), ratio=None, mutual=False)
+    plain = match(f0, f1)
+    if 8 * n_bytes > FP16_EXACT_BITS:  # the float16 product the GPU ran before: distances rounded
+        assert (half.distances0[v0] != plain.distances0[v0]).any()
+    else:
+        np.testing.assert_array_equal(half.distances0, plain.distances0)
 
 
 @pytest.mark.skipif(CUDA, reason="checks the error without a GPU")
@@ -253,11 +337,49 @@ def test_match_cuda_checks_its_features(monkeypatch):
     masked = Features(np.zeros((6, 2)), nan, np.arange(6) != 2)  # NaN at an invalid keypoint is fine
     got = match_cuda(f, masked).matches0
     assert 2 not in got.tolist() and got.tolist() == match(f, masked).matches0.tolist()
+    for bad in (dict(ratio=True), dict(ratio=1.5), dict(ratio="0.8"), dict(mutual="no"), dict(mutual=1)):
+        with pytest.raises(ValueError, match="ratio|mutual"):  # as geofeat.match refuses them
+            match(f, f, **bad)
+        with pytest.raises(ValueError, match="ratio|mutual"):
+            match_cuda(f, f, **bad)
     short = torch.ones(4, dtype=torch.bool)
     with pytest.raises(ValueError, match="features0: expected"):
         match_cuda(type("F", (), {"descriptors": torch.from_numpy(d), "valid": short})(), f)
     with pytest.raises(TypeError, match="features0"):
         match_cuda(d, f)
+
+
+def test_a_device_mesh_of_another_frame_is_refused(pair, monkeypatch):
+    """`polar_patches(frame, kps, mesh=...)` refuses a mesh built from another frame of the same size
+    (its `source` fingerprint differs); `polar_patches_cuda` took a `DeviceMesh` of another frame
+    (the frame rolled by 180 degrees, say) without a word, the patches walked on the wrong surface.
+    A DeviceMesh now carries its frame's fingerprint as GridMesh does (`build_mesh_cuda` sets it: tested
+    in the simulator, tests/test_walk_cuda.py). On CPU tensors in the simulator's setting: the check
+    comes before any kernel."""
+    from geofeat.geodesic.mesh import frame_fingerprint
+    from geofeat.gpu import DeviceMesh, polar_patches_cuda
+
+    monkeypatch.setenv("NUMBA_ENABLE_CUDASIM", "1")
+    frame, kps = pair[0]
+    other = frame.rotated90(2)  # the same size, another depth
+    assert other.shape == frame.shape
+    mesh = DeviceMesh((), (), frame.K, (0.5, 0.5), frame.shape, torch.device("cpu"), frame_fingerprint(other))
+    with pytest.raises(ValueError, match="mesh: built from another frame"):
+        polar_patches_cuda(frame, kps[:4], mesh=mesh)
+
+
+def test_polar_patches_cuda_checks_blur_as_the_cpu_does(pair, monkeypatch):
+    """A sampling blur outside 0-20 px: the CPU's `polar_patches` refuses it; `polar_patches_cuda`
+    ran a negative one as no blur and a larger one as asked. Checked before any kernel (the
+    simulator's setting, CPU tensors)."""
+    from geofeat.gpu import polar_patches_cuda
+
+    monkeypatch.setenv("NUMBA_ENABLE_CUDASIM", "1")
+    frame, kps = pair[0]
+    for blur in (-1.0, 25.0, True):
+        for call in (geofeat.polar_patches, polar_patches_cuda):
+            with pytest.raises(ValueError, match="blur_px"):
+                call(frame, kps[:4], blur_px=blur)
 
 
 def test_a_cuda_index_torch_does_not_see_is_a_value_error(monkeypatch):

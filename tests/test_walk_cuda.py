@@ -198,6 +198,14 @@ for name, cfg in PROFILES.items():
     np.testing.assert_allclose(dev.values, cpu.values, rtol=0, atol=1e-5)
 m = frame_mesh(frame, "kinect", device="cuda")
 assert frame_mesh(frame, "kinect", device="cuda") is m  # cached on the frame
+from geofeat.geodesic.mesh import frame_fingerprint
+assert m.source == frame_fingerprint(frame) and m.to_host().source == m.source
+flipped = frame.rotated90(2)  # the same size, another depth: its mesh is refused, as on the CPU
+try:
+    polar_patches_cuda(flipped, kps[:1], mesh=m)
+    raise AssertionError("a DeviceMesh of another frame was accepted")
+except ValueError as exc:
+    assert "another frame" in str(exc)
 frame.depth[10, 10] += 0.01
 assert frame_mesh(frame, "kinect", device="cuda") is not m  # an edited depth is noticed
 print("ok")
@@ -213,6 +221,56 @@ def test_gpu_mesh_equals_cpu_mesh_in_cuda_simulator():
     src = str(Path(__file__).resolve().parents[1] / "src")
     env["PYTHONPATH"] = src + os.pathsep + env.get("PYTHONPATH", "")
     proc = subprocess.run([sys.executable, "-c", MESH_SCRIPT], env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0 and "ok" in proc.stdout, proc.stderr[-3000:]
+
+
+ODD_SCRIPT = r'''
+import cv2, numpy as np
+import geofeat
+from geofeat.frame import RGBDFrame
+from geofeat.geodesic.mesh import build_mesh
+from geofeat.gpu import build_mesh_cuda, polar_patches_cuda, simulated
+assert simulated()
+H, W = 45, 59  # not multiples of 4: the "kinect" pyramid's resampling branch (depth.pyramid_resampling)
+K = np.array([[260.0, 6.0, 29.0], [0, 190.0, 22.0], [0, 0, 1]])  # non-square pixels and a skew
+v, u = np.mgrid[0:H, 0:W].astype(float)
+rng = np.random.default_rng(2)
+depth = (1.0 + 0.05 * np.sin(u / 5.0) * np.cos(v / 6.0) + 0.002 * u
+         + 0.002 * rng.standard_normal((H, W))).astype(np.float32)
+depth[:, 46:] += 0.4  # a depth step
+depth[36:, :8] = 0  # a hole on the border
+img = cv2.GaussianBlur(rng.random((H, W)).astype(np.float32), (0, 0), 1.5)
+frame = RGBDFrame((img - img.min()) / (img.max() - img.min()), depth, K)
+ref = build_mesh(frame, "kinect")
+got = build_mesh_cuda(frame, "kinect").to_host()
+np.testing.assert_array_equal(got.face_ok, ref.face_ok)
+np.testing.assert_allclose(got.points, ref.points, rtol=0, atol=3e-7, equal_nan=True)
+# the centre, the four corners, on the border hole, both sides of the step
+kps = np.array([[29.2, 22.3], [0, 0], [W - 1, H - 1], [1.2, 1.3], [W - 2.2, H - 2.3], [3.0, 40.0], [9.0, 36.0],
+                [44.5, 20.2], [47.6, 30.7]])
+cpu = geofeat.polar_patches(frame, kps, depth_config="kinect", radius=0.06, n_angles=7, n_rings=5)
+dev = polar_patches_cuda(frame, kps, depth_config="kinect", radius=0.06, n_angles=7, n_rings=5).to_host()
+assert 3 <= cpu.valid.sum() < len(kps) and ((cpu.rings_reached > 0) & (cpu.rings_reached < 5)).any()
+np.testing.assert_array_equal(dev.valid, cpu.valid)
+np.testing.assert_array_equal(dev.rings_reached, cpu.rings_reached)
+np.testing.assert_allclose(dev.coords, cpu.coords, rtol=0, atol=1e-4, equal_nan=True)
+np.testing.assert_allclose(dev.values, cpu.values, rtol=0, atol=1e-5)
+np.testing.assert_allclose(dev.points, cpu.points, rtol=0, atol=1e-6, equal_nan=True)
+print("ok")
+'''
+
+
+def test_gpu_path_with_non_square_pixels_in_cuda_simulator():
+    """Non-square pixels with a skew (the mesh's footprint is `depth.mean_focal`, the walk projects
+    with the full K), a frame whose sides are not multiples of 4 (the pyramid's resampling branch),
+    keypoints on and near the corners (rays leaving the mesh), on a border hole and beside a depth
+    step: the GPU mesh, validity,
+    rings reached, coordinates, values and points equal the CPU's (measured: coordinates within
+    5e-6 px, most identical)."""
+    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
+    src = str(Path(__file__).resolve().parents[1] / "src")
+    env["PYTHONPATH"] = src + os.pathsep + env.get("PYTHONPATH", "")
+    proc = subprocess.run([sys.executable, "-c", ODD_SCRIPT], env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0 and "ok" in proc.stdout, proc.stderr[-3000:]
 
 

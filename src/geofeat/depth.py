@@ -349,6 +349,14 @@ def _masked_box_mean(depth: np.ndarray, window: int) -> np.ndarray:
     return out.astype(np.float32)
 
 
+#: A 2x2 block of the smoothing pyramid keeps a depth when at least this many of its pixels have one
+#: (`_halve`; the GPU pyramid, `geofeat.gpu.smooth_depth_torch`, reads it too).
+HALVE_MIN_VALID = 2
+#: A resized depth pixel keeps a depth when at least this share of its interpolation weight falls on
+#: pixels with depth (`_masked_resize`, `smooth`; the GPU pyramid reads it too).
+RESIZE_MIN_WEIGHT = 0.5
+
+
 def _halve(depth: np.ndarray) -> np.ndarray:
     """2x downscale by 2x2 block averaging of the valid pixels; a block with fewer than 2 valid
     pixels is missing (so the surface's outline moves by at most one pixel per level)."""
@@ -357,7 +365,7 @@ def _halve(depth: np.ndarray) -> np.ndarray:
     a, b, c, e = d[0::2, 0::2], d[0::2, 1::2], d[1::2, 0::2], d[1::2, 1::2]  # the 2x2 blocks' corners
     count = (a > 0).astype(np.int64) + (b > 0) + (c > 0) + (e > 0)
     total = (a + b) + (c + e)  # the order of numpy's sum over the block's axes: the same rounding
-    return np.where(count >= 2, total / np.maximum(count, 1), 0.0).astype(np.float32)
+    return np.where(count >= HALVE_MIN_VALID, total / np.maximum(count, 1), 0.0).astype(np.float32)
 
 
 def _masked_resize(depth: np.ndarray, size: tuple[int, int]) -> np.ndarray:
@@ -368,7 +376,7 @@ def _masked_resize(depth: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     valid = (depth > 0).astype(np.float32)
     num = cv2.resize(depth * valid, size, interpolation=cv2.INTER_LINEAR)
     den = cv2.resize(valid, size, interpolation=cv2.INTER_LINEAR)
-    return np.where(den >= 0.5, num / np.maximum(den, 1e-12), 0.0).astype(np.float32)
+    return np.where(den >= RESIZE_MIN_WEIGHT, num / np.maximum(den, 1e-12), 0.0).astype(np.float32)
 
 
 def smooth(
@@ -405,7 +413,7 @@ def smooth(
     Ry, Rx = matrices
     valid = (d > 0).astype(np.float64)
     num, den = Ry @ (d * valid) @ Rx.T, Ry @ valid @ Rx.T
-    return np.where(den >= 0.5, num / np.maximum(den, 1e-12), 0.0).astype(np.float32)
+    return np.where(den >= RESIZE_MIN_WEIGHT, num / np.maximum(den, 1e-12), 0.0).astype(np.float32)
 
 
 def _axis_interpolation(n_in: int, n_out: int, step: float) -> np.ndarray:

@@ -22,8 +22,9 @@ the smoothed depth within two float32 ulp of OpenCV's (the same depth, bit for b
 profile, which does not smooth), the same faces on the tested frames,
 walk coordinates within 1e-4 px (the GPU's cos/sin and fused multiply-adds may differ from the CPU's
 in the last bits of float64; on an H100 the Kinect pair's coordinates and rings reached were
-identical), patch values within 1e-5 where the coordinates agree, descriptors within 1e-4, the
-same matches on the tested frames. Nothing here is imported by `import geofeat`;
+identical), patch values within 1e-5 where the coordinates agree, descriptors within 1e-4 (of the CPU's
+torch backend, `GeoPatch(backend="torch")`; the CPU's default int8 / bfloat16 backends differ from
+both by their rounding), the same matches on the tested frames. Nothing here is imported by `import geofeat`;
 torch and numba.cuda load on first use.
 
 Under numba's CUDA simulator (NUMBA_ENABLE_CUDASIM=1, no GPU needed) the same code runs with torch
@@ -32,6 +33,7 @@ CPU tensors and the walk kernel simulated: that is how the tests run the whole p
 
 from __future__ import annotations
 
+import numbers
 import os
 from dataclasses import dataclass
 
@@ -41,8 +43,8 @@ from .constants import DEFAULT_RADIUS_M, MAX_EDGE_STRETCH, N_ANGLES, N_RINGS, SA
 from .depth import DepthConfig, mean_focal
 from .features import Features, Matches
 from .frame import RGBDFrame
-from .geodesic.mesh import GridMesh, frame_mesh, image_to_mesh
-from .geodesic.polar import check_mesh_shape, check_patch_request
+from .geodesic.mesh import GridMesh, frame_fingerprint, frame_mesh, image_to_mesh
+from .geodesic.polar import MIN_DIRECTION_SHARE, check_blur_px, check_mesh_shape, check_patch_request, walk_starts
 
 #: Attribute of a GridMesh under which its device tables are kept, per device.
 _MESH_ATTR = "_geofeat_device_tables"
@@ -147,6 +149,7 @@ def smooth_depth_torch(depth, levels: int, out_scale: float, window: int = SMOOT
     import torch
     import torch.nn.functional as F
 
+    from . import depth as host  # the CPU pyramid's rules, read at call time: HALVE_MIN_VALID, RESIZE_MIN_WEIGHT
     from .depth import pyramid_resampling
 
     H, W = depth.shape
@@ -168,21 +171,21 @@ def smooth_depth_torch(depth, levels: int, out_scale: float, window: int = SMOOT
         a, b, c, e = d[0:h:2, 0:w:2], d[0:h:2, 1:w:2], d[1:h:2, 0:w:2], d[1:h:2, 1:w:2]
         count = (a > 0).double() + (b > 0).double() + (c > 0).double() + (e > 0).double()
         total = (a + b) + (c + e)
-        d = torch.where(count >= 2, total.double() / torch.clamp(count, min=1.0), torch.zeros((), dtype=torch.float64,
-                                                                                            device=d.device)).float()
+        zero = torch.zeros((), dtype=torch.float64, device=d.device)
+        d = torch.where(count >= host.HALVE_MIN_VALID, total.double() / torch.clamp(count, min=1.0), zero).float()
     matrices = pyramid_resampling((H, W), tuple(d.shape), halvings, size[::-1])
     if matrices is not None:  # a frame the pyramid does not cover: the CPU's exact resampling
         Ry, Rx = (torch.as_tensor(m, dtype=torch.float64, device=d.device) for m in matrices)
         valid = (d > 0).double()
         num, den = Ry @ (d.double() * valid) @ Rx.T, Ry @ valid @ Rx.T
-        return torch.where(den >= 0.5, num / torch.clamp(den, min=1e-12), torch.zeros((), dtype=torch.float64,
-                                                                                     device=d.device)).float()
+        zero = torch.zeros((), dtype=torch.float64, device=d.device)
+        return torch.where(den >= host.RESIZE_MIN_WEIGHT, num / torch.clamp(den, min=1e-12), zero).float()
     if tuple(d.shape) == size:
         return d
     valid = (d > 0).float()
     both = torch.stack([d * valid, valid])[:, None]
     num, den = F.interpolate(both, size=size, mode="bilinear", align_corners=False)[:, 0]
-    return torch.where(den >= 0.5, num / torch.clamp(den, min=1e-12), torch.zeros((), device=d.device))
+    return torch.where(den >= host.RESIZE_MIN_WEIGHT, num / torch.clamp(den, min=1e-12), torch.zeros((), device=d.device))
 
 
 def backproject_torch(depth, K: np.ndarray):
@@ -211,6 +214,8 @@ class DeviceMesh:
         tables: the same five as numba device arrays (views, no copy), the walk kernel's inputs.
         K: (3, 3) intrinsics of the mesh grid. scale: (sx, sy) mesh pixels per image pixel.
         image_shape: (H, W) of the frame. device: the torch device.
+        source: `mesh.frame_fingerprint` of that frame (None when unknown), as `GridMesh.source`:
+            `polar_patches_cuda` refuses the mesh for another frame, as the CPU path does.
     """
 
     tensors: tuple
@@ -219,6 +224,7 @@ class DeviceMesh:
     scale: tuple[float, float]
     image_shape: tuple[int, int]
     device: object
+    source: tuple | None = None
 
     def image_to_mesh(self, xy: np.ndarray) -> np.ndarray:
         """(N, 2) image pixel coordinates -> (N, 2) mesh pixel coordinates."""
@@ -228,7 +234,7 @@ class DeviceMesh:
         """The `GridMesh` (walk tables included) on the host."""
         points, face_ok, normals, local, edges = (t.cpu().numpy() for t in self.tensors)
         mesh = GridMesh(points=points, face_ok=face_ok, normals=normals, K=self.K, scale=self.scale,
-                        image_shape=self.image_shape)
+                        image_shape=self.image_shape, source=self.source)
         mesh.__dict__["walk_tables"] = (local, edges)
         return mesh
 
@@ -269,7 +275,7 @@ def build_mesh_cuda(frame: RGBDFrame, config: DepthConfig | str = "auto", max_ed
     tables = tuple(_as_numba(t) for t in tensors)
     mesh_faces_cuda(tables[0], mean_focal(K), float(max_edge_stretch), out=tables[1:],
                     stream=_numba_stream(dev))
-    return DeviceMesh(tensors, tables, K, scale, (H, W), dev)
+    return DeviceMesh(tensors, tables, K, scale, (H, W), dev, frame_fingerprint(frame))
 
 
 def device_mesh_tables(mesh, dev) -> tuple:
@@ -321,29 +327,69 @@ def gaussian_blur_torch(image, sigma: float):
     return out
 
 
-def sample_bilinear_torch(image, coords):
+def remap_subpixel_steps() -> int | None:
+    """How finely the installed OpenCV's `cv2.remap` (INTER_LINEAR, float32 maps) places a sample
+    between pixels: None when it interpolates at the float coordinates themselves (OpenCV 5), else
+    the number of positions per pixel it rounds them to (32, OpenCV 4's INTER_TAB_SIZE: the
+    coordinates rounded to 1/32 pixel). Measured once, on a 2-pixel ramp."""
+    global _REMAP_STEPS
+    if _REMAP_STEPS == 0:
+        import cv2
+
+        ramp = np.array([[0.0, 1.0], [0.0, 1.0]], np.float32)
+        x = (np.arange(1024, dtype=np.float32) / 1024)[None, :]
+        got = cv2.remap(ramp, x, np.full_like(x, 0.5), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        levels = len(np.unique(got))  # 1024 distinct values, or steps + 1 (0, 1/32, ..., 1)
+        _REMAP_STEPS = None if levels > 256 else levels - 1
+    return _REMAP_STEPS
+
+
+#: `remap_subpixel_steps()` once measured (0: not yet).
+_REMAP_STEPS: int | None = 0
+
+
+def sample_bilinear_torch(image, coords, steps: int | None | str = "opencv"):
     """`geodesic.polar.sample_bilinear` (cv2.remap, INTER_LINEAR, BORDER_REPLICATE) on torch tensors:
     (H, W) float32 image, (..., 2) float32 pixel coordinates (x, y) -> (...) float32.
 
     Float32 bilinear interpolation in OpenCV 5's form (two lerps along x, then one along y, on the
     fractional parts of the coordinates), neighbours off the image clamped to the border: equal to
     cv2.remap's values within 1e-6 (OpenCV's SIMD code fuses some multiply-adds). NaN coordinates
-    give 0 (the caller masks them)."""
+    give 0 (the caller masks them).
+
+    `steps`: "opencv" follows the installed OpenCV (`remap_subpixel_steps`): OpenCV 4's remap rounds
+    the coordinates to 1/32 pixel (round half to even) and weighs the four neighbours with products
+    of those fractions, and so does this then; without it the GPU's patch values differed from the
+    CPU's by up to 4.6e-3 on the Kinect frame under OpenCV 4.10 (pyproject allows >= 4.8).
+    None: no rounding; a number: that many positions per pixel."""
     import torch
 
+    if steps == "opencv":
+        steps = remap_subpixel_steps()
     H, W = image.shape
     ok = torch.isfinite(coords).all(-1)
     c = torch.where(ok[..., None], coords, torch.zeros((), dtype=coords.dtype, device=coords.device)).float()
-    f = torch.floor(c)
-    fx, fy = c[..., 0] - f[..., 0], c[..., 1] - f[..., 1]
-    x0, y0 = f[..., 0].to(torch.int64), f[..., 1].to(torch.int64)
+    flat = image.reshape(-1)
+    if steps:  # OpenCV 4: fixed-point positions, a weight table of float products
+        q = torch.round(c * float(steps)).to(torch.int64)
+        f = torch.div(q, steps, rounding_mode="floor")
+        frac = (q - f * steps).float() * (1.0 / steps)
+        x0, y0 = f[..., 0], f[..., 1]
+        fx, fy = frac[..., 0], frac[..., 1]
+    else:
+        f = torch.floor(c)
+        fx, fy = c[..., 0] - f[..., 0], c[..., 1] - f[..., 1]
+        x0, y0 = f[..., 0].to(torch.int64), f[..., 1].to(torch.int64)
     xa, xb = x0.clamp(0, W - 1), (x0 + 1).clamp(0, W - 1)
     ya, yb = y0.clamp(0, H - 1), (y0 + 1).clamp(0, H - 1)
-    flat = image.reshape(-1)
     s00, s01 = flat[ya * W + xa], flat[ya * W + xb]
     s10, s11 = flat[yb * W + xa], flat[yb * W + xb]
-    top = s00 + fx * (s01 - s00)
-    v = top + fy * ((s10 + fx * (s11 - s10)) - top)
+    if steps:
+        gx, gy = 1.0 - fx, 1.0 - fy
+        v = ((s00 * (gy * gx) + s01 * (gy * fx)) + s10 * (fy * gx)) + s11 * (fy * fx)
+    else:
+        top = s00 + fx * (s01 - s00)
+        v = top + fy * ((s10 + fx * (s11 - s10)) - top)
     return torch.where(ok, v, torch.zeros((), dtype=v.dtype, device=v.device))
 
 
@@ -387,12 +433,13 @@ def polar_patches_cuda(frame: RGBDFrame, keypoints, radius: float = DEFAULT_RADI
 
     dev = require_cuda(device)
     kp = check_patch_request(frame, keypoints, radius, n_angles, n_rings)
+    check_blur_px(blur_px)  # as the CPU's `sampling_image` (a negative one was no blur, one over 20 px ran)
     if mesh is None:  # built on the GPU (the simulator's "GPU" is the CPU), cached on the frame
         mesh = frame_mesh(frame, depth_config, device=mesh_device(dev))
     else:  # of this frame (a host GridMesh also knows its frame's depth and intrinsics)
         check_mesh_shape(mesh, frame)
     points, face_ok, normals, local, edges = device_mesh_tables(mesh, dev)
-    starts = mesh.image_to_mesh(kp) + np.array([1.3e-6, 0.7e-6])
+    starts = walk_starts(mesh, kp)
     host = torch.from_numpy(np.concatenate([starts.ravel(), np.asarray(frame.K, np.float64).ravel()]))
     upload = host.to(dev, non_blocking=False)
     starts_t, K_t = upload[:starts.size].view(-1, 2), upload[starts.size:].view(3, 3)
@@ -406,7 +453,7 @@ def polar_patches_cuda(frame: RGBDFrame, keypoints, radius: float = DEFAULT_RADI
     out = tuple(_as_numba(t) for t in (samples, coords, reached, faces, centre, frames))
     walk_polar_cuda(points, face_ok, normals, local, edges, _as_numba(starts_t), _as_numba(K_t), float(radius),
                     int(n_angles), int(n_rings), MAX_CROSSINGS, out=out, stream=_numba_stream(dev))
-    valid = (reached >= 1).sum(1) * 2 >= n_angles  # patch_validity: half of the directions reach ring 1
+    valid = (reached >= 1).double().mean(1) >= MIN_DIRECTION_SHARE  # patch_validity, the same float64 mean
     coords = torch.where(valid[:, None, None, None], coords, torch.full((), float("nan"), device=dev))
     if image is None:
         image = gaussian_blur_torch(torch.from_numpy(np.ascontiguousarray(frame.image, np.float32)).to(dev),
@@ -482,8 +529,11 @@ def match_cuda(features0, features1, mutual: bool = False, ratio: float | None =
 
     d0, v0 = unpack(features0, "features0")
     d1, v1 = unpack(features1, "features1")
-    if ratio is not None and not (0 < ratio <= 1):
-        raise ValueError(f"ratio: expected a number in (0, 1], got {ratio}")
+    # as `geofeat.match` checks them: ratio=True ran as 1.0, and a truthy mutual="no" as mutual
+    if ratio is not None and (isinstance(ratio, bool) or not isinstance(ratio, numbers.Real) or not 0 < ratio <= 1):
+        raise ValueError(f"ratio: expected a number in (0, 1] or None, got {ratio!r}")
+    if not isinstance(mutual, (bool, np.bool_)):
+        raise ValueError(f"mutual: expected True or False, got {mutual!r}")
     if d0.shape[1:] != d1.shape[1:]:
         raise ValueError(f"descriptors: trailing shapes differ: features0 {tuple(d0.shape)} vs features1 "
                          f"{tuple(d1.shape)}")

@@ -645,19 +645,40 @@ def _hamming_search(d0, d1, valid0, valid1, want_cols, ratio=None, method="auto"
     return bd, best_j, sd, col_j
 
 
-def _hamming_search_torch(d0, d1, valid0, valid1, want_cols, device, block: int | None = None):
+#: The most bits whose dot products float16 holds exactly (every integer up to 2**11): the products
+#: of {0, 1} numbers are exact, and so is every partial sum of at most this many of them.
+FP16_EXACT_BITS = 2048
+
+
+def _hamming_dot_dtype(device_type: str, n_bits: int):
+    """The torch dtype in which `_hamming_search_torch` multiplies {0, 1} bit matrices of `n_bits`
+    columns, exactly: float16 on CUDA up to `FP16_EXACT_BITS` bits (the fast one there), else
+    float32 (every integer up to 2**24; TF32 or bfloat16 inputs hold 0 and 1 exactly and accumulate
+    in float32), and float64 beyond. A float16 product of more bits rounds the dot product (2049 ones
+    gave 2048) and so the distance, silently: descriptors of more than 256 bytes (GeoBit with
+    n_bits > 2048) matched on a GPU differed from the CPU's."""
+    import torch
+
+    if device_type == "cuda" and n_bits <= FP16_EXACT_BITS:
+        return torch.float16
+    return torch.float32 if n_bits <= 1 << 24 else torch.float64
+
+
+def _hamming_search_torch(d0, d1, valid0, valid1, want_cols, device, block: int | None = None, dtype=None):
     """`_hamming_search` as matrix products on a torch device (meant for CUDA; exact).
 
-    Bits become {0, 1} numbers (float16 on CUDA, float32 elsewhere) and, per query block,
-    Hamming(a, b) = |a| + |b| - 2 a.b for every target rotation at once; dot products of at most
-    B * 8 <= 2048 bits are integers held exactly in float16. Then the minimum over rotations, the
-    nearest and second nearest targets (first index among ties, as `torch.argmin`) and, with
-    want_cols, the nearest query of every target. d0, d1: (N, R, B) uint8.
+    Bits become {0, 1} numbers (`_hamming_dot_dtype`: float16 on CUDA for at most 2048 bits, where
+    every dot product is an integer held exactly, float32 otherwise) and, per query block,
+    Hamming(a, b) = |a| + |b| - 2 a.b for every target rotation at once. Then the minimum over
+    rotations, the nearest and second nearest targets (first index among ties, as `torch.argmin`)
+    and, with want_cols, the nearest query of every target. d0, d1: (N, R, B) uint8. `dtype`: the
+    product's dtype instead of `_hamming_dot_dtype`'s (the tests run CUDA's float16 on the CPU).
     """
     import torch
 
     dev = torch.device(device)
-    dtype = torch.float16 if dev.type == "cuda" else torch.float32
+    if dtype is None:
+        dtype = _hamming_dot_dtype(dev.type, 8 * int(d1.shape[-1]))
     shifts = torch.arange(7, -1, -1, device=dev, dtype=torch.uint8)
 
     def on_device(x):  # numpy arrays are uploaded, tensors (e.g. GPU-path descriptors) used in place

@@ -24,8 +24,12 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
         radius: geodesic radius, metres (None: the descriptor's default, 0.075).
         depth_config: depth profile name or `DepthConfig` (default "auto").
         device: None or "cpu": the CPU path. "cuda" (or "cuda:N"): GeoPatch only; the walk, patch
-            sampling and CNN run on the GPU (`geofeat.gpu`; equal to the CPU path within the
-            tolerances stated there), the descriptors come back once at the end. A RuntimeError
+            sampling and CNN run on the GPU (`geofeat.gpu`), the descriptors come back once at the
+            end. The GPU runs GeoPatch's torch network in fp32: its descriptors equal the CPU path's
+            with `GeoPatch(backend="torch")` within the tolerances stated in `geofeat.gpu` (1e-4),
+            not those of the CPU's default backend (int8 or bfloat16, `GeoPatch`'s `backend`),
+            which differ from both by that backend's rounding (3.7e-3 at most, cosine >= 0.9999,
+            openvino-bf16 on the demo frame; the same matching scores). A RuntimeError
             says what is missing when no CUDA GPU can be used. For descriptors that stay on the
             GPU (to match there), see `geofeat.gpu.compute_cuda` and `geofeat.gpu.match_cuda`.
 

@@ -108,6 +108,20 @@ def check_mesh_shape(mesh: GridMesh, frame: RGBDFrame, fingerprint: tuple | None
                          "build it with build_mesh(frame), or leave mesh out")
 
 
+#: Added to every keypoint's mesh position before the walk (mesh pixels, x and y): keeps starts off
+#: the mesh's vertices and edges. The GPU walk starts from the same points (`walk_starts`).
+START_OFFSET_PX = (1.3e-6, 0.7e-6)
+#: A patch is valid when at least this share of its directions reach the first ring (`patch_validity`,
+#: also the GPU path's rule).
+MIN_DIRECTION_SHARE = 0.5
+
+
+def walk_starts(mesh, keypoints: np.ndarray) -> np.ndarray:
+    """(N, 2) float64 mesh pixel coordinates where the walk starts for (N, 2) image `keypoints`:
+    `mesh.image_to_mesh` plus `START_OFFSET_PX`; shared by the CPU and GPU paths."""
+    return mesh.image_to_mesh(keypoints) + np.array(START_OFFSET_PX)
+
+
 def patch_validity(rings_reached: np.ndarray) -> np.ndarray:
     """(N, A) rings reached per direction -> (N,) bool: at least half of the directions reach the
     first ring. A keypoint at the edge of the surface (a silhouette, a hole) keeps the half of its
@@ -115,18 +129,24 @@ def patch_validity(rings_reached: np.ndarray) -> np.ndarray:
     one with surface in fewer than half of its directions is not described."""
     if rings_reached.shape[0] == 0:
         return np.zeros(0, bool)
-    return (rings_reached >= 1).mean(axis=1) >= 0.5
+    return (rings_reached >= 1).mean(axis=1) >= MIN_DIRECTION_SHARE
 
 
 #: The largest sampling blur accepted, pixels (a larger one blurs the patch away).
 MAX_BLUR_PX = 20.0
 
 
+def check_blur_px(blur_px) -> None:
+    """A sampling blur of 0 to `MAX_BLUR_PX` pixels (ValueError naming `blur_px` otherwise); the GPU
+    path (`geofeat.gpu.polar_patches_cuda`) checks it the same way."""
+    if isinstance(blur_px, bool) or not isinstance(blur_px, numbers.Real) or not 0 <= blur_px <= MAX_BLUR_PX:
+        raise ValueError(f"blur_px: expected a Gaussian blur of 0 to {MAX_BLUR_PX} pixels, got {blur_px!r}")
+
+
 def sampling_image(frame: RGBDFrame, blur_px: float = SAMPLING_BLUR_PX) -> np.ndarray:
     """The gray image that patches are read from: (H, W) float32, lightly blurred against aliasing
     (a Gaussian of `blur_px` pixels, 0 = none)."""
-    if isinstance(blur_px, bool) or not isinstance(blur_px, numbers.Real) or not 0 <= blur_px <= MAX_BLUR_PX:
-        raise ValueError(f"blur_px: expected a Gaussian blur of 0 to {MAX_BLUR_PX} pixels, got {blur_px!r}")
+    check_blur_px(blur_px)
     if blur_px <= 0:
         return frame.image
     return cv2.GaussianBlur(frame.image, (0, 0), blur_px)
@@ -192,7 +212,7 @@ def polar_patches(
     else:
         source = frame_fingerprint(frame)
         check_mesh_shape(mesh, frame, source)
-    starts = mesh.image_to_mesh(kp) + np.array([1.3e-6, 0.7e-6])  # keeps starts off vertices/edges
+    starts = walk_starts(mesh, kp)  # kept off vertices/edges
     local, edges = mesh.walk_tables
     samples, coords, reached, _ = walk_polar(
         mesh.points, mesh.face_ok, mesh.normals, local, edges, starts, frame.K, float(radius), int(n_angles),
