@@ -33,7 +33,7 @@ CPU tensors and the walk kernel simulated: that is how the tests run the whole p
 
 from __future__ import annotations
 
-import numbers
+import functools
 import os
 from dataclasses import dataclass
 
@@ -42,6 +42,7 @@ import numpy as np
 from .constants import DEFAULT_RADIUS_M, MAX_EDGE_STRETCH, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX, SMOOTH_WINDOW_PX
 from .depth import DepthConfig, mean_focal
 from .features import Features, Matches
+from .matching import check_match_options
 from .frame import RGBDFrame
 from .geodesic.mesh import GridMesh, frame_fingerprint, frame_mesh, image_to_mesh
 from .geodesic.polar import MIN_DIRECTION_SHARE, check_blur_px, check_mesh_shape, check_patch_request, walk_starts
@@ -327,25 +328,19 @@ def gaussian_blur_torch(image, sigma: float):
     return out
 
 
+@functools.cache
 def remap_subpixel_steps() -> int | None:
     """How finely the installed OpenCV's `cv2.remap` (INTER_LINEAR, float32 maps) places a sample
     between pixels: None when it interpolates at the float coordinates themselves (OpenCV 5), else
     the number of positions per pixel it rounds them to (32, OpenCV 4's INTER_TAB_SIZE: the
-    coordinates rounded to 1/32 pixel). Measured once, on a 2-pixel ramp."""
-    global _REMAP_STEPS
-    if _REMAP_STEPS == 0:
-        import cv2
+    coordinates rounded to 1/32 pixel). Measured once per process, on a 2-pixel ramp."""
+    import cv2
 
-        ramp = np.array([[0.0, 1.0], [0.0, 1.0]], np.float32)
-        x = (np.arange(1024, dtype=np.float32) / 1024)[None, :]
-        got = cv2.remap(ramp, x, np.full_like(x, 0.5), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        levels = len(np.unique(got))  # 1024 distinct values, or steps + 1 (0, 1/32, ..., 1)
-        _REMAP_STEPS = None if levels > 256 else levels - 1
-    return _REMAP_STEPS
-
-
-#: `remap_subpixel_steps()` once measured (0: not yet).
-_REMAP_STEPS: int | None = 0
+    ramp = np.array([[0.0, 1.0], [0.0, 1.0]], np.float32)
+    x = (np.arange(1024, dtype=np.float32) / 1024)[None, :]
+    got = cv2.remap(ramp, x, np.full_like(x, 0.5), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    levels = len(np.unique(got))  # 1024 distinct values, or steps + 1 (0, 1/32, ..., 1)
+    return None if levels > 256 else levels - 1
 
 
 def sample_bilinear_torch(image, coords, steps: int | None | str = "opencv"):
@@ -529,11 +524,7 @@ def match_cuda(features0, features1, mutual: bool = False, ratio: float | None =
 
     d0, v0 = unpack(features0, "features0")
     d1, v1 = unpack(features1, "features1")
-    # as `geofeat.match` checks them: ratio=True ran as 1.0, and a truthy mutual="no" as mutual
-    if ratio is not None and (isinstance(ratio, bool) or not isinstance(ratio, numbers.Real) or not 0 < ratio <= 1):
-        raise ValueError(f"ratio: expected a number in (0, 1] or None, got {ratio!r}")
-    if not isinstance(mutual, (bool, np.bool_)):
-        raise ValueError(f"mutual: expected True or False, got {mutual!r}")
+    check_match_options(ratio, mutual)  # as `geofeat.match` checks them
     if d0.shape[1:] != d1.shape[1:]:
         raise ValueError(f"descriptors: trailing shapes differ: features0 {tuple(d0.shape)} vs features1 "
                          f"{tuple(d1.shape)}")

@@ -963,6 +963,15 @@ def _default_metric(desc: np.ndarray) -> str:
     )
 
 
+def check_match_options(ratio, mutual) -> None:
+    """ValueError unless `ratio` is None or a number in (0, 1] and `mutual` a bool (`match` and
+    `geofeat.gpu.match_cuda`): ratio=True would run as 1.0, and a truthy mutual="no" as mutual."""
+    if ratio is not None and (isinstance(ratio, bool) or not isinstance(ratio, numbers.Real) or not 0 < ratio <= 1):
+        raise ValueError(f"ratio: expected a number in (0, 1] or None, got {ratio!r}")
+    if not isinstance(mutual, (bool, np.bool_)):
+        raise ValueError(f"mutual: expected True or False, got {mutual!r}")
+
+
 def match(
     features0: Features | np.ndarray,
     features1: Features | np.ndarray,
@@ -1016,10 +1025,7 @@ def match(
         metric = metric_of_pair(d0, d1, valid=(valid0, valid1))
     if metric not in METRICS:
         raise ValueError(f"metric: expected one of {METRICS} or None, got {metric!r}")
-    if ratio is not None and (isinstance(ratio, bool) or not isinstance(ratio, numbers.Real) or not 0 < ratio <= 1):
-        raise ValueError(f"ratio: expected a number in (0, 1] or None, got {ratio!r}")  # True ran as 1.0
-    if not isinstance(mutual, (bool, np.bool_)):
-        raise ValueError(f"mutual: expected True or False, got {mutual!r}")  # "no" was truthy
+    check_match_options(ratio, mutual)
     n0, n1 = d0.shape[0], d1.shape[0]
     if metric == "l2":
         if d0.ndim != 2:

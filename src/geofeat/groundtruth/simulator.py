@@ -146,20 +146,19 @@ def surface_coordinates(truth: FrameTruth, K: np.ndarray, spacing: float, points
     rows, cols = truth.vertices.shape[:2]
     seed = uv[ok]
     ray = np.stack([(points[ok, 0] - K[0, 2]) / K[0, 0], (points[ok, 1] - K[1, 2]) / K[1, 1], np.ones(ok.sum())], axis=1)
-    # fallback where no visited triangle holds the intersection (the ray passes a silhouette or the
-    # cloth border): the intersection with the seed triangle's plane, or the pixel-centre value
-    # where that jumps (it is then an extrapolation far off the triangle)
-    r, c, _, _, upper = _triangles_of(seed, rows, cols, spacing)
-    fu, fv, good = _ray_in_triangle(truth.vertices, ray, r, c, upper)
-    result = np.stack([(c + fu) * spacing, (r + fv) * spacing], axis=1)
-    keep = ~good | (np.linalg.norm(result - seed, axis=1) > 2 * spacing)
-    result[keep] = seed[keep]
+    result = seed.copy()
     current, todo = seed.copy(), np.arange(len(seed))
     extent = np.array([cols - 1, rows - 1]) * spacing
-    for _ in range(MAX_WALK):
+    for step in range(MAX_WALK):
         r, c, _, _, upper = _triangles_of(current[todo], rows, cols, spacing)
         fu, fv, good = _ray_in_triangle(truth.vertices, ray[todo], r, c, upper)
         hit = np.stack([(c + fu) * spacing, (r + fv) * spacing], axis=1)
+        if step == 0:
+            # fallback where no visited triangle holds the intersection (the ray passes a silhouette or
+            # the cloth border): the intersection with the seed triangle's plane, or the pixel-centre
+            # value where that jumps (it is then an extrapolation far off the triangle)
+            near = good & (np.linalg.norm(hit - seed, axis=1) <= 2 * spacing)
+            result[near] = hit[near]
         # inside the triangle: 0 <= fv <= fu <= 1 (upper) or 0 <= fu <= fv <= 1 (lower), with slack
         lo, hi = np.where(upper, fv, fu), np.where(upper, fu, fv)
         inside = good & (lo >= -1e-9) & (hi <= 1 + 1e-9) & (np.where(upper, fu - fv, fv - fu) >= -1e-9)
