@@ -241,6 +241,23 @@ def test_gpu_mesh_equals_cpu_mesh(pair):
 
 
 @pytest.mark.skipif(not CUDA, reason="no CUDA GPU")
+def test_an_explicit_device_index_gives_the_same_patches(pair):
+    """device="cuda:N" runs numba's kernels in that GPU's context (`gpu._numba_on`): on the last GPU
+    torch sees, the patches equal those of the default device, bit for bit."""
+    import torch
+
+    from geofeat.gpu import polar_patches_cuda
+
+    frame, kps = pair[0]
+    last = f"cuda:{torch.cuda.device_count() - 1}"
+    ref = polar_patches_cuda(frame, kps.xy[:256]).to_host()
+    got = polar_patches_cuda(frame, kps.xy[:256], device=last).to_host()
+    np.testing.assert_array_equal(got.valid, ref.valid)
+    np.testing.assert_array_equal(got.coords, ref.coords)
+    np.testing.assert_array_equal(got.values, ref.values)
+
+
+@pytest.mark.skipif(not CUDA, reason="no CUDA GPU")
 def test_gpu_path_equals_cpu_path(pair):
     """On a real GPU, float64 arithmetic differs from the CPU's in the last bits (fused multiply-adds,
     libdevice's cos/sin), so a ray that grazes a mesh vertex may take the other face: the tolerances

@@ -33,6 +33,7 @@ CPU tensors and the walk kernel simulated: that is how the tests run the whole p
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 from dataclasses import dataclass
@@ -127,6 +128,18 @@ def _as_numba(t):
     from numba import cuda
 
     return cuda.as_cuda_array(t.detach(), sync=False)
+
+
+def _numba_on(dev):
+    """A context manager that makes torch device `dev`'s GPU numba's current one: numba launches its
+    kernels, and views torch's memory, in its current context, which is the first GPU unless told;
+    torch's tensors of "cuda:1" live on the second."""
+    if simulated():
+        return contextlib.nullcontext()
+    import torch
+    from numba import cuda
+
+    return cuda.gpus[dev.index if dev.index is not None else torch.cuda.current_device()]
 
 
 def _numba_stream(dev):
@@ -241,7 +254,7 @@ class DeviceMesh:
 
 
 def build_mesh_cuda(frame: RGBDFrame, config: DepthConfig | str = "auto", max_edge_stretch: float = MAX_EDGE_STRETCH,
-                    device="cuda") -> DeviceMesh:
+                    device="cuda", fingerprint: tuple | None = None) -> DeviceMesh:
     """`geodesic.mesh.build_mesh` and its walk tables on the GPU. The host fills the depth's small
     holes (`depth.fill_holes`: a connected-component labelling, serial work) and uploads the filled
     (H, W) float32 depth; then on the GPU: the smoothing pyramid (`smooth_depth_torch`), the
@@ -251,7 +264,8 @@ def build_mesh_cuda(frame: RGBDFrame, config: DepthConfig | str = "auto", max_ed
 
     `config`: a DepthConfig or a profile name; "auto" measures the frame on the host each call
     (`depth.depth_profile`: 4 ms on the Kinect frame, 5-10 ms on clean depth), so a stream should resolve it once
-    (`depth.sequence_depth_profile`) and pass the profile."""
+    (`depth.sequence_depth_profile`) and pass the profile. `fingerprint`: the frame's
+    `mesh.frame_fingerprint`, when the caller has just computed it."""
     import torch
 
     from .depth import filled_depth, resolve_depth_config, scale_intrinsics
@@ -273,10 +287,12 @@ def build_mesh_cuda(frame: RGBDFrame, config: DepthConfig | str = "auto", max_ed
     local = torch.zeros(cells + (3,), dtype=torch.float64, device=dev)
     edges = torch.zeros(cells + (3, 2), dtype=torch.float64, device=dev)
     tensors = (points, face_ok, normals, local, edges)
-    tables = tuple(_as_numba(t) for t in tensors)
-    mesh_faces_cuda(tables[0], mean_focal(K), float(max_edge_stretch), out=tables[1:],
-                    stream=_numba_stream(dev))
-    return DeviceMesh(tensors, tables, K, scale, (H, W), dev, frame_fingerprint(frame))
+    with _numba_on(dev):
+        tables = tuple(_as_numba(t) for t in tensors)
+        mesh_faces_cuda(tables[0], mean_focal(K), float(max_edge_stretch), out=tables[1:],
+                        stream=_numba_stream(dev))
+    source = fingerprint if fingerprint is not None else frame_fingerprint(frame)
+    return DeviceMesh(tensors, tables, K, scale, (H, W), dev, source)
 
 
 def device_mesh_tables(mesh, dev) -> tuple:
@@ -295,7 +311,8 @@ def device_mesh_tables(mesh, dev) -> tuple:
         local, edges = mesh.walk_tables
         tensors = [torch.from_numpy(np.ascontiguousarray(a)).to(dev)
                    for a in (mesh.points, mesh.face_ok, mesh.normals, local, edges)]
-        hit = (tensors, tuple(_as_numba(t) for t in tensors))
+        with _numba_on(dev):
+            hit = (tensors, tuple(_as_numba(t) for t in tensors))
         cache[str(dev)] = hit
     return hit[1]
 
@@ -445,9 +462,10 @@ def polar_patches_cuda(frame: RGBDFrame, keypoints, radius: float = DEFAULT_RADI
     faces = torch.full((N, 3), -1, dtype=torch.int64, device=dev)
     centre = torch.full((N, 3), float("nan"), dtype=torch.float64, device=dev)
     frames = torch.zeros((N, 3, 3), dtype=torch.float64, device=dev)
-    out = tuple(_as_numba(t) for t in (samples, coords, reached, faces, centre, frames))
-    walk_polar_cuda(points, face_ok, normals, local, edges, _as_numba(starts_t), _as_numba(K_t), float(radius),
-                    int(n_angles), int(n_rings), MAX_CROSSINGS, out=out, stream=_numba_stream(dev))
+    with _numba_on(dev):
+        out = tuple(_as_numba(t) for t in (samples, coords, reached, faces, centre, frames))
+        walk_polar_cuda(points, face_ok, normals, local, edges, _as_numba(starts_t), _as_numba(K_t), float(radius),
+                        int(n_angles), int(n_rings), MAX_CROSSINGS, out=out, stream=_numba_stream(dev))
     valid = (reached >= 1).double().mean(1) >= MIN_DIRECTION_SHARE  # patch_validity, the same float64 mean
     coords = torch.where(valid[:, None, None, None], coords, torch.full((), float("nan"), device=dev))
     if image is None:
@@ -517,13 +535,24 @@ def match_cuda(features0, features1, mutual: bool = False, ratio: float | None =
         if d.ndim < 2 or tuple(v.shape) != tuple(d.shape[:1]):
             raise ValueError(f"{which}: expected (N, ...) descriptors and (N,) valid flags, got shapes "
                              f"{tuple(d.shape)} and {tuple(v.shape)}")
-        if d.dtype.is_floating_point and not bool((torch.isfinite(d).flatten(1).all(1) | ~v).all()):
-            raise ValueError(f"descriptors: {which} has NaN or infinite values at valid keypoints; mark them "
-                             "invalid or drop them")
         return d, v
+
+    def finite(d, v):
+        """Whether every valid descriptor is finite, as a 0-d tensor on the device (no sync)."""
+        if not d.dtype.is_floating_point:
+            return torch.ones((), dtype=torch.bool, device=d.device)
+        return (torch.isfinite(d).flatten(1).all(1) | ~v).all()
+
+    def check_finite():  # one read back for both features
+        for which, ok in zip(("features0", "features1"), finite_flags.tolist()):
+            if not ok:
+                raise ValueError(f"descriptors: {which} has NaN or infinite values at valid keypoints; mark them "
+                                 "invalid or drop them")
 
     d0, v0 = unpack(features0, "features0")
     d1, v1 = unpack(features1, "features1")
+    finite_flags = torch.stack([finite(d0, v0), finite(d1, v1)])  # on the device: read after the search, whose
+    # results come back anyway, so that the check adds no wait of its own
     check_match_options(ratio, mutual)  # as `geofeat.match` checks them
     if d0.shape[1:] != d1.shape[1:]:
         raise ValueError(f"descriptors: trailing shapes differ: features0 {tuple(d0.shape)} vs features1 "
@@ -534,6 +563,7 @@ def match_cuda(features0, features1, mutual: bool = False, ratio: float | None =
                          "match descriptors of one type")
     n0 = d0.shape[0]
     if n0 == 0 or d1.shape[0] == 0:
+        check_finite()
         return Matches(np.full(n0, -1, np.int64), np.full(n0, np.inf))
     if d0.dtype.is_floating_point:
         res = _l2_search_torch(d0, d1, v0, v1, mutual)
@@ -544,4 +574,5 @@ def match_cuda(features0, features1, mutual: bool = False, ratio: float | None =
     else:
         raise ValueError(f"descriptors: expected float (N, D) or uint8 (N, B) / (N, R, B), got {d0.dtype} "
                          f"{tuple(d0.shape)}")
+    check_finite()
     return _finish_matches(*res, ratio=ratio, mutual=mutual)

@@ -739,8 +739,10 @@ def _l2_search_torch(d0, d1, valid0, valid1, want_cols):
 
     dtype = torch.float64 if torch.float64 in (d0.dtype, d1.dtype) else torch.float32
     valid0, valid1 = valid0.bool(), valid1.bool()
-    rows = torch.cat([d0[valid0], d1[valid1]]).double()
-    centre = (rows.mean(0).round() if len(rows) else rows.new_zeros(d0.shape[1])).to(dtype)  # as `_valid_mean`
+    # `_valid_mean` as masked sums: boolean indexing would wait for the GPU twice to learn the row counts
+    total = torch.where(valid0[:, None], d0.double(), 0.0).sum(0) + torch.where(valid1[:, None], d1.double(), 0.0).sum(0)
+    count = (valid0.sum() + valid1.sum()).clamp_min(1).double()
+    centre = torch.round(total / count).to(dtype)  # zeros when none is valid, as `_valid_mean`
     a, b = d0.to(dtype) - centre, d1.to(dtype) - centre
     n1 = b.shape[0]
     from .process_settings import no_tf32

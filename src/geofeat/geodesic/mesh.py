@@ -161,16 +161,18 @@ def check_frame_arrays(frame: RGBDFrame) -> None:
 
 
 def build_mesh(frame: RGBDFrame, config: DepthConfig | str = "auto",
-               max_edge_stretch: float = MAX_EDGE_STRETCH) -> GridMesh:
+               max_edge_stretch: float = MAX_EDGE_STRETCH, fingerprint: tuple | None = None) -> GridMesh:
     """Preprocess the frame's depth (a `DepthConfig`, or a profile name: "auto", "kinect", "quantised",
-    "clean"; see `geofeat.depth.depth_profile`) and build its GridMesh."""
+    "clean"; see `geofeat.depth.depth_profile`) and build its GridMesh. `fingerprint`: the frame's
+    `frame_fingerprint`, when the caller has just computed it (a CRC of the depth: 0.3 ms per 640 x 480)."""
     check_frame_arrays(frame)
     depth = preprocess_depth(frame.depth, resolve_depth_config(config, frame))
     H, W = frame.shape
     Hm, Wm = depth.shape
     scale = (Wm / W, Hm / H)
     K = scale_intrinsics(frame.K, *scale)
-    return mesh_from_points(backproject(depth, K), K, scale, (H, W), max_edge_stretch, frame_fingerprint(frame))
+    source = fingerprint if fingerprint is not None else frame_fingerprint(frame)
+    return mesh_from_points(backproject(depth, K), K, scale, (H, W), max_edge_stretch, source)
 
 
 #: Attribute of an RGBDFrame under which `frame_mesh` keeps its meshes.
@@ -217,8 +219,8 @@ def frame_mesh(frame: RGBDFrame, config: DepthConfig | str = "auto",
         from ..gpu import build_mesh_cuda
 
         check_frame_arrays(frame)
-        mesh = build_mesh_cuda(frame, config, max_edge_stretch, device=device)
+        mesh = build_mesh_cuda(frame, config, max_edge_stretch, device=device, fingerprint=fingerprint)
     else:
-        mesh = build_mesh(frame, config, max_edge_stretch)
+        mesh = build_mesh(frame, config, max_edge_stretch, fingerprint=fingerprint)
     cache[key] = (fingerprint, mesh)
     return mesh
