@@ -238,7 +238,8 @@ class GeoBit:
 
         Args:
             patch_values: (N, n_rings, n_angles) intensities (any real dtype).
-            valid: (N,) bool; invalid keypoints get all-zero descriptors. None = all valid.
+            valid: (N,) bool; invalid keypoints get all-zero descriptors. None = all valid. Valid
+                patches must be finite (ValueError otherwise).
 
         Returns:
             (N, n_rotations, n_bits // 8) uint8 packed bits.
@@ -253,6 +254,12 @@ class GeoBit:
         if valid.shape != (n,):
             raise ValueError(f"valid: expected shape ({n},), got {valid.shape}")
         flat = np.ascontiguousarray(v.reshape(n, self.n_rings * self.n_angles), dtype=np.float32)
+        # a NaN compares False with everything: its tests were silently 0 bits of a descriptor marked
+        # valid (GeoPatch refuses such patches too)
+        bad = np.flatnonzero(valid & ~np.isfinite(flat).all(axis=1))
+        if len(bad):
+            raise ValueError(f"patch_values: NaN or infinite values in valid patches {bad[:10].tolist()}; "
+                             "mark them invalid (valid=False)")
         out = np.empty((n,) + self.descriptor_shape, np.uint8)
         if n:
             _binary_tests(flat, valid, self.index_x, self.index_y, out)
