@@ -646,3 +646,42 @@ def test_sequences_of_one_frame_only_are_one_error_before_anything_is_written(tm
     with pytest.raises(ValueError, match="no sequence has a reference and a target frame.*bag"):
         run_benchmark([str(tmp_path / "data")], out, BenchConfig(descriptors=("geobit",)), progress=False)
     assert not out.exists()
+
+
+def test_a_rerun_refuses_features_rewritten_at_the_same_path(datasets, tmp_path):
+    """`--features NAME=PATH` rewritten in place since a run (the user's export fixed, another method
+    saved over it): a rerun into the same --out used to skip the finished sequence and keep the old
+    file's scores under the name. Features added for another sequence leave the finished one's alone."""
+    import h5py
+
+    seqs = datasets / "seqs"
+    path = tmp_path / "mine.h5"
+
+    def write(sequence, shift=0.0):
+        s = geofeat.read_sequence(seqs / sequence)
+        with h5py.File(path, "a") as fd:
+            for name in s.names:
+                frame = s.frame(name)
+                f = geofeat.make_descriptor("orb").compute(frame, geofeat.detect(frame, 200, detector="sift"))
+                if f"{sequence}/{name}" in fd:
+                    del fd[f"{sequence}/{name}"]
+                g = fd.create_group(f"{sequence}/{name}")
+                g["keypoints"] = np.clip(f.keypoints[f.valid] + shift, 0, 230)
+                g["descriptors"] = f.descriptors[f.valid]
+
+    write("a-deform")
+    config = BenchConfig(descriptors=(), features=(f"mine={path}",), n_keypoints=200)
+    csv_path, failed = run_benchmark(seqs / "a-deform", tmp_path / "out", config, progress=False)
+    before = read_rows(csv_path)
+    assert not failed and len(before) == 2 and all(float(r["ms"]) > 0 for r in before)
+    # unchanged, and another sequence's groups added: the finished rows are kept, the new sequence scored
+    write("b-rotate")
+    csv_path, failed = run_benchmark(seqs, tmp_path / "out", config, progress=False)
+    rows = read_rows(csv_path)
+    assert not failed and rows[:2] == before and {r["sequence"] for r in rows[2:]} == {"b-rotate"}
+    # a-deform's features rewritten (shifted 5 px): they score otherwise, and the rerun says so
+    write("a-deform", shift=5.0)
+    fresh, _ = run_benchmark(seqs / "a-deform", tmp_path / "fresh", config, progress=False)
+    assert [r["ms"] for r in read_rows(fresh)] != [r["ms"] for r in before]
+    with pytest.raises(ValueError, match="--features mine of a-deform, whose files changed since"):
+        run_benchmark(seqs, tmp_path / "out", config, progress=False)

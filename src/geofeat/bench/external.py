@@ -29,6 +29,7 @@ is read as (D, N) whenever its second axis has one entry per keypoint, even when
 from __future__ import annotations
 
 import glob
+import hashlib
 from pathlib import Path
 
 import numpy as np
@@ -224,6 +225,37 @@ class ExternalFeatures:
             if candidate.is_file():
                 return str(candidate)
         return None
+
+    def digest(self, sequence: str, frames: list[str]) -> str:
+        """SHA-1 (hex) of what `load` reads for `frames` of `sequence`: each frame's group (.h5: its
+        datasets' names, dtypes, shapes and bytes) or file (.npz: its bytes), or that it has none.
+        It changes when the features of one of these frames are rewritten in place, and not when
+        groups or files of other sequences are added (`geofeat bench` resumes by it)."""
+        digest = hashlib.sha1()
+        keys = [self.source(sequence, frame) for frame in frames]
+        if self.path.is_file() and any(key is not None for key in keys):
+            import h5py
+
+            with _open_h5(self.path, "r") as fd:
+                for frame, key in zip(frames, keys):
+                    digest.update(f"{frame}\0{key}\0".encode())
+                    if key is None:
+                        continue
+                    group = fd[key]
+                    for name in sorted(group):
+                        if isinstance(group[name], h5py.Dataset):
+                            value = np.asarray(group[name][()])
+                            digest.update(f"{name}\0{value.dtype.str}\0{value.shape}\0".encode())
+                            digest.update(np.ascontiguousarray(value).tobytes() if value.dtype.kind != "O"
+                                          else repr(value.tolist()).encode())
+            return digest.hexdigest()
+        for frame, key in zip(frames, keys):
+            digest.update(f"{frame}\0{key is not None}\0".encode())
+            if key is not None:
+                with open(key, "rb") as fh:
+                    for block in iter(lambda: fh.read(1 << 20), b""):
+                        digest.update(block)
+        return digest.hexdigest()
 
     def _read(self, sequence: str, frame: str) -> tuple[dict[str, np.ndarray], str]:
         """The arrays of `frame` and where they come from (for messages)."""

@@ -479,6 +479,7 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
     config_path = out / "config.json"
     resume = csv_path.is_file() and not overwrite
     made_by = provenance(config)  # hashes the weights files once
+    feature_digests = _feature_digests(config, folders)
     header = None
     if csv_path.is_file():
         with open(csv_path, newline="", encoding="utf-8") as fh:
@@ -525,6 +526,19 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
             raise ValueError(f"out: {out} holds results of {', '.join(changed)}, whose files changed since (a frame "
                              "replaced, added or removed); use --overwrite or another --out")
         digests = {**stored, **digests}
+        stored_features = before.get("feature_digests") if isinstance(before.get("feature_digests"), dict) else {}
+        rewritten = sorted(f"{name} of {sequence}" for sequence, name in done if name in feature_digests
+                           and sequence in feature_digests[name]
+                           and isinstance(stored_features.get(name), dict)
+                           and stored_features[name].get(sequence, feature_digests[name][sequence])
+                           != feature_digests[name][sequence])
+        if rewritten:  # their rows score the features that were there before
+            raise ValueError(f"out: {out} holds results of the --features {', '.join(rewritten)}, whose files "
+                             "changed since (a frame's features rewritten, added or removed); use --overwrite or "
+                             "another --out")
+        feature_digests = {name: {**(stored_features.get(name) if isinstance(stored_features.get(name), dict)
+                                     else {}), **per_sequence}
+                           for name, per_sequence in feature_digests.items()}
     else:
         with atomic_file(csv_path) as tmp:
             with open(tmp, "w", newline="", encoding="utf-8") as fh:
@@ -538,7 +552,7 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
                 (out / name).unlink(missing_ok=True)
     with atomic_file(config_path) as tmp:
         tmp.write_text(json.dumps({**asdict(config), "provenance": made_by, "sequences": read_from,
-                                   "sequence_digests": digests}, indent=1), encoding="utf-8")
+                                   "sequence_digests": digests, "feature_digests": feature_digests}, indent=1), encoding="utf-8")
     add_to_manifest(out, ["results.csv", "config.json"])
     return done
 
@@ -553,6 +567,17 @@ def _digests(folders: list[str]) -> dict[str, str]:
     """For config.json: each sequence's `io.sequence_digest`, so that a rerun does not keep the rows of
     a sequence whose frames were replaced in place since."""
     return {Path(f).name: sequence_digest(f) for f in folders}
+
+
+def _feature_digests(config: BenchConfig, folders: list[str]) -> dict[str, dict[str, str]]:
+    """For config.json: per --features set, each sequence's `ExternalFeatures.digest`, so that a rerun
+    does not keep the rows of features rewritten at the same path since (as weights are compared
+    by their SHA-256)."""
+    out: dict[str, dict[str, str]] = {}
+    for option in config.features:
+        features = ExternalFeatures(*parse_features_option(option))
+        out[features.name] = {Path(f).name: features.digest(Path(f).name, frame_names(f)) for f in folders}
+    return out
 
 
 def provenance(config: BenchConfig) -> dict:
