@@ -446,3 +446,31 @@ def test_a_frame_whose_refined_spline_fails_reports_the_time_it_took(tmp_path, m
                                     progress=False)
     assert reports[0].status == "failed" and "refinement diverged: no spline" in reports[0].reason
     assert reports[0].seconds >= 0.3
+
+
+def test_tps_object_mask_is_read_at_the_nearest_pixel():
+    """Pixel centres are at integers: x = 3.6 lies on pixel 4 and x = 4.6 on pixel 5 (truncation read
+    pixels 3 and 4, moving the object mask and the SSIM threshold half a pixel to the right)."""
+    from geofeat.groundtruth.sources import _on_mask
+
+    mask = np.zeros((10, 10), np.uint8)
+    mask[:, 4] = 255  # only column 4 is on the object
+    xs = np.array([3.4, 3.6, 4.0, 4.4, 4.6])
+    on = _on_mask(mask, np.stack([xs, np.full_like(xs, 5.0)], axis=1))
+    assert on.tolist() == [False, True, True, True, False]
+    ys = np.array([-0.4, 9.4, 9.6])  # the image's edge: -0.5 .. H - 0.5
+    assert _on_mask(np.ones((10, 10), np.uint8), np.stack([np.full_like(ys, 5.0), ys], axis=1)).tolist() == [True, True, False]
+
+
+def test_reference_mask_holds_every_landmark_pixel_with_no_margin():
+    """The hull of the landmarks is drawn through their nearest pixels: with --margin 0 the pixel under
+    each landmark is on the object (truncation drew it through 20 for a landmark at 20.9)."""
+    from geofeat.frame import RGBDFrame
+    from geofeat.groundtruth import reference_mask
+
+    frame = RGBDFrame(np.full((32, 32), 0.5, np.float32), np.ones((32, 32)),
+                      np.array([[30.0, 0, 15.5], [0, 30.0, 15.5], [0, 0, 1]]))
+    lm = np.array([[10.9, 10.9], [20.9, 10.9], [20.9, 20.9], [10.9, 20.9], [15.6, 20.7]])
+    mask = reference_mask(frame, lm, margin_px=0.0, depth_margin_m=0.1)
+    px = np.rint(lm).astype(int)
+    assert mask[px[:, 1], px[:, 0]].all()
