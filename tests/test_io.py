@@ -194,6 +194,7 @@ def test_write_intrinsics_refuses_what_read_intrinsics_cannot_read(tmp_path):
     ("id,y,x,valid\n0,20,10,1\n", "header 'id,y,x,valid' names the columns in another order"),  # x, y swapped
     ("x,y,id,valid\n10,20,0,1\n", "header .x,y,id,valid. names the columns in another order"),
     ("# X, Y, ID, valid\n10, 20, 0, 1\n", "names the columns in another order"),  # id 10 at (20, 0)
+    ("id,row,col,valid\n0,20,10,1\n", "header 'id,row,col,valid' names the columns in another order"),  # (20, 10)
 ])
 def test_landmark_csv_that_was_read_as_something_else(tmp_path, text, message):
     (tmp_path / "f.csv").write_text(text)
@@ -202,7 +203,8 @@ def test_landmark_csv_that_was_read_as_something_else(tmp_path, text, message):
 
 
 def test_landmark_csv_layouts_still_read(tmp_path):
-    for text in ("# id, x, y, valid\n0, 245, 202, 1\n\n1\t3.5\t-1\t0\n", "id,x,y,valid\r\n0,245,202,1,\r\n1,3.5,-1,0\r\n"):
+    for text in ("# id, x, y, valid\n0, 245, 202, 1\n\n1\t3.5\t-1\t0\n", "id,x,y,valid\r\n0,245,202,1,\r\n1,3.5,-1,0\r\n",
+                 "id, Column, Row, valid\n0,245,202,1\n1,3.5,-1,0\n"):
         (tmp_path / "f.csv").write_text(text)
         ids, xy, visible = read_landmarks(tmp_path / "f.csv")
         assert ids.tolist() == [0, 1] and xy.tolist() == [[245, 202], [3.5, -1]] and visible.tolist() == [True, False]

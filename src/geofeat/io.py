@@ -268,9 +268,13 @@ def _csv_fields(line: str) -> list[str]:
     return line.split()
 
 
+#: Landmark csv header names that mean a coordinate: a row is y, a column x.
+_HEADER_SYNONYMS = {"row": "y", "rows": "y", "col": "x", "cols": "x", "column": "x", "columns": "x"}
+
+
 def read_landmarks(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Read a landmark csv (`id, x, y, valid` after one header line; exactly these four fields a row,
-    valid 0 or 1). A header that names `id`, `x` or `y` in another column is refused.
+    valid 0 or 1). A header that names `id`, `x` or `y` (or `col`, `row`) in another column is refused.
 
     Returns:
         ids (N,) int64, xy (N, 2) float64 pixels, visible (N,) bool (valid flag set and x, y >= 0).
@@ -289,7 +293,8 @@ def read_landmarks(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
         if first is not None and len(first) == 4:
             raise ValueError(f"landmarks: {path}: the first line {lines[0].strip()!r} is a landmark, not a header; "
                              "the csv needs a header line such as 'id,x,y,valid'")
-        columns = [t.strip(" #\"'").lower() for t in _csv_fields(lines[0])]
+        # a header in rows and columns names y first: 'id,row,col,valid' is 'id,y,x,valid'
+        columns = [_HEADER_SYNONYMS.get(c, c) for c in (t.strip(" #\"'").lower() for t in _csv_fields(lines[0]))]
         if any(name in columns and columns.index(name) != i for i, name in enumerate(("id", "x", "y"))):
             # the header is not otherwise read: 'id,y,x,valid' swapped x and y without a word
             raise ValueError(f"landmarks: {path}: the header {lines[0].strip()!r} names the columns in another "
