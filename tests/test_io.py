@@ -28,6 +28,25 @@ def test_landmarks():
     np.testing.assert_array_equal(xy[0], [245, 202])
 
 
+def test_landmarks_normalised_by_the_image_size_are_refused(tmp_path):
+    """x, y in 0..1 (an annotation tool's normalised export) were read as pixels: every landmark in the
+    top-left pixel, and `geofeat groundtruth` reported such a frame "ok" with a spline of that pixel."""
+    src = demo_data_dir()
+    for name in ("cloud_master", "cloud_1"):
+        shutil.copy(src / "cloud_1-rgb.png", tmp_path / f"{name}-rgb.png")
+        shutil.copy(src / "cloud_1-depth.png", tmp_path / f"{name}-depth.png")
+        shutil.copy(src / "cloud_1.csv", tmp_path / f"{name}.csv")
+    shutil.copy(src / "intrinsics.xml", tmp_path)
+    seq = geofeat.read_sequence(tmp_path)
+    ids, xy, visible = seq.landmarks("cloud_1")  # pixels: read
+    assert visible.sum() == 51 and xy.max() > 100
+    write_landmarks(tmp_path / "cloud_1.csv", ids, xy / [640, 480], visible)
+    with pytest.raises(ValueError, match=r"cloud_1.csv has all 51 visible landmarks within one pixel .*multiply x by 640"):
+        seq.landmarks("cloud_1")
+    write_landmarks(tmp_path / "cloud_1.csv", ids, np.where(visible[:, None], xy / [640, 480], -1), visible & (ids == 0))
+    assert seq.landmarks("cloud_1")[2].sum() == 1  # one landmark is no evidence of normalised coordinates
+
+
 def test_read_sequence_reference_first_and_round_trips(tmp_path):
     src = demo_data_dir()
     for name in ("frame_b", "frame_a", "cloud_master"):

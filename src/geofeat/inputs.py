@@ -244,8 +244,10 @@ def as_points(xy: Any, what: str = "xy") -> np.ndarray:
 
 def check_landmarks(ids: np.ndarray, xy: np.ndarray, visible: np.ndarray, shape: tuple[int, int],
                     where: str) -> None:
-    """The one landmark validator (groundtruth, match, bench): ids unique, visible landmarks finite
-    and on the (H, W) image (pixel centres at integers, so within -0.5 .. W - 0.5)."""
+    """The one landmark validator (groundtruth, match, bench): ids (N,) unique, visible landmarks of
+    xy (N, 2) finite and on the (H, W) image (pixels, centres at integers, so within -0.5 .. W - 0.5),
+    and not all within [0, 1] x [0, 1] (coordinates normalised by the image size: read as pixels they
+    put every landmark in the top-left pixel, and a spline through them maps that pixel only)."""
     H, W = shape
     uniq, counts = np.unique(ids, return_counts=True)
     if (counts > 1).any():
@@ -254,6 +256,11 @@ def check_landmarks(ids: np.ndarray, xy: np.ndarray, visible: np.ndarray, shape:
     bad = visible & ~np.isfinite(xy).all(axis=1)
     if bad.any():
         raise ValueError(f"landmarks: {where} has visible landmarks without finite coordinates: ids {ids[bad][:10].tolist()}")
+    seen = xy[visible]
+    if len(seen) >= 2 and min(H, W) > 2 and (seen >= 0).all() and (seen <= 1).all():
+        raise ValueError(f"landmarks: {where} has all {len(seen)} visible landmarks within one pixel of the top-left "
+                         f"corner (x, y in 0..1, e.g. {np.round(seen[0], 3).tolist()}); coordinates normalised by the "
+                         f"image size? geofeat reads pixels: multiply x by {W} and y by {H}")
     off = visible & ((xy[:, 0] > W - 0.5) | (xy[:, 1] > H - 0.5) | (xy[:, 0] < -0.5) | (xy[:, 1] < -0.5))
     if off.any():
         raise ValueError(f"landmarks: {where} has visible landmarks off the {W}x{H} image: ids "
