@@ -214,6 +214,8 @@ def test_write_intrinsics_refuses_what_read_intrinsics_cannot_read(tmp_path):
     ("x,y,id,valid\n10,20,0,1\n", "header .x,y,id,valid. names the columns in another order"),
     ("# X, Y, ID, valid\n10, 20, 0, 1\n", "names the columns in another order"),  # id 10 at (20, 0)
     ("id,row,col,valid\n0,20,10,1\n", "header 'id,row,col,valid' names the columns in another order"),  # (20, 10)
+    ("id,x,y,occluded\n0,10,20,0\n1,30,40,1\n", "names a flag that is 1 where the landmark is hidden"),  # inverted
+    ("# id, x, y, Hidden\n0,10,20,0\n", "names a flag that is 1 where the landmark is hidden"),
 ])
 def test_landmark_csv_that_was_read_as_something_else(tmp_path, text, message):
     (tmp_path / "f.csv").write_text(text)

@@ -272,9 +272,14 @@ def _csv_fields(line: str) -> list[str]:
 _HEADER_SYNONYMS = {"row": "y", "rows": "y", "col": "x", "cols": "x", "column": "x", "columns": "x"}
 
 
+#: Names of a last csv column that flags hidden landmarks, the opposite of `valid`.
+_HIDDEN_FLAGS = ("occlu", "hidden", "invisib", "not_visible", "notvisible", "missing")
+
+
 def read_landmarks(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Read a landmark csv (`id, x, y, valid` after one header line; exactly these four fields a row,
-    valid 0 or 1). A header that names `id`, `x` or `y` (or `col`, `row`) in another column is refused.
+    valid 0 or 1). A header that names `id`, `x` or `y` (or `col`, `row`) in another column, or a last
+    column of the opposite sense (`occluded`, `hidden`), is refused.
 
     Returns:
         ids (N,) int64, xy (N, 2) float64 pixels, visible (N,) bool (valid flag set and x, y >= 0).
@@ -299,6 +304,10 @@ def read_landmarks(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
             # the header is not otherwise read: 'id,y,x,valid' swapped x and y without a word
             raise ValueError(f"landmarks: {path}: the header {lines[0].strip()!r} names the columns in another "
                              "order; geofeat reads them as 'id, x, y, valid'")
+        if len(columns) == 4 and columns[3].startswith(_HIDDEN_FLAGS):
+            # 'id,x,y,occluded': 1 means hidden there, and every visible landmark was read as invisible
+            raise ValueError(f"landmarks: {path}: the header {lines[0].strip()!r} names a flag that is 1 where the "
+                             "landmark is hidden; geofeat reads the last column as valid (1 = visible): write 1 - flag")
     rows = []
     for line in lines[1:]:
         tokens = _csv_fields(line)
