@@ -474,3 +474,19 @@ def test_reference_mask_holds_every_landmark_pixel_with_no_margin():
     mask = reference_mask(frame, lm, margin_px=0.0, depth_margin_m=0.1)
     px = np.rint(lm).astype(int)
     assert mask[px[:, 1], px[:, 0]].all()
+
+
+def test_leave_one_out_residual_of_four_landmarks_is_the_affine_prediction():
+    """With 4 landmarks, leaving one out leaves 3, whose affine map predicts the fourth: its error is the
+    leave-one-out residual (reported as 0 px, a perfect fit, before)."""
+    rng = np.random.default_rng(1)
+    src = rng.uniform(20, 140, (4, 2))
+    dst = src + rng.normal(0, 3, (4, 2))
+    expected = []
+    for i in range(4):
+        affine = np.linalg.solve(np.c_[np.delete(src, i, 0), np.ones(3)], np.delete(dst, i, 0))
+        expected.append(np.linalg.norm(np.r_[src[i], 1.0] @ affine - dst[i]))
+    fit = robust_landmark_tps(src, dst, (W, H))
+    assert fit.inliers.all()
+    np.testing.assert_allclose(fit.loo_px, expected, rtol=1e-6)
+    assert min(expected) > 1.0
