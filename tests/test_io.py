@@ -356,6 +356,20 @@ def test_frames_are_in_natural_order_and_hidden_files_are_not_frames(tmp_path):
     assert find_sequences(tmp_path) == [folder]
 
 
+def test_timestamp_frame_names_are_in_time_order(tmp_path):
+    """Frames named by timestamps with fractional seconds of varying length (str(float) of a ROS time)
+    were ordered by the digits after the point as a whole number: 0.1 s before 0.0333 s before 0.0667 s."""
+    from geofeat.io import frame_names, natural_key
+
+    times = ["1650000000.0", "1650000000.0333333", "1650000000.0666667", "1650000000.1", "1650000000.1333333",
+             "1650000001.0", "1650000010.5"]
+    for t in reversed(times):
+        (tmp_path / f"{t}-rgb.png").write_bytes(b"")
+    assert frame_names(tmp_path) == times
+    names = ["frame-10", "frame-2", "frame-1", "frame-0010b", "cloud_ref"]
+    assert sorted(names, key=natural_key) == ["cloud_ref", "frame-1", "frame-2", "frame-10", "frame-0010b"]
+
+
 def test_a_depth_png_without_its_colour_is_refused(tmp_path):
     """A frame whose `-rgb.png` was missing was left out without a word (the converse was refused)."""
     folder = _small_sequence(tmp_path / "seq")

@@ -16,6 +16,7 @@ import hashlib
 import os
 import re
 from dataclasses import dataclass
+from decimal import Decimal
 from pathlib import Path
 
 import cv2
@@ -31,9 +32,12 @@ DEPTH_SUFFIX = "-depth.png"
 
 
 def natural_key(name: str) -> tuple:
-    """Sort key that orders the runs of digits in a name by their value: `frame-2` before `frame-10`
-    (plain string order puts `frame-10` first, and a tracker would jump through the sequence)."""
-    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", name)], name
+    """Sort key that orders the numbers in a name by their value: `frame-2` before `frame-10` (plain
+    string order puts `frame-10` first, and a tracker would jump through the sequence). A number with
+    a fractional part is a decimal (a timestamp): `1650000000.0333` before `1650000000.1`, which
+    ordering the digits after the point as a whole number (333 > 1) reversed."""
+    parts = re.split(r"(\d+(?:\.\d+)?)", name)  # str, number, str, number, ..., str
+    return [Decimal(t) if i % 2 else t for i, t in enumerate(parts)], name
 
 
 def frame_names(folder: str | Path, suffix: str = RGB_SUFFIX) -> list[str]:
