@@ -490,3 +490,28 @@ def test_leave_one_out_residual_of_four_landmarks_is_the_affine_prediction():
     assert fit.inliers.all()
     np.testing.assert_allclose(fit.loo_px, expected, rtol=1e-6)
     assert min(expected) > 1.0
+
+
+def test_tps_files_for_another_image_size_are_refused(tmp_path):
+    """TPS files made for 160x120 frames, read with the same sequence at 320x240: the spline, normalised
+    by the mask's size, mapped a 320x240 keypoint (100, 100) to (100.9, 104.1), 9.7 px from the truth
+    (91.4, 98.4), and called it valid."""
+    from geofeat.io import read_depth, read_image, read_landmarks
+
+    folder = _write_pair(tmp_path / "seq", _grid_landmarks(4))
+    generate_ground_truth(read_sequence(folder), tmp_path / "gt" / "seq", GroundTruthConfig(refine=False), progress=False)
+    big = tmp_path / "big" / "seq"
+    big.mkdir(parents=True)
+    for name in ("frame-000-master", "frame-001"):
+        write_frame(big, name, cv2.resize(read_image(folder / f"{name}-rgb.png"), (2 * W, 2 * H)),
+                    cv2.resize(read_depth(folder / f"{name}-depth.png"), (2 * W, 2 * H), interpolation=cv2.INTER_NEAREST))
+        ids, xy, visible = read_landmarks(folder / f"{name}.csv")
+        write_landmarks(big / f"{name}.csv", ids, xy * 2, visible)
+    write_intrinsics(big / "intrinsics.xml", np.array([[200.0, 0, W], [0, 200.0, H], [0, 0, 1]]))
+    small = GroundTruth(read_sequence(folder), str(tmp_path / "gt")).map("frame-001", np.array([[50.0, 50.0]]))
+    assert small[1].all() and np.linalg.norm(small[0] - _inverse(np.array([[50.0, 50.0]]))) < 1.0
+    truth = GroundTruth(read_sequence(big), str(tmp_path / "gt"))
+    with pytest.raises(ValueError, match=r"tps-dir: .*frame-001_objmask.png is 160x120, the frames of .* 320x240"):
+        truth.map("frame-001", np.array([[100.0, 100.0]]))
+    with pytest.raises(ValueError, match="is 160x120"):
+        truth.reference_keep(np.array([[100.0, 100.0]]))

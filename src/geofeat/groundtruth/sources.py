@@ -82,11 +82,18 @@ class GroundTruth:
             raise ValueError(f"sequence {seq.name}: no ground truth (no simulator files, {csv}, no TPS files)")
 
     def _mask(self, frame: str) -> np.ndarray | None:
+        """The (H, W) uint8 object mask of `frame` in the TPS files (None without them); ValueError when
+        it is missing or of another size than the sequence's frames."""
         if self.tps is None:
             return None
         m = cv2.imread(str(self.tps / f"{frame}_objmask.png"), cv2.IMREAD_GRAYSCALE)
         if m is None:
             raise ValueError(f"tps-dir: missing {self.tps / f'{frame}_objmask.png'}")
+        shape = self.seq.shape
+        if shape is not None and m.shape != tuple(shape):  # the spline is normalised by the mask's size
+            raise ValueError(f"tps-dir: {self.tps / f'{frame}_objmask.png'} is {m.shape[1]}x{m.shape[0]}, the frames of "
+                             f"{self.seq.folder} {shape[1]}x{shape[0]}; TPS files map pixels of the image size they "
+                             "were made for: make them again for these frames (geofeat groundtruth)")
         return m
 
     def reference_keep(self, xy: np.ndarray) -> np.ndarray:
