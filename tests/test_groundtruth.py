@@ -515,3 +515,19 @@ def test_tps_files_for_another_image_size_are_refused(tmp_path):
         truth.map("frame-001", np.array([[100.0, 100.0]]))
     with pytest.raises(ValueError, match="is 160x120"):
         truth.reference_keep(np.array([[100.0, 100.0]]))
+
+
+def test_tps_files_of_one_sequence_name_in_two_datasets_are_refused(tmp_path):
+    """--tps-dir holding kinect1/seq and kinect2/seq: the first by name was used for the sequence `seq`
+    without a word, whichever dataset it came from."""
+    from geofeat.groundtruth.sources import tps_folder
+
+    for dataset in ("kinect2", "kinect1"):
+        (tmp_path / dataset / "seq").mkdir(parents=True)
+        (tmp_path / dataset / "seq" / "frame-001_theta.npy").write_bytes(b"")
+    with pytest.raises(ValueError, match=r"tps-dir: 2 folders hold TPS files for sequence seq .*kinect1/seq, .*kinect2/seq"):
+        tps_folder(str(tmp_path), "seq")
+    assert tps_folder(str(tmp_path / "kinect2"), "seq") == tmp_path / "kinect2" / "seq"
+    (tmp_path / "seq").mkdir()
+    (tmp_path / "seq" / "frame-001_theta.npy").write_bytes(b"")
+    assert tps_folder(str(tmp_path), "seq") == tmp_path / "seq"  # named directly: not ambiguous

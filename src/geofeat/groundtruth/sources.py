@@ -25,14 +25,21 @@ def _has_tps_files(folder: Path) -> bool:
 
 
 def tps_folder(tps_dir: str, name: str) -> Path | None:
-    """The folder of TPS files of sequence `name` under `tps_dir`: the first of `tps_dir/name`,
-    `tps_dir/name/name` (groundtruth run with `--out tps_dir/name`) and `tps_dir/*/name` that holds
-    TPS files (`*_theta.npy` or `*_objmask.png`); None when none does."""
+    """The folder of TPS files of sequence `name` under `tps_dir`: the first of `tps_dir/name` and
+    `tps_dir/name/name` (groundtruth run with `--out tps_dir/name`) that holds TPS files (`*_theta.npy`
+    or `*_objmask.png`), else the one `tps_dir/*/name` that does; None when none does. ValueError when
+    several `tps_dir/*/name` do (two datasets with a sequence of this name: the first by name was
+    taken without a word)."""
     root = Path(tps_dir)
-    for candidate in [root / name, root / name / name, *sorted(root.glob(f"*/{name}"))]:
+    for candidate in (root / name, root / name / name):
         if _has_tps_files(candidate):
             return candidate
-    return None
+    found = [c for c in sorted(root.glob(f"*/{name}")) if _has_tps_files(c)]
+    if len(found) > 1:
+        raise ValueError(f"tps-dir: {len(found)} folders hold TPS files for sequence {name} ("
+                         f"{', '.join(str(f) for f in found[:4])}); pass the one meant as --tps-dir "
+                         f"({found[0].parent})")
+    return found[0] if found else None
 
 
 def _on_mask(mask: np.ndarray | None, xy: np.ndarray) -> np.ndarray:
