@@ -1,5 +1,6 @@
 """Readers of the public dataset layout, on the shipped real Kinect frame."""
 
+import json
 import shutil
 
 import cv2
@@ -354,6 +355,18 @@ def test_frames_are_in_natural_order_and_hidden_files_are_not_frames(tmp_path):
     seq = geofeat.read_sequence(folder)
     assert seq.names == ["frame-000-master", "frame-001", "frame-2", "frame-10"]
     assert find_sequences(tmp_path) == [folder]
+
+
+@pytest.mark.parametrize("key", ["depthScale", "depth_unit", "scale", "depth-scale", "Radius_m"])
+def test_geofeat_json_key_misspelt_is_refused(tmp_path, key):
+    """{"depthScale": 0.0001} was ignored: 0.1 mm depth read as millimetres, a scene at 1 m at 10 m,
+    plausible and not warned of."""
+    folder = _small_sequence(tmp_path / "seq")
+    (folder / "geofeat.json").write_text(json.dumps({key: 0.0001, "comment": "kept"}))
+    with pytest.raises(ValueError, match=f"geofeat.json: unknown key '{key}'; geofeat reads depth_scale"):
+        geofeat.read_sequence(folder)
+    (folder / "geofeat.json").write_text(json.dumps({"depth_scale": 0.001, "comment": "kept", "camera": "kinect"}))
+    assert geofeat.read_sequence(folder).depth_scale == 0.001
 
 
 def test_timestamp_frame_names_are_in_time_order(tmp_path):

@@ -46,7 +46,10 @@ def _positive_number(value: Any, what: str) -> float:
 
 def read_config(folder: str | Path) -> dict:
     """The folder's optional `geofeat.json`, validated: a JSON object whose `depth_scale` and `radius` are
-    positive numbers and whose `depth_profile` is a known profile name. Other keys are kept as they are."""
+    positive numbers and whose `depth_profile` is a known profile name. Other keys are kept as they are,
+    except one that names a depth, scale, unit, radius or profile but is none of `CONFIG_KEYS`
+    (`depthScale`, `depth_unit`): that is a ValueError, as it was ignored and the depth read in
+    millimetres without a word."""
     path = Path(folder) / "geofeat.json"
     if not path.is_file():
         return {}
@@ -56,6 +59,11 @@ def read_config(folder: str | Path) -> dict:
         raise ValueError(f"{path}: not valid JSON ({error})") from None
     if not isinstance(config, dict):
         raise ValueError(f"{path}: expected a JSON object like {{\"depth_scale\": 0.001}}, got a {type(config).__name__}")
+    near = [k for k in config if k not in CONFIG_KEYS
+            and any(w in re.sub(r"[^a-z]", "", str(k).lower()) for w in ("depth", "scale", "unit", "radius", "profile"))]
+    if near:
+        raise ValueError(f"{path}: unknown key {near[0]!r}; geofeat reads {', '.join(CONFIG_KEYS)} (depth_scale: metres "
+                         "per depth-PNG unit, e.g. 0.001 for millimetres)")
     if "depth_scale" in config:
         check_depth_scale(config["depth_scale"], f"{path}: depth_scale")
     if "radius" in config:
