@@ -446,3 +446,88 @@ def test_a_frame_whose_refined_spline_fails_reports_the_time_it_took(tmp_path, m
                                     progress=False)
     assert reports[0].status == "failed" and "refinement diverged: no spline" in reports[0].reason
     assert reports[0].seconds >= 0.3
+
+
+def test_tps_object_mask_is_read_at_the_nearest_pixel():
+    """Pixel centres are at integers: x = 3.6 lies on pixel 4 and x = 4.6 on pixel 5 (truncation read
+    pixels 3 and 4, moving the object mask and the SSIM threshold half a pixel to the right)."""
+    from geofeat.groundtruth.sources import _on_mask
+
+    mask = np.zeros((10, 10), np.uint8)
+    mask[:, 4] = 255  # only column 4 is on the object
+    xs = np.array([3.4, 3.6, 4.0, 4.4, 4.6])
+    on = _on_mask(mask, np.stack([xs, np.full_like(xs, 5.0)], axis=1))
+    assert on.tolist() == [False, True, True, True, False]
+    ys = np.array([-0.4, 9.4, 9.6])  # the image's edge: -0.5 .. H - 0.5
+    assert _on_mask(np.ones((10, 10), np.uint8), np.stack([np.full_like(ys, 5.0), ys], axis=1)).tolist() == [True, True, False]
+
+
+def test_reference_mask_holds_every_landmark_pixel_with_no_margin():
+    """The hull of the landmarks is drawn through their nearest pixels: with --margin 0 the pixel under
+    each landmark is on the object (truncation drew it through 20 for a landmark at 20.9)."""
+    from geofeat.frame import RGBDFrame
+    from geofeat.groundtruth import reference_mask
+
+    frame = RGBDFrame(np.full((32, 32), 0.5, np.float32), np.ones((32, 32)),
+                      np.array([[30.0, 0, 15.5], [0, 30.0, 15.5], [0, 0, 1]]))
+    lm = np.array([[10.9, 10.9], [20.9, 10.9], [20.9, 20.9], [10.9, 20.9], [15.6, 20.7]])
+    mask = reference_mask(frame, lm, margin_px=0.0, depth_margin_m=0.1)
+    px = np.rint(lm).astype(int)
+    assert mask[px[:, 1], px[:, 0]].all()
+
+
+def test_leave_one_out_residual_of_four_landmarks_is_the_affine_prediction():
+    """With 4 landmarks, leaving one out leaves 3, whose affine map predicts the fourth: its error is the
+    leave-one-out residual (reported as 0 px, a perfect fit, before)."""
+    rng = np.random.default_rng(1)
+    src = rng.uniform(20, 140, (4, 2))
+    dst = src + rng.normal(0, 3, (4, 2))
+    expected = []
+    for i in range(4):
+        affine = np.linalg.solve(np.c_[np.delete(src, i, 0), np.ones(3)], np.delete(dst, i, 0))
+        expected.append(np.linalg.norm(np.r_[src[i], 1.0] @ affine - dst[i]))
+    fit = robust_landmark_tps(src, dst, (W, H))
+    assert fit.inliers.all()
+    np.testing.assert_allclose(fit.loo_px, expected, rtol=1e-6)
+    assert min(expected) > 1.0
+
+
+def test_tps_files_for_another_image_size_are_refused(tmp_path):
+    """TPS files made for 160x120 frames, read with the same sequence at 320x240: the spline, normalised
+    by the mask's size, mapped a 320x240 keypoint (100, 100) to (100.9, 104.1), 9.7 px from the truth
+    (91.4, 98.4), and called it valid."""
+    from geofeat.io import read_depth, read_image, read_landmarks
+
+    folder = _write_pair(tmp_path / "seq", _grid_landmarks(4))
+    generate_ground_truth(read_sequence(folder), tmp_path / "gt" / "seq", GroundTruthConfig(refine=False), progress=False)
+    big = tmp_path / "big" / "seq"
+    big.mkdir(parents=True)
+    for name in ("frame-000-master", "frame-001"):
+        write_frame(big, name, cv2.resize(read_image(folder / f"{name}-rgb.png"), (2 * W, 2 * H)),
+                    cv2.resize(read_depth(folder / f"{name}-depth.png"), (2 * W, 2 * H), interpolation=cv2.INTER_NEAREST))
+        ids, xy, visible = read_landmarks(folder / f"{name}.csv")
+        write_landmarks(big / f"{name}.csv", ids, xy * 2, visible)
+    write_intrinsics(big / "intrinsics.xml", np.array([[200.0, 0, W], [0, 200.0, H], [0, 0, 1]]))
+    small = GroundTruth(read_sequence(folder), str(tmp_path / "gt")).map("frame-001", np.array([[50.0, 50.0]]))
+    assert small[1].all() and np.linalg.norm(small[0] - _inverse(np.array([[50.0, 50.0]]))) < 1.0
+    truth = GroundTruth(read_sequence(big), str(tmp_path / "gt"))
+    with pytest.raises(ValueError, match=r"tps-dir: .*frame-001_objmask.png is 160x120, the frames of .* 320x240"):
+        truth.map("frame-001", np.array([[100.0, 100.0]]))
+    with pytest.raises(ValueError, match="is 160x120"):
+        truth.reference_keep(np.array([[100.0, 100.0]]))
+
+
+def test_tps_files_of_one_sequence_name_in_two_datasets_are_refused(tmp_path):
+    """--tps-dir holding kinect1/seq and kinect2/seq: the first by name was used for the sequence `seq`
+    without a word, whichever dataset it came from."""
+    from geofeat.groundtruth.sources import tps_folder
+
+    for dataset in ("kinect2", "kinect1"):
+        (tmp_path / dataset / "seq").mkdir(parents=True)
+        (tmp_path / dataset / "seq" / "frame-001_theta.npy").write_bytes(b"")
+    with pytest.raises(ValueError, match=r"tps-dir: 2 folders hold TPS files for sequence seq .*kinect1/seq, .*kinect2/seq"):
+        tps_folder(str(tmp_path), "seq")
+    assert tps_folder(str(tmp_path / "kinect2"), "seq") == tmp_path / "kinect2" / "seq"
+    (tmp_path / "seq").mkdir()
+    (tmp_path / "seq" / "frame-001_theta.npy").write_bytes(b"")
+    assert tps_folder(str(tmp_path), "seq") == tmp_path / "seq"  # named directly: not ambiguous

@@ -1,5 +1,6 @@
 """Readers of the public dataset layout, on the shipped real Kinect frame."""
 
+import json
 import shutil
 
 import cv2
@@ -26,6 +27,25 @@ def test_landmarks():
     assert ids.tolist() == list(range(51))
     assert xy.shape == (51, 2) and visible.all()
     np.testing.assert_array_equal(xy[0], [245, 202])
+
+
+def test_landmarks_normalised_by_the_image_size_are_refused(tmp_path):
+    """x, y in 0..1 (an annotation tool's normalised export) were read as pixels: every landmark in the
+    top-left pixel, and `geofeat groundtruth` reported such a frame "ok" with a spline of that pixel."""
+    src = demo_data_dir()
+    for name in ("cloud_master", "cloud_1"):
+        shutil.copy(src / "cloud_1-rgb.png", tmp_path / f"{name}-rgb.png")
+        shutil.copy(src / "cloud_1-depth.png", tmp_path / f"{name}-depth.png")
+        shutil.copy(src / "cloud_1.csv", tmp_path / f"{name}.csv")
+    shutil.copy(src / "intrinsics.xml", tmp_path)
+    seq = geofeat.read_sequence(tmp_path)
+    ids, xy, visible = seq.landmarks("cloud_1")  # pixels: read
+    assert visible.sum() == 51 and xy.max() > 100
+    write_landmarks(tmp_path / "cloud_1.csv", ids, xy / [640, 480], visible)
+    with pytest.raises(ValueError, match=r"cloud_1.csv has all 51 visible landmarks within one pixel .*multiply x by 640"):
+        seq.landmarks("cloud_1")
+    write_landmarks(tmp_path / "cloud_1.csv", ids, np.where(visible[:, None], xy / [640, 480], -1), visible & (ids == 0))
+    assert seq.landmarks("cloud_1")[2].sum() == 1  # one landmark is no evidence of normalised coordinates
 
 
 def test_read_sequence_reference_first_and_round_trips(tmp_path):
@@ -194,6 +214,9 @@ def test_write_intrinsics_refuses_what_read_intrinsics_cannot_read(tmp_path):
     ("id,y,x,valid\n0,20,10,1\n", "header 'id,y,x,valid' names the columns in another order"),  # x, y swapped
     ("x,y,id,valid\n10,20,0,1\n", "header .x,y,id,valid. names the columns in another order"),
     ("# X, Y, ID, valid\n10, 20, 0, 1\n", "names the columns in another order"),  # id 10 at (20, 0)
+    ("id,row,col,valid\n0,20,10,1\n", "header 'id,row,col,valid' names the columns in another order"),  # (20, 10)
+    ("id,x,y,occluded\n0,10,20,0\n1,30,40,1\n", "names a flag that is 1 where the landmark is hidden"),  # inverted
+    ("# id, x, y, Hidden\n0,10,20,0\n", "names a flag that is 1 where the landmark is hidden"),
 ])
 def test_landmark_csv_that_was_read_as_something_else(tmp_path, text, message):
     (tmp_path / "f.csv").write_text(text)
@@ -202,7 +225,8 @@ def test_landmark_csv_that_was_read_as_something_else(tmp_path, text, message):
 
 
 def test_landmark_csv_layouts_still_read(tmp_path):
-    for text in ("# id, x, y, valid\n0, 245, 202, 1\n\n1\t3.5\t-1\t0\n", "id,x,y,valid\r\n0,245,202,1,\r\n1,3.5,-1,0\r\n"):
+    for text in ("# id, x, y, valid\n0, 245, 202, 1\n\n1\t3.5\t-1\t0\n", "id,x,y,valid\r\n0,245,202,1,\r\n1,3.5,-1,0\r\n",
+                 "id, Column, Row, valid\n0,245,202,1\n1,3.5,-1,0\n"):
         (tmp_path / "f.csv").write_text(text)
         ids, xy, visible = read_landmarks(tmp_path / "f.csv")
         assert ids.tolist() == [0, 1] and xy.tolist() == [[245, 202], [3.5, -1]] and visible.tolist() == [True, False]
@@ -331,6 +355,32 @@ def test_frames_are_in_natural_order_and_hidden_files_are_not_frames(tmp_path):
     seq = geofeat.read_sequence(folder)
     assert seq.names == ["frame-000-master", "frame-001", "frame-2", "frame-10"]
     assert find_sequences(tmp_path) == [folder]
+
+
+@pytest.mark.parametrize("key", ["depthScale", "depth_unit", "scale", "depth-scale", "Radius_m"])
+def test_geofeat_json_key_misspelt_is_refused(tmp_path, key):
+    """{"depthScale": 0.0001} was ignored: 0.1 mm depth read as millimetres, a scene at 1 m at 10 m,
+    plausible and not warned of."""
+    folder = _small_sequence(tmp_path / "seq")
+    (folder / "geofeat.json").write_text(json.dumps({key: 0.0001, "comment": "kept"}))
+    with pytest.raises(ValueError, match=f"geofeat.json: unknown key '{key}'; geofeat reads depth_scale"):
+        geofeat.read_sequence(folder)
+    (folder / "geofeat.json").write_text(json.dumps({"depth_scale": 0.001, "comment": "kept", "camera": "kinect"}))
+    assert geofeat.read_sequence(folder).depth_scale == 0.001
+
+
+def test_timestamp_frame_names_are_in_time_order(tmp_path):
+    """Frames named by timestamps with fractional seconds of varying length (str(float) of a ROS time)
+    were ordered by the digits after the point as a whole number: 0.1 s before 0.0333 s before 0.0667 s."""
+    from geofeat.io import frame_names, natural_key
+
+    times = ["1650000000.0", "1650000000.0333333", "1650000000.0666667", "1650000000.1", "1650000000.1333333",
+             "1650000001.0", "1650000010.5"]
+    for t in reversed(times):
+        (tmp_path / f"{t}-rgb.png").write_bytes(b"")
+    assert frame_names(tmp_path) == times
+    names = ["frame-10", "frame-2", "frame-1", "frame-0010b", "cloud_ref"]
+    assert sorted(names, key=natural_key) == ["cloud_ref", "frame-1", "frame-2", "frame-10", "frame-0010b"]
 
 
 def test_a_depth_png_without_its_colour_is_refused(tmp_path):

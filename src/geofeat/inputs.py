@@ -46,7 +46,10 @@ def _positive_number(value: Any, what: str) -> float:
 
 def read_config(folder: str | Path) -> dict:
     """The folder's optional `geofeat.json`, validated: a JSON object whose `depth_scale` and `radius` are
-    positive numbers and whose `depth_profile` is a known profile name. Other keys are kept as they are."""
+    positive numbers and whose `depth_profile` is a known profile name. Other keys are kept as they are,
+    except one that names a depth, scale, unit, radius or profile but is none of `CONFIG_KEYS`
+    (`depthScale`, `depth_unit`): that is a ValueError, as it was ignored and the depth read in
+    millimetres without a word."""
     path = Path(folder) / "geofeat.json"
     if not path.is_file():
         return {}
@@ -56,6 +59,11 @@ def read_config(folder: str | Path) -> dict:
         raise ValueError(f"{path}: not valid JSON ({error})") from None
     if not isinstance(config, dict):
         raise ValueError(f"{path}: expected a JSON object like {{\"depth_scale\": 0.001}}, got a {type(config).__name__}")
+    near = [k for k in config if k not in CONFIG_KEYS
+            and any(w in re.sub(r"[^a-z]", "", str(k).lower()) for w in ("depth", "scale", "unit", "radius", "profile"))]
+    if near:
+        raise ValueError(f"{path}: unknown key {near[0]!r}; geofeat reads {', '.join(CONFIG_KEYS)} (depth_scale: metres "
+                         "per depth-PNG unit, e.g. 0.001 for millimetres)")
     if "depth_scale" in config:
         check_depth_scale(config["depth_scale"], f"{path}: depth_scale")
     if "radius" in config:
@@ -244,8 +252,10 @@ def as_points(xy: Any, what: str = "xy") -> np.ndarray:
 
 def check_landmarks(ids: np.ndarray, xy: np.ndarray, visible: np.ndarray, shape: tuple[int, int],
                     where: str) -> None:
-    """The one landmark validator (groundtruth, match, bench): ids unique, visible landmarks finite
-    and on the (H, W) image (pixel centres at integers, so within -0.5 .. W - 0.5)."""
+    """The one landmark validator (groundtruth, match, bench): ids (N,) unique, visible landmarks of
+    xy (N, 2) finite and on the (H, W) image (pixels, centres at integers, so within -0.5 .. W - 0.5),
+    and not all within [0, 1] x [0, 1] (coordinates normalised by the image size: read as pixels they
+    put every landmark in the top-left pixel, and a spline through them maps that pixel only)."""
     H, W = shape
     uniq, counts = np.unique(ids, return_counts=True)
     if (counts > 1).any():
@@ -254,6 +264,11 @@ def check_landmarks(ids: np.ndarray, xy: np.ndarray, visible: np.ndarray, shape:
     bad = visible & ~np.isfinite(xy).all(axis=1)
     if bad.any():
         raise ValueError(f"landmarks: {where} has visible landmarks without finite coordinates: ids {ids[bad][:10].tolist()}")
+    seen = xy[visible]
+    if len(seen) >= 2 and min(H, W) > 2 and (seen >= 0).all() and (seen <= 1).all():
+        raise ValueError(f"landmarks: {where} has all {len(seen)} visible landmarks within one pixel of the top-left "
+                         f"corner (x, y in 0..1, e.g. {np.round(seen[0], 3).tolist()}); coordinates normalised by the "
+                         f"image size? geofeat reads pixels: multiply x by {W} and y by {H}")
     off = visible & ((xy[:, 0] > W - 0.5) | (xy[:, 1] > H - 0.5) | (xy[:, 0] < -0.5) | (xy[:, 1] < -0.5))
     if off.any():
         raise ValueError(f"landmarks: {where} has visible landmarks off the {W}x{H} image: ids "

@@ -16,6 +16,7 @@ import hashlib
 import os
 import re
 from dataclasses import dataclass
+from decimal import Decimal
 from pathlib import Path
 
 import cv2
@@ -31,9 +32,12 @@ DEPTH_SUFFIX = "-depth.png"
 
 
 def natural_key(name: str) -> tuple:
-    """Sort key that orders the runs of digits in a name by their value: `frame-2` before `frame-10`
-    (plain string order puts `frame-10` first, and a tracker would jump through the sequence)."""
-    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", name)], name
+    """Sort key that orders the numbers in a name by their value: `frame-2` before `frame-10` (plain
+    string order puts `frame-10` first, and a tracker would jump through the sequence). A number with
+    a fractional part is a decimal (a timestamp): `1650000000.0333` before `1650000000.1`, which
+    ordering the digits after the point as a whole number (333 > 1) reversed."""
+    parts = re.split(r"(\d+(?:\.\d+)?)", name)  # str, number, str, number, ..., str
+    return [Decimal(t) if i % 2 else t for i, t in enumerate(parts)], name
 
 
 def frame_names(folder: str | Path, suffix: str = RGB_SUFFIX) -> list[str]:
@@ -268,9 +272,18 @@ def _csv_fields(line: str) -> list[str]:
     return line.split()
 
 
+#: Landmark csv header names that mean a coordinate: a row is y, a column x.
+_HEADER_SYNONYMS = {"row": "y", "rows": "y", "col": "x", "cols": "x", "column": "x", "columns": "x"}
+
+
+#: Names of a last csv column that flags hidden landmarks, the opposite of `valid`.
+_HIDDEN_FLAGS = ("occlu", "hidden", "invisib", "not_visible", "notvisible", "missing")
+
+
 def read_landmarks(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Read a landmark csv (`id, x, y, valid` after one header line; exactly these four fields a row,
-    valid 0 or 1). A header that names `id`, `x` or `y` in another column is refused.
+    valid 0 or 1). A header that names `id`, `x` or `y` (or `col`, `row`) in another column, or a last
+    column of the opposite sense (`occluded`, `hidden`), is refused.
 
     Returns:
         ids (N,) int64, xy (N, 2) float64 pixels, visible (N,) bool (valid flag set and x, y >= 0).
@@ -289,11 +302,16 @@ def read_landmarks(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
         if first is not None and len(first) == 4:
             raise ValueError(f"landmarks: {path}: the first line {lines[0].strip()!r} is a landmark, not a header; "
                              "the csv needs a header line such as 'id,x,y,valid'")
-        columns = [t.strip(" #\"'").lower() for t in _csv_fields(lines[0])]
+        # a header in rows and columns names y first: 'id,row,col,valid' is 'id,y,x,valid'
+        columns = [_HEADER_SYNONYMS.get(c, c) for c in (t.strip(" #\"'").lower() for t in _csv_fields(lines[0]))]
         if any(name in columns and columns.index(name) != i for i, name in enumerate(("id", "x", "y"))):
             # the header is not otherwise read: 'id,y,x,valid' swapped x and y without a word
             raise ValueError(f"landmarks: {path}: the header {lines[0].strip()!r} names the columns in another "
                              "order; geofeat reads them as 'id, x, y, valid'")
+        if len(columns) == 4 and columns[3].startswith(_HIDDEN_FLAGS):
+            # 'id,x,y,occluded': 1 means hidden there, and every visible landmark was read as invisible
+            raise ValueError(f"landmarks: {path}: the header {lines[0].strip()!r} names a flag that is 1 where the "
+                             "landmark is hidden; geofeat reads the last column as valid (1 = visible): write 1 - flag")
     rows = []
     for line in lines[1:]:
         tokens = _csv_fields(line)

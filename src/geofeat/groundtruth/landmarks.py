@@ -75,7 +75,9 @@ def robust_landmark_tps(src: np.ndarray, dst: np.ndarray, size: tuple[int, int])
     loo = np.full(n, np.nan)
     while True:
         idx = np.flatnonzero(inliers)
-        r = _loo_residuals(src[idx], dst[idx], size) if len(idx) > MIN_LANDMARKS else np.zeros(len(idx))
+        # defined from MIN_LANDMARKS on (4 leave 3, whose affine map predicts the fourth); zeros here
+        # reported a perfect leave-one-out fit for 4 landmarks
+        r = _loo_residuals(src[idx], dst[idx], size)
         loo[:] = np.nan
         loo[idx] = r
         if len(idx) <= max(MIN_LANDMARKS + 2, int(np.ceil(2 * n / 3))) or not np.isfinite(r).all():

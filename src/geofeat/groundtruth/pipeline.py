@@ -117,8 +117,10 @@ def _valid_landmarks(seq: Sequence, shape: tuple[int, int]) -> dict[str, tuple[n
 
 
 def _hull_distance(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """(H, W) distance in pixels to the convex hull of points (0 inside)."""
-    hull = cv2.convexHull(points.astype(np.float32)).astype(np.int32)
+    """(H, W) distance in pixels to the convex hull of the (N, 2) pixels `points` (0 inside), the hull's
+    corners at the nearest pixels (pixel centres at integers; truncating left a landmark at 20.9 outside
+    the hull drawn through pixel 20)."""
+    hull = np.rint(cv2.convexHull(points.astype(np.float32))).astype(np.int32)
     inside = np.zeros(shape, np.uint8)
     cv2.fillConvexPoly(inside, hull, 1)
     return cv2.distanceTransform((1 - inside).astype(np.uint8), cv2.DIST_L2, 5)

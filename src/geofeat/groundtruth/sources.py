@@ -25,26 +25,34 @@ def _has_tps_files(folder: Path) -> bool:
 
 
 def tps_folder(tps_dir: str, name: str) -> Path | None:
-    """The folder of TPS files of sequence `name` under `tps_dir`: the first of `tps_dir/name`,
-    `tps_dir/name/name` (groundtruth run with `--out tps_dir/name`) and `tps_dir/*/name` that holds
-    TPS files (`*_theta.npy` or `*_objmask.png`); None when none does."""
+    """The folder of TPS files of sequence `name` under `tps_dir`: the first of `tps_dir/name` and
+    `tps_dir/name/name` (groundtruth run with `--out tps_dir/name`) that holds TPS files (`*_theta.npy`
+    or `*_objmask.png`), else the one `tps_dir/*/name` that does; None when none does. ValueError when
+    several `tps_dir/*/name` do (two datasets with a sequence of this name: the first by name was
+    taken without a word)."""
     root = Path(tps_dir)
-    for candidate in [root / name, root / name / name, *sorted(root.glob(f"*/{name}"))]:
+    for candidate in (root / name, root / name / name):
         if _has_tps_files(candidate):
             return candidate
-    return None
+    found = [c for c in sorted(root.glob(f"*/{name}")) if _has_tps_files(c)]
+    if len(found) > 1:
+        raise ValueError(f"tps-dir: {len(found)} folders hold TPS files for sequence {name} ("
+                         f"{', '.join(str(f) for f in found[:4])}); pass the one meant as --tps-dir "
+                         f"({found[0].parent})")
+    return found[0] if found else None
 
 
 def _on_mask(mask: np.ndarray | None, xy: np.ndarray) -> np.ndarray:
-    """(N,) bool: pixels xy on the mask; False off the image (pixel centres at integers, so outside
+    """(N,) bool: pixels xy (N, 2) on the (H, W) mask, read at the nearest pixel (pixel centres at
+    integers: x = 3.6 lies on pixel 4, not 3, which truncation read); False off the image (outside
     -0.5 .. W - 0.5), where clipping would read the border pixel of the mask instead."""
     if mask is None:
         return np.ones(len(xy), bool)
     H, W = mask.shape
     with np.errstate(invalid="ignore"):
         inside = (xy[:, 0] >= -0.5) & (xy[:, 0] <= W - 0.5) & (xy[:, 1] >= -0.5) & (xy[:, 1] <= H - 0.5)
-    x = np.clip(np.where(inside, xy[:, 0], 0).astype(int), 0, W - 1)
-    y = np.clip(np.where(inside, xy[:, 1], 0).astype(int), 0, H - 1)
+    x = np.clip(np.rint(np.where(inside, xy[:, 0], 0)).astype(int), 0, W - 1)
+    y = np.clip(np.rint(np.where(inside, xy[:, 1], 0)).astype(int), 0, H - 1)
     return inside & (mask[y, x] > 0)
 
 
@@ -81,11 +89,18 @@ class GroundTruth:
             raise ValueError(f"sequence {seq.name}: no ground truth (no simulator files, {csv}, no TPS files)")
 
     def _mask(self, frame: str) -> np.ndarray | None:
+        """The (H, W) uint8 object mask of `frame` in the TPS files (None without them); ValueError when
+        it is missing or of another size than the sequence's frames."""
         if self.tps is None:
             return None
         m = cv2.imread(str(self.tps / f"{frame}_objmask.png"), cv2.IMREAD_GRAYSCALE)
         if m is None:
             raise ValueError(f"tps-dir: missing {self.tps / f'{frame}_objmask.png'}")
+        shape = self.seq.shape
+        if shape is not None and m.shape != tuple(shape):  # the spline is normalised by the mask's size
+            raise ValueError(f"tps-dir: {self.tps / f'{frame}_objmask.png'} is {m.shape[1]}x{m.shape[0]}, the frames of "
+                             f"{self.seq.folder} {shape[1]}x{shape[0]}; TPS files map pixels of the image size they "
+                             "were made for: make them again for these frames (geofeat groundtruth)")
         return m
 
     def reference_keep(self, xy: np.ndarray) -> np.ndarray:
