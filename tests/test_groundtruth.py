@@ -448,16 +448,17 @@ def test_a_frame_whose_refined_spline_fails_reports_the_time_it_took(tmp_path, m
     assert reports[0].seconds >= 0.3
 
 
-def test_tps_object_mask_is_read_at_the_nearest_pixel():
-    """Pixel centres are at integers: x = 3.6 lies on pixel 4 and x = 4.6 on pixel 5 (truncation read
-    pixels 3 and 4, moving the object mask and the SSIM threshold half a pixel to the right)."""
+def test_tps_object_mask_is_read_as_the_authors_protocol_reads_it():
+    """The authors' matching-score protocol reads an object mask at mask[int(y), int(x)] (truncation):
+    x = 3.6 reads pixel 3 and x = 4.6 pixel 4, so that `--tps-dir` scores are theirs. Off the image
+    (outside -0.5 .. W - 0.5) is off the mask, not the border pixel."""
     from geofeat.groundtruth.sources import _on_mask
 
     mask = np.zeros((10, 10), np.uint8)
     mask[:, 4] = 255  # only column 4 is on the object
-    xs = np.array([3.4, 3.6, 4.0, 4.4, 4.6])
+    xs = np.array([3.4, 3.6, 4.0, 4.4, 4.6, 4.99, 5.0])
     on = _on_mask(mask, np.stack([xs, np.full_like(xs, 5.0)], axis=1))
-    assert on.tolist() == [False, True, True, True, False]
+    assert on.tolist() == [False, False, True, True, True, True, False]
     ys = np.array([-0.4, 9.4, 9.6])  # the image's edge: -0.5 .. H - 0.5
     assert _on_mask(np.ones((10, 10), np.uint8), np.stack([np.full_like(ys, 5.0), ys], axis=1)).tolist() == [True, True, False]
 

@@ -43,16 +43,17 @@ def tps_folder(tps_dir: str, name: str) -> Path | None:
 
 
 def _on_mask(mask: np.ndarray | None, xy: np.ndarray) -> np.ndarray:
-    """(N,) bool: pixels xy (N, 2) on the (H, W) mask, read at the nearest pixel (pixel centres at
-    integers: x = 3.6 lies on pixel 4, not 3, which truncation read); False off the image (outside
-    -0.5 .. W - 0.5), where clipping would read the border pixel of the mask instead."""
+    """(N,) bool: pixels xy (N, 2) on the (H, W) mask, read at `mask[int(y), int(x)]` as the authors'
+    matching-score protocol reads its object masks (`shared/reference/matching_score_protocol.md`):
+    truncation, not the nearest pixel, so that `--tps-dir` scores match theirs; False off the image
+    (outside -0.5 .. W - 0.5), where clipping would read the border pixel of the mask instead."""
     if mask is None:
         return np.ones(len(xy), bool)
     H, W = mask.shape
     with np.errstate(invalid="ignore"):
         inside = (xy[:, 0] >= -0.5) & (xy[:, 0] <= W - 0.5) & (xy[:, 1] >= -0.5) & (xy[:, 1] <= H - 0.5)
-    x = np.clip(np.rint(np.where(inside, xy[:, 0], 0)).astype(int), 0, W - 1)
-    y = np.clip(np.rint(np.where(inside, xy[:, 1], 0)).astype(int), 0, H - 1)
+    x = np.clip(np.where(inside, xy[:, 0], 0).astype(int), 0, W - 1)
+    y = np.clip(np.where(inside, xy[:, 1], 0).astype(int), 0, H - 1)
     return inside & (mask[y, x] > 0)
 
 
