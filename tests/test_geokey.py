@@ -421,6 +421,28 @@ def test_weights_path_that_is_a_folder_says_so(tmp_path):
         load_geokey(tmp_path)
 
 
+def test_an_npy_file_as_weights_is_a_clear_error_naming_it(tmp_path):
+    """np.load gives an .npy file's array itself, which is no context manager: a bare TypeError
+    ('numpy.ndarray' object does not support the context manager protocol) that named no file."""
+    path = tmp_path / "single.npy"
+    np.save(path, np.zeros(3))
+    with pytest.raises(ValueError, match="single.npy.*not an .npz archive"):
+        geofeat.detect(geofeat.read_demo_frame(), 10, detector=f"geokey={path}")
+
+
+def test_depth_cue_layers_that_are_not_matrices_are_refused_on_load(tmp_path):
+    """A (1, 5, 4) first layer chains through np.matmul by broadcasting, passed the load checks, and
+    failed in the middle of detection with 'array is not broadcastable to correct shape', naming no
+    file."""
+    shipped = load_geokey()
+    layers = (np.full((1, 5, 4), 0.01, np.float32), np.full((4, 1), 0.01, np.float32))
+    biases = (np.zeros(4, np.float32), np.zeros(1, np.float32))
+    path = tmp_path / "w3d.npz"
+    GeoKeyModel(shipped.mean, shipped.std, shipped.linear, layers, biases, 3.0).save(path)
+    with pytest.raises(ValueError, match="w3d.npz.*matrices"):
+        geofeat.detect(geofeat.read_demo_frame(), 10, detector=f"geokey={path}")
+
+
 def test_an_empty_detector_name_is_not_the_default():
     """extract(detector="") used the descriptor's own detector, where detect(detector="") refuses it."""
     with pytest.raises(ValueError, match="detector"):

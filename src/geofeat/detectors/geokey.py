@@ -183,7 +183,10 @@ def check_settings(nms_radius, threshold, min_fraction, denoise=0.0) -> tuple[fl
 def _load(path: str, stamp: tuple[int, int, int]) -> GeoKeyModel:
     """The weights at `path` as they were at `stamp` (modification time, size, inode of the file)."""
     try:
-        with np.load(path, allow_pickle=False) as a:
+        loaded = np.load(path, allow_pickle=False)
+        if not isinstance(loaded, np.lib.npyio.NpzFile):  # an .npy file: np.load gives the array itself
+            raise ValueError("one numpy array, not an .npz archive of arrays")
+        with loaded as a:
             arrays = {k: a[k] for k in a.files}
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
         raise ValueError(f"detector weights: {path} is not a GeoKey weights file ({error})") from None
@@ -209,6 +212,9 @@ def _load(path: str, stamp: tuple[int, int, int]) -> GeoKeyModel:
         shapes = (model.mean.shape, model.std.shape, model.linear.shape)
         if shapes != ((len(CUE_NAMES),),) * 2 + ((len(IMAGE_CUES),),):
             raise ValueError(f"mean, std, linear of shapes {shapes}")
+        if any(w.ndim != 2 for w in model.weights) or any(b.ndim != 1 for b in model.biases):
+            raise ValueError(f"depth-cue layers of shapes {[w.shape for w in model.weights]}, biases "
+                             f"{[b.shape for b in model.biases]}: expected matrices and vectors")
         if model.weights and model.weights[-1].shape[-1:] != (1,):
             raise ValueError(f"the depth-cue layers end in {model.weights[-1].shape[-1:]} values, not one logit")
         every = (model.mean, model.std, model.linear) + model.weights + model.biases
