@@ -158,6 +158,14 @@ def test_bad_n_is_an_error(n):
         geofeat.detect(frame, n, detector="geokey")
 
 
+@pytest.mark.parametrize("detector", ["geokey", "sift"])
+def test_a_float_n_is_refused_as_not_whole(detector):
+    """n=2048.0 was refused with 'expected a positive number of keypoints, got 2048.0': a positive
+    number, so the message did not say what was wrong (an int is expected)."""
+    with pytest.raises(ValueError, match="n: expected a positive whole number of keypoints, an int"):
+        geofeat.detect(geofeat.read_demo_frame(), 2048.0, detector=detector)
+
+
 def test_a_sift_keypoint_set_with_geokey_is_an_error():
     """'protocol' picks among SIFT's duplicate keypoints; GeoKey's are unique, so only 'unique' is accepted."""
     frame = geofeat.read_demo_frame()
