@@ -451,6 +451,18 @@ def test_depth_cue_layers_that_are_not_matrices_are_refused_on_load(tmp_path):
         geofeat.detect(geofeat.read_demo_frame(), 10, detector=f"geokey={path}")
 
 
+def test_weights_for_other_cues_say_which_cue_differs(tmp_path):
+    """Weights of a version with one more cue said 'cues ('level', 'log_eig_3', 'log_eig_7')...,
+    expected ('level', 'log_eig_3', 'log_eig_7')...': the same names, so no hint of what differed."""
+    arrays = dict(np.load(SHIPPED_WEIGHTS))
+    arrays["cue_names"] = np.array(list(arrays["cue_names"]) + ["extra_cue"])
+    path = tmp_path / "other_cues.npz"
+    np.savez(path, **arrays)
+    n = len(load_geokey().mean)
+    with pytest.raises(ValueError, match=rf"other_cues.npz.*{n + 1} cues, expected {n}; cue {n} is 'extra_cue'"):
+        load_geokey(path)
+
+
 def test_an_empty_detector_name_is_not_the_default():
     """extract(detector="") used the descriptor's own detector, where detect(detector="") refuses it."""
     with pytest.raises(ValueError, match="detector"):

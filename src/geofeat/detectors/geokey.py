@@ -198,9 +198,14 @@ def _load(path: str, stamp: tuple[int, int, int]) -> GeoKeyModel:
         raise ValueError(f"detector weights: {path} is not a GeoKey weights file (no cue_names array); "
                          "`geofeat train-detector` writes them")
     names = tuple(str(s) for s in arrays["cue_names"])
-    if names != CUE_NAMES or "linear" not in arrays:
+    if names != CUE_NAMES:
+        i = next((i for i, (a, b) in enumerate(zip(names, CUE_NAMES)) if a != b), min(len(names), len(CUE_NAMES)))
+        got = repr(names[i]) if i < len(names) else "missing"
+        want = repr(CUE_NAMES[i]) if i < len(CUE_NAMES) else "none"
         raise ValueError(f"detector weights: {path} is not a GeoKey weights file for this version "
-                         f"(cues {names[:3]}..., expected {CUE_NAMES[:3]}...)")
+                         f"({len(names)} cues, expected {len(CUE_NAMES)}; cue {i} is {got}, expected {want})")
+    if "linear" not in arrays:
+        raise ValueError(f"detector weights: {path} is not a GeoKey weights file for this version (no linear array)")
     try:
         k = sum(1 for name in arrays if name.startswith("w"))
         weights = tuple(arrays[f"w{i}"].astype(np.float32) for i in range(k))
