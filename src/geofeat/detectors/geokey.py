@@ -408,10 +408,15 @@ def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
     cands, score = cands[keep], score[keep]
     order = np.argsort(-score, kind="stable")
     floor = int(min_fraction * len(order))
-    order = order[(np.arange(len(order)) < floor) | (score[order] >= threshold)]
+    reached = score[order] >= threshold
+    order = order[(np.arange(len(order)) < floor) | reached]
     if len(order) == 0:
         warnings.warn(f"geokey: no candidate reaches the score threshold {threshold:g} in this frame "
                       "(little texture, or a view the detector does not trust)", stacklevel=2)
+    elif not reached.any() and np.isfinite(threshold):  # a blank frame's noise: keypoints from the floor alone
+        warnings.warn(f"geokey: no candidate reaches the score threshold {threshold:g} in this frame; its keypoints "
+                      f"are only the floor of its best {100 * min_fraction:g} % of candidates (min_fraction): "
+                      "little texture, or a view the detector does not trust", stacklevel=2)
     if n:
         order = order[:n]
     m = len(order)
