@@ -4,6 +4,7 @@ detectors on a tiny simulated sequence."""
 
 import hashlib
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -151,11 +152,35 @@ def test_frame_without_texture_or_depth_gives_no_keypoints_and_a_warning():
         assert len(geofeat.detect(no_depth, 100, detector="geokey")) == 0
 
 
+def test_a_blank_frame_with_faint_noise_warns_that_no_candidate_reaches_the_threshold():
+    """Uniform grey with noise of a tenth of an 8-bit grey level: no candidate reaches the shipped
+    threshold, yet the min_fraction floor kept its best 35 % (about 1900 keypoints, more than the
+    Kinect frame gives) without a word. The keypoints are kept (the floor's documented rule); a warning
+    says they come from the floor alone. The Kinect frame, where hundreds reach it, does not warn."""
+    frame = geofeat.read_demo_frame()
+    noise = np.random.default_rng(0).normal(0.5, 4e-4, frame.shape).astype(np.float32)
+    blank = geofeat.RGBDFrame(noise, frame.depth, frame.K)
+    with pytest.warns(UserWarning, match=r"geokey: no candidate reaches the score threshold .*\(min_fraction\)"):
+        assert len(geofeat.detect(blank, 100, detector="geokey")) == 100
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert len(geofeat.detect(frame, 100, detector="geokey")) == 100
+        detect_geokey(blank, 100, threshold=np.inf, min_fraction=1.0)  # the floor alone, asked for: no warning
+
+
 @pytest.mark.parametrize("n", [0, -5, 2.5])
 def test_bad_n_is_an_error(n):
     frame = geofeat.read_demo_frame()
     with pytest.raises(ValueError, match="n:"):
         geofeat.detect(frame, n, detector="geokey")
+
+
+@pytest.mark.parametrize("detector", ["geokey", "sift"])
+def test_a_float_n_is_refused_as_not_whole(detector):
+    """n=2048.0 was refused with 'expected a positive number of keypoints, got 2048.0': a positive
+    number, so the message did not say what was wrong (an int is expected)."""
+    with pytest.raises(ValueError, match="n: expected a positive whole number of keypoints, an int"):
+        geofeat.detect(geofeat.read_demo_frame(), 2048.0, detector=detector)
 
 
 def test_a_sift_keypoint_set_with_geokey_is_an_error():
@@ -419,6 +444,40 @@ def test_weights_path_that_is_a_folder_says_so(tmp_path):
         geofeat.detect(geofeat.read_demo_frame(), 10, detector=f"geokey={tmp_path}")
     with pytest.raises(ValueError, match="is a folder"):
         load_geokey(tmp_path)
+
+
+def test_an_npy_file_as_weights_is_a_clear_error_naming_it(tmp_path):
+    """np.load gives an .npy file's array itself, which is no context manager: a bare TypeError
+    ('numpy.ndarray' object does not support the context manager protocol) that named no file."""
+    path = tmp_path / "single.npy"
+    np.save(path, np.zeros(3))
+    with pytest.raises(ValueError, match="single.npy.*not an .npz archive"):
+        geofeat.detect(geofeat.read_demo_frame(), 10, detector=f"geokey={path}")
+
+
+def test_depth_cue_layers_that_are_not_matrices_are_refused_on_load(tmp_path):
+    """A (1, 5, 4) first layer chains through np.matmul by broadcasting, passed the load checks, and
+    failed in the middle of detection with 'array is not broadcastable to correct shape', naming no
+    file."""
+    shipped = load_geokey()
+    layers = (np.full((1, 5, 4), 0.01, np.float32), np.full((4, 1), 0.01, np.float32))
+    biases = (np.zeros(4, np.float32), np.zeros(1, np.float32))
+    path = tmp_path / "w3d.npz"
+    GeoKeyModel(shipped.mean, shipped.std, shipped.linear, layers, biases, 3.0).save(path)
+    with pytest.raises(ValueError, match="w3d.npz.*matrices"):
+        geofeat.detect(geofeat.read_demo_frame(), 10, detector=f"geokey={path}")
+
+
+def test_weights_for_other_cues_say_which_cue_differs(tmp_path):
+    """Weights of a version with one more cue said 'cues ('level', 'log_eig_3', 'log_eig_7')...,
+    expected ('level', 'log_eig_3', 'log_eig_7')...': the same names, so no hint of what differed."""
+    arrays = dict(np.load(SHIPPED_WEIGHTS))
+    arrays["cue_names"] = np.array(list(arrays["cue_names"]) + ["extra_cue"])
+    path = tmp_path / "other_cues.npz"
+    np.savez(path, **arrays)
+    n = len(load_geokey().mean)
+    with pytest.raises(ValueError, match=rf"other_cues.npz.*{n + 1} cues, expected {n}; cue {n} is 'extra_cue'"):
+        load_geokey(path)
 
 
 def test_an_empty_detector_name_is_not_the_default():

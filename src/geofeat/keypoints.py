@@ -151,8 +151,8 @@ def _check_n(n, zero_is_all: bool = False) -> int:
     if n is None:
         return 0
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < (0 if zero_is_all else 1):
-        raise ValueError(f"n: expected a positive number of keypoints (or {'0 or ' if zero_is_all else ''}None "
-                         f"for all), got {n!r}")
+        raise ValueError(f"n: expected a positive whole number of keypoints, an int (or {'0 or ' if zero_is_all else ''}"
+                         f"None for all), got {n!r}")
     return int(n)
 
 

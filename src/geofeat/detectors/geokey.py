@@ -183,7 +183,10 @@ def check_settings(nms_radius, threshold, min_fraction, denoise=0.0) -> tuple[fl
 def _load(path: str, stamp: tuple[int, int, int]) -> GeoKeyModel:
     """The weights at `path` as they were at `stamp` (modification time, size, inode of the file)."""
     try:
-        with np.load(path, allow_pickle=False) as a:
+        loaded = np.load(path, allow_pickle=False)
+        if not isinstance(loaded, np.lib.npyio.NpzFile):  # an .npy file: np.load gives the array itself
+            raise ValueError("one numpy array, not an .npz archive of arrays")
+        with loaded as a:
             arrays = {k: a[k] for k in a.files}
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
         raise ValueError(f"detector weights: {path} is not a GeoKey weights file ({error})") from None
@@ -195,9 +198,14 @@ def _load(path: str, stamp: tuple[int, int, int]) -> GeoKeyModel:
         raise ValueError(f"detector weights: {path} is not a GeoKey weights file (no cue_names array); "
                          "`geofeat train-detector` writes them")
     names = tuple(str(s) for s in arrays["cue_names"])
-    if names != CUE_NAMES or "linear" not in arrays:
+    if names != CUE_NAMES:
+        i = next((i for i, (a, b) in enumerate(zip(names, CUE_NAMES)) if a != b), min(len(names), len(CUE_NAMES)))
+        got = repr(names[i]) if i < len(names) else "missing"
+        want = repr(CUE_NAMES[i]) if i < len(CUE_NAMES) else "none"
         raise ValueError(f"detector weights: {path} is not a GeoKey weights file for this version "
-                         f"(cues {names[:3]}..., expected {CUE_NAMES[:3]}...)")
+                         f"({len(names)} cues, expected {len(CUE_NAMES)}; cue {i} is {got}, expected {want})")
+    if "linear" not in arrays:
+        raise ValueError(f"detector weights: {path} is not a GeoKey weights file for this version (no linear array)")
     try:
         k = sum(1 for name in arrays if name.startswith("w"))
         weights = tuple(arrays[f"w{i}"].astype(np.float32) for i in range(k))
@@ -209,6 +217,9 @@ def _load(path: str, stamp: tuple[int, int, int]) -> GeoKeyModel:
         shapes = (model.mean.shape, model.std.shape, model.linear.shape)
         if shapes != ((len(CUE_NAMES),),) * 2 + ((len(IMAGE_CUES),),):
             raise ValueError(f"mean, std, linear of shapes {shapes}")
+        if any(w.ndim != 2 for w in model.weights) or any(b.ndim != 1 for b in model.biases):
+            raise ValueError(f"depth-cue layers of shapes {[w.shape for w in model.weights]}, biases "
+                             f"{[b.shape for b in model.biases]}: expected matrices and vectors")
         if model.weights and model.weights[-1].shape[-1:] != (1,):
             raise ValueError(f"the depth-cue layers end in {model.weights[-1].shape[-1:]} values, not one logit")
         every = (model.mean, model.std, model.linear) + model.weights + model.biases
@@ -397,10 +408,15 @@ def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
     cands, score = cands[keep], score[keep]
     order = np.argsort(-score, kind="stable")
     floor = int(min_fraction * len(order))
-    order = order[(np.arange(len(order)) < floor) | (score[order] >= threshold)]
+    reached = score[order] >= threshold
+    order = order[(np.arange(len(order)) < floor) | reached]
     if len(order) == 0:
         warnings.warn(f"geokey: no candidate reaches the score threshold {threshold:g} in this frame "
                       "(little texture, or a view the detector does not trust)", stacklevel=2)
+    elif not reached.any() and np.isfinite(threshold):  # a blank frame's noise: keypoints from the floor alone
+        warnings.warn(f"geokey: no candidate reaches the score threshold {threshold:g} in this frame; its keypoints "
+                      f"are only the floor of its best {100 * min_fraction:g} % of candidates (min_fraction): "
+                      "little texture, or a view the detector does not trust", stacklevel=2)
     if n:
         order = order[:n]
     m = len(order)
