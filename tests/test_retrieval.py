@@ -561,3 +561,28 @@ def test_retrieval_without_class_mates_is_refused_before_describing(three_object
         run_retrieval([three_objects], tmp_path / "b", ("sift",), classes_file=str(classes), progress=False)
     with pytest.raises(ValueError, match="descriptor"):  # a bad name is still the first error
         run_retrieval([three_objects], tmp_path / "c", ("nope",), progress=False)
+
+
+def test_ties_do_not_follow_the_order_the_folders_were_given_in():
+    """Frames with equal word vectors (here identical frames; in practice all-zero tf-idf vectors, each
+    word in every frame) tie, and ties went to the lowest database index: a query of object a found
+    object a first when its folders came first and object b first when they came last."""
+    from geofeat.apps.retrieval import RetrievalDatabase, eligible_queries, evaluate_descriptor
+
+    rng = np.random.default_rng(0)
+    desc = (rng.normal(size=(3, 16))[np.repeat(np.arange(3), 20)] + 0.05 * rng.normal(size=(60, 16))).astype(np.float32)
+    frame = Features(np.zeros((60, 2)), desc, np.ones(60, bool))
+
+    def results(seq_order):
+        seqs = [s for s in seq_order for _ in range(2)]
+        frames = [f for _ in seq_order for f in ("f0-ref", "f1")]
+        db = RetrievalDatabase(sequences=seqs, frames=frames, classes=[s[0] for s in seqs],
+                               is_query=np.array([f == "f0-ref" for f in frames]), folders=[], mask_sources={},
+                               features={"x": [frame] * len(seqs)})
+        q, ex, _ = eligible_queries(db)
+        r = evaluate_descriptor(db.features["x"], db, q, ex, words=3, n_samples=60, weighting="none", rerank_top=0)
+        return {db.sequences[i]: ([f"{db.sequences[j]}/{db.frames[j]}" for j in row], acc.tolist())
+                for i, row, acc in zip(r.queries, r.neighbours, r.per_query)}
+
+    forward = results(["a0", "a1", "b0", "b1"])
+    assert forward == results(["b1", "b0", "a1", "a0"]) == results(["a1", "b0", "a0", "b1"])

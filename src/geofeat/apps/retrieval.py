@@ -16,7 +16,8 @@
    comparison on 20 objects, which chose the default on validation queries, is in BENCHMARKS.md);
 4. `search`: k-nearest neighbours of the query vectors among the database vectors under the
    weighting's distance: L1 for "tfidf-l1", else L2 (which on the L2-normalised tf-idf vectors
-   ranks as cosine similarity);
+   ranks as cosine similarity); frames at equal distance are ranked by `tie_keys` (a fixed
+   pseudo-random order of their names), not in the order the folders were given;
 5. `accuracy_at_k`: queries are the reference frames; as in the paper the database holds the frames of
    the *other* sequences (`exclusion_mask`; the query's own sequence is left out unless
    `include_own_sequence`, and then only the query itself is), so that a query must find its object
@@ -56,7 +57,7 @@ __all__ = [
     "RetrievalDatabase", "describe_datasets", "run_retrieval", "exclusion_mask", "per_query_accuracy",
     "bootstrap_interval", "split_queries", "WORD_CANDIDATES", "DescriptorResult", "evaluate_descriptor",
     "sample_distances", "eligible_queries", "word_counts", "inverse_document_frequency", "weight_histograms", "WEIGHTINGS",
-    "DEFAULT_WEIGHTING", "rerank", "verified_matches", "match_counts", "RERANK", "RERANK_RATIO",
+    "DEFAULT_WEIGHTING", "tie_keys", "rerank", "verified_matches", "match_counts", "RERANK", "RERANK_RATIO",
 ]
 
 #: Database frames per query that `rerank` reorders (0: none, the paper's setting); chosen on the
@@ -247,7 +248,7 @@ def _distances(queries: np.ndarray, database: np.ndarray, distance: str) -> np.n
 
 
 def search(queries: np.ndarray, database: np.ndarray, k: int = MAX_K, exclude: np.ndarray | None = None,
-           distance: str = "l2") -> tuple[np.ndarray, np.ndarray]:
+           distance: str = "l2", order: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """k-nearest neighbours of (Q, K) query vectors among (N, K) database vectors (histograms or
     `weight_histograms`).
 
@@ -255,8 +256,11 @@ def search(queries: np.ndarray, database: np.ndarray, k: int = MAX_K, exclude: n
         exclude: optional database entries never returned: (Q,) one index per query (the query
             itself; -1 = none), or a (Q, N) bool mask (True = excluded, see `exclusion_mask`).
         distance: "l2" (Euclidean; on L2-normalised vectors it ranks as cosine similarity) or "l1".
+        order: optional (N,) keys of the database entries: of entries at equal distance (ties), the
+            lowest key first (then the lowest index); None: the lowest index first. `evaluate_descriptor`
+            passes `tie_keys`, so that ties do not follow the order the folders were listed in.
     Returns:
-        indices (Q, k) int64 and distances (Q, k) float64, nearest first (ties: lowest index first);
+        indices (Q, k) int64 and distances (Q, k) float64, nearest first (ties: see `order`);
         k is lowered to the fewest database entries any query may return.
     """
     queries = np.atleast_2d(np.asarray(queries, np.float64))
@@ -278,8 +282,27 @@ def search(queries: np.ndarray, database: np.ndarray, k: int = MAX_K, exclude: n
             d[rows, exclude[rows]] = np.inf
             allowed -= 1 if len(rows) else 0  # -1 everywhere excludes nothing
     k = max(min(k, allowed), 0)
-    idx = np.argsort(d, axis=1, kind="stable")[:, :k]
+    if order is None:
+        idx = np.argsort(d, axis=1, kind="stable")[:, :k]
+    else:
+        order = np.asarray(order).reshape(-1)
+        if order.shape != (d.shape[1],):
+            raise ValueError(f"order: expected {d.shape[1]} keys, one per database entry, got shape {order.shape}")
+        perm = np.lexsort((np.arange(len(order)), order))  # the database in key order
+        idx = perm[np.argsort(d[:, perm], axis=1, kind="stable")[:, :k]]
     return idx, np.take_along_axis(d, idx, axis=1)
+
+
+def tie_keys(sequences, frames) -> np.ndarray:
+    """(N,) int64 keys that order database entries at equal distance in `search`: the CRC-32 of
+    "sequence/frame", a fixed pseudo-random order of the frames that does not depend on the order
+    the folders were given or listed in, nor on their class. (By index, as before, two frames whose
+    word vectors are equal, e.g. all zeros when each of their words is in every frame and weighs
+    nothing under tf-idf, were returned in folder order, and the same query scored differently
+    when the folders were given in another order.)"""
+    import zlib
+
+    return np.array([zlib.crc32(f"{s}/{f}".encode("utf-8")) for s, f in zip(sequences, frames)], np.int64)
 
 
 def per_query_accuracy(neighbours: np.ndarray, database_classes, query_classes) -> np.ndarray:
@@ -685,13 +708,15 @@ def evaluate_descriptor(features: list[Features], db: RetrievalDatabase, queries
     runs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     depth = max(max_k, rerank_top)  # results kept per query: enough for `rerank`
+    ties = tie_keys(db.sequences, db.frames)  # equal distances: not in folder order
 
     def run(k: int) -> tuple[np.ndarray, np.ndarray]:
         """(Q, depth) neighbours and (Q, max_k) per-query Acc@K with K visual words (memoised)."""
         if k not in runs:
             vocab = vocabulary(sample, k, seed=seed, distances=D)
             vectors = weight_histograms(np.stack([word_counts(f, vocab) for f in features]), weighting)  # (N, K)
-            neighbours, _ = search(vectors[queries], vectors, depth, exclude=exclude, distance=WEIGHTINGS[weighting])
+            neighbours, _ = search(vectors[queries], vectors, depth, exclude=exclude, distance=WEIGHTINGS[weighting],
+                                   order=ties)
             runs[k] = neighbours, per_query_accuracy(neighbours[:, :max_k], db.classes, np.asarray(db.classes)[queries])
         return runs[k]
 
