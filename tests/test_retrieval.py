@@ -586,3 +586,18 @@ def test_ties_do_not_follow_the_order_the_folders_were_given_in():
 
     forward = results(["a0", "a1", "b0", "b1"])
     assert forward == results(["b1", "b0", "a1", "a0"]) == results(["a1", "b0", "a0", "b1"])
+
+
+def test_k_chosen_on_queries_of_the_test_queries_own_object_is_flagged(three_objects, tmp_path):
+    """Queries of one class (one object in two sequences, plus a distractor): `split_queries` splits them
+    one by one, so K is chosen on a query of the test query's own object, which the help says never
+    happens; retrieval.md reported that Acc@K like any other."""
+    classes = tmp_path / "classes.csv"
+    classes.write_text("sequence,class\nblobs,cloth\ncheckers,cloth\nlines,tiles\n")
+    run_retrieval([three_objects], tmp_path / "out", ("orb",), n_samples=300, n_keypoints=200,
+                  classes_file=str(classes), rerank_top=0, progress=False)
+    md = (tmp_path / "out" / "retrieval.md").read_text()
+    assert "chosen on queries of the test queries' own object" in md, md
+    run_retrieval([three_objects], tmp_path / "out2", ("orb",), words=5, n_samples=300, n_keypoints=200,
+                  classes_file=str(classes), rerank_top=0, progress=False)  # K given: nothing chosen
+    assert "own object" not in (tmp_path / "out2" / "retrieval.md").read_text()

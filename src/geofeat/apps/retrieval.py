@@ -829,7 +829,7 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
             raise ValueError(f"{e} (descriptor {name})") from None
     with output_folder(out) as tmp:
         _write_retrieval(tmp, db, res, skipped, words, n_samples, include_own_sequence,
-                         _trivial_queries(db, q_idx, exclude))
+                         _trivial_queries(db, q_idx, exclude), len(set(np.asarray(db.classes)[q_idx])))
     return res, db
 
 
@@ -844,8 +844,8 @@ def _trivial_queries(db: "RetrievalDatabase", queries: np.ndarray, exclude: np.n
 
 def _write_retrieval(out: Path, db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: list[str],
                      words: int | None, n_samples: int, include_own_sequence: bool,
-                     trivial: list[str] | None = None) -> None:
-    """The result files of `run_retrieval`, into `out`."""
+                     trivial: list[str] | None = None, query_classes: int | None = None) -> None:
+    """The result files of `run_retrieval`, into `out` (query_classes: the classes of the eligible queries)."""
     with open(out / "retrieval.csv", "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow(["descriptor", "words", "weighting", "k", "accuracy", "low", "high"])
@@ -854,7 +854,8 @@ def _write_retrieval(out: Path, db: RetrievalDatabase, res: dict[str, Descriptor
                         for k, (v, lo, hi) in enumerate(zip(r.accuracy, r.low, r.high)))
     _plot({n: r.accuracy for n, r in res.items()}, out / "acc_at_k.png")
     _top6_picture(db, {n: (r.queries, r.neighbours) for n, r in res.items()}, out / "top6.png")
-    (out / "retrieval.md").write_text(_report(db, res, skipped, words, n_samples, include_own_sequence, trivial),
+    (out / "retrieval.md").write_text(_report(db, res, skipped, words, n_samples, include_own_sequence, trivial,
+                                              query_classes),
                                        encoding="utf-8")
 
 
@@ -869,8 +870,10 @@ def _interval(low: float, high: float) -> str:
 
 
 def _report(db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: list[str], words: int | None,
-            n_samples: int, include_own_sequence: bool, trivial: list[str] | None = None) -> str:
-    """retrieval.md: Acc@K [95 % interval] per descriptor, then notes."""
+            n_samples: int, include_own_sequence: bool, trivial: list[str] | None = None,
+            query_classes: int | None = None) -> str:
+    """retrieval.md: Acc@K [95 % interval] per descriptor, then notes (query_classes: the number of
+    classes among the eligible queries; with one, `split_queries` splits query by query)."""
     k_max = max(len(r.accuracy) for r in res.values())
     ks = [k for k in (1, 3, 5, 10) if k <= k_max]
     reranked = any(r.rerank > 0 for r in res.values())
@@ -911,6 +914,10 @@ def _report(db: RetrievalDatabase, res: dict[str, DescriptorResult], skipped: li
             notes.append(f"{n}: K = {r.words} chosen by validation (mean Acc@1–{k_max} on "
                          f"{plural(held_out, 'held-out query', 'held-out queries')}: {scores}); "
                          f"Acc@K on the other {len(r.queries)}")
+        if query_classes == 1:  # `split_queries` had no classes to split by
+            notes.append("WARNING: every query is of one class, so the queries were split one by one and K was "
+                         "chosen on queries of the test queries' own object (an optimistic Acc@K); pass --words, or "
+                         "add a second object with two sequences")
     else:
         notes.append(f"K = {words} given")
     if trivial:

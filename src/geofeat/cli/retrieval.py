@@ -20,7 +20,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="visual words K (default: chosen per descriptor among "
                         f"{','.join(map(str, WORD_CANDIDATES))} (those below --samples) by validation on the queries "
                         "of a random half of the classes; Acc@K is then reported on the other half's queries, so that "
-                        "no test query's object informs K)")
+                        "no test query's object informs K; queries of a single class are split one by one, and "
+                        "retrieval.md warns)")
     p.add_argument("--weighting", choices=tuple(WEIGHTINGS), default=DEFAULT_WEIGHTING,
                    help="word weighting and distance: none (L1-normalised histograms, L2: the paper's), hellinger "
                         "(square roots, L2), tfidf (tf-idf, cosine), tfidf-sqrt (square-root tf times idf, cosine), "
