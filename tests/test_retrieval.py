@@ -601,3 +601,14 @@ def test_k_chosen_on_queries_of_the_test_queries_own_object_is_flagged(three_obj
     run_retrieval([three_objects], tmp_path / "out2", ("orb",), words=5, n_samples=300, n_keypoints=200,
                   classes_file=str(classes), rerank_top=0, progress=False)  # K given: nothing chosen
     assert "own object" not in (tmp_path / "out2" / "retrieval.md").read_text()
+
+
+def test_search_refuses_an_exclude_list_of_another_length():
+    """An (Q,) exclude shorter than the queries left the last queries free to return themselves."""
+    db = np.eye(3)
+    with pytest.raises(ValueError, match="exclude"):
+        search(db, db, k=2, exclude=np.array([0, 1]))
+    with pytest.raises(ValueError, match="exclude"):
+        search(db, db, k=2, exclude=np.array([0, 1, 2, 0]))
+    nn, _ = search(db, db, k=2, exclude=np.array([0, 1, 2]))
+    assert all(q not in row for q, row in enumerate(nn))

@@ -278,6 +278,9 @@ def search(queries: np.ndarray, database: np.ndarray, k: int = MAX_K, exclude: n
             allowed -= int(exclude.sum(axis=1).max()) if len(exclude) else 0
         else:
             exclude = exclude.astype(np.int64).reshape(-1)
+            if exclude.shape != (len(d),) or (exclude >= d.shape[1]).any():  # a short one left the last queries free
+                raise ValueError(f"exclude: expected {len(d)} database indices (or -1), one per query, below "
+                                 f"{d.shape[1]}; got shape {exclude.shape}")
             rows = np.flatnonzero(exclude >= 0)
             d[rows, exclude[rows]] = np.inf
             allowed -= 1 if len(rows) else 0  # -1 everywhere excludes nothing
