@@ -612,3 +612,33 @@ def test_search_refuses_an_exclude_list_of_another_length():
         search(db, db, k=2, exclude=np.array([0, 1, 2, 0]))
     nn, _ = search(db, db, k=2, exclude=np.array([0, 1, 2]))
     assert all(q not in row for q, row in enumerate(nn))
+
+
+def test_the_vocabulary_does_not_depend_on_the_order_the_folders_were_given_in():
+    """The vocabulary sample was drawn, and FasterPAM run, in the order the folders were given, so
+    `geofeat retrieval B A` scored every query differently from `geofeat retrieval A B`."""
+    from geofeat.apps.retrieval import RetrievalDatabase, eligible_queries, evaluate_descriptor
+
+    rng = np.random.default_rng(1)
+    protos = rng.normal(size=(12, 16))
+    seqs_ab = ["a0", "a1", "b0", "b1", "c0", "c1"]
+    frame = {}
+    for s in seqs_ab:
+        for f in ("f0-ref", "f1"):
+            obj = "abc".index(s[0])
+            word = rng.choice(np.arange(4 * obj, 4 * obj + 6) % 12, size=40)
+            desc = (protos[word] + 0.6 * rng.normal(size=(40, 16))).astype(np.float32)
+            frame[s, f] = Features(np.zeros((40, 2)), desc, np.ones(40, bool))
+
+    def results(seq_order, n_samples):
+        pairs = [(s, f) for s in seq_order for f in ("f0-ref", "f1")]
+        db = RetrievalDatabase(sequences=[s for s, _ in pairs], frames=[f for _, f in pairs],
+                               classes=[s[0] for s, _ in pairs], is_query=np.array([f == "f0-ref" for _, f in pairs]),
+                               folders=[], mask_sources={}, features={"x": [frame[p] for p in pairs]})
+        q, ex, _ = eligible_queries(db)
+        r = evaluate_descriptor(db.features["x"], db, q, ex, words=8, n_samples=n_samples, rerank_top=0)
+        return {db.sequences[i]: acc.tolist() for i, acc in zip(r.queries, r.per_query)}
+
+    for n_samples in (100, 1000):  # a random subset of the descriptors, and all of them
+        forward = results(seqs_ab, n_samples)
+        assert forward == results(seqs_ab[::-1], n_samples) == results(["b1", "c0", "a0", "c1", "a1", "b0"], n_samples)

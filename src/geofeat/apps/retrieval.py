@@ -4,7 +4,8 @@
    GeoBit and SIFT for the others, `describe_datasets`) are detected inside the object mask of every
    frame of every sequence (`geofeat.apps.objectmask.object_mask`) and described;
 2. `vocabulary`: K visual words (paper: 10) are the K-medoids (FasterPAM, `kmedoids` package) of
-   10,000 descriptors sampled at random from all frames, under each descriptor's own distance
+   10,000 descriptors sampled at random from all frames (taken in sequence-name order, whatever the
+   order the folders were given in), under each descriptor's own distance
    (L2; Hamming; GeoBit: the minimum Hamming distance over its 16 rotations), the distance matrix
    symmetrised as (D + D^T) / 2;
 3. `word_counts`: each frame becomes the counts of its descriptors' nearest words (`histogram`: the
@@ -701,7 +702,11 @@ def evaluate_descriptor(features: list[Features], db: RetrievalDatabase, queries
             `rerank` (K is chosen on the words' order); 0 keeps the words' order.
     """
     _check_weighting(weighting)
-    sample = sample_descriptors(features, n_samples, seed)
+    # the sample drawn from the frames in sequence-name order (a stable sort keeps each sequence's frame
+    # order): in the order the folders were given, `geofeat retrieval B A` drew another sample, and
+    # FasterPAM another vocabulary, than `geofeat retrieval A B` (one folder of sequences: already so)
+    canonical = sorted(range(len(features)), key=lambda i: db.sequences[i])
+    sample = sample_descriptors([features[i] for i in canonical], n_samples, seed)
     ks = [int(words)] if words is not None else [k for k in candidates if k < len(sample)]
     if not ks or len(sample) <= min(ks):
         raise ValueError(f"descriptors: {len(sample)} valid descriptors in all, too few for "
