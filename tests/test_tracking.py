@@ -627,3 +627,38 @@ def test_a_failed_fit_counts_in_the_seconds_per_frame(sequence, tmp_path, monkey
     assert seconds[1] >= 0.4  # its matching and RANSAC took time
     shown = re.search(r"per frame, matching \+ RANSAC[^:]*: sift ([\d.]+) s", (tmp_path / "tracking.md").read_text())
     assert shown and float(shown.group(1)) == pytest.approx(np.mean(seconds), abs=1e-3)
+
+
+def _real_sequence(folder, width=64, height=48):
+    """Two frames of a textured plane at 1 m (colour, 16-bit depth and intrinsics only): a user's sequence."""
+    from geofeat.io import write_frame, write_intrinsics
+
+    folder.mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    for name in ("view-ref", "view-2"):
+        write_frame(folder, name, rng.integers(0, 256, (height, width, 3)).astype(np.uint8), np.ones((height, width)))
+    write_intrinsics(folder / "intrinsics.xml", np.array([[60.0, 0, width / 2], [0, 60.0, height / 2], [0, 0, 1]]))
+    return folder
+
+
+def test_a_user_object_mask_of_16_bits_or_of_another_size_is_read_right_or_refused(tmp_path):
+    """A 16-bit 0/1 (or 0/255) objmask was read as all zeros (IMREAD_GRAYSCALE), and one of another size
+    put the default ROI in the wrong pixels, or failed with numpy's broadcasting message."""
+    import cv2
+
+    from geofeat.apps.objectmask import object_mask
+    from geofeat.io import read_sequence
+
+    seq = read_sequence(_real_sequence(tmp_path / "user"))
+    tps = tmp_path / "tps" / "user"
+    tps.mkdir(parents=True)
+    box = np.zeros((48, 64), np.uint16)
+    box[10:30, 20:50] = 1
+    for values in (box, box * 255):
+        cv2.imwrite(str(tps / "view-ref_objmask.png"), values)
+        mask, source = object_mask(seq, "view-ref", tmp_path / "tps")
+        assert source == "objmask" and mask.sum() == 600 and mask[10:30, 20:50].all()
+        assert default_roi(mask) == (21, 11, 48, 28)
+    cv2.imwrite(str(tps / "view-ref_objmask.png"), cv2.resize(box.astype(np.uint8) * 255, (32, 24)))
+    with pytest.raises(ValueError, match="32x24.*64x48"):
+        object_mask(seq, "view-ref", tmp_path / "tps")
