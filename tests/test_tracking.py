@@ -706,3 +706,24 @@ def test_the_refined_warp_kept_is_the_map_whose_cost_the_refinement_measured():
     assert kept and measured.cost < measured.init_cost
     assert abs(_photometric_cost(ref, tgt, mask, warp, config) - measured.cost) < 1e-4
 
+
+def test_a_sequence_of_one_frame_is_refused_before_any_other_is_tracked(tmp_path, monkeypatch):
+    """write_tracking tracked every sequence before it, then raised at the one-frame sequence and wrote
+    nothing: all that work was lost."""
+    import shutil
+
+    from geofeat.apps import tracking
+
+    two = _real_sequence(tmp_path / "data" / "a")
+    one = tmp_path / "data" / "b"
+    one.mkdir()
+    for f in two.iterdir():
+        if not f.name.startswith("view-2"):
+            shutil.copy(f, one / f.name)
+    def tracked(folder, *args, **kwargs):
+        raise RuntimeError(f"{folder} tracked before the one-frame sequence was refused")
+
+    monkeypatch.setattr(tracking, "track_sequence", tracked)
+    with pytest.raises(ValueError, match="sequence b: needs a reference frame and at least one other"):
+        write_tracking([tmp_path / "data"], tmp_path / "out", ("sift",), progress=False)
+    assert not (tmp_path / "out").exists()

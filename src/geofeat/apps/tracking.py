@@ -1086,6 +1086,11 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
     sequences = find_sequences(sequences, unique_names=True)
     out = check_out_dir(out, overwrite, files=("track.csv", "tracking.md"), inputs=sequences)
     check_tps_dir(tps_dir)
+    for folder in sequences:  # before any work: a sequence of one frame found after hours of tracking lost them all
+        single = read_sequence(folder, depth_scale=depth_scale)
+        if len(single) < 2:
+            raise ValueError(f"sequence {single.name}: needs a reference frame and at least one other frame, "
+                             f"got {len(single)} frame(s)")
     rows: list[dict] = []
     notes = []
     seconds = setup = 0.0
