@@ -627,3 +627,103 @@ def test_a_failed_fit_counts_in_the_seconds_per_frame(sequence, tmp_path, monkey
     assert seconds[1] >= 0.4  # its matching and RANSAC took time
     shown = re.search(r"per frame, matching \+ RANSAC[^:]*: sift ([\d.]+) s", (tmp_path / "tracking.md").read_text())
     assert shown and float(shown.group(1)) == pytest.approx(np.mean(seconds), abs=1e-3)
+
+
+def _real_sequence(folder, width=64, height=48):
+    """Two frames of a textured plane at 1 m (colour, 16-bit depth and intrinsics only): a user's sequence."""
+    from geofeat.io import write_frame, write_intrinsics
+
+    folder.mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    for name in ("view-ref", "view-2"):
+        write_frame(folder, name, rng.integers(0, 256, (height, width, 3)).astype(np.uint8), np.ones((height, width)))
+    write_intrinsics(folder / "intrinsics.xml", np.array([[60.0, 0, width / 2], [0, 60.0, height / 2], [0, 0, 1]]))
+    return folder
+
+
+def test_a_user_object_mask_of_16_bits_or_of_another_size_is_read_right_or_refused(tmp_path):
+    """A 16-bit 0/1 (or 0/255) objmask was read as all zeros (IMREAD_GRAYSCALE), and one of another size
+    put the default ROI in the wrong pixels, or failed with numpy's broadcasting message."""
+    import cv2
+
+    from geofeat.apps.objectmask import object_mask
+    from geofeat.io import read_sequence
+
+    seq = read_sequence(_real_sequence(tmp_path / "user"))
+    tps = tmp_path / "tps" / "user"
+    tps.mkdir(parents=True)
+    box = np.zeros((48, 64), np.uint16)
+    box[10:30, 20:50] = 1
+    for values in (box, box * 255):
+        cv2.imwrite(str(tps / "view-ref_objmask.png"), values)
+        mask, source = object_mask(seq, "view-ref", tmp_path / "tps")
+        assert source == "objmask" and mask.sum() == 600 and mask[10:30, 20:50].all()
+        assert default_roi(mask) == (21, 11, 48, 28)
+    cv2.imwrite(str(tps / "view-ref_objmask.png"), cv2.resize(box.astype(np.uint8) * 255, (32, 24)))
+    with pytest.raises(ValueError, match="32x24.*64x48"):
+        object_mask(seq, "view-ref", tmp_path / "tps")
+
+
+def _photometric_cost(ref, tgt, mask, warp, config):
+    """The refiner's photometric cost (1 - local NCC, object average, full resolution) of any warp."""
+    import torch
+
+    from geofeat.groundtruth import photometric as P
+
+    ys, xs = np.nonzero(mask)
+    s, (H, W) = float(config.spacing), ref.shape
+    gx, gy = np.arange(xs.min() - s, xs.max() + 2 * s, s), np.arange(ys.min() - s, ys.max() + 2 * s, s)
+    box = (max(int(xs.min() - s), 0), max(int(ys.min() - s), 0), min(int(xs.max() + s), W - 1), min(int(ys.max() + s), H - 1))
+    level = P._Level(ref, tgt, mask, warp, box, gx, gy, 0, config.window, config.flat_tau)
+    with torch.no_grad():
+        warped, inside = P._warp(level, torch.zeros((2, len(gy), len(gx))))
+        return float(P._ncc_cost(level, warped, inside, config.window, config.flat_tau))
+
+
+def test_the_refined_warp_kept_is_the_map_whose_cost_the_refinement_measured():
+    """refine_warp kept the refiner's node positions interpolated bilinearly, not its cubic B-spline
+    field: a map the acceptance test never measured (on a simulated frame its cost was 0.415 where the
+    refiner's was 0.395, its grid error 0.53 px instead of 0.48 px)."""
+    import cv2
+
+    from geofeat.apps.tracking import REFINE_ITERATIONS, refine_warp
+    from geofeat.groundtruth import RefineConfig, refine
+
+    rng = np.random.default_rng(1)
+    H, W = 96, 128
+    ref = cv2.GaussianBlur(rng.random((H, W)).astype(np.float32), (0, 0), 2.0)
+    ref = (ref - ref.min()) / (ref.max() - ref.min())
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
+    dx, dy = 3 * np.sin(xx / 14) * np.cos(yy / 11), 3 * np.cos(xx / 9) * np.sin(yy / 13)
+    tgt = cv2.remap(ref, xx - dx, yy - dy, cv2.INTER_LINEAR)  # about ref(p - d): the true map is near p + d
+    src = np.stack(np.meshgrid(np.linspace(20, 107, 5), np.linspace(16, 79, 4)), -1).reshape(-1, 2)
+    spline = fit_tps(src, src, 1e-3)  # the identity: the refinement has all of d to find
+    mask = np.zeros((H, W), bool)
+    mask[12:84, 16:112] = True
+    config = RefineConfig(iterations=REFINE_ITERATIONS)
+    warp, kept = refine_warp(ref, tgt, mask, spline, src, src, (16, 12, 111, 83), config)
+    measured = refine(ref, tgt, mask, spline, src, src, config)
+    assert kept and measured.cost < measured.init_cost
+    assert abs(_photometric_cost(ref, tgt, mask, warp, config) - measured.cost) < 1e-4
+
+
+def test_a_sequence_of_one_frame_is_refused_before_any_other_is_tracked(tmp_path, monkeypatch):
+    """write_tracking tracked every sequence before it, then raised at the one-frame sequence and wrote
+    nothing: all that work was lost."""
+    import shutil
+
+    from geofeat.apps import tracking
+
+    two = _real_sequence(tmp_path / "data" / "a")
+    one = tmp_path / "data" / "b"
+    one.mkdir()
+    for f in two.iterdir():
+        if not f.name.startswith("view-2"):
+            shutil.copy(f, one / f.name)
+    def tracked(folder, *args, **kwargs):
+        raise RuntimeError(f"{folder} tracked before the one-frame sequence was refused")
+
+    monkeypatch.setattr(tracking, "track_sequence", tracked)
+    with pytest.raises(ValueError, match="sequence b: needs a reference frame and at least one other"):
+        write_tracking([tmp_path / "data"], tmp_path / "out", ("sift",), progress=False)
+    assert not (tmp_path / "out").exists()

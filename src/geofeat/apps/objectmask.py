@@ -71,8 +71,15 @@ def object_mask(seq: Sequence, name: str, tps_dir: str | Path | None = None) -> 
         folder = tps_folder(str(tps_dir), seq.name)
         path = None if folder is None else folder / f"{name}_objmask.png"
         if path is not None and path.is_file():
-            m = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+            # unchanged, not IMREAD_GRAYSCALE: that reads a 16-bit 0/1 or 0/255 mask as all zeros
+            m = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
             if m is None:
                 raise ValueError(f"tps-dir: cannot read {path}")
+            if m.ndim == 3:  # colour: object where any colour channel (not the alpha) is non-zero
+                m = m[..., :3].max(axis=2)
+            shape = seq.shape if seq.shape is not None else seq.frame(name).shape
+            if m.shape != tuple(shape):  # a mask of another size put the ROI in the wrong pixels
+                raise ValueError(f"tps-dir: {path} is {m.shape[1]}x{m.shape[0]}, the frames of {seq.name} are "
+                                 f"{shape[1]}x{shape[0]}")
             return m > 0, "objmask"
     return foreground_from_depth(seq.frame(name).depth), "depth"

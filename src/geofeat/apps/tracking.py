@@ -387,8 +387,10 @@ class RefinedWarp:
     Attributes:
         spline: the RANSAC TPS it refines.
         origin: (2,) pixel (x, y) of node [0, 0]; spacing: node spacing, pixels.
-        displacement: (Gy, Gx, 2) D at the nodes, pixels (interpolated bilinearly in between; zero
-            beyond the outermost nodes' neighbours).
+        displacement: (Gy, Gx, 2) D at the nodes, pixels, interpolated in between by the cubic B-spline
+            field of `geofeat.groundtruth.refine` that takes these values at the nodes, so that the warp
+            is the one whose photometric cost the refinement measured (bilinear interpolation of the
+            node values was another map, of a higher cost); zero from two spacings beyond the outermost nodes.
     """
 
     spline: ThinPlateSpline
@@ -396,13 +398,23 @@ class RefinedWarp:
     spacing: float
     displacement: np.ndarray
 
-    def __call__(self, xy: np.ndarray) -> np.ndarray:
-        from scipy.ndimage import map_coordinates
+    def _weights(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(M, Gx) and (M, Gy) cubic B-spline weights of the nodes at the (M, 2) pixels."""
+        from ..groundtruth.photometric import _bspline_weights
 
+        gy, gx = self.displacement.shape[:2]
+        return (_bspline_weights(xy[:, 0], self.origin[0], self.spacing, gx).astype(np.float64),
+                _bspline_weights(xy[:, 1], self.origin[1], self.spacing, gy).astype(np.float64))
+
+    def __call__(self, xy: np.ndarray) -> np.ndarray:
         xy = as_points(xy, "xy")
-        rc = ((xy - self.origin) / self.spacing)[:, ::-1].T  # (2, M) node rows, columns
-        d = np.stack([map_coordinates(self.displacement[..., c], rc, order=1, mode="constant", cval=0.0)
-                      for c in range(2)], axis=1)
+        gy, gx = self.displacement.shape[:2]
+        nodes = self.origin + self.spacing * np.stack(np.meshgrid(np.arange(gx), np.arange(gy)), axis=-1).reshape(-1, 2)
+        ax, ay = self._weights(nodes[:gx])[0], self._weights(nodes[::gx])[1]  # (Gx, Gx), (Gy, Gy): invertible
+        # the B-spline coefficients whose field takes the node values: Ay C Ax^T = D, per component
+        coef = [np.linalg.solve(ay, np.linalg.solve(ax, self.displacement[..., c].T).T) for c in range(2)]
+        wx, wy = self._weights(xy)
+        d = np.stack([((wy @ c) * wx).sum(axis=1) for c in coef], axis=1)
         return self.spline(xy) + d
 
 
@@ -1074,6 +1086,11 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
     sequences = find_sequences(sequences, unique_names=True)
     out = check_out_dir(out, overwrite, files=("track.csv", "tracking.md"), inputs=sequences)
     check_tps_dir(tps_dir)
+    for folder in sequences:  # before any work: a sequence of one frame found after hours of tracking lost them all
+        single = read_sequence(folder, depth_scale=depth_scale)
+        if len(single) < 2:
+            raise ValueError(f"sequence {single.name}: needs a reference frame and at least one other frame, "
+                             f"got {len(single)} frame(s)")
     rows: list[dict] = []
     notes = []
     seconds = setup = 0.0
