@@ -388,3 +388,38 @@ def test_simulate_warns_when_the_reference_has_few_landmarks(tmp_path):
     with warnings.catch_warnings():  # a frame of the usual size has its landmarks, and no warning
         warnings.simplefilter("error", UserWarning)
         simulate_sequence(tmp_path / "usual", n_frames=2, width=320, height=240, progress=False)
+
+
+def test_landmark_flags_read_back_as_the_ground_truth_visibility(tmp_path):
+    """A landmark seen in the first pixel row or column (centre at 0, so -0.5 <= y < 0) was written
+    valid 1 at e.g. y = -0.21 (paper, seed 3, frame 5), and read_landmarks dropped it as invisible
+    (it took x, y >= 0 for visible): the csv read back disagreed with the ground truth."""
+    out = simulate_sequence(tmp_path / "s", "deform", n_frames=6, seed=3, width=160, height=120, preset="paper",
+                            progress=False)
+    seq = read_sequence(out)
+    _, xy0, vis0 = seq.landmarks(0)
+    assert vis0.all()
+    edge = 0
+    for j in range(1, len(seq)):
+        _, xy, visible = seq.landmarks(j)
+        _, truth = seq.correspondences(0, j, xy0)
+        np.testing.assert_array_equal(visible, truth)
+        edge += int((visible & (xy < 0).any(axis=1)).sum())
+    assert edge >= 1  # the case above is in this sequence
+
+
+def test_read_frame_takes_the_depth_scale_from_geofeat_json(tmp_path):
+    """read_frame read a simulated frame (0.1 mm PNGs, geofeat.json depth_scale 0.0001) in
+    millimetres, without a warning: the cloth at 0.86 m came back at 8.6 m."""
+    import geofeat
+
+    out = simulate_sequence(tmp_path / "s", "deform", n_frames=1, seed=1, width=64, height=48, progress=False)
+    seq = read_sequence(out)
+    name = seq.names[0]
+    frame = geofeat.read_frame(out / f"{name}-rgb.png", out / f"{name}-depth.png", out / "intrinsics.xml")
+    np.testing.assert_array_equal(frame.depth, seq.frame(0).depth)
+    assert 0.5 < np.median(frame.depth[frame.depth > 0]) < 1.5
+    # an explicit depth_scale still wins
+    mm = geofeat.read_frame(out / f"{name}-rgb.png", out / f"{name}-depth.png", out / "intrinsics.xml",
+                            depth_scale=0.001)
+    np.testing.assert_allclose(mm.depth, 10 * frame.depth, rtol=1e-6)
