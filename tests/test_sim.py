@@ -423,3 +423,15 @@ def test_read_frame_takes_the_depth_scale_from_geofeat_json(tmp_path):
     mm = geofeat.read_frame(out / f"{name}-rgb.png", out / f"{name}-depth.png", out / "intrinsics.xml",
                             depth_scale=0.001)
     np.testing.assert_allclose(mm.depth, 10 * frame.depth, rtol=1e-6)
+
+
+@pytest.mark.parametrize("size", [dict(width=32, height=640), dict(width=1000, height=100, fov=119)])
+def test_sizes_whose_intrinsics_read_sequence_refuses_are_refused_before_simulating(size, tmp_path):
+    """32 x 640 (f = 525 * 32 / 640 = 26 px) and 1000 x 100 at 119 deg (f = 29 px) were simulated and
+    written, and read_sequence then refused the intrinsics.xml (focal length under 0.1x the larger side)."""
+    with pytest.raises(ValueError, match="width, height, fov: .* read_sequence"):
+        simulate_sequence(tmp_path / "out", n_frames=1, texture="procedural", progress=False, **size)
+    assert list(tmp_path.iterdir()) == []
+    # a merely elongated size still works and reads back
+    simulate_sequence(tmp_path / "ok", n_frames=1, texture="procedural", progress=False, width=48, height=320)
+    assert read_sequence(tmp_path / "ok").shape == (320, 48)

@@ -27,7 +27,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..inputs import check_whole
+from ..inputs import check_intrinsics_for_image, check_whole
 from ..io import write_intrinsics, write_landmarks
 from ..outputs import check_out_dir, replace_folder, temporary_folder
 from ..groundtruth.landmarks import MIN_LANDMARKS
@@ -151,6 +151,13 @@ def simulate_sequence(
         raise ValueError(f"motion_blur: the {preset_obj.name} preset has no motion blur; simulate with the paper or "
                          "hard preset, or without motion blur")
     K = default_intrinsics(width, height, fov)
+    try:  # an elongated image (32 x 640, or 1000 x 100 at 119 deg) was simulated and written, then refused by read_sequence
+        check_intrinsics_for_image(K, (height, width), "K")
+    except ValueError:
+        raise ValueError(f"width, height, fov: a {width}x{height} image with "
+                         f"{'f = 525 * width / 640' if fov is None else f'a vertical field of view of {fov:g} deg'} has "
+                         f"f = {K[0, 0]:.4g} px, outside the 0.1 to 20 times the larger side that read_sequence "
+                         "accepts; choose a less elongated size or another fov") from None
     out_dir = Path(out_dir)
     # overwrite replaces only what geofeat wrote there; a folder holding other files is refused
     check_out_dir(out_dir, overwrite, what="out_dir", strict=True)
