@@ -263,10 +263,10 @@ def test_empty_texture_array_is_a_clear_error(shape, preset, tmp_path):
 def test_failure_midway_leaves_nothing_behind(tmp_path, monkeypatch):
     original = writer_mod.write_frame
 
-    def failing(folder, name, frame):
+    def failing(folder, name, frame, *unit):
         if frame.index == 2:
             raise OSError("disk full (simulated)")
-        return original(folder, name, frame)
+        return original(folder, name, frame, *unit)
 
     monkeypatch.setattr(writer_mod, "write_frame", failing)
     with pytest.raises(OSError, match="nothing was written"):
@@ -435,3 +435,18 @@ def test_sizes_whose_intrinsics_read_sequence_refuses_are_refused_before_simulat
     # a merely elongated size still works and reads back
     simulate_sequence(tmp_path / "ok", n_frames=1, texture="procedural", progress=False, width=48, height=320)
     assert read_sequence(tmp_path / "ok").shape == (320, 48)
+
+
+def test_a_scene_deeper_than_16_bits_of_tenth_millimetres_is_written_in_millimetres(tmp_path):
+    """paper, scale, --fov 20.5, 40 x 160: the camera backs off to 7.4 m, past the 6.55 m that 16 bits of
+    0.1 mm hold; simulate failed with "does not fit a 16-bit PNG" after the whole simulation, and no
+    option could write that scene."""
+    out = simulate_sequence(tmp_path / "far", "scale", n_frames=5, seed=2, width=40, height=160, preset="paper",
+                            fov=20.5, texture="procedural", progress=False)
+    seq = read_sequence(out)
+    assert seq.depth_scale == writer_mod.FAR_DEPTH_UNIT_M
+    depth = seq.frame(len(seq) - 1).depth
+    z = read_frame_truth(seq.folder, len(seq) - 1).vertices[..., 2]
+    on = depth > 0
+    assert depth.max() > 65535 * writer_mod.DEPTH_UNIT_M
+    assert z.min() - 0.0006 <= depth[on].min() and depth[on].max() <= z.max() + 0.0006
