@@ -263,10 +263,10 @@ def test_empty_texture_array_is_a_clear_error(shape, preset, tmp_path):
 def test_failure_midway_leaves_nothing_behind(tmp_path, monkeypatch):
     original = writer_mod.write_frame
 
-    def failing(folder, name, frame):
+    def failing(folder, name, frame, *unit):
         if frame.index == 2:
             raise OSError("disk full (simulated)")
-        return original(folder, name, frame)
+        return original(folder, name, frame, *unit)
 
     monkeypatch.setattr(writer_mod, "write_frame", failing)
     with pytest.raises(OSError, match="nothing was written"):
@@ -388,3 +388,65 @@ def test_simulate_warns_when_the_reference_has_few_landmarks(tmp_path):
     with warnings.catch_warnings():  # a frame of the usual size has its landmarks, and no warning
         warnings.simplefilter("error", UserWarning)
         simulate_sequence(tmp_path / "usual", n_frames=2, width=320, height=240, progress=False)
+
+
+def test_landmark_flags_read_back_as_the_ground_truth_visibility(tmp_path):
+    """A landmark seen in the first pixel row or column (centre at 0, so -0.5 <= y < 0) was written
+    valid 1 at e.g. y = -0.21 (paper, seed 3, frame 5), and read_landmarks dropped it as invisible
+    (it took x, y >= 0 for visible): the csv read back disagreed with the ground truth."""
+    out = simulate_sequence(tmp_path / "s", "deform", n_frames=6, seed=3, width=160, height=120, preset="paper",
+                            progress=False)
+    seq = read_sequence(out)
+    _, xy0, vis0 = seq.landmarks(0)
+    assert vis0.all()
+    edge = 0
+    for j in range(1, len(seq)):
+        _, xy, visible = seq.landmarks(j)
+        _, truth = seq.correspondences(0, j, xy0)
+        np.testing.assert_array_equal(visible, truth)
+        edge += int((visible & (xy < 0).any(axis=1)).sum())
+    assert edge >= 1  # the case above is in this sequence
+
+
+def test_read_frame_takes_the_depth_scale_from_geofeat_json(tmp_path):
+    """read_frame read a simulated frame (0.1 mm PNGs, geofeat.json depth_scale 0.0001) in
+    millimetres, without a warning: the cloth at 0.86 m came back at 8.6 m."""
+    import geofeat
+
+    out = simulate_sequence(tmp_path / "s", "deform", n_frames=1, seed=1, width=64, height=48, progress=False)
+    seq = read_sequence(out)
+    name = seq.names[0]
+    frame = geofeat.read_frame(out / f"{name}-rgb.png", out / f"{name}-depth.png", out / "intrinsics.xml")
+    np.testing.assert_array_equal(frame.depth, seq.frame(0).depth)
+    assert 0.5 < np.median(frame.depth[frame.depth > 0]) < 1.5
+    # an explicit depth_scale still wins
+    mm = geofeat.read_frame(out / f"{name}-rgb.png", out / f"{name}-depth.png", out / "intrinsics.xml",
+                            depth_scale=0.001)
+    np.testing.assert_allclose(mm.depth, 10 * frame.depth, rtol=1e-6)
+
+
+@pytest.mark.parametrize("size", [dict(width=32, height=640), dict(width=1000, height=100, fov=119)])
+def test_sizes_whose_intrinsics_read_sequence_refuses_are_refused_before_simulating(size, tmp_path):
+    """32 x 640 (f = 525 * 32 / 640 = 26 px) and 1000 x 100 at 119 deg (f = 29 px) were simulated and
+    written, and read_sequence then refused the intrinsics.xml (focal length under 0.1x the larger side)."""
+    with pytest.raises(ValueError, match="width, height, fov: .* read_sequence"):
+        simulate_sequence(tmp_path / "out", n_frames=1, texture="procedural", progress=False, **size)
+    assert list(tmp_path.iterdir()) == []
+    # a merely elongated size still works and reads back
+    simulate_sequence(tmp_path / "ok", n_frames=1, texture="procedural", progress=False, width=48, height=320)
+    assert read_sequence(tmp_path / "ok").shape == (320, 48)
+
+
+def test_a_scene_deeper_than_16_bits_of_tenth_millimetres_is_written_in_millimetres(tmp_path):
+    """paper, scale, --fov 20.5, 40 x 160: the camera backs off to 7.4 m, past the 6.55 m that 16 bits of
+    0.1 mm hold; simulate failed with "does not fit a 16-bit PNG" after the whole simulation, and no
+    option could write that scene."""
+    out = simulate_sequence(tmp_path / "far", "scale", n_frames=5, seed=2, width=40, height=160, preset="paper",
+                            fov=20.5, texture="procedural", progress=False)
+    seq = read_sequence(out)
+    assert seq.depth_scale == writer_mod.FAR_DEPTH_UNIT_M
+    depth = seq.frame(len(seq) - 1).depth
+    z = read_frame_truth(seq.folder, len(seq) - 1).vertices[..., 2]
+    on = depth > 0
+    assert depth.max() > 65535 * writer_mod.DEPTH_UNIT_M
+    assert z.min() - 0.0006 <= depth[on].min() and depth[on].max() <= z.max() + 0.0006

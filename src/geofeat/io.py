@@ -214,12 +214,15 @@ def read_frame(
     rgb_path: str | Path,
     depth_path: str | Path,
     intrinsics_path: str | Path,
-    depth_scale: float = DEPTH_SCALE_M,
+    depth_scale: float | None = None,
 ) -> RGBDFrame:
-    """Read one frame of the public layout. `depth_scale` is metres per depth-PNG unit. The frame is
-    checked as `read_sequence` checks one: colour and depth of one size, a plausible median depth,
-    intrinsics plausible for the image size."""
+    """Read one frame of the public layout. `depth_scale` is metres per depth-PNG unit (None: the
+    `geofeat.json` beside the depth PNG, as `read_sequence` reads it, else 0.001, millimetres). The
+    frame is checked as `read_sequence` checks one: colour and depth of one size, a plausible median
+    depth, intrinsics plausible for the image size."""
     image = read_image(rgb_path)
+    if depth_scale is None:  # the simulator's 0.1 mm PNGs were read in millimetres: depth 10x too far, no word
+        depth_scale = float(read_config(_existing(depth_path, "depth_path").parent).get("depth_scale", DEPTH_SCALE_M))
     depth = read_depth(depth_path, depth_scale)
     if depth.shape != image.shape[:2]:
         raise ValueError(f"depth_path: {depth_path} is {depth.shape[1]}x{depth.shape[0]}, the colour image {rgb_path} "
@@ -286,7 +289,8 @@ def read_landmarks(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
     column of the opposite sense (`occluded`, `hidden`), is refused.
 
     Returns:
-        ids (N,) int64, xy (N, 2) float64 pixels, visible (N,) bool (valid flag set and x, y >= 0).
+        ids (N,) int64, xy (N, 2) float64 pixels, visible (N,) bool (valid flag set and x, y >= -0.5, on the
+        image: pixel centres at integers; -1 marks a missing landmark).
     """
     path = _existing(path, "landmarks")
     try:
@@ -336,7 +340,9 @@ def read_landmarks(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
     if (flagged & ~np.isfinite(xy).all(axis=1)).any():
         raise ValueError(f"landmarks: {path}: landmarks marked valid need finite coordinates, ids "
                          f"{ids[flagged & ~np.isfinite(xy).all(axis=1)][:10].tolist()}")
-    visible = flagged & (xy[:, 0] >= 0) & (xy[:, 1] >= 0)
+    # pixel centres at integers, so the image starts at -0.5: a landmark flagged valid at y = -0.2 lies on
+    # the first row (the simulator writes such ones); -1, the usual "missing", stays invisible
+    visible = flagged & (xy[:, 0] >= -0.5) & (xy[:, 1] >= -0.5)
     return ids, xy, visible
 
 

@@ -3,7 +3,8 @@
 A sequence folder gets, per frame `<name>` (`frame-000-master` is the reference, then
 `frame-001`, ...):
     `<name>-rgb.png`    8-bit BGR,
-    `<name>-depth.png`  16-bit camera Z in 0.1 mm units (`depth_scale` 0.0001 in geofeat.json), 0 = background / hole,
+    `<name>-depth.png`  16-bit camera Z in 0.1 mm units (`depth_scale` 0.0001 in geofeat.json; millimetres,
+                        0.001, for a sequence whose depth passes 6.55 m), 0 = background / hole,
     `<name>.csv`        the 100 best Harris corners of the reference tracked into this frame
                         (`id,x,y,valid`; pixels, OpenCV convention: the centre of the top-left
                         pixel is (0, 0); valid = 0 where occluded, off the cloth or off the image),
@@ -27,7 +28,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..inputs import check_whole
+from ..inputs import check_intrinsics_for_image, check_whole
 from ..io import write_intrinsics, write_landmarks
 from ..outputs import check_out_dir, replace_folder, temporary_folder
 from ..groundtruth.landmarks import MIN_LANDMARKS
@@ -78,13 +79,20 @@ def harris_landmarks(image: np.ndarray, mask: np.ndarray, n: int = N_LANDMARKS) 
 #: full-resolution walk reads as noise: on `hard` scenes that cost the clean profile a fifth of its
 #: matching score (BENCHMARKS.md, "Depth units"). 16 bits of 0.1 mm reach 6.55 m.
 DEPTH_UNIT_M = 0.0001
+#: The unit of a sequence whose depth passes 6.55 m (a narrow --fov with the paper or hard preset's
+#: scale swing or the scale scenario): millimetres, up to 65.5 m.
+FAR_DEPTH_UNIT_M = 0.001
+
+
+class DepthOverflowError(ValueError):
+    """A depth does not fit a 16-bit PNG at the unit asked for."""
 
 
 def encode_depth(depth: np.ndarray, unit: float = DEPTH_UNIT_M) -> np.ndarray:
     """(H, W) float metres -> uint16 depth in `unit` metres (0 stays 0); ValueError past 16 bits."""
     units = np.rint(np.asarray(depth, np.float64) / unit)
     if units.max(initial=0) > 65535:
-        raise ValueError(f"depth: {units.max() * unit:.2f} m does not fit a 16-bit PNG at {unit} m per unit")
+        raise DepthOverflowError(f"depth: {units.max() * unit:.2f} m does not fit a 16-bit PNG at {unit} m per unit")
     return units.astype(np.uint16)
 
 
@@ -151,9 +159,31 @@ def simulate_sequence(
         raise ValueError(f"motion_blur: the {preset_obj.name} preset has no motion blur; simulate with the paper or "
                          "hard preset, or without motion blur")
     K = default_intrinsics(width, height, fov)
+    try:  # an elongated image (32 x 640, or 1000 x 100 at 119 deg) was simulated and written, then refused by read_sequence
+        check_intrinsics_for_image(K, (height, width), "K")
+    except ValueError:
+        raise ValueError(f"width, height, fov: a {width}x{height} image with "
+                         f"{'f = 525 * width / 640' if fov is None else f'a vertical field of view of {fov:g} deg'} has "
+                         f"f = {K[0, 0]:.4g} px, outside the 0.1 to 20 times the larger side that read_sequence "
+                         "accepts; choose a less elongated size or another fov") from None
     out_dir = Path(out_dir)
     # overwrite replaces only what geofeat wrote there; a folder holding other files is refused
     check_out_dir(out_dir, overwrite, what="out_dir", strict=True)
+    for depth_unit in (DEPTH_UNIT_M, FAR_DEPTH_UNIT_M):
+        # a scene whose depth passes 6.55 m failed at its end ("does not fit a 16-bit PNG"), after the whole
+        # simulation: it is simulated again (the same scene: everything follows the seed) in millimetres
+        try:
+            return _simulate(out_dir, scenario, n_frames, seed, texture, texture_dir, width, height, K, kinect_noise,
+                             progress, steps_per_frame, preset_obj, fov, motion_blur, depth_unit)
+        except DepthOverflowError:
+            if depth_unit == FAR_DEPTH_UNIT_M:
+                raise
+    raise AssertionError("unreachable")
+
+
+def _simulate(out_dir: Path, scenario: str, n_frames: int, seed: int, texture, texture_dir, width: int, height: int,
+              K: np.ndarray, kinect_noise: bool, progress: bool, steps_per_frame: int, preset_obj, fov, motion_blur: bool,
+              depth_unit: float) -> Path:
     rng = np.random.default_rng(seed)
     tex_image, tex_name = choose_texture(rng, texture, texture_dir)
     scene = ClothScene(scenario, int(n_frames), rng, tex_image, (height, width), K=K, steps_per_frame=steps_per_frame,
@@ -169,7 +199,7 @@ def simulate_sequence(
             "generator": "geofeat.sim", "format_version": FORMAT_VERSION, "scenario": scenario, "seed": int(seed),
             "texture": tex_name, "kinect_noise": bool(kinect_noise), "preset": preset_obj.name,
             "fov_deg": None if fov is None else float(fov), "motion_blur": bool(motion_blur),
-        })
+        }, depth_unit=depth_unit)
         replace_folder(tmp, out_dir)  # inside: a refusal or an interrupt here must not leave tmp behind
     except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -179,7 +209,8 @@ def simulate_sequence(
     return out_dir
 
 
-def _write(folder: Path, scene: ClothScene, progress: bool, meta: dict, shown: Path | None = None) -> None:
+def _write(folder: Path, scene: ClothScene, progress: bool, meta: dict, shown: Path | None = None,
+           depth_unit: float = DEPTH_UNIT_M) -> None:
     """Write the sequence into `folder`; `shown`: the folder its messages name (the sequence folder
     the user gave, not the temporary folder it is built in)."""
     scene.kinect_noise = bool(meta["kinect_noise"])
@@ -195,7 +226,7 @@ def _write(folder: Path, scene: ClothScene, progress: bool, meta: dict, shown: P
     landmarks = np.zeros((0, 2))
     for frame in frames:
         name = names[frame.index]
-        truth = write_frame(folder, name, frame)
+        truth = write_frame(folder, name, frame, depth_unit)
         if frame.index == 0:
             ref_truth = truth
             landmarks = harris_landmarks(frame.image, frame.render.mask)
@@ -221,7 +252,8 @@ def _write(folder: Path, scene: ClothScene, progress: bool, meta: dict, shown: P
         "frames": names,
         "conventions": {
             "pixels": "OpenCV: the centre of the top-left pixel is (0, 0); x = fx X / Z + cx",
-            "depth_png": "uint16 camera Z in units of depth_scale (geofeat.json, 0.1 mm), 0 = background or hole",
+            "depth_png": f"uint16 camera Z in units of depth_scale (geofeat.json, {depth_unit * 1e3:g} mm), "
+                         "0 = background or hole",
             "uv": "metres on the flat rest cloth (geodesic distance = |uv1 - uv2|), -1 = background",
             "vertices": "(rows, cols, 3) particle positions in the frame's camera coordinates, metres",
             "pose": "R, t map reference-camera (world) coordinates to this frame's camera",
@@ -229,15 +261,15 @@ def _write(folder: Path, scene: ClothScene, progress: bool, meta: dict, shown: P
     }
     (folder / GT_JSON).write_text(json.dumps(meta, indent=1))
     # the depth profile of what was rendered (`geofeat.depth_profile` measures the same on these frames)
-    (folder / "geofeat.json").write_text(json.dumps({"depth_scale": DEPTH_UNIT_M,
+    (folder / "geofeat.json").write_text(json.dumps({"depth_scale": depth_unit,
                                                     "depth_profile": "kinect" if meta["kinect_noise"] else "clean"}))
 
 
-def write_frame(folder: Path, name: str, frame: SimFrame) -> FrameTruth:
-    """Write the PNGs and `<name>-gt.npz` of one frame; return its ground truth."""
+def write_frame(folder: Path, name: str, frame: SimFrame, depth_unit: float = DEPTH_UNIT_M) -> FrameTruth:
+    """Write the PNGs (depth in `depth_unit` metres) and `<name>-gt.npz` of one frame; return its ground truth."""
     if not cv2.imwrite(str(folder / f"{name}-rgb.png"), frame.image):
         raise ValueError(f"out_dir: cannot write {folder / f'{name}-rgb.png'}")
-    cv2.imwrite(str(folder / f"{name}-depth.png"), encode_depth(frame.depth))
+    cv2.imwrite(str(folder / f"{name}-depth.png"), encode_depth(frame.depth, depth_unit))
     truth = FrameTruth(uv=frame.render.uv, vertices=frame.vertices)
     save_npz(folder / f"{name}{GT_SUFFIX}", uv=truth.uv, vertices=truth.vertices, R=frame.R, t=frame.t)
     return truth
