@@ -23,7 +23,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument("out_dir", type=Path, help="sequence folder to create")
     p.add_argument("--scenario", choices=SCENARIOS, default="deform",
-                   help="deform: fixed camera; rotate: camera roll 0..180 deg; scale: camera moves back to half scale "
+                   help="deform: fixed camera; rotate: camera roll 0..180 deg; scale: camera moves back to twice its distance "
                    "(default deform)")
     p.add_argument("--preset", choices=tuple(PRESETS), default="mild",
                    help="mild: the original gentle scenes; paper: the paper's simulation section (scale swings "

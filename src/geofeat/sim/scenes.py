@@ -1,6 +1,7 @@
 """Random scenarios: a cloth hanging from a few moving pins in changing wind, seen by a camera
 that stays put (`deform`), rolls about its optical axis from 0 to 180 degrees (`rotate`) or moves
-back to twice the distance, i.e. half the scale (`scale`). Lights, noise and all simulation
+back to twice its starting distance (`scale`; the cloth also drifts, so the image scale of the
+last frame is 0.29-0.38, measured on 30-frame sequences). Lights, noise and all simulation
 parameters are drawn from one seed.
 
 Presets (`PRESETS`) set how hard the scenes are:
