@@ -98,7 +98,8 @@ def require_cuda(device="cuda"):
         raise RuntimeError("device='cuda': torch is not installed")
     import torch
 
-    if torch_device(device).type != "cuda":  # ValueError for a name torch does not know, RuntimeError without a GPU
+    dev = torch_device(device)  # ValueError for a name torch does not know, RuntimeError without a GPU
+    if dev.type != "cuda":
         raise ValueError(f"device: the GPU path needs 'cuda' or 'cuda:N', got {device!r}")
     try:
         from numba import cuda
@@ -108,7 +109,6 @@ def require_cuda(device="cuda"):
     if not cuda.is_available():
         raise RuntimeError("device='cuda': numba cannot use the GPU (numba.cuda.is_available() is False; "
                            "pip install 'geofeat[cuda]' for the numba-cuda target)")
-    dev = torch.device(device)
     if dev.index is None:
         dev = torch.device("cuda", torch.cuda.current_device())
     return dev

@@ -50,7 +50,7 @@ from tqdm import tqdm
 
 from ..constants import N_KEYPOINTS
 from ..inputs import as_points, check_positive, check_whole
-from ..io import Sequence, read_sequence, skipped_frame_line
+from ..io import Sequence, frame_names, read_sequence, skipped_frame_line
 from ..outputs import plural
 from ..tps import ThinPlateSpline, check_pairs, check_regularisation, evaluate_batch, normalise_points, solve_batch
 
@@ -387,34 +387,25 @@ class RefinedWarp:
     Attributes:
         spline: the RANSAC TPS it refines.
         origin: (2,) pixel (x, y) of node [0, 0]; spacing: node spacing, pixels.
-        displacement: (Gy, Gx, 2) D at the nodes, pixels, interpolated in between by the cubic B-spline
-            field of `geofeat.groundtruth.refine` that takes these values at the nodes, so that the warp
-            is the one whose photometric cost the refinement measured (bilinear interpolation of the
-            node values was another map, of a higher cost); zero from two spacings beyond the outermost nodes.
+        coefficients: (Gy, Gx, 2) the refinement's cubic B-spline coefficients (`Refined.coefficients`),
+            pixels: the warp is the very field whose photometric cost the refinement measured (a bilinear
+            interpolation of its node values was another map, of a higher cost); zero from two spacings
+            beyond the outermost nodes.
     """
 
     spline: ThinPlateSpline
     origin: np.ndarray
     spacing: float
-    displacement: np.ndarray
-
-    def _weights(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(M, Gx) and (M, Gy) cubic B-spline weights of the nodes at the (M, 2) pixels."""
-        from ..groundtruth.photometric import _bspline_weights
-
-        gy, gx = self.displacement.shape[:2]
-        return (_bspline_weights(xy[:, 0], self.origin[0], self.spacing, gx).astype(np.float64),
-                _bspline_weights(xy[:, 1], self.origin[1], self.spacing, gy).astype(np.float64))
+    coefficients: np.ndarray
 
     def __call__(self, xy: np.ndarray) -> np.ndarray:
+        from ..groundtruth.photometric import _bspline_weights
+
         xy = as_points(xy, "xy")
-        gy, gx = self.displacement.shape[:2]
-        nodes = self.origin + self.spacing * np.stack(np.meshgrid(np.arange(gx), np.arange(gy)), axis=-1).reshape(-1, 2)
-        ax, ay = self._weights(nodes[:gx])[0], self._weights(nodes[::gx])[1]  # (Gx, Gx), (Gy, Gy): invertible
-        # the B-spline coefficients whose field takes the node values: Ay C Ax^T = D, per component
-        coef = [np.linalg.solve(ay, np.linalg.solve(ax, self.displacement[..., c].T).T) for c in range(2)]
-        wx, wy = self._weights(xy)
-        d = np.stack([((wy @ c) * wx).sum(axis=1) for c in coef], axis=1)
+        gy, gx = self.coefficients.shape[:2]
+        wx = _bspline_weights(xy[:, 0], self.origin[0], self.spacing, gx).astype(np.float64)  # (M, Gx)
+        wy = _bspline_weights(xy[:, 1], self.origin[1], self.spacing, gy).astype(np.float64)  # (M, Gy)
+        d = np.stack([((wy @ self.coefficients[..., c]) * wx).sum(axis=1) for c in range(2)], axis=1)
         return self.spline(xy) + d
 
 
@@ -450,8 +441,7 @@ def refine_warp(template: np.ndarray, image: np.ndarray, mask: np.ndarray, splin
     if not r.cost < r.init_cost or folded > MAX_FOLDED_FRACTION:
         return spline, False
     spacing = float(n[0, 1, 0] - n[0, 0, 0]) if n.shape[1] > 1 else float(n[1, 0, 1] - n[0, 0, 1])
-    disp = r.mapped - spline(n.reshape(-1, 2)).reshape(n.shape)
-    return RefinedWarp(spline, n[0, 0].astype(np.float64), spacing, disp), True
+    return RefinedWarp(spline, n[0, 0].astype(np.float64), spacing, r.coefficients), True
 
 
 def warp_back(image: np.ndarray, warp: "ThinPlateSpline | RefinedWarp", roi: tuple[int, int, int, int]
@@ -1087,10 +1077,10 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
     out = check_out_dir(out, overwrite, files=("track.csv", "tracking.md"), inputs=sequences)
     check_tps_dir(tps_dir)
     for folder in sequences:  # before any work: a sequence of one frame found after hours of tracking lost them all
-        single = read_sequence(folder, depth_scale=depth_scale)
-        if len(single) < 2:
-            raise ValueError(f"sequence {single.name}: needs a reference frame and at least one other frame, "
-                             f"got {len(single)} frame(s)")
+        count = len(frame_names(folder))
+        if count < 2:
+            raise ValueError(f"sequence {Path(folder).name}: needs a reference frame and at least one other frame, "
+                             f"got {count} frame(s)")
     rows: list[dict] = []
     notes = []
     seconds = setup = 0.0

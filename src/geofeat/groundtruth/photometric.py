@@ -79,6 +79,8 @@ class Refined:
         mapped: (Gy, Gx, 2) their refined positions in the frame, pixels.
         init_cost, cost: photometric cost (1 - NCC, object average) of f0 and of the refined map at full resolution.
         jac_det: (Gy, Gx) determinant of the refined map's Jacobian at the nodes (finite differences).
+        coefficients: (Gy, Gx, 2) cubic B-spline coefficients of the displacement added to f0, pixels:
+            the refined map is f0 + the field `_bspline_weights` gives from them, also between the nodes.
     """
 
     nodes: np.ndarray
@@ -86,6 +88,7 @@ class Refined:
     init_cost: float
     cost: float
     jac_det: np.ndarray
+    coefficients: np.ndarray
 
 
 def _box(x: torch.Tensor, k: int) -> torch.Tensor:
@@ -255,4 +258,5 @@ def refine(ref: np.ndarray, tgt: np.ndarray, mask: np.ndarray, f0: Warp, lm_ref:
     mapped = f0(nodes.reshape(-1, 2)).reshape(nodes.shape) + disp
     gyy, gxx = np.gradient(mapped, s, axis=(0, 1))
     jac = gxx[..., 0] * gyy[..., 1] - gxx[..., 1] * gyy[..., 0]
-    return Refined(nodes=nodes, mapped=mapped, init_cost=init_cost, cost=cost, jac_det=jac)
+    return Refined(nodes=nodes, mapped=mapped, init_cost=init_cost, cost=cost, jac_det=jac,
+                   coefficients=D.detach().numpy().transpose(1, 2, 0).astype(np.float64))

@@ -169,16 +169,14 @@ def simulate_sequence(
     out_dir = Path(out_dir)
     # overwrite replaces only what geofeat wrote there; a folder holding other files is refused
     check_out_dir(out_dir, overwrite, what="out_dir", strict=True)
-    for depth_unit in (DEPTH_UNIT_M, FAR_DEPTH_UNIT_M):
+    args = (out_dir, scenario, n_frames, seed, texture, texture_dir, width, height, K, kinect_noise, progress,
+            steps_per_frame, preset_obj, fov, motion_blur)
+    try:
+        return _simulate(*args, DEPTH_UNIT_M)
+    except DepthOverflowError:
         # a scene whose depth passes 6.55 m failed at its end ("does not fit a 16-bit PNG"), after the whole
         # simulation: it is simulated again (the same scene: everything follows the seed) in millimetres
-        try:
-            return _simulate(out_dir, scenario, n_frames, seed, texture, texture_dir, width, height, K, kinect_noise,
-                             progress, steps_per_frame, preset_obj, fov, motion_blur, depth_unit)
-        except DepthOverflowError:
-            if depth_unit == FAR_DEPTH_UNIT_M:
-                raise
-    raise AssertionError("unreachable")
+        return _simulate(*args, FAR_DEPTH_UNIT_M)
 
 
 def _simulate(out_dir: Path, scenario: str, n_frames: int, seed: int, texture, texture_dir, width: int, height: int,
