@@ -206,3 +206,25 @@ def test_backproject_gives_nan_for_infinite_depth():
     points = backproject(depth, geofeat.read_demo_frame().K)
     assert np.isnan(points[2, 3]).all()
     assert np.isfinite(np.delete(points.reshape(-1, 3), 2 * 8 + 3, axis=0)).all()
+
+
+def test_pyramid_level_kernel_equals_opencv_level_bit_for_bit():
+    """`depth.box_halve` (the per-pixel source that the GPU pyramid compiles) gives the CPU pyramid's
+    level, `_halve(_masked_box_mean(d, window))` (OpenCV's box filter), bit for bit: on the Kinect
+    frame with its holes filled, its second level, and odd-sided maps with many holes."""
+    from geofeat.depth import HALVE_MIN_VALID, _halve, _masked_box_mean, box_halve
+
+    d = fill_holes(geofeat.read_demo_frame().depth)
+    rng = np.random.default_rng(4)
+    maps = [d, _halve(_masked_box_mean(d, 7)), np.ascontiguousarray(d[3:480, 1:637])]
+    for shape in ((41, 57), (16, 15)):
+        m = (0.3 + 6 * rng.random(shape)).astype(np.float32)
+        m[rng.random(shape) < 0.5] = 0
+        maps.append(m)
+    for m in maps:
+        for window in (7, 3):
+            ref = _halve(_masked_box_mean(m, window))
+            got = box_halve(m, window, HALVE_MIN_VALID)
+            assert got.dtype == np.float32 and got.shape == ref.shape
+            np.testing.assert_array_equal(got, ref)
+            assert (ref > 0).any()

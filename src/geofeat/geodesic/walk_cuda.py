@@ -4,9 +4,11 @@
 Nothing here is written twice: every device function is the code object of a shared source in
 `walk.DEVICE_SOURCES` (the same Python function that `walk` compiles with `numba.njit` for the CPU),
 rebuilt with its global names bound to the CUDA versions and compiled with
-`numba.cuda.jit(device=True)`. Two kernels drive them: one thread per keypoint for the tangent
+`numba.cuda.jit(device=True)`. Kernels drive them: one thread per keypoint for the tangent
 frames, one thread per (keypoint, direction) ray for the walk, exactly the loop bodies of
-`walk.tangent_frames` and `walk.walk_polar`.
+`walk.tangent_frames` and `walk.walk_polar`; one thread per face for a fresh frame's mesh and walk
+tables (`mesh_faces_cuda`), and one per output pixel for a level of the depth smoothing pyramid
+(`box_halve_cuda`, the source `depth.box_halve_one`).
 
 This module imports `numba.cuda` and is imported only on demand (`geofeat.gpu`); without a GPU it
 runs under numba's CUDA simulator (NUMBA_ENABLE_CUDASIM=1, set before numba.cuda is imported), which
@@ -29,6 +31,7 @@ if not hasattr(np, "row_stack"):  # pragma: no cover - depends on the installed 
 
 from numba import cuda  # noqa: E402
 
+from .. import depth as _depth
 from . import mesh as _mesh  # noqa: F401  (registers the mesh's shared source, `_face_one`)
 from . import walk as _walk
 
@@ -52,6 +55,7 @@ _ray_one = _DEVICE["_ray_one"]
 _face_one = _DEVICE["_face_one"]
 _face_frame_one = _DEVICE["_face_frame_one"]
 _edge_directions_one = _DEVICE["_edge_directions_one"]
+_box_halve_one = cuda.jit(device=True)(_depth.box_halve_one)  # a self-contained source: no names to rebind
 
 
 @cuda.jit
@@ -83,30 +87,19 @@ def _walk_kernel(points, face_ok, normals, local, edges, faces, centre, frames, 
 
 
 @cuda.jit
-def _faces_kernel(points, fx, max_edge_stretch, ok, normals):
+def _mesh_faces_kernel(points, fx, max_edge_stretch, ok, normals, local, edges):
+    """One thread per face: the face and its normal (`mesh._face_one`), then the walk's tables of the
+    same face (`walk._face_frame_one`, `walk._edge_directions_one`), which read only what this
+    thread has just written. One launch instead of three: on a GPU the launches, not the work, are
+    the cost of a fresh frame's mesh."""
     job = cuda.grid(1)
     Wc = points.shape[1] - 1
     if job < (points.shape[0] - 1) * Wc * 2:
         cell, t = job // 2, job % 2
-        _face_one(points, fx, max_edge_stretch, ok, normals, cell % Wc, cell // Wc, t)
-
-
-@cuda.jit
-def _face_frames_kernel(points, face_ok, normals, local):
-    job = cuda.grid(1)
-    Wc = face_ok.shape[1]
-    if job < face_ok.shape[0] * Wc * 2:
-        cell, t = job // 2, job % 2
-        _face_frame_one(points, face_ok, normals, local, cell % Wc, cell // Wc, t)
-
-
-@cuda.jit
-def _edge_directions_kernel(local, face_ok, edges):
-    job = cuda.grid(1)
-    Wc = face_ok.shape[1]
-    if job < face_ok.shape[0] * Wc * 2:
-        cell, t = job // 2, job % 2
-        _edge_directions_one(local, face_ok, edges, cell % Wc, cell // Wc, t)
+        x, y = cell % Wc, cell // Wc
+        _face_one(points, fx, max_edge_stretch, ok, normals, x, y, t)
+        _face_frame_one(points, ok, normals, local, x, y, t)
+        _edge_directions_one(local, ok, edges, x, y, t)
 
 
 def mesh_faces_cuda(points, fx: float, max_edge_stretch: float, out, stream=0) -> None:
@@ -118,9 +111,24 @@ def mesh_faces_cuda(points, fx: float, max_edge_stretch: float, out, stream=0) -
     n = max(0, (points.shape[0] - 1) * (points.shape[1] - 1) * 2)
     if n == 0:
         return
-    _faces_kernel[_blocks(n), THREADS, stream](points, float(fx), float(max_edge_stretch), ok, normals)
-    _face_frames_kernel[_blocks(n), THREADS, stream](points, ok, normals, local)
-    _edge_directions_kernel[_blocks(n), THREADS, stream](local, ok, edges)
+    _mesh_faces_kernel[_blocks(n), THREADS, stream](points, float(fx), float(max_edge_stretch), ok, normals, local,
+                                                    edges)
+
+
+@cuda.jit
+def _box_halve_kernel(src, dst, window, min_valid):
+    job = cuda.grid(1)
+    w = dst.shape[1]
+    if job < dst.shape[0] * w:
+        _box_halve_one(src, dst, job % w, job // w, window, min_valid)
+
+
+def box_halve_cuda(src, dst, window: int, min_valid: int, stream=0) -> None:
+    """One level of the depth smoothing pyramid on the GPU (`depth.box_halve`, one thread per output
+    pixel): (H, W) float32 depth `src` (metres, 0 = missing) -> `dst`, (H // 2, W // 2) float32."""
+    n = dst.shape[0] * dst.shape[1]
+    if n:
+        _box_halve_kernel[_blocks(n), THREADS, stream](src, dst, int(window), int(min_valid))
 
 
 def _blocks(n: int) -> int:
