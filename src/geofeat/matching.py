@@ -753,7 +753,7 @@ def _l2_search_torch(d0, d1, valid0, valid1, want_cols):
     # float32 square root merges neighbours at distances above 2048, and torch's float64 one on the
     # CPU gave sqrt(32) one unit in the last place low, which flipped the ratio test at 0.8 sqrt(50))
     dist = ((a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2.0 * ab).clamp_min(0.0)
-    inf = float("inf")  # a Python number: a 0-d tensor made here was one more upload, which waits
+    inf = torch.tensor(float("inf"), dtype=dist.dtype, device=dist.device)
     dist = torch.where(valid1[None, :] & valid0[:, None], dist, inf)
     j = dist.argmin(1)
     rows = torch.arange(len(j), device=dist.device)
@@ -764,15 +764,12 @@ def _l2_search_torch(d0, d1, valid0, valid1, want_cols):
         dist[rows, j] = inf
         second = dist.amin(1)
     else:
-        second = torch.full_like(bd, inf)
-    # one copy to the host, not four (each waits for the GPU): float64 holds the float32 distances
-    # and the indices (< 2^53) exactly
-    parts = [bd.double(), second.double(), best_j.double()] + ([] if col_j is None else [col_j.double()])
-    host = torch.cat(parts).cpu().numpy()
-    n0 = len(bd)
-    # numpy's float64 square roots (correctly rounded) of the squared distances, as `_l2_search`
-    return (np.sqrt(host[:n0]), host[2 * n0:3 * n0].astype(np.int64), np.sqrt(host[n0:2 * n0]),
-            None if col_j is None else host[3 * n0:].astype(np.int64))
+        second = torch.full_like(bd, float("inf"))
+
+    def root(x):  # numpy's float64 square root (correctly rounded), as `_l2_search`
+        return np.sqrt(x.cpu().numpy().astype(np.float64))
+
+    return (root(bd), best_j.cpu().numpy(), root(second), None if col_j is None else col_j.cpu().numpy())
 
 
 @njit(parallel=True, cache=True)
