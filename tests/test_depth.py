@@ -208,23 +208,46 @@ def test_backproject_gives_nan_for_infinite_depth():
     assert np.isfinite(np.delete(points.reshape(-1, 3), 2 * 8 + 3, axis=0)).all()
 
 
-def test_pyramid_level_kernel_equals_opencv_level_bit_for_bit():
-    """`depth.box_halve` (the per-pixel source that the GPU pyramid compiles) gives the CPU pyramid's
-    level, `_halve(_masked_box_mean(d, window))` (OpenCV's box filter), bit for bit: on the Kinect
-    frame with its holes filled, its second level, and odd-sided maps with many holes."""
-    from geofeat.depth import HALVE_MIN_VALID, _halve, _masked_box_mean, box_halve
+def _fill_holes_reference(depth, max_perimeter, method, power=2.3):
+    """The hole rule of `fill_holes` written plainly with SciPy's labelling, one hole at a time."""
+    from scipy import ndimage
 
-    d = fill_holes(geofeat.read_demo_frame().depth)
-    rng = np.random.default_rng(4)
-    maps = [d, _halve(_masked_box_mean(d, 7)), np.ascontiguousarray(d[3:480, 1:637])]
-    for shape in ((41, 57), (16, 15)):
-        m = (0.3 + 6 * rng.random(shape)).astype(np.float32)
-        m[rng.random(shape) < 0.5] = 0
-        maps.append(m)
-    for m in maps:
-        for window in (7, 3):
-            ref = _halve(_masked_box_mean(m, window))
-            got = box_halve(m, window, HALVE_MIN_VALID)
-            assert got.dtype == np.float32 and got.shape == ref.shape
-            np.testing.assert_array_equal(got, ref)
-            assert (ref > 0).any()
+    out = depth.astype(np.float32).copy()
+    missing = depth <= 0
+    labels, n = ndimage.label(missing)  # 4-connected by default
+    H, W = depth.shape
+    for index in range(1, n + 1):
+        hole = labels == index
+        ys, xs = np.nonzero(hole)
+        if ys.min() == 0 or xs.min() == 0 or ys.max() == H - 1 or xs.max() == W - 1:
+            continue
+        border = ndimage.binary_dilation(hole, np.ones((3, 3), bool)) & ~missing
+        by, bx = np.nonzero(border)
+        if len(by) >= max_perimeter:
+            continue
+        bz = depth[by, bx].astype(np.float64)
+        for y, x in zip(ys, xs):
+            if method == "simple":
+                out[y, x] = bz.mean()
+            else:
+                w = ((y - by) ** 2 + (x - bx) ** 2).astype(np.float64) ** (-power / 2)
+                out[y, x] = (w * bz).sum() / w.sum()
+    return out
+
+
+@pytest.mark.parametrize("method", ["idw", "simple"])
+def test_fill_holes_follows_its_rule_on_many_holes(method):
+    """The compiled hole filler against a plain SciPy version of the same rule, on random maps with
+    hundreds of holes of every size, some on the border, and several perimeter limits: the same
+    pixels filled, the same values (float32 rounding of the float64 sums' order)."""
+    rng = np.random.default_rng(11)
+    for shape, share in (((60, 80), 0.3), ((45, 33), 0.55), ((30, 50), 0.08)):
+        depth = (0.5 + 3 * rng.random(shape)).astype(np.float32)
+        depth[rng.random(shape) < share] = 0
+        for max_perimeter in (400, 12, 1, 0):
+            got = fill_holes(depth, max_perimeter, method)
+            ref = _fill_holes_reference(depth, max_perimeter, method)
+            np.testing.assert_array_equal(got > 0, ref > 0)
+            np.testing.assert_allclose(got, ref, rtol=1e-6, atol=0)
+            if max_perimeter == 400:
+                assert (got > 0).sum() > (depth > 0).sum()  # something was filled

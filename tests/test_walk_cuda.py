@@ -274,37 +274,6 @@ def test_gpu_path_with_non_square_pixels_in_cuda_simulator():
     assert proc.returncode == 0 and "ok" in proc.stdout, proc.stderr[-3000:]
 
 
-HALVE_SCRIPT = r'''
-import numpy as np
-from geofeat.depth import HALVE_MIN_VALID, _halve, _masked_box_mean, box_halve
-from geofeat.geodesic.walk_cuda import box_halve_cuda
-rng = np.random.default_rng(3)
-for shape in ((17, 23), (30, 16)):  # odd sides: the last row or column only feeds the box means
-    d = (0.4 + 4 * rng.random(shape)).astype(np.float32)
-    d[rng.random(shape) < 0.35] = 0
-    for window, min_valid in ((7, HALVE_MIN_VALID), (3, 1), (5, 4)):
-        got = np.full((shape[0] // 2, shape[1] // 2), np.nan, np.float32)
-        box_halve_cuda(d, got, window, min_valid)
-        np.testing.assert_array_equal(got, box_halve(d, window, min_valid))
-        if min_valid == HALVE_MIN_VALID:
-            np.testing.assert_array_equal(got, _halve(_masked_box_mean(d, window)))
-        assert (got == 0).any() and (got > 0).any()
-print("ok")
-'''
-
-
-def test_gpu_pyramid_level_equals_cpu_level_in_cuda_simulator():
-    """One level of the depth smoothing pyramid as the GPU runs it (`walk_cuda.box_halve_cuda`, the
-    source `depth.box_halve_one` compiled by numba.cuda, simulated) equals the host's njit build of
-    the same source and the CPU pyramid's OpenCV level bit for bit, on maps with odd sides, holes,
-    other windows and other block rules."""
-    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
-    src = str(Path(__file__).resolve().parents[1] / "src")
-    env["PYTHONPATH"] = src + os.pathsep + env.get("PYTHONPATH", "")
-    proc = subprocess.run([sys.executable, "-c", HALVE_SCRIPT], env=env, capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0 and "ok" in proc.stdout, proc.stderr[-3000:]
-
-
 def _real_gpu() -> bool:
     try:
         from numba import cuda

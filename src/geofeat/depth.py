@@ -12,7 +12,7 @@ import numbers
 
 import cv2
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .constants import DEPTH_PROFILE_NAMES, HOLE_MAX_PERIMETER_PX, IDW_POWER, MESH_SCALE, SMOOTH_LEVELS, SMOOTH_WINDOW_PX
 from .frame import check_intrinsics
@@ -411,64 +411,6 @@ def _halve(depth: np.ndarray) -> np.ndarray:
     count = (a > 0).astype(np.int64) + (b > 0) + (c > 0) + (e > 0)
     total = (a + b) + (c + e)  # the order of numpy's sum over the block's axes: the same rounding
     return np.where(count >= HALVE_MIN_VALID, total / np.maximum(count, 1), 0.0).astype(np.float32)
-
-
-def box_halve_one(src, dst, x, y, window, min_valid):
-    """dst[y, x] of one level of the smoothing pyramid, `_halve(_masked_box_mean(src, window))`, as
-    one function per output pixel, in that pair's arithmetic: each of the pixel's 2 x 2 block that
-    has depth gets the masked `window` box mean (the box's sum in float64, exact for float32 depths,
-    and its count, each rounded to float32 as OpenCV's box filter rounds them, divided in float32);
-    the block keeps the float32 sum (a + b) + (c + e) of those means divided in float64 by how many
-    have depth, when at least `min_valid` do; else 0.
-
-    One source, two compilers: `box_halve` (numba.njit, arrays on the host) and the GPU pyramid
-    (numba.cuda, `geodesic.walk_cuda.box_halve_cuda`: one launch per level).
-    src: (H, W) float32 metres, 0 = missing; dst: (H // 2, W // 2) float32, written at (y, x)."""
-    H, W = src.shape[0], src.shape[1]
-    r = window // 2
-    a = b = c = e = np.float32(0.0)
-    count = 0
-    for k in range(4):
-        py, px = 2 * y + k // 2, 2 * x + k % 2
-        mean = np.float32(0.0)
-        if src[py, px] > 0:
-            total = 0.0
-            n = 0
-            for yy in range(max(0, py - r), min(H, py + r + 1)):
-                for xx in range(max(0, px - r), min(W, px + r + 1)):
-                    v = src[yy, xx]
-                    if v > 0:
-                        total += float(v)
-                        n += 1
-            mean = np.float32(total) / np.float32(n)
-            count += 1
-        if k == 0:
-            a = mean
-        elif k == 1:
-            b = mean
-        elif k == 2:
-            c = mean
-        else:
-            e = mean
-    if count >= min_valid:
-        dst[y, x] = float((a + b) + (c + e)) / count
-    else:
-        dst[y, x] = 0.0
-
-
-_box_halve_one = njit(cache=True, inline="always", error_model="numpy")(box_halve_one)
-
-
-@njit(cache=True, parallel=True, error_model="numpy")
-def box_halve(src, window, min_valid):  # pragma: no cover - compiled
-    """`box_halve_one` at every pixel: (H, W) float32 -> (H // 2, W // 2) float32 metres (the CPU
-    pyramid's level, `_halve(_masked_box_mean(src, window))`, computed as the GPU computes it)."""
-    h, w = src.shape[0] // 2, src.shape[1] // 2
-    dst = np.empty((h, w), np.float32)
-    for y in prange(h):
-        for x in range(w):
-            _box_halve_one(src, dst, x, y, window, min_valid)
-    return dst
 
 
 def _masked_resize(depth: np.ndarray, size: tuple[int, int]) -> np.ndarray:

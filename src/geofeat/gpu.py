@@ -154,12 +154,10 @@ def _numba_stream(dev):
 def smooth_depth_torch(depth, levels: int, out_scale: float, window: int = SMOOTH_WINDOW_PX):
     """`geofeat.depth.smooth` of an (H, W) float32 depth tensor (metres, 0 = missing) on its device:
     `levels` rounds of masked `window` box mean and 2x2 halving, then the masked bilinear resize to
-    `out_scale` times the input size. The levels equal the OpenCV version's bit for bit (one source
-    in its arithmetic, `depth.box_halve_one`: one numba.cuda launch per level on a GPU, numba.njit
-    for CPU tensors); the resize is torch's, in float32 with the same half-pixel convention, within
-    two ulp of OpenCV's on the Kinect frame with the shipped profiles (tested). A resize by a factor
-    that is not a power of two differs a little more (measured: up to 5.7e-6 m at a factor of 0.37
-    on that frame).
+    `out_scale` times the input size. Equal to the OpenCV version within float32 rounding (box sums
+    in float64 as OpenCV's, the resize in float32 with the same half-pixel convention; two ulp on the
+    Kinect frame with the shipped profiles: tested). A resize by a factor that is not a power of two
+    differs a little more (measured: up to 5.7e-6 m at a factor of 0.37 on that frame).
 
     Returns (max(2, round(H * out_scale)), max(2, round(W * out_scale))) float32 metres, 0 = missing."""
     import torch
@@ -170,22 +168,25 @@ def smooth_depth_torch(depth, levels: int, out_scale: float, window: int = SMOOT
 
     H, W = depth.shape
     size = (max(2, int(round(H * out_scale))), max(2, int(round(W * out_scale))))
-    d = depth.float().contiguous()
+    d = depth.float()
+    area = float(window * window)
     halvings = 0
     for _ in range(levels):
         if min(d.shape) < 2 * window:
             break
         halvings += 1
-        if d.device.type == "cuda":  # one launch per level (`depth.box_halve_one`, compiled by numba.cuda)
-            from .geodesic.walk_cuda import box_halve_cuda
-
-            half = torch.empty((d.shape[0] // 2, d.shape[1] // 2), dtype=torch.float32, device=d.device)
-            with _numba_on(d.device):
-                box_halve_cuda(_as_numba(d), _as_numba(half), int(window), int(host.HALVE_MIN_VALID),
-                               stream=_numba_stream(d.device))
-            d = half
-        else:  # CPU tensors (tests, the simulator's setting): the same source compiled for the host
-            d = torch.from_numpy(host.box_halve(d.numpy(), int(window), int(host.HALVE_MIN_VALID)))
+        valid = d > 0
+        v = valid.double()
+        both = torch.stack([d.double() * v, v])[:, None]  # (2, 1, H, W): depth sum and count
+        sums = F.avg_pool2d(both, window, stride=1, padding=window // 2, count_include_pad=True)[:, 0] * area
+        num, den = sums[0].float(), torch.round(sums[1]).float()
+        d = torch.where(valid, num / torch.clamp(den, min=1e-12), torch.zeros((), device=d.device))
+        h, w = d.shape[0] // 2 * 2, d.shape[1] // 2 * 2
+        a, b, c, e = d[0:h:2, 0:w:2], d[0:h:2, 1:w:2], d[1:h:2, 0:w:2], d[1:h:2, 1:w:2]
+        count = (a > 0).double() + (b > 0).double() + (c > 0).double() + (e > 0).double()
+        total = (a + b) + (c + e)
+        zero = torch.zeros((), dtype=torch.float64, device=d.device)
+        d = torch.where(count >= host.HALVE_MIN_VALID, total.double() / torch.clamp(count, min=1.0), zero).float()
     matrices = pyramid_resampling((H, W), tuple(d.shape), halvings, size[::-1])
     if matrices is not None:  # a frame the pyramid does not cover: the CPU's exact resampling
         Ry, Rx = (torch.as_tensor(m, dtype=torch.float64, device=d.device) for m in matrices)

@@ -6,9 +6,8 @@ Nothing here is written twice: every device function is the code object of a sha
 rebuilt with its global names bound to the CUDA versions and compiled with
 `numba.cuda.jit(device=True)`. Kernels drive them: one thread per keypoint for the tangent
 frames, one thread per (keypoint, direction) ray for the walk, exactly the loop bodies of
-`walk.tangent_frames` and `walk.walk_polar`; one thread per face for a fresh frame's mesh and walk
-tables (`mesh_faces_cuda`), and one per output pixel for a level of the depth smoothing pyramid
-(`box_halve_cuda`, the source `depth.box_halve_one`).
+`walk.tangent_frames` and `walk.walk_polar`; and one thread per face for a fresh frame's mesh and walk
+tables (`mesh_faces_cuda`).
 
 This module imports `numba.cuda` and is imported only on demand (`geofeat.gpu`); without a GPU it
 runs under numba's CUDA simulator (NUMBA_ENABLE_CUDASIM=1, set before numba.cuda is imported), which
@@ -31,7 +30,6 @@ if not hasattr(np, "row_stack"):  # pragma: no cover - depends on the installed 
 
 from numba import cuda  # noqa: E402
 
-from .. import depth as _depth
 from . import mesh as _mesh  # noqa: F401  (registers the mesh's shared source, `_face_one`)
 from . import walk as _walk
 
@@ -55,7 +53,6 @@ _ray_one = _DEVICE["_ray_one"]
 _face_one = _DEVICE["_face_one"]
 _face_frame_one = _DEVICE["_face_frame_one"]
 _edge_directions_one = _DEVICE["_edge_directions_one"]
-_box_halve_one = cuda.jit(device=True)(_depth.box_halve_one)  # a self-contained source: no names to rebind
 
 
 @cuda.jit
@@ -113,22 +110,6 @@ def mesh_faces_cuda(points, fx: float, max_edge_stretch: float, out, stream=0) -
         return
     _mesh_faces_kernel[_blocks(n), THREADS, stream](points, float(fx), float(max_edge_stretch), ok, normals, local,
                                                     edges)
-
-
-@cuda.jit
-def _box_halve_kernel(src, dst, window, min_valid):
-    job = cuda.grid(1)
-    w = dst.shape[1]
-    if job < dst.shape[0] * w:
-        _box_halve_one(src, dst, job % w, job // w, window, min_valid)
-
-
-def box_halve_cuda(src, dst, window: int, min_valid: int, stream=0) -> None:
-    """One level of the depth smoothing pyramid on the GPU (`depth.box_halve`, one thread per output
-    pixel): (H, W) float32 depth `src` (metres, 0 = missing) -> `dst`, (H // 2, W // 2) float32."""
-    n = dst.shape[0] * dst.shape[1]
-    if n:
-        _box_halve_kernel[_blocks(n), THREADS, stream](src, dst, int(window), int(min_valid))
 
 
 def _blocks(n: int) -> int:
