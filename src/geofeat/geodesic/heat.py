@@ -73,7 +73,9 @@ class HeatGeodesics:
     Args:
         mesh: the grid mesh (its existing faces form the triangle mesh).
         t: heat time, m^2; default (mean edge length)^2.
-        boundary_mix: weight of the Dirichlet heat solution against the Neumann one, in [0, 1].
+        boundary_mix: weight of the Dirichlet heat solution against the Neumann one, in [0, 1]. A
+            source on the boundary only (no heat on interior vertices) uses the Neumann solution
+            alone, as the Dirichlet one vanishes there.
         calibrate: fix the additive constant of the distance so that it matches the straight-line
             distance to the source on the vertices 1.5 to 3.5 mesh pixels away (where geodesic and
             chord agree to within micrometres), instead of pinning it to 0 at the source. The
@@ -154,6 +156,7 @@ class HeatGeodesics:
         self.n_components, self.component = connected_components(adjacency, directed=False)
         # factorisations, reused by every source
         A = (sp.diags(self.M) + self.t * self.L).tocsc()
+        self._heat_matrix = A
         self._heat_neumann = splu(A, permc_spec="MMD_AT_PLUS_A") if boundary_mix < 1 else None
         self._interior = np.flatnonzero(~boundary)
         self._heat_dirichlet = None
@@ -204,12 +207,21 @@ class HeatGeodesics:
         rows, w, ok = self._source_weights(sources)
         delta = np.zeros((n, B))
         np.add.at(delta, (rows, np.broadcast_to(np.arange(B)[:, None], rows.shape)), w)
-        # 1. heat flow
+        # 1. heat flow; a source whose heat lies on boundary vertices only (a keypoint on the mesh's
+        # border or a hole's, or a mesh without interior vertices) has no Dirichlet solution (u = 0
+        # everywhere, so no flow and a distance of 0): it takes the Neumann one alone
+        mix = np.full(B, self.boundary_mix)
+        if self._heat_dirichlet is None:
+            mix[:] = 0.0
+        else:
+            mix[delta[self._interior].sum(axis=0) <= 0] = 0.0
         u = np.zeros((n, B))
-        if self._heat_neumann is not None:
-            u += (1.0 - self.boundary_mix) * self._heat_neumann.solve(delta)
-        if self._heat_dirichlet is not None:
-            u[self._interior] += self.boundary_mix * self._heat_dirichlet.solve(delta[self._interior])
+        if (mix < 1).any():
+            if self._heat_neumann is None:  # boundary_mix = 1: factorised on first need
+                self._heat_neumann = splu(self._heat_matrix, permc_spec="MMD_AT_PLUS_A")
+            u += (1.0 - mix) * self._heat_neumann.solve(delta)
+        if (mix > 0).any():
+            u[self._interior] += mix * self._heat_dirichlet.solve(delta[self._interior])
         # 2. normalised flow per face
         grad = (self.G @ u).reshape(-1, 3, B)  # (m, 3, B)
         norm = np.linalg.norm(grad, axis=1, keepdims=True)
