@@ -245,3 +245,21 @@ def test_a_source_on_the_boundary_has_distances_with_dirichlet_heat_too():
     E = np.linalg.norm(points - np.array([10.2 / 262.5, 0.3 / 262.5, 1.0]), axis=-1)
     far = E > 0.02
     assert np.abs(D[far] / E[far] - 1).max() < 0.05
+
+
+def test_a_mesh_and_a_solver_of_another_mesh_are_refused_and_vertex_indices_are_integers():
+    """heat_polar_patches(mesh=m, solver=HeatGeodesics(other)) used the solver's mesh and ignored
+    `mesh` (a mesh with no faces gave a valid patch); distance(3.7) was distance(3), the grid vertex."""
+    from surfaces import plane_frame
+
+    frame = plane_frame((120, 160))
+    mesh = geofeat.build_mesh(frame, CLEAN)
+    no_faces = geofeat.build_mesh(frame, CLEAN, max_edge_stretch=1.01)  # every edge "a discontinuity"
+    H = HeatGeodesics(mesh)
+    with pytest.raises(ValueError, match="solver.mesh"):
+        heat_polar_patches(frame, [[80.0, 60.0]], radius=0.02, mesh=no_faces, solver=H)
+    assert heat_polar_patches(frame, [[80.0, 60.0]], radius=0.02, mesh=mesh, solver=H).valid.all()
+    for bad in (3.7, 3.0, True, np.float64(3.0)):
+        with pytest.raises(ValueError, match="integer"):
+            H.distance(bad)
+    np.testing.assert_array_equal(H.distance(np.int64(3)), H.distance((3.0, 0.0)))

@@ -23,6 +23,8 @@ interpolation between the two samples around the crossing.
 
 from __future__ import annotations
 
+import numbers
+
 import numpy as np
 import scipy.sparse as sp
 from numba import njit, prange
@@ -180,8 +182,13 @@ class HeatGeodesics:
         return np.where(ok[:, None], rows, 0), w, ok
 
     def _as_sources(self, source) -> np.ndarray:
+        """`distance`'s source -> (1, 2) float64 mesh pixel coordinates (x, y)."""
         Hm, Wm = self.index.shape
         if np.ndim(source) == 0:
+            # a float (3.7) or a bool was truncated to a vertex index without a word
+            if isinstance(source, (bool, np.bool_)) or not isinstance(source, numbers.Integral):
+                raise ValueError(f"source: a grid vertex index must be an integer, got {source!r}; "
+                                 "give sub-pixel sources as (x, y) mesh pixel coordinates")
             v = int(source)
             if not 0 <= v < Hm * Wm:
                 raise ValueError(f"source: grid vertex {v} outside the {Wm}x{Hm} mesh")
@@ -436,7 +443,8 @@ def heat_polar_patches(
         depth_config: depth preprocessing (ignored when `mesh` or `solver` is given).
         mesh: a prebuilt `build_mesh(frame, ...)`.
         blur_px: Gaussian blur of the gray image before sampling, full-resolution pixels.
-        solver: a prebuilt `HeatGeodesics` of the mesh, to reuse its factorisation across calls.
+        solver: a prebuilt `HeatGeodesics` of the mesh, to reuse its factorisation across calls
+            (with `mesh` too, it must be `solver.mesh`).
         angles: "tangent" (default, the walk's convention) or "image" (GeoBit's image angles).
         step_px: sampling step along a line, mesh pixels.
     """
@@ -444,6 +452,8 @@ def heat_polar_patches(
     if not (np.isfinite(step_px) and step_px > 0):
         raise ValueError(f"step_px: must be a positive number of mesh pixels, got {step_px}")
     if solver is not None:
+        if mesh is not None and mesh is not solver.mesh:  # the solver's mesh was used, `mesh` ignored
+            raise ValueError("mesh: differs from solver.mesh; give one of them, or a solver built on this mesh")
         mesh = solver.mesh
     elif mesh is None:
         mesh = build_mesh(frame, depth_config)
