@@ -218,3 +218,48 @@ def test_a_mesh_of_another_frame_size_is_refused():
         heat_polar_patches(frame, [[80.0, 60.0]], radius=0.02, mesh=other)
     with pytest.raises(ValueError, match="mesh: built for a"):
         heat_polar_patches(frame, [[80.0, 60.0]], radius=0.02, solver=HeatGeodesics(other))
+
+
+def test_a_source_on_the_boundary_has_distances_with_dirichlet_heat_too():
+    """With boundary_mix=1 (Dirichlet heat only) a source on the mesh border (or on a mesh with no
+    interior vertex) put all its heat on boundary vertices, where the Dirichlet solution is 0: no
+    flow, and the "distances" were the 1 cm calibration offset everywhere (max 0.010 m on a plane
+    whose far corner is 0.32 m away). Such a source takes the Neumann solution."""
+    from surfaces import plane_frame
+    from geofeat.geodesic.mesh import mesh_from_points
+
+    mesh = geofeat.build_mesh(plane_frame((120, 160)), CLEAN)
+    src = (0.0, 30.0)  # a vertex on the left border
+    p0 = mesh.points[30, 0]
+    E = np.linalg.norm(mesh.points - p0, axis=-1)
+    near = (E > 0.01) & (E < 0.1)
+    for mix in (0.0, 0.5, 1.0):
+        D = HeatGeodesics(mesh, boundary_mix=mix).distance(src)
+        assert np.nanmax(D) > 0.3
+        assert np.abs(D[near] / E[near] - 1).mean() < 0.03
+    # a strip two vertices high: every vertex is on the boundary
+    x = np.arange(40) / 262.5
+    points = np.stack(np.broadcast_arrays(x[None, :], np.array([0.0, 1 / 262.5])[:, None], 1.0), axis=-1)
+    strip = mesh_from_points(points, mesh.K, mesh.scale, (4, 80))
+    D = HeatGeodesics(strip, boundary_mix=1.0).distance((10.2, 0.3))
+    E = np.linalg.norm(points - np.array([10.2 / 262.5, 0.3 / 262.5, 1.0]), axis=-1)
+    far = E > 0.02
+    assert np.abs(D[far] / E[far] - 1).max() < 0.05
+
+
+def test_a_mesh_and_a_solver_of_another_mesh_are_refused_and_vertex_indices_are_integers():
+    """heat_polar_patches(mesh=m, solver=HeatGeodesics(other)) used the solver's mesh and ignored
+    `mesh` (a mesh with no faces gave a valid patch); distance(3.7) was distance(3), the grid vertex."""
+    from surfaces import plane_frame
+
+    frame = plane_frame((120, 160))
+    mesh = geofeat.build_mesh(frame, CLEAN)
+    no_faces = geofeat.build_mesh(frame, CLEAN, max_edge_stretch=1.01)  # every edge "a discontinuity"
+    H = HeatGeodesics(mesh)
+    with pytest.raises(ValueError, match="solver.mesh"):
+        heat_polar_patches(frame, [[80.0, 60.0]], radius=0.02, mesh=no_faces, solver=H)
+    assert heat_polar_patches(frame, [[80.0, 60.0]], radius=0.02, mesh=mesh, solver=H).valid.all()
+    for bad in (3.7, 3.0, True, np.float64(3.0)):
+        with pytest.raises(ValueError, match="integer"):
+            H.distance(bad)
+    np.testing.assert_array_equal(H.distance(np.int64(3)), H.distance((3.0, 0.0)))

@@ -154,3 +154,29 @@ def test_a_small_cluster_of_control_points_is_not_called_collinear():
                       np.array([[0.0, 0.0], [300.0, 200.0], [600.0, 400.0], [150.0, 100.0]])):
         with pytest.raises(ValueError, match="collinear or repeated"):
             authors_tps(collinear, collinear + 1.0, (640, 480))
+
+
+def test_a_batch_member_from_a_small_cluster_spans_the_plane():
+    """`solve_batch` works in coordinates normalised over all matches (tracking's RANSAC and refit):
+    control points in a 15 px square of a 640 px spread were called "collinear" (ok False, absolute
+    threshold on det of the scatter), so a compact object's 40 exact inliers gave "fit failed"."""
+    from geofeat.apps.tracking import refit_on_inliers
+    from geofeat.tps import normalise_points
+
+    rng = np.random.default_rng(0)
+    cluster = rng.uniform(300, 315, (40, 2))
+    moved = cluster + [5.0, -3.0] + 0.002 * (cluster - 300) ** 2
+    _, everything = normalise_points(np.vstack([cluster, rng.uniform(0, 640, (200, 2))]))
+    s = everything[None, :40]
+    d = s + 0.01 * rng.normal(size=s.shape)
+    for scale in (1.0, 100.0):  # the verdict and the interpolation do not depend on the size
+        w, a, ok = solve_batch(s * scale, d * scale, 0.0)
+        assert ok[0]
+        np.testing.assert_allclose(evaluate_batch(s[0] * scale, s * scale, w, a)[0], d[0] * scale, atol=1e-6 * scale)
+    line = np.stack([np.linspace(0, 0.01, 10), 2 * np.linspace(0, 0.01, 10)], axis=-1)[None]
+    assert not solve_batch(line, line, 1e-3)[2][0]  # a small collinear set is still refused
+    src = np.vstack([cluster, rng.uniform(0, 640, (200, 2))])
+    dst = np.vstack([moved, rng.uniform(0, 640, (200, 2))])
+    start = np.arange(len(src)) < 40
+    fit = refit_on_inliers(src, dst, start)
+    assert fit.warp is not None and fit.inliers[:40].all() and not fit.inliers[40:].any()

@@ -39,8 +39,9 @@ __all__ = [
 AUTHORS_EPS = 1e-6
 #: Fewest control points of a fit: 3 fix the affine part.
 MIN_POINTS = 3
-#: A set of control points "spans the plane" when det of its centred scatter matrix exceeds this
-#: times n^2, in Hartley-normalised coordinates (collinear or repeated points do not).
+#: A set of control points "spans the plane" when the eigenvalues l1, l2 of its centred scatter
+#: matrix have 4 l1 l2 / (l1 + l2)^2 above this (a shape measure: 1 for an isotropic set, 0 for collinear
+#: or repeated points; for Hartley-normalised points it is about det / n^2).
 _SPAN_TOL = 1e-6
 #: Largest residual of a spline's linear system, relative to its right-hand side, that `fit_tps` accepts.
 _SOLVE_TOL = 1e-6
@@ -111,10 +112,13 @@ def spans_plane(xy: np.ndarray) -> bool:
 
 
 def _spans_plane(src: np.ndarray) -> np.ndarray:
-    """(B, n, 2) normalised control points -> (B,) bool: not collinear (nor all repeated)."""
-    n = src.shape[1]
+    """(B, n, 2) control points -> (B,) bool: not collinear (nor all repeated). A question of the
+    points' shape, not of their size: a sample from a small cluster of points normalised with many
+    others (RANSAC's, the refit on a compact set of inliers) spans the plane as well as the whole set."""
     centred = src - src.mean(axis=1, keepdims=True)
-    return np.linalg.det(np.einsum("bni,bnj->bij", centred, centred)) > _SPAN_TOL * n**2
+    scatter = np.einsum("bni,bnj->bij", centred, centred)
+    trace = scatter[:, 0, 0] + scatter[:, 1, 1]
+    return (trace > 0) & (4.0 * np.linalg.det(scatter) > _SPAN_TOL * trace**2)
 
 
 def solve_batch(src: np.ndarray, dst: np.ndarray, regularisation: float = 0.0, eps: float = 0.0

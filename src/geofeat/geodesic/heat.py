@@ -23,6 +23,8 @@ interpolation between the two samples around the crossing.
 
 from __future__ import annotations
 
+import numbers
+
 import numpy as np
 import scipy.sparse as sp
 from numba import njit, prange
@@ -73,7 +75,9 @@ class HeatGeodesics:
     Args:
         mesh: the grid mesh (its existing faces form the triangle mesh).
         t: heat time, m^2; default (mean edge length)^2.
-        boundary_mix: weight of the Dirichlet heat solution against the Neumann one, in [0, 1].
+        boundary_mix: weight of the Dirichlet heat solution against the Neumann one, in [0, 1]. A
+            source on the boundary only (no heat on interior vertices) uses the Neumann solution
+            alone, as the Dirichlet one vanishes there.
         calibrate: fix the additive constant of the distance so that it matches the straight-line
             distance to the source on the vertices 1.5 to 3.5 mesh pixels away (where geodesic and
             chord agree to within micrometres), instead of pinning it to 0 at the source. The
@@ -154,6 +158,7 @@ class HeatGeodesics:
         self.n_components, self.component = connected_components(adjacency, directed=False)
         # factorisations, reused by every source
         A = (sp.diags(self.M) + self.t * self.L).tocsc()
+        self._heat_matrix = A
         self._heat_neumann = splu(A, permc_spec="MMD_AT_PLUS_A") if boundary_mix < 1 else None
         self._interior = np.flatnonzero(~boundary)
         self._heat_dirichlet = None
@@ -177,8 +182,13 @@ class HeatGeodesics:
         return np.where(ok[:, None], rows, 0), w, ok
 
     def _as_sources(self, source) -> np.ndarray:
+        """`distance`'s source -> (1, 2) float64 mesh pixel coordinates (x, y)."""
         Hm, Wm = self.index.shape
         if np.ndim(source) == 0:
+            # a float (3.7) or a bool was truncated to a vertex index without a word
+            if isinstance(source, (bool, np.bool_)) or not isinstance(source, numbers.Integral):
+                raise ValueError(f"source: a grid vertex index must be an integer, got {source!r}; "
+                                 "give sub-pixel sources as (x, y) mesh pixel coordinates")
             v = int(source)
             if not 0 <= v < Hm * Wm:
                 raise ValueError(f"source: grid vertex {v} outside the {Wm}x{Hm} mesh")
@@ -204,12 +214,21 @@ class HeatGeodesics:
         rows, w, ok = self._source_weights(sources)
         delta = np.zeros((n, B))
         np.add.at(delta, (rows, np.broadcast_to(np.arange(B)[:, None], rows.shape)), w)
-        # 1. heat flow
+        # 1. heat flow; a source whose heat lies on boundary vertices only (a keypoint on the mesh's
+        # border or a hole's, or a mesh without interior vertices) has no Dirichlet solution (u = 0
+        # everywhere, so no flow and a distance of 0): it takes the Neumann one alone
+        mix = np.full(B, self.boundary_mix)
+        if self._heat_dirichlet is None:
+            mix[:] = 0.0
+        else:
+            mix[delta[self._interior].sum(axis=0) <= 0] = 0.0
         u = np.zeros((n, B))
-        if self._heat_neumann is not None:
-            u += (1.0 - self.boundary_mix) * self._heat_neumann.solve(delta)
-        if self._heat_dirichlet is not None:
-            u[self._interior] += self.boundary_mix * self._heat_dirichlet.solve(delta[self._interior])
+        if (mix < 1).any():
+            if self._heat_neumann is None:  # boundary_mix = 1: factorised on first need
+                self._heat_neumann = splu(self._heat_matrix, permc_spec="MMD_AT_PLUS_A")
+            u += (1.0 - mix) * self._heat_neumann.solve(delta)
+        if (mix > 0).any():
+            u[self._interior] += mix * self._heat_dirichlet.solve(delta[self._interior])
         # 2. normalised flow per face
         grad = (self.G @ u).reshape(-1, 3, B)  # (m, 3, B)
         norm = np.linalg.norm(grad, axis=1, keepdims=True)
@@ -424,7 +443,8 @@ def heat_polar_patches(
         depth_config: depth preprocessing (ignored when `mesh` or `solver` is given).
         mesh: a prebuilt `build_mesh(frame, ...)`.
         blur_px: Gaussian blur of the gray image before sampling, full-resolution pixels.
-        solver: a prebuilt `HeatGeodesics` of the mesh, to reuse its factorisation across calls.
+        solver: a prebuilt `HeatGeodesics` of the mesh, to reuse its factorisation across calls
+            (with `mesh` too, it must be `solver.mesh`).
         angles: "tangent" (default, the walk's convention) or "image" (GeoBit's image angles).
         step_px: sampling step along a line, mesh pixels.
     """
@@ -432,6 +452,8 @@ def heat_polar_patches(
     if not (np.isfinite(step_px) and step_px > 0):
         raise ValueError(f"step_px: must be a positive number of mesh pixels, got {step_px}")
     if solver is not None:
+        if mesh is not None and mesh is not solver.mesh:  # the solver's mesh was used, `mesh` ignored
+            raise ValueError("mesh: differs from solver.mesh; give one of them, or a solver built on this mesh")
         mesh = solver.mesh
     elif mesh is None:
         mesh = build_mesh(frame, depth_config)
