@@ -234,3 +234,25 @@ def test_an_interrupted_overwrite_run_leaves_no_earlier_weights_beside_its_check
     monkeypatch.setattr(loop, "atomic_file", write)
     assert main(run + ["--resume"]) == 0  # the new run goes on from its own checkpoint
     assert (tmp_path / "w.pt").is_file()
+
+
+def test_train_seeds_the_image_patch_nets_starting_weights(tmp_path, monkeypatch, capsys):
+    """`train --net tfeat` built the network before `train` seeded torch, so its starting weights came
+    from whatever torch had drawn before: two runs with one --seed in one process wrote different
+    weights, and --seed did not choose the starting point of the image-patch baselines."""
+    import torch
+
+    import geofeat.train.imagepatches as imagepatches
+
+    assert main(["simulate", str(tmp_path / "seq"), *TINY]) == 0
+    monkeypatch.setattr(imagepatches, "build_image_patch_set", lambda *a, **k: _patches())
+    base = ["train", "--data", str(tmp_path / "seq"), "--net", "tfeat", "--epochs", "1", "--steps", "1",
+            "--batch-size", "4", "--device", "cpu"]
+    weights = {}
+    for name, seed in (("a", "3"), ("b", "3"), ("c", "4")):
+        torch.rand(5)  # whatever the process drew before must not matter
+        assert main([*base, "--seed", seed, "--out", str(tmp_path / f"{name}.pt")]) == 0
+        weights[name] = torch.load(tmp_path / f"{name}.pt", weights_only=False)["state_dict"]
+    for key, value in weights["a"].items():
+        torch.testing.assert_close(weights["b"][key], value, rtol=0, atol=0, msg=key)
+    assert any(not torch.equal(weights["c"][key], value) for key, value in weights["a"].items())

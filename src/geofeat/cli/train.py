@@ -114,6 +114,9 @@ def run(args: argparse.Namespace) -> int:
         from ..descriptors.image_patch_nets import ImagePatchNet, default_config
         from ..train.imagepatches import build_image_patch_set, image_validation_pairs
 
+        import torch
+
+        torch.manual_seed(args.seed)  # its starting weights: `train` seeds torch only after they are drawn
         net = ImagePatchNet(default_config(args.net))
         build = partial(build_image_patch_set, arch=args.net)
         make_validation = partial(image_validation_pairs, arch=args.net)
