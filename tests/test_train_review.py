@@ -256,3 +256,12 @@ def test_train_seeds_the_image_patch_nets_starting_weights(tmp_path, monkeypatch
     for key, value in weights["a"].items():
         torch.testing.assert_close(weights["b"][key], value, rtol=0, atol=0, msg=key)
     assert any(not torch.equal(weights["c"][key], value) for key, value in weights["a"].items())
+
+
+def test_train_refuses_a_val_flag_without_sequences(tmp_path, capsys):
+    """`train --val --out w.pt` (an empty shell variable after --val) trained without validation,
+    saying only "no --val sequences" at the end."""
+    with pytest.raises(SystemExit) as stop:
+        main(["train", "--data", str(tmp_path), "--val", "--out", str(tmp_path / "w.pt")])
+    assert stop.value.code == 2 and "--val" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())

@@ -15,7 +15,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add `train` to an argparse subparsers object; returns its parser."""
     p = subparsers.add_parser("train", help="train GeoPatch on simulated sequences (see `geofeat simulate`)")
     p.add_argument("--data", nargs="+", required=True, help="simulated sequence folders, or folders of them")
-    p.add_argument("--val", nargs="*", default=None,
+    p.add_argument("--val", nargs="+", default=None,
                    help="held-out simulated sequences for the per-epoch matching score (of SIFT keypoints with "
                         "one-way nearest-neighbour matches, not the benchmark's figure)")
     p.add_argument("--out", required=True, help="weights file to write (e.g. geopatch.pt)")
