@@ -265,3 +265,34 @@ def test_train_refuses_a_val_flag_without_sequences(tmp_path, capsys):
         main(["train", "--data", str(tmp_path), "--val", "--out", str(tmp_path / "w.pt")])
     assert stop.value.code == 2 and "--val" in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
+
+
+def test_keypoints_within_a_pixel_of_a_stronger_one_are_not_a_surface_point_of_their_own(tmp_path, monkeypatch):
+    """SIFT finds one blob at two scales a fraction of a pixel apart (keypoint_set "unique" merges
+    only equal positions): each got an id of its own, so `train` drew the other, nearly the same
+    patch, as a negative (and --mining hardest always took it)."""
+    import numpy as np
+
+    import geofeat.train.dataset as dataset
+    import geofeat.train.imagepatches as imagepatches
+    from geofeat.io import read_sequence
+    from geofeat.keypoints import Keypoints
+
+    assert main(["simulate", str(tmp_path / "seq"), *TINY]) == 0
+    seq = read_sequence(tmp_path / "seq")
+    plain = dataset.sequence_patches(seq, 64)
+    plain_image = imagepatches.sequence_image_patches(seq, "tfeat", 64)
+    detect = dataset.detect
+
+    def with_twins(frame, n, **options):  # each keypoint again, weaker, 0.4 px away
+        k = detect(frame, n, **options)
+        return Keypoints(np.concatenate([k.xy, k.xy + 0.4]), np.r_[k.angles, k.angles], np.r_[k.sizes, k.sizes],
+                         np.r_[k.responses, k.responses - 1e-6])
+
+    monkeypatch.setattr(dataset, "detect", with_twins)
+    monkeypatch.setattr(imagepatches, "detect", with_twins)
+    twins = dataset.sequence_patches(seq, 64)
+    assert len(np.unique(plain.ids)) > 2
+    assert np.array_equal(twins.ids, plain.ids) and np.array_equal(twins.patches, plain.patches)
+    twins_image = imagepatches.sequence_image_patches(seq, "tfeat", 64)
+    assert np.array_equal(twins_image.ids, plain_image.ids)
