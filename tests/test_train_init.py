@@ -231,3 +231,49 @@ def test_the_validation_score_says_what_it_measures(tmp_path, capsys):
     fig = _figure(written)
     assert measure in fig.axes[0].get_title()
     plt.close(fig)
+
+
+def test_a_checkpoint_loaded_for_another_device_restores_its_random_state(tmp_path):
+    """`train(..., resume=True, device="cuda")` loaded the checkpoint with map_location=cuda, which
+    moved the saved CPU random state onto the GPU too; torch.set_rng_state refused it and the resume
+    failed as "is not a checkpoint of this network". "meta" stands in for the GPU here: any device
+    but the CPU moved it the same way."""
+    from geofeat.train.loop import load_resume_state
+
+    config = TrainConfig(epochs=1, steps_per_epoch=1, batch_size=8, net=NET)
+    train(_data(), tmp_path / "w.pt", config, progress=False, device="cpu")
+    state = load_resume_state(tmp_path / "w.pt.ckpt", config, device=torch.device("meta"))
+    saved = torch.get_rng_state()
+    try:
+        torch.set_rng_state(state["torch_rng"])
+    finally:
+        torch.set_rng_state(saved)
+
+
+def test_an_interrupted_run_resumes_to_the_weights_of_an_uninterrupted_one(tmp_path, monkeypatch):
+    """Resuming after epoch 1 of 2 (weights, optimizer, schedule, both random generators restored)
+    gives the same weights as training the 2 epochs in one go."""
+    import geofeat.train.loop as loop
+
+    config = TrainConfig(epochs=2, steps_per_epoch=3, batch_size=16, net=NET, augment_shift=True,
+                         augment_photometric=True)
+    whole = train(_data(), tmp_path / "a.pt", config, progress=False, device="cpu")
+    sample, calls = loop.TripletSampler.sample, []
+
+    def stop_in_epoch_2(self, batch):
+        calls.append(batch)
+        if len(calls) > config.steps_per_epoch:
+            raise KeyboardInterrupt
+        return sample(self, batch)
+
+    monkeypatch.setattr(loop.TripletSampler, "sample", stop_in_epoch_2)
+    with pytest.raises(KeyboardInterrupt):
+        train(_data(), tmp_path / "b.pt", config, progress=False, device="cpu")
+    monkeypatch.setattr(loop.TripletSampler, "sample", sample)
+    torch.manual_seed(99)  # the resumed run must not depend on the process's random state
+    resumed = train(_data(), tmp_path / "b.pt", config, resume=True, progress=False, device="cpu")
+    assert resumed["loss"] == whole["loss"]
+    wa, _ = load_network(tmp_path / "a.pt")
+    wb, _ = load_network(tmp_path / "b.pt")
+    for (name, pa), (_, pb) in zip(wa.state_dict().items(), wb.state_dict().items()):
+        torch.testing.assert_close(pa, pb, rtol=0, atol=0, msg=name)

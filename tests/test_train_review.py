@@ -234,3 +234,65 @@ def test_an_interrupted_overwrite_run_leaves_no_earlier_weights_beside_its_check
     monkeypatch.setattr(loop, "atomic_file", write)
     assert main(run + ["--resume"]) == 0  # the new run goes on from its own checkpoint
     assert (tmp_path / "w.pt").is_file()
+
+
+def test_train_seeds_the_image_patch_nets_starting_weights(tmp_path, monkeypatch, capsys):
+    """`train --net tfeat` built the network before `train` seeded torch, so its starting weights came
+    from whatever torch had drawn before: two runs with one --seed in one process wrote different
+    weights, and --seed did not choose the starting point of the image-patch baselines."""
+    import torch
+
+    import geofeat.train.imagepatches as imagepatches
+
+    assert main(["simulate", str(tmp_path / "seq"), *TINY]) == 0
+    monkeypatch.setattr(imagepatches, "build_image_patch_set", lambda *a, **k: _patches())
+    base = ["train", "--data", str(tmp_path / "seq"), "--net", "tfeat", "--epochs", "1", "--steps", "1",
+            "--batch-size", "4", "--device", "cpu"]
+    weights = {}
+    for name, seed in (("a", "3"), ("b", "3"), ("c", "4")):
+        torch.rand(5)  # whatever the process drew before must not matter
+        assert main([*base, "--seed", seed, "--out", str(tmp_path / f"{name}.pt")]) == 0
+        weights[name] = torch.load(tmp_path / f"{name}.pt", weights_only=False)["state_dict"]
+    for key, value in weights["a"].items():
+        torch.testing.assert_close(weights["b"][key], value, rtol=0, atol=0, msg=key)
+    assert any(not torch.equal(weights["c"][key], value) for key, value in weights["a"].items())
+
+
+def test_train_refuses_a_val_flag_without_sequences(tmp_path, capsys):
+    """`train --val --out w.pt` (an empty shell variable after --val) trained without validation,
+    saying only "no --val sequences" at the end."""
+    with pytest.raises(SystemExit) as stop:
+        main(["train", "--data", str(tmp_path), "--val", "--out", str(tmp_path / "w.pt")])
+    assert stop.value.code == 2 and "--val" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
+def test_keypoints_within_a_pixel_of_a_stronger_one_are_not_a_surface_point_of_their_own(tmp_path, monkeypatch):
+    """SIFT finds one blob at two scales a fraction of a pixel apart (keypoint_set "unique" merges
+    only equal positions): each got an id of its own, so `train` drew the other, nearly the same
+    patch, as a negative (and --mining hardest always took it)."""
+    import numpy as np
+
+    import geofeat.train.dataset as dataset
+    import geofeat.train.imagepatches as imagepatches
+    from geofeat.io import read_sequence
+    from geofeat.keypoints import Keypoints
+
+    assert main(["simulate", str(tmp_path / "seq"), *TINY]) == 0
+    seq = read_sequence(tmp_path / "seq")
+    plain = dataset.sequence_patches(seq, 64)
+    plain_image = imagepatches.sequence_image_patches(seq, "tfeat", 64)
+    detect = dataset.detect
+
+    def with_twins(frame, n, **options):  # each keypoint again, weaker, 0.4 px away
+        k = detect(frame, n, **options)
+        return Keypoints(np.concatenate([k.xy, k.xy + 0.4]), np.r_[k.angles, k.angles], np.r_[k.sizes, k.sizes],
+                         np.r_[k.responses, k.responses - 1e-6])
+
+    monkeypatch.setattr(dataset, "detect", with_twins)
+    monkeypatch.setattr(imagepatches, "detect", with_twins)
+    twins = dataset.sequence_patches(seq, 64)
+    assert len(np.unique(plain.ids)) > 2
+    assert np.array_equal(twins.ids, plain.ids) and np.array_equal(twins.patches, plain.patches)
+    twins_image = imagepatches.sequence_image_patches(seq, "tfeat", 64)
+    assert np.array_equal(twins_image.ids, plain_image.ids)

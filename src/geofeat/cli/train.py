@@ -15,7 +15,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add `train` to an argparse subparsers object; returns its parser."""
     p = subparsers.add_parser("train", help="train GeoPatch on simulated sequences (see `geofeat simulate`)")
     p.add_argument("--data", nargs="+", required=True, help="simulated sequence folders, or folders of them")
-    p.add_argument("--val", nargs="*", default=None,
+    p.add_argument("--val", nargs="+", default=None,
                    help="held-out simulated sequences for the per-epoch matching score (of SIFT keypoints with "
                         "one-way nearest-neighbour matches, not the benchmark's figure)")
     p.add_argument("--out", required=True, help="weights file to write (e.g. geopatch.pt)")
@@ -114,6 +114,9 @@ def run(args: argparse.Namespace) -> int:
         from ..descriptors.image_patch_nets import ImagePatchNet, default_config
         from ..train.imagepatches import build_image_patch_set, image_validation_pairs
 
+        import torch
+
+        torch.manual_seed(args.seed)  # its starting weights: `train` seeds torch only after they are drawn
         net = ImagePatchNet(default_config(args.net))
         build = partial(build_image_patch_set, arch=args.net)
         make_validation = partial(image_validation_pairs, arch=args.net)

@@ -2,7 +2,8 @@
 
 For each sequence, SIFT keypoints of the reference frame are followed into every other frame with
 the simulator's correspondences; the polar patches of a surface point in all frames where it is
-visible share one id. Positives are two patches of one id; negatives come from other ids.
+visible share one id (a keypoint within `SAME_POINT_PX` of a stronger one gets none: the same point).
+Positives are two patches of one id; negatives come from other ids.
 """
 
 from __future__ import annotations
@@ -75,6 +76,24 @@ def _sequence_config(seq: Sequence, depth_config: DepthConfig | str | None, ref)
     return PROFILES[sequence_depth_profile(seq, depth_config, ref)]
 
 
+#: Reference keypoints closer than this many pixels to a stronger one are one surface point (SIFT
+#: finds a blob at two scales a fraction of a pixel apart): only the stronger gets an id, so that no
+#: triplet takes the other, nearly the same patch, for a negative.
+SAME_POINT_PX = 1.0
+
+
+def distinct_points(xy: np.ndarray, px: float = SAME_POINT_PX) -> np.ndarray:
+    """(N,) bool: the keypoints `xy` (best first) farther than `px` from every stronger one kept."""
+    from scipy.spatial import cKDTree
+
+    keep = np.ones(len(xy), bool)
+    if len(xy) > 1:
+        for i, j in sorted(cKDTree(xy).query_pairs(px)):  # i < j: i's fate is settled first
+            if keep[i]:
+                keep[j] = False
+    return keep
+
+
 def sequence_patches(seq: Sequence, n_keypoints: int = 512, radius: float = DEFAULT_RADIUS_M,
                      depth_config: DepthConfig | str | None = None, first_id: int = 0) -> PatchSet:
     """Patches of the reference frame's SIFT keypoints in every frame where they are visible.
@@ -83,6 +102,7 @@ def sequence_patches(seq: Sequence, n_keypoints: int = 512, radius: float = DEFA
     ref = seq.frame(seq.reference)
     depth_config = _sequence_config(seq, depth_config, ref)
     kps = detect(ref, n_keypoints, detector="sift")
+    kps = kps[distinct_points(kps.xy)]
     if not len(kps):
         return PatchSet(np.zeros((0, 32, 32), np.uint8), np.zeros(0, np.int64))
     p_ref = polar_patches(ref, kps.xy, radius=radius, depth_config=depth_config)

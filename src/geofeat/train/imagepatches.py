@@ -17,7 +17,7 @@ from ..scoring import ground_truth_pairs
 from ..descriptors.image_patch_nets import image_patches
 from ..io import Sequence, find_sequences, read_sequence
 from ..keypoints import detect
-from .dataset import VALIDATION_KEYPOINTS, PatchSet, ValidationPair, validation_keypoints
+from .dataset import VALIDATION_KEYPOINTS, PatchSet, ValidationPair, distinct_points, validation_keypoints
 
 
 def _to_uint8(values: np.ndarray) -> np.ndarray:
@@ -28,6 +28,7 @@ def sequence_image_patches(seq: Sequence, arch: str, n_keypoints: int = 512, fir
     """(M, 32, 32) uint8 patches of `arch` with surface-point ids for one sequence."""
     ref = seq.frame(seq.reference)
     k_ref = detect(ref, n_keypoints, detector="sift")
+    k_ref = k_ref[distinct_points(k_ref.xy)]  # one id per surface point (`dataset.SAME_POINT_PX`)
     patches, ids = [_to_uint8(image_patches(ref.image, k_ref, arch))], [np.arange(len(k_ref))]
     for name in seq.targets:
         tgt = seq.frame(name)

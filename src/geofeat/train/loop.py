@@ -129,10 +129,13 @@ def load_resume_state(ckpt_path: str | Path, config: TrainConfig, device=None) -
     """The state `train` saved in `ckpt_path` after its last epoch, to resume with `config`; ValueError
     naming the file when it cannot be read as one, or was written with other settings (resuming
     with another schedule would silently train a different run). Called by `train` and, before any
-    patches are built, by the `train` command."""
+    patches are built, by the `train` command. The state is read onto the CPU whatever `device` (the
+    device `train` trains on, which `load_state_dict` copies the weights and optimizer state to)."""
     ckpt_path = Path(ckpt_path)
     try:
-        state = torch.load(str(ckpt_path), map_location=device or "cpu", weights_only=False)
+        # on the CPU whatever `device`: torch's random state must stay there (torch.set_rng_state refuses
+        # a GPU tensor, so no resume on a GPU worked), and the network and optimizer copy theirs when loaded
+        state = torch.load(str(ckpt_path), map_location="cpu", weights_only=False)
         written_with = state["history"]["config"]
         for key in ("state_dict", "optimizer", "scheduler", "rng", "torch_rng", "epoch"):
             state[key]
