@@ -263,7 +263,8 @@ def build_mesh_cuda(frame: RGBDFrame, config: DepthConfig | str = "auto", max_ed
     (tested): the same faces exist on the tested frames.
 
     `config`: a DepthConfig or a profile name; "auto" measures the frame on the host each call
-    (`depth.depth_profile`: 4 ms on the Kinect frame, 5-10 ms on clean depth), so a stream should resolve it once
+    (`depth.depth_profile`: 6.2 ms on the Kinect frame, 4.6-6.3 ms on simulated depth, BENCHMARKS.md "Millimetre
+    depth: the quantised profile"), so a stream should resolve it once
     (`depth.sequence_depth_profile`) and pass the profile. `fingerprint`: the frame's
     `mesh.frame_fingerprint`, when the caller has just computed it."""
     import torch
