@@ -86,3 +86,29 @@ def simulated_as(folder, keys: tuple[str, ...] = ("scenario",)) -> str | None:
         return None
     meta = read_metadata(folder)
     return ", ".join(str(meta.get(key, "?")) for key in keys)
+
+
+def paired_by_sequence(keys, a, b, n: int = 2000, level: float = 0.95, seed: int = 0) -> dict:
+    """Paired difference b - a of a per-pair figure (e.g. the MS of two runs of `geofeat bench`),
+    by the bench's averaging rule: the mean over sequences of the per-sequence mean (so a
+    sequence with more scored pairs weighs no more), with a percentile bootstrap interval that
+    resamples sequences, the independent unit (the pairs of one sequence share its reference
+    keypoints and scene, so resampling pairs gives too narrow an interval).
+
+    keys: one tuple per pair whose first item is the sequence name; a, b: the two runs' figures in
+    that order. Returns {a, b, diff, low, high, sequences, pairs}: low and high NaN with fewer than
+    two sequences (`geofeat.apps.retrieval.bootstrap_interval`)."""
+    import numpy as np
+
+    from geofeat.apps.retrieval import bootstrap_interval
+
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    seqs = [k[0] for k in keys]
+    names = list(dict.fromkeys(seqs))
+    if len(seqs) != len(a) or len(a) != len(b):
+        raise ValueError(f"keys, a, b: expected one of each per pair, got {len(seqs)}, {len(a)}, {len(b)}")
+    per_seq = np.array([[a[[s == name for s in seqs]].mean(), b[[s == name for s in seqs]].mean()] for name in names])
+    d = (per_seq[:, 1] - per_seq[:, 0])[:, None]
+    low, high = bootstrap_interval(d, n, level, seed)
+    return dict(a=float(per_seq[:, 0].mean()), b=float(per_seq[:, 1].mean()), diff=float(d.mean()),
+                low=float(low[0]), high=float(high[0]), sequences=len(names), pairs=len(a))

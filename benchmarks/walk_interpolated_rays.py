@@ -11,7 +11,8 @@ It prints, per frame, the walk's time with every direction walked and with half 
 Kinect frame, best of `--repeats` in `--rounds` interleaved rounds, with the load average), and
 the interpolated directions' distance to the walked ones (per direction, the largest over its
 rings, pixels). With `--bench SEQS... --out DIR` it also runs `geofeat bench` on SEQS twice in this
-process, once per f(.), and prints the paired difference of the matching score per descriptor.
+process, once per f(.), and prints the paired difference of the matching score per descriptor (mean
+over sequences of the per-sequence means, as the bench; 95 % bootstrap interval over sequences).
 
     PYTHONPATH=src python benchmarks/walk_interpolated_rays.py [--frames SEQ...] \
         [--bench out/difficulty/hard --out /tmp/halfrays --detector geokey --depth-profile kinect]
@@ -34,6 +35,8 @@ import geofeat.geodesic.polar as polar
 from geofeat.geodesic.mesh import frame_mesh
 from geofeat.geodesic.walk import walk_polar
 from geofeat.io import read_sequence
+
+from common import paired_by_sequence
 
 
 @njit(cache=True, parallel=True)
@@ -107,14 +110,19 @@ def bench_difference(seqs: list[str], out: Path, detector: str, descriptors: str
         with open(out / tag / "results.csv") as fh:
             runs[tag] = {(r["sequence"], r["reference"], r["target"], r["descriptor"]): float(r["ms"])
                          for r in csv.DictReader(fh)}
-    rng = np.random.default_rng(0)
     for desc in descriptors.split(","):
-        keys = [k for k in runs["walked"] if k[3] == desc and k in runs["interpolated"]]
-        a = np.array([runs["walked"][k] for k in keys])
-        d = np.array([runs["interpolated"][k] for k in keys]) - a
-        boot = [rng.choice(d, len(d)).mean() for _ in range(2000)]
-        print(f"{desc}: MS walked {a.mean():.3f}, interpolated {a.mean() + d.mean():.3f}, paired difference "
-              f"{d.mean():+.4f} [{np.percentile(boot, 2.5):+.4f}, {np.percentile(boot, 97.5):+.4f}] over {len(d)} pairs")
+        print(paired_ms_line(runs, desc))
+
+
+def paired_ms_line(runs: dict, desc: str) -> str:
+    """The paired difference of `desc`'s MS, interpolated minus walked (`runs`: {tag: {(sequence,
+    reference, target, descriptor): MS}}), as `geofeat bench` averages (mean over sequences of the
+    per-sequence means), with its 95 % bootstrap interval over sequences (`common.paired_by_sequence`:
+    the pairs of a sequence are not independent)."""
+    keys = [k for k in runs["walked"] if k[3] == desc and k in runs["interpolated"]]
+    p = paired_by_sequence(keys, [runs["walked"][k] for k in keys], [runs["interpolated"][k] for k in keys])
+    return (f"{desc}: MS walked {p['a']:.3f}, interpolated {p['b']:.3f}, paired difference {p['diff']:+.4f} "
+            f"[{p['low']:+.4f}, {p['high']:+.4f}] (95 % bootstrap over {p['sequences']} sequences, {p['pairs']} pairs)")
 
 
 def main() -> None:

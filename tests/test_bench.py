@@ -685,3 +685,29 @@ def test_a_rerun_refuses_features_rewritten_at_the_same_path(datasets, tmp_path)
     assert [r["ms"] for r in read_rows(fresh)] != [r["ms"] for r in before]
     with pytest.raises(ValueError, match="--features mine of a-deform, whose files changed since"):
         run_benchmark(seqs, tmp_path / "out", config, progress=False)
+
+
+def test_paired_ms_difference_averages_and_resamples_by_sequence():
+    """benchmarks/walk_interpolated_rays.py's paired difference: the bench's mean over sequences of
+    per-sequence means, and a bootstrap interval over sequences (the pairs of one sequence share its
+    reference keypoints). Here one sequence of 30 pairs changes by +0.01 each, another of 10 by -0.01:
+    the sequences disagree, so the interval must span both; resampling the 40 pairs gave
+    +0.005 [+0.0025, +0.0075], a confident gain, where the bench's mean is 0."""
+    import sys
+    from pathlib import Path
+
+    benchmarks = str(Path(__file__).resolve().parent.parent / "benchmarks")
+    sys.path.insert(0, benchmarks)
+    try:
+        from walk_interpolated_rays import paired_ms_line
+        from common import paired_by_sequence
+    finally:
+        sys.path.remove(benchmarks)
+    keys = [("a", "ref", f"t{i}", "geopatch") for i in range(30)] + [("b", "ref", f"t{i}", "geopatch") for i in range(10)]
+    walked = np.full(40, 0.5)
+    interpolated = walked + np.r_[np.full(30, 0.01), np.full(10, -0.01)]
+    p = paired_by_sequence(keys, walked, interpolated)
+    assert p["diff"] == pytest.approx(0.0) and (p["sequences"], p["pairs"]) == (2, 40)
+    assert p["low"] == pytest.approx(-0.01) and p["high"] == pytest.approx(0.01)
+    runs = {"walked": dict(zip(keys, walked)), "interpolated": dict(zip(keys, interpolated))}
+    assert "+0.0000 [-0.0100, +0.0100] (95 % bootstrap over 2 sequences, 40 pairs)" in paired_ms_line(runs, "geopatch")

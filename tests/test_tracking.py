@@ -521,7 +521,10 @@ def test_a_skipped_frame_counts_as_lost_not_as_absent(sequence, tmp_path):
     sift = next(line for line in table.splitlines() if line.startswith("| sift |"))
     assert sift.endswith("| lost | – | 1/2 |"), table  # lost by the landmarks; no forward truth to be lost by
     assert sift.startswith("| sift | 0.50 |"), table  # no matches: inlier rate 0, as a failed fit without matches
-    assert "SKIPPED frames: frame-002" in (tmp_path / "out" / "tracking.md").read_text()
+    md = (tmp_path / "out" / "tracking.md").read_text()
+    assert "SKIPPED frames: frame-002" in md
+    # frames/s over the one frame tracked: the skipped frame was counted as a second tracked one
+    assert "1 target frame tracked in " in md and "1 skipped frame not counted" in md, md
     # track.gif left the frame out, so the animation jumped without a word; now a dark placeholder holds its place
     import imageio.v2 as imageio
 
@@ -580,7 +583,7 @@ def test_frames_per_second_leave_out_the_template_set_up(sequence, tmp_path, mon
     monkeypatch.setattr(tracking._Template, "build", classmethod(slow_build))
     write_tracking([sequence], tmp_path, ("sift",), n_keypoints=300, refine="none", progress=False)
     md = (tmp_path / "tracking.md").read_text()
-    found = re.search(r"2 target frames in ([\d.]+) s: ([\d.]+) frames/s .*set-up, ([\d.]+) s, not counted", md)
+    found = re.search(r"2 target frames tracked in ([\d.]+) s: ([\d.]+) frames/s .*set-up, ([\d.]+) s, not counted", md)
     assert found, md
     tracked, rate, setup = map(float, found.groups())
     assert setup >= 3.0 and tracked < 3.0

@@ -930,6 +930,12 @@ def _mean(values) -> float:
     return float(v.mean()) if len(v) else float("nan")
 
 
+def _was_skipped(row: dict) -> bool:
+    """A row of a frame that could not be read or described (`_skipped_row`): failed, and no keypoint
+    of the frame (a failed fit on a described frame has its keypoints)."""
+    return _failed(row) and int(float(row["n_frame"])) == 0 and np.isnan(float(row["seconds"]))
+
+
 def _failed(row: dict) -> bool:
     return str(row["failed"]) in ("True", "1")
 
@@ -1119,16 +1125,20 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
                              f"depth profile {first.depth_profile}"
                              + (f"; SKIPPED frames: {', '.join(skipped_here)}" if skipped_here else ""))
         table = tracking_table(rows)
-        n_frames = len({(r["sequence"], r["frame"]) for r in rows})
+        # frames/s over the frames tracked: a skipped frame (not read or described) has a row, a failed
+        # one, but no tracking was timed on it, and counting it raised the rate
+        n_skipped = len({(r["sequence"], r["frame"]) for r in rows if _was_skipped(r)})
+        n_frames = len({(r["sequence"], r["frame"]) for r in rows}) - n_skipped
         per = ", ".join(f"{n} {_mean(float(r['seconds']) for r in rows if r['descriptor'] == n):.3f} s"
                         for n in dict.fromkeys(r["descriptor"] for r in rows))
         of = {name: det for det, group in groups.items() for name in group}
         detectors = ", ".join(f"{name}: {of[name]}" for name in names)
         # the templates' set-up is timed apart: with few target frames it dominated the rate
         tracked = max(seconds - setup, 0.0)
-        notes.append(f"detector: {detectors}; refine: {refine}; {plural(n_frames, 'target frame')} in {tracked:.1f} s: "
+        notes.append(f"detector: {detectors}; refine: {refine}; {plural(n_frames, 'target frame')} tracked in {tracked:.1f} s: "
                      f"{n_frames / max(tracked, 1e-9):.2f} frames/s (reading, detection, description and every "
-                     f"descriptor; the templates' set-up, {setup:.1f} s, not counted); "
+                     f"descriptor; the templates' set-up, {setup:.1f} s, not counted"
+                     + (f"; {plural(n_skipped, 'skipped frame')} not counted" if n_skipped else "") + "); "
                      f"per frame, matching + RANSAC{' + refinement' if refine != 'none' else ''} + SSIM/NCC: {per}")
         paper = paper_table_iv(dict.fromkeys(r["descriptor"] for r in rows))
         per_sequence = sequence_error_table(rows)
