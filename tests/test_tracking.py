@@ -262,6 +262,31 @@ def test_visible_grid_error_scores_true_positions_zero_and_a_shift_by_its_length
     np.testing.assert_allclose(same[seen], grid[seen], atol=0.05)
 
 
+def test_grid_error_leaves_out_grid_points_off_the_object_in_the_reference(sequence):
+    """An ROI corner on the background has no true position: a warp that carried it onto the cloth was
+    scored against whichever part of the cloth it reached (here the median of the grid error was that
+    of these meaningless points), while the points on the object were tracked exactly."""
+    from geofeat.apps.objectmask import object_mask
+    from geofeat.apps.tracking import _grid_error
+    from geofeat.groundtruth.sources import GroundTruth
+    from geofeat.io import read_sequence
+
+    seq = read_sequence(sequence)
+    truth = GroundTruth(seq, None)
+    target = seq.targets[-1]
+    mask = object_mask(seq, seq.reference)[0]
+    ys, xs = np.nonzero(mask)
+    on = np.stack([xs, ys], 1)[np.random.default_rng(0).choice(len(xs), 200, replace=False)].astype(float)
+    xy, visible = truth.project(target, on)
+    on, xy = on[visible][:4], xy[visible][:4]  # four grid points on the cloth, tracked exactly
+    ys, xs = np.nonzero(~mask)
+    off = np.stack([xs, ys], 1)[:6].astype(float)  # six on the background
+    assert not truth.reference_keep(off).any() and truth.reference_keep(on).all()
+    grid = np.vstack([on, off])
+    tracked = np.vstack([xy, np.repeat(xy[:1], 6, axis=0)])  # the background points put onto the cloth
+    assert _grid_error(truth, target, tracked, grid) < 0.5
+
+
 def test_track_simulated_sequence_outputs(sequence, tmp_path):
     import imageio.v2 as imageio
 
