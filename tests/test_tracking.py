@@ -96,6 +96,20 @@ def test_repeated_matches_vote_once():
     assert (confirmed[:300] == alone[:300]).mean() > 0.95  # the correct matches are judged as before
 
 
+def test_a_match_never_votes_for_itself_when_template_pixels_repeat():
+    """Two matches from one template pixel (SIFT copies of a keypoint matched to different frame points)
+    tie at distance 0 in the neighbour search, so a match was sometimes its own neighbour (and its copy
+    left out): hypotheses through the match itself carried it exactly, and random matches with shared
+    template pixels were confirmed (402 of 2400 here; 0 without the repetition)."""
+    confirmed = 0
+    for s in range(100):
+        rng = np.random.default_rng(s)
+        src = rng.uniform(0, 320, (12, 2))
+        src[6:] = src[:6]  # each template pixel twice, each copy matched to its own random frame pixel
+        confirmed += int(locally_consistent(src, rng.uniform(0, 240, (12, 2)), seed=s).sum())
+    assert confirmed <= 3  # chance alone (a random affine map through 3 neighbours carrying the match)
+
+
 def test_local_consistency_checks_its_settings():
     """neighbours < 3 or trials < 1 were numpy errors from inside the vote (LinAlgError, argmax of an
     empty sequence); a NaN or negative tolerance silently confirmed no match at all."""
@@ -246,6 +260,31 @@ def test_visible_grid_error_scores_true_positions_zero_and_a_shift_by_its_length
     # the reference frame maps onto itself
     same, seen = truth.project(seq.reference, grid)
     np.testing.assert_allclose(same[seen], grid[seen], atol=0.05)
+
+
+def test_grid_error_leaves_out_grid_points_off_the_object_in_the_reference(sequence):
+    """An ROI corner on the background has no true position: a warp that carried it onto the cloth was
+    scored against whichever part of the cloth it reached (here the median of the grid error was that
+    of these meaningless points), while the points on the object were tracked exactly."""
+    from geofeat.apps.objectmask import object_mask
+    from geofeat.apps.tracking import _grid_error
+    from geofeat.groundtruth.sources import GroundTruth
+    from geofeat.io import read_sequence
+
+    seq = read_sequence(sequence)
+    truth = GroundTruth(seq, None)
+    target = seq.targets[-1]
+    mask = object_mask(seq, seq.reference)[0]
+    ys, xs = np.nonzero(mask)
+    on = np.stack([xs, ys], 1)[np.random.default_rng(0).choice(len(xs), 200, replace=False)].astype(float)
+    xy, visible = truth.project(target, on)
+    on, xy = on[visible][:4], xy[visible][:4]  # four grid points on the cloth, tracked exactly
+    ys, xs = np.nonzero(~mask)
+    off = np.stack([xs, ys], 1)[:6].astype(float)  # six on the background
+    assert not truth.reference_keep(off).any() and truth.reference_keep(on).all()
+    grid = np.vstack([on, off])
+    tracked = np.vstack([xy, np.repeat(xy[:1], 6, axis=0)])  # the background points put onto the cloth
+    assert _grid_error(truth, target, tracked, grid) < 0.5
 
 
 def test_track_simulated_sequence_outputs(sequence, tmp_path):

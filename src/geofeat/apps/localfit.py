@@ -79,7 +79,13 @@ def _locally_consistent(src: np.ndarray, dst: np.ndarray, neighbours: int, trial
     rng = np.random.default_rng(seed)
     k = min(neighbours, n - 1)
     _, nb = cKDTree(src).query(src, k + 1)
-    nb = nb[:, 1:]  # (N, k) template neighbours, i itself excluded
+    # (N, k) template neighbours, i itself excluded: i is not always the first of its own k + 1 nearest,
+    # since another match with the same template pixel (a SIFT copy matched elsewhere) ties with it at
+    # distance 0; dropping column 0 then dropped that copy and kept i, whose hypotheses through itself
+    # carried it exactly (random matches with shared template pixels were confirmed)
+    others = nb != np.arange(n)[:, None]
+    others[others.all(axis=1), -1] = False  # i beyond its k + 1 nearest (more copies than k): drop the last
+    nb = nb[others].reshape(n, k)
     pick = np.argsort(rng.random((n, trials, k)), axis=2)[:, :, :3]  # (N, S, 3) three distinct neighbours
     trio = nb[np.arange(n)[:, None, None], pick]  # (N, S, 3) match indices
     P = np.concatenate([src[trio], np.ones(trio.shape + (1,))], axis=-1)  # (N, S, 3, 3) rows [x, y, 1]

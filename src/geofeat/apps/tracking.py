@@ -515,7 +515,7 @@ class TrackResult:
 #: template keypoints with a nearest neighbour; inliers: RANSAC inliers among them; ms: correct
 #: inliers / min(n_template, n_frame) (the bench's matching score applied to the kept matches);
 #: precision: correct inliers / inliers that the ground truth covers (NaN when it covers none; correct: the bench's ground truth within 3 px, `geofeat.scoring.correct_matches`);
-#: grid_error_px: median over the grid of |ground truth(tracked point) - grid point|, reference pixels;
+#: grid_error_px: median over the grid (its points on the object in the reference) of |ground truth(tracked point) - grid point|, reference pixels;
 #: grid_error_tps_px: the same for the RANSAC spline alone (before refinement); grid_error_visible_px:
 #: median over the grid points seen in the frame of |tracked point - true position|, frame pixels
 #: (simulated sequences only: the forward ground truth); visible_grid: the fraction of the grid seen
@@ -864,8 +864,13 @@ def _truth_figures(template: _Template, target: _Target, fit: _Fit, warp: Warp, 
 
 
 def _grid_error(truth, target: str, pts: np.ndarray, grid: np.ndarray) -> float:
-    """Median over the (G, 2) grid of |ground truth(tracked (G, 2) frame pixels) - grid point|, pixels."""
+    """Median over the (G, 2) grid of |ground truth(tracked (G, 2) frame pixels) - grid point|, pixels,
+    over the grid points on the object in the reference (`GroundTruth.reference_keep`): a grid point
+    off the object (an ROI corner on the background) has no true position, and one whose tracked point
+    landed on the object was scored against an unrelated part of it (the visible-points error leaves
+    them out too)."""
     g = np.linalg.norm(truth.map(target, pts)[0] - grid, axis=1)
+    g[~np.asarray(truth.reference_keep(grid), bool)] = np.nan
     return float(np.nanmedian(g)) if np.isfinite(g).any() else float("nan")
 
 
