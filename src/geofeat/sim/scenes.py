@@ -257,7 +257,7 @@ class ClothScene:
         self.motion_blur = bool(motion_blur)
         self.params = p = SceneParams.draw(rng, steps_per_frame)
         if self.preset.name != "mild":
-            texture = self._draw_preset(texture)
+            texture = self._draw_preset(texture, cloth_config)
         cfg = ClothConfig(**{**cloth_config.__dict__, "width_m": p.cloth_width})
         self.config = cfg
         R0 = _rot("y", p.tilt[1]) @ _rot("x", p.tilt[0])
@@ -273,11 +273,13 @@ class ClothScene:
         self.texture = prepare_texture(texture, cfg.width_m / cfg.height_m, int(min(1024, 1.5 * px_width + 16)))
         self.step_count = 0
 
-    def _draw_preset(self, texture: np.ndarray) -> np.ndarray:
+    def _draw_preset(self, texture: np.ndarray, cloth_config: ClothConfig) -> np.ndarray:
         """Redraw the parameters a non-mild preset changes (after mild's draws, same generator);
         returns the texture with its colours and contrast jittered."""
         p, pr, rng, (H, W) = self.params, self.preset, self.rng, self.size
-        cfg = ClothConfig(width_m=p.cloth_width)
+        # the scene's grid: a default 60 x 80 one here set the distance for a cloth of another aspect
+        # (a 20 x 80 grid filled a third of the `fill` asked for)
+        cfg = ClothConfig(**{**cloth_config.__dict__, "width_m": p.cloth_width})
         if pr.fill is not None:
             fill = rng.uniform(*pr.fill)
             p.distance = float(np.sqrt(self.K[0, 0] * self.K[1, 1] * cfg.width_m * cfg.height_m / (fill * W * H)))
