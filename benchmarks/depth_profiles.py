@@ -6,8 +6,8 @@ Data (made here, in a temporary folder unless --data is given):
   30 and 60 degrees (ground truth: a thin-plate spline on the 51 annotated landmarks);
 - `--sequences` clean simulated deformation sequences (the simulator's 0.1 mm depth PNGs, no sensor noise);
 - as many sequences with the same seeds and the simulator's Kinect noise model (`geofeat simulate
-  --kinect-noise`). The noise draws share the scene's random generator, so from the second frame on
-  these are other scenes of the same kind, not the clean scenes with noise added.
+  --kinect-noise`): the same scenes with noise added (the noise has a generator of its own; before
+  that fix, these were other scenes of the same kind from the second frame on, as in BENCHMARKS.md).
 
 Prints the statistic `geofeat.depth_noise(...).slope_noise` (depth noise in units of the pixel
 footprint; `auto` picks "kinect" above `geofeat.depth.SLOPE_NOISE_THRESHOLD`) and, per kind of data,

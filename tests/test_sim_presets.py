@@ -173,3 +173,18 @@ def test_fabric_textures_and_colour_jitter():
         img = cv2.imread(str(f))
         assert max(img.shape[:2]) <= 512
         assert f.stem in sources
+
+
+def test_fill_holds_for_a_grid_of_another_aspect():
+    # the preset set the camera distance from a default 60 x 80 grid's cloth: a 20 x 80 grid (a cloth a
+    # third as tall) filled a third of the fraction of the frame the preset asks for
+    from geofeat.sim.cloth import ClothConfig
+    from geofeat.sim.scenes import ClothScene, PRESETS
+    from geofeat.sim.textures import procedural_texture
+
+    lo, hi = PRESETS["paper"].fill
+    for seed in range(3):
+        scene = ClothScene("deform", 2, np.random.default_rng(seed), procedural_texture(np.random.default_rng(0)),
+                           size=(120, 160), preset="paper", cloth_config=ClothConfig(rows=20, cols=80))
+        fill = scene.render_frame(0).render.mask.mean()
+        assert 0.9 * lo < fill < 1.1 * hi, fill

@@ -219,7 +219,8 @@ class ClothScene:
         texture: (Ht, Wt, 3) uint8 BGR texture image.
         size: (H, W) image size, pixels.
         K: (3, 3) intrinsics (default: `default_intrinsics(W, H)`).
-        kinect_noise: degrade the written depth with `kinect_depth_noise`.
+        kinect_noise: degrade the written depth with `kinect_depth_noise` (drawn from a child generator of
+            rng: the cloth, lights, images and ground truth are those of the same scene without it).
         cloth_config: grid and solver settings (the width is overridden by the drawn one).
         steps_per_frame: simulation steps between two frames.
         preset: a name of PRESETS (or a Preset): how hard the scene is.
@@ -249,10 +250,14 @@ class ClothScene:
         self.size = (int(size[0]), int(size[1]))
         self.K = default_intrinsics(self.size[1], self.size[0]) if K is None else np.asarray(K, dtype=np.float64)
         self.kinect_noise = kinect_noise
+        # the depth noise has a generator of its own, a child of rng (spawning draws nothing from rng):
+        # drawn from rng, it shifted every later draw, so --kinect-noise gave another cloth motion, lights
+        # and image noise than the same seed without it (up to 2 cm per vertex by frame 2)
+        self._depth_rng = rng.spawn(1)[0]
         self.motion_blur = bool(motion_blur)
         self.params = p = SceneParams.draw(rng, steps_per_frame)
         if self.preset.name != "mild":
-            texture = self._draw_preset(texture)
+            texture = self._draw_preset(texture, cloth_config)
         cfg = ClothConfig(**{**cloth_config.__dict__, "width_m": p.cloth_width})
         self.config = cfg
         R0 = _rot("y", p.tilt[1]) @ _rot("x", p.tilt[0])
@@ -268,11 +273,13 @@ class ClothScene:
         self.texture = prepare_texture(texture, cfg.width_m / cfg.height_m, int(min(1024, 1.5 * px_width + 16)))
         self.step_count = 0
 
-    def _draw_preset(self, texture: np.ndarray) -> np.ndarray:
+    def _draw_preset(self, texture: np.ndarray, cloth_config: ClothConfig) -> np.ndarray:
         """Redraw the parameters a non-mild preset changes (after mild's draws, same generator);
         returns the texture with its colours and contrast jittered."""
         p, pr, rng, (H, W) = self.params, self.preset, self.rng, self.size
-        cfg = ClothConfig(width_m=p.cloth_width)
+        # the scene's grid: a default 60 x 80 one here set the distance for a cloth of another aspect
+        # (a 20 x 80 grid filled a third of the `fill` asked for)
+        cfg = ClothConfig(**{**cloth_config.__dict__, "width_m": p.cloth_width})
         if pr.fill is not None:
             fill = rng.uniform(*pr.fill)
             p.distance = float(np.sqrt(self.K[0, 0] * self.K[1, 1] * cfg.width_m * cfg.height_m / (fill * W * H)))
@@ -424,7 +431,7 @@ class ClothScene:
                                  self.rng)
         else:
             image = finish_image(out.color, out.mask, self.params.background, self.params.image_sigma, self.rng)
-        depth = kinect_depth_noise(out.depth, out.cos_view, self.rng) if self.kinect_noise else out.depth
+        depth = kinect_depth_noise(out.depth, out.cos_view, self._depth_rng) if self.kinect_noise else out.depth
         cfg = self.config
         return SimFrame(f, image, depth, out, verts.reshape(cfg.rows, cfg.cols, 3), R, t)
 
