@@ -312,22 +312,48 @@ def fill_holes(
     if method == "none":
         return out
     missing = out <= 0
-    # 4-connected regions of missing pixels and their bounding boxes (the components that
-    # scipy.ndimage.label gives; OpenCV's labelling also returns the boxes)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(missing.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
-    _fill_enclosed_holes(out, labels, stats, int(max_perimeter), float(power), method == "simple")
+    # 4-connected regions of missing pixels (the components that scipy.ndimage.label gives), and
+    # their bounding boxes in one compiled pass (OpenCV's labelling "with stats" also computes areas
+    # and centroids: 1.6 ms against 0.4 ms for the labels alone on a 640 x 480 frame)
+    n, labels = cv2.connectedComponents(missing.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
+    _fill_enclosed_holes(out, labels, _label_boxes(labels, n), int(max_perimeter), float(power), method == "simple")
     return out
 
 
+@njit(cache=True)
+def _label_boxes(labels, n):  # pragma: no cover - compiled
+    """(n, 4) int64 bounding boxes (x0, y0, x1, y1), end-exclusive, of the labels 1..n-1 of an (H, W)
+    int32 label image (row 0, the background label, and a label without pixels keep x0 = W, y0 = H,
+    x1 = y1 = 0)."""
+    H, W = labels.shape
+    boxes = np.zeros((n, 4), np.int64)
+    boxes[:, 0] = W
+    boxes[:, 1] = H
+    for y in range(H):
+        for x in range(W):
+            i = labels[y, x]
+            if i == 0:  # the pixels with depth: no box needed
+                continue
+            if x < boxes[i, 0]:
+                boxes[i, 0] = x
+            if y < boxes[i, 1]:
+                boxes[i, 1] = y
+            if x + 1 > boxes[i, 2]:
+                boxes[i, 2] = x + 1
+            if y + 1 > boxes[i, 3]:
+                boxes[i, 3] = y + 1
+    return boxes
+
+
 @njit(cache=True, error_model="numpy")
-def _fill_enclosed_holes(out, labels, stats, max_perimeter, power, simple):  # pragma: no cover - compiled
+def _fill_enclosed_holes(out, labels, boxes, max_perimeter, power, simple):  # pragma: no cover - compiled
     """`fill_holes`' loop over the labelled regions, compiled (a Python loop over a frame's holes,
     with an array operation or three per hole, and one power per pair of hole and border pixels, cost
     1.6 ms per Kinect frame on a GPU host; this takes 0.1 ms).
 
     out: (H, W) float32 depth, written in place; labels: (H, W) int32, 0 = pixels with depth, i >= 1 the
-    i-th 4-connected region of missing pixels; stats: OpenCV's (n, 5) boxes (x, y, w, h, area) of
-    the regions. A region is filled when it does not touch the image border and fewer than
+    i-th 4-connected region of missing pixels; boxes: (n, 4) their bounding boxes (x0, y0, x1, y1),
+    end-exclusive (`_label_boxes`). A region is filled when it does not touch the image border and fewer than
     `max_perimeter` pixels with depth are 8-adjacent to it (its border): IDW with weights
     1 / d**power over the border pixels (d in pixels), or the border's mean when `simple`."""
     H, W = out.shape
@@ -335,9 +361,8 @@ def _fill_enclosed_holes(out, labels, stats, max_perimeter, power, simple):  # p
     by = np.empty(size, np.int64)
     bx = np.empty(size, np.int64)
     bz = np.empty(size, np.float64)
-    for index in range(1, stats.shape[0]):
-        x0, y0 = stats[index, 0], stats[index, 1]
-        x1, y1 = x0 + stats[index, 2], y0 + stats[index, 3]
+    for index in range(1, boxes.shape[0]):
+        x0, y0, x1, y1 = boxes[index, 0], boxes[index, 1], boxes[index, 2], boxes[index, 3]
         if y0 == 0 or x0 == 0 or y1 == H or x1 == W:
             continue  # touches the border: not an enclosed hole
         count = 0
