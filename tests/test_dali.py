@@ -53,7 +53,7 @@ def test_invariant_to_a_rotation_of_the_patch(scene, angle):
     same = np.linalg.norm(f.descriptors - g.descriptors, axis=1)
     others = np.linalg.norm(f.descriptors[:, None] - f.descriptors[None], axis=2)
     np.fill_diagonal(others, np.inf)
-    assert np.median(same) < 0.8 * np.median(others.min(axis=1))  # measured: 0.65 at 40 deg
+    assert np.median(same) < 0.5 * np.median(others.min(axis=1))  # measured: 0.26 at 40 deg (0.65 before the fix)
     assert (match(f, g).matches0 == np.arange(N)).mean() >= 0.9
 
 
