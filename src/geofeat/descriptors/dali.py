@@ -16,7 +16,8 @@ Ours, step by step (one patch = one keypoint; all patches at once where possible
    `RADIUS_FACTOR` x the keypoint diameter (SIFT's scale; bare (N, 2) positions get 8 px), with
    the keypoint's angle (irrelevant after step 5, used only so the grid is the same as the nets').
 2. Intensity z-scored over the disc (gain and offset invariance), height = `BETA` x z; the disc of
-   grid vertices is triangulated (two triangles per grid cell).
+   grid vertices is triangulated (two triangles per grid cell, split along alternating diagonals so
+   that the mesh is the same after a 90-degree turn of the patch).
 3. Cotangent Laplacian L and lumped mass M (vectorised over patches, one shared sparsity
    pattern); the `N_EIGEN` smallest eigenpairs of L phi = lambda M phi by SciPy's `eigsh` in
    shift-invert mode, one call per patch, patches spread over a thread pool, with a tqdm progress
@@ -24,9 +25,11 @@ Ours, step by step (one patch = one keypoint; all patches at once where possible
    loaded 2-core machine).
 4. HKS at the 8 log-spaced diffusion times `TIMES` (grid units^2), each divided by its heat trace
    sum_i exp(-lambda_i t) (the scale-free HKS normalisation of Sun et al.), sampled bilinearly at
-   `N_RADII` log-spaced radii x `N_ANGLES` angles (a fixed sparse interpolation matrix).
-5. |FFT| over angle (N_ANGLES / 2 + 1 frequencies), flattened to (N_RADII x 9 x N_TIMES) = 576
-   floats, L2-normalised: float32, matched with L2 distance.
+   `N_RADII` log-spaced radii x `N_ANGLES` angles (a fixed sparse interpolation matrix; 64 angles
+   sample the outer circle about every grid unit, so a turn by a fraction of the angular step is a
+   phase shift of the low frequencies, not aliasing).
+5. |FFT| over angle, its first `N_FREQ` = 9 frequencies, flattened to (N_RADII x 9 x N_TIMES) =
+   576 floats, L2-normalised: float32, matched with L2 distance.
 
 Departures, and why: the published DaLI (settings as we recall them from the paper, not
 re-checked here) uses a 41x41 pixel patch, 100 eigenpairs and more diffusion times and compresses the result with PCA (DaLI-PCA); we use a 25x25 grid and 24
@@ -71,7 +74,9 @@ EIGEN_TOL = 1e-6
 TIMES = np.geomspace(6.0, 100.0, 8)
 #: Log-polar sampling of the HKS: radii (grid units) and angles.
 N_RADII = 8
-N_ANGLES = 16
+N_ANGLES = 64
+#: Angular frequencies kept (0 .. N_FREQ - 1) of the |FFT| over angle.
+N_FREQ = 9
 
 
 @dataclass(frozen=True)
@@ -94,7 +99,11 @@ def _disc_mesh() -> _Mesh:
     index[keep] = np.arange(keep.sum())
     v00 = (yy[:-1, :-1] * GRID + xx[:-1, :-1]).ravel()
     v01, v10, v11 = v00 + 1, v00 + GRID, v00 + GRID + 1
-    tris = np.concatenate([np.stack([v00, v01, v11], 1), np.stack([v00, v11, v10], 1)])
+    # split the cells along alternating diagonals (checkerboard): with one diagonal everywhere the
+    # mesh, and so the HKS, would change under a 90-degree rotation of the patch
+    even = ((yy[:-1, :-1] + xx[:-1, :-1]) % 2 == 0).ravel()
+    tris = np.concatenate([np.stack([v00, v01, v11], 1)[even], np.stack([v00, v11, v10], 1)[even],
+                           np.stack([v00, v01, v10], 1)[~even], np.stack([v01, v11, v10], 1)[~even]])
     tris = tris[keep[tris].all(axis=1)]
     tris = index[tris]
     # bilinear sampling of vertex values at the log-polar points (all inside the disc)
@@ -166,7 +175,7 @@ def _describe_one(w: np.ndarray, mass: np.ndarray, mesh: _Mesh) -> np.ndarray:
     heat = np.exp(-lam[:, None] * TIMES[None, :])  # (k, T)
     hks = (phi ** 2) @ heat / heat.sum(axis=0, keepdims=True)  # (V, T), heat-trace normalised
     samples = (mesh.sampler @ hks).reshape(N_RADII, N_ANGLES, len(TIMES))
-    return np.abs(np.fft.rfft(samples, axis=1)).ravel()
+    return np.abs(np.fft.rfft(samples, axis=1)[:, :N_FREQ]).ravel()
 
 
 @dataclass(frozen=True)
@@ -205,7 +214,7 @@ class DaLI:
         mesh = _mesh()
         v = patches.reshape(len(patches), -1)[:, mesh.keep]
         z = (v - v.mean(axis=1, keepdims=True)) / (v.std(axis=1, keepdims=True) + 1e-6)
-        dim = N_RADII * (N_ANGLES // 2 + 1) * len(TIMES)
+        dim = N_RADII * N_FREQ * len(TIMES)
         out = np.zeros((len(patches), dim), np.float32)
         bar = tqdm(total=len(patches), desc="dali", unit="kp", disable=not self.progress, leave=False)
         chunk = 64
