@@ -17,8 +17,10 @@ against OpenCV SIFT detect + compute, compute alone, and detectAndCompute x 2 + 
 
 Each stage is timed `repeats` times in each of `rounds` interleaved rounds; the best wall time and
 the best process CPU time (user + system of this process, all its threads) are printed, with the
-1-minute load average when the stage was timed. A ratio measured while the load average exceeds
-1.5 is flagged: other processes then share the cores, and the ratio to a short OpenCV call is not
+1-minute load average when the stage was timed and the cores' worth of CPU that other processes used
+meanwhile (from /proc/stat, less this process's own CPU time; the load average counts this
+benchmark's threads too). A ratio is flagged when the load average exceeds 1.5 or other processes
+used more than 0.25 cores: they then share the cores, and the ratio to a short OpenCV call is not
 the ratio a user sees on an idle machine.
 """
 
@@ -40,18 +42,26 @@ from geofeat.geodesic.mesh import build_mesh
 from geofeat.keypoints import detect, to_uint8
 from geofeat.matching import match
 
+from common import busy_cpu_seconds, others_cores
+
 LOAD_LIMIT = 1.5
+#: Other processes' CPU (cores) during a stage above which its ratios are flagged too.
+OTHERS_LIMIT = 0.25
 
 
-def timed(fn, repeats: int) -> tuple[float, float, float]:
-    """(best wall s, best process CPU s, 1-min load average) of `repeats` calls of fn()."""
+def timed(fn, repeats: int) -> tuple[float, float, float, float]:
+    """(best wall s, best process CPU s, 1-min load average, other processes' cores) of `repeats` calls
+    of fn(). The last is the CPU that the rest of the machine used while the calls ran, in cores
+    (`common.others_cores`): unlike the load average, it leaves out this benchmark's own threads."""
     wall, cpu = [], []
+    busy0, c0, t0 = busy_cpu_seconds(), time.process_time(), time.perf_counter()
     for _ in range(repeats):
         c, t = time.process_time(), time.perf_counter()
         fn()
         wall.append(time.perf_counter() - t)
         cpu.append(time.process_time() - c)
-    return min(wall), min(cpu), os.getloadavg()[0]
+    others = others_cores(busy0, busy_cpu_seconds(), time.process_time() - c0, time.perf_counter() - t0)
+    return min(wall), min(cpu), os.getloadavg()[0], others
 
 
 def fresh(frame: RGBDFrame) -> RGBDFrame:
@@ -123,21 +133,27 @@ def main() -> None:
     }
     for fn in stages.values():  # warm-up (numba compilation, ORT first-run allocations)
         fn()
-    best = {name: [np.inf, np.inf, 0.0] for name in stages}
+    best = {name: [np.inf, np.inf, 0.0, 0.0] for name in stages}
     for _ in range(a.rounds):  # interleaved, so that background load falls on every stage alike
         for name, fn in stages.items():
-            w, c, load = timed(fn, a.repeats)
+            w, c, load, others = timed(fn, a.repeats)
             if w < best[name][0]:
-                best[name][0], best[name][2] = w, load
+                best[name][0], best[name][2], best[name][3] = w, load, others
             best[name][1] = min(best[name][1], c)
-    print(f"\n{'stage':42s} {'wall ms':>9s} {'CPU ms':>9s} {'load':>6s}")
-    for name, (w, c, load) in best.items():
-        print(f"{name:42s} {1e3 * w:9.1f} {1e3 * c:9.1f} {load:6.2f}")
+    print(f"\n{'stage':42s} {'wall ms':>9s} {'CPU ms':>9s} {'load':>6s} {'others':>7s}")
+    for name, (w, c, load, others) in best.items():
+        print(f"{name:42s} {1e3 * w:9.1f} {1e3 * c:9.1f} {load:6.2f} {others:7.2f}")
+    print("(load: the 1-minute load average, this benchmark's own threads included; others: the cores that "
+          "other processes used while the stage's best round ran)")
 
     def ratio(ours: str, ref: str, goal: str) -> None:
-        (w0, c0, l0), (w1, c1, l1) = best[ours], best[ref]
-        flag = "" if max(l0, l1) <= LOAD_LIMIT else (f"   [FLAG: load average {max(l0, l1):.2f} > {LOAD_LIMIT}: "
-                                                     "not a final figure]")
+        (w0, c0, l0, o0), (w1, c1, l1, o1) = best[ours], best[ref]
+        flags = []
+        if max(l0, l1) > LOAD_LIMIT:
+            flags.append(f"load average {max(l0, l1):.2f} > {LOAD_LIMIT}")
+        if max(o0, o1) > OTHERS_LIMIT:  # NaN (no /proc/stat) compares False: no flag from it
+            flags.append(f"other processes used {max(o0, o1):.2f} cores > {OTHERS_LIMIT}")
+        flag = f"   [FLAG: {'; '.join(flags)}: not a final figure]" if flags else ""
         print(f"{ours:32s} / {ref:40s} wall {w0 / w1:5.2f}  CPU {c0 / c1:5.2f}  (goal {goal}){flag}")
 
     print("\nratios (wall from best wall times, CPU from best process CPU times):")

@@ -2,7 +2,33 @@
 
 from __future__ import annotations
 
+import os
 import time
+
+
+def busy_cpu_seconds() -> float | None:
+    """CPU seconds that all processes on this machine have spent busy since boot (Linux's /proc/stat:
+    user, nice, system, irq, softirq and steal time of all cores), or None where it cannot be read.
+    Its change over a timed block, less this process's CPU time, is what other processes (and the
+    hypervisor, as steal) took from the cores meanwhile (`others_cores`)."""
+    try:
+        with open("/proc/stat") as fh:
+            fields = fh.readline().split()
+    except OSError:
+        return None
+    if not fields or fields[0] != "cpu":
+        return None
+    user, nice, system, _idle, _iowait, irq, softirq, steal = (int(v) for v in fields[1:9])
+    return (user + nice + system + irq + softirq + steal) / os.sysconf("SC_CLK_TCK")
+
+
+def others_cores(busy_before: float | None, busy_after: float | None, own_cpu_s: float, wall_s: float) -> float:
+    """Cores' worth of CPU that other processes used during a block of `wall_s` seconds in which this
+    process used `own_cpu_s` CPU seconds (NaN when /proc/stat could not be read). /proc/stat counts in
+    clock ticks (10 ms), so a block should last a few hundred milliseconds for this to mean much."""
+    if busy_before is None or busy_after is None or wall_s <= 0:
+        return float("nan")
+    return max(0.0, (busy_after - busy_before) - own_cpu_s) / wall_s
 
 
 def wall_times(fn, repeat: int = 5, warm: int = 0) -> list[float]:
