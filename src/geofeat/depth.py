@@ -314,7 +314,7 @@ def fill_holes(
     missing = out <= 0
     # 4-connected regions of missing pixels (the components that scipy.ndimage.label gives), and
     # their bounding boxes in one compiled pass (OpenCV's labelling "with stats" also computes areas
-    # and centroids: 1.6 ms against 0.4 ms for the labels alone on a 640 x 480 frame)
+    # and centroids, about three times the labelling's own time: benchmarks/bench_fill_holes.py)
     n, labels = cv2.connectedComponents(missing.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
     _fill_enclosed_holes(out, labels, _label_boxes(labels, n), int(max_perimeter), float(power), method == "simple")
     return out
@@ -347,9 +347,9 @@ def _label_boxes(labels, n):  # pragma: no cover - compiled
 
 @njit(cache=True, error_model="numpy")
 def _fill_enclosed_holes(out, labels, boxes, max_perimeter, power, simple):  # pragma: no cover - compiled
-    """`fill_holes`' loop over the labelled regions, compiled (a Python loop over a frame's holes,
-    with an array operation or three per hole, and one power per pair of hole and border pixels, cost
-    1.6 ms per Kinect frame on a GPU host; this takes 0.1 ms).
+    """`fill_holes`' loop over the labelled regions, compiled (as a Python loop over a frame's holes,
+    with a few array operations per hole and one power per pair of hole and border pixels, it was most
+    of `fill_holes`' time: 2.5 against 1.0 ms now on the Kinect frame, benchmarks/bench_fill_holes.py).
 
     out: (H, W) float32 depth, written in place; labels: (H, W) int32, 0 = pixels with depth, i >= 1 the
     i-th 4-connected region of missing pixels; boxes: (n, 4) their bounding boxes (x0, y0, x1, y1),
