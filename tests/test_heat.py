@@ -207,6 +207,14 @@ def test_arguments(texture):
         HeatGeodesics(mesh, boundary_mix=2.0)
     H = HeatGeodesics(mesh)
     assert np.isnan(H.distance((-5.0, 3.0))).all()
+    # t is a time in m^2: potpourri3d's t_coef = 1.0 passed as t = 1.0 would silently smooth everything
+    with pytest.warns(UserWarning, match="t_coef"):
+        HeatGeodesics(mesh, t=1.0)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        HeatGeodesics(mesh, t=10 * H.mean_edge**2)  # a deliberate, plausible choice: no warning
 
 
 def test_a_mesh_of_another_frame_size_is_refused():

@@ -24,6 +24,7 @@ interpolation between the two samples around the crossing.
 from __future__ import annotations
 
 import numbers
+import warnings
 
 import numpy as np
 import scipy.sparse as sp
@@ -67,6 +68,11 @@ def _locate(xy: np.ndarray, face_ok: np.ndarray) -> tuple[np.ndarray, ...]:
     xc, yc = np.clip(x, 0, Wc - 1), np.clip(y, 0, Hc - 1)
     ok = inside & face_ok[yc, xc, t]
     return x, y, t, w, corners, ok
+
+
+#: `HeatGeodesics` warns when it is given a heat time `t` above this multiple of its default (mean edge
+#: length)^2: Crane et al. use the default; a diffusion length of ~30 edges is almost surely a unit mix-up.
+HEAT_TIME_WARN_FACTOR = 1000.0
 
 
 class HeatGeodesics:
@@ -144,6 +150,12 @@ class HeatGeodesics:
         self.t = float(t) if t is not None else self.mean_edge**2
         if not (np.isfinite(self.t) and self.t > 0):
             raise ValueError(f"t: must be a positive heat time in m^2, got {t}")
+        if t is not None and self.t > HEAT_TIME_WARN_FACTOR * self.mean_edge**2:
+            # potpourri3d's t_coef = 1.0 given as t = 1.0 m^2 is 10^5-10^6 times the default here
+            warnings.warn(f"t: {self.t:g} m^2 is {self.t / self.mean_edge**2:.0f} times the default heat time, "
+                          f"(mean edge length)^2 = {self.mean_edge**2:.3g} m^2; t is a time in m^2, not a multiple "
+                          "of the default (potpourri3d's t_coef): heat this diffuse gives smooth, inaccurate distances",
+                          stacklevel=2)
         self.boundary_mix = float(boundary_mix)
         self.calibrate = bool(calibrate)
         # boundary vertices: ends of edges used by a single face
