@@ -180,3 +180,19 @@ def test_a_batch_member_from_a_small_cluster_spans_the_plane():
     start = np.arange(len(src)) < 40
     fit = refit_on_inliers(src, dst, start)
     assert fit.warp is not None and fit.inliers[:40].all() and not fit.inliers[40:].any()
+
+
+def test_an_image_size_with_hartleys_normalisation_is_refused():
+    """`size` belongs to the authors' normalisation; given with Hartley's (the default) it was ignored,
+    so a caller who meant the authors' spline got another one without a word."""
+    from geofeat.tps import fit_tps
+
+    rng = np.random.default_rng(0)
+    src = rng.uniform(0, 600, (12, 2))
+    dst = src + rng.normal(0, 2, src.shape)
+    with pytest.raises(ValueError, match="size"):
+        fit_tps(src, dst, size=(640, 480))
+    a = fit_tps(src, dst, normalisation="size", size=(640, 480))
+    b = fit_tps(src, dst)
+    np.testing.assert_allclose(a(src), dst, atol=1e-6)
+    np.testing.assert_allclose(b(src), dst, atol=1e-6)

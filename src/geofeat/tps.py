@@ -267,6 +267,9 @@ def fit_tps(src: np.ndarray, dst: np.ndarray, regularisation: float = 0.0, norma
     src, dst = check_pairs(src, dst, MIN_POINTS)
     check_regularisation(regularisation)
     if normalisation == "hartley":
+        if size is not None:  # it was ignored: a caller meaning the authors' normalisation got Hartley's
+            raise ValueError("size: only the 'size' normalisation uses the image size; give "
+                             "normalisation='size' with it, or leave size out")
         Ts, Td = hartley_transform(src), hartley_transform(dst)
     elif normalisation == "size":
         if size is None:
