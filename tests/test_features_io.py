@@ -198,3 +198,32 @@ def test_valid_flags_that_are_not_flags_are_refused(tmp_path):
         load_features(tmp_path / "scores.npz")
     f = Features(np.zeros((3, 2)), np.zeros((3, 4), np.float32), np.array([1, 0, 1], np.uint8))  # 0/1 still read
     assert f.valid.tolist() == [True, False, True]
+
+
+@pytest.mark.parametrize("name", ["brand", "dali", "tfeat-sim", "orb", "geobit"])
+def test_descriptors_record_the_keypoints_sizes_as_given(name, tmp_path):
+    """`Features.sizes` is the detector's keypoint diameter. BRAND, DaLI and the image-patch nets
+    recorded their 8 px stand-in for bare (N, 2) positions, which no detector gave (the other
+    descriptors recorded NaN), and a file written from them read back as if a detector had measured 8 px;
+    sizes and angles that were given come back as given, in the documented units."""
+    import warnings
+
+    from geofeat.descriptors import make_descriptor
+    from geofeat.frame import RGBDFrame
+    from geofeat.keypoints import Keypoints
+
+    rng = np.random.default_rng(0)
+    K = np.array([[150.0, 0, 79.5], [0, 150.0, 59.5], [0, 0, 1]])
+    frame = RGBDFrame(rng.random((120, 160)).astype(np.float32), np.full((120, 160), 0.5, np.float32), K)
+    xy = np.array([[80.0, 60.0], [60.0, 50.0]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        descriptor = make_descriptor(name)
+        bare = descriptor.compute(frame, xy)
+        given = descriptor.compute(frame, Keypoints(xy, [30.0, 300.0], [5.0, 12.0], [2.0, 1.0]))
+    assert np.isnan(bare.sizes).all()
+    path = tmp_path / "f.npz"
+    save_features(path, given)
+    back = load_features(path)
+    np.testing.assert_array_equal(back.sizes, [5.0, 12.0])
+    np.testing.assert_array_equal(back.angles, [30.0, 300.0])

@@ -451,3 +451,20 @@ def test_depth_nearer_than_a_camera_sees_is_warned_of():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         geofeat.RGBDFrame(image, np.full((120, 160), 0.06, np.float32), K_VGA / [[4], [4], [1]])
+
+
+def test_rotated90_turns_the_frames_own_gray_image():
+    """A frame with a colour image was rotated from that colour image: a frame from `with_image`
+    (a filtered gray image, the colour kept for display) came back with the unfiltered gray image,
+    so the 'same frame rolled' was another image, even for k = 0 or 4."""
+    rng = np.random.default_rng(0)
+    colour = (rng.random((60, 80, 3)) * 255).astype(np.uint8)
+    K = np.array([[80.0, 0, 39.5], [0, 80.0, 29.5], [0, 0, 1]])
+    frame = geofeat.RGBDFrame(colour, np.ones((60, 80), np.float32), K)
+    filtered = frame.with_image(np.clip(frame.image * 0.5 + 0.2, 0, 1))
+    for k in range(-1, 5):
+        turned = filtered.rotated90(k)
+        np.testing.assert_array_equal(turned.image, np.rot90(filtered.image, k))
+        np.testing.assert_array_equal(turned.color, np.rot90(colour, k))
+        assert turned.image.flags.c_contiguous and not np.shares_memory(turned.image, filtered.image)
+        np.testing.assert_array_equal(frame.rotated90(k).image, np.rot90(frame.image, k))

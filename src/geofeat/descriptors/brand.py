@@ -40,6 +40,7 @@ from ..constants import DEFAULT_RADIUS_M
 from ..depth import backproject
 from ..features import Features
 from ..frame import RGBDFrame
+from ..keypoints import as_keypoints
 from .patches import keypoint_arrays
 from .settings import merge_settings
 
@@ -125,7 +126,9 @@ class BRAND:
         if depth.shape != frame.image.shape or not (depth > 0).any():
             raise ValueError(f"frame: BRAND needs a depth map of the image's shape {frame.image.shape} with "
                              f"valid (> 0) values, got shape {depth.shape}")
-        xy, angles, sizes = keypoint_arrays(keypoints, "brand", depth.shape)
+        kps = as_keypoints(keypoints, depth.shape)
+        xy, angles, _ = keypoint_arrays(kps, "brand", depth.shape)
+        sizes = kps.sizes  # the detector's (NaN: none given), as every descriptor records them
         n, nb = len(xy), len(self.pattern)
         H, W = depth.shape
         normals, points = surface_normals(depth, frame.K)

@@ -55,6 +55,7 @@ from tqdm import tqdm
 
 from ..features import Features
 from ..frame import RGBDFrame
+from ..keypoints import as_keypoints
 from .patches import cartesian_grid, keypoint_arrays, sample_patches
 from .settings import merge_settings
 from ..inputs import check_whole
@@ -233,7 +234,8 @@ class DaLI:
         bare (N, 2) pixels: 8 px diameter)."""
         if not hasattr(frame, "image"):
             raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
-        xy, angles, sizes = keypoint_arrays(keypoints, "dali", frame.image.shape[:2])
+        kps = as_keypoints(keypoints, frame.image.shape[:2])
+        xy, angles, sizes = keypoint_arrays(kps, "dali", frame.image.shape[:2])
         grid = cartesian_grid(GRID) * (GRID / (GRID - 1))  # vertex spacing = support radius / ((GRID-1)/2)
         patches = sample_patches(frame.image, xy, angles, RADIUS_FACTOR * sizes, grid)
-        return Features(xy, self.describe_patches(patches), np.ones(len(xy), bool), angles=angles, sizes=sizes)
+        return Features(xy, self.describe_patches(patches), np.ones(len(xy), bool), angles=angles, sizes=kps.sizes)

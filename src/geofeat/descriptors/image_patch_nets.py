@@ -43,7 +43,7 @@ import torch.nn.functional as F
 
 from ..features import Features
 from ..frame import RGBDFrame
-from ..keypoints import Keypoints
+from ..keypoints import Keypoints, as_keypoints
 from .patches import cartesian_grid, keypoint_arrays, logpolar_grid, sample_patches
 from .settings import merge_settings
 from ..inputs import check_whole
@@ -201,7 +201,8 @@ class ImagePatchDescriptor:
         """Features of `keypoints` (Keypoints, cv2.KeyPoint list, or (N, 2) pixels: angle 0, size 8 px)."""
         if not hasattr(frame, "image"):
             raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
-        xy, angles, sizes = keypoint_arrays(keypoints, self.name, frame.image.shape[:2])
+        kps = as_keypoints(keypoints, frame.image.shape[:2])
+        xy, angles, sizes = keypoint_arrays(kps, self.name, frame.image.shape[:2])
         patches = image_patches(frame.image, Keypoints(xy, angles, sizes, np.zeros(len(xy))), self.arch)
-        return Features(xy, self.describe(patches), np.ones(len(xy), bool), angles=angles, sizes=sizes)
+        return Features(xy, self.describe(patches), np.ones(len(xy), bool), angles=angles, sizes=kps.sizes)
 
