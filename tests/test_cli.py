@@ -258,3 +258,12 @@ def test_every_option_of_every_command_has_help():
     bare = [f"{name} {a.option_strings or a.dest}" for name, sub in commands.choices.items() for a in sub._actions
             if not a.help]
     assert not bare
+
+
+def test_demo_slope_noise_line_gives_its_unit_and_threshold(tmp_path, capsys):
+    """The demo printed "auto: measured slope noise 0.52", a bare number: neither its unit nor what it was compared with."""
+    from geofeat.cli.demo import _demo_patches
+
+    _demo_patches(tmp_path, 0.075, "auto")
+    line = next(l for l in capsys.readouterr().out.splitlines() if l.startswith("depth profile:"))
+    assert re.search(r"slope noise 0\.\d\d pixel footprints, above the kinect profile's threshold 0\.3\)", line), line

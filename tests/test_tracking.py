@@ -769,3 +769,15 @@ def test_a_sequence_of_one_frame_is_refused_before_any_other_is_tracked(tmp_path
     with pytest.raises(ValueError, match="sequence b: needs a reference frame and at least one other"):
         write_tracking([tmp_path / "data"], tmp_path / "out", ("sift",), progress=False)
     assert not (tmp_path / "out").exists()
+
+
+def test_every_track_csv_column_is_described_in_the_applications_page():
+    """docs/applications.md described track.csv without precision, visible_grid, refined, n_template,
+    n_frame or failed: columns a reader of the file found nowhere in the docs."""
+    from pathlib import Path
+
+    from geofeat.apps.tracking import TRACK_COLUMNS
+
+    page = (Path(__file__).resolve().parents[1] / "docs" / "applications.md").read_text()
+    described = page[page.index("Output: `track.csv`"):page.index("`<sequence>/<descriptor>/grid.npz`")]
+    assert [c for c in TRACK_COLUMNS if f"`{c}`" not in described] == []

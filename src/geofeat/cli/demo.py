@@ -23,7 +23,7 @@ def _profile_of(profile: str, frame) -> str:
 
 
 def _demo_patches(out: Path, radius: float, profile: str) -> None:
-    from ..depth import depth_noise
+    from ..depth import SLOPE_NOISE_THRESHOLD, depth_noise
     from ..geodesic.mesh import build_mesh
     from ..geodesic.polar import polar_patches
     from ..io import demo_data_dir, read_demo_frame, read_landmarks
@@ -34,8 +34,13 @@ def _demo_patches(out: Path, radius: float, profile: str) -> None:
     print(f"frame: {demo_data_dir() / 'cloud_1'} ({frame.shape[1]}x{frame.shape[0]}, "
           f"{(frame.depth == 0).mean():.1%} missing depth), {plural(len(landmarks), 'annotated keypoint')}")
     chosen = _profile_of(profile, frame)
-    print(f"depth profile: {chosen}" + (f" (auto: measured slope noise {depth_noise(frame.depth, frame.K).slope_noise:.2f})"
-                                        if profile == "auto" else ""))
+    if profile == "auto":  # the number with its unit and the threshold it was compared with
+        noise = depth_noise(frame.depth, frame.K).slope_noise
+        print(f"depth profile: {chosen} (auto: measured slope noise {noise:.2f} pixel footprints, "
+              f"{'above' if noise > SLOPE_NOISE_THRESHOLD else 'at most'} the kinect profile's threshold "
+              f"{SLOPE_NOISE_THRESHOLD:g})")
+    else:
+        print(f"depth profile: {chosen}")
     t0 = time.perf_counter()
     mesh = build_mesh(frame, chosen)
     t1 = time.perf_counter()
