@@ -87,7 +87,7 @@ def test_normalised_keypoints_and_another_image_size_are_refused(tmp_path):
 def test_a_keypoint_stored_twice_is_refused(tmp_path):
     """Copies took half the --keypoints budget and tied in matching: the matching score halved."""
     kp, desc, scores = _frame()
-    with pytest.raises(ValueError, match="40 of 80 keypoints repeat an earlier one"):
+    with pytest.raises(ValueError, match="40 of 80 keypoints repeat an earlier one.*--keypoint-set unique"):
         _load(_h5(tmp_path / "f.h5", {"f0": {"keypoints": np.r_[kp, kp], "descriptors": np.r_[desc, desc].T}}))
     other = desc.copy()
     other[:, 0] += 1  # one position, another descriptor (SIFT's second orientation): kept

@@ -124,7 +124,8 @@ def _check_no_repeats(kp: np.ndarray, desc: np.ndarray) -> None:
     unique = np.unique(rows, axis=0)
     if len(unique) < len(kp):
         raise ValueError(f"{len(kp) - len(unique)} of {len(kp)} keypoints repeat an earlier one, position and "
-                         "descriptor alike; store each once")
+                         "descriptor alike; store each once (geofeat extract: --keypoint-set unique, which a "
+                         "descriptor that ignores the keypoint angle, as GeoBit and GeoPatch do, needs)")
 
 
 class ExternalFeatures:
