@@ -246,3 +246,25 @@ def test_ransac_counts_that_fit_nothing_are_refused():
             fit_tps_ransac(src, dst, **kw)
     with pytest.raises(ValueError, match="refinements: expected a whole number >= 1"):
         refit_on_inliers(src, dst, np.ones(60, bool), refinements=0)
+
+
+def test_the_main_containers_print_a_summary_not_their_arrays():
+    """Printing a frame, keypoints, patches, features or matches (the README's examples do) gives one
+    line with their counts and units; the dataclasses' own reprs dumped every array."""
+    import numpy as np
+
+    import geofeat
+
+    frame = geofeat.read_demo_frame()
+    kps = geofeat.detect(frame, 300, detector="sift")
+    patches = geofeat.polar_patches(frame, kps)
+    feats = geofeat.extract(frame, 300)
+    matches = geofeat.match(feats, feats)
+    texts = [repr(x) for x in (frame, kps, patches, feats, matches)]
+    assert all("\n" not in t and len(t) < 160 and "array" not in t for t in texts), texts
+    assert texts[0].startswith("RGBDFrame(640x480") and " m, " in texts[0]
+    assert f"{len(kps)} keypoints" in texts[1] and " px" in texts[1]
+    assert f"{int(patches.valid.sum())} valid" in texts[2] and "m)" in texts[2]
+    assert f"descriptors {tuple(feats.descriptors.shape)} {feats.descriptors.dtype}" in texts[3]
+    assert f"{int((matches.matches0 >= 0).sum())} matched" in texts[4]
+    assert repr(geofeat.Keypoints(np.zeros((0, 2)), [], [], [])) == "Keypoints(0 keypoints)"

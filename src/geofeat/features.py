@@ -90,6 +90,12 @@ class Features:
     def __len__(self) -> int:
         return int(self.keypoints.shape[0])
 
+    def __repr__(self) -> str:  # the dataclass's printed every array in full
+        d = self.descriptors
+        extras = "".join(f", {name}" for name in ("angles", "sizes") if getattr(self, name) is not None)
+        return (f"Features({len(self)} keypoints, {int(self.valid.sum())} valid, descriptors {tuple(d.shape)} "
+                f"{d.dtype}{extras})")
+
 
 @dataclass
 class Matches:
@@ -114,6 +120,9 @@ class Matches:
 
     def __len__(self) -> int:
         return int(self.matches0.shape[0])
+
+    def __repr__(self) -> str:
+        return f"Matches({len(self)} keypoints of image 0, {int((self.matches0 >= 0).sum())} matched)"
 
     @property
     def pairs(self) -> np.ndarray:

@@ -200,6 +200,14 @@ class RGBDFrame:
         """(H, W) in pixels."""
         return self.image.shape  # type: ignore[return-value]
 
+    def __repr__(self) -> str:  # the dataclass's printed every array in full
+        H, W = self.shape
+        valid = self.depth > 0
+        depth = (f"depth {float(self.depth[valid].min()):.3g}-{float(self.depth[valid].max()):.3g} m, "
+                 f"{valid.mean():.0%} valid" if valid.any() else "no depth")
+        colour = "colour, " if self.color is not None else ""
+        return f"RGBDFrame({W}x{H}, {colour}{depth}, fx {self.K[0, 0]:.1f} fy {self.K[1, 1]:.1f} px)"
+
     def with_image(self, image: np.ndarray) -> "RGBDFrame":
         """This frame's depth and intrinsics (checked already, and shared, not copied) with another
         (H, W) gray image of the same shape, e.g. a filtered copy for a detector. The colour image is

@@ -65,6 +65,13 @@ class Keypoints:
     def __len__(self) -> int:
         return int(self.xy.shape[0])
 
+    def __repr__(self) -> str:  # the dataclass's printed every array in full
+        if not len(self):
+            return "Keypoints(0 keypoints)"
+        sizes = self.sizes[np.isfinite(self.sizes)]
+        span = f", sizes {sizes.min():.3g}-{sizes.max():.3g} px" if sizes.size else ""
+        return f"Keypoints({len(self)} keypoints{span})"
+
     def __getitem__(self, index) -> "Keypoints":
         """The keypoints at `index` (a slice, mask or index array); an integer gives a set of one."""
         if isinstance(index, (int, np.integer)) and not isinstance(index, bool):

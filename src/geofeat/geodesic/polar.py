@@ -57,6 +57,10 @@ class PolarPatches:
     def __len__(self) -> int:
         return len(self.keypoints)
 
+    def __repr__(self) -> str:  # the dataclass's printed every array in full
+        return (f"PolarPatches({len(self)} keypoints, {int(np.asarray(self.valid).sum())} valid, "
+                f"{self.values.shape[1]} rings x {self.values.shape[2]} angles, radius {self.radius:g} m)")
+
 
 def as_keypoint_array(keypoints, shape: tuple[int, int] | None = None) -> np.ndarray:
     """(N, 2) float64 pixel coordinates of keypoints given in any form `geofeat.keypoints.as_keypoints`
