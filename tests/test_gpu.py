@@ -412,3 +412,21 @@ def test_a_cuda_index_torch_does_not_see_is_a_value_error(monkeypatch):
     for device in ("cuda:7", "cuda:1", torch.device("cuda", 1)):
         with pytest.raises(ValueError, match="device: .*cuda:[17].*1 CUDA GPU"):
             torch_device(device)
+
+
+def test_device_records_print_a_summary_not_their_tensors(pair):
+    """DevicePatches, DeviceFeatures and DeviceMesh print one line (on CPU tensors here); the
+    dataclasses' reprs dumped every tensor."""
+    from geofeat.gpu import DeviceFeatures, DeviceMesh, DevicePatches
+
+    frame, kps = pair[0]
+    p = geofeat.polar_patches(frame, kps)
+    dp = DevicePatches(p.keypoints, torch.from_numpy(p.values), torch.from_numpy(p.coords), torch.from_numpy(p.valid),
+                       torch.from_numpy(p.rings_reached), torch.from_numpy(p.points), p.radius)
+    df = DeviceFeatures(p.keypoints, torch.zeros((len(p), 128)), torch.from_numpy(p.valid))
+    dm = DeviceMesh((torch.zeros((240, 320, 3)),), (), frame.K, (0.5, 0.5), frame.shape, torch.device("cpu"))
+    texts = [repr(x) for x in (dp, df, dm)]
+    assert all("\n" not in t and "tensor(" not in t and len(t) < 160 for t in texts), texts
+    assert f"{len(p)} keypoints" in texts[0] and "32 rings x 32 angles" in texts[0]
+    assert "descriptors (" in texts[1] and "torch.float32" in texts[1]
+    assert texts[2].startswith("DeviceMesh(320x240 grid for a 640x480 frame")

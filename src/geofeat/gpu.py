@@ -244,6 +244,10 @@ class DeviceMesh:
         """(N, 2) image pixel coordinates -> (N, 2) mesh pixel coordinates."""
         return image_to_mesh(xy, self.scale)
 
+    def __repr__(self) -> str:  # the dataclass's printed every tensor and numba view
+        Hm, Wm = self.tensors[0].shape[:2]
+        return f"DeviceMesh({Wm}x{Hm} grid for a {self.image_shape[1]}x{self.image_shape[0]} frame, on {self.device})"
+
     def to_host(self) -> GridMesh:
         """The `GridMesh` (walk tables included) on the host."""
         points, face_ok, normals, local, edges = (t.cpu().numpy() for t in self.tensors)
@@ -422,6 +426,10 @@ class DevicePatches:
     def __len__(self) -> int:
         return len(self.keypoints)
 
+    def __repr__(self) -> str:  # the dataclass's printed every tensor
+        return (f"DevicePatches({len(self)} keypoints on {self.values.device}, {self.values.shape[1]} rings x "
+                f"{self.values.shape[2]} angles, radius {self.radius:g} m)")
+
     def to_host(self):
         """The `PolarPatches` on the host (one copy per array)."""
         from .geodesic.polar import PolarPatches
@@ -489,6 +497,10 @@ class DeviceFeatures:
 
     def __len__(self) -> int:
         return len(self.keypoints)
+
+    def __repr__(self) -> str:  # the dataclass's printed every tensor
+        d = self.descriptors
+        return f"DeviceFeatures({len(self)} keypoints, descriptors {tuple(d.shape)} {d.dtype} on {d.device})"
 
     def to_host(self) -> Features:
         return Features(self.keypoints, self.descriptors.cpu().numpy(), self.valid.cpu().numpy(), self.angles,
