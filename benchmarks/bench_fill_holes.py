@@ -14,7 +14,6 @@ import argparse
 import importlib.util
 import os
 import sys
-import time
 
 import cv2
 import numpy as np
@@ -22,15 +21,12 @@ import numpy as np
 import geofeat
 from geofeat.depth import fill_holes
 
+from common import best_of
+
 
 def best_ms(fn, repeats: int) -> float:
-    fn()
-    best = float("inf")
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t)
-    return best * 1e3
+    fn()  # warm-up: numba's compiled code loads on the first call
+    return best_of(fn, repeats) * 1e3
 
 
 def load_previous(src: str):

@@ -6,13 +6,13 @@ import os
 import time
 
 
-def busy_cpu_seconds() -> float | None:
+def busy_cpu_seconds(stat_path: str = "/proc/stat") -> float | None:
     """CPU seconds that all processes on this machine have spent busy since boot (Linux's /proc/stat:
     user, nice, system, irq, softirq and steal time of all cores), or None where it cannot be read.
     Its change over a timed block, less this process's CPU time, is what other processes (and the
     hypervisor, as steal) took from the cores meanwhile (`others_cores`)."""
     try:
-        with open("/proc/stat") as fh:
+        with open(stat_path) as fh:
             fields = fh.readline().split()
     except OSError:
         return None

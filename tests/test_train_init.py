@@ -236,13 +236,14 @@ def test_the_validation_score_says_what_it_measures(tmp_path, capsys):
 def test_a_checkpoint_loaded_for_another_device_restores_its_random_state(tmp_path):
     """`train(..., resume=True, device="cuda")` loaded the checkpoint with map_location=cuda, which
     moved the saved CPU random state onto the GPU too; torch.set_rng_state refused it and the resume
-    failed as "is not a checkpoint of this network". "meta" stands in for the GPU here: any device
-    but the CPU moved it the same way."""
+    failed as "is not a checkpoint of this network". The state is now read onto the CPU whatever
+    the training device."""
     from geofeat.train.loop import load_resume_state
 
     config = TrainConfig(epochs=1, steps_per_epoch=1, batch_size=8, net=NET)
     train(_data(), tmp_path / "w.pt", config, progress=False, device="cpu")
-    state = load_resume_state(tmp_path / "w.pt.ckpt", config, device=torch.device("meta"))
+    state = load_resume_state(tmp_path / "w.pt.ckpt", config)
+    assert state["torch_rng"].device.type == "cpu"
     saved = torch.get_rng_state()
     try:
         torch.set_rng_state(state["torch_rng"])

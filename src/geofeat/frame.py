@@ -235,7 +235,7 @@ class RGBDFrame:
         image = self.color if self.color is not None else self.image
         fx, fy, cx, cy, s = K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]
         if k == 0:
-            return self._turned(RGBDFrame(image, self.depth, K), 0)
+            return RGBDFrame(image, self.depth, K).with_image(self.image.copy())
         if k in (1, 3) and abs(s) > 1e-9:  # the skew would land in K[1, 0], which no camera matrix here has
             raise ValueError(f"K: rotated90 by an odd number of quarter turns needs no skew, got K[0, 1] = {s:g}")
         if k == 1:  # new (x', y') = (y, W - 1 - x)
@@ -244,15 +244,9 @@ class RGBDFrame:
             Kn = np.array([[fx, s, W - 1 - cx], [0, fy, H - 1 - cy], [0, 0, 1.0]])
         else:  # new (x', y') = (H - 1 - y, x)
             Kn = np.array([[fy, 0, H - 1 - cy], [0, fx, cx], [0, 0, 1.0]])
-        return self._turned(RGBDFrame(np.ascontiguousarray(np.rot90(image, k)),
-                                      np.ascontiguousarray(np.rot90(self.depth, k)), Kn), k)
-
-    def _turned(self, frame: "RGBDFrame", k: int) -> "RGBDFrame":
-        """`frame` (made from this frame's colour image, or gray when it has none) with this frame's
-        gray image turned by `k` quarter turns: a frame from `with_image` (a filtered gray image)
-        keeps its colour image for display only, and its gray image is the one that is described."""
-        object.__setattr__(frame, "image", np.rot90(self.image, k).copy())  # C order, its own copy
-        return frame
+        # this frame's own gray image, turned: after `with_image` it is not its colour image's gray
+        return RGBDFrame(np.ascontiguousarray(np.rot90(image, k)), np.ascontiguousarray(np.rot90(self.depth, k)),
+                         Kn).with_image(np.rot90(self.image, k).copy())
 
 
 def check_frame(frame, what: str = "frame") -> RGBDFrame:

@@ -125,15 +125,15 @@ def load_init(init: str | Path, config: GeoPatchConfig) -> GeoPatchNet:
     return start
 
 
-def load_resume_state(ckpt_path: str | Path, config: TrainConfig, device=None) -> dict:
+def load_resume_state(ckpt_path: str | Path, config: TrainConfig) -> dict:
     """The state `train` saved in `ckpt_path` after its last epoch, to resume with `config`; ValueError
     naming the file when it cannot be read as one, or was written with other settings (resuming
     with another schedule would silently train a different run). Called by `train` and, before any
-    patches are built, by the `train` command. The state is read onto the CPU whatever `device` (the
-    device `train` trains on, which `load_state_dict` copies the weights and optimizer state to)."""
+    patches are built, by the `train` command. The state is read onto the CPU, whatever device `train`
+    trains on (`load_state_dict` copies the weights and optimizer state there)."""
     ckpt_path = Path(ckpt_path)
     try:
-        # on the CPU whatever `device`: torch's random state must stay there (torch.set_rng_state refuses
+        # on the CPU whatever the training device: torch's random state must stay there (torch.set_rng_state refuses
         # a GPU tensor, so no resume on a GPU worked), and the network and optimizer copy theirs when loaded
         state = torch.load(str(ckpt_path), map_location="cpu", weights_only=False)
         written_with = state["history"]["config"]
@@ -282,7 +282,7 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
         warnings.warn(f"resume: no {ckpt_path} to resume from (no earlier run stopped here); training from the "
                       "first epoch", UserWarning, stacklevel=2)
     if resume and ckpt_path.is_file():
-        state = load_resume_state(ckpt_path, config, device)
+        state = load_resume_state(ckpt_path, config)
         try:
             net.load_state_dict(state["state_dict"])
             opt.load_state_dict(state["optimizer"])
