@@ -122,7 +122,10 @@ def mesh_device(device="cuda") -> str:
 
 
 def _as_numba(t):
-    """A numba device array viewing torch CUDA tensor `t` (no copy, no synchronisation)."""
+    """A numba device array viewing torch CUDA tensor `t` (no copy, no synchronisation); anything
+    that is not a torch tensor (a view made before, e.g. outside a CUDA graph's capture) as it is."""
+    if not hasattr(t, "detach"):
+        return t
     if simulated():
         return t.detach().numpy()
     from numba import cuda
@@ -273,31 +276,57 @@ def build_mesh_cuda(frame: RGBDFrame, config: DepthConfig | str = "auto", max_ed
     `mesh.frame_fingerprint`, when the caller has just computed it."""
     import torch
 
-    from .depth import filled_depth, resolve_depth_config, scale_intrinsics
-    from .geodesic.walk_cuda import mesh_faces_cuda
+    from .depth import filled_depth, resolve_depth_config
 
     dev = require_cuda(device)
     config = resolve_depth_config(config, frame)
     depth = filled_depth(frame.depth, config)  # on the host
-    smoothed = smooth_depth_torch(torch.from_numpy(depth).to(dev, non_blocking=False), config.smooth_levels,
-                                  config.mesh_scale)
-    H, W = frame.shape
+    source = fingerprint if fingerprint is not None else frame_fingerprint(frame)
+    return mesh_from_depth(torch.from_numpy(depth).to(dev, non_blocking=False), config, frame.K, max_edge_stretch,
+                           source=source)
+
+
+def mesh_from_depth(depth, config: DepthConfig, K: np.ndarray, max_edge_stretch: float = MAX_EDGE_STRETCH,
+                    out: DeviceMesh | None = None, source: tuple | None = None) -> DeviceMesh:
+    """The device part of `build_mesh_cuda`: the (H, W) float32 depth tensor (metres, holes already
+    filled: `depth.filled_depth`) -> `DeviceMesh`, with nothing read back to the host (a CUDA graph
+    can hold it, `gpu_graph.FrameGraph`). `K`: the frame's (3, 3) intrinsics. `out`: a DeviceMesh of
+    the same sizes to write into, its tensors and numba views kept (as a graph needs); by default
+    a new one."""
+    import torch
+
+    from .depth import scale_intrinsics
+    from .geodesic.walk_cuda import mesh_faces_cuda
+
+    dev = depth.device
+    smoothed = smooth_depth_torch(depth, config.smooth_levels, config.mesh_scale)
+    H, W = depth.shape
     Hm, Wm = smoothed.shape
     scale = (Wm / W, Hm / H)
-    K = scale_intrinsics(frame.K, *scale)
-    points = backproject_torch(smoothed, K).contiguous()
-    cells = (Hm - 1, Wm - 1, 2)
-    face_ok = torch.zeros(cells, dtype=torch.bool, device=dev)
-    normals = torch.zeros(cells + (3,), dtype=torch.float64, device=dev)
-    local = torch.zeros(cells + (3,), dtype=torch.float64, device=dev)
-    edges = torch.zeros(cells + (3, 2), dtype=torch.float64, device=dev)
-    tensors = (points, face_ok, normals, local, edges)
+    K_mesh = scale_intrinsics(K, *scale)
+    if out is None:
+        points = backproject_torch(smoothed, K_mesh).contiguous()
+        cells = (Hm - 1, Wm - 1, 2)
+        face_ok = torch.zeros(cells, dtype=torch.bool, device=dev)
+        normals = torch.zeros(cells + (3,), dtype=torch.float64, device=dev)
+        local = torch.zeros(cells + (3,), dtype=torch.float64, device=dev)
+        edges = torch.zeros(cells + (3, 2), dtype=torch.float64, device=dev)
+        tensors = (points, face_ok, normals, local, edges)
+        with _numba_on(dev):
+            tables = tuple(_as_numba(t) for t in tensors)
+        out = DeviceMesh(tensors, tables, K_mesh, scale, (H, W), dev, source)
+    else:
+        if tuple(out.tensors[0].shape[:2]) != (Hm, Wm):
+            raise ValueError(f"out: a {tuple(out.tensors[0].shape[:2])} mesh, not {(Hm, Wm)}")
+        out.tensors[0].copy_(backproject_torch(smoothed, K_mesh))
+        for t in out.tensors[1:]:
+            t.zero_()
+        out.source = source
     with _numba_on(dev):
-        tables = tuple(_as_numba(t) for t in tensors)
-        mesh_faces_cuda(tables[0], mean_focal(K), float(max_edge_stretch), out=tables[1:],
+        tables = out.tables
+        mesh_faces_cuda(tables[0], mean_focal(K_mesh), float(max_edge_stretch), out=tables[1:],
                         stream=_numba_stream(dev))
-    source = fingerprint if fingerprint is not None else frame_fingerprint(frame)
-    return DeviceMesh(tensors, tables, K, scale, (H, W), dev, source)
+    return out
 
 
 def device_mesh_tables(mesh, dev) -> tuple:
@@ -459,29 +488,65 @@ def polar_patches_cuda(frame: RGBDFrame, keypoints, radius: float = DEFAULT_RADI
         mesh = frame_mesh(frame, depth_config, device=mesh_device(dev))
     else:  # of this frame (a host GridMesh also knows its frame's depth and intrinsics)
         check_mesh_shape(mesh, frame)
-    points, face_ok, normals, local, edges = device_mesh_tables(mesh, dev)
     starts = walk_starts(mesh, kp)
     host = torch.from_numpy(np.concatenate([starts.ravel(), np.asarray(frame.K, np.float64).ravel()]))
     upload = host.to(dev, non_blocking=False)
     starts_t, K_t = upload[:starts.size].view(-1, 2), upload[starts.size:].view(3, 3)
-    N = len(kp)
-    samples = torch.empty((N, n_rings, n_angles, 3), dtype=torch.float32, device=dev)
-    coords = torch.empty((N, n_rings, n_angles, 2), dtype=torch.float32, device=dev)
-    reached = torch.empty((N, n_angles), dtype=torch.int32, device=dev)
-    faces = torch.full((N, 3), -1, dtype=torch.int64, device=dev)
-    centre = torch.full((N, 3), float("nan"), dtype=torch.float64, device=dev)
-    frames = torch.zeros((N, 3, 3), dtype=torch.float64, device=dev)
-    with _numba_on(dev):
-        out = tuple(_as_numba(t) for t in (samples, coords, reached, faces, centre, frames))
-        walk_polar_cuda(points, face_ok, normals, local, edges, _as_numba(starts_t), _as_numba(K_t), float(radius),
-                        int(n_angles), int(n_rings), MAX_CROSSINGS, out=out, stream=_numba_stream(dev))
-    valid = (reached >= 1).double().mean(1) >= MIN_DIRECTION_SHARE  # patch_validity, the same float64 mean
-    coords = torch.where(valid[:, None, None, None], coords, torch.full((), float("nan"), device=dev))
     if image is None:
         image = gaussian_blur_torch(torch.from_numpy(np.ascontiguousarray(frame.image, np.float32)).to(dev),
                                     float(blur_px))
-    values = sample_bilinear_torch(image, coords)
-    return DevicePatches(kp, values, coords, valid, reached, samples, float(radius))
+    walk = WalkBuffers(len(kp), n_rings, n_angles, dev)
+    values, valid = walk_and_sample(device_mesh_tables(mesh, dev), starts_t, K_t, image, radius, walk)
+    return DevicePatches(kp, values, walk.coords, valid, walk.reached, walk.samples, float(radius))
+
+
+class WalkBuffers:
+    """The walk's output tensors for N keypoints on device `dev`, with their numba views (made once:
+    a CUDA graph replays the same memory): samples (N, R, A, 3) float32, coords (N, R, A, 2) float32
+    (NaN where the patch is invalid, after `walk_and_sample`), reached (N, A) int32, and the
+    per-keypoint scratch of the tangent frames (faces, centre, frames)."""
+
+    def __init__(self, n: int, n_rings: int, n_angles: int, dev) -> None:
+        import torch
+
+        self.n_rings, self.n_angles = n_rings, n_angles
+        self.samples = torch.empty((n, n_rings, n_angles, 3), dtype=torch.float32, device=dev)
+        self.coords = torch.empty((n, n_rings, n_angles, 2), dtype=torch.float32, device=dev)
+        self.reached = torch.empty((n, n_angles), dtype=torch.int32, device=dev)
+        self.faces = torch.empty((n, 3), dtype=torch.int64, device=dev)
+        self.centre = torch.empty((n, 3), dtype=torch.float64, device=dev)
+        self.frames = torch.empty((n, 3, 3), dtype=torch.float64, device=dev)
+        with _numba_on(dev):
+            self.views = tuple(_as_numba(t) for t in (self.samples, self.coords, self.reached, self.faces,
+                                                      self.centre, self.frames))
+
+
+def walk_and_sample(tables: tuple, starts, K, image, radius: float, walk: WalkBuffers, mask=None):
+    """The device part of `polar_patches_cuda`, with nothing read back to the host (a CUDA graph can
+    hold it): the walk from the (N, 2) float64 mesh-pixel `starts` tensor over the mesh `tables`
+    (`device_mesh_tables`) with the frame's (3, 3) float64 intrinsics tensor `K` (either may be its
+    numba view already), into `walk`; the
+    patches' validity (`patch_validity`), and `image` (the (H, W) float32 sampling image, blurred)
+    read at the valid patches' sample points. `mask`: optional (N,) bool tensor; False marks a
+    keypoint invalid whatever its walk (padding). Returns (values (N, R, A) float32, valid (N,) bool)
+    and leaves the NaN-masked coordinates in `walk.coords`."""
+    from .geodesic.walk import MAX_CROSSINGS
+    from .geodesic.walk_cuda import walk_polar_cuda
+
+    dev = walk.samples.device
+    walk.faces.fill_(-1)  # `walk.tangent_frames`' start values
+    walk.centre.fill_(float("nan"))
+    walk.frames.zero_()
+    with _numba_on(dev):
+        points, face_ok, normals, local, edges = tables
+        walk_polar_cuda(points, face_ok, normals, local, edges, _as_numba(starts), _as_numba(K), float(radius),
+                        int(walk.n_angles), int(walk.n_rings), MAX_CROSSINGS, out=walk.views,
+                        stream=_numba_stream(dev))
+    valid = (walk.reached >= 1).double().mean(1) >= MIN_DIRECTION_SHARE  # patch_validity, the same float64 mean
+    if mask is not None:
+        valid = valid & mask
+    walk.coords.masked_fill_(~valid[:, None, None, None], float("nan"))
+    return sample_bilinear_torch(image, walk.coords), valid
 
 
 @dataclass
@@ -507,6 +572,15 @@ class DeviceFeatures:
                         self.sizes)
 
 
+def check_gpu_descriptor(descriptor) -> None:
+    """ValueError unless `descriptor` is a GeoPatch with the torch backend on a CUDA device (any
+    device under the simulator)."""
+    on_gpu = simulated() or is_cuda_device(getattr(descriptor, "device", None))
+    if not on_gpu or getattr(descriptor, "backend", None) != "torch":
+        raise ValueError("descriptor: the GPU path needs a GeoPatch on a CUDA device "
+                         "(GeoPatch(device='cuda', backend='torch'))")
+
+
 def compute_cuda(descriptor, frame: RGBDFrame, keypoints, mesh: GridMesh | DeviceMesh | None = None,
                  half: bool = False) -> DeviceFeatures:
     """GeoPatch features of `keypoints` on the GPU: `GeoPatch.compute` with the walk, the sampling
@@ -514,10 +588,7 @@ def compute_cuda(descriptor, frame: RGBDFrame, keypoints, mesh: GridMesh | Devic
     under float16 autocast (`GeoPatch.describe_tensor`)."""
     from .keypoints import as_keypoints
 
-    on_gpu = simulated() or is_cuda_device(getattr(descriptor, "device", None))
-    if not on_gpu or getattr(descriptor, "backend", None) != "torch":
-        raise ValueError("descriptor: the GPU path needs a GeoPatch on a CUDA device "
-                         "(GeoPatch(device='cuda', backend='torch'))")
+    check_gpu_descriptor(descriptor)
     kps = as_keypoints(keypoints, frame.shape)
     patches = polar_patches_cuda(frame, kps, radius=descriptor.radius, depth_config=descriptor.depth_config,
                                  mesh=mesh, blur_px=descriptor.blur_px, device=descriptor.device)

@@ -733,8 +733,20 @@ def _l2_search_torch(d0, d1, valid0, valid1, want_cols):
     """`_l2_search` on torch tensors of one device (the GPU path): the same float32 (float64 for
     float64 input) squared distances |a|^2 + |b|^2 - 2 a.b of the descriptors less their valid rows'
     mean, as one matrix product (TF32 off), the same tie rules (first index, as torch.argmin) on the
-    squared distances, and the square roots of the best two in float64 on the host. Returns numpy
-    arrays like `_l2_search`."""
+    squared distances (`_l2_search_device`), and the square roots of the best two in float64 on the
+    host. Returns numpy arrays like `_l2_search`."""
+    bd, best_j, second, col_j = _l2_search_device(d0, d1, valid0, valid1, want_cols)
+
+    def root(x):  # numpy's float64 square root (correctly rounded), as `_l2_search`
+        return np.sqrt(x.cpu().numpy().astype(np.float64))
+
+    return (root(bd), best_j.cpu().numpy(), root(second), None if col_j is None else col_j.cpu().numpy())
+
+
+def _l2_search_device(d0, d1, valid0, valid1, want_cols):
+    """The device part of `_l2_search_torch`, with no read back to the host (a CUDA graph can hold
+    it): tensors (best squared distance (N0,), best index (N0,) int64 (-1: none), second squared
+    distance (N0,), best row per column (N1,) or None)."""
     import torch
 
     dtype = torch.float64 if torch.float64 in (d0.dtype, d1.dtype) else torch.float32
@@ -753,7 +765,7 @@ def _l2_search_torch(d0, d1, valid0, valid1, want_cols):
     # float32 square root merges neighbours at distances above 2048, and torch's float64 one on the
     # CPU gave sqrt(32) one unit in the last place low, which flipped the ratio test at 0.8 sqrt(50))
     dist = ((a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2.0 * ab).clamp_min(0.0)
-    inf = torch.tensor(float("inf"), dtype=dist.dtype, device=dist.device)
+    inf = torch.full((), float("inf"), dtype=dist.dtype, device=dist.device)  # a fill, not a host copy
     dist = torch.where(valid1[None, :] & valid0[:, None], dist, inf)
     j = dist.argmin(1)
     rows = torch.arange(len(j), device=dist.device)
@@ -765,11 +777,7 @@ def _l2_search_torch(d0, d1, valid0, valid1, want_cols):
         second = dist.amin(1)
     else:
         second = torch.full_like(bd, float("inf"))
-
-    def root(x):  # numpy's float64 square root (correctly rounded), as `_l2_search`
-        return np.sqrt(x.cpu().numpy().astype(np.float64))
-
-    return (root(bd), best_j.cpu().numpy(), root(second), None if col_j is None else col_j.cpu().numpy())
+    return bd, best_j, second, col_j
 
 
 @njit(parallel=True, cache=True)
