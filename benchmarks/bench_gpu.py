@@ -62,7 +62,11 @@ def main() -> None:
     from geofeat.keypoints import detect
     from geofeat.matching import match
 
-    dev = require_cuda("cuda")  # under NUMBA_ENABLE_CUDASIM=1 (a smoke test of this script): the CPU
+    try:
+        dev = require_cuda("cuda")  # under NUMBA_ENABLE_CUDASIM=1 (a smoke test of this script): the CPU
+    except RuntimeError as error:  # `make bench` on a machine without a GPU
+        print(f"bench_gpu: skipped: {error}")
+        return
     sim = simulated()
     name = "CUDA simulator (CPU)" if sim else torch.cuda.get_device_name(dev)
     print(f"device: {name}; torch {torch.__version__} (CUDA {torch.version.cuda}); "
