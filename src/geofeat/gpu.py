@@ -478,9 +478,6 @@ def polar_patches_cuda(frame: RGBDFrame, keypoints, radius: float = DEFAULT_RADI
     device, to skip the upload and blur when several calls share a frame."""
     import torch
 
-    from .geodesic.walk import MAX_CROSSINGS
-    from .geodesic.walk_cuda import walk_polar_cuda
-
     dev = require_cuda(device)
     kp = check_patch_request(frame, keypoints, radius, n_angles, n_rings)
     check_blur_px(blur_px)  # as the CPU's `sampling_image` (a negative one was no blur, one over 20 px ran)
