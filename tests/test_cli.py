@@ -80,6 +80,47 @@ def test_extract_and_match_on_a_sequence(rolled_sequence, tmp_path, capsys):
     assert (tmp_path / "m" / "cloud_ref__cloud_roll30__geobit.png").exists()
 
 
+def test_extract_on_the_gpu_is_refused_clearly_where_it_cannot_run(rolled_sequence, tmp_path, capsys):
+    """`extract --device`: a device that is neither the CPU nor CUDA, a descriptor the GPU path does not
+    compute (the default GeoBit, ORB, GeoPatch from an .onnx file) and, on a machine without a CUDA
+    GPU, CUDA itself are one-line usage errors naming the flag, before any frame is read."""
+    import torch
+
+    seq, out = str(rolled_sequence), str(tmp_path / "f.h5")
+    onnx = tmp_path / "x.onnx"
+    onnx.write_bytes(b"")  # the option's own check wants the file to exist
+    cases = [(["--device", "tpu"], "--device: expected cpu, cuda or cuda:N"),
+             (["--device", "cuda"], "GeoPatch with torch weights only"),
+             (["--device", "cuda", "--descriptor", "orb"], "not orb"),
+             (["--device", "cuda", "--descriptor", f"geopatch={onnx}"], "x.onnx")]
+    if not torch.cuda.is_available():
+        cases.append((["--device", "cuda", "--descriptor", "geopatch"], "--device cuda: "))
+    for extra, message in cases:
+        assert main(["extract", seq, "--out", out, "--keypoints", "50", *extra]) == 2, extra
+        err = capsys.readouterr().err
+        assert err.startswith("geofeat extract: error: ") and message in err, (extra, err)
+    assert not (tmp_path / "f.h5").exists()
+
+
+@pytest.mark.skipif(not __import__("torch").cuda.is_available(), reason="no CUDA GPU")
+def test_extract_on_the_gpu_equals_the_torch_backend_on_the_cpu(rolled_sequence, tmp_path, monkeypatch):
+    """`extract --device cuda` writes the GPU path's GeoPatch features: the same keypoints as the CPU
+    run, descriptors within 1e-4 of the CPU's torch backend (`geofeat.gpu`'s tolerance) on all but the
+    rays that graze a mesh vertex (`test_gpu.test_gpu_path_equals_cpu_path`)."""
+    import numpy as np
+
+    monkeypatch.setenv("GEOFEAT_GEOPATCH_BACKEND", "torch")
+    cpu, gpu = tmp_path / "cpu.h5", tmp_path / "gpu.h5"
+    args = ["extract", str(rolled_sequence), "--descriptor", "geopatch", "--keypoints", "300"]
+    assert main([*args, "--out", str(cpu)]) == 0
+    assert main([*args, "--out", str(gpu), "--device", "cuda"]) == 0
+    for name in ("cloud_ref", "cloud_roll30"):
+        a, b = geofeat.load_features(cpu, name=name), geofeat.load_features(gpu, name=name)
+        np.testing.assert_array_equal(a.keypoints, b.keypoints)
+        err = np.abs(a.descriptors - b.descriptors).max(1)
+        assert np.quantile(err, 0.99) < 1e-4 and err.max() < 1e-2
+
+
 def test_match_prints_the_matches_without_ground_truth_apart_from_the_wrong_ones(rolled_sequence, tmp_path, capsys,
                                                                                  monkeypatch):
     """`match` printed "N matches, C correct", so matches whose target keypoint has no ground truth

@@ -16,6 +16,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     frames_options(p)
     p.add_argument("--out", required=True, help="features file (.h5 or .npz) or folder")
     p.add_argument("--overwrite", action="store_true", help="replace an existing features file")
+    p.add_argument("--device", default="cpu",
+                   help="cpu (default), or cuda / cuda:N: GeoPatch's walk, sampling and CNN on the GPU "
+                        "(geofeat[cuda]; torch weights, descriptors within 1e-4 of the torch backend's)")
     p.set_defaults(func=run)
     return p
 
@@ -23,6 +26,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Describe every frame of a sequence and write the features file(s); 1 when a frame was skipped."""
     detection = resolve_detection(args)  # resolved once, for every frame
+    gpu = check_device(args.device, args.descriptor)
     import os
 
     from tqdm import tqdm
@@ -50,7 +54,11 @@ def run(args: argparse.Namespace) -> int:
     if not is_h5(path):  # a killed run's half-written .npz files (the .h5's `atomic_file` clears its own)
         clear_stale_partials(*finals)
     profile = sequence_depth_profile(seq, args.depth_profile)
-    descriptor = make_descriptor(args.descriptor, radius=radius, depth_config=PROFILES[profile])
+    options = {"device": args.device, "backend": "torch"} if gpu else {}
+    try:
+        descriptor = make_descriptor(args.descriptor, radius=radius, depth_config=PROFILES[profile], **options)
+    except RuntimeError as error:  # no CUDA GPU for torch (`gpu.torch_device`)
+        raise ValueError(f"--device {args.device}: {error}") from None
     print(f"{seq.name}: depth profile {profile}, {detection}, "
           f"radius {radius:g} m")
     skipped: list[str] = []
@@ -61,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
             for name in tqdm(seq.names, desc=f"extract {args.descriptor}", unit="frame"):
                 try:
                     frame, kps = frame_and_keypoints(seq, name, args)
-                    features = descriptor.compute(frame, kps)
+                    features = descriptor.compute_cuda(frame, kps).to_host() if gpu else descriptor.compute(frame, kps)
                 except ValueError as error:
                     skip_frame(skipped, name, error)
                     continue
@@ -94,3 +102,24 @@ def run(args: argparse.Namespace) -> int:
                                        + f" keypoints per frame of --keypoints {args.keypoints})")
     print(f"wrote {args.descriptor} features of {plural(len(seq) - len(skipped), 'frame')} of {seq.folder}{per_frame} to {where}")
     return status
+
+
+def check_device(device: str, descriptor: str) -> bool:
+    """Whether `--device` asks for the GPU path (ValueError naming the flag for a device that is
+    neither the CPU nor CUDA, for a descriptor the GPU path does not compute, or when no CUDA GPU
+    can be used: `gpu.require_cuda` says what is missing)."""
+    from ..gpu import is_cuda_device, require_cuda
+
+    if not is_cuda_device(device):
+        if device != "cpu":
+            raise ValueError(f"--device: expected cpu, cuda or cuda:N, got {device!r}")
+        return False
+    base, _, weights = descriptor.partition("=")
+    if base != "geopatch" or weights.lower().endswith(".onnx"):
+        raise ValueError(f"--device {device}: the GPU path computes GeoPatch with torch weights only (--descriptor "
+                         f"geopatch or geopatch=WEIGHTS.pt), not {descriptor}")
+    try:
+        require_cuda(device)
+    except RuntimeError as error:
+        raise ValueError(f"--device {device}: {error}") from None
+    return True
