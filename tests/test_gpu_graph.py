@@ -193,3 +193,17 @@ xy = np.array([[30.0, 20.0]])
 np.testing.assert_array_equal(got.image_to_mesh(xy), want.image_to_mesh(xy))
 """))
 
+
+def test_a_reference_without_keypoints_is_refused_in_cuda_simulator():
+    """A FrameGraph with a reference of no keypoints: refused with a ValueError naming `reference`
+    (it was built, and every frame then failed inside the search: torch's argmin over no rows)."""
+    _simulated(_frame_script(r"""
+small = frame(48, 56)
+net = GeoPatch(device="cpu", backend="torch", depth_config="quantised")
+empty = Features(np.zeros((0, 2)), np.zeros((0, 128), np.float32), np.zeros(0, bool))
+try:
+    FrameGraph(net, small, n=4, reference=empty).compute(small, [[20.0, 20.0]])
+    raise AssertionError("accepted an empty reference")
+except ValueError as exc:
+    assert "reference" in str(exc), str(exc)
+"""))
