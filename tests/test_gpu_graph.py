@@ -143,3 +143,67 @@ def test_frame_graph_replays_equal_the_eager_path_on_device():
             assert err <= (1e-6 if len(k) == graph.n else 5e-4)
             np.testing.assert_array_equal(got.valid.cpu().numpy(), want.valid.cpu().numpy())
             assert agree >= (1.0 if len(k) == graph.n else 0.99)
+
+
+
+def _simulated(script: str) -> None:
+    """Run `script` under numba's CUDA simulator in a subprocess; it must print "ok"."""
+    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
+    src = str(Path(__file__).resolve().parents[1] / "src")
+    env["PYTHONPATH"] = src + os.pathsep + env.get("PYTHONPATH", "")
+    proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0 and "ok" in proc.stdout, proc.stderr[-3000:]
+
+
+def _frame_script(body: str) -> str:
+    return r"""
+import cv2, numpy as np, torch
+from geofeat.depth import filled_depth, resolve_depth_config
+from geofeat.descriptors.geopatch import GeoPatch
+from geofeat.features import Features
+from geofeat.frame import RGBDFrame
+from geofeat.gpu import build_mesh_cuda, mesh_from_depth, simulated
+from geofeat.gpu_graph import FrameGraph
+assert simulated()
+
+def frame(H, W, f=300.0):
+    v, u = np.mgrid[0:H, 0:W].astype(float)
+    depth = (1.0 + 0.04 * np.sin(u / 5.0) * np.cos(v / 6.0) + 0.002 * u).astype(np.float32)
+    img = cv2.GaussianBlur(np.random.default_rng(0).random((H, W)).astype(np.float32), (0, 0), 1.5)
+    return RGBDFrame(img, depth, np.array([[f, 0, (W - 1) / 2], [0, f, (H - 1) / 2], [0, 0, 1]]))
+""" + body + "\nprint('ok')\n"
+
+
+def test_mesh_from_depth_into_a_mesh_of_another_frame_size_in_cuda_simulator():
+    """`gpu.mesh_from_depth(..., out=mesh)` for a frame of another size and camera whose mesh grid has
+    the same size (49x57 and 48x56 both halve to 24x28) gives the fresh mesh's scale, frame size and
+    intrinsics: it kept the old mesh's, so that the walk's starts (`image_to_mesh`) came from the
+    wrong scale and `polar_patches_cuda` checked the frame against the wrong size."""
+    _simulated(_frame_script(r"""
+config = resolve_depth_config("quantised")
+small, large = frame(48, 56), frame(49, 57, f=330.0)
+want = build_mesh_cuda(large, config)
+out = build_mesh_cuda(small, config)
+assert out.tensors[0].shape == want.tensors[0].shape
+got = mesh_from_depth(torch.from_numpy(filled_depth(large.depth, config)), config, large.K, out=out)
+assert got.image_shape == want.image_shape, (got.image_shape, want.image_shape)
+assert got.scale == want.scale, (got.scale, want.scale)
+np.testing.assert_array_equal(got.K, want.K)
+xy = np.array([[30.0, 20.0]])
+np.testing.assert_array_equal(got.image_to_mesh(xy), want.image_to_mesh(xy))
+"""))
+
+
+def test_a_reference_without_keypoints_is_refused_in_cuda_simulator():
+    """A FrameGraph with a reference of no keypoints: refused with a ValueError naming `reference`
+    (it was built, and every frame then failed inside the search: torch's argmin over no rows)."""
+    _simulated(_frame_script(r"""
+small = frame(48, 56)
+net = GeoPatch(device="cpu", backend="torch", depth_config="quantised")
+empty = Features(np.zeros((0, 2)), np.zeros((0, 128), np.float32), np.zeros(0, bool))
+try:
+    FrameGraph(net, small, n=4, reference=empty).compute(small, [[20.0, 20.0]])
+    raise AssertionError("accepted an empty reference")
+except ValueError as exc:
+    assert "reference" in str(exc), str(exc)
+"""))

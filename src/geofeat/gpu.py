@@ -291,8 +291,8 @@ def mesh_from_depth(depth, config: DepthConfig, K: np.ndarray, max_edge_stretch:
     """The device part of `build_mesh_cuda`: the (H, W) float32 depth tensor (metres, holes already
     filled: `depth.filled_depth`) -> `DeviceMesh`, with nothing read back to the host (a CUDA graph
     can hold it, `gpu_graph.FrameGraph`). `K`: the frame's (3, 3) intrinsics. `out`: a DeviceMesh of
-    the same sizes to write into, its tensors and numba views kept (as a graph needs); by default
-    a new one."""
+    the same mesh grid size to write into, its tensors and numba views kept (as a graph needs), its
+    intrinsics, scale, frame size and `source` this frame's; by default a new one."""
     import torch
 
     from .depth import scale_intrinsics
@@ -321,7 +321,7 @@ def mesh_from_depth(depth, config: DepthConfig, K: np.ndarray, max_edge_stretch:
         out.tensors[0].copy_(backproject_torch(smoothed, K_mesh))
         for t in out.tensors[1:]:
             t.zero_()
-        out.source = source
+        out.K, out.scale, out.image_shape, out.source = K_mesh, scale, (H, W), source  # this frame's
     with _numba_on(dev):
         tables = out.tables
         mesh_faces_cuda(tables[0], mean_focal(K_mesh), float(max_edge_stretch), out=tables[1:],

@@ -44,8 +44,9 @@ class FrameGraph:
             descriptor's depth_config is "auto" its depth profile is measured on it once (as
             `depth.sequence_depth_profile` does for a sequence).
         n: the most keypoints a frame will have (>= 1); fewer are padded, more are refused.
-        reference: optional `Features` or `gpu.DeviceFeatures` (float descriptors of the same size,
-            e.g. a template frame's GeoPatch features) that `match` matches every frame against.
+        reference: optional `Features` or `gpu.DeviceFeatures` (at least one keypoint, float
+            descriptors of the same size, e.g. a template frame's GeoPatch features) that `match`
+            matches every frame against.
         half: run the CNN under float16 autocast (`gpu.compute_cuda(..., half=True)`).
         graph: False runs the same device code eagerly, without a graph (to compare, or where a
             capture fails); under the simulator it always does.
@@ -191,7 +192,7 @@ class FrameGraph:
 
 
 def _reference_tensors(reference, dev) -> tuple:
-    """(descriptors (N0, D) float32, valid (N0,) bool) of `reference` on `dev`, checked as
+    """(descriptors (N0, D) float, valid (N0,) bool) of `reference` on `dev` (N0 >= 1), checked as
     `gpu.match_cuda` checks its features."""
     import torch
 
@@ -205,6 +206,8 @@ def _reference_tensors(reference, dev) -> tuple:
     if desc.ndim != 2 or not desc.dtype.is_floating_point or tuple(valid.shape) != tuple(desc.shape[:1]):
         raise ValueError(f"reference: expected (N, D) float descriptors and (N,) valid flags (GeoPatch), got "
                          f"{desc.dtype} {tuple(desc.shape)} and {tuple(valid.shape)}")
+    if len(desc) == 0:  # (the search's best row per frame keypoint needs one)
+        raise ValueError("reference: no keypoints; a FrameGraph matches against at least one")
     if not bool((torch.isfinite(desc).all(1) | ~valid).all()):
         raise ValueError("reference: NaN or infinite descriptors at valid keypoints; mark them invalid or drop them")
     return desc.contiguous(), valid.contiguous()
