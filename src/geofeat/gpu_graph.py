@@ -5,7 +5,7 @@ match) is bound by its host: about a hundred small kernels, each launched from P
 launch than to run (BENCHMARKS.md, "A fresh frame as one CUDA graph"). A `FrameGraph` records them
 once into a CUDA graph with fixed buffers: the filled depth, the gray image, the walk's start points
 and a keypoint mask (up to `n` keypoints; fewer are padded and marked invalid). Per frame the host
-fills the depth's small holes (`depth.filled_depth`), copies the three inputs into pinned buffers
+fills the depth's small holes (`depth.filled_depth`), copies these four inputs into pinned buffers
 and replays the graph; `match` reads back only the matches.
 
 The graph holds one frame size, one camera (intrinsics), one depth profile, at most `n` keypoints and
@@ -93,7 +93,8 @@ class FrameGraph:
         self._out: dict = {}
         self._graph = None
         if graph and cuda:
-            self._graph = _capture(self._run, dev)
+            with torch.cuda.device(dev):  # the capture's stream is the current device's: make it `dev`
+                self._graph = _capture(self._run, dev)
 
     def __repr__(self) -> str:
         H, W = self.shape
@@ -150,7 +151,10 @@ class FrameGraph:
             raise ValueError(f"keypoints: {len(kps)}, but this FrameGraph holds at most n={self.n}")
         self._load(frame, kps.xy)
         if self._graph is not None:
-            self._graph.replay()
+            import torch
+
+            with torch.cuda.device(self.dev):  # a replay launches on the current device's stream
+                self._graph.replay()
         else:
             self._run()
         return kps
@@ -172,7 +176,9 @@ class FrameGraph:
         for device_buffer, host_buffer in zip(self._inputs, self._pinned):
             device_buffer.copy_(host_buffer, non_blocking=True)
         if self._copied is not None:
-            self._copied.record()
+            import torch
+
+            self._copied.record(torch.cuda.current_stream(self.dev))  # `dev`'s stream, whatever device is current
 
     def _run(self) -> None:
         """The device work of one frame (what the graph holds): mesh, walk, sampling, CNN, search."""
@@ -210,7 +216,7 @@ def _reference_tensors(reference, dev) -> tuple:
         raise ValueError("reference: no keypoints; a FrameGraph matches against at least one")
     if not bool((torch.isfinite(desc).all(1) | ~valid).all()):
         raise ValueError("reference: NaN or infinite descriptors at valid keypoints; mark them invalid or drop them")
-    return desc.contiguous(), valid.contiguous()
+    return desc.clone(memory_format=torch.contiguous_format), valid.clone()  # the graph's own: fixed, as checked
 
 
 def _capture(run, dev):
