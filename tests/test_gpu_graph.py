@@ -9,12 +9,10 @@ a GPU, the graph's replays are compared with the eager path on the shipped Kinec
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from cuda_simulator import run_simulated
 
 SIM_SCRIPT = r'''
 import cv2, numpy as np
@@ -93,11 +91,7 @@ def test_frame_graph_equals_compute_and_match_in_cuda_simulator():
     `compute_cuda`'s with the profile measured once on `like`, matches against the reference equal
     `match_cuda`'s for plain, mutual and ratio matching, with fewer keypoints than `n` (padding); and a frame of another size or camera, too many keypoints, a reference of the wrong
     width or with NaN, and no keypoints (as `compute_cuda` refuses them) are refused with a message naming them."""
-    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
-    src = str(Path(__file__).resolve().parents[1] / "src")
-    env["PYTHONPATH"] = src + os.pathsep + env.get("PYTHONPATH", "")
-    proc = subprocess.run([sys.executable, "-c", SIM_SCRIPT], env=env, capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0 and "ok" in proc.stdout, proc.stderr[-3000:]
+    run_simulated(SIM_SCRIPT)
 
 
 def _cuda() -> bool:
@@ -146,15 +140,6 @@ def test_frame_graph_replays_equal_the_eager_path_on_device():
 
 
 
-def _simulated(script: str) -> None:
-    """Run `script` under numba's CUDA simulator in a subprocess; it must print "ok"."""
-    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
-    src = str(Path(__file__).resolve().parents[1] / "src")
-    env["PYTHONPATH"] = src + os.pathsep + env.get("PYTHONPATH", "")
-    proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0 and "ok" in proc.stdout, proc.stderr[-3000:]
-
-
 def _frame_script(body: str) -> str:
     return r"""
 import cv2, numpy as np, torch
@@ -179,7 +164,7 @@ def test_mesh_from_depth_into_a_mesh_of_another_frame_size_in_cuda_simulator():
     the same size (49x57 and 48x56 both halve to 24x28) gives the fresh mesh's scale, frame size and
     intrinsics: it kept the old mesh's, so that the walk's starts (`image_to_mesh`) came from the
     wrong scale and `polar_patches_cuda` checked the frame against the wrong size."""
-    _simulated(_frame_script(r"""
+    run_simulated(_frame_script(r"""
 config = resolve_depth_config("quantised")
 small, large = frame(48, 56), frame(49, 57, f=330.0)
 want = build_mesh_cuda(large, config)
@@ -197,7 +182,7 @@ np.testing.assert_array_equal(got.image_to_mesh(xy), want.image_to_mesh(xy))
 def test_a_reference_without_keypoints_is_refused_in_cuda_simulator():
     """A FrameGraph with a reference of no keypoints: refused with a ValueError naming `reference`
     (it was built, and every frame then failed inside the search: torch's argmin over no rows)."""
-    _simulated(_frame_script(r"""
+    run_simulated(_frame_script(r"""
 small = frame(48, 56)
 net = GeoPatch(device="cpu", backend="torch", depth_config="quantised")
 empty = Features(np.zeros((0, 2)), np.zeros((0, 128), np.float32), np.zeros(0, bool))

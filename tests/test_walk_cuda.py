@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cuda_simulator import run_simulated
 
 #: Tolerances of GPU against CPU. In the simulator the device functions run as Python on the same
 #: float64 operations as the njit build (math.sqrt/cos/sin are the same libm calls), so the results
@@ -147,11 +148,7 @@ print("ok")
 def test_gpu_path_equals_cpu_path_in_cuda_simulator():
     """The whole `geofeat.gpu` path (walk kernel simulated, torch on CPU tensors) on a small frame:
     patches, descriptors and matches equal the CPU path's."""
-    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
-    src = str(Path(__file__).resolve().parents[1] / "src")
-    env["PYTHONPATH"] = src + os.pathsep + env.get("PYTHONPATH", "")
-    proc = subprocess.run([sys.executable, "-c", E2E_SCRIPT], env=env, capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0 and "ok" in proc.stdout, proc.stderr[-3000:]
+    run_simulated(E2E_SCRIPT)
 
 
 MESH_SCRIPT = r'''
@@ -217,11 +214,7 @@ def test_gpu_mesh_equals_cpu_mesh_in_cuda_simulator():
     faces / normals / walk tables by the CPU's kernel sources, one thread per face) against the host
     mesh, with a filled hole, a kept border hole and a depth step, for both depth profiles; then the
     patches it gives against the CPU path's."""
-    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
-    src = str(Path(__file__).resolve().parents[1] / "src")
-    env["PYTHONPATH"] = src + os.pathsep + env.get("PYTHONPATH", "")
-    proc = subprocess.run([sys.executable, "-c", MESH_SCRIPT], env=env, capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0 and "ok" in proc.stdout, proc.stderr[-3000:]
+    run_simulated(MESH_SCRIPT)
 
 
 ODD_SCRIPT = r'''
@@ -267,11 +260,7 @@ def test_gpu_path_with_non_square_pixels_in_cuda_simulator():
     step: the GPU mesh, validity,
     rings reached, coordinates, values and points equal the CPU's (measured: coordinates within
     5e-6 px, most identical)."""
-    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
-    src = str(Path(__file__).resolve().parents[1] / "src")
-    env["PYTHONPATH"] = src + os.pathsep + env.get("PYTHONPATH", "")
-    proc = subprocess.run([sys.executable, "-c", ODD_SCRIPT], env=env, capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0 and "ok" in proc.stdout, proc.stderr[-3000:]
+    run_simulated(ODD_SCRIPT)
 
 
 def _real_gpu() -> bool:
