@@ -18,7 +18,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--overwrite", action="store_true", help="replace an existing features file")
     p.add_argument("--device", default="cpu",
                    help="cpu (default), or cuda / cuda:N: GeoPatch's walk, sampling and CNN on the GPU "
-                        "(geofeat[cuda]; torch weights, descriptors within 1e-4 of the torch backend's)")
+                        "(geofeat[cuda]; torch weights; descriptors within about 2e-4 of the CPU torch backend's)")
     p.set_defaults(func=run)
     return p
 
