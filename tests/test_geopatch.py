@@ -192,3 +192,25 @@ def test_compute_samples_patches_of_the_checkpoints_size(tmp_path):
     p = geofeat.polar_patches(frame, kp, radius=0.02, n_rings=24, n_angles=16, depth_config="clean")
     assert f.valid.all() and f.descriptors.shape == (2, 16)
     np.testing.assert_allclose(f.descriptors, g.describe(p.values, p.valid), atol=1e-6)
+
+
+def test_geopatch_objects_share_a_weights_files_network_until_the_file_changes(tmp_path):
+    """The torch backend loads and folds a checkpoint once per file and device (`geofeat.extract`
+    made a new GeoPatch, and loaded its weights again, for every frame); a checkpoint rewritten at
+    the same path is loaded again, not served from the cache."""
+    import os
+
+    torch.manual_seed(0)
+    path = tmp_path / "w.pt"
+    save_checkpoint(path, GeoPatchNet(GeoPatchConfig(channels=(4, 8, 8), dim=16)).eval())
+    a, b = (GeoPatch(weights=str(path), device="cpu", backend="torch") for _ in range(2))
+    assert a.net is b.net
+    patches = np.random.default_rng(0).random((3, 32, 32)).astype(np.float32)
+    first = a.describe(patches)
+    save_checkpoint(path, GeoPatchNet(GeoPatchConfig(channels=(4, 8, 8), dim=16)).eval())  # other random weights
+    stat = path.stat()
+    os.utime(path, ns=(stat.st_atime_ns, stat.st_mtime_ns + 1_000_000_000))  # a file system's coarse clock
+    c = GeoPatch(weights=str(path), device="cpu", backend="torch")
+    assert c.net is not a.net and not np.allclose(c.describe(patches), first)
+    np.testing.assert_array_equal(a.describe(patches), first)  # the earlier object keeps its network
+    assert GeoPatch(device="cpu", backend="torch").net is GeoPatch(device="cpu", backend="torch").net
