@@ -194,23 +194,29 @@ def test_compute_samples_patches_of_the_checkpoints_size(tmp_path):
     np.testing.assert_allclose(f.descriptors, g.describe(p.values, p.valid), atol=1e-6)
 
 
-def test_geopatch_objects_share_a_weights_files_network_until_the_file_changes(tmp_path):
+def test_geopatch_reads_a_weights_file_once_until_the_file_changes(tmp_path, monkeypatch):
     """The torch backend loads and folds a checkpoint once per file and device (`geofeat.extract`
-    made a new GeoPatch, and loaded its weights again, for every frame); a checkpoint rewritten at
-    the same path is loaded again, not served from the cache."""
+    made a new GeoPatch, and read its weights again, for every frame). Each GeoPatch gets its own copy
+    of the network (hooking one, as tests/test_stream.py does, leaves the others alone), and a
+    checkpoint rewritten at the same path is read again, not served from the cache."""
     import os
 
+    import geofeat.descriptors.geopatch_net as geopatch_net
+
+    reads = []
+    load = geopatch_net.load_network
+    monkeypatch.setattr(geopatch_net, "load_network", lambda *a, **k: reads.append(a) or load(*a, **k))
     torch.manual_seed(0)
     path = tmp_path / "w.pt"
     save_checkpoint(path, GeoPatchNet(GeoPatchConfig(channels=(4, 8, 8), dim=16)).eval())
     a, b = (GeoPatch(weights=str(path), device="cpu", backend="torch") for _ in range(2))
-    assert a.net is b.net
+    assert len(reads) == 1 and a.net is not b.net
     patches = np.random.default_rng(0).random((3, 32, 32)).astype(np.float32)
     first = a.describe(patches)
+    np.testing.assert_array_equal(b.describe(patches), first)
     save_checkpoint(path, GeoPatchNet(GeoPatchConfig(channels=(4, 8, 8), dim=16)).eval())  # other random weights
     stat = path.stat()
     os.utime(path, ns=(stat.st_atime_ns, stat.st_mtime_ns + 1_000_000_000))  # a file system's coarse clock
     c = GeoPatch(weights=str(path), device="cpu", backend="torch")
-    assert c.net is not a.net and not np.allclose(c.describe(patches), first)
+    assert len(reads) == 2 and not np.allclose(c.describe(patches), first)
     np.testing.assert_array_equal(a.describe(patches), first)  # the earlier object keeps its network
-    assert GeoPatch(device="cpu", backend="torch").net is GeoPatch(device="cpu", backend="torch").net

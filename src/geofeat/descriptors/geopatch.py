@@ -187,17 +187,20 @@ class GeoPatchSettings(PatchSettings):
 
 
 def _torch_network(weights, device) -> tuple:
-    """(batch-norm-folded GeoPatchNet on `device`, checkpoint) of `weights` (None: the shipped ones),
-    shared by the GeoPatch objects that ask for the same file on the same device (`_fused_network`):
-    loading and folding took about 8 ms per GeoPatch, which `geofeat.extract(..., device="cuda")`
-    makes for every frame."""
+    """(batch-norm-folded GeoPatchNet on `device`, checkpoint) of `weights` (None: the shipped ones):
+    a copy of the one loaded and folded once per file and device (`_fused_network`). Loading and
+    folding took about 8 ms per GeoPatch, which `geofeat.extract(..., device="cuda")` makes for every
+    frame; a copy takes 1.5 ms, and no GeoPatch shares its network with another."""
+    import copy
+
     from .geopatch_net import load_network
 
     path = default_weights_path() if weights is None else Path(weights)
     if not path.is_file():
         return load_network(weights)  # its error naming the file
     stat = path.stat()
-    return _fused_network(str(path.resolve()), stat.st_mtime_ns, stat.st_size, str(device))
+    net, checkpoint = _fused_network(str(path.resolve()), stat.st_mtime_ns, stat.st_size, str(device))
+    return copy.deepcopy(net), copy.deepcopy(checkpoint)
 
 
 @lru_cache(maxsize=8)
