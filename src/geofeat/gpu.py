@@ -36,6 +36,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import os
+from functools import partial
 from dataclasses import dataclass
 
 import numpy as np
@@ -593,6 +594,36 @@ def compute_cuda(descriptor, frame: RGBDFrame, keypoints, mesh: GridMesh | Devic
     return DeviceFeatures(patches.keypoints, desc, patches.valid, angles=kps.angles, sizes=kps.sizes)
 
 
+def features_on(features, which: str, dev) -> tuple:
+    """(descriptors (N, ...), valid (N,) bool) of `DeviceFeatures` or host `Features` as tensors on
+    `dev` (uploaded when on the host), checked as `geofeat.match` checks them; `which` names them in
+    the errors."""
+    import torch
+
+    def up(x):
+        if isinstance(x, torch.Tensor):
+            return x.to(dev)
+        return torch.from_numpy(np.ascontiguousarray(x)).to(dev)
+
+    if not (hasattr(features, "descriptors") and hasattr(features, "valid")):
+        raise TypeError(f"{which}: expected DeviceFeatures or Features, got {type(features).__name__}")
+    d, v = up(features.descriptors), up(features.valid).bool()
+    if d.ndim < 2 or tuple(v.shape) != tuple(d.shape[:1]):
+        raise ValueError(f"{which}: expected (N, ...) descriptors and (N,) valid flags, got shapes "
+                         f"{tuple(d.shape)} and {tuple(v.shape)}")
+    return d, v
+
+
+def valid_descriptors_finite(d, v):
+    """Whether every valid descriptor of `d` (valid flags `v`) is finite, as a 0-d bool tensor on the
+    device (no wait for the GPU)."""
+    import torch
+
+    if not d.dtype.is_floating_point:
+        return torch.ones((), dtype=torch.bool, device=d.device)
+    return (torch.isfinite(d).flatten(1).all(1) | ~v).all()
+
+
 def match_cuda(features0, features1, mutual: bool = False, ratio: float | None = None, device="cuda") -> Matches:
     """`geofeat.match` on the GPU for `DeviceFeatures` (or host `Features`, uploaded): L2 for float
     descriptors (GeoPatch), min-over-rotations Hamming for uint8 (N, R, B) ones (GeoBit), Hamming
@@ -602,27 +633,7 @@ def match_cuda(features0, features1, mutual: bool = False, ratio: float | None =
     from .matching import _finish_matches, _hamming_search_torch, _l2_search_torch
 
     dev = require_cuda(device)
-
-    def up(x):
-        if isinstance(x, torch.Tensor):
-            return x.to(dev)
-        return torch.from_numpy(np.ascontiguousarray(x)).to(dev)
-
-    def unpack(features, which: str):
-        """(descriptors, valid) on `dev`, checked as `geofeat.match` checks them."""
-        if not (hasattr(features, "descriptors") and hasattr(features, "valid")):
-            raise TypeError(f"{which}: expected DeviceFeatures or Features, got {type(features).__name__}")
-        d, v = up(features.descriptors), up(features.valid).bool()
-        if d.ndim < 2 or tuple(v.shape) != tuple(d.shape[:1]):
-            raise ValueError(f"{which}: expected (N, ...) descriptors and (N,) valid flags, got shapes "
-                             f"{tuple(d.shape)} and {tuple(v.shape)}")
-        return d, v
-
-    def finite(d, v):
-        """Whether every valid descriptor is finite, as a 0-d tensor on the device (no sync)."""
-        if not d.dtype.is_floating_point:
-            return torch.ones((), dtype=torch.bool, device=d.device)
-        return (torch.isfinite(d).flatten(1).all(1) | ~v).all()
+    unpack, finite = partial(features_on, dev=dev), valid_descriptors_finite
 
     def check_finite():  # one read back for both features
         for which, ok in zip(("features0", "features1"), finite_flags.tolist()):

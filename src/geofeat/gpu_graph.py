@@ -28,8 +28,8 @@ from .constants import MAX_EDGE_STRETCH, N_KEYPOINTS
 from .features import Matches
 from .frame import RGBDFrame
 from .geodesic.polar import walk_starts
-from .gpu import (DeviceFeatures, WalkBuffers, _as_numba, _numba_on, check_gpu_descriptor, gaussian_blur_torch,
-                  mesh_from_depth, require_cuda, walk_and_sample)
+from .gpu import (DeviceFeatures, WalkBuffers, _as_numba, _numba_on, check_gpu_descriptor, features_on,
+                  gaussian_blur_torch, mesh_from_depth, require_cuda, valid_descriptors_finite, walk_and_sample)
 from .matching import _finish_matches, _l2_search_device, check_match_options
 
 
@@ -182,8 +182,6 @@ class FrameGraph:
 
     def _run(self) -> None:
         """The device work of one frame (what the graph holds): mesh, walk, sampling, CNN, search."""
-        import torch
-
         depth, image, _, mask = self._inputs
         net = self.descriptor
         mesh_from_depth(depth, self.config, self.K, MAX_EDGE_STRETCH, out=self.mesh)
@@ -194,29 +192,23 @@ class FrameGraph:
         if self._reference is not None:
             ref, ref_valid = self._reference
             self._out["search"] = _l2_search_device(ref, desc, ref_valid, valid, True)
-            self._out["finite"] = (torch.isfinite(desc).all(1) | ~valid).all()
+            self._out["finite"] = valid_descriptors_finite(desc, valid)
 
 
 def _reference_tensors(reference, dev) -> tuple:
     """(descriptors (N0, D) float, valid (N0,) bool) of `reference` on `dev` (N0 >= 1), checked as
-    `gpu.match_cuda` checks its features."""
+    `gpu.match_cuda` checks its features (`gpu.features_on`), and copied: the graph's own."""
     import torch
 
-    if not (hasattr(reference, "descriptors") and hasattr(reference, "valid")):
-        raise TypeError(f"reference: expected Features or DeviceFeatures, got {type(reference).__name__}")
-
-    def up(x):
-        return x.to(dev) if isinstance(x, torch.Tensor) else torch.from_numpy(np.ascontiguousarray(x)).to(dev)
-
-    desc, valid = up(reference.descriptors), up(reference.valid).bool()
-    if desc.ndim != 2 or not desc.dtype.is_floating_point or tuple(valid.shape) != tuple(desc.shape[:1]):
-        raise ValueError(f"reference: expected (N, D) float descriptors and (N,) valid flags (GeoPatch), got "
-                         f"{desc.dtype} {tuple(desc.shape)} and {tuple(valid.shape)}")
+    desc, valid = features_on(reference, "reference", dev)
+    if desc.ndim != 2 or not desc.dtype.is_floating_point:
+        raise ValueError(f"reference: expected (N, D) float descriptors (GeoPatch), got {desc.dtype} "
+                         f"{tuple(desc.shape)}")
     if len(desc) == 0:  # (the search's best row per frame keypoint needs one)
         raise ValueError("reference: no keypoints; a FrameGraph matches against at least one")
-    if not bool((torch.isfinite(desc).all(1) | ~valid).all()):
+    if not bool(valid_descriptors_finite(desc, valid)):
         raise ValueError("reference: NaN or infinite descriptors at valid keypoints; mark them invalid or drop them")
-    return desc.clone(memory_format=torch.contiguous_format), valid.clone()  # the graph's own: fixed, as checked
+    return desc.clone(memory_format=torch.contiguous_format), valid.clone()  # fixed, as checked
 
 
 def _capture(run, dev):

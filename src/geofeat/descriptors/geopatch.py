@@ -190,7 +190,8 @@ def _torch_network(weights, device) -> tuple:
     """(batch-norm-folded GeoPatchNet on `device`, checkpoint) of `weights` (None: the shipped ones):
     a copy of the one loaded and folded once per file and device (`_fused_network`). Loading and
     folding took about 8 ms per GeoPatch, which `geofeat.extract(..., device="cuda")` makes for every
-    frame; a copy takes 1.5 ms, and no GeoPatch shares its network with another."""
+    frame; a copy takes 1.5 ms, and no GeoPatch shares its network with another (the checkpoint's
+    contents, read-only metadata and the unfolded weights, are shared)."""
     import copy
 
     from .geopatch_net import load_network
@@ -200,7 +201,7 @@ def _torch_network(weights, device) -> tuple:
         return load_network(weights)  # its error naming the file
     stat = path.stat()
     net, checkpoint = _fused_network(str(path.resolve()), stat.st_mtime_ns, stat.st_size, str(device))
-    return copy.deepcopy(net), copy.deepcopy(checkpoint)
+    return copy.deepcopy(net), dict(checkpoint)
 
 
 @lru_cache(maxsize=8)
