@@ -534,3 +534,25 @@ def test_intrinsics_under_another_node_name_it(tmp_path):
     with pytest.raises(ValueError, match=r"no 3x3 matrix under the node 'intrinsics' \(its nodes: camera_matrix, "
                                          r"distortion_coefficients; rename"):
         read_intrinsics(tmp_path / "intrinsics.xml")
+
+
+def test_an_exif_orientation_tag_does_not_turn_the_colour_away_from_its_depth(tmp_path):
+    """OpenCV's imread turns a PNG by its EXIF orientation tag (an eXIf chunk, kept by photo tools and by
+    PIL's save(exif=...)): the colour of a frame was read rotated 180 degrees against its depth, its
+    intrinsics and its landmarks, all of which are in the stored pixels, and the frame read without a
+    word. The readers keep the stored pixels, as PIL and NumPy give them."""
+    from PIL import Image
+
+    from geofeat.io import read_image
+
+    src = demo_data_dir()
+    color = cv2.imread(str(src / "cloud_1-rgb.png"), cv2.IMREAD_COLOR)
+    exif = Image.Exif()
+    exif[0x0112] = 3  # orientation: rotate 180 degrees
+    Image.fromarray(color[:, :, ::-1]).save(tmp_path / "tagged-rgb.png", exif=exif.tobytes())
+    np.testing.assert_array_equal(read_image(tmp_path / "tagged-rgb.png"), color)
+    depth = cv2.imread(str(src / "cloud_1-depth.png"), cv2.IMREAD_UNCHANGED)
+    Image.fromarray(depth).save(tmp_path / "tagged-depth.png", exif=exif.tobytes())
+    np.testing.assert_array_equal(read_depth(tmp_path / "tagged-depth.png"), depth.astype(np.float32) * np.float32(0.001))
+    frame = geofeat.read_frame(tmp_path / "tagged-rgb.png", src / "cloud_1-depth.png", src / "intrinsics.xml")
+    np.testing.assert_array_equal(frame.color, color)

@@ -180,9 +180,10 @@ def write_intrinsics(path: str | Path, K: np.ndarray) -> None:
 def read_image(path: str | Path, what: str = "rgb_path") -> np.ndarray:
     """Read a colour image as (H, W, 3) uint8 BGR (grey and RGBA files too). A 16-bit file is read as
     0-65535 and kept to its high byte; one that uses under 1/16 of that range (8-bit values stored
-    in 16 bits: read back nearly black) warns, naming the file."""
+    in 16 bits: read back nearly black) warns, naming the file. The stored pixels, whatever an EXIF
+    orientation tag says (OpenCV would turn the image by it, away from its depth, K and landmarks)."""
     path = _existing(path, what)
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH | cv2.IMREAD_IGNORE_ORIENTATION)
     if image is None:
         raise ValueError(f"{what}: cannot decode image {path}")
     if image.dtype == np.uint16:
@@ -196,8 +197,10 @@ def read_image(path: str | Path, what: str = "rgb_path") -> np.ndarray:
 def read_depth(path: str | Path, depth_scale: float = DEPTH_SCALE_M) -> np.ndarray:
     """Read a 16-bit depth PNG as (H, W) float32 metres (value * depth_scale; 0 = missing)."""
     path = _existing(path, "depth_path")
-    # ANYCOLOR keeps the channels: IMREAD_ANYDEPTH alone turns a 3-channel 16-bit PNG into its luminance
-    raw = None if path.suffix.lower() == ".npy" else cv2.imread(str(path), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
+    # ANYCOLOR keeps the channels: IMREAD_ANYDEPTH alone turns a 3-channel 16-bit PNG into its luminance;
+    # the stored pixels, not turned by an EXIF orientation tag (`read_image`)
+    raw = None if path.suffix.lower() == ".npy" else cv2.imread(
+        str(path), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR | cv2.IMREAD_IGNORE_ORIENTATION)
     if raw is None:
         hint = ("; for depth as an array (np.load), build the frame with geofeat.RGBDFrame(image, depth_m, K), or write "
                 "16-bit PNGs with geofeat.write_frame") if path.suffix.lower() in (".npy", ".npz", ".exr") else ""
