@@ -556,3 +556,29 @@ def test_an_exif_orientation_tag_does_not_turn_the_colour_away_from_its_depth(tm
     np.testing.assert_array_equal(read_depth(tmp_path / "tagged-depth.png"), depth.astype(np.float32) * np.float32(0.001))
     frame = geofeat.read_frame(tmp_path / "tagged-rgb.png", src / "cloud_1-depth.png", src / "intrinsics.xml")
     np.testing.assert_array_equal(frame.color, color)
+
+
+def test_tenth_millimetre_depth_read_as_millimetres_is_warned_of(tmp_path):
+    """`simulate` writes its depth PNGs in 0.1 mm and says so in geofeat.json; frames copied without
+    that file (or any 0.1 mm PNGs) were read as millimetres: the cloth at 0.48-1.03 m (the nearest and
+    farthest references of the mild, paper and hard presets) lay 4.8-10.3 m away, every geodesic patch
+    a tenth of its size, without a word (the warning began at 20 m)."""
+    import warnings
+
+    from geofeat.inputs import DepthUnitsWarning
+
+    for metres in (0.48, 1.03):
+        folder = tmp_path / f"sim-{metres}"
+        _flat_sequence(folder, 0.0)
+        frame = geofeat.read_demo_frame()
+        for name in ("a-ref", "b"):  # as `simulate` writes them, less its geofeat.json
+            write_frame(folder, name, frame.color, np.where(frame.depth > 0, metres, 0.0), depth_scale=0.0001)
+        with pytest.warns(DepthUnitsWarning, match=rf"median depth {metres * 10:.3g} m .*farther"):
+            geofeat.read_sequence(folder)
+        (folder / "geofeat.json").write_text(json.dumps({"depth_scale": 0.0001}))
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", DepthUnitsWarning)
+            assert geofeat.read_sequence(folder).depth_scale == 0.0001
+    with warnings.catch_warnings():  # a real sensor's far range (a Kinect v1 sees to about 4 m) is not warned of
+        warnings.simplefilter("error", DepthUnitsWarning)
+        geofeat.read_sequence(_flat_sequence(tmp_path / "far-kinect", 3.5))

@@ -365,7 +365,7 @@ def test_help_names_every_texture_choice_and_the_default_scenario(capsys):
 @pytest.mark.parametrize("kw", [dict(scenario="scale", preset="paper", fov=119), dict(scenario="deform", preset="hard"),
                                 dict(scenario="rotate", kinect_noise=True)])
 def test_simulated_sequences_raise_no_depth_units_warning(tmp_path, kw):
-    """The depth-units warning (a median depth outside 0.15-20 m) never fires on what `simulate`
+    """The depth-units warning (a median depth outside 0.15-4.5 m) never fires on what `simulate`
     writes, the widest field of view (nearest cloth) included."""
     import warnings
 

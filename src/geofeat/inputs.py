@@ -22,8 +22,10 @@ from .constants import DEFAULT_RADIUS_M, DEPTH_PROFILE_NAMES
 #: Median depth (metres) of a frame must lie in this range at the depth scale used.
 PLAUSIBLE_MEDIAN_DEPTH_M = (0.05, 50.0)
 #: A sequence whose median depth (metres) lies outside this range, though plausible, is warned about
-#: (`warn_depth_units`): close-up or far scenes exist, but a depth scale off by 10x is likelier.
-USUAL_MEDIAN_DEPTH_M = (0.15, 20.0)
+#: (`warn_depth_units`): close-up or far scenes exist, but a depth scale off by 10x is likelier. The far
+#: end is an RGB-D camera's range (Kinect v2: 4.5 m): 0.1 mm PNGs (what `simulate` writes) read as
+#: millimetres put a cloth at 0.48-1.03 m 4.8-10.3 m away, which a bound of 20 m let through.
+USUAL_MEDIAN_DEPTH_M = (0.15, 4.5)
 #: Focal lengths must lie between these multiples of the larger image side.
 PLAUSIBLE_FOCAL_SIDES = (0.1, 20.0)
 #: A principal point farther than this fraction of the image size from its centre is warned of (RGBDFrame).
