@@ -736,3 +736,24 @@ def test_other_processes_cpu_leaves_out_this_process(tmp_path):
     assert others_cores(10.0, 11.0, 0.5, 1.0) == pytest.approx(0.5)  # one busy second, half of it ours
     assert others_cores(10.0, 10.4, 0.5, 1.0) == 0.0  # tick rounding never gives a negative share
     assert np.isnan(others_cores(None, 5.0, 0.1, 1.0))
+
+
+def test_a_target_with_too_few_landmarks_for_the_spline_is_skipped_not_its_sequence(datasets, tmp_path, capsys):
+    """Ground truth from the csv landmarks (no simulator files): a target frame with fewer than 4
+    landmarks visible in both frames has no spline. It failed the whole sequence (every other pair
+    lost too) with a message that named no frame; it is skipped by name, as a target the TPS files
+    leave out."""
+    seq = tmp_path / "data" / "a-deform"
+    seq.mkdir(parents=True)
+    for path in (datasets / "seqs" / "a-deform").iterdir():
+        if not path.name.endswith("-gt.npz") and path.name != "groundtruth.json":
+            shutil.copy(path, seq / path.name)
+    lines = (seq / "frame-002.csv").read_text().splitlines()
+    hidden = [lines[0]] + [",".join(line.split(",")[:3] + ["1" if i < 2 else "0"]) for i, line in enumerate(lines[1:])]
+    (seq / "frame-002.csv").write_text("\n".join(hidden) + "\n")
+    config = BenchConfig(descriptors=("orb",), n_keypoints=200)
+    csv_path, failed = run_benchmark(tmp_path / "data", tmp_path / "out", config, progress=False)
+    rows = read_rows(csv_path)
+    assert not failed and [r["target"] for r in rows] == ["frame-001"] and float(rows[0]["ms"]) > 0
+    out = capsys.readouterr().out
+    assert "a-deform: no ground truth for frame-002" in out and "pair skipped" in out

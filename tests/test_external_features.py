@@ -141,3 +141,33 @@ def test_bench_refuses_two_sequences_read_from_one_set_of_groups(tmp_path):
     config = BenchConfig(descriptors=(), features=(f"m={path}",))
     with pytest.raises(ValueError, match="would both be read from 'frame-000-master'"):
         run_benchmark(tmp_path / "data", tmp_path / "out", config, progress=False)
+
+
+@pytest.mark.parametrize("layout", ["h5", "npz", "extract"])
+def test_a_frame_missing_under_its_sequence_is_not_read_from_a_name_without_it(tmp_path, layout):
+    """Features named '<sequence>/<frame>' for every frame but one, which a name without the sequence
+    (left from a run on another sequence) still served: that frame was scored with another image's
+    features (MS 0) without a word. A sequence read from both kinds of names is refused."""
+    from geofeat.bench.external import check_one_source_per_frame
+
+    kp, desc, _ = _frame()
+    frames = ["frame-000-master", "frame-001", "frame-002"]
+    qualified, bare = frames[:2], frames[2:]
+    if layout == "h5":
+        groups = {f"a/{f}": {"keypoints": kp, "descriptors": desc.T} for f in qualified}
+        groups.update({f: {"keypoints": kp, "descriptors": desc.T} for f in bare})
+        path = _h5(tmp_path / "f.h5", groups)
+    else:
+        root = tmp_path / "feats"
+        (root / "a").mkdir(parents=True)
+        name = (lambda f: f"{f}.npz") if layout == "npz" else (lambda f: f"m-{f}.npz")
+        for f in qualified:
+            np.savez(root / "a" / name(f), keypoints=kp, descriptors=desc)
+        for f in bare:
+            np.savez(root / name(f), keypoints=kp, descriptors=desc)
+        path = root if layout == "npz" else root / "m.npz"
+    ex = ExternalFeatures("m", path)
+    with pytest.raises(ValueError, match=r"a: frame-002 would be read from .* without the sequence"):
+        check_one_source_per_frame([ex], {"a": frames})
+    check_one_source_per_frame([ex], {"a": qualified})  # every frame under the sequence's name: fine
+    check_one_source_per_frame([ex], {"b": bare})  # every frame without it, one sequence: fine

@@ -9,7 +9,8 @@ PATH is either
 - the `.npz` path given to `geofeat extract --out DIR/NAME.npz`, which writes `DIR/NAME-<frame>.npz`
   (read from `DIR/<sequence>/NAME-<frame>.npz` or `DIR/NAME-<frame>.npz`).
 A name without the sequence may serve one sequence only: two benched sequences whose frames would be
-read from one group or file are refused (`check_one_source_per_frame`).
+read from one group or file are refused (`check_one_source_per_frame`), and so is a sequence whose
+frames would be read some from names with the sequence and some from names without it.
 
 Each group or file holds `keypoints` (N, 2) pixels (x, y), 0-based with pixel centres at whole numbers
 (OpenCV's, hloc's and kornia's convention: the top-left pixel's centre is (0, 0)), `descriptors` (N, ...)
@@ -227,6 +228,14 @@ class ExternalFeatures:
                 return str(candidate)
         return None
 
+    def names_sequence(self, sequence: str, key: str) -> bool:
+        """Whether the group or file `key` (from `source`) is named with `sequence`
+        ('<sequence>/<frame>' in the .h5, or under PATH/<sequence>/), not by the frame alone."""
+        if self.path.is_file():
+            return key.startswith(f"{sequence}/")
+        base = self.path if self.path.is_dir() else self.path.parent
+        return Path(key).parent == base / sequence
+
     def digest(self, sequence: str, frames: list[str]) -> str:
         """SHA-1 (hex) of what `load` reads for `frames` of `sequence`: each frame's group (.h5: its
         datasets' names, dtypes, shapes and bytes) or file (.npz: its bytes), or that it has none.
@@ -282,11 +291,14 @@ class ExternalFeatures:
 def check_one_source_per_frame(features: list[ExternalFeatures], sequences: dict[str, list[str]]) -> None:
     """Refuse feature sets that would score two sequences' frames with one group or file: names
     without the sequence (`frame-000`) serve any sequence whose frame has that name, so a second
-    benched sequence would silently be scored with the first one's features. `sequences`: sequence
-    name -> its frame names."""
+    benched sequence would silently be scored with the first one's features. Also refuse a sequence
+    whose frames are read some from names with the sequence and some from names without it: a frame
+    missing under the sequence's name would be scored with the features that the bare name holds,
+    another sequence's. `sequences`: sequence name -> its frame names."""
     for f in features:
         seen: dict[str, str] = {}
         for sequence, frames in sequences.items():
+            named, bare = [], []
             for frame in frames:
                 key = f.source(sequence, frame)
                 if key is None:
@@ -296,3 +308,9 @@ def check_one_source_per_frame(features: list[ExternalFeatures], sequences: dict
                                      f"from {key!r}; name each frame '<sequence>/<frame>' (.h5) or put the .npz files "
                                      f"in PATH/<sequence>/ when benching several sequences")
                 seen[key] = sequence
+                (named if f.names_sequence(sequence, key) else bare).append((frame, key))
+            if named and bare:
+                raise ValueError(f"features {f.name}: {sequence}: {bare[0][0]} would be read from {bare[0][1]!r}, a name "
+                                 f"without the sequence, {named[0][0]} from {named[0][1]!r}: are the features of "
+                                 f"{sequence}/{bare[0][0]} missing (the name without the sequence may hold another "
+                                 "sequence's)? Name every frame of the sequence alike")

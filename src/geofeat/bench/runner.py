@@ -174,7 +174,7 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
     f_ref = describe(ref, k_ref) if len(k_ref) else None
     for target in seq.targets:
         if config.protocol == "detect" and not truth.covers(target):
-            tqdm.write(f"{seq.name}: no ground truth for {target} in the TPS files; pair skipped")
+            tqdm.write(f"{seq.name}: no ground truth for {target} ({truth.uncovered_reason(target)}); pair skipped")
             continue
         if config.protocol == "landmarks":
             ids_t, xy_t, vis_t = seq.landmarks(target)
@@ -226,7 +226,8 @@ def evaluate_external(seq: Sequence, truth: GroundTruth, features: ExternalFeatu
     rows = []
     for target in seq.targets:
         if not truth.covers(target):
-            tqdm.write(f"{seq.name}: no ground truth for {target} in the TPS files; pair skipped for {features.name}")
+            tqdm.write(f"{seq.name}: no ground truth for {target} ({truth.uncovered_reason(target)}); pair skipped "
+                       f"for {features.name}")
             continue
         f_tgt = features.load(seq.name, target, config.n_keypoints, seq.shape)
         if f_tgt.descriptors.shape[1:] != f_ref.descriptors.shape[1:]:

@@ -118,8 +118,24 @@ class GroundTruth:
 
     def covers(self, target: str) -> bool:
         """False for a target frame that the TPS files leave out (e.g. one `geofeat groundtruth`
-        marked failed): the benchmark skips that pair and says so."""
-        return self.tps is None or (self.tps / f"{target}_theta.npy").is_file()
+        marked failed), or, with the landmarks' spline, that has fewer than `MIN_LANDMARKS` landmarks
+        visible in both it and the reference (no spline: `map` would raise): the benchmark skips
+        that pair and says so (`uncovered_reason`)."""
+        return self.uncovered_reason(target) is None
+
+    def uncovered_reason(self, target: str) -> str | None:
+        """Why `target` has no ground truth (`covers`), in words; None when it has one."""
+        if self.tps is not None:
+            return None if (self.tps / f"{target}_theta.npy").is_file() else f"no {target}_theta.npy in the TPS files"
+        if self.exact:
+            return None
+        ids_r, _, vis_r = self.seq.landmarks(self.seq.reference)
+        ids_t, _, vis_t = self.seq.landmarks(target)
+        common = len(np.intersect1d(ids_r[vis_r], ids_t[vis_t]))
+        if common < MIN_LANDMARKS:
+            return (f"{common} landmarks visible in both it and the reference, and the landmarks' spline needs "
+                    f">= {MIN_LANDMARKS}")
+        return None
 
     def map(self, target: str, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Map pixels of frame `target` to the reference frame.
