@@ -781,3 +781,51 @@ def test_every_track_csv_column_is_described_in_the_applications_page():
     page = (Path(__file__).resolve().parents[1] / "docs" / "applications.md").read_text()
     described = page[page.index("Output: `track.csv`"):page.index("`<sequence>/<descriptor>/grid.npz`")]
     assert [c for c in TRACK_COLUMNS if f"`{c}`" not in described] == []
+
+
+def _hide_landmarks(folder, frame: str, keep: int) -> None:
+    """Mark all but the first `keep` landmarks of `frame`'s csv invisible (valid 0)."""
+    path = folder / f"{frame}.csv"
+    rows = list(csv.reader(open(path, newline="")))
+    rows = rows[:1] + [r[:3] + ["1" if i < keep else "0"] for i, r in enumerate(rows[1:])]
+    with open(path, "w", newline="") as fh:
+        csv.writer(fh).writerows(rows)
+
+
+def test_a_frame_without_ground_truth_is_unscored_not_the_end_of_the_run(sequence, tmp_path, capsys):
+    """A frame whose landmarks are mostly hidden (3 seen in both frames: no landmark spline), or that
+    the TPS files of `geofeat groundtruth` leave out (it failed there), stopped the whole run with a
+    message that did not name the frame; now it is tracked, its ground-truth figures NaN and said so."""
+    from geofeat.groundtruth import GroundTruthConfig, generate_ground_truth
+
+    folder = _public_copy(sequence, tmp_path / "public", "frame-001")
+    _hide_landmarks(folder, "frame-002", 3)
+    result = track_sequence(folder, ("sift",), n_keypoints=300, refine="none", progress=False)["sift"]
+    rows = {r["frame"]: r for r in result.rows}
+    assert rows["frame-001"]["grid_error_px"] == pytest.approx(0.0, abs=1e-6)
+    assert not rows["frame-002"]["failed"] and np.isnan(rows["frame-002"]["grid_error_px"])
+    assert np.isnan(rows["frame-002"]["precision"]) and np.isfinite(result.points[2]).all()
+    assert "no ground truth for frame-002" in capsys.readouterr().out
+    # the same frame left out of the TPS files that `geofeat groundtruth` writes (it fails there)
+    tps = tmp_path / "tps"
+    reports = generate_ground_truth(folder, tps / "public", GroundTruthConfig(refine=False), progress=False)
+    assert [r.status for r in reports] == ["ok", "failed"]
+    result = track_sequence(folder, ("sift",), n_keypoints=300, refine="none", progress=False, tps_dir=str(tps))["sift"]
+    rows = {r["frame"]: r for r in result.rows}
+    assert rows["frame-001"]["grid_error_px"] < 0.5 and np.isnan(rows["frame-002"]["grid_error_px"])
+    assert "no ground truth for frame-002 in the TPS files" in capsys.readouterr().out
+
+
+def test_tps_files_asked_for_but_missing_for_a_sequence_are_refused_not_ignored(sequence, tmp_path):
+    """--tps-dir without files for a sequence dropped its ground truth without a word (every grid
+    error NaN, even those the simulator's truth measures); now it is refused before any work."""
+    other = tmp_path / "tps" / "another-sequence"
+    other.mkdir(parents=True)
+    cv2 = pytest.importorskip("cv2")
+    cv2.imwrite(str(other / "frame-000-master_objmask.png"), np.full((240, 320), 255, np.uint8))
+    with pytest.raises(ValueError, match="tps-dir: no TPS files .* sequence cloth"):
+        track_sequence(sequence, ("sift",), n_keypoints=300, refine="none", progress=False, tps_dir=str(tmp_path / "tps"))
+    with pytest.raises(ValueError, match="tps-dir: no TPS files .* sequence cloth"):
+        write_tracking([sequence], tmp_path / "out", ("sift",), n_keypoints=300, refine="none", progress=False,
+                       tps_dir=str(tmp_path / "tps"))
+    assert not (tmp_path / "out").exists()

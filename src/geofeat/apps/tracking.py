@@ -678,6 +678,8 @@ class _Template:
         try:
             truth = GroundTruth(seq, tps_dir)
         except ValueError:
+            if tps_dir is not None:  # TPS files asked for but none for this sequence: it lost its scores without a
+                raise                # word, even those of its simulator or landmark ground truth
             truth = None
         profile = sequence_depth_profile(seq, None, ref)
         describe = Describer(names, sequence_radius(seq, radius), profile)
@@ -702,8 +704,23 @@ class _Template:
 
     def to_reference(self, name: str, xy: np.ndarray) -> np.ndarray | None:
         """(N, 2) pixels of frame `name` mapped into the reference by the ground truth, NaN rows where
-        it is unknown; None when the sequence has no ground truth."""
-        return self.truth.map(name, xy)[0] if self.truth is not None else None
+        it is unknown; None when the sequence has no ground truth, or none for this frame (said on the
+        console): TPS files that leave it out (`geofeat groundtruth` writes none for a frame that
+        failed), or too few landmarks seen in both frames, or collinear ones, for a landmark spline.
+        (Either stopped the whole run with a message that did not name the frame.)"""
+        if self.truth is None:
+            return None
+        if not self.truth.covers(name):
+            tqdm.write(f"{self.seq.name}: no ground truth for {name} in the TPS files; its ground-truth figures are NaN")
+            return None
+        try:
+            return self.truth.map(name, xy)[0]
+        except ValueError as error:
+            if self.truth.tps is not None or self.truth.exact:  # not a landmark spline of this frame: a real error
+                raise
+            tqdm.write(f"{self.seq.name}: no ground truth for {name} ({str(error).splitlines()[0]}); its "
+                       "ground-truth figures are NaN")
+            return None
 
     def new_result(self, descriptor: str) -> TrackResult:
         """An empty `TrackResult`: the grid in the reference frame, NaN points elsewhere, no rows."""
@@ -1077,6 +1094,7 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
     import imageio.v2 as imageio
 
     from ..descriptors import check_descriptor_names
+    from ..groundtruth.sources import tps_folder
     from ..inputs import check_tps_dir
     from ..io import find_sequences
     from ..keypoints import group_by_detector
@@ -1092,6 +1110,10 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
         if count < 2:
             raise ValueError(f"sequence {Path(folder).name}: needs a reference frame and at least one other frame, "
                              f"got {count} frame(s)")
+        if tps_dir is not None and tps_folder(tps_dir, Path(folder).name) is None:  # `_Template.build` refuses it
+            raise ValueError(f"tps-dir: no TPS files (<frame>_theta.npy, <frame>_objmask.png) for sequence "
+                             f"{Path(folder).name} in {Path(tps_dir) / Path(folder).name} or "
+                             f"{Path(tps_dir)}/*/{Path(folder).name}")
     rows: list[dict] = []
     notes = []
     seconds = setup = 0.0
