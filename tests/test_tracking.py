@@ -829,3 +829,35 @@ def test_tps_files_asked_for_but_missing_for_a_sequence_are_refused_not_ignored(
         write_tracking([sequence], tmp_path / "out", ("sift",), n_keypoints=300, refine="none", progress=False,
                        tps_dir=str(tmp_path / "tps"))
     assert not (tmp_path / "out").exists()
+
+
+def test_grid_points_thrown_off_the_cloth_count_as_lost_not_as_left_out(sequence):
+    """A tracked grid point that the ground truth maps nowhere was left out of grid_error_px: a warp
+    that threw 60 % of the visible grid onto the background scored 0 px, better than one that
+    tracked those points 8 px off on the cloth. Where the simulator sees the grid point in the frame,
+    its true position maps back onto it, so such a point is misplaced: it counts as lost."""
+    from geofeat.apps.objectmask import object_mask
+    from geofeat.apps.tracking import _grid_error
+    from geofeat.groundtruth.sources import GroundTruth
+    from geofeat.io import read_sequence
+
+    seq = read_sequence(sequence)
+    truth = GroundTruth(seq, None)
+    target = seq.targets[0]
+    grid = roi_grid(default_roi(object_mask(seq, seq.reference)[0]))
+    xy, seen = truth.project(target, grid)
+    use = seen & truth.reference_keep(grid)
+    assert use.sum() >= 20
+    grid, xy = grid[use], xy[use]
+    projected = truth.project(target, grid)
+    assert _grid_error(truth, target, xy, grid, projected) == pytest.approx(0.0, abs=1e-6)  # a perfect track
+    lost = np.arange(len(grid)) < int(0.6 * len(grid))
+    off, near = xy.copy(), xy.copy()
+    off[lost] = [0.0, 0.0]  # onto the background (the image corner)
+    near[lost] += [8.0, 0.0]
+    assert not truth.map(target, off[:1])[1].any()
+    near_error = _grid_error(truth, target, near, grid, projected)
+    assert 4.0 < near_error < 12.0
+    assert _grid_error(truth, target, off, grid, projected) == np.inf  # more than half of the grid lost
+    # without the simulator's forward truth (TPS files, landmarks) such a point cannot be judged: left out
+    assert _grid_error(truth, target, off, grid) == pytest.approx(0.0, abs=1e-6)

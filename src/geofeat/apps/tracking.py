@@ -515,7 +515,8 @@ class TrackResult:
 #: template keypoints with a nearest neighbour; inliers: RANSAC inliers among them; ms: correct
 #: inliers / min(n_template, n_frame) (the bench's matching score applied to the kept matches);
 #: precision: correct inliers / inliers that the ground truth covers (NaN when it covers none; correct: the bench's ground truth within 3 px, `geofeat.scoring.correct_matches`);
-#: grid_error_px: median over the grid (its points on the object in the reference) of |ground truth(tracked point) - grid point|, reference pixels;
+#: grid_error_px: median over the grid (its points on the object in the reference) of |ground truth(tracked point) - grid point|, reference pixels
+#: (a tracked point the ground truth maps nowhere left out, or lost (inf) when the simulator sees its grid point in the frame, `_grid_error`);
 #: grid_error_tps_px: the same for the RANSAC spline alone (before refinement); grid_error_visible_px:
 #: median over the grid points seen in the frame of |tracked point - true position|, frame pixels
 #: (simulated sequences only: the forward ground truth); visible_grid: the fraction of the grid seen
@@ -867,28 +868,35 @@ def _truth_figures(template: _Template, target: _Target, fit: _Fit, warp: Warp, 
     # fold is unscored, not wrong (counting it wrong gave 0.77 on a frame identical to the reference)
     scored = int(np.isfinite(in_ref).all(axis=1).sum())
     truth, grid = template.truth, template.grid
-    grid_error = _grid_error(truth, target.name, points, grid)
+    grid_error = _grid_error(truth, target.name, points, grid, target.grid_truth)
     visible_error, visible_fraction = _visible_grid_error(target.grid_truth, points)
     return dict(
         ms=correct / max(min(len(template.keypoints), len(target.keypoints)), 1),
         precision=correct / scored if scored else float("nan"),
         grid_error_px=grid_error,
         grid_error_tps_px=(grid_error if warp is fit.ransac.warp
-                           else _grid_error(truth, target.name, fit.ransac.warp(grid), grid)),
+                           else _grid_error(truth, target.name, fit.ransac.warp(grid), grid, target.grid_truth)),
         grid_error_visible_px=visible_error,
         visible_grid=visible_fraction,
     )
 
 
-def _grid_error(truth, target: str, pts: np.ndarray, grid: np.ndarray) -> float:
+def _grid_error(truth, target: str, pts: np.ndarray, grid: np.ndarray,
+                grid_truth: tuple[np.ndarray, np.ndarray] | None = None) -> float:
     """Median over the (G, 2) grid of |ground truth(tracked (G, 2) frame pixels) - grid point|, pixels,
     over the grid points on the object in the reference (`GroundTruth.reference_keep`): a grid point
     off the object (an ROI corner on the background) has no true position, and one whose tracked point
     landed on the object was scored against an unrelated part of it (the visible-points error leaves
-    them out too)."""
+    them out too). A tracked point that the ground truth maps nowhere is left out, unless `grid_truth`
+    (`_Target.grid_truth`, the simulator's) says its grid point is seen in the frame: its true position
+    then maps back onto it, so the tracked point is elsewhere, and it counts as lost (inf). (Left out,
+    a warp that threw grid points onto the background scored better than one that tracked them a few
+    pixels off.)"""
     g = np.linalg.norm(truth.map(target, pts)[0] - grid, axis=1)
+    if grid_truth is not None:
+        g[np.isnan(g) & np.asarray(grid_truth[1], bool)] = np.inf
     g[~np.asarray(truth.reference_keep(grid), bool)] = np.nan
-    return float(np.nanmedian(g)) if np.isfinite(g).any() else float("nan")
+    return float(np.nanmedian(g)) if (~np.isnan(g)).any() else float("nan")
 
 
 def _visible_grid_error(grid_truth: tuple[np.ndarray, np.ndarray] | None, pts: np.ndarray) -> tuple[float, float]:
