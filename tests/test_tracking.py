@@ -781,3 +781,83 @@ def test_every_track_csv_column_is_described_in_the_applications_page():
     page = (Path(__file__).resolve().parents[1] / "docs" / "applications.md").read_text()
     described = page[page.index("Output: `track.csv`"):page.index("`<sequence>/<descriptor>/grid.npz`")]
     assert [c for c in TRACK_COLUMNS if f"`{c}`" not in described] == []
+
+
+def _hide_landmarks(folder, frame: str, keep: int) -> None:
+    """Mark all but the first `keep` landmarks of `frame`'s csv invisible (valid 0)."""
+    path = folder / f"{frame}.csv"
+    rows = list(csv.reader(open(path, newline="")))
+    rows = rows[:1] + [r[:3] + ["1" if i < keep else "0"] for i, r in enumerate(rows[1:])]
+    with open(path, "w", newline="") as fh:
+        csv.writer(fh).writerows(rows)
+
+
+def test_a_frame_without_ground_truth_is_unscored_not_the_end_of_the_run(sequence, tmp_path, capsys):
+    """A frame whose landmarks are mostly hidden (3 seen in both frames: no landmark spline), or that
+    the TPS files of `geofeat groundtruth` leave out (it failed there), stopped the whole run with a
+    message that did not name the frame; now it is tracked, its ground-truth figures NaN and said so."""
+    from geofeat.groundtruth import GroundTruthConfig, generate_ground_truth
+
+    folder = _public_copy(sequence, tmp_path / "public", "frame-001")
+    _hide_landmarks(folder, "frame-002", 3)
+    result = track_sequence(folder, ("sift",), n_keypoints=300, refine="none", progress=False)["sift"]
+    rows = {r["frame"]: r for r in result.rows}
+    assert rows["frame-001"]["grid_error_px"] == pytest.approx(0.0, abs=1e-6)
+    assert not rows["frame-002"]["failed"] and np.isnan(rows["frame-002"]["grid_error_px"])
+    assert np.isnan(rows["frame-002"]["precision"]) and np.isfinite(result.points[2]).all()
+    assert "no ground truth for frame-002" in capsys.readouterr().out
+    # the same frame left out of the TPS files that `geofeat groundtruth` writes (it fails there)
+    tps = tmp_path / "tps"
+    reports = generate_ground_truth(folder, tps / "public", GroundTruthConfig(refine=False), progress=False)
+    assert [r.status for r in reports] == ["ok", "failed"]
+    result = track_sequence(folder, ("sift",), n_keypoints=300, refine="none", progress=False, tps_dir=str(tps))["sift"]
+    rows = {r["frame"]: r for r in result.rows}
+    assert rows["frame-001"]["grid_error_px"] < 0.5 and np.isnan(rows["frame-002"]["grid_error_px"])
+    assert "no ground truth for frame-002 in the TPS files" in capsys.readouterr().out
+
+
+def test_tps_files_asked_for_but_missing_for_a_sequence_are_refused_not_ignored(sequence, tmp_path):
+    """--tps-dir without files for a sequence dropped its ground truth without a word (every grid
+    error NaN, even those the simulator's truth measures); now it is refused before any work."""
+    other = tmp_path / "tps" / "another-sequence"
+    other.mkdir(parents=True)
+    cv2 = pytest.importorskip("cv2")
+    cv2.imwrite(str(other / "frame-000-master_objmask.png"), np.full((240, 320), 255, np.uint8))
+    with pytest.raises(ValueError, match="tps-dir: no TPS files .* sequence cloth"):
+        track_sequence(sequence, ("sift",), n_keypoints=300, refine="none", progress=False, tps_dir=str(tmp_path / "tps"))
+    with pytest.raises(ValueError, match="tps-dir: no TPS files .* sequence cloth"):
+        write_tracking([sequence], tmp_path / "out", ("sift",), n_keypoints=300, refine="none", progress=False,
+                       tps_dir=str(tmp_path / "tps"))
+    assert not (tmp_path / "out").exists()
+
+
+def test_grid_points_thrown_off_the_cloth_count_as_lost_not_as_left_out(sequence):
+    """A tracked grid point that the ground truth maps nowhere was left out of grid_error_px: a warp
+    that threw 60 % of the visible grid onto the background scored 0 px, better than one that
+    tracked those points 8 px off on the cloth. Where the simulator sees the grid point in the frame,
+    its true position maps back onto it, so such a point is misplaced: it counts as lost."""
+    from geofeat.apps.objectmask import object_mask
+    from geofeat.apps.tracking import _grid_error
+    from geofeat.groundtruth.sources import GroundTruth
+    from geofeat.io import read_sequence
+
+    seq = read_sequence(sequence)
+    truth = GroundTruth(seq, None)
+    target = seq.targets[0]
+    grid = roi_grid(default_roi(object_mask(seq, seq.reference)[0]))
+    xy, seen = truth.project(target, grid)
+    use = seen & truth.reference_keep(grid)
+    assert use.sum() >= 20
+    grid, xy = grid[use], xy[use]
+    projected = truth.project(target, grid)
+    assert _grid_error(truth, target, xy, grid, projected) == pytest.approx(0.0, abs=1e-6)  # a perfect track
+    lost = np.arange(len(grid)) < int(0.6 * len(grid))
+    off, near = xy.copy(), xy.copy()
+    off[lost] = [0.0, 0.0]  # onto the background (the image corner)
+    near[lost] += [8.0, 0.0]
+    assert not truth.map(target, off[:1])[1].any()
+    near_error = _grid_error(truth, target, near, grid, projected)
+    assert 4.0 < near_error < 12.0
+    assert _grid_error(truth, target, off, grid, projected) == np.inf  # more than half of the grid lost
+    # without the simulator's forward truth (TPS files, landmarks) such a point cannot be judged: left out
+    assert _grid_error(truth, target, off, grid) == pytest.approx(0.0, abs=1e-6)

@@ -515,7 +515,8 @@ class TrackResult:
 #: template keypoints with a nearest neighbour; inliers: RANSAC inliers among them; ms: correct
 #: inliers / min(n_template, n_frame) (the bench's matching score applied to the kept matches);
 #: precision: correct inliers / inliers that the ground truth covers (NaN when it covers none; correct: the bench's ground truth within 3 px, `geofeat.scoring.correct_matches`);
-#: grid_error_px: median over the grid (its points on the object in the reference) of |ground truth(tracked point) - grid point|, reference pixels;
+#: grid_error_px: median over the grid (its points on the object in the reference) of |ground truth(tracked point) - grid point|, reference pixels
+#: (a tracked point the ground truth maps nowhere left out, or lost (inf) when the simulator sees its grid point in the frame, `_grid_error`);
 #: grid_error_tps_px: the same for the RANSAC spline alone (before refinement); grid_error_visible_px:
 #: median over the grid points seen in the frame of |tracked point - true position|, frame pixels
 #: (simulated sequences only: the forward ground truth); visible_grid: the fraction of the grid seen
@@ -678,6 +679,8 @@ class _Template:
         try:
             truth = GroundTruth(seq, tps_dir)
         except ValueError:
+            if tps_dir is not None:  # TPS files asked for but none for this sequence: it lost its scores without a
+                raise                # word, even those of its simulator or landmark ground truth
             truth = None
         profile = sequence_depth_profile(seq, None, ref)
         describe = Describer(names, sequence_radius(seq, radius), profile)
@@ -702,8 +705,23 @@ class _Template:
 
     def to_reference(self, name: str, xy: np.ndarray) -> np.ndarray | None:
         """(N, 2) pixels of frame `name` mapped into the reference by the ground truth, NaN rows where
-        it is unknown; None when the sequence has no ground truth."""
-        return self.truth.map(name, xy)[0] if self.truth is not None else None
+        it is unknown; None when the sequence has no ground truth, or none for this frame (said on the
+        console): TPS files that leave it out (`geofeat groundtruth` writes none for a frame that
+        failed), or too few landmarks seen in both frames, or collinear ones, for a landmark spline.
+        (Either stopped the whole run with a message that did not name the frame.)"""
+        if self.truth is None:
+            return None
+        if not self.truth.covers(name):
+            tqdm.write(f"{self.seq.name}: no ground truth for {name} in the TPS files; its ground-truth figures are NaN")
+            return None
+        try:
+            return self.truth.map(name, xy)[0]
+        except ValueError as error:
+            if self.truth.tps is not None or self.truth.exact:  # not a landmark spline of this frame: a real error
+                raise
+            tqdm.write(f"{self.seq.name}: no ground truth for {name} ({str(error).splitlines()[0]}); its "
+                       "ground-truth figures are NaN")
+            return None
 
     def new_result(self, descriptor: str) -> TrackResult:
         """An empty `TrackResult`: the grid in the reference frame, NaN points elsewhere, no rows."""
@@ -850,28 +868,35 @@ def _truth_figures(template: _Template, target: _Target, fit: _Fit, warp: Warp, 
     # fold is unscored, not wrong (counting it wrong gave 0.77 on a frame identical to the reference)
     scored = int(np.isfinite(in_ref).all(axis=1).sum())
     truth, grid = template.truth, template.grid
-    grid_error = _grid_error(truth, target.name, points, grid)
+    grid_error = _grid_error(truth, target.name, points, grid, target.grid_truth)
     visible_error, visible_fraction = _visible_grid_error(target.grid_truth, points)
     return dict(
         ms=correct / max(min(len(template.keypoints), len(target.keypoints)), 1),
         precision=correct / scored if scored else float("nan"),
         grid_error_px=grid_error,
         grid_error_tps_px=(grid_error if warp is fit.ransac.warp
-                           else _grid_error(truth, target.name, fit.ransac.warp(grid), grid)),
+                           else _grid_error(truth, target.name, fit.ransac.warp(grid), grid, target.grid_truth)),
         grid_error_visible_px=visible_error,
         visible_grid=visible_fraction,
     )
 
 
-def _grid_error(truth, target: str, pts: np.ndarray, grid: np.ndarray) -> float:
+def _grid_error(truth, target: str, pts: np.ndarray, grid: np.ndarray,
+                grid_truth: tuple[np.ndarray, np.ndarray] | None = None) -> float:
     """Median over the (G, 2) grid of |ground truth(tracked (G, 2) frame pixels) - grid point|, pixels,
     over the grid points on the object in the reference (`GroundTruth.reference_keep`): a grid point
     off the object (an ROI corner on the background) has no true position, and one whose tracked point
     landed on the object was scored against an unrelated part of it (the visible-points error leaves
-    them out too)."""
+    them out too). A tracked point that the ground truth maps nowhere is left out, unless `grid_truth`
+    (`_Target.grid_truth`, the simulator's) says its grid point is seen in the frame: its true position
+    then maps back onto it, so the tracked point is elsewhere, and it counts as lost (inf). (Left out,
+    a warp that threw grid points onto the background scored better than one that tracked them a few
+    pixels off.)"""
     g = np.linalg.norm(truth.map(target, pts)[0] - grid, axis=1)
+    if grid_truth is not None:
+        g[np.isnan(g) & np.asarray(grid_truth[1], bool)] = np.inf
     g[~np.asarray(truth.reference_keep(grid), bool)] = np.nan
-    return float(np.nanmedian(g)) if np.isfinite(g).any() else float("nan")
+    return float(np.nanmedian(g)) if (~np.isnan(g)).any() else float("nan")
 
 
 def _visible_grid_error(grid_truth: tuple[np.ndarray, np.ndarray] | None, pts: np.ndarray) -> tuple[float, float]:
@@ -1077,6 +1102,7 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
     import imageio.v2 as imageio
 
     from ..descriptors import check_descriptor_names
+    from ..groundtruth.sources import tps_folder
     from ..inputs import check_tps_dir
     from ..io import find_sequences
     from ..keypoints import group_by_detector
@@ -1092,6 +1118,10 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
         if count < 2:
             raise ValueError(f"sequence {Path(folder).name}: needs a reference frame and at least one other frame, "
                              f"got {count} frame(s)")
+        if tps_dir is not None and tps_folder(tps_dir, Path(folder).name) is None:  # `_Template.build` refuses it
+            raise ValueError(f"tps-dir: no TPS files (<frame>_theta.npy, <frame>_objmask.png) for sequence "
+                             f"{Path(folder).name} in {Path(tps_dir) / Path(folder).name} or "
+                             f"{Path(tps_dir)}/*/{Path(folder).name}")
     rows: list[dict] = []
     notes = []
     seconds = setup = 0.0
