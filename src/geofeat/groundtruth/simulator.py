@@ -21,7 +21,8 @@ Mapping a point p of frame i to frame j:
  3. visible in j if the projection lands in the image, in front of the camera, and the surface
     seen at the nearest pixel centre there is the same point: |uv_j(pixel) - (u, v)| below
     `tol_px` pixel footprints (divided by the cosine of the viewing angle) and not in front of it
-    (depth within the point's own slope over 0.75 px), and frame j sees the
+    (depth within the point's own slope over 0.75 px), no part of the cloth lies in front of it on its
+    own ray (searched from the triangles seen at the four pixel centres around it), and frame j sees the
     front side of the cloth there (the side the reference camera sees). Points hidden by a fold
     (another part of the cloth, far away in (u, v)), seen from the back, or off the image are not
     visible.
