@@ -296,3 +296,28 @@ def test_keypoints_within_a_pixel_of_a_stronger_one_are_not_a_surface_point_of_t
     assert np.array_equal(twins.ids, plain.ids) and np.array_equal(twins.patches, plain.patches)
     twins_image = imagepatches.sequence_image_patches(seq, "tfeat", 64)
     assert np.array_equal(twins_image.ids, plain_image.ids)
+
+
+def test_fine_tuning_in_place_with_overwrite_keeps_the_starting_weights(tmp_path, capsys):
+    """`train --init w.pt --out w.pt --overwrite` removed w.pt with the earlier run's files before
+    `train` read it, then stopped with 'no GeoPatch checkpoint at w.pt': the user's weights were lost
+    and nothing was trained. It is refused before any work, naming --init, and w.pt stays."""
+    from geofeat.descriptors.geopatch import GeoPatchConfig, GeoPatchNet, save_checkpoint
+
+    sim = tmp_path / "sim"
+    assert main(["simulate", str(sim), *TINY]) == 0
+    weights = tmp_path / "w.pt"
+    save_checkpoint(weights, GeoPatchNet(GeoPatchConfig(channels=(4, 8, 8))))
+    before = weights.read_bytes()
+    capsys.readouterr()
+    args = ["train", "--data", str(sim), "--epochs", "1", "--steps", "1", "--batch-size", "8", "--keypoints", "50",
+            "--device", "cpu", "--overwrite"]
+    assert main([*args, "--init", str(weights), "--out", str(weights)]) == 2
+    assert "--init" in capsys.readouterr().err
+    assert weights.read_bytes() == before
+    assert not (tmp_path / "w.pt.patches.npz").exists()
+    # the same file by another spelling, or as a file written beside OUT, is refused too
+    other = tmp_path / "sub"
+    other.mkdir()
+    assert main([*args, "--init", str(other / ".." / "w.pt"), "--out", str(weights)]) == 2
+    assert weights.read_bytes() == before

@@ -106,6 +106,8 @@ def run(args: argparse.Namespace) -> int:
             if str(error).startswith("weights: "):  # the file's own message, named by the flag that gave it
                 raise ValueError(f"--init: {str(error).removeprefix('weights: ')}") from None
             raise
+        if args.overwrite and not args.resume:
+            _check_init_survives(args.init, args.out)
 
     net = None  # geodesic polar patches with the depth profile asked for (default: per sequence)
     build = partial(build_patch_set, depth_config=args.depth_profile)
@@ -205,6 +207,26 @@ def _check_cached_source(cache: Path, cached: dict | None, wanted: dict) -> None
         return
     raise ValueError(f"--resume: {cache} holds the patches of a run with other options ({'; '.join(changed)}); "
                      "resume with that run's options, or pass --overwrite (without --resume) to start anew")
+
+
+def _check_init_survives(init: str, out: str) -> None:
+    """ValueError when the --init weights are a file that --overwrite removes before training (OUT,
+    OUT.ckpt, OUT.json or OUT.png): `geofeat train --init w.pt --out w.pt --overwrite` deleted w.pt
+    with the earlier run's files, then failed to read it ('no GeoPatch checkpoint'), so the user's
+    weights were lost and nothing was trained."""
+    import os
+
+    from ..train.loop import BESIDE
+
+    if str(init) == "shipped" or not os.path.exists(init):
+        return
+    for path in (Path(out), *(Path(str(out) + beside) for beside in BESIDE)):
+        if not (path.exists() or path.is_symlink()):
+            continue
+        if os.path.abspath(init) == os.path.abspath(path) or (path.exists() and os.path.samefile(init, path)):
+            raise ValueError(f"--init: {init} would be removed by --overwrite before training (as {path}, an earlier "
+                             "run's file), and the weights to start from lost; copy them to another name first, or "
+                             "choose another --out")
 
 
 def _init_channels(init: str) -> tuple[int, int, int]:
