@@ -813,7 +813,7 @@ def test_a_frame_without_ground_truth_is_unscored_not_the_end_of_the_run(sequenc
     result = track_sequence(folder, ("sift",), n_keypoints=300, refine="none", progress=False, tps_dir=str(tps))["sift"]
     rows = {r["frame"]: r for r in result.rows}
     assert rows["frame-001"]["grid_error_px"] < 0.5 and np.isnan(rows["frame-002"]["grid_error_px"])
-    assert "no ground truth for frame-002 in the TPS files" in capsys.readouterr().out
+    assert "no ground truth for frame-002 (no frame-002_theta.npy in the TPS files)" in capsys.readouterr().out
 
 
 def test_tps_files_asked_for_but_missing_for_a_sequence_are_refused_not_ignored(sequence, tmp_path):

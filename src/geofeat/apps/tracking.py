@@ -712,7 +712,8 @@ class _Template:
         if self.truth is None:
             return None
         if not self.truth.covers(name):
-            tqdm.write(f"{self.seq.name}: no ground truth for {name} in the TPS files; its ground-truth figures are NaN")
+            reason = self.truth.uncovered_reason(name)
+            tqdm.write(f"{self.seq.name}: no ground truth for {name} ({reason}); its ground-truth figures are NaN")
             return None
         try:
             return self.truth.map(name, xy)[0]
