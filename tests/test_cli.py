@@ -312,3 +312,15 @@ def test_demo_slope_noise_line_gives_its_unit_and_threshold(tmp_path, capsys):
     _demo_patches(tmp_path, 0.075, "auto")
     line = next(l for l in capsys.readouterr().out.splitlines() if l.startswith("depth profile:"))
     assert re.search(r"slope noise 0\.\d\d pixel footprints, above the kinect profile's threshold 0\.3\)", line), line
+
+
+def test_match_fails_when_a_match_picture_cannot_be_written(rolled_sequence, tmp_path, monkeypatch, capsys):
+    """OpenCV's imwrite returns False instead of raising (a file name over the system's limit, a full
+    disk): `match` said "one match picture per pair" with the picture missing."""
+    import cv2
+
+    monkeypatch.setattr(cv2, "imwrite", lambda *args, **kwargs: False)
+    assert main(["match", str(rolled_sequence), "--out", str(tmp_path / "m"), "--keypoints", "300"]) != 0
+    captured = capsys.readouterr()
+    assert "cannot write the picture" in captured.err and "match picture" not in captured.out
+    assert not (tmp_path / "m").exists()  # nothing half written

@@ -72,7 +72,7 @@ def object_mask(seq: Sequence, name: str, tps_dir: str | Path | None = None) -> 
         path = None if folder is None else folder / f"{name}_objmask.png"
         if path is not None and path.is_file():
             # unchanged, not IMREAD_GRAYSCALE: that reads a 16-bit 0/1 or 0/255 mask as all zeros
-            m = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            m = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)  # (as stored: UNCHANGED ignores an EXIF orientation)
             if m is None:
                 raise ValueError(f"tps-dir: cannot read {path}")
             if m.ndim == 3:  # colour: object where any colour channel (not the alpha) is non-zero

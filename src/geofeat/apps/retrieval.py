@@ -51,7 +51,7 @@ from tqdm import tqdm
 from ..constants import N_KEYPOINTS
 from ..features import Features
 from ..inputs import check_whole
-from ..outputs import plural
+from ..outputs import plural, write_picture
 
 __all__ = [
     "Vocabulary", "vocabulary", "sample_descriptors", "histogram", "search", "accuracy_at_k", "read_classes",
@@ -582,7 +582,7 @@ def _top6_picture(db: RetrievalDatabase, results: dict[str, tuple[np.ndarray, np
             cv2.putText(header, words, (x, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
         cv2.putText(header, "blue: the query; green: the same object; red: another", (110 + 4, 35),
                     cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
-        cv2.imwrite(str(path), np.concatenate([header] + rows, axis=0))
+        write_picture(path, np.concatenate([header] + rows, axis=0))
 
 
 def _plot(acc: dict[str, np.ndarray], path: Path) -> None:

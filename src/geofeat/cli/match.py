@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 import warnings
 
-import cv2
-
 from .common import file_label, finish_skipped, frame_and_keypoints, skip_frame
 from .options import frames_options, resolve_detection
 
@@ -34,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
     from ..inputs import resolve_radius
     from ..io import read_sequence
     from ..matching import match
-    from ..outputs import check_out_dir, output_folder, plural
+    from ..outputs import check_out_dir, output_folder, plural, write_picture
     from ..viz import draw_matches
 
     seq = read_sequence(args.folder, depth_scale=args.depth_scale)
@@ -89,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
                 summary += f", {int(correct.sum())} correct" + (f", {unjudged} not judged (no ground truth)" if unjudged else "")
             picture = draw_matches(ref, tgt, k_ref.xy, k_tgt.xy, m.matches0, correct, title=f"{args.descriptor}: {summary}",
                                    judged=judged)
-            cv2.imwrite(str(tmp / f"{seq.reference}__{name}__{label}.png"), picture)
+            write_picture(tmp / f"{seq.reference}__{name}__{label}.png", picture)
             tqdm.write(f"{seq.reference} -> {name}: {summary}")
         status = finish_skipped(skipped, len(seq.targets), "match")
     judged_total = (f", {total_correct} correct" + (f", {total_unjudged} not judged (no ground truth)" if total_unjudged else "")

@@ -32,7 +32,7 @@ from ..frame import RGBDFrame
 from ..imagequality import ssim_map
 from ..inputs import check_landmarks
 from ..io import Sequence, read_sequence, sequence_digest
-from ..outputs import check_out_dir, json_text, output_folder, read_manifest
+from ..outputs import check_out_dir, json_text, output_folder, read_manifest, write_picture
 from .defaults import DEFAULT_DEPTH_MARGIN_M, DEFAULT_MARGIN_PX, DEFAULT_SPACING_PX
 from .photometric import RefineConfig, check_refine_config, refine
 from ..tps import ThinPlateSpline, authors_tps, spans_plane
@@ -234,8 +234,8 @@ def _write_frame(out: Path, name: str, tps_inv: ThinPlateSpline, ev: _Warped) ->
     theta, ctrl = tps_inv.authors_arrays()
     np.save(out / f"{name}_theta.npy", theta)
     np.save(out / f"{name}_ctrlpts.npy", ctrl)
-    cv2.imwrite(str(out / f"{name}_objmask.png"), ev.mask.astype(np.uint8) * 255)
-    cv2.imwrite(str(out / f"{name}_SSIM.png"), np.rint(ev.ssim * 255).astype(np.uint8))
+    write_picture(out / f"{name}_objmask.png", ev.mask.astype(np.uint8) * 255)
+    write_picture(out / f"{name}_SSIM.png", np.rint(ev.ssim * 255).astype(np.uint8))
 
 
 def _frame(seq: Sequence, name: str, ref: RGBDFrame, ref_mask: np.ndarray, lms: dict, config: GroundTruthConfig,
@@ -329,7 +329,7 @@ def _frame(seq: Sequence, name: str, ref: RGBDFrame, ref_mask: np.ndarray, lms: 
         rep.seconds = time.perf_counter() - t0
         return rep
     _write_frame(out, name, tps_inv, ev)
-    cv2.imwrite(str(out / f"{name}_overlay.png"), _overlay(tgt, ev, lines, p_tgt[inl], p_tgt[~inl]))
+    write_picture(out / f"{name}_overlay.png", _overlay(tgt, ev, lines, p_tgt[inl], p_tgt[~inl]))
     rep.seconds = time.perf_counter() - t0
     return rep
 
@@ -389,7 +389,7 @@ def generate_ground_truth(sequence: str | Path | Sequence, out: str | Path, conf
 
         names = tqdm(names, desc=f"groundtruth {seq.name}", unit="frame")
     with output_folder(out) as tmp:
-        cv2.imwrite(str(tmp / f"{seq.reference}_objmask.png"), ref_mask.astype(np.uint8) * 255)
+        write_picture(tmp / f"{seq.reference}_objmask.png", ref_mask.astype(np.uint8) * 255)
         reports = [_frame(seq, name, ref, ref_mask, lms, config, tmp) for name in names]
         _write_report(tmp, seq, config, reports)
     return reports

@@ -94,7 +94,7 @@ class GroundTruth:
         it is missing or of another size than the sequence's frames."""
         if self.tps is None:
             return None
-        m = cv2.imread(str(self.tps / f"{frame}_objmask.png"), cv2.IMREAD_GRAYSCALE)
+        m = cv2.imread(str(self.tps / f"{frame}_objmask.png"), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
         if m is None:
             raise ValueError(f"tps-dir: missing {self.tps / f'{frame}_objmask.png'}")
         shape = self.seq.shape
@@ -154,7 +154,7 @@ class GroundTruth:
             mask = self._mask(target)
             out = load_authors_spline(self.tps, target, (mask.shape[1], mask.shape[0]))(xy)
             ok = _on_mask(mask, xy)
-            ssim = cv2.imread(str(self.tps / f"{target}_SSIM.png"), cv2.IMREAD_GRAYSCALE)
+            ssim = cv2.imread(str(self.tps / f"{target}_SSIM.png"), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
             if ssim is not None:
                 ok &= _on_mask((ssim.astype(np.float32) / 255.0 > 0.25).astype(np.uint8), xy)
         elif self.exact:

@@ -267,7 +267,8 @@ def write_frame(folder: Path, name: str, frame: SimFrame, depth_unit: float = DE
     """Write the PNGs (depth in `depth_unit` metres) and `<name>-gt.npz` of one frame; return its ground truth."""
     if not cv2.imwrite(str(folder / f"{name}-rgb.png"), frame.image):
         raise ValueError(f"out_dir: cannot write {folder / f'{name}-rgb.png'}")
-    cv2.imwrite(str(folder / f"{name}-depth.png"), encode_depth(frame.depth, depth_unit))
+    if not cv2.imwrite(str(folder / f"{name}-depth.png"), encode_depth(frame.depth, depth_unit)):
+        raise ValueError(f"out_dir: cannot write {folder / f'{name}-depth.png'}")
     truth = FrameTruth(uv=frame.render.uv, vertices=frame.vertices)
     save_npz(folder / f"{name}{GT_SUFFIX}", uv=truth.uv, vertices=truth.vertices, R=frame.R, t=frame.t)
     return truth
