@@ -311,6 +311,19 @@ def test_texture_loading():
     assert proc.shape == (48, 64, 3) and proc.std() > 10
 
 
+def test_a_16_bit_texture_keeps_its_contrast_or_is_warned_of(tmp_path):
+    """OpenCV's plain colour read scaled a 16-bit file by 1/256: a texture of 8-bit values stored in 16
+    bits came back black without a word (it would be rendered as a black cloth)."""
+    import cv2
+
+    img = read_texture(TEXTURE)
+    cv2.imwrite(str(tmp_path / "full.png"), img.astype(np.uint16) * 257)  # the whole 16-bit range
+    assert np.abs(read_texture(tmp_path / "full.png").astype(int) - img).max() <= 1
+    cv2.imwrite(str(tmp_path / "low.png"), img.astype(np.uint16))  # 8-bit values in a 16-bit file
+    with pytest.warns(UserWarning, match="low.png"):
+        read_texture(tmp_path / "low.png")
+
+
 def test_simulate_writes_the_depth_profile_it_rendered(tmp_path):
     """The folder's geofeat.json names the depth profile of what was rendered, and it agrees with
     the profile `auto` measures on the frames."""

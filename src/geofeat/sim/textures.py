@@ -31,12 +31,15 @@ def list_textures(folder: str | Path) -> list[Path]:
 
 
 def read_texture(path: str | Path) -> np.ndarray:
-    """Read an image file as (H, W, 3) uint8 BGR; ValueError if it is missing or unreadable."""
+    """Read an image file as (H, W, 3) uint8 BGR (`geofeat.io.read_image`: grey, RGBA and 16-bit files
+    too, a 16-bit file of 8-bit values warned of); ValueError if it is missing or unreadable."""
+    from ..io import read_image
+
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"texture: file not found: {path}")
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if image is None or image.size == 0:
+    image = read_image(path, "texture")
+    if image.size == 0:
         raise ValueError(f"texture: cannot decode image {path}")
     if min(image.shape[:2]) < 8:
         raise ValueError(f"texture: image {path} is too small ({image.shape[1]}x{image.shape[0]} px)")
