@@ -757,3 +757,26 @@ def test_a_target_with_too_few_landmarks_for_the_spline_is_skipped_not_its_seque
     assert not failed and [r["target"] for r in rows] == ["frame-001"] and float(rows[0]["ms"]) > 0
     out = capsys.readouterr().out
     assert "a-deform: no ground truth for frame-002" in out and "pair skipped" in out
+
+
+def test_a_rerun_refuses_rows_scored_with_tps_files_made_again_since(datasets, tmp_path):
+    """The TPS ground truth was compared by its --tps-dir text only: `geofeat groundtruth` run again
+    into the same folder (other splines) and a bench rerun into the same --out kept the old rows beside
+    the new ones, scored against other ground truth, without a word."""
+    from geofeat.cli import main
+
+    seqs = tmp_path / "seqs"
+    shutil.copytree(datasets / "seqs" / "a-deform", seqs / "a-deform")
+    tps = tmp_path / "tps"
+    assert main(["groundtruth", str(seqs), "--out", str(tps), "--no-refine", "--no-progress"]) == 0
+    config = BenchConfig(descriptors=("orb",), n_keypoints=200, tps_dir=str(tps))
+    csv_path, failed = run_benchmark(seqs, tmp_path / "out", config, progress=False)
+    rows = read_rows(csv_path)
+    assert not failed and len(rows) == 2
+    run_benchmark(seqs, tmp_path / "out", config, progress=False)  # unchanged: resumed, nothing redone
+    assert read_rows(csv_path) == rows
+    theta = tps / "a-deform" / "frame-001_theta.npy"
+    np.save(theta, np.load(theta) * 1.01)
+    with pytest.raises(ValueError, match="its TPS files made again"):
+        run_benchmark(seqs, tmp_path / "out", config, progress=False)
+    assert read_rows(csv_path) == rows

@@ -520,12 +520,13 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
             raise ValueError(f"out: {out} holds results of another sequence of the same name ({'; '.join(moved)}); "
                              "use --overwrite or another --out")
         read_from = {**read_from, **_read_from(folders)}
-        digests = _digests(folders)
+        digests = _digests(folders, config.tps_dir)
         stored = before.get("sequence_digests") if isinstance(before.get("sequence_digests"), dict) else {}
         changed = sorted(name for name in finished if name in digests and stored.get(name, digests[name]) != digests[name])
         if changed:  # their rows describe the frames that were there before
             raise ValueError(f"out: {out} holds results of {', '.join(changed)}, whose files changed since (a frame "
-                             "replaced, added or removed); use --overwrite or another --out")
+                             "replaced, added or removed, or its TPS files made again); use --overwrite or another "
+                             "--out")
         digests = {**stored, **digests}
         stored_features = before.get("feature_digests") if isinstance(before.get("feature_digests"), dict) else {}
         rewritten = sorted(f"{name} of {sequence}" for sequence, name in done if name in feature_digests
@@ -546,7 +547,7 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
                 csv.DictWriter(fh, COLUMNS, lineterminator="\n").writeheader()
         done = set()
         read_from = _read_from(folders)
-        digests = _digests(folders)
+        digests = _digests(folders, config.tps_dir)
         ours = read_manifest(out)
         for name in REPORTS:  # the earlier run's reports, which this run may not rewrite (details.md, a curve)
             if name in ours:
@@ -564,10 +565,30 @@ def _read_from(folders: list[str]) -> dict[str, str]:
     return {Path(f).name: str(Path(f).resolve()) for f in folders}
 
 
-def _digests(folders: list[str]) -> dict[str, str]:
+def _digests(folders: list[str], tps_dir: str | None = None) -> dict[str, str]:
     """For config.json: each sequence's `io.sequence_digest`, so that a rerun does not keep the rows of
-    a sequence whose frames were replaced in place since."""
-    return {Path(f).name: sequence_digest(f) for f in folders}
+    a sequence whose frames were replaced in place since; with `tps_dir`, followed by the digest of the
+    sequence's TPS files there (`tps_digest`): ground truth made again by `geofeat groundtruth`, or a
+    relative --tps-dir given from another folder, changes the rows' ground truth as much."""
+    if tps_dir is None:
+        return {Path(f).name: sequence_digest(f) for f in folders}
+    return {Path(f).name: f"{sequence_digest(f)}+tps:{tps_digest(tps_dir, Path(f).name)}" for f in folders}
+
+
+def tps_digest(tps_dir: str, name: str) -> str:
+    """SHA-1 (hex) of the TPS files of sequence `name` under `tps_dir` (`groundtruth.sources.tps_folder`):
+    the names and contents of the non-hidden files there, in order; "none" when it has none."""
+    import hashlib
+
+    from ..groundtruth.sources import tps_folder
+
+    folder = tps_folder(str(tps_dir), name)
+    if folder is None:
+        return "none"
+    digest = hashlib.sha1()
+    for path in sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".")):
+        digest.update(path.name.encode() + b"\0" + str(path.stat().st_size).encode() + b"\0" + path.read_bytes())
+    return digest.hexdigest()
 
 
 def _feature_digests(config: BenchConfig, folders: list[str]) -> dict[str, dict[str, str]]:
