@@ -861,3 +861,22 @@ def test_grid_points_thrown_off_the_cloth_count_as_lost_not_as_left_out(sequence
     assert _grid_error(truth, target, off, grid, projected) == np.inf  # more than half of the grid lost
     # without the simulator's forward truth (TPS files, landmarks) such a point cannot be judged: left out
     assert _grid_error(truth, target, off, grid) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_a_users_file_at_a_result_path_is_refused_before_any_tracking(sequence, tmp_path, monkeypatch):
+    """A file geofeat did not write at OUT/<sequence>/<descriptor>/grid.npz was refused only when the
+    results were moved into place, after all the tracking; a rerun over geofeat's own results still
+    replaces them."""
+    from geofeat.apps import tracking
+
+    write_tracking([sequence], tmp_path / "out", ("sift",), n_keypoints=300, refine="none", progress=False)
+    write_tracking([sequence], tmp_path / "out", ("sift",), n_keypoints=300, refine="none", progress=False,
+                   overwrite=True)  # geofeat's own files: replaced
+    mine = tmp_path / "mine" / sequence.name / "orb"
+    mine.mkdir(parents=True)
+    (mine / "grid.npz").write_bytes(b"my own grid")
+    monkeypatch.setattr(tracking, "track_sequence", lambda *a, **k: pytest.fail("tracked before the refusal"))
+    with pytest.raises(ValueError, match="which geofeat did not write"):
+        write_tracking([sequence], tmp_path / "mine", ("orb",), n_keypoints=300, refine="none", progress=False,
+                       overwrite=True)
+    assert (mine / "grid.npz").read_bytes() == b"my own grid"

@@ -1083,6 +1083,11 @@ def _median(values) -> float:
     return float(np.median(v)) if len(v) else float("nan")
 
 
+def _result_folder(descriptor: str) -> str:
+    """The folder of a descriptor's results under OUT/<sequence>/ ("geopatch=w.pt" -> "geopatch_w.pt")."""
+    return descriptor.replace("=", "_").replace("/", "_")
+
+
 def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi=None, n_keypoints: int = N_KEYPOINTS,
                    tps_dir: str | None = None, radius: float | None = None, depth_scale: float | None = None,
                    threshold_px: float = RANSAC_THRESHOLD_PX, progress: bool = True,
@@ -1112,7 +1117,11 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
     names = check_descriptor_names(descriptors)  # unknown or repeated names fail before any work
     groups = group_by_detector(names, detector)
     sequences = find_sequences(sequences, unique_names=True)
-    out = check_out_dir(out, overwrite, files=("track.csv", "tracking.md"), inputs=sequences)
+    # every file at a fixed name, per sequence and descriptor too: a user's file there was found only when
+    # the results were moved into place, after all the tracking
+    files = ["track.csv", "tracking.md"] + [f"{Path(folder).name}/{_result_folder(name)}/{file}" for folder in sequences
+                                            for name in names for file in ("grid.npz", "track.gif")]
+    out = check_out_dir(out, overwrite, files=files, inputs=sequences)
     check_tps_dir(tps_dir)
     for folder in sequences:  # before any work: a sequence of one frame found after hours of tracking lost them all
         count = len(frame_names(folder))
@@ -1146,7 +1155,7 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
                 for name, r in results.items():
                     writer.writerows(r.rows)
                     rows.extend(r.rows)
-                    sub = tmp / seq.name / name.replace("=", "_").replace("/", "_")
+                    sub = tmp / seq.name / _result_folder(name)
                     sub.mkdir(parents=True, exist_ok=True)
                     np.savez(sub / "grid.npz", reference_points=r.reference_points, points=r.points,
                              frames=np.array(r.frames), roi=np.array(r.roi))
