@@ -70,3 +70,22 @@ def test_off_image_keypoints_are_refused():
     flat, _ = _frames()
     with pytest.raises(ValueError, match="keypoints: 1 keypoint.s. off the 200x200 image"):
         BRAND().compute(flat, np.array([[100.0, 100.0], [150.0, 260.0]]))
+
+
+@pytest.mark.parametrize("fy", [300.0, 200.0], ids=["square pixels", "non-square pixels"])
+def test_a_quarter_roll_keeps_the_bits_with_non_square_pixels(fy):
+    """The patch covers the same metric extent along both image axes (fx E / z across, fy E / z down):
+    with fx alone for both, a camera rolled by a quarter turn (fx and fy swap) saw another patch, and
+    54-89 of the 256 bits changed at fx = 300, fy = 200."""
+    from geofeat.frame import rotate_points90
+
+    image = _frames((201, 201))[0].image
+    Kn = np.array([[300.0, 0.0, 100.0], [0.0, fy, 100.0], [0.0, 0.0, 1.0]])
+    frame = geofeat.RGBDFrame(image, np.ones((201, 201), np.float32), Kn)
+    xy = np.array([[100.0, 100.0], [90.0, 110.0], [110.0, 95.0]])
+    kps = geofeat.Keypoints(xy, np.array([30.0, 0.0, 75.0]), np.full(3, 8.0), np.zeros(3))
+    rolled = frame.rotated90(1)  # an OpenCV angle a becomes a - 90 degrees
+    kr = geofeat.Keypoints(rotate_points90(xy, frame.shape, 1), kps.angles - 90.0, kps.sizes, kps.responses)
+    a, b = BRAND().compute(frame, kps), BRAND().compute(rolled, kr)
+    assert a.valid.all() and b.valid.all()
+    assert (np.unpackbits(a.descriptors ^ b.descriptors, axis=1).sum(axis=1) == 0).all()

@@ -116,3 +116,16 @@ def test_patches_of_large_supports_stay_centred_on_the_keypoint(radius):
     rot = np.ascontiguousarray(np.rot90(image))  # about the keypoint: 257 = 2^8 + 1 keeps every level's grid
     p1 = sample_patches(rot, xy, np.array([30.0 - 90.0]), np.array([radius]), grid)
     np.testing.assert_allclose(p1, p0, atol=1e-4)
+
+
+@pytest.mark.parametrize("name", ["tfeat-sim", "logpolar-sim"])
+def test_describe_refuses_patches_of_another_size(name):
+    """logpolar-sim's convolutional head turned (N, 64, 64) patches into (N, 10368) descriptors without a
+    word, tfeat-sim failed inside torch; both take (N, 32, 32) patches, an empty set too."""
+    d = geofeat.make_descriptor(name)
+    rng = np.random.default_rng(0)
+    assert d.describe(rng.random((2, 32, 32), np.float32)).shape == (2, 128)
+    assert d.describe(np.zeros((0, 32, 32), np.float32)).shape == (0, 128)
+    for shape in [(2, 64, 64), (32, 32), (2, 1, 32, 32)]:
+        with pytest.raises(ValueError, match=r"^patches: expected shape \(N, 32, 32\)"):
+            d.describe(rng.random(shape, np.float32))

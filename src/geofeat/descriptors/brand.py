@@ -18,8 +18,8 @@ The method, as published and implemented here:
 
 Departures, and why: the paper maps depth to scale with an empirical piecewise-linear rule tuned to
 Kinect ranges (constant below 2 m); we use the pinhole law it approximates, S = fx * extent / depth
-with `PATCH_EXTENT_M` = twice the geodesic descriptors' support radius (0.15 m), so all RGB-D
-descriptors of the benchmark see the same surface area. Normals come from central differences of
+across the image and fy * extent / depth down it, with `PATCH_EXTENT_M` = twice the geodesic
+descriptors' support radius (0.15 m), so all RGB-D descriptors of the benchmark see the same surface area. Normals come from central differences of
 the back-projected, lightly smoothed depth map (the paper used PCL's integral-image normals).
 
 Bad input: a frame without a depth map is a clear error; keypoints on missing depth (or whose
@@ -136,12 +136,16 @@ class BRAND:
         yi = np.clip(np.rint(xy[:, 1]).astype(int), 0, H - 1)
         z = depth[yi, xi]
         valid = (z > 0) & np.isfinite(normals[yi, xi]).all(axis=1)
-        side = np.where(valid, frame.K[0, 0] * PATCH_EXTENT_M / np.where(z > 0, z, 1.0), 0.0)  # pixels
+        # the patch's metric side in pixels along each image axis, fx E / z across and fy E / z down: with
+        # fx alone for both, non-square pixels (an image resized from 16:9 to 4:3) covered fx / fy times
+        # the extent down the image, and a quarter roll (fx and fy swap) changed a third of the bits
+        extent = np.where(valid, PATCH_EXTENT_M / np.where(z > 0, z, 1.0), 0.0)  # metres per metre of depth
+        side_x, side_y = frame.K[0, 0] * extent, frame.K[1, 1] * extent  # pixels
         a = np.radians(angles)
         c, s = np.cos(a)[:, None, None], np.sin(a)[:, None, None]
         u, v = self.pattern[None, ..., 0], self.pattern[None, ..., 1]  # (1, nb, 2)
-        X = (xy[:, 0, None, None] + side[:, None, None] * (c * u - s * v)).reshape(n, 2 * nb).astype(np.float32)
-        Y = (xy[:, 1, None, None] + side[:, None, None] * (s * u + c * v)).reshape(n, 2 * nb).astype(np.float32)
+        X = (xy[:, 0, None, None] + side_x[:, None, None] * (c * u - s * v)).reshape(n, 2 * nb).astype(np.float32)
+        Y = (xy[:, 1, None, None] + side_y[:, None, None] * (s * u + c * v)).reshape(n, 2 * nb).astype(np.float32)
         out = np.zeros((n, nb // 8), np.uint8)
         if n == 0:
             return Features(xy, out, valid, angles=angles, sizes=sizes)

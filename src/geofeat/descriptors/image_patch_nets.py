@@ -193,6 +193,11 @@ class ImagePatchDescriptor:
     @torch.inference_mode()
     def describe(self, patches: np.ndarray) -> np.ndarray:
         """(N, 32, 32) patches -> (N, dim) float32 descriptors."""
+        patches = np.asarray(patches)
+        if patches.ndim != 3 or patches.shape[1:] != (PATCH_SIZE, PATCH_SIZE):
+            # logpolar-sim's convolutional head turned (N, 64, 64) patches into (N, 10368) "descriptors"
+            # without a word; tfeat-sim failed inside torch ("mat1 and mat2 shapes cannot be multiplied")
+            raise ValueError(f"patches: expected shape (N, {PATCH_SIZE}, {PATCH_SIZE}), got {patches.shape}")
         x = torch.from_numpy(np.ascontiguousarray(patches, np.float32)).unsqueeze(1)
         out = [self.net(x[i:i + self.batch_size]) for i in range(0, len(x), self.batch_size)]
         return torch.cat(out).numpy() if out else np.zeros((0, self.net.config.dim), np.float32)
