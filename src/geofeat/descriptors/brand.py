@@ -19,8 +19,9 @@ The method, as published and implemented here:
 Departures, and why: the paper maps depth to scale with an empirical piecewise-linear rule tuned to
 Kinect ranges (constant below 2 m); we use the pinhole law it approximates, S = fx * extent / depth
 across the image and fy * extent / depth down it, with `PATCH_EXTENT_M` = twice the geodesic
-descriptors' support radius (0.15 m), so all RGB-D descriptors of the benchmark see the same surface area. Normals come from central differences of
-the back-projected, lightly smoothed depth map (the paper used PCL's integral-image normals).
+descriptors' support radius (0.15 m), so all RGB-D descriptors of the benchmark see the same surface
+area. Normals come from central differences of the back-projected, lightly smoothed depth map (the
+paper used PCL's integral-image normals).
 
 Bad input: a frame without a depth map is a clear error; keypoints on missing depth (or whose
 normal cannot be estimated) are `valid = False`; bare (N, 2) positions get angle 0 (documented
