@@ -54,6 +54,21 @@ def test_blur_and_sampling_equal_opencv(pair):
     assert (nan == 0).all()
 
 
+def test_blur_of_a_frame_smaller_than_the_kernel_equals_opencv():
+    """The GPU's sampling blur on a frame narrower than the Gaussian's radius (a blur_px of 20, which
+    `check_blur_px` accepts, has a radius of 80 px; 1 px, the default, of 4): OpenCV reflects the
+    border again and again, the CPU path worked; torch's reflection padding refused such a pad
+    ("Padding size should be less than the corresponding input dimension")."""
+    import cv2
+
+    rng = np.random.default_rng(2)
+    for shape in ((48, 64), (3, 40), (6, 5), (1, 7), (7, 1)):
+        img = rng.random(shape).astype(np.float32)
+        for sigma in (1.0, 5.0, 20.0):
+            got = gaussian_blur_torch(torch.from_numpy(img), sigma).numpy()
+            np.testing.assert_allclose(got, cv2.GaussianBlur(img, (0, 0), sigma), rtol=0, atol=1e-6)
+
+
 def test_sampling_in_opencv_4s_subpixel_steps(pair):
     """OpenCV 4's cv2.remap (pyproject allows >= 4.8) rounds float coordinates to 1/32 pixel before
     interpolating; OpenCV 5's does not. The GPU sampler follows the installed OpenCV

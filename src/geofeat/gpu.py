@@ -369,15 +369,36 @@ def gaussian_blur_torch(image, sigma: float):
     weights = [float(w) for w in cv2.getGaussianKernel(ksize, sigma, cv2.CV_32F)[:, 0]]
     r = ksize // 2
     H, W = image.shape
-    x = F.pad(image[None, None], (r, r, 0, 0), mode="reflect")[0, 0]
+    if r < W:
+        x = F.pad(image[None, None], (r, r, 0, 0), mode="reflect")[0, 0]
+    else:  # torch's reflection needs a pad under the side; OpenCV reflects again (a large blur, a small frame)
+        x = image[:, _reflect101_index(W, r, image.device)]
     rows = x[:, 0:W] * weights[0]
     for i in range(1, ksize):
         rows = rows + x[:, i:i + W] * weights[i]
-    y = F.pad(rows[None, None], (0, 0, r, r), mode="reflect")[0, 0]
+    if r < H:
+        y = F.pad(rows[None, None], (0, 0, r, r), mode="reflect")[0, 0]
+    else:
+        y = rows[_reflect101_index(H, r, rows.device)]
     out = y[0:H] * weights[0]
     for i in range(1, ksize):
         out = out + y[i:i + H] * weights[i]
     return out
+
+
+def _reflect101_index(n: int, r: int, device):
+    """(n + 2 r,) int64 indices of a side of `n` pixels padded by `r` on both ends with OpenCV's
+    BORDER_REFLECT_101 (`cv2.borderInterpolate`: reflected again and again while off the side, 0 for
+    n = 1)."""
+    import torch
+
+    index = np.arange(-r, n + r)
+    if n == 1:
+        index[:] = 0
+    while ((index < 0) | (index >= n)).any():
+        index = np.where(index < 0, -index, index)
+        index = np.where(index >= n, 2 * n - 2 - index, index)
+    return torch.as_tensor(index, dtype=torch.int64, device=device)
 
 
 @functools.cache
