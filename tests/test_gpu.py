@@ -381,6 +381,22 @@ def test_match_cuda_checks_its_features(monkeypatch):
         match_cuda(d, f)
 
 
+def test_match_cuda_refuses_float_descriptors_of_three_dimensions(monkeypatch):
+    """Float (N, R, D) descriptors: `geofeat.match` refuses them (L2 takes (N, D)); `match_cuda` ran
+    them through its matrix product as a batch and returned N * R * D "matches" for N keypoints, or
+    failed in torch's broadcasting. On CPU tensors, in the simulator's setting."""
+    from geofeat.features import Features
+
+    monkeypatch.setenv("NUMBA_ENABLE_CUDASIM", "1")
+    rng = np.random.default_rng(0)
+    for shape in ((4, 4, 4), (4, 1, 4), (5, 3, 8)):
+        f = Features(np.zeros((shape[0], 2)), rng.standard_normal(shape).astype(np.float32), np.ones(shape[0], bool))
+        with pytest.raises(ValueError, match=r"expects \(N, D\)"):
+            match(f, f)
+        with pytest.raises(ValueError, match=r"expects \(N, D\)"):
+            match_cuda(f, f)
+
+
 def test_a_device_mesh_of_another_frame_is_refused(pair, monkeypatch):
     """`polar_patches(frame, kps, mesh=...)` refuses a mesh built from another frame of the same size
     (its `source` fingerprint differs); `polar_patches_cuda` took a `DeviceMesh` of another frame

@@ -674,6 +674,8 @@ def match_cuda(features0, features1, mutual: bool = False, ratio: float | None =
             not d0.dtype.is_floating_point and d0.dtype != d1.dtype):  # e.g. GeoPatch against GeoBit
         raise ValueError(f"descriptors: features0 ({d0.dtype}) and features1 ({d1.dtype}) are of different kinds; "
                          "match descriptors of one type")
+    if d0.dtype.is_floating_point and d0.ndim != 2:  # as `geofeat.match`; (N, R, D) ran as a batched product
+        raise ValueError(f"descriptors: metric 'l2' expects (N, D) arrays, got shape {tuple(d0.shape)}")
     n0 = d0.shape[0]
     if n0 == 0 or d1.shape[0] == 0:
         check_finite()
