@@ -389,16 +389,16 @@ def gaussian_blur_torch(image, sigma: float):
 def _reflect101_index(n: int, r: int, device):
     """(n + 2 r,) int64 indices of a side of `n` pixels padded by `r` on both ends with OpenCV's
     BORDER_REFLECT_101 (`cv2.borderInterpolate`: reflected again and again while off the side, 0 for
-    n = 1)."""
+    n = 1): periodic with period 2 n - 2 and even. Made on the device (no copy from the host, which a
+    CUDA graph's capture would refuse)."""
     import torch
 
-    index = np.arange(-r, n + r)
+    index = torch.arange(-r, n + r, dtype=torch.int64, device=device)
     if n == 1:
-        index[:] = 0
-    while ((index < 0) | (index >= n)).any():
-        index = np.where(index < 0, -index, index)
-        index = np.where(index >= n, 2 * n - 2 - index, index)
-    return torch.as_tensor(index, dtype=torch.int64, device=device)
+        return torch.zeros_like(index)
+    period = 2 * n - 2
+    index = index.abs() % period
+    return torch.where(index >= n, period - index, index)
 
 
 @functools.cache
