@@ -397,6 +397,20 @@ def test_match_cuda_refuses_float_descriptors_of_three_dimensions(monkeypatch):
             match_cuda(f, f)
 
 
+def test_compute_cuda_refuses_what_is_not_a_frame_as_compute_does(monkeypatch):
+    """`compute_cuda` given None or a dict for the frame: the CPU's `GeoPatch.compute` says "frame:
+    expected an RGBDFrame"; the GPU path failed with "AttributeError: 'NoneType' object has no
+    attribute 'shape'". Checked before any kernel (the simulator's setting, CPU tensors)."""
+    from geofeat.gpu import compute_cuda
+
+    monkeypatch.setenv("NUMBA_ENABLE_CUDASIM", "1")
+    net = GeoPatch(device="cpu", backend="torch")
+    for frame in (None, {"depth": 1.0}):
+        for call in (net.compute, partial(compute_cuda, net)):
+            with pytest.raises(TypeError, match="frame: expected an RGBDFrame"):
+                call(frame, [[5.0, 5.0]])
+
+
 def test_a_device_mesh_of_another_frame_is_refused(pair, monkeypatch):
     """`polar_patches(frame, kps, mesh=...)` refuses a mesh built from another frame of the same size
     (its `source` fingerprint differs); `polar_patches_cuda` took a `DeviceMesh` of another frame

@@ -605,10 +605,11 @@ def compute_cuda(descriptor, frame: RGBDFrame, keypoints, mesh: GridMesh | Devic
     """GeoPatch features of `keypoints` on the GPU: `GeoPatch.compute` with the walk, the sampling
     and the CNN on `descriptor.device` (a GeoPatch with the torch backend on CUDA). `half`: the CNN
     under float16 autocast (`GeoPatch.describe_tensor`)."""
+    from .frame import check_frame
     from .keypoints import as_keypoints
 
     check_gpu_descriptor(descriptor)
-    kps = as_keypoints(keypoints, frame.shape)
+    kps = as_keypoints(keypoints, check_frame(frame).shape)  # TypeError naming `frame`, as `GeoPatch.compute`
     patches = polar_patches_cuda(frame, kps, radius=descriptor.radius, depth_config=descriptor.depth_config,
                                  mesh=mesh, blur_px=descriptor.blur_px, device=descriptor.device)
     desc = descriptor.describe_tensor(patches.values, patches.valid, half=half)
