@@ -411,6 +411,23 @@ def test_compute_cuda_refuses_what_is_not_a_frame_as_compute_does(monkeypatch):
                 call(frame, [[5.0, 5.0]])
 
 
+def test_match_cuda_refuses_features_whose_keypoints_do_not_fit_their_descriptors(monkeypatch):
+    """Features whose keypoints were replaced by fewer after construction: `geofeat.match` refuses
+    them; `match_cuda` matched to rows that have no keypoint (matches0 indices past the keypoints).
+    On CPU tensors, in the simulator's setting."""
+    from geofeat.features import Features
+
+    monkeypatch.setenv("NUMBA_ENABLE_CUDASIM", "1")
+    d = np.random.default_rng(0).standard_normal((6, 8)).astype(np.float32)
+    f, g = (Features(np.zeros((6, 2)), d, np.ones(6, bool)) for _ in range(2))
+    g.keypoints = np.zeros((4, 2))
+    for a, b, which in ((f, g, "features1"), (g, f, "features0")):
+        for call in (match, match_cuda):
+            with pytest.raises(ValueError, match=f"{which}: keypoints, descriptors and valid must have one entry"):
+                call(a, b)
+    assert match_cuda(f, f).matches0.tolist() == list(range(6))
+
+
 def test_a_device_mesh_of_another_frame_is_refused(pair, monkeypatch):
     """`polar_patches(frame, kps, mesh=...)` refuses a mesh built from another frame of the same size
     (its `source` fingerprint differs); `polar_patches_cuda` took a `DeviceMesh` of another frame

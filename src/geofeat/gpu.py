@@ -633,6 +633,10 @@ def features_on(features, which: str, dev) -> tuple:
     if d.ndim < 2 or tuple(v.shape) != tuple(d.shape[:1]):
         raise ValueError(f"{which}: expected (N, ...) descriptors and (N,) valid flags, got shapes "
                          f"{tuple(d.shape)} and {tuple(v.shape)}")
+    keypoints = getattr(features, "keypoints", None)  # as `matching._unpack`: a field replaced after construction
+    if keypoints is not None and np.shape(keypoints)[:1] != tuple(d.shape[:1]):
+        raise ValueError(f"{which}: keypoints, descriptors and valid must have one entry per keypoint, got shapes "
+                         f"{np.shape(keypoints)}, {tuple(d.shape)} and {tuple(v.shape)}")
     return d, v
 
 
