@@ -224,6 +224,20 @@ def test_cuda_requests_fail_clearly_without_gpu(pair):
 
 
 @pytest.mark.skipif(CUDA, reason="checks the error without a GPU")
+def test_extract_on_cuda_takes_depth_config_none_as_the_cpu_path_does(pair, monkeypatch):
+    """extract(..., depth_config=None): the CPU path takes it for GeoPatch's default ("auto",
+    `make_descriptor` drops None); device="cuda" refused it ("depth_config: expected one of auto, ...").
+    In the simulator's setting (which passes `require_cuda`) and without a GPU, it now gets as far as
+    depth_config="auto" does: GeoPatch's network finds no CUDA GPU."""
+    frame, _ = pair[0]
+    assert len(geofeat.extract(frame, 16, detector="sift", depth_config=None)) == 16
+    monkeypatch.setenv("NUMBA_ENABLE_CUDASIM", "1")
+    for depth_config in ("auto", None):
+        with pytest.raises(RuntimeError, match="CUDA"):
+            geofeat.extract(frame, 16, detector="sift", depth_config=depth_config, device="cuda")
+
+
+@pytest.mark.skipif(CUDA, reason="checks the error without a GPU")
 def test_torch_devices_fail_clearly_without_gpu():
     """GeoPatch's network and match(device=...) on a CUDA device without a GPU: the same RuntimeError
     as extract's (torch's own is "AssertionError: Torch not compiled with CUDA enabled"); a device
