@@ -54,6 +54,21 @@ def test_blur_and_sampling_equal_opencv(pair):
     assert (nan == 0).all()
 
 
+def test_blur_of_a_frame_smaller_than_the_kernel_equals_opencv():
+    """The GPU's sampling blur on a frame narrower than the Gaussian's radius (a blur_px of 20, which
+    `check_blur_px` accepts, has a radius of 80 px; 1 px, the default, of 4): OpenCV reflects the
+    border again and again, the CPU path worked; torch's reflection padding refused such a pad
+    ("Padding size should be less than the corresponding input dimension")."""
+    import cv2
+
+    rng = np.random.default_rng(2)
+    for shape in ((48, 64), (3, 40), (6, 5), (1, 7), (7, 1)):
+        img = rng.random(shape).astype(np.float32)
+        for sigma in (1.0, 5.0, 20.0):
+            got = gaussian_blur_torch(torch.from_numpy(img), sigma).numpy()
+            np.testing.assert_allclose(got, cv2.GaussianBlur(img, (0, 0), sigma), rtol=0, atol=1e-6)
+
+
 def test_sampling_in_opencv_4s_subpixel_steps(pair):
     """OpenCV 4's cv2.remap (pyproject allows >= 4.8) rounds float coordinates to 1/32 pixel before
     interpolating; OpenCV 5's does not. The GPU sampler follows the installed OpenCV
@@ -206,6 +221,20 @@ def test_cuda_requests_fail_clearly_without_gpu(pair):
         frame_mesh(frame, device="gpu")
     with pytest.raises(RuntimeError, match="CUDA"):
         frame_mesh(frame, device="cuda")
+
+
+@pytest.mark.skipif(CUDA, reason="checks the error without a GPU")
+def test_extract_on_cuda_takes_depth_config_none_as_the_cpu_path_does(pair, monkeypatch):
+    """extract(..., depth_config=None): the CPU path takes it for GeoPatch's default ("auto",
+    `make_descriptor` drops None); device="cuda" refused it ("depth_config: expected one of auto, ...").
+    In the simulator's setting (which passes `require_cuda`) and without a GPU, it now gets as far as
+    depth_config="auto" does: GeoPatch's network finds no CUDA GPU."""
+    frame, _ = pair[0]
+    assert len(geofeat.extract(frame, 16, detector="sift", depth_config=None)) == 16
+    monkeypatch.setenv("NUMBA_ENABLE_CUDASIM", "1")
+    for depth_config in ("auto", None):
+        with pytest.raises(RuntimeError, match="CUDA"):
+            geofeat.extract(frame, 16, detector="sift", depth_config=depth_config, device="cuda")
 
 
 @pytest.mark.skipif(CUDA, reason="checks the error without a GPU")
@@ -364,6 +393,53 @@ def test_match_cuda_checks_its_features(monkeypatch):
         match_cuda(type("F", (), {"descriptors": torch.from_numpy(d), "valid": short})(), f)
     with pytest.raises(TypeError, match="features0"):
         match_cuda(d, f)
+
+
+def test_match_cuda_refuses_float_descriptors_of_three_dimensions(monkeypatch):
+    """Float (N, R, D) descriptors: `geofeat.match` refuses them (L2 takes (N, D)); `match_cuda` ran
+    them through its matrix product as a batch and returned N * R * D "matches" for N keypoints, or
+    failed in torch's broadcasting. On CPU tensors, in the simulator's setting."""
+    from geofeat.features import Features
+
+    monkeypatch.setenv("NUMBA_ENABLE_CUDASIM", "1")
+    rng = np.random.default_rng(0)
+    for shape in ((4, 4, 4), (4, 1, 4), (5, 3, 8)):
+        f = Features(np.zeros((shape[0], 2)), rng.standard_normal(shape).astype(np.float32), np.ones(shape[0], bool))
+        with pytest.raises(ValueError, match=r"expects \(N, D\)"):
+            match(f, f)
+        with pytest.raises(ValueError, match=r"expects \(N, D\)"):
+            match_cuda(f, f)
+
+
+def test_compute_cuda_refuses_what_is_not_a_frame_as_compute_does(monkeypatch):
+    """`compute_cuda` given None or a dict for the frame: the CPU's `GeoPatch.compute` says "frame:
+    expected an RGBDFrame"; the GPU path failed with "AttributeError: 'NoneType' object has no
+    attribute 'shape'". Checked before any kernel (the simulator's setting, CPU tensors)."""
+    from geofeat.gpu import compute_cuda
+
+    monkeypatch.setenv("NUMBA_ENABLE_CUDASIM", "1")
+    net = GeoPatch(device="cpu", backend="torch")
+    for frame in (None, {"depth": 1.0}):
+        for call in (net.compute, partial(compute_cuda, net)):
+            with pytest.raises(TypeError, match="frame: expected an RGBDFrame"):
+                call(frame, [[5.0, 5.0]])
+
+
+def test_match_cuda_refuses_features_whose_keypoints_do_not_fit_their_descriptors(monkeypatch):
+    """Features whose keypoints were replaced by fewer after construction: `geofeat.match` refuses
+    them; `match_cuda` matched to rows that have no keypoint (matches0 indices past the keypoints).
+    On CPU tensors, in the simulator's setting."""
+    from geofeat.features import Features
+
+    monkeypatch.setenv("NUMBA_ENABLE_CUDASIM", "1")
+    d = np.random.default_rng(0).standard_normal((6, 8)).astype(np.float32)
+    f, g = (Features(np.zeros((6, 2)), d, np.ones(6, bool)) for _ in range(2))
+    g.keypoints = np.zeros((4, 2))
+    for a, b, which in ((f, g, "features1"), (g, f, "features0")):
+        for call in (match, match_cuda):
+            with pytest.raises(ValueError, match=f"{which}: keypoints, descriptors and valid must have one entry"):
+                call(a, b)
+    assert match_cuda(f, f).matches0.tolist() == list(range(6))
 
 
 def test_a_device_mesh_of_another_frame_is_refused(pair, monkeypatch):

@@ -192,3 +192,21 @@ try:
 except ValueError as exc:
     assert "reference" in str(exc), str(exc)
 """))
+
+
+def test_a_frame_whose_depth_was_edited_in_place_is_checked_in_cuda_simulator():
+    """A frame whose depth was rewritten in place in millimetres (a stream that reuses one RGBDFrame):
+    `compute_cuda` (through `frame_mesh`) and the CPU path refuse it, naming the millimetres; the
+    FrameGraph walked a surface a thousand times too far without a word."""
+    run_simulated(_frame_script(r"""
+small = frame(48, 56)
+net = GeoPatch(device="cpu", backend="torch", depth_config="quantised")
+graph = FrameGraph(net, small, n=2)
+edited = frame(48, 56)
+edited.depth[:] *= 1000.0
+try:
+    graph.compute(edited, [[20.0, 20.0]])
+    raise AssertionError("accepted millimetre depth")
+except ValueError as exc:
+    assert "millimetres" in str(exc), str(exc)
+"""))

@@ -369,15 +369,36 @@ def gaussian_blur_torch(image, sigma: float):
     weights = [float(w) for w in cv2.getGaussianKernel(ksize, sigma, cv2.CV_32F)[:, 0]]
     r = ksize // 2
     H, W = image.shape
-    x = F.pad(image[None, None], (r, r, 0, 0), mode="reflect")[0, 0]
+    if r < W:
+        x = F.pad(image[None, None], (r, r, 0, 0), mode="reflect")[0, 0]
+    else:  # torch's reflection needs a pad under the side; OpenCV reflects again (a large blur, a small frame)
+        x = image[:, _reflect101_index(W, r, image.device)]
     rows = x[:, 0:W] * weights[0]
     for i in range(1, ksize):
         rows = rows + x[:, i:i + W] * weights[i]
-    y = F.pad(rows[None, None], (0, 0, r, r), mode="reflect")[0, 0]
+    if r < H:
+        y = F.pad(rows[None, None], (0, 0, r, r), mode="reflect")[0, 0]
+    else:
+        y = rows[_reflect101_index(H, r, rows.device)]
     out = y[0:H] * weights[0]
     for i in range(1, ksize):
         out = out + y[i:i + H] * weights[i]
     return out
+
+
+def _reflect101_index(n: int, r: int, device):
+    """(n + 2 r,) int64 indices of a side of `n` pixels padded by `r` on both ends with OpenCV's
+    BORDER_REFLECT_101 (`cv2.borderInterpolate`: reflected again and again while off the side, 0 for
+    n = 1): periodic with period 2 n - 2 and even. Made on the device (no copy from the host, which a
+    CUDA graph's capture would refuse)."""
+    import torch
+
+    index = torch.arange(-r, n + r, dtype=torch.int64, device=device)
+    if n == 1:
+        return torch.zeros_like(index)
+    period = 2 * n - 2
+    index = index.abs() % period
+    return torch.where(index >= n, period - index, index)
 
 
 @functools.cache
@@ -584,10 +605,11 @@ def compute_cuda(descriptor, frame: RGBDFrame, keypoints, mesh: GridMesh | Devic
     """GeoPatch features of `keypoints` on the GPU: `GeoPatch.compute` with the walk, the sampling
     and the CNN on `descriptor.device` (a GeoPatch with the torch backend on CUDA). `half`: the CNN
     under float16 autocast (`GeoPatch.describe_tensor`)."""
+    from .frame import check_frame
     from .keypoints import as_keypoints
 
     check_gpu_descriptor(descriptor)
-    kps = as_keypoints(keypoints, frame.shape)
+    kps = as_keypoints(keypoints, check_frame(frame).shape)  # TypeError naming `frame`, as `GeoPatch.compute`
     patches = polar_patches_cuda(frame, kps, radius=descriptor.radius, depth_config=descriptor.depth_config,
                                  mesh=mesh, blur_px=descriptor.blur_px, device=descriptor.device)
     desc = descriptor.describe_tensor(patches.values, patches.valid, half=half)
@@ -611,6 +633,10 @@ def features_on(features, which: str, dev) -> tuple:
     if d.ndim < 2 or tuple(v.shape) != tuple(d.shape[:1]):
         raise ValueError(f"{which}: expected (N, ...) descriptors and (N,) valid flags, got shapes "
                          f"{tuple(d.shape)} and {tuple(v.shape)}")
+    keypoints = getattr(features, "keypoints", None)  # as `matching._unpack`: a field replaced after construction
+    if keypoints is not None and np.shape(keypoints)[:1] != tuple(d.shape[:1]):
+        raise ValueError(f"{which}: keypoints, descriptors and valid must have one entry per keypoint, got shapes "
+                         f"{np.shape(keypoints)}, {tuple(d.shape)} and {tuple(v.shape)}")
     return d, v
 
 
@@ -653,6 +679,8 @@ def match_cuda(features0, features1, mutual: bool = False, ratio: float | None =
             not d0.dtype.is_floating_point and d0.dtype != d1.dtype):  # e.g. GeoPatch against GeoBit
         raise ValueError(f"descriptors: features0 ({d0.dtype}) and features1 ({d1.dtype}) are of different kinds; "
                          "match descriptors of one type")
+    if d0.dtype.is_floating_point and d0.ndim != 2:  # as `geofeat.match`; (N, R, D) ran as a batched product
+        raise ValueError(f"descriptors: metric 'l2' expects (N, D) arrays, got shape {tuple(d0.shape)}")
     n0 = d0.shape[0]
     if n0 == 0 or d1.shape[0] == 0:
         check_finite()

@@ -136,6 +136,7 @@ class FrameGraph:
                                          ratio=ratio, mutual=mutual)
 
     def _replay(self, frame: RGBDFrame, keypoints):
+        from .geodesic.mesh import check_frame_arrays
         from .keypoints import as_keypoints
 
         if not isinstance(frame, RGBDFrame):
@@ -146,6 +147,7 @@ class FrameGraph:
         if not np.array_equal(np.asarray(frame.K, np.float64), self.K):
             raise ValueError("frame: its intrinsics K differ from this FrameGraph's; make a new FrameGraph for "
                              "another camera")
+        check_frame_arrays(frame)  # as `frame_mesh` checks them for `compute_cuda`: a depth edited in place
         kps = as_keypoints(keypoints, frame.shape)
         if len(kps) > self.n:
             raise ValueError(f"keypoints: {len(kps)}, but this FrameGraph holds at most n={self.n}")

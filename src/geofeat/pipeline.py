@@ -57,8 +57,9 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
         require_cuda(device)
         from .descriptors.geopatch import GeoPatch
 
-        kwargs = {} if radius is None else {"radius": radius}
-        net = GeoPatch(weights=weights or None, device=device, backend="torch", depth_config=depth_config, **kwargs)
+        # None: GeoPatch's own, as `make_descriptor` takes it on the CPU path (depth_config=None was refused here)
+        kwargs = {k: v for k, v in (("radius", radius), ("depth_config", depth_config)) if v is not None}
+        net = GeoPatch(weights=weights or None, device=device, backend="torch", **kwargs)
         # the mesh is built on the GPU (its hole filling on the host) while the host detects
         with _mesh_prefetch(frame, net.depth_config, device=mesh_device(device)):
             keypoints = _detect(frame, n, detector_for(descriptor, detector))
