@@ -137,6 +137,23 @@ def test_gpu_pyramid_reads_the_cpu_pyramids_rules(pair, monkeypatch):
     assert (ref > 0).sum() < (smooth(np.ascontiguousarray(depth[:478, :637]), 2, 0.5) > 0).sum()  # they mattered
 
 
+def test_a_frame_the_pyramid_does_not_cover_copies_its_resampling_once(pair, monkeypatch):
+    """`smooth_depth_torch` copied the resampling matrices of a frame the pyramid does not cover (sides
+    not multiples of 4) from the host on every call: inside `FrameGraph`'s CUDA graph capture, which
+    refuses host-to-device copies, such a frame could not be captured. They are made once per size."""
+    from geofeat.depth import fill_holes
+    from geofeat.gpu import smooth_depth_torch
+
+    d = np.ascontiguousarray(fill_holes(pair[0][0].depth)[:478, :637])
+    first = smooth_depth_torch(torch.from_numpy(d), 2, 0.5)
+
+    def no_copy(*args, **kwargs):
+        raise AssertionError("a copy from the host on a later frame")
+
+    monkeypatch.setattr(torch, "as_tensor", no_copy)
+    np.testing.assert_array_equal(smooth_depth_torch(torch.from_numpy(d), 2, 0.5).numpy(), first.numpy())
+
+
 def test_describe_tensor_equals_describe(pair):
     frame, kps = pair[0]
     p = geofeat.polar_patches(frame, kps)

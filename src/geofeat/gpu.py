@@ -168,7 +168,6 @@ def smooth_depth_torch(depth, levels: int, out_scale: float, window: int = SMOOT
     import torch.nn.functional as F
 
     from . import depth as host  # the CPU pyramid's rules, read at call time: HALVE_MIN_VALID, RESIZE_MIN_WEIGHT
-    from .depth import pyramid_resampling
 
     H, W = depth.shape
     size = (max(2, int(round(H * out_scale))), max(2, int(round(W * out_scale))))
@@ -191,9 +190,9 @@ def smooth_depth_torch(depth, levels: int, out_scale: float, window: int = SMOOT
         total = (a + b) + (c + e)
         zero = torch.zeros((), dtype=torch.float64, device=d.device)
         d = torch.where(count >= host.HALVE_MIN_VALID, total.double() / torch.clamp(count, min=1.0), zero).float()
-    matrices = pyramid_resampling((H, W), tuple(d.shape), halvings, size[::-1])
+    matrices = _resampling_tensors((H, W), tuple(d.shape), halvings, size[::-1], d.device)
     if matrices is not None:  # a frame the pyramid does not cover: the CPU's exact resampling
-        Ry, Rx = (torch.as_tensor(m, dtype=torch.float64, device=d.device) for m in matrices)
+        Ry, Rx = matrices
         valid = (d > 0).double()
         num, den = Ry @ (d.double() * valid) @ Rx.T, Ry @ valid @ Rx.T
         zero = torch.zeros((), dtype=torch.float64, device=d.device)
@@ -204,6 +203,22 @@ def smooth_depth_torch(depth, levels: int, out_scale: float, window: int = SMOOT
     both = torch.stack([d * valid, valid])[:, None]
     num, den = F.interpolate(both, size=size, mode="bilinear", align_corners=False)[:, 0]
     return torch.where(den >= host.RESIZE_MIN_WEIGHT, num / torch.clamp(den, min=1e-12), torch.zeros((), device=d.device))
+
+
+@functools.lru_cache(maxsize=8)
+def _resampling_tensors(shape: tuple[int, int], smoothed: tuple[int, int], halvings: int, size: tuple[int, int],
+                        device) -> tuple | None:
+    """`depth.pyramid_resampling`'s matrices as float64 tensors on `device`, made once per frame size: a
+    copy from the host on every frame would be refused inside a CUDA graph's capture (`FrameGraph`
+    captures after warm-up calls, which fill this cache)."""
+    import torch
+
+    from .depth import pyramid_resampling
+
+    matrices = pyramid_resampling(shape, smoothed, halvings, size)
+    if matrices is None:
+        return None
+    return tuple(torch.as_tensor(m, dtype=torch.float64, device=device) for m in matrices)
 
 
 def backproject_torch(depth, K: np.ndarray):
