@@ -179,3 +179,12 @@ def test_an_image_of_another_layout_says_how_to_fix_it(image, hint):
     got (3, 120, 160)" said what was wrong but not the likely cause and its fix."""
     with pytest.raises(ValueError, match=rf"image: expected shape \(H, W\) or \(H, W, 3\), got .*; {hint}"):
         RGBDFrame(image(_colour()), _depth(), K)
+
+
+@pytest.mark.parametrize("stretch", [float("nan"), -8.0, 0.0, float("inf")])
+def test_build_mesh_refuses_a_max_edge_stretch_that_is_not_a_positive_number(stretch):
+    """NaN kept every face across depth steps (rays then walked onto the background), a negative value
+    acted as its absolute value, and 0 cut every face, all without a word."""
+    frame = geofeat.read_demo_frame()
+    with pytest.raises(ValueError, match="max_edge_stretch"):
+        geofeat.build_mesh(frame, "kinect", max_edge_stretch=stretch)

@@ -311,6 +311,10 @@ def mesh_from_depth(depth, config: DepthConfig, K: np.ndarray, max_edge_stretch:
     intrinsics, scale, frame size and `source` this frame's; by default a new one."""
     import torch
 
+    from .inputs import check_positive
+
+    max_edge_stretch = check_positive(max_edge_stretch, "max_edge_stretch")  # as `mesh_from_points`
+
     from .depth import scale_intrinsics
     from .geodesic.walk_cuda import mesh_faces_cuda
 

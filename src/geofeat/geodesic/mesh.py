@@ -24,6 +24,7 @@ from numba import njit, prange
 from ..constants import MAX_EDGE_STRETCH
 from ..depth import DepthConfig, backproject, mean_focal, preprocess_depth, resolve_depth_config, scale_intrinsics
 from ..frame import RGBDFrame, check_depth, check_frame, check_intrinsics
+from ..inputs import check_positive
 from .walk import _shared
 
 
@@ -145,8 +146,10 @@ def mesh_from_points(
 ) -> GridMesh:
     """Build the GridMesh of an (Hm, Wm, 3) grid of camera-frame points (NaN = missing); `source`: the
     `frame_fingerprint` of the frame they come from, when known."""
+    # NaN kept every face across depth steps, a negative value acted as its absolute value, 0 cut all
+    max_edge_stretch = check_positive(max_edge_stretch, "max_edge_stretch")
     points = np.ascontiguousarray(points, dtype=np.float64)
-    face_ok, normals = _faces(points, mean_focal(K), float(max_edge_stretch))
+    face_ok, normals = _faces(points, mean_focal(K), max_edge_stretch)
     return GridMesh(points=points, face_ok=face_ok, normals=normals, K=K, scale=scale, image_shape=image_shape,
                     source=source)
 
