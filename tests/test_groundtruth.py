@@ -532,3 +532,17 @@ def test_tps_files_of_one_sequence_name_in_two_datasets_are_refused(tmp_path):
     (tmp_path / "seq").mkdir()
     (tmp_path / "seq" / "frame-001_theta.npy").write_bytes(b"")
     assert tps_folder(str(tmp_path), "seq") == tmp_path / "seq"  # named directly: not ambiguous
+
+
+def test_resume_keeps_a_sequence_finished_under_another_spelling_of_its_folder(tmp_path, capsys, monkeypatch):
+    """report.json recorded the sequence folder as given ("seq"), and --resume naming the same folder
+    another way ("/abs/seq") refused the finished result as made "from seq, not /abs/seq"."""
+    _write_pair(tmp_path / "seq", _grid_landmarks(3))
+    monkeypatch.chdir(tmp_path)
+    assert main(["groundtruth", "seq", "--out", "out", "--no-refine", "--no-progress"]) == 0
+    kept = (tmp_path / "out" / "seq" / "report.json").stat().st_mtime_ns
+    capsys.readouterr()
+    assert main(["groundtruth", str(tmp_path / "seq"), "--out", str(tmp_path / "out"), "--no-refine",
+                 "--no-progress", "--resume"]) == 0
+    assert "kept 1 sequence finished by an earlier run: seq" in capsys.readouterr().out
+    assert (tmp_path / "out" / "seq" / "report.json").stat().st_mtime_ns == kept

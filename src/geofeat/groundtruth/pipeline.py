@@ -454,8 +454,16 @@ def _write_report(out: Path, seq: Sequence, config: GroundTruthConfig, reports: 
             writer.writerow({k: (" ".join(map(str, v)) if isinstance(v, list) else v) for k, v in row.items()})
     # a failed frame's figures: null, not NaN (`json_text`)
     (out / "report.json").write_text(json_text(
-        {"sequence": str(seq.folder), "sequence_digest": sequence_digest(seq.folder), "reference": seq.reference,
+        # the folder in full: `finished_result` compares it with the folder a --resume run names (the
+        # same sequence given as "seq" here and "/data/seq" there was refused as another sequence)
+        {"sequence": str(Path(seq.folder).resolve()), "sequence_digest": sequence_digest(seq.folder), "reference": seq.reference,
          "config": asdict(config), "frames": rows}, indent=1, default=float), encoding="utf-8")
+
+
+def _same_folder(recorded, folder: Path) -> bool:
+    """Whether the folder `recorded` in a report.json (a path, relative ones as an older geofeat wrote
+    them, read from the working folder) is `folder`, however each is spelled."""
+    return isinstance(recorded, str) and Path(recorded).resolve() == Path(folder).resolve()
 
 
 def finished_result(out: str | Path, seq: Sequence, config: GroundTruthConfig) -> bool:
@@ -473,7 +481,7 @@ def finished_result(out: str | Path, seq: Sequence, config: GroundTruthConfig) -
     except ValueError:
         raise ValueError(f"--out: {report} is not valid JSON; use --overwrite to make {out} again") from None
     differences = []
-    if not isinstance(made, dict) or made.get("sequence") != str(seq.folder):
+    if not isinstance(made, dict) or not _same_folder(made.get("sequence"), seq.folder):
         differences.append(f"it was made from {made.get('sequence') if isinstance(made, dict) else '?'}, "
                            f"not {seq.folder}")
     elif made.get("sequence_digest") not in (None, sequence_digest(seq.folder)):
