@@ -324,3 +324,34 @@ def test_match_fails_when_a_match_picture_cannot_be_written(rolled_sequence, tmp
     captured = capsys.readouterr()
     assert "cannot write the picture" in captured.err and "match picture" not in captured.out
     assert not (tmp_path / "m").exists()  # nothing half written
+
+
+@pytest.fixture(scope="module")
+def small_simulated(tmp_path_factory):
+    """A simulated sequence of two 160 x 120 frames with exact ground truth (a few seconds)."""
+    from geofeat.sim import simulate_sequence
+
+    return simulate_sequence(tmp_path_factory.mktemp("small") / "cloth-rotate", scenario="rotate", n_frames=2, seed=5,
+                             width=160, height=120, progress=False)
+
+
+@pytest.mark.parametrize("damage", ["truncated npz", "json not an object", "json without spacing", "json corrupt"])
+def test_match_names_a_damaged_simulator_ground_truth_file_in_one_line(small_simulated, tmp_path, capsys, damage):
+    """A truncated <frame>-gt.npz was a BadZipFile traceback in `geofeat match`; a groundtruth.json
+    holding a list a TypeError traceback, one without spacing_m a KeyError traceback, a corrupt one a
+    bare JSON error naming no file."""
+    import shutil
+
+    seq = tmp_path / "seq"
+    shutil.copytree(small_simulated, seq)
+    if damage == "truncated npz":
+        (seq / "frame-001-gt.npz").write_bytes((seq / "frame-001-gt.npz").read_bytes()[:300])
+        named = "frame-001-gt.npz"
+    else:
+        (seq / "groundtruth.json").write_text({"json not an object": "[1]", "json without spacing": '{"frames": []}',
+                                               "json corrupt": "{"}[damage])
+        named = "groundtruth.json"
+    assert main(["match", str(seq), "--descriptor", "sift", "--keypoints", "64", "--out", str(tmp_path / "m")]) == 2
+    err = [line for line in capsys.readouterr().err.strip().splitlines() if "%|" not in line]  # no progress bars
+    assert len(err) == 1 and err[0].startswith("geofeat match: error: ") and named in err[0], err
+    assert not (tmp_path / "m").exists()
