@@ -355,3 +355,19 @@ def test_match_names_a_damaged_simulator_ground_truth_file_in_one_line(small_sim
     err = [line for line in capsys.readouterr().err.strip().splitlines() if "%|" not in line]  # no progress bars
     assert len(err) == 1 and err[0].startswith("geofeat match: error: ") and named in err[0], err
     assert not (tmp_path / "m").exists()
+
+
+def test_bench_timing_is_taken_on_a_sequence_that_did_not_fail(small_simulated, tmp_path, capsys):
+    """`bench --timing` timed the first sequence found; when that one had failed (an unreadable reference
+    frame), the run ended with its read error, exit 2, after the results of the others were written:
+    no timing.md and no FAILED line, where the other sequences' results make it exit 1."""
+    import shutil
+
+    data = tmp_path / "data"
+    shutil.copytree(small_simulated, data / "a-bad")
+    shutil.copytree(small_simulated, data / "b-good")
+    (data / "a-bad" / "frame-000-master-rgb.png").write_bytes(b"\x89PNG\r\n\x1a\nbroken")
+    out = tmp_path / "bench"
+    assert main(["bench", str(data), "--descriptors", "sift", "--keypoints", "64", "--out", str(out), "--timing"]) == 1
+    assert "FAILED sequences: a-bad" in capsys.readouterr().out
+    assert (out / "timing.md").is_file()
