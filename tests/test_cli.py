@@ -371,3 +371,15 @@ def test_bench_timing_is_taken_on_a_sequence_that_did_not_fail(small_simulated, 
     assert main(["bench", str(data), "--descriptors", "sift", "--keypoints", "64", "--out", str(out), "--timing"]) == 1
     assert "FAILED sequences: a-bad" in capsys.readouterr().out
     assert (out / "timing.md").is_file()
+
+
+def test_bench_reads_the_features_extract_wrote_for_an_upper_case_npz_name(small_simulated, tmp_path, capsys):
+    """`extract --out F.NPZ` writes F-<frame>.npz (the suffix in lower case), but `bench --features x=F.NPZ`
+    looked for F-<frame>.NPZ and refused the path: "does not exist (nor any F-<frame>.npz beside it...)"."""
+    out = tmp_path / "F.NPZ"
+    assert main(["extract", str(small_simulated), "--descriptor", "sift", "--keypoints", "64", "--out", str(out)]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["F-frame-000-master.npz", "F-frame-001.npz"]
+    assert main(["bench", str(small_simulated), "--descriptors", "sift", "--keypoints", "64",
+                 "--features", f"x={out}", "--out", str(tmp_path / "bench")]) == 0
+    header = (tmp_path / "bench" / "table.md").read_text().splitlines()[0]
+    assert header.replace(" ", "").startswith("|sequences|") and "| x |" in header
