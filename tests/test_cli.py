@@ -217,6 +217,11 @@ def test_demo_refuses_a_user_folder_named_simulated_cloth_before_any_work(tmp_pa
     (["simulate", "OUT", "--frames", "0"], "--frames"),
     (["simulate", "OUT", "--width", "10"], "--width"),
     (["simulate", "OUT", "--seed", "-1"], "--seed"),
+    # seeds past what the random generators take failed after the work, unnamed ("Seed must be between 0
+    # and 2**32 - 1", "Overflow when unpacking long long"; train after writing its patch cache)
+    (["retrieval", "SEQ", "--seed", str(2**32)], "--seed"),
+    (["train", "--data", "SEQ", "--seed", str(2**64)], "--seed"),
+    (["train-detector", "--data", "SEQ", "--val", "SEQ", "--seed", str(2**64)], "--seed"),
     (["simulate", "OUT", "--fov", "10"], "--fov"),
     (["extract", "SEQ", "--depth-profile", "lidar"], "--depth-profile"),
 ])
