@@ -388,3 +388,13 @@ def test_bench_reads_the_features_extract_wrote_for_an_upper_case_npz_name(small
                  "--features", f"x={out}", "--out", str(tmp_path / "bench")]) == 0
     header = (tmp_path / "bench" / "table.md").read_text().splitlines()[0]
     assert header.replace(" ", "").startswith("|sequences|") and "| x |" in header
+
+
+def test_simulate_reruns_with_overwrite_over_its_own_contact_sheet_in_the_folder(tmp_path, capsys):
+    """`simulate S --contact-sheet S/sheet.png` left the sheet out of the folder's manifest, so the same
+    command with --overwrite refused S: "holds files geofeat did not write (sheet.png)"."""
+    argv = ["simulate", str(tmp_path / "s"), "--frames", "2", "--width", "64", "--height", "48", "--texture",
+            "procedural", "--no-progress", "--contact-sheet", str(tmp_path / "s" / "sheet.png")]
+    assert main(argv) == 0
+    assert main(argv + ["--overwrite"]) == 0, capsys.readouterr().err
+    assert (tmp_path / "s" / "sheet.png").is_file()
