@@ -398,3 +398,21 @@ def test_simulate_reruns_with_overwrite_over_its_own_contact_sheet_in_the_folder
     assert main(argv) == 0
     assert main(argv + ["--overwrite"]) == 0, capsys.readouterr().err
     assert (tmp_path / "s" / "sheet.png").is_file()
+
+
+def test_bench_reruns_with_other_settings_into_a_folder_that_holds_no_result(small_simulated, tmp_path, capsys):
+    """A bench run whose every sequence failed leaves results.csv with its header only; a rerun with other
+    settings was refused: "holds results made with other settings ...; use --overwrite"."""
+    import shutil
+
+    seq = tmp_path / "cloth"
+    shutil.copytree(small_simulated, seq)
+    frame = (seq / "frame-001-rgb.png").read_bytes()
+    (seq / "frame-001-rgb.png").write_bytes(b"\x89PNG\r\n\x1a\nbroken")
+    out = tmp_path / "bench"
+    assert main(["bench", str(seq), "--descriptors", "sift", "--keypoints", "64", "--out", str(out)]) == 2
+    (seq / "frame-001-rgb.png").write_bytes(frame)
+    capsys.readouterr()
+    assert main(["bench", str(seq), "--descriptors", "sift", "--keypoints", "32", "--out", str(out)]) == 0, \
+        capsys.readouterr().err
+    assert (out / "table.md").is_file()
