@@ -217,6 +217,11 @@ def test_demo_refuses_a_user_folder_named_simulated_cloth_before_any_work(tmp_pa
     (["simulate", "OUT", "--frames", "0"], "--frames"),
     (["simulate", "OUT", "--width", "10"], "--width"),
     (["simulate", "OUT", "--seed", "-1"], "--seed"),
+    # seeds past what the random generators take failed after the work, unnamed ("Seed must be between 0
+    # and 2**32 - 1", "Overflow when unpacking long long"; train after writing its patch cache)
+    (["retrieval", "SEQ", "--seed", str(2**32)], "--seed"),
+    (["train", "--data", "SEQ", "--seed", str(2**64)], "--seed"),
+    (["train-detector", "--data", "SEQ", "--val", "SEQ", "--seed", str(2**64)], "--seed"),
     (["simulate", "OUT", "--fov", "10"], "--fov"),
     (["extract", "SEQ", "--depth-profile", "lidar"], "--depth-profile"),
 ])
@@ -324,3 +329,90 @@ def test_match_fails_when_a_match_picture_cannot_be_written(rolled_sequence, tmp
     captured = capsys.readouterr()
     assert "cannot write the picture" in captured.err and "match picture" not in captured.out
     assert not (tmp_path / "m").exists()  # nothing half written
+
+
+@pytest.fixture(scope="module")
+def small_simulated(tmp_path_factory):
+    """A simulated sequence of two 160 x 120 frames with exact ground truth (a few seconds)."""
+    from geofeat.sim import simulate_sequence
+
+    return simulate_sequence(tmp_path_factory.mktemp("small") / "cloth-rotate", scenario="rotate", n_frames=2, seed=5,
+                             width=160, height=120, progress=False)
+
+
+@pytest.mark.parametrize("damage", ["truncated npz", "json not an object", "json without spacing", "json corrupt"])
+def test_match_names_a_damaged_simulator_ground_truth_file_in_one_line(small_simulated, tmp_path, capsys, damage):
+    """A truncated <frame>-gt.npz was a BadZipFile traceback in `geofeat match`; a groundtruth.json
+    holding a list a TypeError traceback, one without spacing_m a KeyError traceback, a corrupt one a
+    bare JSON error naming no file."""
+    import shutil
+
+    seq = tmp_path / "seq"
+    shutil.copytree(small_simulated, seq)
+    if damage == "truncated npz":
+        (seq / "frame-001-gt.npz").write_bytes((seq / "frame-001-gt.npz").read_bytes()[:300])
+        named = "frame-001-gt.npz"
+    else:
+        (seq / "groundtruth.json").write_text({"json not an object": "[1]", "json without spacing": '{"frames": []}',
+                                               "json corrupt": "{"}[damage])
+        named = "groundtruth.json"
+    assert main(["match", str(seq), "--descriptor", "sift", "--keypoints", "64", "--out", str(tmp_path / "m")]) == 2
+    err = [line for line in capsys.readouterr().err.strip().splitlines() if "%|" not in line]  # no progress bars
+    assert len(err) == 1 and err[0].startswith("geofeat match: error: ") and named in err[0], err
+    assert not (tmp_path / "m").exists()
+
+
+def test_bench_timing_is_taken_on_a_sequence_that_did_not_fail(small_simulated, tmp_path, capsys):
+    """`bench --timing` timed the first sequence found; when that one had failed (an unreadable reference
+    frame), the run ended with its read error, exit 2, after the results of the others were written:
+    no timing.md and no FAILED line, where the other sequences' results make it exit 1."""
+    import shutil
+
+    data = tmp_path / "data"
+    shutil.copytree(small_simulated, data / "a-bad")
+    shutil.copytree(small_simulated, data / "b-good")
+    (data / "a-bad" / "frame-000-master-rgb.png").write_bytes(b"\x89PNG\r\n\x1a\nbroken")
+    out = tmp_path / "bench"
+    assert main(["bench", str(data), "--descriptors", "sift", "--keypoints", "64", "--out", str(out), "--timing"]) == 1
+    assert "FAILED sequences: a-bad" in capsys.readouterr().out
+    assert (out / "timing.md").is_file()
+
+
+def test_bench_reads_the_features_extract_wrote_for_an_upper_case_npz_name(small_simulated, tmp_path, capsys):
+    """`extract --out F.NPZ` writes F-<frame>.npz (the suffix in lower case), but `bench --features x=F.NPZ`
+    looked for F-<frame>.NPZ and refused the path: "does not exist (nor any F-<frame>.npz beside it...)"."""
+    out = tmp_path / "F.NPZ"
+    assert main(["extract", str(small_simulated), "--descriptor", "sift", "--keypoints", "64", "--out", str(out)]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["F-frame-000-master.npz", "F-frame-001.npz"]
+    assert main(["bench", str(small_simulated), "--descriptors", "sift", "--keypoints", "64",
+                 "--features", f"x={out}", "--out", str(tmp_path / "bench")]) == 0
+    header = (tmp_path / "bench" / "table.md").read_text().splitlines()[0]
+    assert header.replace(" ", "").startswith("|sequences|") and "| x |" in header
+
+
+def test_simulate_reruns_with_overwrite_over_its_own_contact_sheet_in_the_folder(tmp_path, capsys):
+    """`simulate S --contact-sheet S/sheet.png` left the sheet out of the folder's manifest, so the same
+    command with --overwrite refused S: "holds files geofeat did not write (sheet.png)"."""
+    argv = ["simulate", str(tmp_path / "s"), "--frames", "2", "--width", "64", "--height", "48", "--texture",
+            "procedural", "--no-progress", "--contact-sheet", str(tmp_path / "s" / "sheet.png")]
+    assert main(argv) == 0
+    assert main(argv + ["--overwrite"]) == 0, capsys.readouterr().err
+    assert (tmp_path / "s" / "sheet.png").is_file()
+
+
+def test_bench_reruns_with_other_settings_into_a_folder_that_holds_no_result(small_simulated, tmp_path, capsys):
+    """A bench run whose every sequence failed leaves results.csv with its header only; a rerun with other
+    settings was refused: "holds results made with other settings ...; use --overwrite"."""
+    import shutil
+
+    seq = tmp_path / "cloth"
+    shutil.copytree(small_simulated, seq)
+    frame = (seq / "frame-001-rgb.png").read_bytes()
+    (seq / "frame-001-rgb.png").write_bytes(b"\x89PNG\r\n\x1a\nbroken")
+    out = tmp_path / "bench"
+    assert main(["bench", str(seq), "--descriptors", "sift", "--keypoints", "64", "--out", str(out)]) == 2
+    (seq / "frame-001-rgb.png").write_bytes(frame)
+    capsys.readouterr()
+    assert main(["bench", str(seq), "--descriptors", "sift", "--keypoints", "32", "--out", str(out)]) == 0, \
+        capsys.readouterr().err
+    assert (out / "table.md").is_file()

@@ -66,7 +66,7 @@ def _is_extract_prefix(path: Path) -> bool:
     some `DIR/NAME-<frame>.npz` or `DIR/<sequence>/NAME-<frame>.npz`."""
     if not _npz_named(path) or not path.parent.is_dir():
         return False
-    pattern = f"{glob.escape(path.stem)}-*{path.suffix}"
+    pattern = f"{glob.escape(path.stem)}-*.npz"  # as extract names them whatever the case of --out's suffix
     return any(path.parent.glob(pattern)) or any(path.parent.glob(f"*/{pattern}"))
 
 
@@ -221,7 +221,7 @@ class ExternalFeatures:
         if self.path.is_dir():
             candidates = (self.path / sequence / f"{frame}.npz", self.path / f"{frame}.npz")
         else:  # `geofeat extract --out DIR/NAME.npz`'s files
-            where, file = self.path.parent, f"{self.path.stem}-{frame}{self.path.suffix}"
+            where, file = self.path.parent, f"{self.path.stem}-{frame}.npz"  # extract's names, even for --out NAME.NPZ
             candidates = (where / sequence / file, where / file)
         for candidate in candidates:
             if candidate.is_file():
@@ -283,7 +283,7 @@ class ExternalFeatures:
             except ValueError as error:
                 raise ValueError(f"features {self.name}: {error}") from None
         if not self.path.is_dir():
-            file = f"{self.path.stem}-{frame}{self.path.suffix}"
+            file = f"{self.path.stem}-{frame}.npz"
             raise ValueError(f"features {self.name}: no {sequence}/{file} or {file} in {self.path.parent}")
         raise ValueError(f"features {self.name}: no {sequence}/{frame}.npz or {frame}.npz under {self.path}")
 

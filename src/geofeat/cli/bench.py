@@ -88,8 +88,13 @@ def run(args: argparse.Namespace) -> int:
     for path in plot_curves(rows, out, group_of):
         add_to_manifest(out, [Path(path).name])
         print(f"wrote {path}")
-    if args.timing:
-        seq = read_sequence(find_sequences(args.datasets)[0], depth_scale=args.depth_scale)
+    # timed on the first sequence that did not fail: a failed first one (an unreadable reference frame)
+    # raised its error after the results were written, exit 2 with no timing.md and no FAILED line
+    timed = [f for f in find_sequences(args.datasets) if f.name not in failed] if args.timing else []
+    if args.timing and not timed:
+        print("timing: every sequence failed; timing.md not written")
+    if timed:
+        seq = read_sequence(timed[0], depth_scale=args.depth_scale)
         timing = timing_table(seq.frame(seq.reference), config.descriptors, resolve_radius(args.radius, seq),
                               depth_profile=sequence_depth_profile(seq, args.depth_profile))
         write(out / "timing.md", timing)

@@ -36,7 +36,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "the paper's setting)")
     p.add_argument("--samples", type=whole_number(1), default=10000, help="descriptors sampled for the vocabulary (default 10000)")
     p.add_argument("--classes", default=None, help="CSV 'sequence,class' (default: class = sequence folder name)")
-    p.add_argument("--seed", type=whole_number(0), default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=whole_number(0, 2**32 - 1), default=0, help="random seed (default 0)")
     p.set_defaults(func=run)
     return p
 

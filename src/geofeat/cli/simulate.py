@@ -90,5 +90,12 @@ def run(args: argparse.Namespace) -> int:
         from ..sim.contact_sheet import contact_sheet
 
         contact_sheet(folder, args.contact_sheet)
+        import os
+
+        from ..outputs import add_to_manifest
+
+        sheet, root = Path(os.path.abspath(args.contact_sheet)), Path(os.path.abspath(folder))
+        if root in sheet.parents:  # geofeat's file: unlisted, it made a rerun with --overwrite refuse the folder
+            add_to_manifest(folder, [sheet.relative_to(root)])
         print(f"wrote contact sheet {args.contact_sheet}")
     return 0

@@ -39,7 +39,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "the paper's and the shipped weights': 32 64 128)")
     p.add_argument("--no-angle-pool", action="store_true", help="flatten instead of max-pooling over angle (ablation)")
     p.add_argument("--keypoints", type=keypoint_count, default=512, help="SIFT keypoints per reference frame (default 512)")
-    p.add_argument("--seed", type=whole_number(0), default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=whole_number(0, 2**64 - 1), default=0, help="random seed (default 0)")
     p.add_argument("--net", choices=("geopatch", "tfeat", "logpolar"), default="geopatch",
                    help="network: GeoPatch (geodesic patches) or an image-patch baseline (tfeat-sim, logpolar-sim)")
     p.add_argument("--resume", action="store_true", help="continue from OUT.ckpt (with the same options)")

@@ -21,7 +21,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "over these counts are kept (default 1024 2048)")
     p.add_argument("--hidden", type=whole_number(1), nargs="+", default=(32, 32), help="hidden layer widths (default 32 32)")
     p.add_argument("--steps", type=whole_number(1), default=3000, help="Adam steps (default 3000)")
-    p.add_argument("--seed", type=whole_number(0), default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=whole_number(0, 2**64 - 1), default=0, help="random seed (default 0)")
     p.add_argument("--denoise", type=number_at_least(0.0), default=0.0,
                    help="detect on the image through an edge-preserving (bilateral) filter whose range is this many "
                         "times the frame's noise level, in training and in the weights written (default 0: none)")

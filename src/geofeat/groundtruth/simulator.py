@@ -31,6 +31,8 @@ Mapping a point p of frame i to frame j:
 from __future__ import annotations
 
 import json
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -266,16 +268,29 @@ def has_ground_truth(seq) -> bool:
 
 
 def read_metadata(folder: str | Path) -> dict:
-    """The sequence's `groundtruth.json` as a dict."""
-    return json.loads((Path(folder) / GT_JSON).read_text())
+    """The sequence's `groundtruth.json` as a dict (ValueError naming the file when it is not a JSON
+    object: a corrupt file was a bare JSON error, a list a TypeError traceback)."""
+    path = Path(folder) / GT_JSON
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise ValueError(f"{path}: not valid JSON ({error})") from None
+    if not isinstance(meta, dict):
+        raise ValueError(f"{path}: expected a JSON object, got {type(meta).__name__}")
+    return meta
 
 
 def read_frame_truth(folder: str | Path, name: str | int) -> FrameTruth:
     """Load `<name>-gt.npz` of a simulated sequence (name, or index into its frame list)."""
     if isinstance(name, (int, np.integer)):
         name = read_metadata(folder)["frames"][int(name)]
-    with np.load(Path(folder) / f"{name}{GT_SUFFIX}") as data:
-        return FrameTruth(uv=data["uv"], vertices=data["vertices"])
+    path = Path(folder) / f"{name}{GT_SUFFIX}"
+    try:  # a truncated or foreign file was a BadZipFile / KeyError traceback in `geofeat match`
+        with np.load(path) as data:
+            return FrameTruth(uv=data["uv"], vertices=data["vertices"])
+    except (ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as error:
+        raise ValueError(f"{path}: not a ground-truth file of `geofeat simulate` (arrays uv and vertices): "
+                         f"{type(error).__name__}: {error}") from None
 
 
 def correspondences(seq, i, j, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -299,4 +314,9 @@ def correspondences(seq, i, j, points: np.ndarray) -> tuple[np.ndarray, np.ndarr
     meta = read_metadata(seq.folder)
     ti = read_frame_truth(seq.folder, seq.frame_name(i))
     tj = read_frame_truth(seq.folder, seq.frame_name(j))
-    return map_points(ti, tj, seq.K, float(meta["spacing_m"]), points)
+    try:
+        spacing = float(meta["spacing_m"])
+    except (KeyError, TypeError, ValueError):
+        raise ValueError(f"{Path(seq.folder) / GT_JSON}: expected a number 'spacing_m' (the cloth's grid spacing, "
+                         f"metres), got {meta.get('spacing_m')!r}") from None
+    return map_points(ti, tj, seq.K, spacing, points)
