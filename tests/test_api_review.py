@@ -1,0 +1,70 @@
+"""Public API behaviours found wrong in review: each test failed before its fix."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+import geofeat
+from geofeat.frame import roll_camera
+
+K = np.array([[80.0, 0, 39.5], [0, 80.0, 29.5], [0, 0, 1]])
+
+
+def _frame(colour: bool = True) -> geofeat.RGBDFrame:
+    rng = np.random.default_rng(0)
+    image = (rng.random((60, 80, 3) if colour else (60, 80)) * 255).astype(np.uint8)
+    return geofeat.RGBDFrame(image, np.ones((60, 80), np.float32), K)
+
+
+# ---------------------------------------------------------------- RGBDFrame.with_image
+def test_with_image_reads_uint8_as_the_constructor_does():
+    """frame.with_image(uint8 gray) kept the values 0-255 as the float image, which every stage
+    reads as [0, 1]: SIFT then found no keypoint at all (the image clipped to white), GeoKey
+    other ones, without a word."""
+    frame = _frame()
+    gray8 = np.clip(np.rint(frame.image * 255), 0, 255).astype(np.uint8)
+    swapped = frame.with_image(gray8)
+    assert swapped.image.dtype == np.float32
+    np.testing.assert_array_equal(swapped.image, geofeat.RGBDFrame(gray8, frame.depth, frame.K).image)
+    gray16 = gray8.astype(np.uint16) * 257
+    np.testing.assert_allclose(frame.with_image(gray16).image, swapped.image, atol=1e-6)
+
+
+@pytest.mark.parametrize("bad", [np.nan, 2.0, -0.5])
+def test_with_image_refuses_values_the_constructor_refuses(bad):
+    """with_image took NaN and floats outside [0, 1] (an image in 0-255 as floats) as they were."""
+    frame = _frame()
+    image = frame.image.copy()
+    image[5, 5] = bad
+    with pytest.raises(ValueError, match=r"^image: "):
+        frame.with_image(image)
+
+
+def test_with_image_keeps_its_own_copy():
+    """with_image kept the caller's float32 array itself (the constructor copies): changing that
+    array afterwards changed the frame's image."""
+    frame = _frame()
+    image = np.clip(frame.image * 0.5 + 0.2, 0, 1).astype(np.float32)
+    swapped = frame.with_image(image)
+    before = swapped.image.copy()
+    image[:] = 0.0
+    np.testing.assert_array_equal(swapped.image, before)
+
+
+# ---------------------------------------------------------------- roll_camera
+def test_roll_camera_turns_the_frames_own_gray_image():
+    """roll_camera started from the colour image, so a frame from `with_image` (a filtered gray
+    image, the colour kept for display) came back with the unfiltered gray image rolled, as
+    rotated90 did before it was fixed; a frame whose gray is its colour's is unchanged."""
+    frame = _frame()
+    filtered = frame.with_image(np.clip(frame.image * 0.5 + 0.2, 0, 1))
+    rolled, A = roll_camera(filtered, 30.0)
+    H, W = frame.shape
+    expected = cv2.warpAffine(filtered.image, A, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    np.testing.assert_allclose(rolled.image, expected, atol=1e-6)
+    assert rolled.color is not None
+    plain, A2 = roll_camera(frame, 30.0)  # the colour image's gray: as before
+    colour = cv2.warpAffine(frame.color, A2, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    np.testing.assert_array_equal(plain.image, geofeat.RGBDFrame(colour, plain.depth, K).image)
