@@ -68,3 +68,20 @@ def test_roll_camera_turns_the_frames_own_gray_image():
     plain, A2 = roll_camera(frame, 30.0)  # the colour image's gray: as before
     colour = cv2.warpAffine(frame.color, A2, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     np.testing.assert_array_equal(plain.image, geofeat.RGBDFrame(colour, plain.depth, K).image)
+
+
+# ---------------------------------------------------------------- viz.draw_matches
+def test_draw_matches_takes_what_detect_and_match_return():
+    """draw_matches(frame0, frame1, detect(...), detect(...), match(...)) was "TypeError: type
+    Keypoints doesn't define __round__ method", and a Matches record for matches0 "'>=' not
+    supported between instances of 'Matches' and 'int'"; the picture is the one of the arrays."""
+    from geofeat.viz import draw_matches
+
+    frame = _frame()
+    xy0 = np.array([[10.0, 12.0], [40.0, 30.0], [70.0, 50.0]])
+    xy1 = np.array([[12.0, 10.0], [41.0, 33.0]])
+    m = geofeat.Matches(np.array([1, -1, 0]), np.array([1.0, np.inf, 2.0]))
+    expected = draw_matches(frame, frame, xy0, xy1, m.matches0)
+    kp0, kp1 = geofeat.as_keypoints(xy0), geofeat.as_keypoints(xy1)
+    np.testing.assert_array_equal(draw_matches(frame, frame, kp0, kp1, m), expected)
+    np.testing.assert_array_equal(draw_matches(frame, frame, kp0.to_cv(), kp1.to_cv(), m.matches0), expected)
