@@ -85,3 +85,20 @@ def test_draw_matches_takes_what_detect_and_match_return():
     kp0, kp1 = geofeat.as_keypoints(xy0), geofeat.as_keypoints(xy1)
     np.testing.assert_array_equal(draw_matches(frame, frame, kp0, kp1, m), expected)
     np.testing.assert_array_equal(draw_matches(frame, frame, kp0.to_cv(), kp1.to_cv(), m.matches0), expected)
+
+
+# ---------------------------------------------------------------- RGBDFrame ==
+def test_frames_compare_by_value():
+    """frame0 == frame1 (and frames.index(frame), frame in frames) of two distinct frames was
+    "ValueError: The truth value of an array with more than one element is ambiguous", from the
+    dataclass's generated __eq__; hash(frame) named an ndarray, not the frame."""
+    frame = _frame()
+    same = geofeat.RGBDFrame(frame.color, frame.depth.copy(), frame.K.copy())
+    other = frame.rotated90(2)
+    assert frame == same and not frame != same
+    assert frame != other and not frame == other
+    assert [other, same].index(frame) == 1 and frame in [other, same]
+    assert frame != "a frame"
+    assert frame.with_image(frame.image * 0.5) != frame  # another gray image: another frame
+    with pytest.raises(TypeError, match="RGBDFrame"):
+        hash(frame)

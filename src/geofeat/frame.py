@@ -158,7 +158,7 @@ def _unit_readings(median: float) -> str:
     return "read " + ", or ".join(readings) if readings else "no common unit makes it a plausible depth"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class RGBDFrame:
     """A registered RGB-D frame.
 
@@ -196,6 +196,18 @@ class RGBDFrame:
         check_principal_point(K, gray.shape, "K", strict=False)
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "color", color)
+
+    def __eq__(self, other) -> bool:
+        """Frames with equal gray images, depth and intrinsics (the colour image, kept for display, is
+        not compared). The dataclass's own `==` compared the arrays as a tuple: "The truth value of an
+        array with more than one element is ambiguous" for any two distinct frames (also from
+        `frames.index(frame)` or `frame in frames`)."""
+        if not isinstance(other, RGBDFrame):
+            return NotImplemented
+        return self is other or all(np.array_equal(getattr(self, name), getattr(other, name))
+                                    for name in ("image", "depth", "K"))
+
+    __hash__ = None  # equal by value over mutable arrays: not hashable ("unhashable type: 'RGBDFrame'")
 
     @property
     def shape(self) -> tuple[int, int]:
