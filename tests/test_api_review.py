@@ -102,3 +102,27 @@ def test_frames_compare_by_value():
     assert frame.with_image(frame.image * 0.5) != frame  # another gray image: another frame
     with pytest.raises(TypeError, match="RGBDFrame"):
         hash(frame)
+
+
+def test_records_compare_by_value(tmp_path):
+    """features == load_features(path) (a round trip's natural check), and == of two Keypoints or
+    Matches, was "ValueError: The truth value of an array with more than one element is
+    ambiguous", from the dataclasses' generated __eq__."""
+    rng = np.random.default_rng(0)
+    desc = rng.integers(0, 256, (5, 16, 64), dtype=np.uint8)
+    xy = rng.random((5, 2)) * 50
+    features = geofeat.Features(xy, desc, np.array([1, 1, 0, 1, 1], bool), angles=np.zeros(5), sizes=np.full(5, np.nan))
+    geofeat.save_features(tmp_path / "f.npz", features)
+    assert geofeat.load_features(tmp_path / "f.npz") == features
+    assert features != geofeat.Features(xy, desc, None, angles=np.zeros(5), sizes=np.full(5, np.nan))  # valid differs
+    assert features != geofeat.Features(xy, desc, features.valid)  # no angles, sizes
+    assert features != "features"
+    kp = geofeat.as_keypoints(xy)  # NaN sizes and responses: still equal to itself, by value
+    assert kp == geofeat.as_keypoints(xy.copy()) and kp != geofeat.as_keypoints(xy + 1)
+    assert kp[[0, 1]] == kp[:2] and kp != kp[:2]
+    m = geofeat.Matches([1, -1], [0.5, np.inf])
+    geofeat.save_matches(tmp_path / "m.npz", m)
+    assert geofeat.load_matches(tmp_path / "m.npz") == m and m != geofeat.Matches([1, 0], [0.5, 1.0])
+    for record in (features, kp, m):
+        with pytest.raises(TypeError, match="unhashable"):
+            hash(record)

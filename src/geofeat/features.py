@@ -33,7 +33,25 @@ __all__ = [
 ]
 
 
-@dataclass
+def fields_equal(a, b, names: tuple[str, ...]) -> bool:
+    """The fields `names` of records `a` and `b` hold equal arrays (shape and values; NaN equals NaN,
+    as the NaN sizes of keypoints given as bare pixels; None only equals None). The `==` of the
+    dataclasses `Features`, `Matches` and `Keypoints`: the generated one compared tuples of arrays,
+    "The truth value of an array with more than one element is ambiguous" for any two records."""
+    for name in names:
+        x, y = getattr(a, name), getattr(b, name)
+        if x is None or y is None:
+            if x is not y:
+                return False
+            continue
+        x, y = np.asarray(x), np.asarray(y)
+        floats = x.dtype.kind in "fc" and y.dtype.kind in "fc"
+        if not np.array_equal(x, y, equal_nan=floats):
+            return False
+    return True
+
+
+@dataclass(eq=False)
 class Features:
     """Local features of one image.
 
@@ -90,6 +108,14 @@ class Features:
     def __len__(self) -> int:
         return int(self.keypoints.shape[0])
 
+    def __eq__(self, other) -> bool:
+        """Equal keypoints, descriptors, valid flags, angles and sizes (`fields_equal`)."""
+        if not isinstance(other, Features):
+            return NotImplemented
+        return fields_equal(self, other, ("keypoints", "descriptors", "valid", "angles", "sizes"))
+
+    __hash__ = None
+
     def __repr__(self) -> str:  # the dataclass's printed every array in full
         d = self.descriptors
         extras = "".join(f", {name}" for name in ("angles", "sizes") if getattr(self, name) is not None)
@@ -97,7 +123,7 @@ class Features:
                 f"{d.dtype}{extras})")
 
 
-@dataclass
+@dataclass(eq=False)
 class Matches:
     """Nearest-neighbour matches from the keypoints of image 0 to those of image 1.
 
@@ -120,6 +146,14 @@ class Matches:
 
     def __len__(self) -> int:
         return int(self.matches0.shape[0])
+
+    def __eq__(self, other) -> bool:
+        """Equal matches0 and distances0 (`fields_equal`)."""
+        if not isinstance(other, Matches):
+            return NotImplemented
+        return fields_equal(self, other, ("matches0", "distances0"))
+
+    __hash__ = None
 
     def __repr__(self) -> str:
         return f"Matches({len(self)} keypoints of image 0, {int((self.matches0 >= 0).sum())} matched)"
