@@ -126,3 +126,18 @@ def test_records_compare_by_value(tmp_path):
     for record in (features, kp, m):
         with pytest.raises(TypeError, match="unhashable"):
             hash(record)
+
+
+@pytest.mark.parametrize("matches0", [[True, False, True], [0.25, 0.9, 0.5], [np.nan, 1.0, -1.0], [-2, 0, 1]])
+def test_matches_refuse_what_is_not_an_index(matches0):
+    """Matches(matches0=a mask or scores) matched every keypoint to keypoint 0 or 1 without a word
+    (True -> 1, 0.9 -> 0), NaN was "cannot convert float NaN to integer", and -2 passed for "no match"."""
+    with pytest.raises(ValueError, match=r"^matches0: "):
+        geofeat.Matches(matches0, np.zeros(3))
+
+
+def test_matches_take_whole_floats():
+    """Whole-number floats (an index array stored as float, -1 for none) are indices as before."""
+    m = geofeat.Matches(np.array([2.0, -1.0, 0.0]), np.zeros(3))
+    assert m.matches0.dtype == np.int64 and m.matches0.tolist() == [2, -1, 0]
+    assert len(geofeat.Matches(np.zeros(0), np.zeros(0))) == 0

@@ -137,7 +137,20 @@ class Matches:
     distances0: np.ndarray
 
     def __post_init__(self) -> None:
-        self.matches0 = np.asarray(self.matches0, dtype=np.int64).reshape(-1)
+        m0 = np.asarray(self.matches0)
+        # bool flags (m.matches0 >= 0) read as indices 1 and 0, scores in [0, 1) as index 0 (truncated),
+        # NaN was "cannot convert float NaN to integer", naming nothing
+        if m0.dtype.kind not in "iuf" and m0.size:
+            raise ValueError(f"matches0: expected (N0,) whole-number indices into image 1 (-1 = no match), got dtype "
+                             f"{m0.dtype}" + ("; a mask of matched keypoints is not an index" if m0.dtype == bool else ""))
+        if m0.dtype.kind == "f" and not (np.isfinite(m0) & (m0 == np.round(m0))).all():
+            odd = m0[~(np.isfinite(m0) & (m0 == np.round(m0)))]
+            raise ValueError(f"matches0: expected whole-number indices into image 1 (-1 = no match), got values such "
+                             f"as {odd[:3].tolist()}; a score or distance is not an index")
+        m0 = m0.astype(np.int64).reshape(-1)
+        if (m0 < -1).any():
+            raise ValueError(f"matches0: expected indices into image 1 or -1 (no match), got {int(m0.min())}")
+        self.matches0 = m0
         self.distances0 = np.asarray(self.distances0, dtype=np.float64).reshape(-1)
         if self.matches0.shape != self.distances0.shape:
             raise ValueError(
