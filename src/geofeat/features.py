@@ -5,7 +5,7 @@ pair) holding plain datasets, so files written here can be read by hloc-style to
 
 - features: ``/<image name>/keypoints`` (N, 2) float32 pixels (x, y), ``descriptors`` (N, ...),
   ``valid`` (N,) bool, and optionally ``angles`` (N,) and ``sizes`` (N,).
-- matches: ``/<pair name>/matches0`` (N0,) int64 (-1 = no match), ``distances`` (N0,) float32.
+- matches: ``/<pair name>/matches0`` (N0,) int64 (-1 = no match), ``distances`` (N0,) float64.
 
 Image names may contain ``/`` (nested groups, as in hloc). The .npz layout stores the same arrays
 at the top level of one archive per image (or pair).
