@@ -5,7 +5,7 @@ pair) holding plain datasets, so files written here can be read by hloc-style to
 
 - features: ``/<image name>/keypoints`` (N, 2) float32 pixels (x, y), ``descriptors`` (N, ...),
   ``valid`` (N,) bool, and optionally ``angles`` (N,) and ``sizes`` (N,).
-- matches: ``/<pair name>/matches0`` (N0,) int64 (-1 = no match), ``distances`` (N0,) float32.
+- matches: ``/<pair name>/matches0`` (N0,) int64 (-1 = no match), ``distances`` (N0,) float64.
 
 Image names may contain ``/`` (nested groups, as in hloc). The .npz layout stores the same arrays
 at the top level of one archive per image (or pair).
@@ -33,7 +33,25 @@ __all__ = [
 ]
 
 
-@dataclass
+def fields_equal(a, b, names: tuple[str, ...]) -> bool:
+    """The fields `names` of records `a` and `b` hold equal arrays (shape and values; NaN equals NaN,
+    as the NaN sizes of keypoints given as bare pixels; None only equals None). The `==` of the
+    dataclasses `Features`, `Matches` and `Keypoints`: the generated one compared tuples of arrays,
+    "The truth value of an array with more than one element is ambiguous" for any two records."""
+    for name in names:
+        x, y = getattr(a, name), getattr(b, name)
+        if x is None or y is None:
+            if x is not y:
+                return False
+            continue
+        x, y = np.asarray(x), np.asarray(y)
+        floats = x.dtype.kind in "fc" and y.dtype.kind in "fc"
+        if not np.array_equal(x, y, equal_nan=floats):
+            return False
+    return True
+
+
+@dataclass(eq=False)
 class Features:
     """Local features of one image.
 
@@ -90,6 +108,14 @@ class Features:
     def __len__(self) -> int:
         return int(self.keypoints.shape[0])
 
+    def __eq__(self, other) -> bool:
+        """Equal keypoints, descriptors, valid flags, angles and sizes (`fields_equal`)."""
+        if not isinstance(other, Features):
+            return NotImplemented
+        return fields_equal(self, other, ("keypoints", "descriptors", "valid", "angles", "sizes"))
+
+    __hash__ = None
+
     def __repr__(self) -> str:  # the dataclass's printed every array in full
         d = self.descriptors
         extras = "".join(f", {name}" for name in ("angles", "sizes") if getattr(self, name) is not None)
@@ -97,7 +123,7 @@ class Features:
                 f"{d.dtype}{extras})")
 
 
-@dataclass
+@dataclass(eq=False)
 class Matches:
     """Nearest-neighbour matches from the keypoints of image 0 to those of image 1.
 
@@ -111,7 +137,20 @@ class Matches:
     distances0: np.ndarray
 
     def __post_init__(self) -> None:
-        self.matches0 = np.asarray(self.matches0, dtype=np.int64).reshape(-1)
+        m0 = np.asarray(self.matches0)
+        # bool flags (m.matches0 >= 0) read as indices 1 and 0, scores in [0, 1) as index 0 (truncated),
+        # NaN was "cannot convert float NaN to integer", naming nothing
+        if m0.dtype.kind not in "iuf" and m0.size:
+            raise ValueError(f"matches0: expected (N0,) whole-number indices into image 1 (-1 = no match), got dtype "
+                             f"{m0.dtype}" + ("; a mask of matched keypoints is not an index" if m0.dtype == bool else ""))
+        if m0.dtype.kind == "f" and not (np.isfinite(m0) & (m0 == np.round(m0))).all():
+            odd = m0[~(np.isfinite(m0) & (m0 == np.round(m0)))]
+            raise ValueError(f"matches0: expected whole-number indices into image 1 (-1 = no match), got values such "
+                             f"as {odd[:3].tolist()}; a score or distance is not an index")
+        m0 = m0.astype(np.int64).reshape(-1)
+        if (m0 < -1).any():
+            raise ValueError(f"matches0: expected indices into image 1 or -1 (no match), got {int(m0.min())}")
+        self.matches0 = m0
         self.distances0 = np.asarray(self.distances0, dtype=np.float64).reshape(-1)
         if self.matches0.shape != self.distances0.shape:
             raise ValueError(
@@ -120,6 +159,14 @@ class Matches:
 
     def __len__(self) -> int:
         return int(self.matches0.shape[0])
+
+    def __eq__(self, other) -> bool:
+        """Equal matches0 and distances0 (`fields_equal`)."""
+        if not isinstance(other, Matches):
+            return NotImplemented
+        return fields_equal(self, other, ("matches0", "distances0"))
+
+    __hash__ = None
 
     def __repr__(self) -> str:
         return f"Matches({len(self)} keypoints of image 0, {int((self.matches0 >= 0).sum())} matched)"

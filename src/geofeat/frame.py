@@ -13,9 +13,10 @@ from .inputs import (PLAUSIBLE_MEDIAN_DEPTH_M, DepthUnitsWarning, as_points, che
                      unmask_depth)
 
 
-def to_gray(image: np.ndarray) -> np.ndarray:
+def to_gray(image: np.ndarray, warn_dark: bool = True) -> np.ndarray:
     """Convert an (H, W) or (H, W, 3) BGR image (uint8, uint16 or float in [0, 1]) to float32 gray in [0, 1];
-    a uint16 or float image that uses under 1/16 of its full scale warns (`_warn_if_dark`)."""
+    a uint16 or float image that uses under 1/16 of its full scale warns (`_warn_if_dark`) unless
+    `warn_dark` is False. Always a new array (not a view of `image`)."""
     image = np.asarray(image)
     if image.dtype.kind not in "biuf":
         raise TypeError(f"image: expected uint8, uint16 or float values in [0, 1], got dtype {image.dtype}")
@@ -51,7 +52,8 @@ def to_gray(image: np.ndarray) -> np.ndarray:
                 f"image: {image.dtype} images must lie in [0, 1], got range [{gray.min():.3g}, {gray.max():.3g}]"
                 " (pass 0-255 images as uint8, or divide by 255)"
             )
-    _warn_if_dark(image, float(gray.max()))
+    if warn_dark:
+        _warn_if_dark(image, float(gray.max()))
     return np.ascontiguousarray(gray, dtype=np.float32)
 
 
@@ -156,7 +158,7 @@ def _unit_readings(median: float) -> str:
     return "read " + ", or ".join(readings) if readings else "no common unit makes it a plausible depth"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class RGBDFrame:
     """A registered RGB-D frame.
 
@@ -195,6 +197,18 @@ class RGBDFrame:
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "color", color)
 
+    def __eq__(self, other) -> bool:
+        """Frames with equal gray images, depth and intrinsics (the colour image, kept for display, is
+        not compared). The dataclass's own `==` compared the arrays as a tuple: "The truth value of an
+        array with more than one element is ambiguous" for any two distinct frames (also from
+        `frames.index(frame)` or `frame in frames`)."""
+        if not isinstance(other, RGBDFrame):
+            return NotImplemented
+        return self is other or all(np.array_equal(getattr(self, name), getattr(other, name))
+                                    for name in ("image", "depth", "K"))
+
+    __hash__ = None  # equal by value over mutable arrays: not hashable ("unhashable type: 'RGBDFrame'")
+
     @property
     def shape(self) -> tuple[int, int]:
         """(H, W) in pixels."""
@@ -210,11 +224,17 @@ class RGBDFrame:
 
     def with_image(self, image: np.ndarray) -> "RGBDFrame":
         """This frame's depth and intrinsics (checked already, and shared, not copied) with another
-        (H, W) gray image of the same shape, e.g. a filtered copy for a detector. The colour image is
+        (H, W) gray image of the same shape, e.g. a filtered copy for a detector. The image is read
+        as the constructor reads it (uint8 0-255, uint16 0-65535, float in [0, 1]; NaN or values
+        outside that range raise ValueError) into the frame's own float32 copy. The colour image is
         kept for display."""
-        image = np.asarray(image, np.float32)
+        image = np.asarray(image)
         if image.shape != self.shape:
             raise ValueError(f"image: expected shape {self.shape}, got {image.shape}")
+        # as the constructor reads it: a uint8 image was kept as floats 0-255 (read as [0, 1] by every
+        # stage: SIFT found nothing on it), NaN and 0-255 floats were taken, the caller's array was shared;
+        # no dark-image warning here: the frame's constructor gave it for its own image
+        image = to_gray(image, warn_dark=False)
         frame = object.__new__(RGBDFrame)
         for name, value in (("image", image), ("depth", self.depth), ("K", self.K), ("color", self.color)):
             object.__setattr__(frame, name, value)
@@ -261,7 +281,9 @@ def roll_camera(frame: RGBDFrame, angle_deg: float) -> tuple[RGBDFrame, np.ndarr
     """The frame seen by the same camera rolled about its optical axis by `angle_deg` (the image
     turns counter-clockwise as displayed for positive angles). Rotating the image about the principal
     point is exact for a roll when fx = fy and there is no skew; depth (Z) does not change, K stays.
-    Pixels with no source get depth 0. Returns the new frame and the (2, 3) affine map of pixels."""
+    Pixels with no source get depth 0. The gray image is this frame's own, rolled (also when it is
+    not its colour image's gray, as after `with_image`); the colour image is rolled with it.
+    Returns the new frame and the (2, 3) affine map of pixels."""
     K = frame.K
     if abs(K[0, 0] - K[1, 1]) > 1e-6 * K[0, 0] or abs(K[0, 1]) > 1e-9:
         raise ValueError("K: roll_camera needs square pixels (fx = fy) and no skew")
@@ -270,7 +292,13 @@ def roll_camera(frame: RGBDFrame, angle_deg: float) -> tuple[RGBDFrame, np.ndarr
     image = frame.color if frame.color is not None else frame.image
     warped = cv2.warpAffine(image, A, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     depth = cv2.warpAffine(frame.depth, A, (W, H), flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
-    return RGBDFrame(warped, depth, K), A
+    rolled = RGBDFrame(warped, depth, K)
+    if frame.color is not None and not np.array_equal(frame.image, to_gray(frame.color)):
+        # a gray image of its own (`with_image`, e.g. filtered): roll that one, as `rotated90` turns it,
+        # not the colour image's gray; the colour image is kept, rolled, for display
+        gray = cv2.warpAffine(frame.image, A, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        rolled = rolled.with_image(np.clip(gray, 0.0, 1.0))
+    return rolled, A
 
 
 def rotate_points90(points: np.ndarray, shape: tuple[int, int], k: int = 1) -> np.ndarray:

@@ -30,7 +30,7 @@ DETECTORS = ("sift", "geokey")
 DEFAULT_DETECTOR = "geokey"
 
 
-@dataclass
+@dataclass(eq=False)
 class Keypoints:
     """Detected keypoints.
 
@@ -64,6 +64,16 @@ class Keypoints:
 
     def __len__(self) -> int:
         return int(self.xy.shape[0])
+
+    def __eq__(self, other) -> bool:
+        """Equal xy, angles, sizes and responses (`geofeat.features.fields_equal`: NaN equals NaN)."""
+        if not isinstance(other, Keypoints):
+            return NotImplemented
+        from .features import fields_equal
+
+        return fields_equal(self, other, ("xy", "angles", "sizes", "responses"))
+
+    __hash__ = None
 
     def __repr__(self) -> str:  # the dataclass's printed every array in full
         if not len(self):

@@ -157,7 +157,21 @@ def draw_matches(
     frame; matches0 (N0,) int, -1 = none; correct, judged (N0,) bool or None (judged None: every one
     judged). At most `max_lines` matches are drawn (evenly spaced in index order); the caption under
     `title` then says how many of how many, and names the colours used (with the count not judged).
+    The keypoints may also be `Keypoints` (as `geofeat.detect` returns them) or cv2.KeyPoints, and
+    matches0 a `Matches` record (as `geofeat.match` returns it).
     Returns an (H, W0 + W1, 3) uint8 BGR image, H = max(H0, H1)."""
+    from .features import Matches
+    from .keypoints import as_keypoints
+
+    # `Keypoints` and `Matches`, what detect and match return, were TypeErrors from deep inside
+    # ("type Keypoints doesn't define __round__ method", "'>=' not supported ... 'Matches'")
+    # (arrays are taken as they were: rows never drawn may hold anything)
+    if not isinstance(keypoints0, np.ndarray):
+        keypoints0 = as_keypoints(keypoints0, allow_empty=True, what="keypoints0").xy
+    if not isinstance(keypoints1, np.ndarray):
+        keypoints1 = as_keypoints(keypoints1, allow_empty=True, what="keypoints1").xy
+    if isinstance(matches0, Matches):
+        matches0 = matches0.matches0
     left, right = to_bgr(frame0), to_bgr(frame1)
     canvas = side_by_side(left, right, gap=0)
     offset = left.shape[1]

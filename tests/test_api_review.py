@@ -1,0 +1,143 @@
+"""Public API behaviours found wrong in review: each test failed before its fix."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+import geofeat
+from geofeat.frame import roll_camera
+
+K = np.array([[80.0, 0, 39.5], [0, 80.0, 29.5], [0, 0, 1]])
+
+
+def _frame(colour: bool = True) -> geofeat.RGBDFrame:
+    rng = np.random.default_rng(0)
+    image = (rng.random((60, 80, 3) if colour else (60, 80)) * 255).astype(np.uint8)
+    return geofeat.RGBDFrame(image, np.ones((60, 80), np.float32), K)
+
+
+# ---------------------------------------------------------------- RGBDFrame.with_image
+def test_with_image_reads_uint8_as_the_constructor_does():
+    """frame.with_image(uint8 gray) kept the values 0-255 as the float image, which every stage
+    reads as [0, 1]: SIFT then found no keypoint at all (the image clipped to white), GeoKey
+    other ones, without a word."""
+    frame = _frame()
+    gray8 = np.clip(np.rint(frame.image * 255), 0, 255).astype(np.uint8)
+    swapped = frame.with_image(gray8)
+    assert swapped.image.dtype == np.float32
+    np.testing.assert_array_equal(swapped.image, geofeat.RGBDFrame(gray8, frame.depth, frame.K).image)
+    gray16 = gray8.astype(np.uint16) * 257
+    np.testing.assert_allclose(frame.with_image(gray16).image, swapped.image, atol=1e-6)
+
+
+@pytest.mark.parametrize("bad", [np.nan, 2.0, -0.5])
+def test_with_image_refuses_values_the_constructor_refuses(bad):
+    """with_image took NaN and floats outside [0, 1] (an image in 0-255 as floats) as they were."""
+    frame = _frame()
+    image = frame.image.copy()
+    image[5, 5] = bad
+    with pytest.raises(ValueError, match=r"^image: "):
+        frame.with_image(image)
+
+
+def test_with_image_keeps_its_own_copy():
+    """with_image kept the caller's float32 array itself (the constructor copies): changing that
+    array afterwards changed the frame's image."""
+    frame = _frame()
+    image = np.clip(frame.image * 0.5 + 0.2, 0, 1).astype(np.float32)
+    swapped = frame.with_image(image)
+    before = swapped.image.copy()
+    image[:] = 0.0
+    np.testing.assert_array_equal(swapped.image, before)
+
+
+# ---------------------------------------------------------------- roll_camera
+def test_roll_camera_turns_the_frames_own_gray_image():
+    """roll_camera started from the colour image, so a frame from `with_image` (a filtered gray
+    image, the colour kept for display) came back with the unfiltered gray image rolled, as
+    rotated90 did before it was fixed; a frame whose gray is its colour's is unchanged."""
+    frame = _frame()
+    filtered = frame.with_image(np.clip(frame.image * 0.5 + 0.2, 0, 1))
+    rolled, A = roll_camera(filtered, 30.0)
+    H, W = frame.shape
+    expected = cv2.warpAffine(filtered.image, A, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    np.testing.assert_allclose(rolled.image, expected, atol=1e-6)
+    assert rolled.color is not None
+    plain, A2 = roll_camera(frame, 30.0)  # the colour image's gray: as before
+    colour = cv2.warpAffine(frame.color, A2, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    np.testing.assert_array_equal(plain.image, geofeat.RGBDFrame(colour, plain.depth, K).image)
+
+
+# ---------------------------------------------------------------- viz.draw_matches
+def test_draw_matches_takes_what_detect_and_match_return():
+    """draw_matches(frame0, frame1, detect(...), detect(...), match(...)) was "TypeError: type
+    Keypoints doesn't define __round__ method", and a Matches record for matches0 "'>=' not
+    supported between instances of 'Matches' and 'int'"; the picture is the one of the arrays."""
+    from geofeat.viz import draw_matches
+
+    frame = _frame()
+    xy0 = np.array([[10.0, 12.0], [40.0, 30.0], [70.0, 50.0]])
+    xy1 = np.array([[12.0, 10.0], [41.0, 33.0]])
+    m = geofeat.Matches(np.array([1, -1, 0]), np.array([1.0, np.inf, 2.0]))
+    expected = draw_matches(frame, frame, xy0, xy1, m.matches0)
+    kp0, kp1 = geofeat.as_keypoints(xy0), geofeat.as_keypoints(xy1)
+    np.testing.assert_array_equal(draw_matches(frame, frame, kp0, kp1, m), expected)
+    np.testing.assert_array_equal(draw_matches(frame, frame, kp0.to_cv(), kp1.to_cv(), m.matches0), expected)
+
+
+# ---------------------------------------------------------------- RGBDFrame ==
+def test_frames_compare_by_value():
+    """frame0 == frame1 (and frames.index(frame), frame in frames) of two distinct frames was
+    "ValueError: The truth value of an array with more than one element is ambiguous", from the
+    dataclass's generated __eq__; hash(frame) named an ndarray, not the frame."""
+    frame = _frame()
+    same = geofeat.RGBDFrame(frame.color, frame.depth.copy(), frame.K.copy())
+    other = frame.rotated90(2)
+    assert frame == same and not frame != same
+    assert frame != other and not frame == other
+    assert [other, same].index(frame) == 1 and frame in [other, same]
+    assert frame != "a frame"
+    assert frame.with_image(frame.image * 0.5) != frame  # another gray image: another frame
+    with pytest.raises(TypeError, match="RGBDFrame"):
+        hash(frame)
+
+
+def test_records_compare_by_value(tmp_path):
+    """features == load_features(path) (a round trip's natural check), and == of two Keypoints or
+    Matches, was "ValueError: The truth value of an array with more than one element is
+    ambiguous", from the dataclasses' generated __eq__."""
+    rng = np.random.default_rng(0)
+    desc = rng.integers(0, 256, (5, 16, 64), dtype=np.uint8)
+    xy = rng.random((5, 2)) * 50
+    features = geofeat.Features(xy, desc, np.array([1, 1, 0, 1, 1], bool), angles=np.zeros(5), sizes=np.full(5, np.nan))
+    geofeat.save_features(tmp_path / "f.npz", features)
+    assert geofeat.load_features(tmp_path / "f.npz") == features
+    assert features != geofeat.Features(xy, desc, None, angles=np.zeros(5), sizes=np.full(5, np.nan))  # valid differs
+    assert features != geofeat.Features(xy, desc, features.valid)  # no angles, sizes
+    assert features != "features"
+    kp = geofeat.as_keypoints(xy)  # NaN sizes and responses: still equal to itself, by value
+    assert kp == geofeat.as_keypoints(xy.copy()) and kp != geofeat.as_keypoints(xy + 1)
+    assert kp[[0, 1]] == kp[:2] and kp != kp[:2]
+    m = geofeat.Matches([1, -1], [0.5, np.inf])
+    geofeat.save_matches(tmp_path / "m.npz", m)
+    assert geofeat.load_matches(tmp_path / "m.npz") == m and m != geofeat.Matches([1, 0], [0.5, 1.0])
+    for record in (features, kp, m):
+        with pytest.raises(TypeError, match="unhashable"):
+            hash(record)
+
+
+@pytest.mark.parametrize("matches0", [[True, False, True], [0.25, 0.9, 0.5], [np.nan, 1.0, -1.0], [-2, 0, 1]])
+def test_matches_refuse_what_is_not_an_index(matches0):
+    """Matches(matches0=a mask or scores) matched every keypoint to keypoint 0 or 1 without a word
+    (True -> 1, 0.9 -> 0), NaN was "cannot convert float NaN to integer", and -2 passed for "no match"."""
+    with pytest.raises(ValueError, match=r"^matches0: "):
+        geofeat.Matches(matches0, np.zeros(3))
+
+
+def test_matches_take_whole_floats():
+    """Whole-number floats (an index array stored as float, -1 for none) are indices as before."""
+    m = geofeat.Matches(np.array([2.0, -1.0, 0.0]), np.zeros(3))
+    assert m.matches0.dtype == np.int64 and m.matches0.tolist() == [2, -1, 0]
+    assert len(geofeat.Matches(np.zeros(0), np.zeros(0))) == 0
