@@ -468,3 +468,17 @@ def test_rotated90_turns_the_frames_own_gray_image():
         np.testing.assert_array_equal(turned.color, np.rot90(colour, k))
         assert turned.image.flags.c_contiguous and not np.shares_memory(turned.image, filtered.image)
         np.testing.assert_array_equal(frame.rotated90(k).image, np.rot90(frame.image, k))
+
+
+def test_a_keypoint_on_the_last_pixel_column_or_row_keeps_half_its_patch_as_on_the_first():
+    """The walk's start offset (+1.3e-6, +0.7e-6 mesh pixels, off vertices and edges) pushed a keypoint on
+    the grid's last vertex column or row off the grid: no surface, invalid, while the mirror keypoint on
+    the first column or row kept the half of its patch on the surface (17 of 32 directions)."""
+    H, W = 120, 160
+    K = np.array([[150.0, 0, (W - 1) / 2], [0, 150.0, (H - 1) / 2], [0, 0, 1]])
+    image = np.random.default_rng(0).random((H, W)).astype(np.float32)
+    frame = geofeat.RGBDFrame(image, np.full((H, W), 0.8, np.float32), K)  # a plane facing the camera
+    kps = np.array([[0, 60], [W - 1, 60], [80, 0], [80, H - 1]], float)
+    p = geofeat.polar_patches(frame, kps, depth_config="clean", radius=0.01)  # mesh at full resolution
+    reaching = (p.rings_reached >= 1).sum(axis=1)
+    assert p.valid.all() and reaching[0] == reaching[1] and reaching[2] == reaching[3] and reaching[0] >= 16

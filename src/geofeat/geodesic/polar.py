@@ -122,8 +122,15 @@ MIN_DIRECTION_SHARE = 0.5
 
 def walk_starts(mesh, keypoints: np.ndarray) -> np.ndarray:
     """(N, 2) float64 mesh pixel coordinates where the walk starts for (N, 2) image `keypoints`:
-    `mesh.image_to_mesh` plus `START_OFFSET_PX`; shared by the CPU and GPU paths."""
-    return mesh.image_to_mesh(keypoints) + np.array(START_OFFSET_PX)
+    `mesh.image_to_mesh` plus `START_OFFSET_PX`, or minus it where the plus would leave the grid (a
+    keypoint on its last vertex column or row: pushed off the grid, it had no surface, while one on
+    the first column kept half of its patch); shared by the CPU and GPU paths."""
+    at = mesh.image_to_mesh(keypoints)
+    H, W = mesh.image_shape
+    sx, sy = mesh.scale
+    last = np.array([int(round(W * sx)) - 1, int(round(H * sy)) - 1], np.float64)  # the grid's last vertex
+    offset = np.array(START_OFFSET_PX)
+    return np.where(at + offset > last, at - offset, at + offset)
 
 
 def patch_validity(rings_reached: np.ndarray) -> np.ndarray:
