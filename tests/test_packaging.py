@@ -169,3 +169,19 @@ def test_bench_scheduler_without_dask_is_one_error_before_anything_is_written(tm
     assert main(["bench", str(seq), "--descriptors", "orb", "--scheduler", "tcp://127.0.0.1:9", "--out", str(out)]) == 2
     assert "geofeat[dask]" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_bench_scheduler_address_that_is_not_one_names_the_option(tmp_path, capsys):
+    """`--scheduler foo` ended on dask's "missing port number in address 'foo'", naming no option."""
+    pytest.importorskip("dask.distributed")
+    from geofeat.cli import main
+    from geofeat.io import demo_data_dir
+
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    for name in ("cloud_1-rgb.png", "cloud_1-depth.png", "intrinsics.xml"):
+        shutil.copy(demo_data_dir() / name, seq / name)
+    shutil.copy(seq / "cloud_1-rgb.png", seq / "cloud_2-rgb.png")
+    shutil.copy(seq / "cloud_1-depth.png", seq / "cloud_2-depth.png")
+    assert main(["bench", str(seq), "--descriptors", "orb", "--scheduler", "foo", "--out", str(tmp_path / "out")]) == 2
+    assert "scheduler: cannot reach a Dask scheduler at 'foo'" in capsys.readouterr().err

@@ -650,7 +650,12 @@ def _run_all(work: list[tuple[str, tuple[str, ...]]], config: BenchConfig, worke
     if scheduler:
         from dask.distributed import Client, as_completed as dask_completed
 
-        with Client(scheduler) as client:
+        try:
+            client = Client(scheduler)
+        except (ValueError, OSError, TypeError) as error:  # dask's own message named no option
+            raise ValueError(f"scheduler: cannot reach a Dask scheduler at {scheduler!r} ({error}); expected an "
+                             "address such as tcp://host:8786") from None
+        with client:
             futures = [client.submit(_run_one, f, config, todo, pure=False) for f, todo in work]
             for fut in dask_completed(futures):
                 record(*fut.result())

@@ -81,8 +81,9 @@ def run(args: argparse.Namespace) -> int:
         if ok:
             # the residual is in-sample (the landmarks made the spline); leave-one-out tells how well it
             # predicts a point between landmarks, so both are printed, named
-            print(f"{folder.name}: {len(ok)} of {plural(len(reports), 'frame')}, landmark residual median "
-                  f"{sum(r.landmark_median_px for r in ok) / len(ok):.2f} px (in-sample; leave-one-out "
+            print(f"{folder.name}: {len(ok)} of {plural(len(reports), 'frame')}, landmark residual "
+                  f"{sum(r.landmark_median_px for r in ok) / len(ok):.2f} px (the mean over frames of each frame's median; "
+                  "in-sample; leave-one-out "
                   f"{_mean_finite([r.loo_median_px for r in ok])}), SSIM "
                   f"{sum(r.ssim_before for r in ok) / len(ok):.3f} -> {sum(r.ssim_after for r in ok) / len(ok):.3f}, "
                   f"{sum(r.seconds for r in ok) / len(ok):.2f} s/frame; wrote {out}")
