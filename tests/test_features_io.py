@@ -6,6 +6,7 @@ import h5py
 import numpy as np
 import pytest
 
+import geofeat
 from geofeat.features import Features, Matches, list_names, load_features, load_matches, save_features, save_matches
 
 
@@ -227,3 +228,21 @@ def test_descriptors_record_the_keypoints_sizes_as_given(name, tmp_path):
     back = load_features(path)
     np.testing.assert_array_equal(back.sizes, [5.0, 12.0])
     np.testing.assert_array_equal(back.angles, [30.0, 300.0])
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".h5"])
+def test_extract_keeps_the_detector_scores_through_a_file(tmp_path, suffix):
+    """`geofeat.extract` and the descriptors dropped the detector's scores: a features file could not be
+    cut to its best n later (hloc's `scores`, which `geofeat bench --features` reads)."""
+    frame = geofeat.read_demo_frame()
+    features = geofeat.extract(frame, n=200)
+    kps = geofeat.detect(frame, 200)
+    np.testing.assert_array_equal(features.scores, kps.responses)  # best first, as detected
+    assert (np.diff(features.scores) <= 0).all()
+    path = tmp_path / f"f{suffix}"
+    geofeat.save_features(path, features, name="cloud" if suffix == ".h5" else None)
+    back = geofeat.load_features(path, name="cloud" if suffix == ".h5" else None)
+    np.testing.assert_array_equal(back.scores, features.scores)
+    # bare pixels carry no detector score: none is written
+    bare = geofeat.make_descriptor("orb").compute(frame, kps.xy)
+    assert bare.scores is None

@@ -4,7 +4,8 @@ The .h5 layout follows hloc's ``features.h5`` / ``matches.h5``: one group per im
 pair) holding plain datasets, so files written here can be read by hloc-style tools and back:
 
 - features: ``/<image name>/keypoints`` (N, 2) float32 pixels (x, y), ``descriptors`` (N, ...),
-  ``valid`` (N,) bool, and optionally ``angles`` (N,) and ``sizes`` (N,).
+  ``valid`` (N,) bool, and optionally ``angles`` (N,), ``sizes`` (N,) and ``scores`` (N,) (the
+  detector's, higher = better, as hloc names them).
 - matches: ``/<pair name>/matches0`` (N0,) int64 (-1 = no match), ``distances`` (N0,) float64.
 
 Image names may contain ``/`` (nested groups, as in hloc). The .npz layout stores the same arrays
@@ -62,6 +63,8 @@ class Features:
             Given as numbers, only 0 and 1 are flags: other values (scores) raise ValueError.
         angles: optional (N,) detector orientation, degrees as OpenCV reports it.
         sizes: optional (N,) detector keypoint diameter, pixels.
+        scores: optional (N,) detector score (higher = better; `Keypoints.scores`), so that a set can be
+            cut to its best n later (`geofeat bench --features` does).
     """
 
     keypoints: np.ndarray
@@ -69,6 +72,7 @@ class Features:
     valid: np.ndarray
     angles: np.ndarray | None = None
     sizes: np.ndarray | None = None
+    scores: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         try:
@@ -97,7 +101,7 @@ class Features:
         if valid.shape != (n,):
             raise ValueError(f"valid: expected shape ({n},), got {valid.shape}")
         self.keypoints, self.descriptors, self.valid = kp, desc, valid
-        for name in ("angles", "sizes"):
+        for name in ("angles", "sizes", "scores"):
             value = getattr(self, name)
             if value is not None:
                 value = np.asarray(value, dtype=np.float64).reshape(-1)
@@ -109,16 +113,16 @@ class Features:
         return int(self.keypoints.shape[0])
 
     def __eq__(self, other) -> bool:
-        """Equal keypoints, descriptors, valid flags, angles and sizes (`fields_equal`)."""
+        """Equal keypoints, descriptors, valid flags, angles, sizes and scores (`fields_equal`)."""
         if not isinstance(other, Features):
             return NotImplemented
-        return fields_equal(self, other, ("keypoints", "descriptors", "valid", "angles", "sizes"))
+        return fields_equal(self, other, ("keypoints", "descriptors", "valid", "angles", "sizes", "scores"))
 
     __hash__ = None
 
     def __repr__(self) -> str:  # the dataclass's printed every array in full
         d = self.descriptors
-        extras = "".join(f", {name}" for name in ("angles", "sizes") if getattr(self, name) is not None)
+        extras = "".join(f", {name}" for name in ("angles", "sizes", "scores") if getattr(self, name) is not None)
         return (f"Features({len(self)} keypoints, {int(self.valid.sum())} valid, descriptors {tuple(d.shape)} "
                 f"{d.dtype}{extras})")
 
@@ -295,6 +299,8 @@ def save_features(path: str | Path, features: Features, name: str | None = None)
         arrays["angles"] = features.angles
     if features.sizes is not None:
         arrays["sizes"] = features.sizes
+    if features.scores is not None:
+        arrays["scores"] = features.scores
     if _suffix(path) == ".npz":
         write_npz(path, arrays)
     else:
@@ -333,6 +339,7 @@ def _features_from(arrays: dict[str, np.ndarray], path, hloc: bool = False) -> F
         valid=np.ones(len(kp), bool) if valid is None else valid,
         angles=arrays.get("angles"),
         sizes=arrays.get("sizes"),
+        scores=arrays.get("scores"),
     )
 
 

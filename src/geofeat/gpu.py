@@ -590,13 +590,14 @@ def walk_and_sample(tables: tuple, starts, K, image, radius: float, walk: WalkBu
 @dataclass
 class DeviceFeatures:
     """`Features` whose descriptors and valid flags are torch tensors on the GPU (keypoints,
-    angles, sizes on the host)."""
+    angles, sizes and scores on the host)."""
 
     keypoints: np.ndarray
     descriptors: object
     valid: object
     angles: np.ndarray | None = None
     sizes: np.ndarray | None = None
+    scores: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.keypoints)
@@ -607,7 +608,7 @@ class DeviceFeatures:
 
     def to_host(self) -> Features:
         return Features(self.keypoints, self.descriptors.cpu().numpy(), self.valid.cpu().numpy(), self.angles,
-                        self.sizes)
+                        self.sizes, self.scores)
 
 
 def check_gpu_descriptor(descriptor) -> None:
@@ -632,7 +633,8 @@ def compute_cuda(descriptor, frame: RGBDFrame, keypoints, mesh: GridMesh | Devic
     patches = polar_patches_cuda(frame, kps, radius=descriptor.radius, depth_config=descriptor.depth_config,
                                  mesh=mesh, blur_px=descriptor.blur_px, device=descriptor.device)
     desc = descriptor.describe_tensor(patches.values, patches.valid, half=half)
-    return DeviceFeatures(patches.keypoints, desc, patches.valid, angles=kps.angles, sizes=kps.sizes)
+    return DeviceFeatures(patches.keypoints, desc, patches.valid, angles=kps.angles, sizes=kps.sizes,
+                          scores=kps.scores)
 
 
 def features_on(features, which: str, dev) -> tuple:

@@ -110,7 +110,7 @@ class FrameGraph:
         count = len(kps)
         desc, valid = self._out["descriptors"], self._out["valid"]
         return DeviceFeatures(kps.xy, desc[:count].clone(), valid[:count].clone(), angles=kps.angles,
-                              sizes=kps.sizes)
+                              sizes=kps.sizes, scores=kps.scores)
 
     def match(self, frame: RGBDFrame, keypoints, mutual: bool = False,
               ratio: float | None = None) -> tuple[DeviceFeatures, Matches]:

@@ -65,6 +65,12 @@ class Keypoints:
     def __len__(self) -> int:
         return int(self.xy.shape[0])
 
+    @property
+    def scores(self) -> np.ndarray | None:
+        """(N,) the detector's responses as scores (higher = better) for `Features.scores`; None when
+        they are unknown (keypoints given as bare pixels have NaN responses)."""
+        return self.responses if np.isfinite(self.responses).all() else None
+
     def __eq__(self, other) -> bool:
         """Equal xy, angles, sizes and responses (`geofeat.features.fields_equal`: NaN equals NaN)."""
         if not isinstance(other, Keypoints):

@@ -238,4 +238,5 @@ class DaLI:
         xy, angles, sizes = keypoint_arrays(kps, "dali", frame.image.shape[:2])
         grid = cartesian_grid(GRID) * (GRID / (GRID - 1))  # vertex spacing = support radius / ((GRID-1)/2)
         patches = sample_patches(frame.image, xy, angles, RADIUS_FACTOR * sizes, grid)
-        return Features(xy, self.describe_patches(patches), np.ones(len(xy), bool), angles=angles, sizes=kps.sizes)
+        return Features(xy, self.describe_patches(patches), np.ones(len(xy), bool), angles=angles,
+                        sizes=kps.sizes, scores=kps.scores)

@@ -305,4 +305,5 @@ class GeoBit:
             valid=patches.valid.copy(),
             angles=kps.angles,
             sizes=kps.sizes,
+            scores=kps.scores,
         )

@@ -387,4 +387,4 @@ class GeoPatch:
         else:
             check_patches(patches, kps.xy, self.radius, frame)
         return Features(patches.keypoints, self.describe(patches.values, patches.valid), patches.valid,
-                        angles=kps.angles, sizes=kps.sizes)
+                        angles=kps.angles, sizes=kps.sizes, scores=kps.scores)

@@ -209,5 +209,6 @@ class ImagePatchDescriptor:
         kps = as_keypoints(keypoints, frame.image.shape[:2])
         xy, angles, sizes = keypoint_arrays(kps, self.name, frame.image.shape[:2])
         patches = image_patches(frame.image, Keypoints(xy, angles, sizes, np.zeros(len(xy))), self.arch)
-        return Features(xy, self.describe(patches), np.ones(len(xy), bool), angles=angles, sizes=kps.sizes)
+        return Features(xy, self.describe(patches), np.ones(len(xy), bool), angles=angles, sizes=kps.sizes,
+                        scores=kps.scores)
 
