@@ -246,3 +246,14 @@ def test_extract_keeps_the_detector_scores_through_a_file(tmp_path, suffix):
     # bare pixels carry no detector score: none is written
     bare = geofeat.make_descriptor("orb").compute(frame, kps.xy)
     assert bare.scores is None
+
+
+@pytest.mark.parametrize("name", [".", "..", "/img.png", "dir//img.png", "dir/./img.png", "img.png/"])
+def test_an_h5_name_that_hdf5_reads_as_another_path_is_refused(tmp_path, name):
+    """HDF5 takes names as paths: '.' wrote the features into the file's root group, which the name
+    listing did not show, and '/img.png' or 'dir//img.png' were listed under other names."""
+    f = Features(np.zeros((2, 2)), np.zeros((2, 4), np.float32), np.ones(2, bool))
+    with pytest.raises(ValueError, match="name: .* relative path"):
+        save_features(tmp_path / "f.h5", f, name=name)
+    save_features(tmp_path / "f.h5", f, name="dir/sub/img.png")
+    assert list_names(tmp_path / "f.h5") == ["dir/sub/img.png"]

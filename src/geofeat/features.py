@@ -201,7 +201,13 @@ def _suffix(path: str | Path) -> str:
 def _require_name(name: str | None, path: str | Path) -> str:
     if not name:
         raise ValueError(f"name: an image (or pair) name is required to store into the .h5 file {str(path)!r}")
-    return str(name)
+    name = str(name)
+    # HDF5 reads '.', '..' and empty parts as paths ('.' wrote into the file's root group, which the
+    # name listing then did not show; '/a' and 'a//b' are listed as 'a' and 'a/b')
+    if any(part in ("", ".", "..") for part in name.split("/")):
+        raise ValueError(f"name: {name!r} has an empty, '.' or '..' part between its slashes; an .h5 name is a "
+                         "relative path such as 'dir/image.png'")
+    return name
 
 
 def read_npz(path: str | Path) -> dict[str, np.ndarray]:
