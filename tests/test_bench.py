@@ -480,6 +480,20 @@ def test_overwrite_leaves_no_report_of_the_earlier_run(datasets, tmp_path):
     assert "landmarks" in read_rows(out / "results.csv")[0]["protocol"]
 
 
+def test_a_rerun_never_replaces_a_report_name_the_user_wrote_beside_the_results(datasets, tmp_path, capsys):
+    """A resumed (or --overwrite) run skipped the output-folder check that a first run makes, and wrote
+    timing.md (or table.md, a curve) over the user's file of that name, which geofeat did not write."""
+    out = tmp_path / "b"
+    args = ["bench", str(datasets / "seqs" / "a-deform"), "--descriptors", "orb", "--keypoints", "200",
+            "--out", str(out)]
+    assert main(args) == 0 and not (out / "timing.md").exists()
+    (out / "timing.md").write_text("mine")
+    for again in ([], ["--overwrite"]):
+        assert main(args + ["--timing"] + again) == 2
+        assert "timing.md" in capsys.readouterr().err
+        assert (out / "timing.md").read_text() == "mine"
+
+
 def test_landmarks_protocol_says_which_detection_options_it_does_not_use(datasets, tmp_path, capsys):
     """--protocol landmarks describes the annotated landmarks: a --keypoints or --detector given
     with it changes nothing, and the command says so instead of ignoring them silently."""

@@ -184,6 +184,22 @@ def test_resume_keeps_the_sequences_an_interrupted_run_finished(tmp_path, capsys
     assert "frames or landmarks changed since" in capsys.readouterr().err
 
 
+def test_resume_does_not_keep_a_folder_whose_files_a_killed_run_had_not_all_moved_in(tmp_path, capsys):
+    """`replace_folder` moves the files in one by one, in name order, and report.json sorts before the
+    files of a frame named after "report" ("view-001_theta.npy"): a run killed (SIGKILL) in between left
+    report.json, listed in the manifest, and --resume kept the folder without the frame's TPS files."""
+    _write_pair(tmp_path / "seq", _grid_landmarks(3))
+    out = tmp_path / "out"
+    args = ["groundtruth", str(tmp_path / "seq"), "--out", str(out), "--no-refine", "--no-progress"]
+    assert main(args) == 0
+    for path in (out / "seq").glob("frame-001_*"):  # what the kill left in the temporary folder
+        path.unlink()
+    capsys.readouterr()
+    assert main(args + ["--resume"]) == 2
+    assert "kept" not in capsys.readouterr().out
+    assert main(args + ["--overwrite"]) == 0 and (out / "seq" / "frame-001_theta.npy").is_file()
+
+
 def test_cli_writes_layout_and_report(tmp_path, capsys):
     folder = _write_pair(tmp_path / "seq", _grid_landmarks(3))
     assert main(["groundtruth", str(folder), "--out", str(tmp_path / "out"), "--no-refine", "--no-progress"]) == 0

@@ -357,6 +357,21 @@ def test_frames_are_in_natural_order_and_hidden_files_are_not_frames(tmp_path):
     assert find_sequences(tmp_path) == [folder]
 
 
+def test_a_folder_of_sequences_with_loose_frames_beside_them_is_refused(tmp_path):
+    """find_sequences took a folder holding sequence folders and a few loose frames for one sequence
+    (of the loose frames), and left the sequence folders out without a word."""
+    from geofeat.io import find_sequences
+
+    data = tmp_path / "data"
+    folder = _small_sequence(data / "a")
+    for suffix in ("-rgb.png", "-depth.png"):
+        shutil.copy(folder / f"frame-001{suffix}", data / f"stray{suffix}")
+    with pytest.raises(ValueError, match=r"--data: .*data holds both frames \(stray-rgb.png\) and the sequence "
+                                         r"folders a"):
+        find_sequences(data, what="--data")
+    assert find_sequences(folder) == [folder]
+
+
 @pytest.mark.parametrize("key", ["depthScale", "depth_unit", "scale", "depth-scale", "Radius_m"])
 def test_geofeat_json_key_misspelt_is_refused(tmp_path, key):
     """{"depthScale": 0.0001} was ignored: 0.1 mm depth read as millimetres, a scene at 1 m at 10 m,

@@ -186,3 +186,17 @@ def test_json_reports_are_json_without_nan(tmp_path):
     frames = _strict_json(tmp_path / "report.json")["frames"]
     assert frames[0]["ssim_before"] == 0.5 and frames[1]["ssim_before"] is None and frames[1]["status"] == "failed"
     assert _strict_json(tmp_path / "report.json")["sequence"].endswith("tücher 1")
+
+
+def test_an_output_folder_that_is_a_dangling_link_is_refused_before_any_work(tmp_path):
+    """A symbolic link to a folder not made yet passed the check, and the finished result, built in a
+    temporary folder, was lost at the end: a folder cannot be renamed over a link (NotADirectoryError)."""
+    out = tmp_path / "out"
+    out.symlink_to(tmp_path / "not-made-yet")
+    with pytest.raises(ValueError, match="out: .*out is a symbolic link to .*not-made-yet, which does not exist"):
+        check_out_dir(out, what="out")
+    (tmp_path / "not-made-yet").mkdir()
+    check_out_dir(out)
+    with output_folder(out) as tmp:
+        (tmp / "a.txt").write_text("result")
+    assert (tmp_path / "not-made-yet" / "a.txt").read_text() == "result"

@@ -546,6 +546,13 @@ def find_sequences(paths, unique_names: bool = False, what: str = "dataset") -> 
         if not p.is_dir():
             raise ValueError(f"{what}: not a directory: {p}")
         if frame_names(p):
+            # a folder of sequences with loose frames beside them was read as one sequence of the loose
+            # frames, the sequence folders left out without a word
+            inner = sorted(d for d in p.iterdir() if d.is_dir() and not d.name.startswith(".") and frame_names(d))
+            if inner:
+                raise ValueError(f"{what}: {p} holds both frames ({_listing(list(p.glob(f'*{RGB_SUFFIX}')))}) and the "
+                                 f"sequence folders {_listing(inner)}: move the loose frames into a sequence folder of "
+                                 "their own, or name the sequence folders")
             found.append(p)
             continue
         # a hidden sub-folder (as hidden frame files, `frame_names`) is not a sequence: above all the

@@ -191,6 +191,9 @@ def check_out_dir(path: str | Path, overwrite: bool = False, what: str = "--out"
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise ValueError(f"{what}: {path} is a file, not a folder")
+    if path.is_symlink() and not path.exists():  # the result, made in a temporary folder, cannot be moved there
+        raise ValueError(f"{what}: {path} is a symbolic link to {os.readlink(path)}, which does not exist: make that "
+                         "folder, or choose another")
     refuse_input_folder(path, inputs, what)
     for parent in path.parents:
         if parent.exists() and not parent.is_dir():

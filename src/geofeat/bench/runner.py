@@ -432,6 +432,8 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
         check_out_dir(out, overwrite, files=OUTPUT_FILES)
     elif out.exists() and not out.is_dir():
         raise ValueError(f"out: {out} is a file, not a folder")
+    else:  # a rerun (resumed or --overwrite) writes its reports again: never over a file of the user's there
+        check_out_dir(out, True, files=REPORTS)
     short = [Path(f).name for f in folders if len(frame_names(f)) < 2]
     if short and len(short) == len(folders):  # nothing to evaluate: say so before writing config.json and results.csv
         raise ValueError(f"datasets: no sequence has a reference and a target frame ({plural(len(short), 'sequence')} "

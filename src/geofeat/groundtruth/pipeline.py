@@ -471,11 +471,18 @@ def finished_result(out: str | Path, seq: Sequence, config: GroundTruthConfig) -
     report.json, written last and listed in the folder's manifest, names the same sequence folder, the
     same files (`io.sequence_digest`) and the same settings): `geofeat groundtruth --resume` skips it.
     False when `out` holds no finished result. ValueError, naming what differs, when it holds one made
-    from another sequence, from files changed since, or with other settings."""
+    from another sequence, from files changed since, or with other settings, or one whose files are not
+    all there (a run killed while moving them in left report.json without the frames' files)."""
     out = Path(out)
     report = out / "report.json"
-    if not report.is_file() or "report.json" not in read_manifest(out):
+    listed = read_manifest(out)
+    if not report.is_file() or "report.json" not in listed:
         return False
+    missing = [rel for rel in listed if not (out / rel).is_file()]
+    if missing:  # a run killed while `replace_folder` moved its files in (report.json sorts before "view-001_...")
+        raise ValueError(f"--out: {out} holds ground truth that --resume cannot keep: {', '.join(missing[:3])}"
+                         f"{', ...' if len(missing) > 3 else ''} listed there but missing (a run stopped while "
+                         "writing it?); use --overwrite to make it again")
     try:
         made = json.loads(report.read_text(encoding="utf-8"))
     except ValueError:
