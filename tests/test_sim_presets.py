@@ -256,3 +256,24 @@ def test_a_short_sequence_keeps_the_cloth_isometric(preset):
     assert np.percentile(s, 99) < 0.04 and s.max() < 0.15, (np.percentile(s, 99), s.max())
     # the moves really are fast (half a pin period in 12 steps): the scene was not calmed down instead
     assert np.ptp(scene.cloth.pos[:, 2]) > 0.02
+
+
+def test_a_changed_preset_named_mild_is_refused_not_ignored(tmp_path):
+    """A Preset named "mild" took mild's own draws whatever its fields said: dataclasses.replace(PRESETS["mild"],
+    image_sigma=(0, 0), fill=...) rendered mild's noise and distance without a word. Refused; under another
+    name the fields are applied."""
+    import dataclasses
+
+    from geofeat.sim import ClothScene
+    from geofeat.sim.textures import procedural_texture
+
+    tex = procedural_texture(np.random.default_rng(0), 64, 48)
+    quiet = dataclasses.replace(PRESETS["mild"], image_sigma=(0.0, 0.0))
+    with pytest.raises(ValueError, match="preset.*another name"):
+        ClothScene("deform", 2, np.random.default_rng(0), tex, size=(48, 64), preset=quiet)
+    with pytest.raises(ValueError, match="preset"):
+        simulate_sequence(tmp_path / "o", n_frames=2, width=64, height=48, progress=False, preset=quiet)
+    assert not (tmp_path / "o").exists()
+    renamed = dataclasses.replace(quiet, name="quiet")
+    assert ClothScene("deform", 2, np.random.default_rng(0), tex, size=(48, 64), preset=renamed).params.image_sigma == 0
+    assert ClothScene("deform", 2, np.random.default_rng(0), tex, size=(48, 64), preset=PRESETS["mild"]).preset.name == "mild"

@@ -118,6 +118,10 @@ def check_fov(fov_deg: float) -> None:
 def get_preset(preset: str | Preset) -> Preset:
     """The Preset of a name (ValueError naming the choices) or the Preset itself."""
     if isinstance(preset, Preset):
+        if preset.name == "mild" and preset != PRESETS["mild"]:
+            # the name selects mild's own draws (`SceneParams.draw`), which ignored the changed fields
+            raise ValueError("preset: a Preset named 'mild' takes mild's own settings and ignores its fields; give a "
+                             f"changed preset another name (dataclasses.replace(..., name='...')), got {preset!r}")
         return preset
     if not isinstance(preset, str) or preset not in PRESETS:  # a list raised TypeError (unhashable)
         raise ValueError(f"preset: expected one of {', '.join(PRESETS)}, got {preset!r}")
