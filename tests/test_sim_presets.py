@@ -255,7 +255,7 @@ def test_a_short_sequence_keeps_the_cloth_isometric(preset):
     s = np.concatenate(strains)
     assert np.percentile(s, 99) < 0.04 and s.max() < 0.15, (np.percentile(s, 99), s.max())
     # the moves really are fast (half a pin period in 12 steps): the scene was not calmed down instead
-    assert np.ptp(scene.cloth.pos[:, 2]) > 0.02
+    assert np.linalg.norm(scene.cloth.pos[scene.pin_idx] - scene.pin_rest, axis=1).max() > 0.03
 
 
 def test_a_changed_preset_named_mild_is_refused_not_ignored(tmp_path):
