@@ -359,7 +359,8 @@ class ClothScene:
         centre = pins.mean(axis=0)
         d = np.linalg.norm(pins[:, None] - pins[None], axis=2)
         rest = np.linalg.norm(self.pin_rest[:, None] - self.pin_rest[None], axis=2)
-        off = ~np.eye(len(pins), dtype=bool)
+        # pairs of distinct pins (two pins on one particle of a narrow grid have rest 0: their scale was 0)
+        off = ~np.eye(len(pins), dtype=bool) & (rest > 0)
         slack = 1.0 - 0.1 * ramp
         scale = min(1.0, float(np.min(slack * rest[off] / np.maximum(d[off], 1e-12)))) if off.any() else 1.0
         if "squeeze" in p.extras:  # draw the pins together (and apart again): folds between them
