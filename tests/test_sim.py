@@ -481,3 +481,14 @@ def test_kinect_noise_changes_only_the_depth_of_the_same_scene(tmp_path):
     both = (da > 0) & (db > 0)
     assert (db[da > 0] == 0).any()  # holes
     assert 0 < np.abs(da - db)[both].mean() < 0.01  # millimetre noise on the same surface
+
+
+def test_pins_sharing_a_particle_of_a_narrow_grid_do_not_collapse_the_cloth():
+    """Four pins on a 3-column grid round to columns 0, 1, 1, 2: the two pins of column 1 (rest distance 0)
+    made the feasibility scale 0 and drew every pin onto their centre, bunching the top edge into one point."""
+    rng = np.random.default_rng(0)
+    scene = ClothScene("deform", 3, rng, procedural_texture(np.random.default_rng(1), 64, 48), size=(48, 64),
+                       cloth_config=ClothConfig(rows=20, cols=3))
+    assert len(scene.pin_idx) == 4 and len(np.unique(scene.pin_idx)) == 3
+    pins = scene._pins(200)
+    assert np.ptp(pins[:, 0]) > 0.5 * np.ptp(scene.pin_rest[:, 0])
