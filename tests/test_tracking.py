@@ -354,16 +354,18 @@ def test_refinement_never_worse_than_the_spline_on_an_easy_pair(sequence):
 
 @pytest.fixture(scope="module")
 def folded(tmp_path_factory):
-    """The reference and frame 3 of a 5-frame simulated sequence with strong folds (hard preset)."""
+    """The reference and frame 2 of a 5-frame simulated sequence with strong folds (hard preset; seed and
+    frame chosen among seeds 0-5 and frames 2-4 where SIFT's spline is more than 3 px off and not lost:
+    4.0 px, refined to 0.8, when the simulator got finer sub-steps for short sequences)."""
     from geofeat.sim import simulate_sequence
 
     root = tmp_path_factory.mktemp("fold")
-    full = simulate_sequence(root / "full", scenario="deform", preset="hard", n_frames=5, seed=3, width=320,
+    full = simulate_sequence(root / "full", scenario="deform", preset="hard", n_frames=5, seed=2, width=320,
                              height=240, progress=False)
     pair = root / "fold"
     pair.mkdir()
     for f in full.iterdir():
-        if f.name.startswith(("frame-000-master", "frame-003")) or not f.name.startswith("frame-"):
+        if f.name.startswith(("frame-000-master", "frame-002")) or not f.name.startswith("frame-"):
             (pair / f.name).write_bytes(f.read_bytes())
     return pair
 
