@@ -151,10 +151,8 @@ def test_onnx_backend_without_onnxruntime_names_the_package(no_onnxruntime, back
         no_onnxruntime.GeoPatch(backend=backend)
 
 
-def test_bench_scheduler_without_dask_is_one_error_before_anything_is_written(tmp_path, monkeypatch, capsys):
-    """`geofeat bench --scheduler ADDR` without dask wrote config.json and results.csv, then died in a
-    ModuleNotFoundError traceback."""
-    from geofeat.cli import main
+def _two_frame_demo_sequence(tmp_path):
+    """The demo frame twice (reference and target), as a sequence folder."""
     from geofeat.io import demo_data_dir
 
     seq = tmp_path / "seq"
@@ -163,6 +161,15 @@ def test_bench_scheduler_without_dask_is_one_error_before_anything_is_written(tm
         shutil.copy(demo_data_dir() / name, seq / name)
     shutil.copy(seq / "cloud_1-rgb.png", seq / "cloud_2-rgb.png")
     shutil.copy(seq / "cloud_1-depth.png", seq / "cloud_2-depth.png")
+    return seq
+
+
+def test_bench_scheduler_without_dask_is_one_error_before_anything_is_written(tmp_path, monkeypatch, capsys):
+    """`geofeat bench --scheduler ADDR` without dask wrote config.json and results.csv, then died in a
+    ModuleNotFoundError traceback."""
+    from geofeat.cli import main
+
+    seq = _two_frame_demo_sequence(tmp_path)
     monkeypatch.setitem(sys.modules, "dask", None)
     monkeypatch.setitem(sys.modules, "dask.distributed", None)
     out = tmp_path / "out"
@@ -175,13 +182,7 @@ def test_bench_scheduler_address_that_is_not_one_names_the_option(tmp_path, caps
     """`--scheduler foo` ended on dask's "missing port number in address 'foo'", naming no option."""
     pytest.importorskip("dask.distributed")
     from geofeat.cli import main
-    from geofeat.io import demo_data_dir
 
-    seq = tmp_path / "seq"
-    seq.mkdir()
-    for name in ("cloud_1-rgb.png", "cloud_1-depth.png", "intrinsics.xml"):
-        shutil.copy(demo_data_dir() / name, seq / name)
-    shutil.copy(seq / "cloud_1-rgb.png", seq / "cloud_2-rgb.png")
-    shutil.copy(seq / "cloud_1-depth.png", seq / "cloud_2-depth.png")
+    seq = _two_frame_demo_sequence(tmp_path)
     assert main(["bench", str(seq), "--descriptors", "orb", "--scheduler", "foo", "--out", str(tmp_path / "out")]) == 2
     assert "scheduler: cannot reach a Dask scheduler at 'foo'" in capsys.readouterr().err
