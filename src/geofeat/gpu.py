@@ -36,7 +36,6 @@ from __future__ import annotations
 import contextlib
 import functools
 import os
-from functools import partial
 from dataclasses import dataclass
 
 import numpy as np
@@ -311,12 +310,11 @@ def mesh_from_depth(depth, config: DepthConfig, K: np.ndarray, max_edge_stretch:
     intrinsics, scale, frame size and `source` this frame's; by default a new one."""
     import torch
 
+    from .depth import scale_intrinsics
+    from .geodesic.walk_cuda import mesh_faces_cuda
     from .inputs import check_positive
 
     max_edge_stretch = check_positive(max_edge_stretch, "max_edge_stretch")  # as `mesh_from_points`
-
-    from .depth import scale_intrinsics
-    from .geodesic.walk_cuda import mesh_faces_cuda
 
     dev = depth.device
     smoothed = smooth_depth_torch(depth, config.smooth_levels, config.mesh_scale)
@@ -680,7 +678,7 @@ def match_cuda(features0, features1, mutual: bool = False, ratio: float | None =
     from .matching import _finish_matches, _hamming_search_torch, _l2_search_torch
 
     dev = require_cuda(device)
-    unpack, finite = partial(features_on, dev=dev), valid_descriptors_finite
+    unpack, finite = functools.partial(features_on, dev=dev), valid_descriptors_finite
 
     def check_finite():  # one read back for both features
         for which, ok in zip(("features0", "features1"), finite_flags.tolist()):

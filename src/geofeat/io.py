@@ -59,10 +59,15 @@ def sequence_digest(folder: str | Path) -> str:
     in place, and not when the folder is copied or touched (`geofeat bench` resumes by it)."""
     folder = Path(folder)
     prefixes = tuple(f"{n}{sep}" for n in frame_names(folder) for sep in "-.")
-    files = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".")
-                   and (p.name in SEQUENCE_FILES or p.name.startswith(prefixes)))
+    return files_digest(p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".")
+                        and (p.name in SEQUENCE_FILES or p.name.startswith(prefixes)))
+
+
+def files_digest(paths) -> str:
+    """SHA-1 (hex) of files: the name, size and contents of each, in name order (`sequence_digest`, and
+    the TPS files of a sequence in `geofeat bench`'s resume check)."""
     digest = hashlib.sha1()
-    for path in files:
+    for path in sorted(Path(p) for p in paths):
         digest.update(path.name.encode() + b"\0" + str(path.stat().st_size).encode() + b"\0")
         with open(path, "rb") as fh:
             for block in iter(lambda: fh.read(1 << 20), b""):

@@ -711,8 +711,8 @@ class _Template:
         (Either stopped the whole run with a message that did not name the frame.)"""
         if self.truth is None:
             return None
-        if not self.truth.covers(name):
-            reason = self.truth.uncovered_reason(name)
+        reason = self.truth.uncovered_reason(name)
+        if reason is not None:
             tqdm.write(f"{self.seq.name}: no ground truth for {name} ({reason}); its ground-truth figures are NaN")
             return None
         try:

@@ -173,8 +173,9 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
         return rows
     f_ref = describe(ref, k_ref) if len(k_ref) else None
     for target in seq.targets:
-        if config.protocol == "detect" and not truth.covers(target):
-            tqdm.write(f"{seq.name}: no ground truth for {target} ({truth.uncovered_reason(target)}); pair skipped")
+        reason = truth.uncovered_reason(target) if config.protocol == "detect" else None
+        if reason is not None:
+            tqdm.write(f"{seq.name}: no ground truth for {target} ({reason}); pair skipped")
             continue
         if config.protocol == "landmarks":
             ids_t, xy_t, vis_t = seq.landmarks(target)
@@ -225,9 +226,9 @@ def evaluate_external(seq: Sequence, truth: GroundTruth, features: ExternalFeatu
     f_ref = Features(f_ref.keypoints[keep], f_ref.descriptors[keep], f_ref.valid[keep])
     rows = []
     for target in seq.targets:
-        if not truth.covers(target):
-            tqdm.write(f"{seq.name}: no ground truth for {target} ({truth.uncovered_reason(target)}); pair skipped "
-                       f"for {features.name}")
+        reason = truth.uncovered_reason(target)
+        if reason is not None:
+            tqdm.write(f"{seq.name}: no ground truth for {target} ({reason}); pair skipped for {features.name}")
             continue
         f_tgt = features.load(seq.name, target, config.n_keypoints, seq.shape)
         if f_tgt.descriptors.shape[1:] != f_ref.descriptors.shape[1:]:
@@ -583,19 +584,15 @@ def _digests(folders: list[str], tps_dir: str | None = None) -> dict[str, str]:
 
 
 def tps_digest(tps_dir: str, name: str) -> str:
-    """SHA-1 (hex) of the TPS files of sequence `name` under `tps_dir` (`groundtruth.sources.tps_folder`):
-    the names and contents of the non-hidden files there, in order; "none" when it has none."""
-    import hashlib
-
+    """`io.files_digest` of the non-hidden files in the TPS folder of sequence `name` under `tps_dir`
+    (`groundtruth.sources.tps_folder`); "none" when it has none."""
     from ..groundtruth.sources import tps_folder
+    from ..io import files_digest
 
     folder = tps_folder(str(tps_dir), name)
     if folder is None:
         return "none"
-    digest = hashlib.sha1()
-    for path in sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".")):
-        digest.update(path.name.encode() + b"\0" + str(path.stat().st_size).encode() + b"\0" + path.read_bytes())
-    return digest.hexdigest()
+    return files_digest(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
 
 
 def _feature_digests(config: BenchConfig, folders: list[str]) -> dict[str, dict[str, str]]:
