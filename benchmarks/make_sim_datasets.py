@@ -10,6 +10,9 @@ through the rest, so that no validation texture ever textures a test sequence of
 `sim_difficulty.py`, which skips the same N_VAL_TEXTURES). Half of the sequences have
 Kinect-like depth noise and holes. Scenarios cycle deform/rotate/scale.
 (`benchmarks/sim_difficulty.py` writes the per-preset test sequences with the test textures.)
+A sequence folder already there is reused when its groundtruth.json records this run's settings and
+the simulator's current revision; any other stops the run (an earlier simulator's sequence is not
+this run's).
 
 Run: .venv/bin/python benchmarks/make_sim_datasets.py --out out/sim [--train 30 --val 4 --test 6 --frames 8 --seed 1000]
 """
@@ -23,6 +26,7 @@ import numpy as np
 from tqdm import tqdm
 
 from geofeat.sim import simulate_sequence
+from geofeat.sim.writer import recorded_difference
 from sim_difficulty import N_VAL_TEXTURES, TEST_SEEDS
 from geofeat.sim.textures import list_textures, packaged_texture_dir
 
@@ -65,16 +69,20 @@ def make(split: str, count: int, out: Path, frames: int, seed0: int, textures: l
     for i in tqdm(range(count), desc=split, unit="seq"):
         preset = presets[(i // 3) % len(presets)]
         folder = out / split / f"{split}{i:03d}-{preset}-{SCENARIOS[i % 3]}"
-        if folder.is_dir() and any(folder.iterdir()):
-            continue
         if textures:
-            kwargs = dict(texture=str(textures[i % len(textures)]))
+            texture = str(textures[i % len(textures)])
         elif i % 4 == 3:
-            kwargs = dict(texture="procedural" if i % 8 == 3 else "fabric")
+            texture = "procedural" if i % 8 == 3 else "fabric"
         else:  # every packaged photograph in turn, in an order shuffled by the first seed
-            kwargs = dict(texture=str(photos[(i - i // 4) % len(photos)]))
-        simulate_sequence(folder, scenario=SCENARIOS[i % 3], n_frames=frames, seed=seeds[i], preset=preset,
-                          kinect_noise=bool(i % 2), progress=False, **kwargs)
+            texture = str(photos[(i - i // 4) % len(photos)])
+        settings = dict(scenario=SCENARIOS[i % 3], n_frames=frames, seed=seeds[i], preset=preset,
+                        kinect_noise=bool(i % 2), texture=texture, width=640, height=480)
+        if folder.is_dir() and any(folder.iterdir()):  # reused only when it is this run's sequence
+            stale = recorded_difference(folder, **settings)
+            if stale:
+                raise SystemExit(f"{stale}: not this run's sequence; remove it or choose another --out")
+            continue
+        simulate_sequence(folder, progress=False, **settings)
 
 
 def main() -> None:

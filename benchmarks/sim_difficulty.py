@@ -6,7 +6,8 @@ foreshortening over the frames.
     PYTHONPATH=src .venv/bin/python benchmarks/sim_difficulty.py --out out/difficulty \\
         [--presets mild,paper,hard] [--per-scenario 3] [--frames 8] [--sheets docs]
 
-Sequences are written under OUT/<preset>/<scenario>-<k> (kept and reused when present), textured
+Sequences are written under OUT/<preset>/<scenario>-<k> (kept and reused when present and made
+with the same settings by the same simulator revision; another folder there stops the run), textured
 with photographs that training and validation never see (the shared texture folder minus the
 packaged ones minus the validation ones); they double as the test sets of `geofeat bench`.
 Keypoints: OpenCV SIFT's 2048 strongest (contrastThreshold 0.004, duplicates at one position with
@@ -37,6 +38,7 @@ from geofeat import read_sequence
 from geofeat.scoring import ground_truth_pairs, score_detect
 from geofeat.sim import simulate_sequence
 from geofeat.sim.contact_sheet import contact_sheet
+from geofeat.sim.writer import recorded_difference
 from geofeat.groundtruth.simulator import read_frame_truth, read_metadata
 from geofeat.sim.textures import list_textures, packaged_texture_dir
 
@@ -214,9 +216,14 @@ def main() -> None:
             for i in tqdm(range(a.per_scenario), desc=f"{preset} {scenario}", unit="seq"):
                 folder = a.out / preset / f"{scenario}-{i}"
                 seed = scene_seed(a.seed0, i, scenario)
-                if not (folder / "groundtruth.json").is_file():
-                    simulate_sequence(folder, scenario=scenario, n_frames=a.frames, seed=seed, preset=preset,
-                                      texture=str(textures[(seed * 7) % len(textures)]), fov=a.fov, progress=False)
+                settings = dict(scenario=scenario, n_frames=a.frames, seed=seed, preset=preset, fov=a.fov,
+                                texture=str(textures[(seed * 7) % len(textures)]), width=640, height=480)
+                if (folder / "groundtruth.json").is_file():  # reused only when it is this run's sequence
+                    stale = recorded_difference(folder, **settings)
+                    if stale:
+                        raise SystemExit(f"{stale}: not this run's sequence; remove it or choose another --out")
+                else:
+                    simulate_sequence(folder, progress=False, **settings)
                 results.append(evaluate(folder))
             table[(preset, scenario)] = summarise(results)
             k += 1

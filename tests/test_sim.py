@@ -492,3 +492,23 @@ def test_pins_sharing_a_particle_of_a_narrow_grid_do_not_collapse_the_cloth():
     assert len(scene.pin_idx) == 4 and len(np.unique(scene.pin_idx)) == 3
     pins = scene._pins(200)
     assert np.ptp(pins[:, 0]) > 0.5 * np.ptp(scene.pin_rest[:, 0])
+
+
+def test_recorded_difference_names_what_differs(seq, tmp_path):
+    """`recorded_difference` compares a folder's recorded settings with the ones asked for."""
+    from geofeat.sim.writer import SIMULATOR_REVISION, recorded_difference
+
+    asked = dict(scenario="deform", n_frames=8, seed=1, texture=TEXTURE, width=320, height=240, preset="mild",
+                 kinect_noise=False, fov=None, motion_blur=False, steps_per_frame=6)
+    assert recorded_difference(seq.folder, **asked) is None
+    found = recorded_difference(seq.folder, **{**asked, "seed": 2, "width": 640, "texture": "fabric"})
+    assert "seed 1 (wanted 2)" in found and "width 320 (wanted 640)" in found
+    assert "texture 'kodak_kodim23.jpg' (wanted 'fabric')" in found and "revision" not in found
+    with pytest.raises(TypeError, match="unknown"):
+        recorded_difference(seq.folder, frames=8)
+    meta = (seq.folder / "groundtruth.json").read_text()
+    assert f'"simulator_revision": {SIMULATOR_REVISION}' in meta
+    (tmp_path / "groundtruth.json").write_text(meta.replace(f'"simulator_revision": {SIMULATOR_REVISION}',
+                                                            f'"simulator_revision": {SIMULATOR_REVISION - 1}'))
+    assert f"simulator revision {SIMULATOR_REVISION - 1}" in recorded_difference(tmp_path, **asked)
+    assert "is missing" in recorded_difference(tmp_path / "nowhere")

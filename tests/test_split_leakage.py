@@ -3,6 +3,7 @@ texture splits are disjoint, and `geofeat retrieval` chooses K on other objects 
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -137,3 +138,25 @@ def test_retrieval_validation_and_test_halves_hold_different_objects():
     assert len(val) == 1 and len(test) == 1
     with pytest.raises(ValueError, match="groups"):
         split_queries(3, 0, groups=["a", "b"])
+
+
+def test_a_folder_of_another_run_is_not_reused_as_this_one(scripts, monkeypatch, tmp_path):
+    """make_sim_datasets.py keeps sequences already there, but only the one this run would simulate:
+    a sequence of other settings, or of an earlier simulator, stops the run (it once passed for the
+    new data, so figures were measured on sequences nobody asked for)."""
+    mod, _ = scripts
+    mod.make("val", 1, tmp_path, 2, 1000, None, ("mild",))
+    (folder,) = (tmp_path / "val").iterdir()
+    made = []
+    with monkeypatch.context() as m:
+        m.setattr(mod, "simulate_sequence", lambda folder, **kw: made.append(folder))
+        mod.make("val", 1, tmp_path, 2, 1000, None, ("mild",))  # the same run: reused
+        assert made == []
+        with pytest.raises(SystemExit, match=r"n_frames 2 \(wanted 3\)"):
+            mod.make("val", 1, tmp_path, 3, 1000, None, ("mild",))
+        meta = json.loads((folder / "groundtruth.json").read_text())
+        del meta["simulator_revision"]  # as written before revisions were recorded
+        (folder / "groundtruth.json").write_text(json.dumps(meta))
+        with pytest.raises(SystemExit, match="simulator revision 1"):
+            mod.make("val", 1, tmp_path, 2, 1000, None, ("mild",))
+        assert made == []

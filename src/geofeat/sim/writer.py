@@ -42,6 +42,10 @@ N_LANDMARKS = 100
 #: `MIN_LANDMARKS` of them visible in both frames, and its robust fit drops up to a third.
 FEW_LANDMARKS = 10
 FORMAT_VERSION = 1
+#: Bumped whenever the same settings and seed simulate other frames (groundtruth.json records it;
+#: files without it are revision 1). 2: short `paper` / `hard` sequences take more sub-steps and
+#: points behind a fold are hidden (2026-11-27).
+SIMULATOR_REVISION = 2
 #: Image sides (pixels) the simulator renders: from 32 (landmarks need a border) to 8192.
 SIDE_RANGE_PX = (32, 8192)
 
@@ -194,7 +198,8 @@ def _simulate(out_dir: Path, scenario: str, n_frames: int, seed: int, texture, t
     tmp = temporary_folder(out_dir)
     try:
         _write(tmp, scene, progress, shown=out_dir, meta={
-            "generator": "geofeat.sim", "format_version": FORMAT_VERSION, "scenario": scenario, "seed": int(seed),
+            "generator": "geofeat.sim", "format_version": FORMAT_VERSION,
+            "simulator_revision": SIMULATOR_REVISION, "scenario": scenario, "seed": int(seed),
             "texture": tex_name, "kinect_noise": bool(kinect_noise), "preset": preset_obj.name,
             "fov_deg": None if fov is None else float(fov), "motion_blur": bool(motion_blur),
         }, depth_unit=depth_unit)
@@ -205,6 +210,41 @@ def _simulate(out_dir: Path, scenario: str, n_frames: int, seed: int, texture, t
             raise type(exc)(f"{exc} (nothing was written to {out_dir})") from exc
         raise
     return out_dir
+
+
+def recorded_difference(folder: str | Path, **wanted) -> str | None:
+    """Why the sequence simulated in `folder` is not what `simulate_sequence(folder, **wanted)` would
+    write with this geofeat, or None when it is (as far as its groundtruth.json records).
+
+    `wanted`: any of `simulate_sequence`'s `scenario`, `seed`, `n_frames`, `preset` (a name),
+    `kinect_noise`, `fov` (degrees or None), `texture` (a path, compared by file name, or "procedural"
+    / "fabric"), `width`, `height` (pixels), `motion_blur` and `steps_per_frame`; the simulator
+    revision is always compared. For scripts that reuse earlier sequences: a folder made
+    with other settings, or by an earlier simulator, is not a cache of this run.
+    """
+    path = Path(folder) / GT_JSON
+    if not path.is_file():
+        return f"{path} is missing"
+    meta = json.loads(path.read_text())
+    width, height = meta.get("image_size", (None, None))
+    recorded = {"scenario": meta.get("scenario"), "seed": meta.get("seed"), "n_frames": meta.get("n_frames"),
+                "preset": meta.get("preset"), "kinect_noise": meta.get("kinect_noise"), "fov": meta.get("fov_deg"),
+                "texture": meta.get("texture"), "width": width, "height": height,
+                "motion_blur": meta.get("motion_blur"),
+                "steps_per_frame": meta.get("solver", {}).get("steps_per_frame")}
+    given = dict(wanted)
+    if "texture" in given and given["texture"] not in ("procedural", "fabric"):
+        given["texture"] = Path(given["texture"]).name
+    if given.get("fov") is not None:
+        given["fov"] = float(given["fov"])
+    unknown = sorted(set(given) - set(recorded))
+    if unknown:
+        raise TypeError(f"recorded_difference: unknown settings {unknown}")
+    found = [f"{key} {recorded[key]!r} (wanted {value!r})" for key, value in given.items() if recorded[key] != value]
+    revision = meta.get("simulator_revision", 1)
+    if revision != SIMULATOR_REVISION:
+        found.append(f"simulator revision {revision} (this geofeat simulates revision {SIMULATOR_REVISION})")
+    return f"{folder} was simulated with " + ", ".join(found) if found else None
 
 
 def _write(folder: Path, scene: ClothScene, progress: bool, meta: dict, shown: Path | None = None,
