@@ -204,8 +204,9 @@ class RGBDFrame:
         `frames.index(frame)` or `frame in frames`)."""
         if not isinstance(other, RGBDFrame):
             return NotImplemented
-        return self is other or all(np.array_equal(getattr(self, name), getattr(other, name))
-                                    for name in ("image", "depth", "K"))
+        from .features import fields_equal
+
+        return self is other or fields_equal(self, other, ("image", "depth", "K"))
 
     __hash__ = None  # equal by value over mutable arrays: not hashable ("unhashable type: 'RGBDFrame'")
 
