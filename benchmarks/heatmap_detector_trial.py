@@ -18,8 +18,14 @@ plus the peakiness 1 - mean(max - mean) over (N + 1) x (N + 1) windows of each h
 heatmap's local maxima within 3 px, on pixels at least 3 px from a depth edge and 4 px from the border
 (GeoKey's rules), the n highest, sub-pixel by GeoKey's parabola.
 
+Two losses on peak positions can be added (eighteenth session): `--position W`, the expected distance
+between the two heatmaps' softmax positions within every 8 x 8 window (`position_loss`), and
+`--peak-score W`, a cross-entropy that teaches the value at each target peak whether the reference
+has a peak within 2 px there (`peak_score_loss`). `--whole-frames` trains on whole frames, a batch of
+pairs per step, on `--device` (a GPU when one is lent); `--cache` keeps the loaded pairs in an .npz.
+
     PYTHONPATH=src .venv/bin/python benchmarks/heatmap_detector_trial.py train out/det/train --steps 1500 --keep 500 --out OUT.pt
-    PYTHONPATH=src .venv/bin/python benchmarks/heatmap_detector_trial.py evaluate OUT.pt out/det2/val/*hard* [--geokey]
+    PYTHONPATH=src .venv/bin/python benchmarks/heatmap_detector_trial.py evaluate OUT.pt out/det2/val/*hard* [--geokey] [--ms]
 """
 
 from __future__ import annotations
@@ -39,7 +45,7 @@ from geofeat.detectors import geokey
 from geofeat.detectors.cues import depth_edge_distance
 from geofeat.io import read_sequence
 from geofeat.keypoints import Keypoints
-from geofeat.train.detector import repeatability
+from geofeat.train.detector import repeatability, validation_scores
 
 
 class HeatmapNet(nn.Module):
@@ -55,28 +61,55 @@ class HeatmapNet(nn.Module):
         self.out = nn.Conv2d(full, 1, 1)
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
+        return torch.sigmoid(self.logits(image))
+
+    def logits(self, image: torch.Tensor) -> torch.Tensor:
+        """(B, 1, H, W) image -> (B, 1, H, W) logits of the heatmap."""
         x = (image - image.mean(dim=(2, 3), keepdim=True)) / (image.std(dim=(2, 3), keepdim=True) + 1e-3)
         full = F.relu(self.full2(F.relu(self.full1(x))))
         half = F.relu(self.half3(F.relu(self.half2(F.relu(self.half1(full))))))
         half = F.interpolate(half, size=full.shape[-2:], mode="bilinear", align_corners=False)
-        return torch.sigmoid(self.out(F.relu(self.joined(torch.cat([full, half], 1)))))
+        return self.out(F.relu(self.joined(torch.cat([full, half], 1))))
 
 
-def load_pairs(folders: list[Path]) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+def load_pairs(folders: list[Path], jobs: int = 1) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
     """(reference image (H, W), target image (H, W), target pixel -> reference pixel (H, W, 2), visible
-    (H, W) bool) for every target of every sequence; pixels not visible map to -1000."""
+    (H, W) bool) for every target of every sequence; pixels not visible map to -1000. `jobs` processes."""
+    if jobs > 1:
+        from multiprocessing import Pool
+
+        with Pool(jobs) as pool:
+            return [pair for part in pool.map(sequence_pairs, folders) for pair in part]
+    return [pair for folder in folders for pair in sequence_pairs(folder)]
+
+
+def cached_pairs(folders: list[Path], cache: str | None, jobs: int = 1):
+    """`load_pairs`, kept in (or read from) the .npz `cache` when one is given (images as 8-bit)."""
+    if cache and Path(cache).is_file():
+        z = np.load(cache)
+        ref, tgt, mapped, vis = z["ref"], z["tgt"], z["mapped"], z["vis"]
+        return [(ref[i] / np.float32(255), tgt[i] / np.float32(255), mapped[i], vis[i]) for i in range(len(tgt))]
+    pairs = load_pairs(folders, jobs)
+    if cache:
+        np.savez(cache, ref=np.stack([np.round(p[0] * 255).astype(np.uint8) for p in pairs]),
+                 tgt=np.stack([np.round(p[1] * 255).astype(np.uint8) for p in pairs]),
+                 mapped=np.stack([p[2] for p in pairs]), vis=np.stack([p[3] for p in pairs]))
+    return pairs
+
+
+def sequence_pairs(folder: Path) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """`load_pairs` of one sequence."""
     pairs = []
-    for folder in folders:
-        seq = read_sequence(folder)
-        ref = seq.frame(seq.reference)
-        for name in seq.targets:
-            frame = seq.frame(name)
-            H, W = frame.shape
-            v, u = np.mgrid[0:H, 0:W]
-            mapped, visible = seq.correspondences(name, seq.reference, np.stack([u.ravel(), v.ravel()], 1).astype(float))
-            mapped = np.where(np.isfinite(mapped), mapped, -1000.0).reshape(H, W, 2).astype(np.float32)
-            pairs.append((ref.image.astype(np.float32), frame.image.astype(np.float32), mapped,
-                          visible.reshape(H, W) & (frame.depth > 0)))
+    seq = read_sequence(folder)
+    ref = seq.frame(seq.reference)
+    for name in seq.targets:
+        frame = seq.frame(name)
+        H, W = frame.shape
+        v, u = np.mgrid[0:H, 0:W]
+        mapped, visible = seq.correspondences(name, seq.reference, np.stack([u.ravel(), v.ravel()], 1).astype(float))
+        mapped = np.where(np.isfinite(mapped), mapped, -1000.0).reshape(H, W, 2).astype(np.float32)
+        pairs.append((ref.image.astype(np.float32), frame.image.astype(np.float32), mapped,
+                      visible.reshape(H, W) & (frame.depth > 0)))
     return pairs
 
 
@@ -112,14 +145,109 @@ def peakiness_loss(heatmap: torch.Tensor, N: int) -> torch.Tensor:
     return 1 - (F.max_pool2d(heatmap, N + 1, 1, N // 2) - F.avg_pool2d(heatmap, N + 1, 1, N // 2)).mean()
 
 
+def position_loss(target: torch.Tensor, warped: torch.Tensor, mask: torch.Tensor, N: int,
+                  tau: float = 0.1) -> torch.Tensor:
+    """Expected distance (pixels) between a pixel drawn from softmax(target / tau) and one drawn from
+    softmax(warped / tau), within every N x N window (two grids, offset by N/2) that is wholly visible.
+
+    target, warped: (B, 1, H, W) heatmaps in [0, 1] in the target's pixels (the reference's warped);
+    mask (B, 1, H, W) in {0, 1}. The fixed temperature bounds how sharp a window can be (on logits the
+    loss drove them to thousands and saturated the sigmoid: a first GPU run).
+    It is 0 only when both windows put all their mass on the same pixel, so it rewards a sharp peak
+    at the same surface point in both views: what the protocol counts, unlike the patch cosine.
+    """
+    yy, xx = torch.meshgrid(torch.arange(N, dtype=target.dtype, device=target.device),
+                            torch.arange(N, dtype=target.dtype, device=target.device), indexing="ij")
+    xy = torch.stack([xx.ravel(), yy.ravel()], 1)
+    D = torch.cdist(xy, xy)  # (N*N, N*N)
+    terms = []
+    for off in (0, N // 2):
+        a = F.unfold(target[..., off:, off:], N, stride=N)   # (B, N*N, L)
+        b = F.unfold(warped[..., off:, off:], N, stride=N)
+        m = F.unfold(mask[..., off:, off:], N, stride=N).amin(1) > 0.5  # (B, L)
+        pa, pb = torch.softmax(a / tau, 1), torch.softmax(b / tau, 1)
+        expected = torch.einsum("bil,ij,bjl->bl", pa, D, pb)
+        terms.append(expected[m])
+    d = torch.cat(terms)
+    return d.mean() if d.numel() else target.sum() * 0
+
+
+def peak_score_loss(target: torch.Tensor, warped: torch.Tensor, mask: torch.Tensor, radius: int = 3,
+                    near: int = 2) -> torch.Tensor:
+    """Binary cross-entropy of the target heatmap's value at each of its local maxima (within
+    `radius` px, on visible pixels) against whether the warped reference heatmap has a local maximum
+    within `near` px: the value that ranks the peaks learns to predict that a peak is found again.
+    target, warped: (B, 1, H, W) heatmaps in [0, 1]; mask (B, 1, H, W) in {0, 1}."""
+    k = 2 * radius + 1
+
+    def local_maxima(h: torch.Tensor) -> torch.Tensor:  # plateaus are not peaks
+        return (h >= F.max_pool2d(h, k, 1, radius)) & (h > F.avg_pool2d(h, k, 1, radius, count_include_pad=False) + 1e-3) & (mask > 0.5)
+
+    with torch.no_grad():
+        peaks_t, peaks_w = local_maxima(target), local_maxima(warped)
+        found = F.max_pool2d(peaks_w.float(), 2 * near + 1, 1, near) > 0
+    if not peaks_t.any():
+        return target.sum() * 0
+    return F.binary_cross_entropy(target[peaks_t].clamp(1e-4, 1 - 1e-4), found[peaks_t].float())
+
+
+def stacked_pairs(pairs, device: str):
+    """The pairs as tensors on `device`: references, targets (P, 1, H, W), grids (P, H, W, 2) in
+    grid_sample's [-1, 1] units (pixels not visible far outside), visibility (P, 1, H, W)."""
+    ref = torch.from_numpy(np.stack([p[0] for p in pairs]))[:, None]
+    tgt = torch.from_numpy(np.stack([p[1] for p in pairs]))[:, None]
+    H, W = pairs[0][1].shape
+    m = np.stack([p[2] for p in pairs])
+    grid = np.stack([m[..., 0] / (W - 1) * 2 - 1, m[..., 1] / (H - 1) * 2 - 1], -1).astype(np.float32)
+    vis = torch.from_numpy(np.stack([p[3] for p in pairs]).astype(np.float32))[:, None]
+    return ref.to(device), tgt.to(device), torch.from_numpy(grid).to(device), vis.to(device)
+
+
+def train_full(a: argparse.Namespace) -> None:
+    """Whole frames, a batch of pairs per step, on `--device`: R2D2's cosine and peakiness plus
+    `--position` x the windowed expected distance (`position_loss`, divided by N)."""
+    folders = sorted(p for p in Path(a.data).iterdir() if p.is_dir())
+    pairs = cached_pairs(folders, a.cache, a.jobs)
+    ref, tgt, grid, vis = stacked_pairs(pairs, a.device)
+    del pairs
+    print(f"{len(ref)} pairs from {len(folders)} sequences on {a.device}; load average {os.getloadavg()[0]:.2f}",
+          flush=True)
+    gen = torch.Generator().manual_seed(0)
+    torch.manual_seed(0)
+    net = HeatmapNet(a.full, a.half).to(a.device)
+    opt = torch.optim.Adam(net.parameters(), a.lr)
+    start, history = time.perf_counter(), []
+    for step in range(a.steps):
+        idx = torch.randint(len(ref), (a.batch,), generator=gen).to(a.device)
+        gain = torch.empty(a.batch, 1, 1, 1).uniform_(0.6, 1.4, generator=gen).to(a.device)
+        t_img = (tgt[idx] * gain).clamp(0, 1)
+        t_logit, r_logit = net.logits(t_img), net.logits(ref[idx])
+        warped = F.grid_sample(r_logit, grid[idx], align_corners=True, padding_mode="border")
+        mask = vis[idx]
+        s_t, s_w = torch.sigmoid(t_logit), torch.sigmoid(warped)
+        loss = (repeatability_loss(s_t, s_w, mask, a.patch)
+                + 0.5 * (peakiness_loss(s_t, a.patch) + peakiness_loss(torch.sigmoid(r_logit), a.patch)))
+        if a.position > 0:
+            loss = loss + a.position * position_loss(s_t, s_w, mask, a.patch) / a.patch
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        history.append(float(loss.detach()))
+        if (step + 1) % 100 == 0 or step + 1 == a.steps:
+            print(f"step {step + 1}: loss {np.mean(history[-100:]):.4f} ({time.perf_counter() - start:.0f} s)", flush=True)
+            torch.save(net.state_dict(), a.out)
+        if step + 1 in a.keep:
+            torch.save(net.state_dict(), Path(a.out).with_suffix(f".step{step + 1}.pt"))
+
+
 def train(a: argparse.Namespace) -> None:
     folders = sorted(p for p in Path(a.data).iterdir() if p.is_dir())
-    pairs = load_pairs(folders)
+    pairs = cached_pairs(folders, a.cache, a.jobs)
     print(f"{len(pairs)} pairs from {len(folders)} sequences; load average {os.getloadavg()[0]:.2f}")
     rng = np.random.default_rng(0)
     torch.manual_seed(0)
-    net = HeatmapNet()
-    opt = torch.optim.Adam(net.parameters(), 1e-3)
+    net = HeatmapNet(a.full, a.half)
+    opt = torch.optim.Adam(net.parameters(), a.lr)
     start, history = time.perf_counter(), []
     for step in range(a.steps):
         loss = torch.zeros(())
@@ -135,6 +263,10 @@ def train(a: argparse.Namespace) -> None:
             mask = torch.from_numpy(vis.astype(np.float32))[None, None]
             loss = loss + repeatability_loss(s_tgt, warped, mask, a.patch) + 0.5 * (
                 peakiness_loss(s_tgt, a.patch) + peakiness_loss(s_ref, a.patch))
+            if a.position > 0:
+                loss = loss + a.position * position_loss(s_tgt, warped, mask, a.patch) / a.patch
+            if a.peak_score > 0:
+                loss = loss + a.peak_score * peak_score_loss(s_tgt, warped, mask)
         loss = loss / a.batch
         opt.zero_grad()
         loss.backward()
@@ -145,10 +277,15 @@ def train(a: argparse.Namespace) -> None:
             torch.save(net.state_dict(), a.out)
         if step + 1 in a.keep:
             torch.save(net.state_dict(), Path(a.out).with_suffix(f".step{step + 1}.pt"))
+        if a.minutes and time.perf_counter() - start > 60 * a.minutes:
+            torch.save(net.state_dict(), a.out)
+            print(f"stopped at step {step + 1} after {a.minutes} min: loss {np.mean(history[-100:]):.4f}", flush=True)
+            break
 
 
-def heatmap_detector(net: HeatmapNet, radius: int = 3):
-    """(frame, n) -> Keypoints: the heatmap's n highest local maxima on the surface."""
+def heatmap_detector(net: HeatmapNet, radius: int = 3, threshold: float = 0.0):
+    """(frame, n) -> Keypoints: the heatmap's n highest local maxima on the surface, of those whose
+    heatmap value reaches `threshold`."""
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
 
     def detect(frame, n):
@@ -158,7 +295,7 @@ def heatmap_detector(net: HeatmapNet, radius: int = 3):
                                  fy=float(frame.K[1, 1])) >= geokey.DEPTH_EDGE_MARGIN_PX
         b = geokey.BORDER_PX
         ok[:b], ok[-b:], ok[:, :b], ok[:, -b:] = False, False, False, False
-        y, x = np.nonzero((heat >= cv2.dilate(heat, kernel)) & ok)
+        y, x = np.nonzero((heat >= cv2.dilate(heat, kernel)) & ok & (heat >= threshold))
         order = np.argsort(-heat[y, x], kind="stable")[:n]
         xy = geokey.refine_peaks(heat, np.stack([x[order], y[order]], 1).astype(np.float64))
         return Keypoints(xy, np.zeros(len(xy)), np.full(len(xy), 8.0), heat[y[order], x[order]].astype(np.float64))
@@ -167,21 +304,28 @@ def heatmap_detector(net: HeatmapNet, radius: int = 3):
 
 
 def evaluate(a: argparse.Namespace) -> None:
-    net = HeatmapNet()
-    net.load_state_dict(torch.load(a.weights))
+    state = torch.load(a.weights, map_location="cpu")
+    net = HeatmapNet(state["full1.weight"].shape[0], state["half1.weight"].shape[0])
+    net.load_state_dict(state)
     net.eval()
-    detectors = {"heatmap network": heatmap_detector(net)}
+    detectors = {f"heatmap network, threshold {t:g}": heatmap_detector(net, threshold=t) for t in a.thresholds}
     if a.geokey:
         detectors["GeoKey, shipped rule"] = lambda f, n: geokey.detect_geokey(f, n)
         detectors["GeoKey, n best"] = lambda f, n: geokey.detect_geokey(f, n, threshold=-np.inf, min_fraction=0)
     print(f"{len(a.sequences)} sequences; load average {os.getloadavg()[0]:.2f}")
-    print("| detector | 1024: repeatability / ground-truth pairs / reference keypoints | 2048: the same |")
+    what = "MS / correct matches / repeatability / ground-truth pairs / reference keypoints" if a.ms else \
+        "repeatability / ground-truth pairs / reference keypoints"
+    print(f"| detector | 1024: {what} | 2048: the same |")
     print("|---|---|---|")
     for name, detect in detectors.items():
         cells = []
         for n in (1024, 2048):
-            r = repeatability(a.sequences, detect, n)
-            cells.append(f"{r['repeatability']:.3f} / {r['pairs']:.0f} / {r['n_ref']:.0f}")
+            if a.ms:
+                r = validation_scores(a.sequences, detect, n)
+                cells.append(f"{r['ms']:.3f} / {r['hits']:.0f} / {r['repeatability']:.3f} / {r['pairs']:.0f} / {r['n_ref']:.0f}")
+            else:
+                r = repeatability(a.sequences, detect, n)
+                cells.append(f"{r['repeatability']:.3f} / {r['pairs']:.0f} / {r['n_ref']:.0f}")
         print(f"| {name} | " + " | ".join(cells) + " |", flush=True)
 
 
@@ -195,15 +339,35 @@ def main() -> None:
     t.add_argument("--crop", type=int, default=160)
     t.add_argument("--patch", type=int, default=8, help="N of the repeatability and peakiness windows, pixels")
     t.add_argument("--out", required=True)
+    t.add_argument("--whole-frames", action="store_true",
+                   help="train on whole frames, a batch of pairs per step (train_full), on --device")
+    t.add_argument("--device", default="cpu")
+    t.add_argument("--cache", help="an .npz that keeps the loaded pairs between runs")
+    t.add_argument("--jobs", type=int, default=1, help="processes that load the pairs")
+    t.add_argument("--position", type=float, default=0.0,
+                   help="weight of the windowed expected-distance loss (position_loss)")
+    t.add_argument("--lr", type=float, default=1e-3)
+    t.add_argument("--peak-score", type=float, default=0.0,
+                   help="weight of the peak-value cross-entropy (peak_score_loss; crops only)")
+    t.add_argument("--minutes", type=float, default=0.0, help="stop after this many minutes (whole frames only)")
+    t.add_argument("--full", type=int, default=8, help="channels at full resolution")
+    t.add_argument("--half", type=int, default=24, help="channels at half resolution")
     t.add_argument("--keep", type=lambda s: {int(k) for k in s.split(",")}, default=set(),
                    help="steps whose weights are also kept, as OUT.stepK.pt (comma-separated)")
     e = sub.add_parser("evaluate")
     e.add_argument("weights")
     e.add_argument("sequences", nargs="+", type=Path)
     e.add_argument("--geokey", action="store_true", help="GeoKey's rows as well")
+    e.add_argument("--thresholds", type=lambda t: [float(v) for v in t.split(",")], default=[0.0],
+                   help="heatmap values a keypoint must reach (comma-separated; a row each)")
+    e.add_argument("--ms", action="store_true", help="GeoPatch's MS and correct matches too (slower)")
+    ap.add_argument("--threads", type=int, default=2, help="torch threads")
     a = ap.parse_args()
-    torch.set_num_threads(2)
-    train(a) if a.command == "train" else evaluate(a)
+    torch.set_num_threads(a.threads)
+    if a.command == "evaluate":
+        evaluate(a)
+    else:
+        train_full(a) if a.whole_frames else train(a)
 
 
 if __name__ == "__main__":
