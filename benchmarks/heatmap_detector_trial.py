@@ -181,7 +181,8 @@ def peak_score_loss(target: torch.Tensor, warped: torch.Tensor, mask: torch.Tens
     k = 2 * radius + 1
 
     def local_maxima(h: torch.Tensor) -> torch.Tensor:  # plateaus are not peaks
-        return (h >= F.max_pool2d(h, k, 1, radius)) & (h > F.avg_pool2d(h, k, 1, radius, count_include_pad=False) + 1e-3) & (mask > 0.5)
+        mean = F.avg_pool2d(h, k, 1, radius, count_include_pad=False)
+        return (h >= F.max_pool2d(h, k, 1, radius)) & (h > mean + 1e-3) & (mask > 0.5)
 
     with torch.no_grad():
         peaks_t, peaks_w = local_maxima(target), local_maxima(warped)
@@ -205,7 +206,8 @@ def stacked_pairs(pairs, device: str):
 
 def train_full(a: argparse.Namespace) -> None:
     """Whole frames, a batch of pairs per step, on `--device`: R2D2's cosine and peakiness plus
-    `--position` x the windowed expected distance (`position_loss`, divided by N)."""
+    `--position` x the windowed expected distance (`position_loss`, divided by N) and `--peak-score` x
+    the peak-value cross-entropy (`peak_score_loss`)."""
     folders = sorted(p for p in Path(a.data).iterdir() if p.is_dir())
     pairs = cached_pairs(folders, a.cache, a.jobs)
     ref, tgt, grid, vis = stacked_pairs(pairs, a.device)
@@ -229,6 +231,8 @@ def train_full(a: argparse.Namespace) -> None:
                 + 0.5 * (peakiness_loss(s_t, a.patch) + peakiness_loss(torch.sigmoid(r_logit), a.patch)))
         if a.position > 0:
             loss = loss + a.position * position_loss(s_t, s_w, mask, a.patch) / a.patch
+        if a.peak_score > 0:
+            loss = loss + a.peak_score * peak_score_loss(s_t, s_w, mask)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -348,7 +352,7 @@ def main() -> None:
                    help="weight of the windowed expected-distance loss (position_loss)")
     t.add_argument("--lr", type=float, default=1e-3)
     t.add_argument("--peak-score", type=float, default=0.0,
-                   help="weight of the peak-value cross-entropy (peak_score_loss; crops only)")
+                   help="weight of the peak-value cross-entropy (peak_score_loss)")
     t.add_argument("--minutes", type=float, default=0.0, help="stop after this many minutes (whole frames only)")
     t.add_argument("--full", type=int, default=8, help="channels at full resolution")
     t.add_argument("--half", type=int, default=24, help="channels at half resolution")
