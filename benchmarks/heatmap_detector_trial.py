@@ -204,6 +204,40 @@ def stacked_pairs(pairs, device: str):
     return ref.to(device), tgt.to(device), torch.from_numpy(grid).to(device), vis.to(device)
 
 
+def trial_loss(a: argparse.Namespace, target: torch.Tensor, warped: torch.Tensor, reference: torch.Tensor,
+               mask: torch.Tensor) -> torch.Tensor:
+    """R2D2's cosine and peakiness, plus `--position` x `position_loss` / N and `--peak-score` x
+    `peak_score_loss`. target, warped (the reference's, in the target's pixels), mask: (B, 1, h, w);
+    reference: the reference's own heatmap (its peakiness)."""
+    loss = repeatability_loss(target, warped, mask, a.patch) + 0.5 * (
+        peakiness_loss(target, a.patch) + peakiness_loss(reference, a.patch))
+    if a.position > 0:
+        loss = loss + a.position * position_loss(target, warped, mask, a.patch) / a.patch
+    if a.peak_score > 0:
+        loss = loss + a.peak_score * peak_score_loss(target, warped, mask)
+    return loss
+
+
+def optimise(a: argparse.Namespace, net: nn.Module, opt: torch.optim.Optimizer, loss: torch.Tensor, step: int,
+             history: list[float], start: float) -> bool:
+    """One optimiser step on `loss`; print and save every 100 steps and at the last, keep the `--keep`
+    steps' weights. True when `--minutes` have passed (the weights saved)."""
+    opt.zero_grad()
+    loss.backward()
+    opt.step()
+    history.append(float(loss.detach()))
+    if (step + 1) % 100 == 0 or step + 1 == a.steps:
+        print(f"step {step + 1}: loss {np.mean(history[-100:]):.4f} ({time.perf_counter() - start:.0f} s)", flush=True)
+        torch.save(net.state_dict(), a.out)
+    if step + 1 in a.keep:
+        torch.save(net.state_dict(), Path(a.out).with_suffix(f".step{step + 1}.pt"))
+    if a.minutes and time.perf_counter() - start > 60 * a.minutes:
+        torch.save(net.state_dict(), a.out)
+        print(f"stopped at step {step + 1} after {a.minutes} min: loss {np.mean(history[-100:]):.4f}", flush=True)
+        return True
+    return False
+
+
 def train_full(a: argparse.Namespace) -> None:
     """Whole frames, a batch of pairs per step, on `--device`: R2D2's cosine and peakiness plus
     `--position` x the windowed expected distance (`position_loss`, divided by N) and `--peak-score` x
@@ -227,21 +261,9 @@ def train_full(a: argparse.Namespace) -> None:
         warped = F.grid_sample(r_logit, grid[idx], align_corners=True, padding_mode="border")
         mask = vis[idx]
         s_t, s_w = torch.sigmoid(t_logit), torch.sigmoid(warped)
-        loss = (repeatability_loss(s_t, s_w, mask, a.patch)
-                + 0.5 * (peakiness_loss(s_t, a.patch) + peakiness_loss(torch.sigmoid(r_logit), a.patch)))
-        if a.position > 0:
-            loss = loss + a.position * position_loss(s_t, s_w, mask, a.patch) / a.patch
-        if a.peak_score > 0:
-            loss = loss + a.peak_score * peak_score_loss(s_t, s_w, mask)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        history.append(float(loss.detach()))
-        if (step + 1) % 100 == 0 or step + 1 == a.steps:
-            print(f"step {step + 1}: loss {np.mean(history[-100:]):.4f} ({time.perf_counter() - start:.0f} s)", flush=True)
-            torch.save(net.state_dict(), a.out)
-        if step + 1 in a.keep:
-            torch.save(net.state_dict(), Path(a.out).with_suffix(f".step{step + 1}.pt"))
+        loss = trial_loss(a, s_t, s_w, torch.sigmoid(r_logit), mask)
+        if optimise(a, net, opt, loss, step, history, start):
+            break
 
 
 def train(a: argparse.Namespace) -> None:
@@ -265,25 +287,9 @@ def train(a: argparse.Namespace) -> None:
             grid = torch.from_numpy(np.stack([mapped[..., 0] / (w - 1) * 2 - 1, mapped[..., 1] / (h - 1) * 2 - 1], -1))
             warped = F.grid_sample(s_ref, grid[None], align_corners=True)
             mask = torch.from_numpy(vis.astype(np.float32))[None, None]
-            loss = loss + repeatability_loss(s_tgt, warped, mask, a.patch) + 0.5 * (
-                peakiness_loss(s_tgt, a.patch) + peakiness_loss(s_ref, a.patch))
-            if a.position > 0:
-                loss = loss + a.position * position_loss(s_tgt, warped, mask, a.patch) / a.patch
-            if a.peak_score > 0:
-                loss = loss + a.peak_score * peak_score_loss(s_tgt, warped, mask)
+            loss = loss + trial_loss(a, s_tgt, warped, s_ref, mask)
         loss = loss / a.batch
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        history.append(float(loss.detach()))
-        if (step + 1) % 100 == 0 or step + 1 == a.steps:
-            print(f"step {step + 1}: loss {np.mean(history[-100:]):.4f} ({time.perf_counter() - start:.0f} s)", flush=True)
-            torch.save(net.state_dict(), a.out)
-        if step + 1 in a.keep:
-            torch.save(net.state_dict(), Path(a.out).with_suffix(f".step{step + 1}.pt"))
-        if a.minutes and time.perf_counter() - start > 60 * a.minutes:
-            torch.save(net.state_dict(), a.out)
-            print(f"stopped at step {step + 1} after {a.minutes} min: loss {np.mean(history[-100:]):.4f}", flush=True)
+        if optimise(a, net, opt, loss, step, history, start):
             break
 
 
@@ -353,7 +359,7 @@ def main() -> None:
     t.add_argument("--lr", type=float, default=1e-3)
     t.add_argument("--peak-score", type=float, default=0.0,
                    help="weight of the peak-value cross-entropy (peak_score_loss)")
-    t.add_argument("--minutes", type=float, default=0.0, help="stop after this many minutes (whole frames only)")
+    t.add_argument("--minutes", type=float, default=0.0, help="stop after this many minutes")
     t.add_argument("--full", type=int, default=8, help="channels at full resolution")
     t.add_argument("--half", type=int, default=24, help="channels at half resolution")
     t.add_argument("--keep", type=lambda s: {int(k) for k in s.split(",")}, default=set(),

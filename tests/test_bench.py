@@ -708,16 +708,10 @@ def test_paired_ms_difference_averages_and_resamples_by_sequence():
     reference keypoints). Here one sequence of 30 pairs changes by +0.01 each, another of 10 by -0.01:
     the sequences disagree, so the interval must span both; resampling the 40 pairs gave
     +0.005 [+0.0025, +0.0075], a confident gain, where the bench's mean is 0."""
-    import sys
-    from pathlib import Path
+    from benchmark_scripts import import_benchmarks
 
-    benchmarks = str(Path(__file__).resolve().parent.parent / "benchmarks")
-    sys.path.insert(0, benchmarks)
-    try:
-        from walk_interpolated_rays import paired_ms_line
-        from common import paired_by_sequence
-    finally:
-        sys.path.remove(benchmarks)
+    walk_interpolated_rays, common = import_benchmarks("walk_interpolated_rays", "common")
+    paired_ms_line, paired_by_sequence = walk_interpolated_rays.paired_ms_line, common.paired_by_sequence
     keys = [("a", "ref", f"t{i}", "geopatch") for i in range(30)] + [("b", "ref", f"t{i}", "geopatch") for i in range(10)]
     walked = np.full(40, 0.5)
     interpolated = walked + np.r_[np.full(30, 0.01), np.full(10, -0.01)]
@@ -733,15 +727,10 @@ def test_other_processes_cpu_leaves_out_this_process(tmp_path):
     less this process's own CPU over the block's wall time. The busy time is the cpu line's user,
     nice, system, irq, softirq and steal ticks (not idle or iowait); subtracting this process's own
     is what leaves the others; and without /proc/stat the figure is NaN, never a false 'idle'."""
-    import sys
-    from pathlib import Path
+    from benchmark_scripts import import_benchmarks
 
-    benchmarks = str(Path(__file__).resolve().parent.parent / "benchmarks")
-    sys.path.insert(0, benchmarks)
-    try:
-        from common import busy_cpu_seconds, others_cores
-    finally:
-        sys.path.remove(benchmarks)
+    common = import_benchmarks("common")[0]
+    busy_cpu_seconds, others_cores = common.busy_cpu_seconds, common.others_cores
     stat = tmp_path / "stat"
     # user nice system idle iowait irq softirq steal guest guest_nice, in clock ticks
     stat.write_text("cpu  100 20 30 5000 400 5 6 7 0 0\ncpu0 50 10 15 2500 200 2 3 3 0 0\n")

@@ -3,24 +3,16 @@ reward what the protocol counts: the same peak, within a few pixels, in both vie
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import pytest
 
-torch = pytest.importorskip("torch")
+from benchmark_scripts import import_benchmarks
 
-BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
+torch = pytest.importorskip("torch")
 
 
 @pytest.fixture(scope="module")
 def trial():
-    sys.path.insert(0, str(BENCHMARKS))
-    try:
-        import heatmap_detector_trial
-    finally:
-        sys.path.remove(str(BENCHMARKS))
-    return heatmap_detector_trial
+    return import_benchmarks("heatmap_detector_trial")[0]
 
 
 def peaks(points, size=32):

@@ -4,28 +4,19 @@ texture splits are disjoint, and `geofeat retrieval` chooses K on other objects 
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from benchmark_scripts import import_benchmarks
 from geofeat.apps.retrieval import split_queries
-
-
-BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
 
 
 @pytest.fixture(scope="module")
 def scripts():
     """The benchmark scripts make_sim_datasets and sim_difficulty, imported from benchmarks/."""
-    sys.path.insert(0, str(BENCHMARKS))
-    try:
-        import make_sim_datasets
-        import sim_difficulty
-    finally:
-        sys.path.remove(str(BENCHMARKS))
-    return make_sim_datasets, sim_difficulty
+    return tuple(import_benchmarks("make_sim_datasets", "sim_difficulty"))
 
 
 def difficulty_seeds(seed0: int = 5000, per_scenario: int = 10) -> set[int]:
