@@ -45,7 +45,7 @@ from geofeat.detectors import geokey
 from geofeat.detectors.cues import depth_edge_distance
 from geofeat.io import read_sequence
 from geofeat.keypoints import Keypoints
-from geofeat.train.detector import repeatability, validation_scores
+from geofeat.train.detector import validation_scores
 
 
 class HeatmapNet(nn.Module):
@@ -84,14 +84,18 @@ def load_pairs(folders: list[Path], jobs: int = 1) -> list[tuple[np.ndarray, np.
 
 
 def cached_pairs(folders: list[Path], cache: str | None, jobs: int = 1):
-    """`load_pairs`, kept in (or read from) the .npz `cache` when one is given (images as 8-bit)."""
+    """`load_pairs`, kept in (or read from) the .npz `cache` when one is given (images as 8-bit). The
+    cache records the sequence folders it was made from; a cache of other folders is refused."""
+    names = np.array(sorted(str(Path(f).resolve()) for f in folders))
     if cache and Path(cache).is_file():
         z = np.load(cache)
+        if "folders" not in z.files or not np.array_equal(z["folders"], names):
+            raise SystemExit(f"--cache {cache} was made from other sequence folders; remove it or choose another")
         ref, tgt, mapped, vis = z["ref"], z["tgt"], z["mapped"], z["vis"]
         return [(ref[i] / np.float32(255), tgt[i] / np.float32(255), mapped[i], vis[i]) for i in range(len(tgt))]
     pairs = load_pairs(folders, jobs)
     if cache:
-        np.savez(cache, ref=np.stack([np.round(p[0] * 255).astype(np.uint8) for p in pairs]),
+        np.savez(cache, folders=names, ref=np.stack([np.round(p[0] * 255).astype(np.uint8) for p in pairs]),
                  tgt=np.stack([np.round(p[1] * 255).astype(np.uint8) for p in pairs]),
                  mapped=np.stack([p[2] for p in pairs]), vis=np.stack([p[3] for p in pairs]))
     return pairs
@@ -192,14 +196,19 @@ def peak_score_loss(target: torch.Tensor, warped: torch.Tensor, mask: torch.Tens
     return F.binary_cross_entropy(target[peaks_t].clamp(1e-4, 1 - 1e-4), found[peaks_t].float())
 
 
+def sampling_grid(mapped: np.ndarray, width: int, height: int) -> np.ndarray:
+    """(..., 2) pixel coordinates (x, y) of an image of `width` x `height` -> grid_sample's [-1, 1]
+    units (align_corners=True), float32."""
+    return np.stack([mapped[..., 0] / (width - 1) * 2 - 1, mapped[..., 1] / (height - 1) * 2 - 1], -1).astype(np.float32)
+
+
 def stacked_pairs(pairs, device: str):
     """The pairs as tensors on `device`: references, targets (P, 1, H, W), grids (P, H, W, 2) in
     grid_sample's [-1, 1] units (pixels not visible far outside), visibility (P, 1, H, W)."""
     ref = torch.from_numpy(np.stack([p[0] for p in pairs]))[:, None]
     tgt = torch.from_numpy(np.stack([p[1] for p in pairs]))[:, None]
     H, W = pairs[0][1].shape
-    m = np.stack([p[2] for p in pairs])
-    grid = np.stack([m[..., 0] / (W - 1) * 2 - 1, m[..., 1] / (H - 1) * 2 - 1], -1).astype(np.float32)
+    grid = sampling_grid(np.stack([p[2] for p in pairs]), W, H)
     vis = torch.from_numpy(np.stack([p[3] for p in pairs]).astype(np.float32))[:, None]
     return ref.to(device), tgt.to(device), torch.from_numpy(grid).to(device), vis.to(device)
 
@@ -284,7 +293,7 @@ def train(a: argparse.Namespace) -> None:
             s_tgt = net(torch.from_numpy(np.ascontiguousarray(tgt))[None, None])
             s_ref = net(torch.from_numpy(np.ascontiguousarray(ref))[None, None])
             h, w = ref.shape
-            grid = torch.from_numpy(np.stack([mapped[..., 0] / (w - 1) * 2 - 1, mapped[..., 1] / (h - 1) * 2 - 1], -1))
+            grid = torch.from_numpy(sampling_grid(mapped, w, h))
             warped = F.grid_sample(s_ref, grid[None], align_corners=True)
             mask = torch.from_numpy(vis.astype(np.float32))[None, None]
             loss = loss + trial_loss(a, s_tgt, warped, s_ref, mask)
@@ -330,12 +339,9 @@ def evaluate(a: argparse.Namespace) -> None:
     for name, detect in detectors.items():
         cells = []
         for n in (1024, 2048):
-            if a.ms:
-                r = validation_scores(a.sequences, detect, n)
-                cells.append(f"{r['ms']:.3f} / {r['hits']:.0f} / {r['repeatability']:.3f} / {r['pairs']:.0f} / {r['n_ref']:.0f}")
-            else:
-                r = repeatability(a.sequences, detect, n)
-                cells.append(f"{r['repeatability']:.3f} / {r['pairs']:.0f} / {r['n_ref']:.0f}")
+            r = validation_scores(a.sequences, detect, n, descriptor="geopatch" if a.ms else None)
+            cell = f"{r['repeatability']:.3f} / {r['pairs']:.0f} / {r['n_ref']:.0f}"
+            cells.append(f"{r['ms']:.3f} / {r['hits']:.0f} / {cell}" if a.ms else cell)
         print(f"| {name} | " + " | ".join(cells) + " |", flush=True)
 
 

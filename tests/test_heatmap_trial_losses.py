@@ -1,5 +1,6 @@
-"""The peak-position losses of the heatmap-detector trial (benchmarks/heatmap_detector_trial.py)
-reward what the protocol counts: the same peak, within a few pixels, in both views."""
+"""The heatmap-detector trial (benchmarks/heatmap_detector_trial.py): its peak-position losses
+reward what the protocol counts (the same peak, within a few pixels, in both views), and its cache
+of loaded pairs is never read back for other sequences."""
 
 from __future__ import annotations
 
@@ -54,3 +55,19 @@ def test_peak_score_loss_asks_a_high_value_only_where_the_reference_has_a_peak_n
     loss = lambda t: float(trial.peak_score_loss(t, warped, mask))  # noqa: E731
     assert loss(found_high) < loss(found_low)
     assert loss(far_high) > loss(found_high) + 1.0
+
+
+def test_pairs_cache_is_read_back_only_for_the_folders_that_made_it(trial, monkeypatch, tmp_path):
+    import numpy as np
+
+    pair = (np.full((4, 6), 0.2, np.float32), np.full((4, 6), 0.6, np.float32),
+            np.ones((4, 6, 2), np.float32), np.ones((4, 6), bool))
+    monkeypatch.setattr(trial, "load_pairs", lambda folders, jobs=1: [pair] * len(folders))
+    cache = str(tmp_path / "pairs.npz")
+    made = trial.cached_pairs([tmp_path / "a", tmp_path / "b"], cache)
+    monkeypatch.setattr(trial, "load_pairs", lambda folders, jobs=1: pytest.fail("the cache was not read"))
+    again = trial.cached_pairs([tmp_path / "b", tmp_path / "a"], cache)  # the same folders, in any order
+    assert len(again) == len(made) == 2
+    assert all(np.allclose(x, y) for p, q in zip(made, again) for x, y in zip(p, q))
+    with pytest.raises(SystemExit, match="other sequence folders"):
+        trial.cached_pairs([tmp_path / "a", tmp_path / "c"], cache)
