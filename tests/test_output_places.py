@@ -200,3 +200,65 @@ def test_an_output_folder_that_is_a_dangling_link_is_refused_before_any_work(tmp
     with output_folder(out) as tmp:
         (tmp / "a.txt").write_text("result")
     assert (tmp_path / "not-made-yet" / "a.txt").read_text() == "result"
+
+
+HOLD_OUTPUT = """
+import sys
+from geofeat.outputs import check_out_dir
+check_out_dir(sys.argv[1], overwrite=True)
+print("claimed", flush=True)
+sys.stdin.read()  # hold the claim until the test closes stdin or kills this process
+"""
+
+
+def _holding(folder):
+    """A second process that has claimed `folder` as its output (as a running command has)."""
+    child = subprocess.Popen([sys.executable, "-c", HOLD_OUTPUT, str(folder)], stdin=subprocess.PIPE,
+                             stdout=subprocess.PIPE, text=True)
+    assert child.stdout.readline().strip() == "claimed"
+    return child
+
+
+def test_a_second_run_into_the_same_output_is_refused_while_the_first_runs(tmp_path, capsys):
+    """Two runs writing one new --out at once each built their result in a temporary folder, and the
+    second to finish replaced the first's files with no word. Now the second stops at once, naming the
+    first; a path that leads to the same folder through a link is the same output; a killed run (no
+    clean-up) does not block the next one."""
+    from geofeat.outputs import release_outputs
+
+    out = tmp_path / "runs" / "shared"
+    child = _holding(out)
+    try:
+        with pytest.raises(ValueError, match=rf"--out: .*shared is being written by another geofeat run \(process "
+                                             rf"{child.pid}"):
+            check_out_dir(out)
+        (tmp_path / "link").symlink_to(tmp_path / "runs")
+        with pytest.raises(ValueError, match="another geofeat run"):
+            check_out_dir(tmp_path / "link" / "shared")
+        check_out_dir(tmp_path / "runs" / "other")  # another folder: free
+        assert main(["simulate", str(out), "--frames", "2", "--width", "64", "--height", "48", "--no-progress"]) == 2
+        assert f"is being written by another geofeat run (process {child.pid}" in capsys.readouterr().err
+        assert not out.exists()  # nothing was written
+    finally:
+        child.kill()
+        child.wait()
+        child.stdout.close()
+        child.stdin.close()
+    check_out_dir(out)  # the killed holder's lock went with it
+    check_out_dir(out)  # claiming again in the same run is fine
+    release_outputs()
+    child = _holding(out)  # released: another process may take it
+    child.stdin.close()
+    child.wait()
+    child.stdout.close()
+
+
+def test_the_command_line_releases_its_outputs_when_a_command_ends(tmp_path):
+    """After a command returns, its output is free for the next run, in another process too."""
+    out = tmp_path / "sim"
+    assert main(["simulate", str(out), "--frames", "2", "--width", "64", "--height", "48", "--no-progress"]) == 0
+    child = _holding(out)
+    child.stdin.close()
+    child.wait()
+    child.stdout.close()
+    assert child.returncode == 0

@@ -10,14 +10,20 @@
   geofeat did not write.
 - Text results (csv, md, json) are written and read back as UTF-8 whatever the locale, as
   `append_line_durably` appends them: sequence names are folder names, which may be any letters.
+- One run at a time per output: `check_out_dir` and `check_out_file` claim the output for the run
+  (`claim_output`, an exclusive lock), so a second run writing the same folder or file at the same
+  time stops at once, naming the first, instead of replacing its files when it finishes.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
 import shutil
+import sys
+import tempfile
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -99,15 +105,111 @@ def _via_symlink(folder: Path, rel: str) -> bool:
     return any((folder / part).is_symlink() for part in Path(rel).parents if part != Path("."))
 
 
-def check_out_file(path: str | Path, overwrite: bool = False, what: str = "--out") -> Path:
+#: Open lock files of the outputs this process has claimed (`claim_output`), by resolved path.
+_CLAIMS: dict[str, int] = {}
+#: Whether `release_outputs` is registered to run at exit (on the first claim).
+_RELEASE_AT_EXIT = False
+
+
+def lock_file(path: str | Path) -> Path:
+    """The lock file that a run writing the output `path` holds (`claim_output`): one per resolved
+    absolute path (symbolic links on the way followed, so two spellings of one folder share it), in a
+    folder of this user's under the system's temporary folder, never beside the user's files."""
+    key = os.path.realpath(os.path.abspath(path))
+    user = os.getuid() if hasattr(os, "getuid") else os.environ.get("USERNAME", "user")
+    return Path(tempfile.gettempdir()) / f"geofeat-locks-{user}" / f"{hashlib.sha256(key.encode()).hexdigest()[:32]}.lock"
+
+
+def claim_output(path: str | Path, what: str = "--out") -> None:
+    """Claim the output folder or file `path` for this run, until `release_outputs` (the command line
+    calls it when a command ends) or the process ends: a second geofeat process that claims the same
+    path meanwhile gets a ValueError naming this one. Without it, two runs writing one new `--out` at
+    once each built their result in a temporary folder, and the second to finish replaced the files
+    of the first (they are geofeat's own, listed in the manifest) with no word. The lock is the
+    operating system's (`flock`), so a run that is killed never blocks the next; on a system without
+    `fcntl` (Windows) nothing is claimed. Claiming a path this process holds already does nothing."""
+    try:
+        import fcntl
+    except ImportError:
+        return
+    key = os.path.realpath(os.path.abspath(path))
+    if key in _CLAIMS:
+        return
+    lock = lock_file(path)
+    try:
+        lock.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+    except OSError:
+        return  # no temporary folder to lock in: run unguarded, as before
+    while True:
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o600)
+        except OSError:
+            return
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            raise ValueError(f"{what}: {path} is being written by another geofeat run ({_holder(lock)}); wait for "
+                             "it to end, or choose another name") from None
+        try:  # the holder we waited on may have removed the file in between (`release_outputs`): lock the new one
+            same = os.stat(lock).st_ino == os.fstat(fd).st_ino
+        except OSError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    text = f"process {os.getpid()}: {' '.join(['geofeat', *sys.argv[1:]]) if sys.argv else 'python'}"
+    os.ftruncate(fd, 0)
+    os.write(fd, text[:500].encode(errors="replace"))
+    global _RELEASE_AT_EXIT
+    if not _RELEASE_AT_EXIT:  # a script's claims (no command line releases them) go at exit, lock files included
+        import atexit
+
+        atexit.register(release_outputs)
+        _RELEASE_AT_EXIT = True
+    _CLAIMS[key] = fd
+
+
+def _holder(lock: Path) -> str:
+    """Who holds `lock`, as its holder wrote it (process id and command line)."""
+    try:
+        text = lock.read_text(errors="replace").strip()
+    except OSError:
+        text = ""
+    return text or "a process that has just started"
+
+
+def release_outputs() -> None:
+    """Release every output this process has claimed (`claim_output`), and remove their lock files."""
+    if not _CLAIMS:
+        return
+    import fcntl
+
+    for key, fd in list(_CLAIMS.items()):
+        lock = lock_file(key)
+        try:
+            if os.stat(lock).st_ino == os.fstat(fd).st_ino:
+                lock.unlink()
+        except OSError:
+            pass
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        os.close(fd)
+        del _CLAIMS[key]
+
+
+def check_out_file(path: str | Path, overwrite: bool = False, what: str = "--out", claim: bool = True) -> Path:
     """Refuse an output file path that names a folder, sits under a file, or exists (unless `overwrite`;
-    a symbolic link, even a dangling one, exists)."""
+    a symbolic link, even a dangling one, exists), and claim it for this run (`claim_output`; `claim`
+    False: the caller has claimed what the file belongs to, as `extract` claims its prefix once for
+    its one file per frame)."""
     path = Path(path)
     if path.is_dir():
         raise ValueError(f"{what}: {path} is a folder; expected a file name")
     for parent in path.parents:
         if parent.exists() and not parent.is_dir():
             raise ValueError(f"{what}: {parent} is a file, so {path} cannot be written")
+    if claim:  # before the existence check: a concurrent run may be about to write it
+        claim_output(path, what)
     if (path.exists() or path.is_symlink()) and not overwrite:
         raise ValueError(f"{what}: {path} exists; pass --overwrite to replace it, or choose another name")
     check_writable(path.parent, what)
@@ -198,6 +300,7 @@ def check_out_dir(path: str | Path, overwrite: bool = False, what: str = "--out"
     for parent in path.parents:
         if parent.exists() and not parent.is_dir():
             raise ValueError(f"{what}: {parent} is a file, so the folder {path} cannot be created")
+    claim_output(path, what)  # before the emptiness check: a concurrent run may be about to fill it
     if path.is_dir() and any(path.iterdir()):
         if not overwrite:
             raise ValueError(f"{what}: {path} exists and is not empty; pass --overwrite to replace what geofeat "

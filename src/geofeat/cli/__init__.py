@@ -11,6 +11,8 @@ import sys
 import warnings
 from importlib import import_module
 
+from ..outputs import release_outputs
+
 #: The command modules, in the order `geofeat --help` lists them.
 COMMANDS = ("demo", "extract", "match", "bench", "train", "train_detector", "retrieval", "track", "simulate",
             "groundtruth")
@@ -73,3 +75,4 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     finally:
         warnings.formatwarning = plain
+        release_outputs()  # the outputs this command claimed (`check_out_dir`, `check_out_file`)

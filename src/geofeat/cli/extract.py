@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     from ..features import save_features
     from ..inputs import resolve_radius
     from ..io import read_sequence
-    from ..outputs import (atomic_file, check_out_file, clear_stale_partials, partial_name, plural,
+    from ..outputs import (atomic_file, check_out_file, claim_output, clear_stale_partials, partial_name, plural,
                            refuse_input_folder)
 
     seq = read_sequence(args.folder, depth_scale=args.depth_scale)
@@ -49,8 +49,9 @@ def run(args: argparse.Namespace) -> int:
         refuse_input_folder(path.parent, [seq.folder], "--out",
                             f"extract would write {path.name if is_h5(path) else f'{path.stem}-<frame>.npz'} "
                             "among its frames")
+    claim_output(path)  # one claim for the .h5, or for the prefix of the one file per frame
     for final in finals:
-        check_out_file(final, args.overwrite)
+        check_out_file(final, args.overwrite, claim=False)
     if not is_h5(path):  # a killed run's half-written .npz files (the .h5's `atomic_file` clears its own)
         clear_stale_partials(*finals)
     profile = sequence_depth_profile(seq, args.depth_profile)
