@@ -293,6 +293,33 @@ def test_edge_swap_table_matches_grid_layout():
     np.testing.assert_array_equal(walk._SWAP, walk._swap_table())
 
 
+def test_the_walk_order_changes_no_result():
+    """`walk_polar` walks the keypoints in bands of mesh rows (`walk_order`, for the cache); any order
+    gives the same samples, coordinates and rings reached, bit for bit, and an order that is not a
+    permutation (which would leave a keypoint's samples unwritten) is refused."""
+    from geofeat.geodesic.mesh import build_mesh
+    from geofeat.geodesic.polar import walk_starts
+    from geofeat.geodesic.walk import MAX_CROSSINGS, walk_order, walk_polar, walk_polar_in_order
+
+    frame = geofeat.read_demo_frame()
+    mesh = build_mesh(frame)
+    rng = np.random.default_rng(3)
+    xy = rng.uniform([0, 0], [frame.shape[1] - 1, frame.shape[0] - 1], size=(300, 2))  # some off the surface
+    starts = walk_starts(mesh, xy)
+    order = walk_order(starts)
+    bands = np.floor(starts[order, 1] / 16)
+    assert np.all(np.diff(bands) >= 0) and sorted(order) == list(range(300))
+    args = (mesh.points, mesh.face_ok, mesh.normals, *mesh.walk_tables, starts, frame.K, 0.05, 16, 8, MAX_CROSSINGS)
+    reference = walk_polar(*args)
+    assert np.isnan(reference[0]).any() and np.isfinite(reference[0]).any()
+    for permutation in (np.arange(300), rng.permutation(300), np.arange(300)[::-1].copy()):
+        for got, want in zip(walk_polar_in_order(*args, permutation), reference):
+            np.testing.assert_array_equal(got, want)
+    for bad in (np.zeros(300, np.int64), np.arange(299), np.arange(1, 301)):
+        with pytest.raises(ValueError, match="permutation"):
+            walk_polar_in_order(*args, bad)
+
+
 def test_extract_prefetches_the_mesh_with_identical_results():
     """`extract` builds the mesh in a background thread during detection: the descriptors equal
     those of the serial path (detect, then describe) on a fresh copy of the frame, bit for bit,

@@ -416,10 +416,25 @@ def tangent_frames(points, face_ok, normals, starts):
     return faces, centre, frames
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
+#: Keypoints are walked in bands of this many mesh rows, left to right in each band (`walk_order`).
+WALK_BAND_PX = 16
+
+
+@njit(cache=True)
+def walk_order(starts, band_px=WALK_BAND_PX):
+    """(N,) int64: the order in which `walk_polar` walks the keypoints at (N, 2) mesh pixel `starts`:
+    by bands of `band_px` mesh rows from the top, left to right in each band (ties keep their
+    order). Nearby keypoints' rays cross the same faces, so walked one after another they find the
+    mesh tables in the cache: on the Kinect frame's 2048 keypoints this took 10-20 % off the walk
+    (BENCHMARKS.md). The order changes no result: every ray is independent and writes its own slot."""
+    key = np.floor(starts[:, 1] / band_px) * 1e7 + starts[:, 0]
+    return np.argsort(key, kind="mergesort")
+
+
+@njit(cache=True)
 def walk_polar(points, face_ok, normals, local, edges, starts, K, radius, n_angles, n_rings, max_crossings):
     """Geodesic polar samples around many start points, one ray per (keypoint, direction) in
-    parallel.
+    parallel, the keypoints walked in `walk_order` (`walk_polar_in_order`).
 
     Args:
         points: (Hm, Wm, 3) float64 mesh vertices, metres.
@@ -434,14 +449,30 @@ def walk_polar(points, face_ok, normals, local, edges, starts, K, radius, n_angl
         image pixels (x, y) of the samples projected with K, reached (N, n_angles) int32 rings
         reached per direction, centre (N, 3) float64 start point (NaN when the start has no face).
     """
+    return walk_polar_in_order(points, face_ok, normals, local, edges, starts, K, radius, n_angles, n_rings,
+                               max_crossings, walk_order(starts))
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def walk_polar_in_order(points, face_ok, normals, local, edges, starts, K, radius, n_angles, n_rings, max_crossings,
+                        order):
+    """`walk_polar`, walking the keypoints in the (N,) int64 `order` (a permutation of 0..N-1; the
+    results are the same for every order, only the time differs: `benchmarks/bench_walk_order.py`)."""
     N = starts.shape[0]
+    seen = np.zeros(N, np.bool_)
+    if order.shape[0] != N:
+        raise ValueError("order: expected a permutation of the keypoints")
+    for k in order:  # a repeated keypoint would leave another's samples unwritten (np.empty)
+        if k < 0 or k >= N or seen[k]:
+            raise ValueError("order: expected a permutation of the keypoints")
+        seen[k] = True
     samples = np.empty((N, n_rings, n_angles, 3), dtype=np.float32)  # every entry is written below
     coords = np.empty((N, n_rings, n_angles, 2), dtype=np.float32)
     reached = np.zeros((N, n_angles), dtype=np.int32)
     faces, centre, frames = tangent_frames(points, face_ok, normals, starts)
     ring_step = radius / n_rings
     for job in prange(N * n_angles):
-        k = job // n_angles
+        k = order[job // n_angles]
         a = job % n_angles
         r = _ray_one(points, face_ok, normals, local, edges, faces, centre, frames, K, ring_step, n_angles,
                      n_rings, max_crossings, samples, coords, k, a)
