@@ -207,6 +207,21 @@ def test_an_integer_index_gives_one_keypoint(frame):
         assert one.responses[0] == kps.responses[i]
 
 
+def test_indexing_takes_masks_slices_and_index_arrays_and_refuses_the_rest(frame):
+    """kps[True] gave a shape error from the constructor (numpy adds an axis for a bool index)."""
+    kps = detect(frame, 10)
+    mask = kps.responses > np.median(kps.responses)
+    np.testing.assert_array_equal(kps[mask].xy, kps.xy[mask])
+    np.testing.assert_array_equal(kps[2:5].xy, kps.xy[2:5])
+    np.testing.assert_array_equal(kps[[4, 1]].xy, kps.xy[[4, 1]])
+    assert len(kps[[]]) == 0 and len(kps[np.zeros(0, int)]) == 0
+    for bad in (True, np.bool_(False), (0, 1), np.zeros((2, 2), int), [0.5, 1.5]):
+        with pytest.raises(TypeError, match="Keypoints: index"):
+            kps[bad]
+    with pytest.raises(IndexError):
+        kps[np.ones(3, bool)]  # a mask of the wrong length
+
+
 def test_detector_names_in_any_case_are_recorded_lower_case(frame):
     """`--detector SIFT` and detect(frame, detector="GeoKey") were refused; a weights path keeps its case."""
     from geofeat.detectors.geokey import SHIPPED_WEIGHTS

@@ -262,3 +262,34 @@ def test_the_command_line_releases_its_outputs_when_a_command_ends(tmp_path):
     child.wait()
     child.stdout.close()
     assert child.returncode == 0
+
+
+def test_ctrl_c_while_extract_renames_its_files_waits_for_the_last(tmp_path, monkeypatch):
+    """`extract --out DIR/f.npz` writes one file per frame, then renames them into place. Ctrl-C in
+    that loop left this run's files for the first frames beside an earlier run's for the others,
+    which `bench --features` then scored as one method. Now the signal waits until every file is in."""
+    import signal
+
+    from geofeat.features import load_features
+
+    seq = tmp_path / "seq"
+    assert main(["simulate", str(seq), "--frames", "3", "--width", "160", "--height", "120", "--no-progress"]) == 0
+    out = tmp_path / "f.npz"
+    assert main(["extract", str(seq), "--descriptor", "sift", "--keypoints", "40", "--out", str(out)]) == 0
+    names = sorted(p.name for p in tmp_path.glob("f-*.npz"))
+    assert len(names) == 3
+    real_replace, calls = os.replace, []
+
+    def replace(src, dst, *args, **kwargs):
+        if os.path.basename(str(dst)).startswith("f-"):
+            calls.append(dst)
+            if len(calls) == 2:  # Ctrl-C after the first frame's file is in
+                os.kill(os.getpid(), signal.SIGINT)
+        return real_replace(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(os, "replace", replace)
+    assert main(["extract", str(seq), "--descriptor", "sift", "--keypoints", "12", "--out", str(out),
+                 "--overwrite"]) == 130
+    assert len(calls) == 3
+    counts = [len(load_features(tmp_path / name)) for name in names]
+    assert max(counts) <= 12, counts  # every frame's file is the second run's

@@ -89,9 +89,21 @@ class Keypoints:
         return f"Keypoints({len(self)} keypoints{span})"
 
     def __getitem__(self, index) -> "Keypoints":
-        """The keypoints at `index` (a slice, mask or index array); an integer gives a set of one."""
-        if isinstance(index, (int, np.integer)) and not isinstance(index, bool):
+        """The keypoints at `index` (a slice, a boolean mask of one entry per keypoint, or an index
+        array); an integer gives a set of one. A single bool or a tuple (numpy would add an axis, or
+        index the (N, 2) positions' second axis) is a TypeError."""
+        if isinstance(index, (bool, np.bool_, tuple)):
+            raise TypeError(f"Keypoints: index with an integer, a slice, a boolean mask or an integer array, not "
+                            f"{index!r}")
+        if isinstance(index, (int, np.integer)):
             index = [index]
+        elif not isinstance(index, slice):
+            index = np.asarray(index)
+            if index.ndim != 1 or (index.size and index.dtype.kind not in "biu"):
+                raise TypeError(f"Keypoints: index with a 1-D boolean mask or integer array, got a {index.ndim}-D "
+                                f"{index.dtype} array")
+            if index.size == 0:
+                index = index.astype(np.int64)
         return Keypoints(self.xy[index], self.angles[index], self.sizes[index], self.responses[index])
 
     def to_cv(self) -> list[cv2.KeyPoint]:

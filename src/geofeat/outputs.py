@@ -386,6 +386,36 @@ def clear_stale_partials(*paths: str | Path) -> None:
 
 
 @contextmanager
+def signals_deferred() -> Iterator[None]:
+    """Hold Ctrl-C (SIGINT) and SIGTERM until the block ends, then act on them as before: for a few
+    renames that must happen all or none (`extract`'s one file per frame: stopped half way, the
+    rerun's features and the earlier run's stayed mixed, frame by frame, with no word). The handlers
+    are swapped for ones that only take note (blocking the signals would not do: the kernel hands a
+    process's signal to any thread that does not block it, numba's and torch's among them). Off the
+    main thread, where handlers cannot be set, it does nothing; SIGKILL cannot be held."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    held = [sig for sig in (signal.SIGINT, getattr(signal, "SIGTERM", None)) if sig is not None]
+    before = {sig: signal.signal(sig, lambda number, _frame: caught.append(number)) for sig in held}
+    try:
+        yield
+    finally:
+        for sig, handler in before.items():
+            signal.signal(sig, handler)
+        for sig in dict.fromkeys(caught):  # each once, in the order they came
+            handler = before[sig]
+            if callable(handler):
+                handler(sig, None)  # Python's own SIGINT handler raises KeyboardInterrupt here
+            elif handler == signal.SIG_DFL:
+                os.kill(os.getpid(), sig)  # the default action (SIGTERM: the process ends)
+
+
+@contextmanager
 def atomic_file(path: str | Path) -> Iterator[Path]:
     """Yield a temporary sibling path to write; on success it replaces `path` (os.replace), on any
     error (or interrupt) it is removed and `path` is left as it was."""

@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     from ..inputs import resolve_radius
     from ..io import read_sequence
     from ..outputs import (atomic_file, check_out_file, claim_output, clear_stale_partials, partial_name, plural,
-                           refuse_input_folder)
+                           refuse_input_folder, signals_deferred)
 
     seq = read_sequence(args.folder, depth_scale=args.depth_scale)
     radius = resolve_radius(args.radius, seq)
@@ -83,9 +83,10 @@ def run(args: argparse.Namespace) -> int:
                     save_features(tmp, features)
                     written.append((tmp, final))
             status = finish_skipped(skipped, len(seq), "extract")
-            for tmp, final in written:
-                os.replace(tmp, final)
-            written.clear()
+            with signals_deferred():  # all the frames' files, or none: never this run's beside an earlier one's
+                for tmp, final in written:
+                    os.replace(tmp, final)
+                written.clear()
             # as the .h5 (replaced whole) has no group for it: a skipped frame's file from an earlier run,
             # which --overwrite let replace, would mix that run's features with this one's
             stale = [] if is_h5(path) else [f for f in (path.with_name(f"{path.stem}-{n}.npz") for n in skipped)
