@@ -321,3 +321,32 @@ def test_fine_tuning_in_place_with_overwrite_keeps_the_starting_weights(tmp_path
     other.mkdir()
     assert main([*args, "--init", str(other / ".." / "w.pt"), "--out", str(weights)]) == 2
     assert weights.read_bytes() == before
+
+
+def test_training_patches_use_the_sequence_radius_as_every_command_does(tmp_path):
+    """`train` cut its patches at 0.075 m whatever a sequence's geofeat.json said, while `bench`,
+    `extract` and `train-detector` describe that sequence at its own radius (`inputs.resolve_radius`):
+    a network trained on one scale of patch, then scored on another."""
+    import json
+
+    import numpy as np
+
+    import geofeat.train.dataset as dataset
+    from geofeat.geodesic.polar import polar_patches
+    from geofeat.io import read_sequence
+
+    assert main(["simulate", str(tmp_path / "seq"), *TINY]) == 0
+    meta = tmp_path / "seq" / "geofeat.json"
+    data = json.loads(meta.read_text())
+    data["radius"] = 0.05
+    meta.write_text(json.dumps(data))
+    seq = read_sequence(tmp_path / "seq")
+    assert seq.radius == 0.05
+    own = dataset.sequence_patches(seq, 64)
+    assert np.array_equal(own.patches, dataset.sequence_patches(seq, 64, radius=0.05).patches)
+    assert not np.array_equal(own.patches, dataset.sequence_patches(seq, 64, radius=0.075).patches)
+    pair = dataset.validation_pairs([tmp_path / "seq"], n_keypoints=64, max_pairs_per_sequence=1)[0]
+    ref = seq.frame(seq.reference)
+    k_ref = dataset.detect(ref, 64, detector="sift")
+    expected = polar_patches(ref, k_ref.xy, radius=0.05, depth_config=dataset._sequence_config(seq, None, ref))
+    np.testing.assert_array_equal(pair.ref_patches, expected.values)

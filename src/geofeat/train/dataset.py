@@ -15,9 +15,9 @@ import numpy as np
 from tqdm import tqdm
 
 from ..scoring import ground_truth_pairs
-from ..constants import DEFAULT_RADIUS_M
 from ..depth import DepthConfig, PROFILES, sequence_depth_profile
 from ..geodesic.polar import polar_patches
+from ..inputs import resolve_radius
 from ..io import Sequence, find_sequences, read_sequence, sequence_digest
 from ..keypoints import detect
 
@@ -94,11 +94,15 @@ def distinct_points(xy: np.ndarray, px: float = SAME_POINT_PX) -> np.ndarray:
     return keep
 
 
-def sequence_patches(seq: Sequence, n_keypoints: int = 512, radius: float = DEFAULT_RADIUS_M,
+def sequence_patches(seq: Sequence, n_keypoints: int = 512, radius: float | None = None,
                      depth_config: DepthConfig | str | None = None, first_id: int = 0) -> PatchSet:
     """Patches of the reference frame's SIFT keypoints in every frame where they are visible.
+    `radius`: geodesic radius, metres (None: the sequence's, `inputs.resolve_radius`, as every
+    command reads it: its geofeat.json `radius`, else 0.075 m; a fixed default here trained on
+    patches of another radius than `bench` describes the same sequence with).
     `depth_config`: a DepthConfig or a profile name, resolved once for the sequence (as the bench does:
     `depth.sequence_depth_profile`; None: the sequence's geofeat.json profile, else measured)."""
+    radius = resolve_radius(radius, seq)
     ref = seq.frame(seq.reference)
     depth_config = _sequence_config(seq, depth_config, ref)
     kps = detect(ref, n_keypoints, detector="sift")
@@ -118,9 +122,10 @@ def sequence_patches(seq: Sequence, n_keypoints: int = 512, radius: float = DEFA
     return PatchSet(np.concatenate(patches), np.concatenate(ids).astype(np.int64) + first_id)
 
 
-def build_patch_set(paths, n_keypoints: int = 512, radius: float = DEFAULT_RADIUS_M,
+def build_patch_set(paths, n_keypoints: int = 512, radius: float | None = None,
                     depth_config: DepthConfig | str | None = None, progress: bool = True) -> PatchSet:
-    """Patch set of all sequences under `paths` (see `geofeat.io.find_sequences`)."""
+    """Patch set of all sequences under `paths` (see `geofeat.io.find_sequences`); `radius`: see
+    `sequence_patches` (None: each sequence's own)."""
     sets, next_id = [], 0
     for folder in tqdm(find_sequences(paths), desc="patches", unit="seq", disable=not progress):
         seq = read_sequence(folder)
@@ -222,18 +227,20 @@ def validation_keypoints(paths, n_keypoints: int = VALIDATION_KEYPOINTS, max_pai
         yield seq, ref, detect(ref, n_keypoints, detector="sift"), targets
 
 
-def validation_pairs(paths, n_keypoints: int = VALIDATION_KEYPOINTS, radius: float = DEFAULT_RADIUS_M,
+def validation_pairs(paths, n_keypoints: int = VALIDATION_KEYPOINTS, radius: float | None = None,
                      depth_config: DepthConfig | str | None = None, max_pairs_per_sequence: int = 2) -> list[ValidationPair]:
     """Reference-target pairs of held-out sequences with independently detected SIFT keypoints and
-    the simulator's ground truth, geodesic polar patches precomputed, for a per-epoch matching score."""
+    the simulator's ground truth, geodesic polar patches precomputed, for a per-epoch matching score.
+    `radius`: see `sequence_patches` (None: each sequence's own)."""
     pairs = []
     for seq, ref, k_ref, targets in validation_keypoints(paths, n_keypoints, max_pairs_per_sequence):
         if not len(k_ref):
             continue
         config = _sequence_config(seq, depth_config, ref)
-        p_ref = polar_patches(ref, k_ref.xy, radius=radius, depth_config=config)
+        seq_radius = resolve_radius(radius, seq)
+        p_ref = polar_patches(ref, k_ref.xy, radius=seq_radius, depth_config=config)
         for tgt, k_tgt, mapped in targets:
-            p_tgt = polar_patches(tgt, k_tgt.xy, radius=radius, depth_config=config)
+            p_tgt = polar_patches(tgt, k_tgt.xy, radius=seq_radius, depth_config=config)
             pairs.append(ValidationPair(p_ref.values, p_ref.valid, p_tgt.values, p_tgt.valid,
                                         ground_truth_pairs(k_ref.xy, mapped), n_keypoints))
     return pairs
