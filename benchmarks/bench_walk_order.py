@@ -4,8 +4,10 @@ every release before this one did), interleaved in one process, on the shipped K
 
 Prints the best and median wall time of each, their ratio, the load average and the cores other
 processes used, for SIFT's and GeoKey's 2048 keypoints, with 2 numba threads and with 1; checks
-first that both orders give identical samples, coordinates and rings reached.
-Run: PYTHONPATH=src .venv/bin/python benchmarks/bench_walk_order.py [--rounds 9]
+first that both orders give identical samples, coordinates and rings reached. With `--pair`, also
+the whole `geofeat.extract` x 2 + `match` pair (GeoKey, fresh frames, the Kinect frame and its 90
+degree roll) with each order, and the time its two walks took.
+Run: PYTHONPATH=src .venv/bin/python benchmarks/bench_walk_order.py [--rounds 9] [--pair]
 """
 
 from __future__ import annotations
@@ -20,10 +22,12 @@ import numpy as np
 from common import busy_cpu_seconds, others_cores
 
 import geofeat
+import geofeat.geodesic.polar as polar
 from geofeat.constants import DEFAULT_RADIUS_M, N_ANGLES, N_RINGS
 from geofeat.geodesic.mesh import build_mesh
 from geofeat.geodesic.polar import walk_starts
 from geofeat.geodesic.walk import MAX_CROSSINGS, walk_polar, walk_polar_in_order
+from geofeat.frame import RGBDFrame
 from geofeat.keypoints import detect
 
 
@@ -31,6 +35,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--rounds", type=int, default=9)
     ap.add_argument("--keypoints", type=int, default=2048)
+    ap.add_argument("--pair", action="store_true", help="also the whole extract pair with each order")
     a = ap.parse_args()
     frame = geofeat.read_demo_frame()
     mesh = build_mesh(frame)
@@ -62,6 +67,53 @@ def main() -> None:
             print(f"{detector:10s} {numba.get_num_threads():7d} {min(g):7.1f} / {np.median(g):6.1f} "
                   f"{min(s):6.1f} / {np.median(s):6.1f} {min(s) / min(g):6.2f} {os.getloadavg()[0]:5.2f} {others:6.2f}")
     print("identical samples, coordinates and rings reached in both orders")
+    if a.pair:
+        extract_pair(frame, a.keypoints, a.rounds)
+
+
+def extract_pair(frame, n: int, rounds: int) -> None:
+    """`geofeat.extract` on two fresh frames + `match`, with `polar_patches`' walk in each order."""
+    frames = [frame, frame.rotated90(1)]
+    walk_ms: list[float] = []
+
+    def timed(walk):
+        def run(*args):
+            t = time.perf_counter()
+            out = walk(*args)
+            walk_ms.append(1e3 * (time.perf_counter() - t))
+            return out
+        return run
+
+    orders = {"given": timed(lambda *args: walk_polar_in_order(*args, np.arange(len(args[5])))),
+              "walk_order": timed(walk_polar)}
+    times = {name: ([], []) for name in orders}
+
+    def pair():
+        fresh = [RGBDFrame(f.color if f.color is not None else f.image, f.depth.copy(), f.K) for f in frames]
+        return geofeat.match(*[geofeat.extract(f, n, detector="geokey") for f in fresh])
+
+    shipped = polar.walk_polar
+    try:
+        for walk in orders.values():  # warm-up
+            polar.walk_polar = walk
+            pair()
+        busy0, c0, t0 = busy_cpu_seconds(), time.process_time(), time.perf_counter()
+        for _ in range(rounds):
+            for name, walk in orders.items():
+                polar.walk_polar = walk
+                walk_ms.clear()
+                t = time.perf_counter()
+                pair()
+                times[name][0].append(1e3 * (time.perf_counter() - t))
+                times[name][1].append(sum(walk_ms))
+        others = others_cores(busy0, busy_cpu_seconds(), time.process_time() - c0, time.perf_counter() - t0)
+    finally:
+        polar.walk_polar = shipped
+    print(f"\nextract x 2 + match, GeoKey, {n} keypoints (best / median of {rounds}, ms; load "
+          f"{os.getloadavg()[0]:.2f}, others {others:.2f} cores):")
+    for name, (whole, walks) in times.items():
+        print(f"{name:10s} pair {min(whole):6.1f} / {np.median(whole):6.1f}   its two walks {min(walks):6.1f} / "
+              f"{np.median(walks):6.1f}")
 
 
 if __name__ == "__main__":
