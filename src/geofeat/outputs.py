@@ -158,7 +158,8 @@ def claim_output(path: str | Path, what: str = "--out") -> None:
         if same:
             break
         os.close(fd)
-    text = f"process {os.getpid()}: {' '.join(['geofeat', *sys.argv[1:]]) if sys.argv else 'python'}"
+    program = Path(sys.argv[0]).name if sys.argv and sys.argv[0] not in ("", "-c") else "python"
+    text = f"process {os.getpid()}: {' '.join([program, *sys.argv[1:]])}"  # `geofeat bench ...`, or a script's
     os.ftruncate(fd, 0)
     os.write(fd, text[:500].encode(errors="replace"))
     global _RELEASE_AT_EXIT
