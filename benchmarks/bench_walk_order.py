@@ -67,6 +67,7 @@ def main() -> None:
             print(f"{detector:10s} {numba.get_num_threads():7d} {min(g):7.1f} / {np.median(g):6.1f} "
                   f"{min(s):6.1f} / {np.median(s):6.1f} {min(s) / min(g):6.2f} {os.getloadavg()[0]:5.2f} {others:6.2f}")
     print("identical samples, coordinates and rings reached in both orders")
+    numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)  # the loop above ends on 1 thread
     if a.pair:
         extract_pair(frame, a.keypoints, a.rounds)
 
@@ -109,7 +110,8 @@ def extract_pair(frame, n: int, rounds: int) -> None:
         others = others_cores(busy0, busy_cpu_seconds(), time.process_time() - c0, time.perf_counter() - t0)
     finally:
         polar.walk_polar = shipped
-    print(f"\nextract x 2 + match, GeoKey, {n} keypoints (best / median of {rounds}, ms; load "
+    print(f"\nextract x 2 + match, GeoKey, {n} keypoints, {numba.get_num_threads()} numba threads (best / median of "
+          f"{rounds}, ms; load "
           f"{os.getloadavg()[0]:.2f}, others {others:.2f} cores):")
     for name, (whole, walks) in times.items():
         print(f"{name:10s} pair {min(whole):6.1f} / {np.median(whole):6.1f}   its two walks {min(walks):6.1f} / "

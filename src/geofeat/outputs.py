@@ -105,8 +105,9 @@ def _via_symlink(folder: Path, rel: str) -> bool:
     return any((folder / part).is_symlink() for part in Path(rel).parents if part != Path("."))
 
 
-#: Open lock files of the outputs this process has claimed (`claim_output`), by resolved path.
-_CLAIMS: dict[str, int] = {}
+#: The open lock file (descriptor, path) of each output this process has claimed (`claim_output`), by
+#: resolved path.
+_CLAIMS: dict[str, tuple[int, Path]] = {}
 #: Whether `release_outputs` is registered to run at exit (on the first claim).
 _RELEASE_AT_EXIT = False
 
@@ -168,7 +169,7 @@ def claim_output(path: str | Path, what: str = "--out") -> None:
 
         atexit.register(release_outputs)
         _RELEASE_AT_EXIT = True
-    _CLAIMS[key] = fd
+    _CLAIMS[key] = fd, lock
 
 
 def _holder(lock: Path) -> str:
@@ -186,8 +187,7 @@ def release_outputs() -> None:
         return
     import fcntl
 
-    for key, fd in list(_CLAIMS.items()):
-        lock = lock_file(key)
+    for key, (fd, lock) in list(_CLAIMS.items()):
         try:
             if os.stat(lock).st_ino == os.fstat(fd).st_ino:
                 lock.unlink()

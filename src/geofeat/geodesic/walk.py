@@ -425,7 +425,7 @@ def walk_order(starts, band_px=WALK_BAND_PX):
     """(N,) int64: the order in which `walk_polar` walks the keypoints at (N, 2) mesh pixel `starts`:
     by bands of `band_px` mesh rows from the top, left to right in each band (ties keep their
     order). Nearby keypoints' rays cross the same faces, so walked one after another they find the
-    mesh tables in the cache: on the Kinect frame's 2048 keypoints this took 5-21 % off the walk
+    mesh tables in the cache: on the Kinect frame's 2048 keypoints this took 5-22 % off the walk
     (BENCHMARKS.md). The order changes no result: every ray is independent and writes its own slot."""
     key = np.floor(starts[:, 1] / band_px) * 1e7 + starts[:, 0]
     return np.argsort(key, kind="mergesort")
