@@ -188,3 +188,20 @@ def test_build_mesh_refuses_a_max_edge_stretch_that_is_not_a_positive_number(str
     frame = geofeat.read_demo_frame()
     with pytest.raises(ValueError, match="max_edge_stretch"):
         geofeat.build_mesh(frame, "kinect", max_edge_stretch=stretch)
+
+
+def test_a_big_endian_uint16_image_reads_as_the_native_one():
+    """A big-endian uint16 image (raw 16-bit PNG bytes, FITS) is not `== np.uint16`: it was read as
+    floats, refused as "image: >u2 images must lie in [0, 1]", and one holding only 0 and 1 was taken
+    as black and white instead of nearly black, without a word."""
+    colour = _colour().astype(np.uint16) * 257
+    native = RGBDFrame(colour, _depth(), K)
+    np.testing.assert_array_equal(RGBDFrame(colour.astype(">u2"), _depth(), K).image, native.image)
+    gray = colour[:, :, 0]
+    np.testing.assert_array_equal(RGBDFrame(gray.astype(">u2"), _depth(), K).image, RGBDFrame(gray, _depth(), K).image)
+    np.testing.assert_array_equal(native.with_image(gray.astype(">u2")).image, native.with_image(gray).image)
+    flags = (gray > 128 * 257).astype(np.uint16)  # 0 and 1 of 65535: nearly black, with a warning
+    with pytest.warns(UserWarning, match="nearly black"):
+        expected = RGBDFrame(flags, _depth(), K).image
+    with pytest.warns(UserWarning, match="nearly black"):
+        np.testing.assert_array_equal(RGBDFrame(flags.astype(">u2"), _depth(), K).image, expected)

@@ -20,6 +20,10 @@ def to_gray(image: np.ndarray, warn_dark: bool = True) -> np.ndarray:
     image = np.asarray(image)
     if image.dtype.kind not in "biuf":
         raise TypeError(f"image: expected uint8, uint16 or float values in [0, 1], got dtype {image.dtype}")
+    if not image.dtype.isnative:
+        # big-endian 16-bit pixels (raw PNG bytes, FITS) are not `== np.uint16`: they were read as floats,
+        # refused as ">u2 images must lie in [0, 1]", or taken as white when they held 0 and 1
+        image = image.astype(image.dtype.newbyteorder("="))
     if image.size == 0:
         raise ValueError(f"image: empty, shape {image.shape}")
     if image.ndim == 3 and image.shape[2] == 1:
