@@ -257,3 +257,26 @@ def test_an_h5_name_that_hdf5_reads_as_another_path_is_refused(tmp_path, name):
         save_features(tmp_path / "f.h5", f, name=name)
     save_features(tmp_path / "f.h5", f, name="dir/sub/img.png")
     assert list_names(tmp_path / "f.h5") == ["dir/sub/img.png"]
+
+
+def test_an_npz_file_read_by_another_name_is_refused(tmp_path):
+    """save_features / save_matches ignored `name` for an .npz file (one image per file), and the
+    loaders ignored it too: frames saved in a loop to one .npz "with their names", as to an .h5 file,
+    left the last one only, and load_features(path, name="frame-000") returned frame-001's features
+    without a word. The name is kept with the file and checked; the file still reads without one."""
+    first, second = make_features(seed=0), make_features(seed=1)
+    path = tmp_path / "f.npz"
+    save_features(path, first, name="frame-000")
+    assert_same(first, load_features(path, name="frame-000"))
+    save_features(path, second, name="frame-001")  # replaces the file: one image per .npz
+    with pytest.raises(ValueError, match="holds 'frame-001', not 'frame-000'"):
+        load_features(path, name="frame-000")
+    assert_same(second, load_features(path, name="frame-001"))
+    assert_same(second, load_features(path))
+    save_features(tmp_path / "plain.npz", first)  # saved without a name: any name reads it
+    assert_same(first, load_features(tmp_path / "plain.npz", name="frame-000"))
+    matches = Matches(np.array([1, -1, 0]), np.array([3.0, np.inf, 5.0]))
+    save_matches(tmp_path / "m.npz", matches, name="a/b")
+    assert load_matches(tmp_path / "m.npz", name="a/b") == matches == load_matches(tmp_path / "m.npz")
+    with pytest.raises(ValueError, match="holds 'a/b', not 'a/c'"):
+        load_matches(tmp_path / "m.npz", name="a/c")

@@ -210,6 +210,26 @@ def _require_name(name: str | None, path: str | Path) -> str:
     return name
 
 
+#: Key under which an .npz file keeps the image (or pair) name it was saved with, when one was given.
+NPZ_NAME_KEY = "name"
+
+
+def _npz_with_name(arrays: dict[str, np.ndarray], name: str | None) -> dict[str, np.ndarray]:
+    """`arrays` plus the image (or pair) `name` as a 0-d string array, when one is given."""
+    return arrays if name is None else {**arrays, NPZ_NAME_KEY: np.array(str(name))}
+
+
+def _check_npz_name(arrays: dict[str, np.ndarray], name: str | None, path: str | Path) -> None:
+    """An .npz file holds one image (or pair): asked for `name`, it must be the name it was saved with
+    (ValueError naming both otherwise; a file saved without a name passes). Reading `name` from an
+    .npz file returned whatever image the file held, e.g. the last of several saved to one file."""
+    stored = arrays.get(NPZ_NAME_KEY)
+    if name is None or stored is None or stored.ndim != 0 or str(stored) == str(name):
+        return
+    raise ValueError(f"name: {str(path)!r} holds {str(stored)!r}, not {str(name)!r}; an .npz file holds one image "
+                     "(or pair): save each to its own file, or use an .h5 file for several")
+
+
 def read_npz(path: str | Path) -> dict[str, np.ndarray]:
     """The arrays of an .npz archive (no pickled objects). FileNotFoundError for a missing file,
     ValueError naming it for one that is not a whole .npz (truncated, another format, a bare .npy)."""
@@ -292,8 +312,9 @@ def list_names(path: str | Path) -> list[str]:
 
 
 def save_features(path: str | Path, features: Features, name: str | None = None) -> None:
-    """Write `features` to an .npz file (one image per file) or into group `name` of an .h5 file
-    (hloc features.h5 layout; other groups of the file are kept, an existing `name` is replaced)."""
+    """Write `features` to an .npz file (one image per file; `name`, when given, is kept with it and
+    checked by `load_features`) or into group `name` of an .h5 file (hloc features.h5 layout; other
+    groups of the file are kept, an existing `name` is replaced)."""
     if not isinstance(features, Features):
         raise TypeError(f"features: expected a Features record, got {type(features).__name__}")
     arrays = {
@@ -308,7 +329,7 @@ def save_features(path: str | Path, features: Features, name: str | None = None)
     if features.scores is not None:
         arrays["scores"] = features.scores
     if _suffix(path) == ".npz":
-        write_npz(path, arrays)
+        write_npz(path, _npz_with_name(arrays, name))
     else:
         _h5_write_group(path, _require_name(name, path), arrays)
 
@@ -353,29 +374,35 @@ def load_features(path: str | Path, name: str | None = None) -> Features:
     """Read features written by `save_features` (or an hloc features.h5 group: a missing `valid`
     means every keypoint is valid, and float descriptors stored as hloc's (D, N) are read as
     (N, D)). For .h5, `name` may be omitted when the file holds one image; a `name` the file has no
-    group of is a ValueError naming the file and the groups it holds."""
+    group of is a ValueError naming the file and the groups it holds. For .npz, a `name` other than
+    the one the file was saved with is a ValueError too."""
     if _suffix(path) == ".npz":
-        return _features_from(read_npz(path), path)
+        arrays = read_npz(path)
+        _check_npz_name(arrays, name, path)
+        return _features_from(arrays, path)
     arrays = _h5_read_group(path, name)
     return _features_from(arrays, path, hloc="valid" not in arrays)
 
 
 def save_matches(path: str | Path, matches: Matches, name: str | None = None) -> None:
-    """Write `matches` (matches0, distances) to an .npz file or into group `name` (e.g.
-    "img0.png/img1.png" as hloc's names_to_pair would make) of an .h5 file."""
+    """Write `matches` (matches0, distances) to an .npz file (one pair per file; `name`, when given, is
+    kept with it and checked by `load_matches`) or into group `name` (e.g. "img0.png/img1.png" as
+    hloc's names_to_pair would make) of an .h5 file."""
     if not isinstance(matches, Matches):
         raise TypeError(f"matches: expected a Matches record, got {type(matches).__name__}")
     arrays = {"matches0": matches.matches0.astype(np.int64), "distances": matches.distances0}
     if _suffix(path) == ".npz":
-        write_npz(path, arrays)
+        write_npz(path, _npz_with_name(arrays, name))
     else:
         _h5_write_group(path, _require_name(name, path), arrays)
 
 
 def load_matches(path: str | Path, name: str | None = None) -> Matches:
-    """Read matches written by `save_matches` (a missing `distances` dataset reads as NaN)."""
+    """Read matches written by `save_matches` (a missing `distances` dataset reads as NaN; for .npz, a
+    `name` other than the one the file was saved with is a ValueError)."""
     if _suffix(path) == ".npz":
         arrays = read_npz(path)
+        _check_npz_name(arrays, name, path)
     else:
         arrays = _h5_read_group(path, name)
     _require_arrays(arrays, ("matches0",), path, "matches")
