@@ -268,3 +268,23 @@ def test_the_main_containers_print_a_summary_not_their_arrays():
     assert f"descriptors {tuple(feats.descriptors.shape)} {feats.descriptors.dtype}" in texts[3]
     assert f"{int((matches.matches0 >= 0).sum())} matched" in texts[4]
     assert repr(geofeat.Keypoints(np.zeros((0, 2)), [], [], [])) == "Keypoints(0 keypoints)"
+
+
+def test_patches_of_a_frame_with_another_image_are_refused():
+    """The patches' `source` held the frame's depth and intrinsics only: the patches of a frame given
+    with another image on the same depth (`frame.with_image(filtered)`, or a still camera's next frame)
+    passed `compute(..., patches=...)`, and GeoBit and GeoPatch described the first image's intensities
+    under the second frame's name without a word."""
+    frame = geofeat.read_demo_frame()
+    other = frame.with_image(1.0 - frame.image)
+    xy = np.array([[300.0, 250.0], [350.0, 200.0], [250.0, 300.0]])
+    patches = geofeat.polar_patches(frame, xy)
+    heat = geofeat.heat_polar_patches(frame, xy[:1])
+    for descriptor in (geofeat.GeoBit(), geofeat.GeoPatch()):
+        assert descriptor.compute(frame.with_image(frame.image), xy, patches=patches).valid.all()  # equal image
+        with pytest.raises(ValueError, match="patches: computed on another frame"):
+            descriptor.compute(other, xy, patches=patches)
+        with pytest.raises(ValueError, match="patches: computed on another frame"):
+            descriptor.compute(other, xy[:1], patches=heat)
+    own = geofeat.GeoBit().compute(other, xy, patches=geofeat.polar_patches(other, xy))
+    assert own == geofeat.GeoBit().compute(other, xy)

@@ -36,7 +36,8 @@ from ..constants import DEFAULT_RADIUS_M, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX
 from ..depth import DepthConfig
 from ..frame import RGBDFrame
 from .mesh import GridMesh, build_mesh, frame_fingerprint
-from .polar import PolarPatches, check_mesh_shape, check_patch_request, patch_validity, sample_bilinear, sampling_image
+from .polar import (PolarPatches, check_mesh_shape, check_patch_request, patch_source, patch_validity, sample_bilinear,
+                    sampling_image)
 from .walk import tangent_frames
 
 #: Distance sampling step along an isocurve search line, mesh pixels (GeoBit: 0.05 full-res px).
@@ -506,5 +507,5 @@ def heat_polar_patches(
         rings_reached=reached,
         points=pts.astype(np.float32),
         radius=float(radius),
-        source=source,
+        source=patch_source(frame, source),
     )

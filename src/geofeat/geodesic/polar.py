@@ -10,6 +10,7 @@ displayed, from the image +x axis projected onto the surface's tangent plane at 
 from __future__ import annotations
 
 import numbers
+import zlib
 from dataclasses import dataclass, field
 
 import cv2
@@ -41,8 +42,8 @@ class PolarPatches:
             reached in its remaining rings, so every sample lies on the mesh.
         points: (N, R, A, 3) float32 camera-frame 3D positions of the samples, metres.
         radius: geodesic radius of the outer ring, metres.
-        source: `frame_fingerprint` of the frame they were computed on (its depth and intrinsics),
-            None when unknown; a descriptor given them with another frame refuses them.
+        source: `patch_source` of the frame they were computed on (its depth, intrinsics and gray
+            image), None when unknown; a descriptor given them with another frame refuses them.
     """
 
     keypoints: np.ndarray
@@ -78,6 +79,16 @@ def check_patch_request(frame: RGBDFrame, keypoints, radius: float, n_angles: in
     return as_keypoint_array(keypoints, frame.shape)
 
 
+def patch_source(frame: RGBDFrame, fingerprint: tuple | None = None) -> tuple:
+    """What a frame's polar patches depend on (`PolarPatches.source`): its `frame_fingerprint` (depth
+    and intrinsics, where the walk goes; `fingerprint` when already computed) and a CRC-32 of its gray
+    image (what is read there). The fingerprint alone let the patches of a frame describe another
+    frame of the same depth and intrinsics, e.g. `frame.with_image(filtered)`, with the first
+    frame's intensities."""
+    fingerprint = fingerprint if fingerprint is not None else frame_fingerprint(frame)
+    return fingerprint + (zlib.crc32(np.ascontiguousarray(frame.image)),)
+
+
 def check_patches(patches, xy: np.ndarray, radius: float | None = None, frame: RGBDFrame | None = None
                   ) -> PolarPatches:
     """Precomputed patches given to a descriptor with its (N, 2) keypoints `xy` must be the
@@ -94,9 +105,9 @@ def check_patches(patches, xy: np.ndarray, radius: float | None = None, frame: R
         raise ValueError(f"patches: computed with radius {patches.radius:g} m, but the descriptor's radius is "
                          f"{radius:g} m; compute them with radius={radius:g} or build the descriptor with "
                          f"radius={patches.radius:g}")
-    if frame is not None and patches.source is not None and patches.source != frame_fingerprint(frame):
-        raise ValueError("patches: computed on another frame (its depth or intrinsics differ from this frame's); "
-                         "compute them on this frame, or leave patches out")
+    if frame is not None and patches.source is not None and patches.source != patch_source(frame):
+        raise ValueError("patches: computed on another frame (its depth, intrinsics or image differ from this "
+                         "frame's); compute them on this frame, or leave patches out")
     return patches
 
 
@@ -245,5 +256,5 @@ def polar_patches(
         rings_reached=reached,
         points=samples,
         radius=float(radius),
-        source=source,
+        source=patch_source(frame, source),
     )
