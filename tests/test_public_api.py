@@ -288,3 +288,16 @@ def test_patches_of_a_frame_with_another_image_are_refused():
             descriptor.compute(other, xy[:1], patches=heat)
     own = geofeat.GeoBit().compute(other, xy, patches=geofeat.polar_patches(other, xy))
     assert own == geofeat.GeoBit().compute(other, xy)
+
+
+def test_extract_refuses_a_radius_for_a_descriptor_without_one():
+    """`geofeat.extract(frame, descriptor="orb", radius=0.05)` passed the radius to `make_descriptor`,
+    which gives it only to the descriptors on geodesic patches: ORB described at its own size and the
+    radius was ignored without a word (so was a depth profile)."""
+    frame = geofeat.read_demo_frame()
+    for options in ({"radius": 0.05}, {"depth_config": "clean"}, {"radius": 0.05, "depth_config": "kinect"}):
+        with pytest.raises(ValueError, match=f"{next(iter(options))}: orb has no geodesic patch"):
+            geofeat.extract(frame, 10, descriptor="orb", **options)
+    assert len(geofeat.extract(frame, 10, descriptor="ORB", depth_config="auto")) == 10  # the defaults pass
+    assert len(geofeat.extract(frame, 10, descriptor="orb", radius=None, depth_config=None)) == 10
+    assert geofeat.extract(frame, 10, descriptor="geobit", radius=0.05, depth_config="kinect").descriptors.shape == (10, 16, 64)

@@ -21,8 +21,10 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
         detector: "sift", "geokey" or "geokey=WEIGHTS"; None = the descriptor's own
             (`geofeat.keypoints.detector_for`: GeoKey for GeoPatch and GeoBit, SIFT for the others).
         descriptor: a `geofeat.make_descriptor` name (default the shipped GeoPatch).
-        radius: geodesic radius, metres (None: the descriptor's default, 0.075).
-        depth_config: depth profile name or `DepthConfig` (default "auto").
+        radius: geodesic radius, metres (None: the descriptor's default, 0.075); GeoBit and GeoPatch
+            only (ValueError for another descriptor, which has none).
+        depth_config: depth profile name or `DepthConfig` (default "auto"); another one than "auto"
+            is for GeoBit and GeoPatch only, as `radius`.
         device: None or "cpu": the CPU path. "cuda" (or "cuda:N"): GeoPatch only; the walk, patch
             sampling and CNN run on the GPU (`geofeat.gpu`), the descriptors come back once at the
             end. The GPU runs GeoPatch's torch network in fp32: its descriptors equal the CPU path's
@@ -43,7 +45,16 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
     frame's mesh built in a background thread while the detector runs (`_mesh_prefetch`); the
     results are the same as detecting first and describing after.
     """
-    from .descriptors import make_descriptor
+    from .descriptors import GEODESIC_DESCRIPTORS, check_descriptor_name, make_descriptor
+
+    base = check_descriptor_name(descriptor).partition("=")[0]
+    given = [name for name, value in (("radius", radius), ("depth_config", depth_config))
+             if value is not None and not (name == "depth_config" and isinstance(value, str) and value == "auto")]
+    if given and base not in GEODESIC_DESCRIPTORS:
+        # `make_descriptor` passes them to the descriptors that have them (the commands name several at once):
+        # extract(frame, descriptor="orb", radius=0.05) described at ORB's own size without a word
+        raise ValueError(f"{given[0]}: {base} has no geodesic patch (only {' and '.join(GEODESIC_DESCRIPTORS)} have); "
+                         f"leave {' and '.join(given)} out")
 
     from .gpu import is_cuda_device  # a light module: torch and numba.cuda load only on use
 
