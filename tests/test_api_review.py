@@ -141,3 +141,13 @@ def test_matches_take_whole_floats():
     m = geofeat.Matches(np.array([2.0, -1.0, 0.0]), np.zeros(3))
     assert m.matches0.dtype == np.int64 and m.matches0.tolist() == [2, -1, 0]
     assert len(geofeat.Matches(np.zeros(0), np.zeros(0))) == 0
+
+
+def test_roll_camera_names_an_angle_that_is_not_a_finite_number():
+    """roll_camera(frame, nan) built a NaN rotation, put every pixel off the image and failed with
+    "depth: every pixel is 0 (missing)", naming neither the angle nor the cause."""
+    frame = geofeat.read_demo_frame()
+    for angle in (float("nan"), float("inf"), "30", True):
+        with pytest.raises(ValueError, match="angle_deg: expected a finite angle"):
+            roll_camera(frame, angle)
+    assert roll_camera(frame, np.float32(30.0))[0].shape == frame.shape

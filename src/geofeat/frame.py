@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+import numbers
 import warnings
 from dataclasses import dataclass, field
 
@@ -289,6 +291,10 @@ def roll_camera(frame: RGBDFrame, angle_deg: float) -> tuple[RGBDFrame, np.ndarr
     Pixels with no source get depth 0. The gray image is this frame's own, rolled (also when it is
     not its colour image's gray, as after `with_image`); the colour image is rolled with it.
     Returns the new frame and the (2, 3) affine map of pixels."""
+    check_frame(frame)
+    if isinstance(angle_deg, bool) or not isinstance(angle_deg, numbers.Real) or not math.isfinite(angle_deg):
+        # NaN gave a NaN map, every pixel off the image, and "depth: every pixel is 0" naming no angle
+        raise ValueError(f"angle_deg: expected a finite angle in degrees, got {angle_deg!r}")
     K = frame.K
     if abs(K[0, 0] - K[1, 1]) > 1e-6 * K[0, 0] or abs(K[0, 1]) > 1e-9:
         raise ValueError("K: roll_camera needs square pixels (fx = fy) and no skew")
