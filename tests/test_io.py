@@ -372,6 +372,34 @@ def test_a_folder_of_sequences_with_loose_frames_beside_them_is_refused(tmp_path
     assert find_sequences(folder) == [folder]
 
 
+@pytest.mark.parametrize("change", ["jpeg", "upper-case", "depth-only"])
+def test_a_sequence_folder_whose_frames_are_not_read_is_refused_not_left_out(tmp_path, change):
+    """A folder of sequences where one sequence's colour frames were JPEG (or .PNG, or gone): that
+    sequence was passed over without a word, and bench, track and train ran on the others as if they
+    were the whole dataset."""
+    from geofeat.io import find_sequences
+
+    data = tmp_path / "data"
+    good = _small_sequence(data / "a")
+    bad = _small_sequence(data / "b")
+    for name in ("frame-000-master", "frame-001"):
+        colour = bad / f"{name}-rgb.png"
+        if change == "jpeg":
+            cv2.imwrite(str(bad / f"{name}-rgb.jpg"), cv2.imread(str(colour)))
+            colour.unlink()
+        elif change == "upper-case":
+            colour.rename(bad / f"{name}-rgb.PNG")
+        else:
+            colour.unlink()
+    with pytest.raises(ValueError, match=r"--data: .*data/b holds no '\*-rgb.png' frames, though it looks like a "
+                                         r"sequence folder"):
+        find_sequences(data, what="--data")
+    (data / "notes").mkdir()  # a folder that is no sequence attempt (results, notes) is still passed over
+    (data / "notes" / "table.md").write_text("x")
+    shutil.rmtree(bad)
+    assert find_sequences(data) == [good]
+
+
 @pytest.mark.parametrize("key", ["depthScale", "depth_unit", "scale", "depth-scale", "Radius_m"])
 def test_geofeat_json_key_misspelt_is_refused(tmp_path, key):
     """{"depthScale": 0.0001} was ignored: 0.1 mm depth read as millimetres, a scene at 1 m at 10 m,

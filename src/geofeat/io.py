@@ -540,9 +540,19 @@ def read_demo_frame() -> RGBDFrame:
     return read_frame(d / "cloud_1-rgb.png", d / "cloud_1-depth.png", d / "intrinsics.xml")
 
 
+def _looks_like_sequence(folder: Path) -> bool:
+    """Whether `folder`, which has no `*-rgb.png` frame, holds what only a sequence folder holds: depth
+    frames (`<name>-depth.png`), an `intrinsics.xml`, or colour frames geofeat does not read
+    (`<name>-rgb.jpg`, `<name>-rgb.PNG`; `_near_misses`)."""
+    return ((folder / "intrinsics.xml").is_file() or bool(frame_names(folder, DEPTH_SUFFIX))
+            or bool(_near_misses(folder, RGB_SUFFIX)))
+
+
 def find_sequences(paths, unique_names: bool = False, what: str = "dataset") -> list[Path]:
     """Sequence folders under the given paths: a path that holds `*-rgb.png` frames is a sequence,
-    otherwise its sub-folders that do are (one level down, hidden ones left out), sorted by name. A folder reached twice is
+    otherwise its sub-folders that do are (one level down, hidden ones left out), sorted by name; a
+    sub-folder that looks like a sequence but has no such frame (`_looks_like_sequence`) is refused
+    rather than passed over. A folder reached twice is
     listed once; with `unique_names`, two different folders with one name are refused (commands key
     their results by the sequence name). ValueError naming `what` (an option such as --data) for a
     path that is no folder or holds no sequence."""
@@ -566,6 +576,14 @@ def find_sequences(paths, unique_names: bool = False, what: str = "dataset") -> 
         subs = sorted(d for d in p.iterdir() if d.is_dir() and not d.name.startswith(".") and frame_names(d))
         if not subs:
             raise ValueError(f"{what}: no sequence (folder of '*{RGB_SUFFIX}' frames) in {p}: {layout_problem(p)}")
+        # a sequence folder whose colour frames are not read (JPEG, upper-case .PNG) was left out without
+        # a word, and the others were scored as the whole dataset
+        broken = sorted(d for d in p.iterdir() if d.is_dir() and not d.name.startswith(".") and d not in subs
+                        and _looks_like_sequence(d))
+        if broken:
+            raise ValueError(f"{what}: {broken[0]} holds no '*{RGB_SUFFIX}' frames, though it looks like a sequence "
+                             f"folder of {p} (one of {len(broken)}): {layout_problem(broken[0])}; fix its files, or "
+                             "move it out of the folder of sequences")
         found.extend(subs)
     seen: set[Path] = set()
     unique = [f for f in found if not (f.resolve() in seen or seen.add(f.resolve()))]
