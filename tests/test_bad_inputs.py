@@ -1548,3 +1548,20 @@ def test_a_dangling_link_at_an_output_file_name_needs_overwrite(tmp_path):
     with pytest.raises(ValueError, match="exists.*--overwrite"):
         check_out_file(link)
     assert check_out_file(link, overwrite=True) == link
+
+
+def test_match_leaves_a_pair_the_landmarks_cannot_map_unjudged(tmp_path, capsys):
+    """A target frame with 3 landmarks seen in both it and the reference (the spline needs 4): the
+    spline raised inside the loop, and `match` ended with "landmarks: a thin-plate spline needs >= 4
+    landmarks ..., got 3", naming no frame, the other pairs' matches and pictures not written."""
+    seq = make_sequence(tmp_path / "seq", names=("frame-000-master", "frame-001", "frame-002"))
+    ids, xy, visible = read_landmarks(seq / "frame-002.csv")
+    write_landmarks(seq / "frame-002.csv", ids, xy, np.arange(len(ids)) < 3)
+    out = tmp_path / "m"
+    assert main(["match", str(seq), "--descriptor", "sift", "--keypoints", "200", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert re.search(r"frame-000-master -> frame-001: \d+ matches, \d+ correct", text)
+    assert re.search(r"frame-000-master -> frame-002: \d+ matches, not judged \(no ground truth for frame-002: 3 "
+                     r"landmarks visible in both", text)
+    assert (out / "frame-000-master__frame-002__sift.png").is_file()
+    assert len(geofeat.features.list_names(out / "matches-sift.h5")) == 2

@@ -78,7 +78,13 @@ def run(args: argparse.Namespace) -> int:
             total_matches += n_matches
             summary = plural(n_matches, "match", "matches")
             correct = judged = None
-            if truth is not None:
+            # a target the landmarks' spline cannot map (fewer than 4 landmarks seen in both frames):
+            # `map` raised, and the whole run ended with an error naming no frame, nothing written
+            reason = truth.uncovered_reason(name) if truth is not None else None
+            if reason is not None:
+                total_unjudged += n_matches
+                summary += f", not judged (no ground truth for {name}: {reason})"
+            elif truth is not None:
                 correct = correct_matches(truth, name, k_ref.xy, k_tgt.xy, m.matches0)
                 judged = judged_matches(truth, name, k_tgt.xy, m.matches0)  # the others are not wrong, but unknown
                 total_correct += int(correct.sum())
