@@ -625,3 +625,17 @@ def test_tenth_millimetre_depth_read_as_millimetres_is_warned_of(tmp_path):
     with warnings.catch_warnings():  # a real sensor's far range (a Kinect v1 sees to about 4 m) is not warned of
         warnings.simplefilter("error", DepthUnitsWarning)
         geofeat.read_sequence(_flat_sequence(tmp_path / "far-kinect", 3.5))
+
+
+@pytest.mark.parametrize("text", ["", "\n\n", " \t\n"])
+def test_an_empty_landmark_csv_is_refused_not_read_as_no_landmarks(tmp_path, text):
+    """A csv cut to nothing (a failed copy) read as a frame with no landmarks: bench --protocol landmarks
+    skipped each of its pairs as "no landmark id visible in both", and the sequence's score was
+    the mean over the other pairs. A header line alone is a frame without landmarks."""
+    path = tmp_path / "frame-001.csv"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=r"landmarks: .*frame-001.csv: the file is empty; expected a header line"):
+        read_landmarks(path)
+    path.write_text("id,x,y,valid\n")
+    ids, xy, visible = read_landmarks(path)
+    assert ids.shape == (0,) and xy.shape == (0, 2) and visible.shape == (0,)

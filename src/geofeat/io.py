@@ -305,6 +305,9 @@ def read_landmarks(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
         text = Path(path).read_text(encoding="utf-8-sig")  # a spreadsheet's byte-order mark is not part of the first field
     except UnicodeDecodeError:
         raise ValueError(f"landmarks: {path}: not a text csv ('id, x, y, valid' after one header line)") from None
+    if not text.strip():  # a file cut to nothing (a failed copy) was read as a frame whose landmarks are all hidden
+        raise ValueError(f"landmarks: {path}: the file is empty; expected a header line such as 'id,x,y,valid', "
+                         "then one landmark a line (a frame without landmarks: the header line alone)")
     lines = text.splitlines()
     if lines:  # a file without its header line would lose its first landmark
         try:
