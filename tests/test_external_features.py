@@ -171,3 +171,40 @@ def test_a_frame_missing_under_its_sequence_is_not_read_from_a_name_without_it(t
         check_one_source_per_frame([ex], {"a": frames})
     check_one_source_per_frame([ex], {"a": qualified})  # every frame under the sequence's name: fine
     check_one_source_per_frame([ex], {"b": bare})  # every frame without it, one sequence: fine
+
+
+@pytest.mark.parametrize("metric", [None, "l2"])
+def test_frames_with_descriptors_of_another_kind_are_refused_by_name(tmp_path, metric):
+    """A set whose reference frame holds uint8 descriptors and a target float ones (two exports mixed):
+    without `metric` the sequence failed with match's "features0 (uint8) and features1 (float32) are of
+    different kinds ... pass metric=", naming neither the set nor the frame; with `metric` 'l2' stored,
+    the bytes were matched against the floats and scored without a word."""
+    from geofeat.bench.runner import BenchConfig, evaluate_external
+    from geofeat.groundtruth.sources import GroundTruth
+    from geofeat.io import read_sequence, write_frame, write_intrinsics, write_landmarks
+
+    H, W = SHAPE
+    folder = tmp_path / "seq"
+    folder.mkdir()
+    write_intrinsics(folder / "intrinsics.xml", np.array([[150.0, 0, 79.5], [0, 150.0, 59.5], [0, 0, 1]]))
+    gx, gy = np.meshgrid(np.linspace(10, W - 10, 5), np.linspace(10, H - 10, 4))
+    landmarks = np.stack([gx.ravel(), gy.ravel()], 1)
+    rng = np.random.default_rng(0)
+    frames = ("frame-000-master", "frame-001")
+    for name in frames:
+        write_frame(folder, name, rng.integers(0, 255, (H, W, 3), dtype=np.uint8), np.ones((H, W)))
+        write_landmarks(folder / f"{name}.csv", np.arange(len(landmarks)), landmarks, np.ones(len(landmarks), bool))
+    kp, _, _ = _frame()
+    bits = rng.integers(0, 256, (len(kp), 32)).astype(np.uint8)
+    extra = {} if metric is None else {"metric": np.bytes_(metric)}
+    path = _h5(tmp_path / "f.h5", {"frame-000-master": {"keypoints": kp, "descriptors": bits, "valid": np.ones(len(kp), bool), **extra},
+                                   "frame-001": {"keypoints": kp, "descriptors": bits.astype(np.float32),
+                                                 "valid": np.ones(len(kp), bool), **extra}})
+    seq = read_sequence(folder)
+    config = BenchConfig(descriptors=(), features=(f"m={path}",))
+    with pytest.raises(ValueError, match=r"features m: seq/frame-001 has float32 descriptors of shape \(32,\), "
+                                         r"frame-000-master uint8 of \(32,\); every frame's must be of one kind"):
+        evaluate_external(seq, GroundTruth(seq, None), ExternalFeatures("m", path), config)
+    _h5(path, {f: {"keypoints": kp, "descriptors": bits, "valid": np.ones(len(kp), bool), **extra} for f in frames})
+    rows = evaluate_external(seq, GroundTruth(seq, None), ExternalFeatures("m", path), config)
+    assert len(rows) == 1 and rows[0]["ms"] == 1.0  # one kind: scored (the same features, landmarks and pixels)

@@ -231,9 +231,13 @@ def evaluate_external(seq: Sequence, truth: GroundTruth, features: ExternalFeatu
             tqdm.write(f"{seq.name}: no ground truth for {target} ({reason}); pair skipped for {features.name}")
             continue
         f_tgt = features.load(seq.name, target, config.n_keypoints, seq.shape)
-        if f_tgt.descriptors.shape[1:] != f_ref.descriptors.shape[1:]:
-            raise ValueError(f"features {features.name}: {seq.name}/{target} has descriptors of shape "
-                             f"{f_tgt.descriptors.shape[1:]}, {seq.reference} of {f_ref.descriptors.shape[1:]}")
+        d_tgt, d_ref = f_tgt.descriptors, f_ref.descriptors
+        # another kind (float against uint8) failed in `match` naming neither the set nor the frame, or,
+        # with a `metric` stored, was matched across the two kinds
+        if d_tgt.shape[1:] != d_ref.shape[1:] or d_tgt.dtype.kind != d_ref.dtype.kind:
+            raise ValueError(f"features {features.name}: {seq.name}/{target} has {d_tgt.dtype} descriptors of shape "
+                             f"{d_tgt.shape[1:]}, {seq.reference} {d_ref.dtype} of {d_ref.shape[1:]}; every frame's "
+                             "must be of one kind and size")
         mapped, known = truth.map(target, f_tgt.keypoints)
         if _covers_no_pixel(truth, target, known, seq.shape):
             tqdm.write(f"{seq.name}: the ground truth covers no pixel of {target}; pair skipped for {features.name}")
