@@ -416,3 +416,31 @@ def test_bench_reruns_with_other_settings_into_a_folder_that_holds_no_result(sma
     assert main(["bench", str(seq), "--descriptors", "sift", "--keypoints", "32", "--out", str(out)]) == 0, \
         capsys.readouterr().err
     assert (out / "table.md").is_file()
+
+
+def test_demo_radius_reaches_the_descriptors_of_both_pairs(small_simulated, tmp_path, monkeypatch):
+    """`geofeat demo --radius R` drew the patches at R but matched both pairs with GeoBit and GeoPatch
+    at the default 0.075 m: the option was silently ignored for every figure the demo prints."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    import geofeat.descriptors
+    import geofeat.matching
+    import geofeat.sim
+    import geofeat.viz
+    from geofeat.cli import demo
+
+    radii = {}
+
+    def make_descriptor(name, radius=None, **kw):  # the descriptors' work is not what is tested
+        radii.setdefault(name, []).append(radius)
+        return SimpleNamespace(compute=lambda frame, kps: kps)
+
+    monkeypatch.setattr(geofeat.descriptors, "make_descriptor", make_descriptor)
+    monkeypatch.setattr(geofeat.matching, "match", lambda a, b: SimpleNamespace(matches0=np.full(len(a), -1)))
+    monkeypatch.setattr(geofeat.viz, "draw_matches", lambda *a, **kw: np.zeros((4, 4, 3), np.uint8))
+    monkeypatch.setattr(demo, "_demo_patches", lambda *a, **kw: None)
+    monkeypatch.setattr(geofeat.sim, "simulate_sequence", lambda *a, **kw: small_simulated)  # a small cloth pair
+    assert main(["demo", "--out", str(tmp_path / "demo"), "--radius", "0.05", "--keypoints", "100"]) == 0
+    assert radii["geobit"] == [0.05, 0.05] and radii["geopatch"] == [0.05]
