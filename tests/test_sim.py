@@ -512,3 +512,16 @@ def test_recorded_difference_names_what_differs(seq, tmp_path):
                                                             f'"simulator_revision": {SIMULATOR_REVISION - 1}'))
     assert f"simulator revision {SIMULATOR_REVISION - 1}" in recorded_difference(tmp_path, **asked)
     assert "is missing" in recorded_difference(tmp_path / "nowhere")
+
+
+def test_recorded_difference_tells_a_fabric_family_from_a_random_fabric(tmp_path):
+    """`--texture fabric:plaid` was recorded in groundtruth.json as plain "fabric", so `recorded_difference`
+    took the sequence for one simulated with a random fabric (another family, other random draws) and
+    called it different from the very settings it was simulated with."""
+    from geofeat.sim.writer import recorded_difference
+
+    asked = dict(seed=3, n_frames=1, width=64, height=48)
+    simulate_sequence(tmp_path / "plaid", texture="fabric:plaid", progress=False, **asked)
+    assert recorded_difference(tmp_path / "plaid", texture="fabric:plaid", **asked) is None
+    found = recorded_difference(tmp_path / "plaid", texture="fabric", **asked)
+    assert found is not None and "texture 'fabric:plaid' (wanted 'fabric')" in found

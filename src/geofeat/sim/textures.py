@@ -99,7 +99,8 @@ def choose_texture(
     """Pick the texture of a sequence: an explicit file or array, one drawn at random from
     `texture_dir`, or (both None) a packaged photograph or, with probability `procedural_fraction`,
     a procedural texture (half the time a `fabric_texture`; texture="fabric" or "fabric:KIND" asks for
-    one). Returns ((H, W, 3) uint8 BGR, description)."""
+    one). Returns ((H, W, 3) uint8 BGR, description: the file name, "procedural", "fabric" or
+    "fabric:KIND" as asked for, or "array")."""
     if texture is not None and texture_dir is not None:
         raise ValueError("texture, texture_dir: give at most one of them")
     if isinstance(texture, np.ndarray):
@@ -118,7 +119,9 @@ def choose_texture(
                 raise ValueError(f"texture: expected 'fabric' or 'fabric:KIND' with KIND one of {', '.join(FABRIC_KINDS)}, "
                                  f"got {texture!r}")
             img = fabric_texture(rng, kind)
-            return img, "fabric"
+            # the family asked for is part of what was simulated: recorded as plain "fabric", a "fabric:plaid"
+            # sequence passed `recorded_difference(texture="fabric")` (a random family, other draws) as the same
+            return img, "fabric" if kind is None else f"fabric:{kind}"
         return read_texture(texture), Path(texture).name
     if texture_dir is not None:
         files = list_textures(texture_dir)

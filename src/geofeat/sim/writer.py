@@ -218,7 +218,7 @@ def recorded_difference(folder: str | Path, **wanted) -> str | None:
 
     `wanted`: any of `simulate_sequence`'s `scenario`, `seed`, `n_frames`, `preset` (a name),
     `kinect_noise`, `fov` (degrees or None), `texture` (a path, compared by file name, or "procedural"
-    / "fabric"), `width`, `height` (pixels), `motion_blur` and `steps_per_frame`; the simulator
+    / "fabric" / "fabric:KIND"), `width`, `height` (pixels), `motion_blur` and `steps_per_frame`; the simulator
     revision is always compared. For scripts that reuse earlier sequences: a folder made
     with other settings, or by an earlier simulator, is not a cache of this run.
     """
@@ -233,7 +233,7 @@ def recorded_difference(folder: str | Path, **wanted) -> str | None:
                 "motion_blur": meta.get("motion_blur"),
                 "steps_per_frame": meta.get("solver", {}).get("steps_per_frame")}
     given = dict(wanted)
-    if "texture" in given and given["texture"] not in ("procedural", "fabric"):
+    if "texture" in given and given["texture"] not in ("procedural", "fabric") and not str(given["texture"]).startswith("fabric:"):
         given["texture"] = Path(given["texture"]).name
     if given.get("fov") is not None:
         given["fov"] = float(given["fov"])
