@@ -642,3 +642,42 @@ def test_the_vocabulary_does_not_depend_on_the_order_the_folders_were_given_in()
     for n_samples in (100, 1000):  # a random subset of the descriptors, and all of them
         forward = results(seqs_ab, n_samples)
         assert forward == results(seqs_ab[::-1], n_samples) == results(["b1", "c0", "a0", "c1", "a1", "b0"], n_samples)
+
+
+def test_intervals_and_the_validation_split_do_not_depend_on_the_order_the_folders_were_given_in():
+    """The queries were taken in the order the folders were given, and the bootstrap resamples (and,
+    with one class, `split_queries`) draw them by position: the same queries, scored the same, got
+    other 95 % intervals, and with one class another K and other test queries, from `geofeat
+    retrieval B A` than from `geofeat retrieval A B`."""
+    from geofeat.apps.retrieval import RetrievalDatabase, eligible_queries, evaluate_descriptor
+
+    rng = np.random.default_rng(2)
+    protos = rng.normal(size=(24, 16))
+    objects = [f"o{k:02d}" for k in range(12)]
+    seqs = [f"{o}-{i}" for o in objects for i in range(2)]
+    frame = {}
+    for s in seqs:
+        for f in ("f0-ref", "f1"):
+            obj = objects.index(s[:3])
+            word = rng.choice(np.arange(2 * obj, 2 * obj + 5) % 24, size=30)
+            desc = (protos[word] + 0.9 * rng.normal(size=(30, 16))).astype(np.float32)
+            frame[s, f] = Features(np.zeros((30, 2)), desc, np.ones(30, bool))
+
+    def results(seq_order, one_class, words):
+        pairs = [(s, f) for s in seq_order for f in ("f0-ref", "f1")]
+        db = RetrievalDatabase(sequences=[s for s, _ in pairs], frames=[f for _, f in pairs],
+                               classes=["x" if one_class else s[:3] for s, _ in pairs],
+                               is_query=np.array([f == "f0-ref" for _, f in pairs]),
+                               folders=[], mask_sources={}, features={"x": [frame[p] for p in pairs]})
+        q, ex, _ = eligible_queries(db, include_own_sequence=one_class)
+        r = evaluate_descriptor(db.features["x"], db, q, ex, words=words, n_samples=600, rerank_top=0,
+                                candidates=(5, 10, 20))
+        return (r.words, sorted(db.sequences[i] for i in r.queries), r.accuracy.round(12).tolist(),
+                r.low.tolist(), r.high.tolist())
+
+    shuffled = [seqs[i] for i in np.random.default_rng(0).permutation(len(seqs))]
+    for one_class, words in ((False, 10), (True, None)):
+        forward = results(seqs, one_class, words)
+        if not one_class:  # a real interval (one class: every result is right, and the test queries matter)
+            assert np.isfinite(forward[3]).all() and forward[3] != forward[4]
+        assert results(seqs[::-1], one_class, words) == forward == results(shuffled, one_class, words)

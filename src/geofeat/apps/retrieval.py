@@ -384,12 +384,16 @@ def eligible_queries(db: "RetrievalDatabase", include_own_sequence: bool = False
     """The queries (reference frames) that still have a frame of their class in the database.
 
     Returns:
-        queries: (Q,) database indices of the eligible queries;
+        queries: (Q,) database indices of the eligible queries, in the order of their "sequence/frame"
+            names, not the database's (the order the folders were given in): the bootstrap intervals
+            and, with one class, the validation split (`split_queries`) draw queries by position, so
+            in folder order `geofeat retrieval B A` reported other intervals than `geofeat retrieval A B`;
         exclude: their (Q, N) `exclusion_mask` (the query's own sequence, or the query alone with
             `include_own_sequence`);
         skipped: "sequence/frame (class c)" of each query left out (no other sequence of its class).
     """
     q_all = np.flatnonzero(db.is_query)
+    q_all = q_all[sorted(range(len(q_all)), key=lambda i: (db.sequences[q_all[i]], db.frames[q_all[i]]))]
     exclude = exclusion_mask(db.sequences, q_all, include_own_sequence)
     cls = np.asarray(db.classes)
     eligible = ((cls[q_all][:, None] == cls[None, :]) & ~exclude).any(axis=1)  # a frame of its class remains
