@@ -280,3 +280,33 @@ def test_an_npz_file_read_by_another_name_is_refused(tmp_path):
     assert load_matches(tmp_path / "m.npz", name="a/b") == matches == load_matches(tmp_path / "m.npz")
     with pytest.raises(ValueError, match="holds 'a/b', not 'a/c'"):
         load_matches(tmp_path / "m.npz", name="a/c")
+
+
+@pytest.mark.parametrize("n", [64, 128])  # 128 keypoints of 128 dimensions: the square case
+def test_float_descriptors_go_into_h5_as_hloc_stores_them_and_come_back(tmp_path, n):
+    """hloc's matchers read an .h5 group's float descriptors as (D, N); written as (N, D), two images
+    with the same keypoint count were matched with N taken for the descriptor length, without an
+    error. The file holds (D, N) and says so; geofeat reads it back as (N, D), and a file written
+    before (N, D, no attribute) still reads right."""
+    rng = np.random.default_rng(3)
+    desc = rng.normal(size=(n, 128)).astype(np.float32)
+    features = Features(rng.uniform(0, 50, (n, 2)), desc, np.ones(n, bool))
+    path = tmp_path / "features.h5"
+    save_features(path, features, name="img.png")
+    with h5py.File(path, "r") as fd:
+        stored = fd["img.png/descriptors"]
+        assert stored.shape == (128, n)
+        np.testing.assert_array_equal(stored[()], desc.T)  # what an hloc matcher sees: column j = keypoint j
+    assert_same(features, load_features(path, "img.png"), kp_tol=1e-4)
+    from geofeat.bench.external import ExternalFeatures  # bench --features reads the same groups
+
+    np.testing.assert_array_equal(ExternalFeatures("x", path).load("seq", "img.png").descriptors, desc)
+    old = tmp_path / "old.h5"  # a file of the earlier layout: (N, D), no attribute
+    with h5py.File(old, "w") as fd:
+        grp = fd.create_group("img.png")
+        grp["keypoints"], grp["descriptors"], grp["valid"] = features.keypoints.astype(np.float32), desc, features.valid
+    np.testing.assert_array_equal(load_features(old, "img.png").descriptors, desc)
+    binary = Features(np.zeros((4, 2)), np.ones((4, 32), np.uint8), np.ones(4, bool))
+    save_features(path, binary, name="orb.png")  # binary descriptors are not hloc's: stored as they are
+    with h5py.File(path, "r") as fd:
+        assert fd["orb.png/descriptors"].shape == (4, 32)

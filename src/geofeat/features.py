@@ -3,8 +3,10 @@
 The .h5 layout follows hloc's ``features.h5`` / ``matches.h5``: one group per image (or per image
 pair) holding plain datasets, so files written here can be read by hloc-style tools and back:
 
-- features: ``/<image name>/keypoints`` (N, 2) float32 pixels (x, y), ``descriptors`` (N, ...),
-  ``valid`` (N,) bool, and optionally ``angles`` (N,), ``sizes`` (N,) and ``scores`` (N,) (the
+- features: ``/<image name>/keypoints`` (N, 2) float32 pixels (x, y), ``descriptors`` (N, ...);
+  float (N, D) descriptors are stored as hloc stores them, (D, N), with the dataset attribute
+  ``layout = "DxN"`` (files written before it, without the attribute, hold (N, D) and still read
+  right), ``valid`` (N,) bool, and optionally ``angles`` (N,), ``sizes`` (N,) and ``scores`` (N,) (the
   detector's, higher = better, as hloc names them).
 - matches: ``/<pair name>/matches0`` (N0,) int64 (-1 = no match), ``distances`` (N0,) float64.
 
@@ -256,6 +258,17 @@ def _open_h5(path: str | Path, mode: str):
         raise ValueError(f"path: cannot read {str(path)!r} as HDF5 ({error_summary(error)})") from None
 
 
+#: Attribute of an .h5 `descriptors` dataset that `save_features` stored transposed, as hloc does.
+LAYOUT_ATTR, LAYOUT_D_BY_N = "layout", "DxN"
+
+
+def _hloc_descriptors(value: np.ndarray) -> bool:
+    """Whether `descriptors` go into an .h5 file transposed, as hloc's (D, N): float and 2-D. Written
+    as (N, D), hloc's matchers read N as the descriptor length, which with as many keypoints in both
+    images (a fixed `n`) matched garbage without an error."""
+    return value.dtype.kind == "f" and value.ndim == 2
+
+
 def _h5_write_group(path: str | Path, name: str, arrays: dict[str, np.ndarray]) -> None:
     import h5py
 
@@ -264,7 +277,20 @@ def _h5_write_group(path: str | Path, name: str, arrays: dict[str, np.ndarray]) 
         for key in [k for k, v in grp.items() if isinstance(v, h5py.Dataset)]:
             del grp[key]  # the datasets of `name` only: a nested name ("name/other") is another image's group
         for key, value in arrays.items():
-            grp.create_dataset(key, data=value)
+            value = np.asarray(value)
+            if key == "descriptors" and _hloc_descriptors(value):
+                grp.create_dataset(key, data=np.ascontiguousarray(value.T)).attrs[LAYOUT_ATTR] = LAYOUT_D_BY_N
+            else:
+                grp.create_dataset(key, data=value)
+
+
+def _h5_dataset(ds) -> np.ndarray:
+    """A dataset's values; `descriptors` that `save_features` stored as (D, N) come back as (N, D)."""
+    value = np.asarray(ds[()])
+    layout = ds.attrs.get(LAYOUT_ATTR)
+    if isinstance(layout, bytes):
+        layout = layout.decode()
+    return value.T if layout == LAYOUT_D_BY_N and value.ndim == 2 else value
 
 
 def _h5_read_group(path: str | Path, name: str | None) -> dict[str, np.ndarray]:
@@ -283,7 +309,7 @@ def _h5_read_group(path: str | Path, name: str | None) -> dict[str, np.ndarray]:
         name = str(name)
         group = fd.get(name)
         arrays = {} if not isinstance(group, h5py.Group) else \
-            {key: np.asarray(ds[()]) for key, ds in group.items() if isinstance(ds, h5py.Dataset)}
+            {key: _h5_dataset(ds) for key, ds in group.items() if isinstance(ds, h5py.Dataset)}
         if not arrays:  # missing, a dataset, or a folder of other names ("dir" of "dir/img.png")
             held = _h5_leaf_groups(fd)
             listed = ", ".join(map(repr, held[:5])) + (f", ... ({len(held)} in all)" if len(held) > 5 else "")
