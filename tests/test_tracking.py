@@ -1,6 +1,7 @@
 """Tracking: TPS + RANSAC on synthetic matches, similarity measures, and a short simulated sequence."""
 
 import csv
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -515,6 +516,24 @@ def test_a_descriptor_named_twice_is_refused(sequence, tmp_path):
     each frame twice (failed frames "0/4" for 2 target frames); as in bench, it is refused."""
     with pytest.raises(ValueError, match="'sift' is named twice"):
         write_tracking([sequence], tmp_path / "t", ("sift", "SIFT"), n_keypoints=300, progress=False, refine="none")
+    assert not (tmp_path / "t").exists()
+
+
+def test_two_weights_whose_result_folders_would_be_one_are_refused(sequence, tmp_path, monkeypatch):
+    """"geopatch=a/w.pt" and "geopatch=a_w.pt" both wrote OUT/<sequence>/geopatch_a_w.pt/: the second's
+    grid.npz and track.gif replaced the first's without a word. Refused before any work."""
+    import shutil
+
+    import geofeat
+
+    shipped = Path(geofeat.__file__).parent / "data" / "geopatch.pt"
+    (tmp_path / "a").mkdir()
+    shutil.copy(shipped, tmp_path / "a" / "w.pt")
+    shutil.copy(shipped, tmp_path / "a_w.pt")
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ValueError, match="would write their results into one folder, 'geopatch_a_w.pt'"):
+        write_tracking([sequence], tmp_path / "t", ("geopatch=a/w.pt", "geopatch=a_w.pt"), n_keypoints=300,
+                       progress=False, refine="none")
     assert not (tmp_path / "t").exists()
 
 

@@ -1115,6 +1115,12 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
     from ..outputs import check_out_dir, output_folder
 
     names = check_descriptor_names(descriptors)  # unknown or repeated names fail before any work
+    folders: dict[str, str] = {}
+    for name in names:  # "geopatch=a/w.pt" and "geopatch=a_w.pt" wrote one folder, the second's results over the first's
+        other = folders.setdefault(_result_folder(name), name)
+        if other != name:
+            raise ValueError(f"descriptors: {other!r} and {name!r} would write their results into one folder, "
+                             f"{_result_folder(name)!r}; rename one weights file")
     groups = group_by_detector(names, detector)
     sequences = find_sequences(sequences, unique_names=True)
     # every file at a fixed name, per sequence and descriptor too: a user's file there was found only when
