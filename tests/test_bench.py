@@ -508,6 +508,16 @@ def test_landmarks_protocol_says_which_detection_options_it_does_not_use(dataset
     assert scores(tmp_path / "a") == scores(tmp_path / "b")
 
 
+def test_landmarks_protocol_names_detection_options_given_at_their_default_values(datasets, tmp_path, capsys):
+    """docs/cli.md: --keypoints, --detector and --keypoint-set do not apply to --protocol landmarks, and
+    the command says so when they are given: also when given at bench's defaults (2048, sift), which
+    were silently ignored."""
+    args = ["bench", str(datasets / "seqs" / "a-deform"), "--descriptors", "orb", "--protocol", "landmarks",
+            "--keypoints", "2048", "--detector", "sift", "--out", str(tmp_path / "a")]
+    assert main(args) == 0
+    assert "--keypoints, --detector not used" in capsys.readouterr().out
+
+
 def test_curves_take_sequences_by_their_scenario_word():
     """"grayscale-deform" is no scale sequence (the table groups it under deform); it used to be
     drawn in the scale curve because "scale" is in its name."""

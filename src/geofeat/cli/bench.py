@@ -39,7 +39,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "kept (default, the published protocol); unique: one keypoint per position")
     depth_profile_option(p, None)
     p.add_argument("--overwrite", action="store_true", help="redo every result (default: a rerun skips finished ones)")
-    p.set_defaults(func=run)
+    # None until run() resolves them, so that --keypoints 2048 or --detector sift given with
+    # --protocol landmarks is reported as unused too, not only values other than the defaults
+    p.set_defaults(func=run, keypoints=None, detector=None)
     return p
 
 
@@ -58,10 +60,12 @@ def run(args: argparse.Namespace) -> int:
             tmp.write_text(text, encoding="utf-8")
         add_to_manifest(path.parent, [path.name])
 
+    given = {"--keypoints": args.keypoints is not None, "--detector": args.detector is not None,
+             "--keypoint-set": args.keypoint_set is not None}
+    args.keypoints = N_KEYPOINTS if args.keypoints is None else args.keypoints
+    args.detector = "sift" if args.detector is None else args.detector
     if args.protocol == "landmarks":  # the annotated landmarks are described: nothing is detected
-        unused = [flag for flag, given in (("--keypoints", args.keypoints != N_KEYPOINTS),
-                                           ("--detector", args.detector != "sift"),
-                                           ("--keypoint-set", args.keypoint_set is not None)) if given]
+        unused = [flag for flag, named in given.items() if named]
         if unused:
             print(f"bench: --protocol landmarks describes the annotated landmarks themselves; {', '.join(unused)} "
                   "not used")
