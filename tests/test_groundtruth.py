@@ -534,6 +534,29 @@ def test_tps_files_for_another_image_size_are_refused(tmp_path):
         truth.reference_keep(np.array([[100.0, 100.0]]))
 
 
+def test_an_ssim_map_of_another_size_or_unreadable_is_refused(tmp_path):
+    """The object masks were checked against the frames' size, the SSIM map was not: one of half the
+    size, read at the keypoints' pixels, kept only the target keypoints in its top-left quarter (in a
+    bench run MS 0.54 became 0.67 on 3 of 54 target keypoints, without a word), and an unreadable one
+    was taken for none (no SSIM test at all)."""
+    folder = _write_pair(tmp_path / "seq", _grid_landmarks(4))
+    generate_ground_truth(read_sequence(folder), tmp_path / "gt" / "seq", GroundTruthConfig(refine=False), progress=False)
+    points = np.array([[30.0, 30.0], [120.0, 90.0]])  # one in each half of the 160x120 frame
+    mapped, valid = GroundTruth(read_sequence(folder), str(tmp_path / "gt")).map("frame-001", points)
+    assert valid.all()
+    ssim_path = tmp_path / "gt" / "seq" / "frame-001_SSIM.png"
+    ssim = cv2.imread(str(ssim_path), cv2.IMREAD_GRAYSCALE)
+    cv2.imwrite(str(ssim_path), cv2.resize(ssim, (W // 2, H // 2), interpolation=cv2.INTER_NEAREST))
+    truth = GroundTruth(read_sequence(folder), str(tmp_path / "gt"))
+    with pytest.raises(ValueError, match=r"tps-dir: .*frame-001_SSIM.png is 80x60, the frames of .* 160x120"):
+        truth.map("frame-001", points)
+    ssim_path.write_bytes(b"not a png")
+    with pytest.raises(ValueError, match=r"frame-001_SSIM.png is not an image"):
+        truth.map("frame-001", points)
+    ssim_path.unlink()  # no SSIM map: the object mask alone decides, as before
+    np.testing.assert_array_equal(truth.map("frame-001", points)[1], valid)
+
+
 def test_tps_files_of_one_sequence_name_in_two_datasets_are_refused(tmp_path):
     """--tps-dir holding kinect1/seq and kinect2/seq: the first by name was used for the sequence `seq`
     without a word, whichever dataset it came from."""

@@ -94,14 +94,29 @@ class GroundTruth:
         it is missing or of another size than the sequence's frames."""
         if self.tps is None:
             return None
-        m = cv2.imread(str(self.tps / f"{frame}_objmask.png"), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
+        m = self._read_map(f"{frame}_objmask.png")
         if m is None:
             raise ValueError(f"tps-dir: missing {self.tps / f'{frame}_objmask.png'}")
+        return m
+
+    def _read_map(self, name: str) -> np.ndarray | None:
+        """The (H, W) uint8 picture `name` of the TPS files (an object mask, an SSIM map), read as stored;
+        None when there is no such file. ValueError when it cannot be read or is of another size than
+        the sequence's frames: such a map is read at the keypoints' pixels, so one made for another
+        size (an SSIM map of half the size kept the target keypoints of one corner only) scored the
+        pair on other keypoints without a word; the spline is normalised by the mask's size."""
+        path = self.tps / name
+        if not path.is_file():
+            return None
+        m = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
+        if m is None:
+            raise ValueError(f"tps-dir: {path} is not an image OpenCV can read; make the TPS files again "
+                             "(geofeat groundtruth)")
         shape = self.seq.shape
-        if shape is not None and m.shape != tuple(shape):  # the spline is normalised by the mask's size
-            raise ValueError(f"tps-dir: {self.tps / f'{frame}_objmask.png'} is {m.shape[1]}x{m.shape[0]}, the frames of "
-                             f"{self.seq.folder} {shape[1]}x{shape[0]}; TPS files map pixels of the image size they "
-                             "were made for: make them again for these frames (geofeat groundtruth)")
+        if shape is not None and m.shape != tuple(shape):
+            raise ValueError(f"tps-dir: {path} is {m.shape[1]}x{m.shape[0]}, the frames of {self.seq.folder} "
+                             f"{shape[1]}x{shape[0]}; TPS files map pixels of the image size they were made for: "
+                             "make them again for these frames (geofeat groundtruth)")
         return m
 
     def reference_keep(self, xy: np.ndarray) -> np.ndarray:
@@ -154,7 +169,7 @@ class GroundTruth:
             mask = self._mask(target)
             out = load_authors_spline(self.tps, target, (mask.shape[1], mask.shape[0]))(xy)
             ok = _on_mask(mask, xy)
-            ssim = cv2.imread(str(self.tps / f"{target}_SSIM.png"), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
+            ssim = self._read_map(f"{target}_SSIM.png")
             if ssim is not None:
                 ok &= _on_mask((ssim.astype(np.float32) / 255.0 > 0.25).astype(np.uint8), xy)
         elif self.exact:
