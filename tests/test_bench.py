@@ -772,6 +772,22 @@ def test_a_target_with_too_few_landmarks_for_the_spline_is_skipped_not_its_seque
     assert "a-deform: no ground truth for frame-002" in out and "pair skipped" in out
 
 
+@pytest.mark.parametrize("lost", ["frame-002-gt.npz", "groundtruth.json"])
+def test_a_simulated_sequence_missing_a_ground_truth_file_fails_by_name(datasets, tmp_path, capsys, lost):
+    """One <frame>-gt.npz (or groundtruth.json) missing from a simulated sequence: every pair of the
+    sequence was scored with the csv landmarks' spline instead of the exact ground truth (other
+    reference keypoints kept, another MS) without a word. It fails by name; with none of the
+    simulator's files the landmarks score it, as before (see the test above)."""
+    seq = tmp_path / "data" / "a-deform"
+    shutil.copytree(datasets / "seqs" / "a-deform", seq)
+    (seq / lost).unlink()
+    csv_path, failed = run_benchmark(tmp_path / "data", tmp_path / "out", BenchConfig(descriptors=("orb",), n_keypoints=200),
+                                     progress=False)
+    assert failed == ["a-deform"] and read_rows(csv_path) == []
+    out = capsys.readouterr().out
+    assert "the simulator's ground truth is incomplete" in out and f"missing {lost}" in out
+
+
 def test_a_rerun_refuses_rows_scored_with_tps_files_made_again_since(datasets, tmp_path):
     """The TPS ground truth was compared by its --tps-dir text only: `geofeat groundtruth` run again
     into the same folder (other splines) and a bench rerun into the same --out kept the old rows beside

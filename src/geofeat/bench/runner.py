@@ -42,7 +42,7 @@ from ..features import Features
 from .external import ExternalFeatures, check_one_source_per_frame, parse_features_option
 from .report import CURVES
 from ..descriptors.describer import Describer
-from ..groundtruth.sources import GroundTruth
+from ..groundtruth.sources import GroundTruth, refuse_partial_simulator_truth
 from ..scoring import ground_truth_pairs, score_detect, score_landmarks
 
 COLUMNS = ["sequence", "reference", "target", "descriptor", "detector", "protocol", "keypoint_set", "depth_profile",
@@ -163,6 +163,8 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
         k_ref = Keypoints(xy_r[vis_r], np.zeros(vis_r.sum()), np.full(vis_r.sum(), 8.0), np.zeros(vis_r.sum()))
     else:
         truth = GroundTruth(seq, config.tps_dir)
+        if truth.tps is None and not truth.exact:  # not the landmarks' spline in place of a damaged simulator truth
+            refuse_partial_simulator_truth(seq)
         k_ref = detect(ref, config.n_keypoints, detector=config.detector, keypoint_set=config.keypoint_set)
         k_ref = k_ref[truth.reference_keep(k_ref.xy)]
         if not len(k_ref) and not truth.reference_keep(_pixel_grid(seq.shape)).any():

@@ -17,7 +17,8 @@ from ..scoring import ground_truth_pairs
 from ..tps import ThinPlateSpline
 from .landmarks import MIN_LANDMARKS, inside_hull, landmark_spline
 
-__all__ = ["GroundTruth", "correct_matches", "judged_matches", "tps_folder", "load_authors_spline"]
+__all__ = ["GroundTruth", "correct_matches", "judged_matches", "tps_folder", "load_authors_spline",
+           "refuse_partial_simulator_truth"]
 
 
 def _has_tps_files(folder: Path) -> bool:
@@ -199,6 +200,29 @@ class GroundTruth:
         if not self.exact:
             return None
         return self.seq.correspondences(self.seq.reference, target, as_points(xy_ref, "xy_ref"))
+
+
+def refuse_partial_simulator_truth(seq: Sequence) -> None:
+    """ValueError when `seq` holds some of the simulator's ground-truth files but not all
+    (`groundtruth.json` and a `<frame>-gt.npz` for every frame). `GroundTruth` then takes the
+    landmarks' spline for every pair of the sequence; the benchmark refuses that (it scored the
+    sequence against other ground truth without a word, other keypoints kept: MS 0.158 became 0.177
+    on a `paper` sequence missing one target's file). A sequence with none of the `<frame>-gt.npz`
+    files passes (scored with its landmarks)."""
+    from .simulator import GT_JSON, GT_SUFFIX
+
+    have = [n for n in seq.names if (seq.folder / f"{n}{GT_SUFFIX}").is_file()]
+    if not have:
+        return
+    missing = [f"{n}{GT_SUFFIX}" for n in seq.names if n not in have]
+    if not (seq.folder / GT_JSON).is_file():
+        missing.insert(0, GT_JSON)
+    if not missing:
+        return
+    raise ValueError(f"sequence {seq.name}: the simulator's ground truth is incomplete in {seq.folder} (missing "
+                     f"{', '.join(missing[:5])}{', ...' if len(missing) > 5 else ''}); its exact correspondences need "
+                     f"{GT_JSON} and every frame's <frame>{GT_SUFFIX}: restore them, or remove every <frame>{GT_SUFFIX} "
+                     "to score the sequence with its csv landmarks")
 
 
 def _check_landmarks(n: int) -> None:
