@@ -583,9 +583,9 @@ def _bench_features(edit: Callable[[dict], None], npz: bool = False) -> Callable
 
         seq = _seq(tmp)
         assert main(["extract", str(seq), "--descriptor", "sift", "--keypoints", "200", "--out", str(tmp / "f.h5")]) == 0
-        with h5py.File(tmp / "f.h5", "r") as fd:
-            groups = {g: {k: v[()] for k, v in fd[g].items()} for g in fd}
-        edit(groups)
+        with h5py.File(tmp / "f.h5", "r") as fd:  # float descriptors are stored (D, N), as hloc stores them
+            groups = {g: {k: v[()].T if v.attrs.get("layout") == "DxN" else v[()] for k, v in fd[g].items()} for g in fd}
+        edit(groups)  # on (N, D) descriptors; written back without the attribute, read as (N, D)
         path = tmp / ("npz" if npz else "ext.h5")
         if npz:
             path.mkdir()
