@@ -101,6 +101,22 @@ def word_shortlist(features, queries, exclude, words: int, depth: int, weighting
     return search(vectors[queries], vectors, depth, exclude=exclude, distance=WEIGHTINGS[weighting])[0]
 
 
+def paired_halves(a, b, val, test) -> dict:
+    """Paired difference a - b of two descriptors' per-query figures (Q,) (e.g. mean Acc@1-10), over
+    all queries with its 95 % bootstrap interval over queries, and over the validation and test halves
+    (index arrays); plus the validation sum a + b by which a rule shared by both is chosen.
+    Returns {diff, low, high, val, test, val_sum}."""
+    import numpy as np
+
+    from geofeat.apps.retrieval import bootstrap_interval
+
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    d = a - b
+    low, high = bootstrap_interval(d[:, None])
+    return dict(diff=d.mean(), low=low[0], high=high[0], val=d[val].mean(), test=d[test].mean(),
+                val_sum=a[val].mean() + b[val].mean())
+
+
 def simulated_as(folder, keys: tuple[str, ...] = ("scenario",)) -> str | None:
     """The simulator's settings `keys` of a sequence folder (its groundtruth.json), joined by ", "
     ("?" for a key it lacks); None for a folder the simulator did not write."""

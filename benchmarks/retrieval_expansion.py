@@ -29,8 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
+from common import paired_halves
 from geofeat.apps.retrieval import (
-    RERANK, bootstrap_interval, eligible_queries, match_counts, per_query_accuracy, sample_descriptors,
+    RERANK, eligible_queries, match_counts, per_query_accuracy, sample_descriptors,
     sample_distances, search, split_queries, tie_keys, vocabulary, weight_histograms, word_counts,
 )
 
@@ -98,11 +99,10 @@ def main() -> None:
     val, test = split_queries(len(queries), 0, groups=cls[queries])
     for variant in variants:
         a, b = per_query[(names[0], variant)], per_query[(names[1], variant)]
-        d = a - b
-        lo, hi = bootstrap_interval(d[:, None])
+        p = paired_halves(a, b, val, test)
         print(f"{variant}: {names[0]} {a.mean():.3f}, {names[1]} {b.mean():.3f}; difference, all "
-              f"{d.mean():+.3f} [{lo[0]:+.2f}, {hi[0]:+.2f}], validation half {d[val].mean():+.3f}, test half "
-              f"{d[test].mean():+.3f}; validation sum of both {a[val].mean() + b[val].mean():.3f}")
+              f"{p['diff']:+.3f} [{p['low']:+.2f}, {p['high']:+.2f}], validation half {p['val']:+.3f}, test half "
+              f"{p['test']:+.3f}; validation sum of both {p['val_sum']:.3f}")
 
 
 if __name__ == "__main__":

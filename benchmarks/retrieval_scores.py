@@ -26,8 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
+from common import paired_halves
 from geofeat.apps.retrieval import (
-    RERANK, bootstrap_interval, describe_datasets, eligible_queries, match_counts, per_query_accuracy, read_classes,
+    RERANK, describe_datasets, eligible_queries, match_counts, per_query_accuracy, read_classes,
     sample_descriptors, sample_distances, search, split_queries, tie_keys, vocabulary, weight_histograms, word_counts,
 )
 
@@ -110,11 +111,10 @@ def main() -> None:
             top10 = np.take_along_axis(p["top"], order, axis=1)[:, :10]
             acc[name] = per_query_accuracy(top10, db.classes, classes[p["queries"]]).mean(axis=1)
         a, b = acc[NAMES[0]], acc[NAMES[1]]
-        diff = a - b
-        lo, hi = bootstrap_interval(diff[:, None])
+        p = paired_halves(a, b, val, test)
         print(f"| {rule} | {a[val].mean():.3f} / {a[test].mean():.3f} / {a.mean():.3f} | {b[val].mean():.3f} / "
-              f"{b[test].mean():.3f} / {b.mean():.3f} | {diff.mean():+.3f} [{lo[0]:+.2f}, {hi[0]:+.2f}] | "
-              f"{diff[val].mean():+.3f} | {diff[test].mean():+.3f} | {a[val].mean() + b[val].mean():.3f} |")
+              f"{b[test].mean():.3f} / {b.mean():.3f} | {p['diff']:+.3f} [{p['low']:+.2f}, {p['high']:+.2f}] | "
+              f"{p['val']:+.3f} | {p['test']:+.3f} | {p['val_sum']:.3f} |")
 
 
 if __name__ == "__main__":
