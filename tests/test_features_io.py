@@ -310,3 +310,22 @@ def test_float_descriptors_go_into_h5_as_hloc_stores_them_and_come_back(tmp_path
     save_features(path, binary, name="orb.png")  # binary descriptors are not hloc's: stored as they are
     with h5py.File(path, "r") as fd:
         assert fd["orb.png/descriptors"].shape == (4, 32)
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".h5"])
+def test_features_with_keypoints_that_are_not_finite_are_refused(tmp_path, suffix):
+    """A file whose keypoints hold NaN (another tool's 'no keypoint' marker) was loaded as it was, and
+    the NaN positions went on into matching, pictures and fits; the record refuses them by name."""
+    import h5py
+
+    kp = np.array([[3.0, 4.0], [np.nan, 5.0], [6.0, np.inf]])
+    with pytest.raises(ValueError, match=r"keypoints: 2 not finite .*keypoint 1 at \[nan, 5.0\]"):
+        Features(kp, np.zeros((3, 8), np.float32), np.ones(3, bool))
+    path = tmp_path / f"f{suffix}"
+    if suffix == ".npz":
+        np.savez(path, keypoints=kp, descriptors=np.zeros((3, 8), np.float32), valid=np.ones(3, bool))
+    else:
+        with h5py.File(path, "w") as fd:
+            fd["img/keypoints"], fd["img/descriptors"] = kp, np.zeros((3, 8), np.float32)
+    with pytest.raises(ValueError, match="keypoints: 2 not finite"):
+        load_features(path)

@@ -89,6 +89,11 @@ class Features:
             kp = kp.reshape(0, 2)
         if kp.ndim != 2 or kp.shape[1] != 2:
             raise ValueError(f"keypoints: expected shape (N, 2), got {kp.shape}")
+        if not np.isfinite(kp).all():  # a loaded file's NaN positions went on into matching, pictures and fits
+            bad = np.flatnonzero(~np.isfinite(kp).all(axis=1))
+            raise ValueError(f"keypoints: {len(bad)} not finite (NaN or inf), e.g. keypoint {bad[0]} at "
+                             f"{kp[bad[0]].tolist()}; every keypoint needs a pixel position (mark a keypoint "
+                             "without a descriptor with valid=False instead)")
         n = kp.shape[0]
         desc = np.asarray(self.descriptors)
         if desc.ndim < 1 or desc.shape[0] != n:
