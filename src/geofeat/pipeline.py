@@ -49,7 +49,7 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
 
     base = check_descriptor_name(descriptor).partition("=")[0]
     given = [name for name, value in (("radius", radius), ("depth_config", depth_config))
-             if value is not None and not (name == "depth_config" and isinstance(value, str) and value == "auto")]
+             if value is not None and not (name == "depth_config" and isinstance(value, str) and value.lower() == "auto")]
     if given and base not in GEODESIC_DESCRIPTORS:
         # `make_descriptor` passes them to the descriptors that have them (the commands name several at once):
         # extract(frame, descriptor="orb", radius=0.05) described at ORB's own size without a word

@@ -259,12 +259,17 @@ def map_points(
 # --------------------------------------------------------------------------- on-disk sequences
 
 
+def missing_ground_truth(seq) -> list[str]:
+    """The simulator's ground-truth files that the `geofeat.io.Sequence` lacks: `groundtruth.json` and
+    each frame's `<frame>-gt.npz`; [] when its dense ground truth is whole."""
+    folder = Path(seq.folder)
+    return ([] if (folder / GT_JSON).is_file() else [GT_JSON]) + \
+        [f"{n}{GT_SUFFIX}" for n in seq.names if not (folder / f"{n}{GT_SUFFIX}").is_file()]
+
+
 def has_ground_truth(seq) -> bool:
     """True if the `geofeat.io.Sequence` was written by the simulator with its dense ground truth."""
-    folder = Path(seq.folder)
-    if not (folder / GT_JSON).is_file():
-        return False
-    return all((folder / f"{n}{GT_SUFFIX}").is_file() for n in seq.names)
+    return not missing_ground_truth(seq)
 
 
 def read_metadata(folder: str | Path) -> dict:

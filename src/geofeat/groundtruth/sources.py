@@ -209,15 +209,10 @@ def refuse_partial_simulator_truth(seq: Sequence) -> None:
     sequence against other ground truth without a word, other keypoints kept: MS 0.158 became 0.177
     on a `paper` sequence missing one target's file). A sequence with none of the `<frame>-gt.npz`
     files passes (scored with its landmarks)."""
-    from .simulator import GT_JSON, GT_SUFFIX
+    from .simulator import GT_JSON, GT_SUFFIX, missing_ground_truth
 
-    have = [n for n in seq.names if (seq.folder / f"{n}{GT_SUFFIX}").is_file()]
-    if not have:
-        return
-    missing = [f"{n}{GT_SUFFIX}" for n in seq.names if n not in have]
-    if not (seq.folder / GT_JSON).is_file():
-        missing.insert(0, GT_JSON)
-    if not missing:
+    missing = missing_ground_truth(seq)
+    if not missing or len([m for m in missing if m != GT_JSON]) == len(seq.names):  # whole, or none of the frames'
         return
     raise ValueError(f"sequence {seq.name}: the simulator's ground truth is incomplete in {seq.folder} (missing "
                      f"{', '.join(missing[:5])}{', ...' if len(missing) > 5 else ''}); its exact correspondences need "
