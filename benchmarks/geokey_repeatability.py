@@ -29,6 +29,10 @@ score every variant):
 - `bilateral-2`, `bilateral-4`, `nlmeans-1`, `nlmeans-2`: the whole detection on the image denoised
   by a filter that keeps edges and corners, scaled to the frame's noise level sigma: a bilateral
   filter (range 2 / 4 x sigma) or non-local means (h = 1 / 2 x sigma).
+- `half-octave`: up to 3000 more candidates found on the image resized by 2^-0.5, between the two
+  pyramid levels (level cue 0.5, so the shipped level term scores them halfway).
+- `surface-cap-100`, `-120`, `-150`: at most one keypoint per 100 / 120 / 150 pixels with depth, so
+  that a frame whose surface covers little of the image returns fewer keypoints.
 - `noise-floor-1`, `noise-floor-3`: candidates whose cornerness (3 px window, at their level) is below
   1 / 3 x the 99th percentile that pure noise of the frame's level would give are dropped. The noise
   level is the frame's robust estimate (median absolute 3 x 3 Laplacian, Immerkaer's mask).
@@ -240,6 +244,45 @@ def noise_floor_candidates(factor: float, quantile: float = 0.99):
     return candidates
 
 
+def half_octave_candidates(count: int = 3000):
+    """`geokey.candidates` plus up to `count` candidates found on the image resized by 2^-0.5 (area
+    interpolation), between the full- and half-resolution levels, with level cue 0.5: a surface
+    seen at 0.7x the reference's scale then has a level of its own, not only the 2x steps."""
+    def candidates(frame, max_candidates=geokey.MAX_CANDIDATES):
+        cands = CANDIDATES(frame, max_candidates)
+        g = frame.image.astype(np.float32)
+        H, W = g.shape
+        w, h = int(round(W / np.sqrt(2))), int(round(H / np.sqrt(2)))
+        image = cv2.resize(g, (w, h), interpolation=cv2.INTER_AREA)
+        mask = cv2.resize((frame.depth > 0).astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)
+        pts = cv2.goodFeaturesToTrack(image, maxCorners=count, qualityLevel=1e-4, minDistance=geokey.CANDIDATE_SPACING_PX,
+                                      mask=mask, blockSize=geokey.CORNER_WINDOW_PX)
+        if pts is None:
+            return cands
+        pts = geokey.refine_peaks(cv2.cornerMinEigenVal(image, geokey.CORNER_WINDOW_PX, 3), pts.reshape(-1, 2))
+        xy = np.stack([(pts[:, 0] + 0.5) * W / w - 0.5, (pts[:, 1] + 0.5) * H / h - 0.5], axis=1)
+        inside = ((xy[:, 0] >= geokey.BORDER_PX) & (xy[:, 0] <= W - 1 - geokey.BORDER_PX)
+                  & (xy[:, 1] >= geokey.BORDER_PX) & (xy[:, 1] <= H - 1 - geokey.BORDER_PX))
+        xy = xy[inside]
+        edge = geokey.depth_edge_distance(frame.depth, float(frame.K[0, 0]), geokey.DEPTH_EDGE_STEP_FOOTPRINTS,
+                                          fy=float(frame.K[1, 1]))
+        xy = xy[edge[np.rint(xy[:, 1]).astype(np.int64), np.rint(xy[:, 0]).astype(np.int64)] >= geokey.DEPTH_EDGE_MARGIN_PX]
+        return geokey.Candidates(np.concatenate([cands.xy, xy]),
+                                 np.concatenate([cands.level.astype(np.float64), np.full(len(xy), 0.5)]))
+
+    return candidates
+
+
+def surface_capped_detector(pixels_per_keypoint: float):
+    """GeoKey returning at most one keypoint per `pixels_per_keypoint` pixels with depth: a frame
+    whose surface covers little of the image (a far or crumpled view) gets fewer keypoints."""
+    def detect(frame, n):
+        cap = int(np.count_nonzero(frame.depth > 0) / pixels_per_keypoint)
+        return DETECT(frame, max(1, min(n, cap)))
+
+    return detect
+
+
 DETECT = geokey.detect_geokey
 CANDIDATES = geokey.candidates
 PARABOLAS = geokey.refine_peaks
@@ -269,6 +312,10 @@ VARIANTS = {
     "bilateral-cands-2": {"candidates": lambda: denoised_candidates(2.0)},
     "bilateral-cands-4": {"candidates": lambda: denoised_candidates(4.0)},
     "bilateral-cands-4-d7": {"candidates": lambda: denoised_candidates(4.0, 7, 2.0)},
+    "surface-cap-100": {"detector": lambda: surface_capped_detector(100.0)},
+    "surface-cap-120": {"detector": lambda: surface_capped_detector(120.0)},
+    "surface-cap-150": {"detector": lambda: surface_capped_detector(150.0)},
+    "half-octave": {"candidates": lambda: half_octave_candidates(3000)},
     "nlmeans-1": {"detector": lambda: denoised_detector("nlmeans", 1.0)},
     "nlmeans-2": {"detector": lambda: denoised_detector("nlmeans", 2.0)},
 }
@@ -282,7 +329,7 @@ def main() -> None:
     a = ap.parse_args()
     counts = [int(n) for n in a.keypoints.split(",")]
     print(f"{len(a.sequences)} sequences; load average {os.getloadavg()[0]:.2f}")
-    print("| variant | " + " | ".join(f"repeatability / ground-truth pairs per pair, {n}" for n in counts) + " |")
+    print("| variant | " + " | ".join(f"repeatability / ground-truth pairs per pair / reference keypoints, {n}" for n in counts) + " |")
     print("|---|" + "---|" * len(counts))
     originals = {"cue_maps": geokey.cue_maps, "refine_peaks": geokey.refine_peaks,
                  "candidate_features": geokey.candidate_features, "candidates": geokey.candidates}
@@ -299,7 +346,7 @@ def main() -> None:
         cells = []
         for n in counts:
             r = repeatability(a.sequences, detector, n)
-            cells.append(f"{r['repeatability']:.3f} / {r['pairs']:.0f}")
+            cells.append(f"{r['repeatability']:.3f} / {r['pairs']:.0f} / {r['n_ref']:.0f}")
         for attr, fn in originals.items():
             setattr(geokey, attr, fn)
         print(f"| {name} | " + " | ".join(cells) + f" |   ({time.perf_counter() - t:.0f} s)")
