@@ -277,6 +277,50 @@ def test_a_rerun_refuses_a_finished_sequence_whose_frames_were_replaced(datasets
     run_benchmark(seq, out, config, progress=False, overwrite=True)
 
 
+def test_a_rerun_refuses_a_finished_sequence_whose_groundtruth_json_changed(datasets, tmp_path):
+    """groundtruth.json (the cloth's grid spacing the exact correspondences are computed with) was not
+    in the sequence's digest: with it edited in place, a rerun into the same --out kept the rows scored
+    against the old ground truth without a word. Now refused by name."""
+    config = BenchConfig(descriptors=("orb",), n_keypoints=200)
+    seq = tmp_path / "seqs" / "a-deform"
+    shutil.copytree(datasets / "seqs" / "a-deform", seq)
+    csv_path, _ = run_benchmark(seq, tmp_path / "out", config, progress=False)
+    rows = read_rows(csv_path)
+    meta = json.loads((seq / "groundtruth.json").read_text())
+    (seq / "groundtruth.json").write_text(json.dumps(dict(meta, spacing_m=meta["spacing_m"] * 1.1)))
+    with pytest.raises(ValueError, match="holds results of a-deform, whose files changed since.*groundtruth.json"):
+        run_benchmark(seq, tmp_path / "out", config, progress=False)
+    assert read_rows(csv_path) == rows
+    fresh, _ = run_benchmark(seq, tmp_path / "fresh", config, progress=False)
+    assert [r["n_tgt"] for r in read_rows(fresh)] != [r["n_tgt"] for r in rows]  # other ground truth, other rows
+
+
+def test_a_rerun_of_a_run_whose_digests_left_out_groundtruth_json_resumes_and_says_so(datasets, tmp_path):
+    """config.json written before groundtruth.json was in the digest: the rerun compares the rest of
+    the files (a frame replaced is still refused), keeps the finished rows with a warning that names
+    the unchecked file and --overwrite, and records the whole digest for the next rerun."""
+    from geofeat.io import sequence_digest
+
+    config = BenchConfig(descriptors=("orb",), n_keypoints=200)
+    seq = tmp_path / "seqs" / "a-deform"
+    shutil.copytree(datasets / "seqs" / "a-deform", seq)
+    out = tmp_path / "out"
+    csv_path, _ = run_benchmark(seq, out, config, progress=False)
+    rows = read_rows(csv_path)
+    settings = json.loads((out / "config.json").read_text())
+    older = dict(settings, sequence_digests={"a-deform": sequence_digest(seq)})  # the older rule's digest
+    (out / "config.json").write_text(json.dumps(older))
+    with pytest.warns(UserWarning, match="older geofeat.*left out groundtruth.json.*a-deform are kept.*--overwrite"):
+        run_benchmark(seq, out, config, progress=False)
+    assert read_rows(csv_path) == rows
+    assert json.loads((out / "config.json").read_text())["sequence_digests"] == settings["sequence_digests"]
+    (out / "config.json").write_text(json.dumps(older))
+    target = sorted(seq.glob("*-rgb.png"))[-1]
+    cv2.imwrite(str(target), np.ascontiguousarray(cv2.imread(str(target))[::-1]))
+    with pytest.raises(ValueError, match="holds results of a-deform, whose files changed since"):
+        run_benchmark(seq, out, config, progress=False)
+
+
 def test_sequence_digest_follows_the_files_a_reader_uses(datasets, tmp_path):
     from geofeat.io import sequence_digest
 

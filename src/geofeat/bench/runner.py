@@ -21,6 +21,7 @@ import json
 import multiprocessing
 import time
 import traceback
+import warnings
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
@@ -33,7 +34,7 @@ from ..constants import N_KEYPOINTS
 from ..depth import check_profile, sequence_depth_profile
 from ..descriptors import OpenCVDescriptor, check_descriptor_name, make_descriptor, refuse_repeated
 from ..inputs import check_depth_scale, check_radius, check_tps_dir, check_whole, resolve_radius
-from ..io import Sequence, find_sequences, frame_names, read_sequence, sequence_digest
+from ..io import Sequence, files_digest, find_sequences, frame_names, read_sequence, sequence_digest
 from ..outputs import (add_to_manifest, append_line_durably, atomic_file, check_out_dir, plural, read_manifest,
                        refuse_input_folder)
 from ..keypoints import Keypoints, check_detector_name, detect, resolve_keypoint_set
@@ -42,6 +43,7 @@ from ..features import Features
 from .external import ExternalFeatures, check_one_source_per_frame, parse_features_option
 from .report import CURVES
 from ..descriptors.describer import Describer
+from ..groundtruth.simulator import GT_JSON
 from ..groundtruth.sources import GroundTruth, refuse_partial_simulator_truth
 from ..scoring import ground_truth_pairs, score_detect, score_landmarks
 
@@ -536,11 +538,20 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
         read_from = {**read_from, **_read_from(folders)}
         digests = _digests(folders, config.tps_dir)
         stored = before.get("sequence_digests") if isinstance(before.get("sequence_digests"), dict) else {}
-        changed = sorted(name for name in finished if name in digests and stored.get(name, digests[name]) != digests[name])
+        changed = sorted(name for name in finished if name in digests and name in stored
+                         and not _same_files(stored[name], digests[name]))
         if changed:  # their rows describe the frames that were there before
             raise ValueError(f"out: {out} holds results of {', '.join(changed)}, whose files changed since (a frame "
-                             "replaced, added or removed, or its TPS files made again); use --overwrite or another "
-                             "--out")
+                             f"replaced, added or removed, its {GT_JSON}, or its TPS files made again); use "
+                             "--overwrite or another --out")
+        unchecked = sorted(name for name in finished if name in digests and isinstance(stored.get(name), str)
+                           and _GT_PART not in stored[name] and f"{_GT_PART}none" not in digests[name])
+        if unchecked:  # accepted: see `_same_files`
+            warnings.warn(f"out: {config_path} was written by an older geofeat, whose record of each sequence's "
+                          f"files left out {GT_JSON}: the finished results of {', '.join(unchecked)} are kept, "
+                          f"checked against their frames and <frame>-gt.npz files but not their {GT_JSON}; if one "
+                          "changed since that run, use --overwrite or another --out to score them again",
+                          stacklevel=2)
         digests = {**stored, **digests}
         stored_features = before.get("feature_digests") if isinstance(before.get("feature_digests"), dict) else {}
         rewritten = sorted(f"{name} of {sequence}" for sequence, name in done if name in feature_digests
@@ -579,14 +590,39 @@ def _read_from(folders: list[str]) -> dict[str, str]:
     return {Path(f).name: str(Path(f).resolve()) for f in folders}
 
 
+#: Marks the digest of a sequence's groundtruth.json in `_digests` (config.json written before it lacks it).
+_GT_PART = "+gt:"
+
+
 def _digests(folders: list[str], tps_dir: str | None = None) -> dict[str, str]:
-    """For config.json: each sequence's `io.sequence_digest`, so that a rerun does not keep the rows of
-    a sequence whose frames were replaced in place since; with `tps_dir`, followed by the digest of the
-    sequence's TPS files there (`tps_digest`): ground truth made again by `geofeat groundtruth`, or a
-    relative --tps-dir given from another folder, changes the rows' ground truth as much."""
-    if tps_dir is None:
-        return {Path(f).name: sequence_digest(f) for f in folders}
-    return {Path(f).name: f"{sequence_digest(f)}+tps:{tps_digest(tps_dir, Path(f).name)}" for f in folders}
+    """For config.json: each sequence's `io.sequence_digest` (its frames' files: colour, depth, csv,
+    <frame>-gt.npz; intrinsics.xml, geofeat.json), then "+gt:" and the digest of its simulator's
+    groundtruth.json ("none" without one: the grid spacing the exact correspondences are computed
+    with), so that a rerun does not keep the rows of a sequence whose frames or ground truth were
+    replaced in place since; with `tps_dir`, then "+tps:" and the digest of the sequence's TPS files
+    there (`tps_digest`): ground truth made again by `geofeat groundtruth`, or a relative --tps-dir
+    given from another folder, changes the rows' ground truth as much."""
+    out = {}
+    for f in folders:
+        settings = Path(f) / GT_JSON
+        digest = f"{sequence_digest(f)}{_GT_PART}{files_digest([settings]) if settings.is_file() else 'none'}"
+        out[Path(f).name] = digest + (f"+tps:{tps_digest(tps_dir, Path(f).name)}" if tps_dir is not None else "")
+    return out
+
+
+def _same_files(stored, now: str) -> bool:
+    """Whether the digest config.json `stored` for a sequence and its digest `now` (`_digests`) say
+    the same files. A digest an older geofeat stored has no "+gt:" part (its groundtruth.json was
+    left out): it is compared with `now` without that part, and so accepted when every other file is
+    unchanged (the caller says that its groundtruth.json was not checked). Refusing it instead would
+    send every earlier run, hours of scoring, to --overwrite; the older digest still checks the
+    <frame>-gt.npz files, which change with any re-simulation."""
+    if not isinstance(stored, str):
+        return False
+    if _GT_PART in stored:
+        return stored == now
+    head, _, tail = now.partition(_GT_PART)
+    return stored == head + tail[len(tail.split("+", 1)[0]):]
 
 
 def tps_digest(tps_dir: str, name: str) -> str:
