@@ -208,3 +208,26 @@ def test_frames_with_descriptors_of_another_kind_are_refused_by_name(tmp_path, m
     _h5(path, {f: {"keypoints": kp, "descriptors": bits, "valid": np.ones(len(kp), bool), **extra} for f in frames})
     rows = evaluate_external(seq, GroundTruth(seq, None), ExternalFeatures("m", path), config)
     assert len(rows) == 1 and rows[0]["ms"] == 1.0  # one kind: scored (the same features, landmarks and pixels)
+
+
+def test_float16_keypoints_rounded_by_half_a_pixel_or_more_are_scored_with_a_warning(tmp_path):
+    """`bench --features` on an hloc .h5 written with `as_half`: float16 keypoints at x >= 1024 are 1 px
+    apart, so the 3 px protocol scored rounded positions without a word. One warning per file and step
+    (not per frame), naming the file and the step; the features are still read."""
+    import warnings
+
+    kp, desc, scores = _frame()
+    wide = (kp + [1100, 0]).astype(np.float16)  # x in 1105..1210: 1 px steps
+    path = _h5(tmp_path / "f.h5", {"seq/f0": {"keypoints": wide, "descriptors": desc.T},
+                                   "seq/f1": {"keypoints": wide, "descriptors": desc.T},
+                                   "seq/f2": {"keypoints": kp.astype(np.float16), "descriptors": desc.T}})
+    features = ExternalFeatures("m", path)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        first = features.load("seq", "f0", shape=(240, 1280))
+        features.load("seq", "f1", shape=(240, 1280))
+        features.load("seq", "f2", shape=(240, 1280))  # under 512 px: nothing to say
+    messages = [str(w.message) for w in caught]
+    assert len(messages) == 1 and "features m: seq/f0" in messages[0] and str(path) in messages[0]
+    assert "float16" in messages[0] and "up to 1 px" in messages[0]
+    np.testing.assert_array_equal(first.keypoints, wide.astype(np.float64))

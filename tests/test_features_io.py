@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import h5py
 import numpy as np
 import pytest
@@ -329,3 +331,25 @@ def test_features_with_keypoints_that_are_not_finite_are_refused(tmp_path, suffi
             fd["img/keypoints"], fd["img/descriptors"] = kp, np.zeros((3, 8), np.float32)
     with pytest.raises(ValueError, match="keypoints: 2 not finite"):
         load_features(path)
+
+
+def test_float16_keypoints_far_enough_from_the_origin_to_be_rounded_are_read_with_a_warning(tmp_path):
+    """hloc's `as_half` stores keypoints as float16: from x = 512 their positions are rounded to 0.5 px,
+    from 1024 to 1 px, from 2048 to 2 px, and the 3 px protocol scored the rounded positions without a
+    word. They are still read as stored, with a warning naming the file, the group and the largest step."""
+    rng = np.random.default_rng(0)
+    near = rng.uniform(0, 500, (20, 2)).astype(np.float16)  # under 512 px: 0.25 px steps at most, no warning
+    far = near.copy()
+    far[3] = (2100.3, 40.0)  # 2 px apart there: stored as 2100
+    path = tmp_path / "hloc.h5"
+    with h5py.File(path, "w") as fd:
+        for name, kp in (("near", near), ("far", far)):
+            fd[f"{name}/keypoints"] = kp
+            fd[f"{name}/descriptors"] = rng.normal(size=(64, 20)).astype(np.float16)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        np.testing.assert_array_equal(load_features(path, "near").keypoints, near.astype(np.float64))
+    with pytest.warns(UserWarning, match=r"hloc.h5', group 'far': keypoints stored as float16.* up to 2 px "
+                                         r"\(1 of 20 keypoints have a coordinate >= 512 px"):
+        f = load_features(path, "far")
+    assert f.keypoints[3, 0] == 2100.0  # read as stored

@@ -16,6 +16,7 @@ at the top level of one archive per image (or pair).
 
 from __future__ import annotations
 
+import warnings
 import zipfile
 import zlib
 from dataclasses import dataclass
@@ -385,6 +386,40 @@ def descriptors_n_by_d(descriptors: np.ndarray, n_keypoints: int, hloc_layout: b
     return d
 
 
+#: Float16 keypoint coordinates this far apart (pixels) or more are warned about (`warn_float16_keypoints`):
+#: from 512 px on, where the 3 px protocol starts to score the rounding.
+FLOAT16_WARN_STEP_PX = 0.5
+
+
+def float16_step(keypoints) -> float:
+    """The largest gap (pixels) between neighbouring float16 values at the keypoints' coordinates: 0.5 px
+    from 512 px, 1 px from 1024 px, 2 px from 2048 px; 0.0 for keypoints of another dtype. hloc's
+    `as_half` stores every float32 array as float16, keypoints (N, 2) included."""
+    kp = np.asarray(keypoints)
+    if kp.dtype != np.float16:
+        return 0.0
+    finite = np.abs(kp[np.isfinite(kp)])
+    return float(np.spacing(finite.max())) if finite.size else 0.0
+
+
+def warn_float16_keypoints(keypoints, where: str) -> float:
+    """Warn, naming `where` (the file, and its group), when float16 `keypoints` (N, 2) have
+    coordinates where float16 values lie `FLOAT16_WARN_STEP_PX` or more apart: their positions
+    were rounded when stored, and the 3 px protocol scores the rounded ones. The keypoints are
+    still read. Returns the largest gap (`float16_step`) when it warned, else 0.0."""
+    step = float16_step(keypoints)
+    if step < FLOAT16_WARN_STEP_PX:
+        return 0.0
+    kp = np.abs(np.asarray(keypoints, np.float64))
+    far = int((kp.max(axis=-1) >= 1024 * FLOAT16_WARN_STEP_PX).sum()) if kp.ndim == 2 else kp.size
+    warnings.warn(f"{where}: keypoints stored as float16 (hloc's as_half), rounded to steps of up to {step:g} px "
+                  f"({far} of {len(kp)} keypoints have a coordinate >= {1024 * FLOAT16_WARN_STEP_PX:g} px, where "
+                  f"float16 values are {FLOAT16_WARN_STEP_PX:g} px or more apart); they are read as stored, so the "
+                  "3 px protocol scores the rounded positions: store keypoints as float32 (hloc: as_half=False)",
+                  stacklevel=3)
+    return step
+
+
 def _features_from(arrays: dict[str, np.ndarray], path, hloc: bool = False) -> Features:
     """`hloc`: the group has hloc's layout (`descriptors_n_by_d`)."""
     _require_arrays(arrays, ("keypoints", "descriptors"), path, "features")
@@ -406,12 +441,15 @@ def load_features(path: str | Path, name: str | None = None) -> Features:
     means every keypoint is valid, and float descriptors stored as hloc's (D, N) are read as
     (N, D)). For .h5, `name` may be omitted when the file holds one image; a `name` the file has no
     group of is a ValueError naming the file and the groups it holds. For .npz, a `name` other than
-    the one the file was saved with is a ValueError too."""
+    the one the file was saved with is a ValueError too. Float16 keypoints (hloc's `as_half`) are read
+    as stored, with a warning where their rounding reaches 0.5 px (`warn_float16_keypoints`)."""
     if _suffix(path) == ".npz":
         arrays = read_npz(path)
         _check_npz_name(arrays, name, path)
+        warn_float16_keypoints(arrays.get("keypoints"), f"path: {str(path)!r}")
         return _features_from(arrays, path)
     arrays = _h5_read_group(path, name)
+    warn_float16_keypoints(arrays.get("keypoints"), f"path: {str(path)!r}" + ("" if name is None else f", group {name!r}"))
     return _features_from(arrays, path, hloc="valid" not in arrays)
 
 

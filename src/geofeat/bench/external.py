@@ -35,7 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..features import Features, _h5_leaf_groups, _h5_read_group, _open_h5, descriptors_n_by_d, read_npz
+from ..features import (Features, _h5_leaf_groups, _h5_read_group, _open_h5, descriptors_n_by_d, float16_step, read_npz,
+                        warn_float16_keypoints)
 from ..io import RGB_SUFFIX
 from ..keypoints import as_keypoints
 from ..matching import METRICS, match, quantised_zero_share
@@ -137,6 +138,8 @@ class ExternalFeatures:
         self._groups: set[str] | None = None
         #: the `metric` the files name (None: chosen from the descriptors' dtype, see `geofeat.match`)
         self.metric: str | None = None
+        #: the largest float16 rounding step warned about so far (`features.warn_float16_keypoints`)
+        self._float16_warned = 0.0
 
     def _h5_groups(self) -> set[str]:
         if self._groups is None:
@@ -152,10 +155,16 @@ class ExternalFeatures:
         """The features of `frame` of `sequence`, best `n` by score when scores are given; with
         `shape` (H, W), every keypoint must lie on the image.
 
+        Float16 keypoints (hloc's `as_half`) are read as stored, with a warning naming the file when their
+        rounding reaches 0.5 px (`features.warn_float16_keypoints`; again only for a larger step).
+
         Raises:
             ValueError naming the method, the frame and the file when they are missing or malformed.
         """
         arrays, source = self._read(sequence, frame)
+        if float16_step(arrays.get("keypoints")) > self._float16_warned:  # once per file and step, not per frame
+            self._float16_warned = max(self._float16_warned, warn_float16_keypoints(
+                arrays["keypoints"], f"features {self.name}: {sequence}/{frame} ({source})"))
         try:
             return self._features(arrays, n, shape, hloc_layout=self.path.is_file() and "valid" not in arrays)
         except (TypeError, ValueError) as error:
