@@ -853,3 +853,54 @@ def test_a_rerun_refuses_rows_scored_with_tps_files_made_again_since(datasets, t
     with pytest.raises(ValueError, match="its TPS files made again"):
         run_benchmark(seqs, tmp_path / "out", config, progress=False)
     assert read_rows(csv_path) == rows
+
+
+def test_merge_bench_refuses_runs_of_other_keypoint_counts(tmp_path, capsys, monkeypatch):
+    """benchmarks/merge_bench.py averaged runs made at --keypoints 1024 and 2048 into one column (0.4
+    here, a figure neither run had): results.csv has no keypoint-count column. The config.json that
+    each run wrote beside its results.csv tells; other counts (or keypoint sets on one detector) are
+    refused naming the runs and their values, and runs of one count still merge."""
+    from pathlib import Path
+
+    from benchmark_scripts import import_benchmarks
+
+    merge_bench = import_benchmarks("merge_bench")[0]
+    row = dict(sequence="a-deform", reference="ref", target="t1", descriptor="geopatch", detector="sift",
+               protocol="detect", keypoint_set="protocol", depth_profile="clean", mma=0.9, repeatability=0.7,
+               hits=300, n_gt=400, n_ref=1000, n_tgt=1000, seconds_extract=0.0, seconds_match=0.0,
+               angle_deg=float("nan"), scale=float("nan"))
+
+    def run(name, n_keypoints, ms, **settings):
+        folder = tmp_path / name
+        folder.mkdir()
+        with open(folder / "results.csv", "w", newline="") as fh:
+            writer = csv.DictWriter(fh, COLUMNS)
+            writer.writeheader()
+            landmarks = settings.get("protocol") == "landmarks"
+            writer.writerow(dict(row, ms=ms, **(dict(protocol="landmarks", detector="landmarks") if landmarks else {})))
+        config = dict(protocol="detect", detector="sift", keypoint_set="protocol", n_keypoints=n_keypoints)
+        (folder / "config.json").write_text(json.dumps({**config, **settings}))
+        return str(folder / "results.csv")
+
+    small, large = run("k1024", 1024, 0.6), run("k2048", 2048, 0.2)
+    def merge(*results):  # the command line, as the script is run
+        monkeypatch.setattr("sys.argv", ["merge_bench.py", *results, "--out", str(tmp_path / "merged")])
+        merge_bench.main()
+
+    with pytest.raises(SystemExit):
+        merge(small, large)
+    err = capsys.readouterr().err
+    assert f"{small} 1024 keypoints" in err and f"{large} 2048 keypoints" in err and "different --keypoints" in err
+    assert not (tmp_path / "merged" / "table.md").exists()
+    unique = run("unique", 1024, 0.5, keypoint_set="unique")
+    with pytest.raises(ValueError, match=f"detector sift with different --keypoint-set.*{small} protocol, {unique} unique"):
+        merge_bench.check_mergeable([Path(small), Path(unique)])
+    landmarks = run("landmarks", 2048, 0.3, protocol="landmarks")  # describes the landmarks: no keypoint count
+    other = run("other", 1024, 0.4)
+    merge(small, other, landmarks)
+    table = (tmp_path / "merged" / "table.md").read_text()
+    assert table.splitlines()[0] == "| sequences | sift + geopatch | landmarks + geopatch |"
+    assert "| all (1) | **0.500** | 0.300 |" in table
+    (tmp_path / "other" / "config.json").unlink()
+    with pytest.raises(ValueError, match="cannot read .*other/config.json.*keypoint count is unknown"):
+        merge_bench.check_mergeable([Path(small), Path(other)])
