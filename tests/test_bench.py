@@ -904,3 +904,29 @@ def test_merge_bench_refuses_runs_of_other_keypoint_counts(tmp_path, capsys, mon
     (tmp_path / "other" / "config.json").unlink()
     with pytest.raises(ValueError, match="cannot read .*other/config.json.*keypoint count is unknown"):
         merge_bench.check_mergeable([Path(small), Path(other)])
+
+
+def test_tps_files_without_some_ssim_maps_are_refused_and_without_any_said(datasets, tmp_path, capsys):
+    """--tps-dir: a target frame without its <k>_SSIM.png was scored without the SSIM filter (the
+    protocol's step 3) while the others had it, without a word. Some maps missing: the sequence fails
+    naming them. None there: scored by the object masks alone, with one warning for the sequence and
+    a note in table.md and details.md."""
+    seqs = tmp_path / "seqs"
+    shutil.copytree(datasets / "seqs" / "a-deform", seqs / "a-deform")
+    tps = tmp_path / "tps"
+    assert main(["groundtruth", str(seqs), "--out", str(tps), "--no-refine", "--no-progress"]) == 0
+    (tps / "a-deform" / "frame-002_SSIM.png").unlink()
+    config = BenchConfig(descriptors=("orb",), n_keypoints=200, tps_dir=str(tps))
+    capsys.readouterr()
+    csv_path, failed = run_benchmark(seqs, tmp_path / "some", config, progress=False)
+    assert failed == ["a-deform"] and read_rows(csv_path) == []
+    assert "SSIM map (<k>_SSIM.png, the protocol's step 3) for 1 of the 2 target frames of a-deform with a spline, " \
+           "not frame-002_SSIM.png" in capsys.readouterr().out
+    (tps / "a-deform" / "frame-001_SSIM.png").unlink()
+    with pytest.warns(UserWarning, match="no SSIM map .* for any target frame of a-deform: step 3 .* skipped") as said:
+        assert main(["bench", str(seqs), "--descriptors", "orb", "--keypoints", "200", "--tps-dir", str(tps),
+                     "--out", str(tmp_path / "none")]) == 0
+    assert len([w for w in said if "SSIM" in str(w.message)]) == 1
+    assert len(read_rows(tmp_path / "none" / "results.csv")) == 2
+    for report in ("table.md", "details.md"):
+        assert "SSIM filter (protocol step 3) skipped for a-deform" in (tmp_path / "none" / report).read_text()

@@ -82,11 +82,19 @@ def run(args: argparse.Namespace) -> int:
     if not rows:
         raise ValueError(f"datasets: no sequence could be evaluated ({len(failed)} failed)")
     group_of = scenario_groups(find_sequences(args.datasets))  # simulated sequences: their scenario
-    table = markdown_table(rows, group_of)
+    note = ""
+    if config.tps_dir and config.protocol == "detect":
+        from ..groundtruth.sources import without_ssim_maps
+
+        unfiltered = without_ssim_maps(config.tps_dir, dict.fromkeys(r["sequence"] for r in rows))
+        if unfiltered:
+            note = (f"\nSSIM filter (protocol step 3) skipped for {', '.join(unfiltered)}: no <k>_SSIM.png in "
+                    "their TPS files, so the object masks alone decide which target keypoints are scored.\n")
+    table = markdown_table(rows, group_of) + note
     write(out / "table.md", table)
     print(table)
     if config.protocol == "detect":
-        details = detail_table(rows)
+        details = detail_table(rows) + note
         write(out / "details.md", details)
         print(details)
     for path in plot_curves(rows, out, group_of):

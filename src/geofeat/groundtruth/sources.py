@@ -6,6 +6,7 @@ use it."""
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import cv2
@@ -18,7 +19,7 @@ from ..tps import ThinPlateSpline
 from .landmarks import MIN_LANDMARKS, inside_hull, landmark_spline
 
 __all__ = ["GroundTruth", "correct_matches", "judged_matches", "tps_folder", "load_authors_spline",
-           "refuse_partial_simulator_truth"]
+           "refuse_partial_simulator_truth", "missing_ssim_maps", "without_ssim_maps"]
 
 
 def _has_tps_files(folder: Path) -> bool:
@@ -41,6 +42,31 @@ def tps_folder(tps_dir: str, name: str) -> Path | None:
                          f"{', '.join(str(f) for f in found[:4])}); pass the one meant as --tps-dir "
                          f"({found[0].parent})")
     return found[0] if found else None
+
+
+def missing_ssim_maps(folder: Path, targets: list[str] | None = None) -> tuple[list[str], list[str]]:
+    """The target frames that the TPS files in `folder` give a spline (`<k>_theta.npy`), among
+    `targets` (default: every such file's frame), and the names of the SSIM maps (`<k>_SSIM.png`,
+    the protocol's step 3) missing for them."""
+    suffix = "_theta.npy"
+    if targets is None:
+        targets = sorted(p.name[: -len(suffix)] for p in folder.glob(f"*{suffix}") if not p.name.startswith("."))
+    covered = [t for t in targets if (folder / f"{t}{suffix}").is_file()]
+    return covered, [f"{t}_SSIM.png" for t in covered if not (folder / f"{t}_SSIM.png").is_file()]
+
+
+def without_ssim_maps(tps_dir: str, names) -> list[str]:
+    """The sequences among `names` whose TPS files under `tps_dir` have no SSIM map for any target
+    frame: their target keypoints were kept by the object masks alone (`GroundTruth` warns), for
+    the notes of `geofeat bench`'s reports."""
+    out = []
+    for name in names:
+        folder = tps_folder(tps_dir, name)
+        if folder is not None:
+            covered, missing = missing_ssim_maps(folder)
+            if covered and len(missing) == len(covered):
+                out.append(name)
+    return out
 
 
 def _on_mask(mask: np.ndarray | None, xy: np.ndarray) -> np.ndarray:
@@ -82,6 +108,8 @@ class GroundTruth:
         if tps_dir and self.tps is None:
             raise ValueError(f"tps-dir: no TPS files (<frame>_theta.npy, <frame>_objmask.png) for sequence {seq.name} "
                              f"in {Path(tps_dir) / seq.name} or {Path(tps_dir)}/*/{seq.name}")
+        if self.tps is not None:
+            self._check_ssim_maps()
         self.exact = self.tps is None and seq.has_ground_truth()
         if self.tps is None and not self.exact and not seq.has_landmarks():
             missing = seq.without_landmarks()
@@ -89,6 +117,23 @@ class GroundTruth:
                 f"csv landmarks in {len(seq) - len(missing)} of {len(seq)} frames only, none for "
                 f"{', '.join(missing[:5])}{', ...' if len(missing) > 5 else ''}")
             raise ValueError(f"sequence {seq.name}: no ground truth (no simulator files, {csv}, no TPS files)")
+
+    def _check_ssim_maps(self) -> None:
+        """The SSIM maps of the TPS files (`<k>_SSIM.png`: target keypoints are kept where > 0.25, the
+        protocol's step 3) for every target frame they give a spline, or for none. A missing one
+        skipped the filter for its frame alone, without a word: ValueError naming them when some are
+        there and others not; a warning, once per sequence, when none is (the object masks alone
+        decide which target keypoints are scored)."""
+        covered, missing = missing_ssim_maps(self.tps, self.seq.targets)
+        if missing and len(missing) < len(covered):
+            raise ValueError(f"tps-dir: {self.tps} has an SSIM map (<k>_SSIM.png, the protocol's step 3) for "
+                             f"{len(covered) - len(missing)} of the {len(covered)} target frames of {self.seq.name} "
+                             f"with a spline, not {', '.join(missing[:5])}{', ...' if len(missing) > 5 else ''}: "
+                             "restore them, or make the TPS files again (geofeat groundtruth)")
+        if missing:
+            warnings.warn(f"tps-dir: {self.tps} has no SSIM map (<k>_SSIM.png) for any target frame of "
+                          f"{self.seq.name}: step 3 of the protocol (target keypoints kept where SSIM > 0.25) is "
+                          "skipped, the object masks alone decide which are scored", stacklevel=3)
 
     def _mask(self, frame: str) -> np.ndarray | None:
         """The (H, W) uint8 object mask of `frame` in the TPS files (None without them); ValueError when
