@@ -449,7 +449,8 @@ def load_features(path: str | Path, name: str | None = None) -> Features:
         warn_float16_keypoints(arrays.get("keypoints"), f"path: {str(path)!r}")
         return _features_from(arrays, path)
     arrays = _h5_read_group(path, name)
-    warn_float16_keypoints(arrays.get("keypoints"), f"path: {str(path)!r}" + ("" if name is None else f", group {name!r}"))
+    where = f"path: {str(path)!r}" + ("" if name is None else f", group {name!r}")
+    warn_float16_keypoints(arrays.get("keypoints"), where)
     return _features_from(arrays, path, hloc="valid" not in arrays)
 
 
