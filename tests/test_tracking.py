@@ -66,6 +66,27 @@ def test_local_fit_keeps_the_matches_of_a_crumpled_surface_that_global_ransac_lo
     assert not ransac.ok or np.median(np.linalg.norm(ransac.warp(grid) - crumple_warp(grid), axis=1)) > 5 * local_error
 
 
+def test_the_track_threshold_reaches_the_local_consistency_step(monkeypatch):
+    """`geofeat track --threshold` says it is the inlier threshold of both fits, but the local
+    consistency step kept its fixed 4 px: a user's 10 px still dropped every match 4 px off its
+    neighbours' affine map. The tolerance now scales with it (4 px at the default 3 px)."""
+    from geofeat.apps import localfit
+
+    seen, consistent = [], localfit.locally_consistent
+
+    def spy(src, dst, *args, **kwargs):
+        seen.append(kwargs["tolerance_px"])
+        return consistent(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(localfit, "locally_consistent", spy)
+    rng = np.random.default_rng(0)
+    src = rng.uniform([40, 40], [600, 440], (200, 2))
+    dst = crumple_warp(src) + rng.normal(0, 0.3, (200, 2))
+    default, loose = fit_tps_local(src, dst), fit_tps_local(src, dst, threshold_px=7.5)
+    assert seen == [pytest.approx(4.0), pytest.approx(10.0)]
+    assert default.ok and loose.ok
+
+
 def test_local_consistency_rejects_random_matches_and_checks_its_input():
     rng = np.random.default_rng(3)
     src, dst = rng.uniform(0, 640, (500, 2)), rng.uniform(0, 640, (500, 2))

@@ -262,17 +262,21 @@ def fit_tps_local(
     """Robust TPS fit for surfaces that one global RANSAC model cannot explain (a crumpled cloth):
     the matches that their template neighbours' local affine map confirms
     (`geofeat.apps.localfit.locally_consistent`) are the first inliers, then `refit_on_inliers`.
+    The local maps' tolerance scales with `threshold_px` (4 px at the default 3 px), so that
+    `geofeat track --threshold` reaches both steps, as its help says.
 
     Args:
         src, dst: (N, 2) matched pixels, template and frame.
     Returns:
         `RansacResult` (warp None when too few matches are confirmed).
     """
-    from .localfit import locally_consistent  # scipy.spatial: imported when a frame is first fitted
+    from .localfit import LOCAL_TOLERANCE_PX, locally_consistent  # scipy.spatial: imported when first fitted
 
     src, dst = check_pairs(src, dst, 0)
     check_positive(threshold_px, "threshold_px")  # before the local fits
-    return refit_on_inliers(src, dst, locally_consistent(src, dst, seed=seed), threshold_px, min_inliers=min_inliers)
+    tolerance = LOCAL_TOLERANCE_PX * threshold_px / RANSAC_THRESHOLD_PX
+    return refit_on_inliers(src, dst, locally_consistent(src, dst, tolerance_px=tolerance, seed=seed), threshold_px,
+                            min_inliers=min_inliers)
 
 
 def guided_matches(features0, features1, predicted0: np.ndarray, radius: float = GUIDE_RADIUS_PX) -> np.ndarray:
