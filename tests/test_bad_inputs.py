@@ -1442,17 +1442,18 @@ def test_output_folder_that_is_the_input_sequence_is_refused(tmp_path, capsys, c
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data"]
 
 
-def test_bench_rerun_into_its_input_sequence_is_refused_and_extract_may_name_an_h5_file_there(tmp_path, capsys):
+def test_bench_rerun_into_its_input_sequence_is_refused_and_extract_writes_beside_it(tmp_path, capsys):
     """A bench that wrote into the sequence (before this was refused) is not resumed there; extract's
-    .h5 file named inside the sequence is one file of the user's choosing (no frame's), and is written,
-    as is a .npz prefix beside the sequence folder."""
+    .h5 file named inside the sequence is refused too (an output inside an input folder), and a .npz
+    prefix beside the sequence folder is written."""
     seq = make_sequence(tmp_path / "data" / "seq")
     (seq / "results.csv").write_text("sequence,descriptor\n")
     assert main(["bench", str(seq), "--descriptors", "orb", "--out", str(seq)]) == 2
     assert "--out: " in capsys.readouterr().err
-    assert main(["extract", str(seq), "--descriptor", "orb", "--out", str(seq / "f.h5")]) == 0
+    assert main(["extract", str(seq), "--descriptor", "orb", "--out", str(seq / "f.h5")]) == 2
+    assert f"lies inside the input folder {seq}" in capsys.readouterr().err
     assert main(["extract", str(seq), "--descriptor", "orb", "--out", str(tmp_path / "data" / "seq.npz")]) == 0
-    assert (seq / "f.h5").is_file() and (tmp_path / "data" / "seq-frame-001.npz").is_file()
+    assert not (seq / "f.h5").exists() and (tmp_path / "data" / "seq-frame-001.npz").is_file()
 
 
 def test_interrupt_while_replacing_a_folder_keeps_the_earlier_result(tmp_path, monkeypatch):

@@ -63,6 +63,19 @@ def sequence_digest(folder: str | Path) -> str:
                         and (p.name in SEQUENCE_FILES or p.name.startswith(prefixes)))
 
 
+def frame_digest(folder: str | Path, name: str) -> str:
+    """SHA-1 (hex) of the contents of frame `name`'s colour and depth files in `folder`: a cheap
+    fingerprint of a sequence by its reference frame (contents only, so that a copy under another
+    folder name has the same). `geofeat retrieval` refuses two sequences with one reference frame;
+    `geofeat extract` records it beside its one `.npz` per frame."""
+    digest = hashlib.sha1()
+    for path in (Path(folder) / f"{name}{RGB_SUFFIX}", Path(folder) / f"{name}{DEPTH_SUFFIX}"):
+        # a missing depth file (reading the frame names it) is hashed as such: the colour file tells apart
+        data = path.read_bytes() if path.is_file() else None
+        digest.update(b"missing\0" if data is None else str(len(data)).encode() + b"\0" + data)
+    return digest.hexdigest()
+
+
 def files_digest(paths) -> str:
     """SHA-1 (hex) of files: the name, size and contents of each, in name order (`sequence_digest`, and
     the TPS files of a sequence in `geofeat bench`'s resume check)."""
@@ -551,6 +564,11 @@ def _looks_like_sequence(folder: Path) -> bool:
             or bool(_near_misses(folder, RGB_SUFFIX)))
 
 
+def path_list(paths) -> list[Path]:
+    """The folders a command was given (one path, or an iterable of them) as a list of paths."""
+    return [Path(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]
+
+
 def find_sequences(paths, unique_names: bool = False, what: str = "dataset") -> list[Path]:
     """Sequence folders under the given paths: a path that holds `*-rgb.png` frames is a sequence,
     otherwise its sub-folders that do are (one level down, hidden ones left out), sorted by name; a
@@ -560,7 +578,7 @@ def find_sequences(paths, unique_names: bool = False, what: str = "dataset") -> 
     their results by the sequence name). ValueError naming `what` (an option such as --data) for a
     path that is no folder or holds no sequence."""
     found: list[Path] = []
-    for p in [Path(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]:
+    for p in path_list(paths):
         if not p.is_dir():
             raise ValueError(f"{what}: not a directory: {p}")
         if frame_names(p):

@@ -255,42 +255,53 @@ def _refuse_clashes(folder: Path, clashes: list[str], what: str) -> None:
                          "another folder")
 
 
-def _input_clash(folder: Path, inputs: Iterable[str | Path], replaced: bool = True) -> str | None:
-    """Why writing the result folder `folder` would replace one of the folders `inputs` the command
-    reads: `folder` is one of them (through any link), or (when the result `replaced` the folder's
-    earlier files, as `replace_folder` does) its manifest lists a file inside one; None when neither."""
+def _input_clash(folder: Path, inputs: Iterable[str | Path | None], replaced: bool = True) -> tuple[str, str] | None:
+    """Why writing the result folder (or file) `folder` would put results among, or replace, the
+    folders `inputs` the command reads (None entries, options left out, are passed over), and the
+    harm, as (why, harm): `folder` is one of them or lies inside one (through any link: results
+    beside the user's frames, where a later run may read them as inputs), or (when the result
+    `replaced` the folder's earlier files, as `replace_folder` does) its manifest lists a file inside
+    one; None when none of these."""
     here = folder.resolve()
-    listed = [(folder / rel).resolve() for rel in read_manifest(folder)] if replaced and folder.is_dir() else []
-    for given in inputs:
-        source = Path(given).resolve()
+    sources = [(given, Path(given).resolve()) for given in inputs if given is not None]
+    for given, source in sources:
         if source == here:
-            return f"{folder} is the input folder {given}"
+            return f"{folder} is the input folder {given}", "writing the result there would replace it"
+        if source in here.parents:
+            return f"{folder} lies inside the input folder {given}", "the results would be written among its files"
+    listed = [(folder / rel).resolve() for rel in read_manifest(folder)] if replaced and folder.is_dir() else []
+    for given, source in sources:
         if any(source in f.parents for f in listed):
-            return f"{folder} holds the input folder {given}, with files geofeat wrote"
+            return (f"{folder} holds the input folder {given}, with files geofeat wrote",
+                    "writing the result there would replace it")
     return None
 
 
-def refuse_input_folder(folder: str | Path, inputs: Iterable[str | Path], what: str = "--out",
+def refuse_input_folder(folder: str | Path, inputs: Iterable[str | Path | None], what: str = "--out",
                         harm: str | None = None) -> None:
-    """ValueError when the output folder `folder` is one of the folders `inputs` a command reads, or
-    holds one among files geofeat wrote (`_input_clash`), whatever `--overwrite` says. `harm`: what
-    a command that adds its files to the folder (bench, extract) would do there, for the message;
-    None: the command replaces the folder's earlier files (`replace_folder`), and would delete it."""
+    """ValueError when the output folder (or file) `folder` is one of the folders `inputs` a command
+    reads (sequences, folders of sequences, --tps-dir; None entries are passed over), lies inside
+    one, or holds one among files geofeat wrote (`_input_clash`), whatever `--overwrite` says. Every
+    command that reads folders checks its output with it before any work (`check_out_dir`, through
+    its `inputs`). `harm`: what a command that adds its files to the folder (bench, extract) would do
+    there, for the message; None: the harm `_input_clash` names (replacing the input, or writing
+    among its files)."""
     clash = _input_clash(Path(folder), inputs, replaced=harm is None)
-    harm = harm or "writing the result there would replace it"
     if clash:  # before the "pass --overwrite" advice, which would delete the input
-        raise ValueError(f"{what}: {clash}; {harm}: choose another folder")
+        why, default = clash
+        raise ValueError(f"{what}: {why}; {harm or default}: choose another folder")
 
 
 def check_out_dir(path: str | Path, overwrite: bool = False, what: str = "--out", strict: bool = False,
-                  files: Iterable[str] = (), inputs: Iterable[str | Path] = ()) -> Path:
+                  files: Iterable[str] = (), inputs: Iterable[str | Path | None] = ()) -> Path:
     """Check an output folder before any work: it must not be a file, and an existing non-empty folder
     needs `overwrite`. With `strict`, a folder holding files geofeat did not write (not in its
     manifest) is refused even with `overwrite`, because leftovers would mix with the new output.
     `files`: the result files the command writes at fixed names (relative paths); with `overwrite`,
     one of them that geofeat did not write is refused (`foreign_clashes`) rather than replaced.
     `inputs`: the folders the command reads; an output folder that is one of them (a simulated
-    sequence, whose files geofeat wrote) is refused, with or without `overwrite`, which would delete it."""
+    sequence, whose files geofeat wrote), or lies inside one, is refused, with or without `overwrite`
+    (`refuse_input_folder`)."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise ValueError(f"{what}: {path} is a file, not a folder")

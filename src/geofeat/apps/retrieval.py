@@ -357,6 +357,26 @@ def exclusion_mask(sequences, queries: np.ndarray, include_own_sequence: bool = 
     return seqs[queries][:, None] == seqs[None, :]
 
 
+def refuse_copied_sequences(folders: list[Path]) -> None:
+    """ValueError naming both folders when two of the sequence `folders` have byte-identical reference
+    frames (`io.frame_digest` of its colour and depth files): a sequence copied under another folder
+    name (a dataset given twice under two names, or two datasets that share a sequence). The query's
+    own sequence is left out of its results by name only, so the copy would be found as the query's
+    own frame and counted as a correct result, raising Acc@K unsaid; the copy also weighs twice in
+    the vocabulary, the idf and the other queries' results, so it is refused rather than left out."""
+    from ..io import frame_digest, read_sequence
+
+    seen: dict[str, Path] = {}
+    for folder in folders:
+        reference = read_sequence(folder).reference
+        first = seen.setdefault(frame_digest(folder, reference), Path(folder))
+        if first != Path(folder):
+            raise ValueError(f"datasets: {first} and {folder} hold the same reference frame ({reference}, byte for "
+                             "byte: one sequence copied under two folder names?); its query would find its own "
+                             "frame in the copy and count it as a correct result, so Acc@K would be too high: "
+                             "leave one of them out")
+
+
 def _check_class_mates(sequences: list[str], classes: dict[str, str] | None, classes_file, every: bool = False) -> None:
     """ValueError when no two of `sequences` share a class (the folder name without `classes`), so that no
     query has an answer in a database of the other sequences; with `every`, whatever the classes (the
@@ -795,13 +815,14 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
         rerank_top: results per query reordered by verified matches (`rerank`; 0: none).
         detector: the keypoints of every descriptor; None: each descriptor's own (`describe_datasets`).
     Returns ({descriptor: DescriptorResult}, the described database)."""
-    from ..io import find_sequences
+    from ..io import find_sequences, path_list
     from ..outputs import check_out_dir, output_folder
 
     _check_weighting(weighting)
     if isinstance(rerank_top, bool) or not isinstance(rerank_top, (int, np.integer)) or rerank_top < 0:
         raise ValueError(f"rerank: expected a whole number of results >= 0 (0 = the words' order), got {rerank_top!r}")
-    out = check_out_dir(out, overwrite, files=RESULT_FILES, inputs=find_sequences(datasets, unique_names=True))
+    folders = find_sequences(datasets, unique_names=True)
+    out = check_out_dir(out, overwrite, files=RESULT_FILES, inputs=[*path_list(datasets), *folders, tps_dir])
     if n_keypoints is not None:
         check_whole(n_keypoints, "keypoints", 1)
     check_whole(seed, "seed", 0)
@@ -817,9 +838,10 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
         # a bad name, weights file or --tps-dir is the first error, as in describe_datasets
         group_by_detector(check_descriptor_names(descriptors), detector)
         check_tps_dir(tps_dir)
-        names = [f.name for f in find_sequences(datasets, unique_names=True)]
+        names = [f.name for f in folders]
         if classes is None or all(n in classes for n in names):  # a sequence without a class: describe_datasets says so
             _check_class_mates(names, classes, classes_file)
+    refuse_copied_sequences(folders)  # the last check before the frames are described
     db = describe_datasets(datasets, descriptors, n_keypoints, classes, tps_dir, radius, depth_scale, progress, detector)
     if not db.frames:
         raise ValueError(f"datasets: every frame was skipped ({', '.join(db.skipped[:5])}"

@@ -1114,7 +1114,7 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
     from ..descriptors import check_descriptor_names
     from ..groundtruth.sources import tps_folder
     from ..inputs import check_tps_dir
-    from ..io import find_sequences
+    from ..io import find_sequences, path_list
     from ..keypoints import group_by_detector
     from ..outputs import check_out_dir, output_folder
 
@@ -1126,12 +1126,12 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
             raise ValueError(f"descriptors: {other!r} and {name!r} would write their results into one folder, "
                              f"{_result_folder(name)!r}; rename one weights file")
     groups = group_by_detector(names, detector)
-    sequences = find_sequences(sequences, unique_names=True)
+    given, sequences = path_list(sequences), find_sequences(sequences, unique_names=True)
     # every file at a fixed name, per sequence and descriptor too: a user's file there was found only when
     # the results were moved into place, after all the tracking
     files = ["track.csv", "tracking.md"] + [f"{Path(folder).name}/{_result_folder(name)}/{file}" for folder in sequences
                                             for name in names for file in ("grid.npz", "track.gif")]
-    out = check_out_dir(out, overwrite, files=files, inputs=sequences)
+    out = check_out_dir(out, overwrite, files=files, inputs=[*given, *sequences, tps_dir])
     check_tps_dir(tps_dir)
     for folder in sequences:  # before any work: a sequence of one frame found after hours of tracking lost them all
         count = len(frame_names(folder))

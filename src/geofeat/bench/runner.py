@@ -34,7 +34,7 @@ from ..constants import N_KEYPOINTS
 from ..depth import check_profile, sequence_depth_profile
 from ..descriptors import OpenCVDescriptor, check_descriptor_name, make_descriptor, refuse_repeated
 from ..inputs import check_depth_scale, check_radius, check_tps_dir, check_whole, resolve_radius
-from ..io import Sequence, files_digest, find_sequences, frame_names, read_sequence, sequence_digest
+from ..io import Sequence, files_digest, find_sequences, frame_names, path_list, read_sequence, sequence_digest
 from ..outputs import (add_to_manifest, append_line_durably, atomic_file, check_out_dir, plural, read_manifest,
                        refuse_input_folder)
 from ..keypoints import Keypoints, check_detector_name, detect, resolve_keypoint_set
@@ -434,8 +434,10 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
     out = Path(out)
     csv_path = out / "results.csv"
     folders = [str(f) for f in find_sequences(datasets, unique_names=True)]
-    # a sequence folder for `out`, resumed or not: the results would be written among its frames
-    refuse_input_folder(out, folders, "--out", "bench would write its results among the sequence's files")
+    # a sequence folder (or a folder inside one, or inside a folder of sequences) for `out`, resumed or
+    # not: the results would be written among the user's files
+    refuse_input_folder(out, [*path_list(datasets), *folders, config.tps_dir], "--out",
+                        "bench would write its results among the input's files")
     if not csv_path.is_file():
         # a non-empty folder without results.csv is not a bench to resume; --overwrite replaces none of the user's files
         check_out_dir(out, overwrite, files=OUTPUT_FILES)

@@ -43,13 +43,15 @@ def run(args: argparse.Namespace) -> int:
     radius = resolve_radius(args.radius, seq)
     path = features_path(Path(args.out), file_label(args.descriptor))
     finals = [path] if is_h5(path) else [path.with_name(f"{path.stem}-{n}.npz") for n in seq.names]
-    # --out naming the sequence folder, or a .npz prefix in it (one file per frame): among its frames.
-    # An .h5 file named there is one file of the user's choosing, which no reader takes for a frame's.
-    if not (is_h5(path) and path == Path(args.out)):
-        refuse_input_folder(path.parent, [seq.folder], "--out",
-                            f"extract would write {path.name if is_h5(path) else f'{path.stem}-<frame>.npz'} "
-                            "among its frames")
+    # --out naming the sequence folder, or a file or folder inside it: the features among its frames
+    refuse_input_folder(args.out, [seq.folder], "--out",
+                        f"extract would write {path.name if is_h5(path) else f'{path.stem}-<frame>.npz'} among "
+                        "its files")
     claim_output(path)  # one claim for the .h5, or for the prefix of the one file per frame
+    source = earlier = None  # the .h5 is written whole, so it never mixes two runs' features
+    if not is_h5(path):  # before "exists; pass --overwrite", which does not say whose features are there
+        source = sequence_source(seq)
+        earlier = check_same_source(path, source, args.overwrite)
     for final in finals:
         check_out_file(final, args.overwrite, claim=False)
     if not is_h5(path):  # a killed run's half-written .npz files (the .h5's `atomic_file` clears its own)
@@ -83,19 +85,25 @@ def run(args: argparse.Namespace) -> int:
                     save_features(tmp, features)
                     written.append((tmp, final))
             status = finish_skipped(skipped, len(seq), "extract")
+            # as the .h5 (replaced whole) has no group for it: a skipped frame's file from an earlier run,
+            # which --overwrite let replace, would mix that run's features with this one's; so would, with
+            # --overwrite, the earlier run's files for frames this run does not write (another sequence's)
+            new = {final.name for _, final in written}
+            stale = [] if is_h5(path) else [f for f in (path.with_name(f"{path.stem}-{n}.npz") for n in skipped)
+                                            if f.exists() or f.is_symlink()]
+            if args.overwrite:
+                stale += [f for f in earlier_files(path, earlier) if f.name not in new and f not in stale]
             with signals_deferred():  # all the frames' files, or none: never this run's beside an earlier one's
                 for tmp, final in written:
                     os.replace(tmp, final)
                 written.clear()
-            # as the .h5 (replaced whole) has no group for it: a skipped frame's file from an earlier run,
-            # which --overwrite let replace, would mix that run's features with this one's
-            stale = [] if is_h5(path) else [f for f in (path.with_name(f"{path.stem}-{n}.npz") for n in skipped)
-                                            if f.exists() or f.is_symlink()]
-            for final in stale:
-                final.unlink()
+                for final in stale:
+                    final.unlink()
+                if source is not None:  # the files of this prefix, and the sequence they are features of
+                    write_source(path, source, new, [] if args.overwrite else earlier_files(path, earlier))
             if stale:
-                print(f"removed {', '.join(str(f) for f in stale)}: features of an earlier run for the frames "
-                      "skipped in this one", file=sys.stderr)
+                print(f"removed {', '.join(str(f) for f in stale)}: features of an earlier run for frames not "
+                      "written in this one", file=sys.stderr)
         finally:
             for tmp, _ in written:
                 tmp.unlink(missing_ok=True)
@@ -104,6 +112,81 @@ def run(args: argparse.Namespace) -> int:
                                        + f" keypoints per frame of --keypoints {args.keypoints})")
     print(f"wrote {args.descriptor} features of {plural(len(seq) - len(skipped), 'frame')} of {seq.folder}{per_frame} to {where}")
     return status
+
+
+def source_record(path: Path) -> Path:
+    """The record beside the one `<stem>-<frame>.npz` per frame of the .npz `path`:
+    `<stem>.source.json`, naming the sequence they are features of and listing them."""
+    return path.with_name(f"{path.stem}.source.json")
+
+
+def sequence_source(seq) -> dict[str, str]:
+    """What identifies the sequence `seq` (an `io.Sequence`) in a source record: its folder (absolute)
+    and its reference frame's name and `io.frame_digest` (a cheap fingerprint of its content)."""
+    from ..io import frame_digest
+
+    return {"sequence": str(Path(seq.folder).resolve()), "reference": seq.reference,
+            "reference_digest": frame_digest(seq.folder, seq.reference)}
+
+
+def read_source(path: Path) -> dict | None:
+    """The source record of the .npz `path` (`source_record`), None when there is none; ValueError
+    naming it when it is not one that `extract` wrote."""
+    import json
+
+    record = source_record(path)
+    if not (record.exists() or record.is_symlink()):
+        return None
+    try:
+        data = json.loads(record.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        data = None
+    if not (isinstance(data, dict) and data.get("generator") == "geofeat extract" and isinstance(data.get("files"), list)):
+        raise ValueError(f"--out: {record} is not the record of the sequence that `geofeat extract` writes beside its "
+                         f"{path.stem}-<frame>.npz files; move it away, or choose another --out")
+    return data
+
+
+def check_same_source(path: Path, source: dict[str, str], overwrite: bool) -> dict | None:
+    """Refuse, before any work, to add the features of the sequence `source` (`sequence_source`) to the
+    files `<stem>-<frame>.npz` of the .npz `path` that an earlier run wrote of another sequence (another
+    folder, or the same folder whose reference frame changed since), naming both: the prefix would hold
+    two sequences' features, and `bench --features` read either for the frames of one. With
+    `overwrite` the earlier files are replaced whole instead (removed when this run's are in place).
+    Returns the earlier record (`read_source`), None when there is none."""
+    earlier = read_source(path)
+    if earlier is None or overwrite or not earlier_files(path, earlier):
+        return earlier
+    if earlier.get("sequence") != source["sequence"]:
+        why = f"of {earlier.get('sequence')}, not of {source['sequence']}"
+    elif earlier.get("reference_digest") != source["reference_digest"]:
+        why = (f"of {source['sequence']} as it was when they were written: its reference frame "
+               f"{source['reference']} has changed since")
+    else:
+        return earlier
+    raise ValueError(f"--out: {path.parent} holds {path.stem}-<frame>.npz features {why} ({source_record(path).name}); "
+                     "this run's would mix with them under one name: pass --overwrite to replace them all, or choose "
+                     "another --out")
+
+
+def earlier_files(path: Path, earlier: dict | None) -> list[Path]:
+    """The files of the earlier record `earlier` (`read_source`) of the .npz `path` that still exist:
+    only `<stem>-<frame>.npz` names beside `path`, whatever the record says."""
+    if earlier is None:
+        return []
+    names = [n for n in earlier["files"] if isinstance(n, str) and n.startswith(f"{path.stem}-") and n.endswith(".npz")
+             and Path(n).name == n]
+    return [path.with_name(n) for n in sorted(set(names)) if path.with_name(n).is_file()]
+
+
+def write_source(path: Path, source: dict[str, str], written: set[str], kept: list[Path]) -> None:
+    """Write the source record of the .npz `path` (`source_record`): the sequence `source` and the
+    file names `written` by this run and `kept` from an earlier run of the same sequence."""
+    from ..outputs import atomic_file, json_text
+
+    files = sorted(written | {f.name for f in kept})
+    with atomic_file(source_record(path)) as tmp:
+        tmp.write_text(json_text({"generator": "geofeat extract", **source, "files": files}, indent=1), encoding="utf-8")
 
 
 def check_device(device: str, descriptor: str) -> bool:

@@ -45,7 +45,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Run `groundtruth`; ValueError on bad input. Returns 0, or 1 when a frame failed."""
     from ..io import find_sequences, read_sequence
-    from ..outputs import check_out_dir
+    from ..outputs import check_out_dir, refuse_input_folder
     from ..groundtruth.pipeline import (GroundTruthConfig, check_config, check_sequence, finished_result,
                                        generate_ground_truth, result_files)
 
@@ -55,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
     folders = find_sequences(args.sequences, unique_names=True)
     if args.out.exists() and not args.out.is_dir():
         raise ValueError(f"--out: {args.out} is a file, not a folder")
+    refuse_input_folder(args.out, [*args.sequences, *folders])  # resumed or not; each OUT/<sequence> below too
     done = []  # sequences an earlier run finished (--resume)
     for folder in folders:  # every input and output is checked before the first frame is refined
         seq = read_sequence(folder)

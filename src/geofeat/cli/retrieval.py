@@ -49,7 +49,8 @@ def run(args: argparse.Namespace) -> int:
 
     # before any work, after the refusal of a non-empty --out (which `run_retrieval` repeats): a
     # sample no larger than K, in the words of the flags
-    check_out_dir(args.out, args.overwrite, files=RESULT_FILES, inputs=find_sequences(args.datasets, unique_names=True))
+    check_out_dir(args.out, args.overwrite, files=RESULT_FILES,
+                  inputs=[*args.datasets, *find_sequences(args.datasets, unique_names=True), args.tps_dir])
     check_samples(args.samples, args.words, "--samples", "--words")
     acc, db = run_retrieval(args.datasets, args.out, names(args.descriptors),
                             words=args.words, n_samples=args.samples, seed=args.seed, classes_file=args.classes,

@@ -30,7 +30,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Track the template ROI through every sequence; writes track.csv, tracking.md, grids and GIFs."""
-    from ..io import find_sequences
     from ..apps.tracking import write_tracking
 
     roi = None
@@ -42,7 +41,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--lpips: LPIPS needs pretrained backbone weights that geofeat never downloads; "
                          "not supported in this build (SSIM and NCC are reported instead)")
     skipped: list[str] = []
-    csv_path, table = write_tracking(find_sequences(args.sequences, unique_names=True), args.out,
+    # the folders as given: an --out inside a folder of sequences is refused too (`refuse_input_folder`)
+    csv_path, table = write_tracking(args.sequences, args.out,
                                      names(args.descriptors), roi=roi,
                                      n_keypoints=args.keypoints, tps_dir=args.tps_dir, radius=args.radius,
                                      depth_scale=args.depth_scale, threshold_px=args.threshold,

@@ -57,6 +57,7 @@ def run(args: argparse.Namespace) -> int:
     from ..descriptors.geopatch import GeoPatchConfig
     from ..gpu import torch_device
     from ..io import sequence_digest
+    from ..outputs import refuse_input_folder
     from ..train.dataset import PatchSet, build_patch_set, check_simulated, validation_pairs, warn_if_not_held_out
     from ..train.loop import (TrainConfig, check_train_config, check_train_out, load_init, load_resume_state,
                               remove_earlier_run, removed_line, train)
@@ -91,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
         except RuntimeError as error:  # no CUDA GPU: a user error here
             raise ValueError(f"--device: {error}") from None
     cache = Path(str(args.out) + ".patches.npz")  # the patches, kept for --resume
+    refuse_input_folder(args.out, [*args.data, *(args.val or ())])  # the weights among the training sequences
     check_train_out(args.out, args.overwrite, args.resume, also=(".patches.npz",))
     checkpoint = Path(str(args.out) + ".ckpt")
     if args.resume and checkpoint.is_file():

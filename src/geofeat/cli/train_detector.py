@@ -33,12 +33,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Train GeoKey and print its validation table."""
+    from ..outputs import refuse_input_folder
     from ..train.detector import SIFT_KEY, train_detector
 
     counts = tuple(args.keypoints)
     twice = sorted({n for n in counts if counts.count(n) > 1})
     if twice:  # scored once, yet the last line said "at 1024, 1024 keypoints per frame"
         raise ValueError(f"--keypoints: {', '.join(map(str, twice))} given twice; name each count once")
+    refuse_input_folder(args.out, [*args.data, *(args.val or ())])  # the weights among the training sequences
     model, results, chosen = train_detector(args.data, args.val, args.out, n=counts, hidden=tuple(args.hidden),
                                     steps=args.steps, seed=args.seed, labels=args.labels, denoise=args.denoise,
                                     overwrite=args.overwrite, names=("--data", "--val"))

@@ -172,7 +172,7 @@ def simulate_sequence(
                          "accepts; choose a less elongated size or another fov") from None
     out_dir = Path(out_dir)
     # overwrite replaces only what geofeat wrote there; a folder holding other files is refused
-    check_out_dir(out_dir, overwrite, what="out_dir", strict=True)
+    check_out_dir(out_dir, overwrite, what="out_dir", strict=True, inputs=[texture_dir])
     args = (out_dir, scenario, n_frames, seed, texture, texture_dir, width, height, K, kinect_noise, progress,
             steps_per_frame, preset_obj, fov, motion_blur)
     try:

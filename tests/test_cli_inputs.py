@@ -1,0 +1,201 @@
+"""Commands never write among their inputs nor mix them up: an --out inside an input folder is
+refused by every command, `retrieval` refuses a sequence copied under two folder names, and
+`extract` refuses to add one sequence's per-frame features to another's."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from geofeat.cli import main
+from geofeat.io import write_frame, write_intrinsics, write_landmarks
+from geofeat.outputs import check_out_dir
+
+W, H = 160, 120
+K = np.array([[150.0, 0, 79.5], [0, 150.0, 59.5], [0, 0, 1]])
+
+
+def make_sequence(folder: Path, seed: int = 0, names=("frame-000-master", "frame-001")) -> Path:
+    """A sequence of `names` in the public layout: a blurred-noise texture of `seed` (so that two
+    seeds give two different sequences) shifted 3 px per frame, depth 1 m, landmark csvs."""
+    folder.mkdir(parents=True, exist_ok=True)
+    write_intrinsics(folder / "intrinsics.xml", K)
+    rng = np.random.default_rng(seed)
+    texture = sum(cv2.GaussianBlur(rng.standard_normal((H, W)).astype(np.float32), (0, 0), s) * s for s in (1.5, 4))
+    texture = cv2.normalize(texture, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    gx, gy = np.meshgrid(np.linspace(20, W - 30, 5), np.linspace(20, H - 20, 4))
+    landmarks = np.stack([gx.ravel(), gy.ravel()], 1)
+    for i, name in enumerate(names):
+        image = cv2.cvtColor(np.roll(texture, 3 * i, axis=1), cv2.COLOR_GRAY2BGR)
+        write_frame(folder, name, image, np.full((H, W), 1.0))
+        write_landmarks(folder / f"{name}.csv", np.arange(len(landmarks)), landmarks + [3 * i, 0],
+                        np.ones(len(landmarks), bool))
+    return folder
+
+
+def _listing(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+# ---------------------------------------------------------------- an --out inside an input folder
+#: Each command with an --out (or OUT_DIR) inside one of its input folders: {seq} a sequence folder,
+#: {data} the folder of sequences holding it and a second one, {tex} a folder of texture images.
+INSIDE = {
+    "match": (["match", "{seq}", "--descriptor", "orb", "--out", "{seq}/matches"], "{seq}"),
+    "extract-h5": (["extract", "{seq}", "--descriptor", "orb", "--out", "{seq}/features.h5"], "{seq}"),
+    "extract-folder": (["extract", "{seq}", "--descriptor", "orb", "--out", "{seq}/features"], "{seq}"),
+    "bench-sequence": (["bench", "{seq}", "--descriptors", "orb", "--out", "{seq}/bench"], "{seq}"),
+    "bench-dataset": (["bench", "{data}", "--descriptors", "orb", "--out", "{data}/bench"], "{data}"),
+    "track-dataset": (["track", "{data}", "--descriptors", "orb", "--out", "{data}/track"], "{data}"),
+    "retrieval-dataset": (["retrieval", "{data}", "--descriptors", "orb", "--out", "{data}/r"], "{data}"),
+    "retrieval-tps-dir": (["retrieval", "{data}", "--descriptors", "orb", "--tps-dir", "{tps}", "--out", "{tps}/r"],
+                          "{tps}"),
+    "groundtruth-sequence": (["groundtruth", "{seq}", "--no-refine", "--out", "{seq}/gt"], "{seq}"),
+    "groundtruth-dataset": (["groundtruth", "{data}", "--no-refine", "--out", "{data}/gt"], "{data}"),
+    "simulate": (["simulate", "{tex}/sim", "--texture-dir", "{tex}", "--frames", "1", "--width", "64",
+                  "--height", "48", "--no-progress"], "{tex}"),
+    "train": (["train", "--data", "{data}", "--out", "{seq}/w.pt"], "{data}"),
+    "train-detector": (["train-detector", "--data", "{data}", "--val", "{data}", "--out", "{data}/gk.npz"],
+                       "{data}"),
+}
+
+
+@pytest.mark.parametrize("overwrite", [False, True], ids=["", "overwrite"])
+@pytest.mark.parametrize("case", list(INSIDE))
+def test_an_out_inside_an_input_folder_is_refused_before_any_work(tmp_path, capsys, case, overwrite):
+    """An --out inside (not only equal to) a sequence folder, a folder of sequences, --tps-dir or
+    --texture-dir was written: the results among the user's frames, where the next run over that
+    folder reads them as inputs. Now one line naming both paths, with or without --overwrite, and
+    every input folder as it was."""
+    data = tmp_path / "data"
+    seq = make_sequence(data / "seq")
+    make_sequence(data / "other", seed=1)
+    tps = tmp_path / "tps"
+    (tps / "seq").mkdir(parents=True)
+    tex = tmp_path / "tex"
+    tex.mkdir()
+    cv2.imwrite(str(tex / "cloth.png"), np.full((32, 32, 3), 128, np.uint8))
+    places = {"seq": seq, "data": data, "tps": tps, "tex": tex}
+    before = _listing(tmp_path)
+    command, outer = INSIDE[case]
+    argv = [a.format(**places) for a in command] + ["--overwrite"] * overwrite
+    out = Path(argv[argv.index("--out") + 1] if "--out" in argv else argv[1])
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert f"{out} lies inside the input folder {outer.format(**places)}" in err
+    assert _listing(tmp_path) == before and not out.exists()
+
+
+def test_check_out_dir_refuses_a_folder_inside_an_input_also_through_a_link(tmp_path):
+    seq = make_sequence(tmp_path / "seq")
+    (tmp_path / "link").symlink_to(seq)
+    for out in (seq / "out", seq / "a" / "b", tmp_path / "link" / "out"):
+        with pytest.raises(ValueError, match=f"lies inside the input folder {seq}"):
+            check_out_dir(out, overwrite=True, inputs=[None, seq])
+    assert check_out_dir(tmp_path / "out", inputs=[seq]) == tmp_path / "out"  # beside it: fine
+
+
+# ---------------------------------------------------------------- retrieval: one sequence under two names
+@pytest.mark.parametrize("own", [False, True], ids=["", "include-own-sequence"])
+def test_retrieval_refuses_a_sequence_copied_under_another_folder_name(tmp_path, capsys, monkeypatch, own):
+    """The query's own sequence is left out of its results by name, so a byte copy of it under
+    another folder name (a dataset given twice, two datasets sharing a sequence) was found as its
+    own frame, counted correct, and Acc@K rose unsaid. Now one line naming both folders, before any
+    frame is described."""
+    import geofeat.apps.retrieval as retrieval
+
+    make_sequence(tmp_path / "a" / "cloth", seed=0)
+    make_sequence(tmp_path / "a" / "paper", seed=1)
+    shutil.copytree(tmp_path / "a" / "cloth", tmp_path / "b" / "cloth_again")  # another dataset shares it
+    make_sequence(tmp_path / "b" / "towel", seed=2)
+    classes = tmp_path / "classes.csv"  # the copy is a class mate of its original: a correct result
+    classes.write_text("sequence,class\ncloth,cloth\ncloth_again,cloth\npaper,paper\ntowel,paper\n")
+
+    def described(*args, **kwargs):
+        raise AssertionError("frames were described before the copy was reported")
+
+    monkeypatch.setattr(retrieval, "describe_datasets", described)
+    argv = ["retrieval", str(tmp_path / "a"), str(tmp_path / "b"), "--descriptors", "orb", "--classes", str(classes),
+            "--out", str(tmp_path / "r")] + ["--include-own-sequence"] * own
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert f"{tmp_path / 'a' / 'cloth'} and {tmp_path / 'b' / 'cloth_again'} hold the same reference frame" in err
+    assert not (tmp_path / "r").exists()
+
+
+def test_retrieval_sequences_that_differ_are_not_taken_for_copies(tmp_path):
+    from geofeat.apps.retrieval import refuse_copied_sequences
+
+    folders = [make_sequence(tmp_path / f"s{seed}", seed=seed) for seed in range(3)]
+    refuse_copied_sequences(folders)  # no error
+    # the same frames under other frame names are still a copy
+    make_sequence(tmp_path / "renamed", seed=1, names=("frame-100-master", "frame-101"))
+    with pytest.raises(ValueError, match=f"{tmp_path / 's1'} and {tmp_path / 'renamed'}"):
+        refuse_copied_sequences([*folders, tmp_path / "renamed"])
+
+
+# ---------------------------------------------------------------- extract: one sequence per .npz prefix
+def _extract(seq: Path, out: Path, *extra: str) -> int:
+    return main(["extract", str(seq), "--descriptor", "orb", "--keypoints", "100", "--out", str(out), *extra])
+
+
+def _prefix_files(out: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(out.parent.glob(f"{out.stem}-*.npz"))}
+
+
+@pytest.mark.parametrize("frames", ["same frame names", "other frame names"])
+def test_extract_refuses_to_add_another_sequences_features_to_an_npz_prefix(tmp_path, capsys, frames):
+    """`--out DIR/f.npz` writes f-<frame>.npz; a second sequence extracted there was added beside the
+    first's (other frame names), or refused as "exists" with no word of whose features those are.
+    Now one line naming both sequences, and the first's files untouched."""
+    first = make_sequence(tmp_path / "first", seed=0)
+    names = ("frame-000-master", "frame-001") if frames == "same frame names" else ("img-00-ref", "img-01")
+    second = make_sequence(tmp_path / "second", seed=1, names=names)
+    out = tmp_path / "features" / "f.npz"
+    assert _extract(first, out) == 0
+    kept = _prefix_files(out)
+    capsys.readouterr()
+    assert _extract(second, out) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert f"features of {first.resolve()}, not of {second.resolve()}" in err and "--overwrite" in err
+    assert _prefix_files(out) == kept
+
+
+def test_extract_overwrite_with_another_sequence_leaves_none_of_the_first_ones_features(tmp_path, capsys):
+    """--overwrite replaced the second sequence's frames' files and left the first's other frames
+    (f-frame-002.npz) beside them: `bench --features` read one sequence's features for another. Now
+    the earlier run's files that this run does not write are removed, named, and the record names
+    the second sequence."""
+    first = make_sequence(tmp_path / "first", seed=0, names=("frame-000-master", "frame-001", "frame-002"))
+    second = make_sequence(tmp_path / "second", seed=1)
+    out = tmp_path / "features" / "f.npz"
+    assert _extract(first, out) == 0
+    assert _extract(second, out, "--overwrite") == 0
+    assert sorted(_prefix_files(out)) == ["f-frame-000-master.npz", "f-frame-001.npz"]
+    assert "f-frame-002.npz" in capsys.readouterr().err
+    record = json.loads((out.parent / "f.source.json").read_text())
+    assert record["sequence"] == str(second.resolve())
+    assert record["files"] == ["f-frame-000-master.npz", "f-frame-001.npz"]
+
+
+def test_extract_reruns_the_same_sequence_into_its_npz_prefix(tmp_path, capsys):
+    """The same sequence again is no other sequence: --overwrite replaces its files as before, and
+    without it the files that exist are refused as before ("exists"), not as another's."""
+    seq = make_sequence(tmp_path / "seq", seed=0, names=("frame-000-master", "frame-001", "frame-002"))
+    out = tmp_path / "features" / "f.npz"
+    assert _extract(seq, out) == 0
+    assert _extract(seq, out, "--overwrite") == 0
+    assert len(_prefix_files(out)) == 3
+    capsys.readouterr()
+    assert _extract(seq, out) == 2
+    assert "f-frame-000-master.npz exists; pass --overwrite" in capsys.readouterr().err
+    record = json.loads((out.parent / "f.source.json").read_text())
+    assert record["sequence"] == str(seq.resolve()) and len(record["files"]) == 3
