@@ -43,44 +43,39 @@ def _listing(folder: Path) -> dict[str, bytes]:
 
 
 # ---------------------------------------------------------------- an --out inside an input folder
-#: Each command with an --out (or OUT_DIR) inside one of its input folders: {seq} a sequence folder,
-#: {data} the folder of sequences holding it and a second one, {tex} a folder of texture images.
+#: Each command with an --out (or OUT_DIR) inside one of its input folders that holds images itself:
+#: {seq} a sequence folder (in {data}, beside {other}), {tex} a folder of texture images.
 INSIDE = {
     "match": (["match", "{seq}", "--descriptor", "orb", "--out", "{seq}/matches"], "{seq}"),
     "extract-h5": (["extract", "{seq}", "--descriptor", "orb", "--out", "{seq}/features.h5"], "{seq}"),
     "extract-folder": (["extract", "{seq}", "--descriptor", "orb", "--out", "{seq}/features"], "{seq}"),
     "bench-sequence": (["bench", "{seq}", "--descriptors", "orb", "--out", "{seq}/bench"], "{seq}"),
-    "bench-dataset": (["bench", "{data}", "--descriptors", "orb", "--out", "{data}/bench"], "{data}"),
-    "track-dataset": (["track", "{data}", "--descriptors", "orb", "--out", "{data}/track"], "{data}"),
-    "retrieval-dataset": (["retrieval", "{data}", "--descriptors", "orb", "--out", "{data}/r"], "{data}"),
-    "retrieval-tps-dir": (["retrieval", "{data}", "--descriptors", "orb", "--tps-dir", "{tps}", "--out", "{tps}/r"],
-                          "{tps}"),
+    "bench-dataset": (["bench", "{data}", "--descriptors", "orb", "--out", "{seq}/bench"], "{seq}"),
+    "track-dataset": (["track", "{data}", "--descriptors", "orb", "--out", "{seq}/track"], "{seq}"),
+    "retrieval-dataset": (["retrieval", "{data}", "--descriptors", "orb", "--out", "{other}/r"], "{other}"),
     "groundtruth-sequence": (["groundtruth", "{seq}", "--no-refine", "--out", "{seq}/gt"], "{seq}"),
-    "groundtruth-dataset": (["groundtruth", "{data}", "--no-refine", "--out", "{data}/gt"], "{data}"),
+    "groundtruth-dataset": (["groundtruth", "{data}", "--no-refine", "--out", "{seq}/gt"], "{seq}"),
     "simulate": (["simulate", "{tex}/sim", "--texture-dir", "{tex}", "--frames", "1", "--width", "64",
                   "--height", "48", "--no-progress"], "{tex}"),
-    "train": (["train", "--data", "{data}", "--out", "{seq}/w.pt"], "{data}"),
-    "train-detector": (["train-detector", "--data", "{data}", "--val", "{data}", "--out", "{data}/gk.npz"],
-                       "{data}"),
+    "train": (["train", "--data", "{seq}", "--out", "{seq}/w.pt"], "{seq}"),
+    "train-detector": (["train-detector", "--data", "{seq}", "--val", "{other}", "--out", "{other}/gk.npz"],
+                       "{other}"),
 }
 
 
 @pytest.mark.parametrize("overwrite", [False, True], ids=["", "overwrite"])
 @pytest.mark.parametrize("case", list(INSIDE))
 def test_an_out_inside_an_input_folder_is_refused_before_any_work(tmp_path, capsys, case, overwrite):
-    """An --out inside (not only equal to) a sequence folder, a folder of sequences, --tps-dir or
-    --texture-dir was written: the results among the user's frames, where the next run over that
-    folder reads them as inputs. Now one line naming both paths, with or without --overwrite, and
-    every input folder as it was."""
+    """An --out inside (not only equal to) a sequence folder or --texture-dir was written: the results
+    among the user's frames, where the next run over that folder reads them as inputs. Now one line
+    naming both paths, with or without --overwrite, and every input folder as it was."""
     data = tmp_path / "data"
     seq = make_sequence(data / "seq")
-    make_sequence(data / "other", seed=1)
-    tps = tmp_path / "tps"
-    (tps / "seq").mkdir(parents=True)
+    other = make_sequence(data / "other", seed=1)
     tex = tmp_path / "tex"
     tex.mkdir()
     cv2.imwrite(str(tex / "cloth.png"), np.full((32, 32, 3), 128, np.uint8))
-    places = {"seq": seq, "data": data, "tps": tps, "tex": tex}
+    places = {"seq": seq, "data": data, "other": other, "tex": tex}
     before = _listing(tmp_path)
     command, outer = INSIDE[case]
     argv = [a.format(**places) for a in command] + ["--overwrite"] * overwrite
@@ -99,6 +94,17 @@ def test_check_out_dir_refuses_a_folder_inside_an_input_also_through_a_link(tmp_
         with pytest.raises(ValueError, match=f"lies inside the input folder {seq}"):
             check_out_dir(out, overwrite=True, inputs=[None, seq])
     assert check_out_dir(tmp_path / "out", inputs=[seq]) == tmp_path / "out"  # beside it: fine
+
+
+def test_a_results_folder_beside_the_sequences_of_a_dataset_folder_is_fine(tmp_path):
+    """A folder of sequences holds no frames itself, and the commands look for sequences only in
+    sub-folders that hold frames: results beside them (`cd data; geofeat bench . --out results`, the
+    way COLMAP keeps sparse/ beside images/) are not read as inputs, and are written."""
+    data = tmp_path / "data"
+    seq = make_sequence(data / "seq")
+    assert check_out_dir(data / "results", inputs=[data, seq]) == data / "results"
+    with pytest.raises(ValueError, match=f"lies inside the input folder {seq}"):
+        check_out_dir(data / "seq" / "results", inputs=[data, seq])
 
 
 # ---------------------------------------------------------------- retrieval: one sequence under two names

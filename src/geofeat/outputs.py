@@ -255,11 +255,22 @@ def _refuse_clashes(folder: Path, clashes: list[str], what: str) -> None:
                          "another folder")
 
 
+#: Files whose presence at the top of an input folder make it a folder of data read file by file
+#: (a sequence's frames, a texture folder, flat TPS files), inside which no result is written.
+_DATA_FILES = ("*.png", "*.PNG", "*.jpg", "*.JPG", "*.jpeg", "*.JPEG")
+
+
+def _holds_data_files(folder: Path) -> bool:
+    """Whether `folder` holds images at its top level (`_DATA_FILES`)."""
+    return any(next(folder.glob(pattern), None) is not None for pattern in _DATA_FILES)
+
+
 def _input_clash(folder: Path, inputs: Iterable[str | Path | None], replaced: bool = True) -> tuple[str, str] | None:
     """Why writing the result folder (or file) `folder` would put results among, or replace, the
     folders `inputs` the command reads (None entries, options left out, are passed over), and the
-    harm, as (why, harm): `folder` is one of them or lies inside one (through any link: results
-    beside the user's frames, where a later run may read them as inputs), or (when the result
+    harm, as (why, harm): `folder` is one of them or lies inside one that holds images itself (a
+    sequence's frames, a texture folder: through any link; results among the user's files, where a
+    later run may read them as inputs), or (when the result
     `replaced` the folder's earlier files, as `replace_folder` does) its manifest lists a file inside
     one; None when none of these."""
     here = folder.resolve()
@@ -267,7 +278,9 @@ def _input_clash(folder: Path, inputs: Iterable[str | Path | None], replaced: bo
     for given, source in sources:
         if source == here:
             return f"{folder} is the input folder {given}", "writing the result there would replace it"
-        if source in here.parents:
+        # a new folder beside the sequences of a folder of sequences is fine (as COLMAP keeps sparse/
+        # beside images/): the commands look for sequences in sub-folders holding frames only
+        if source in here.parents and _holds_data_files(source):
             return f"{folder} lies inside the input folder {given}", "the results would be written among its files"
     listed = [(folder / rel).resolve() for rel in read_manifest(folder)] if replaced and folder.is_dir() else []
     for given, source in sources:
@@ -281,7 +294,8 @@ def refuse_input_folder(folder: str | Path, inputs: Iterable[str | Path | None],
                         harm: str | None = None) -> None:
     """ValueError when the output folder (or file) `folder` is one of the folders `inputs` a command
     reads (sequences, folders of sequences, --tps-dir; None entries are passed over), lies inside
-    one, or holds one among files geofeat wrote (`_input_clash`), whatever `--overwrite` says. Every
+    one that holds images itself (a sequence, a texture folder: `_input_clash`; a folder beside the
+    sequences of a folder of sequences is fine), or holds one among files geofeat wrote (`_input_clash`), whatever `--overwrite` says. Every
     command that reads folders checks its output with it before any work (`check_out_dir`, through
     its `inputs`). `harm`: what a command that adds its files to the folder (bench, extract) would do
     there, for the message; None: the harm `_input_clash` names (replacing the input, or writing
