@@ -391,6 +391,30 @@ def test_bench_reads_the_features_extract_wrote_for_an_upper_case_npz_name(small
     assert header.replace(" ", "").startswith("|sequences|") and "| x |" in header
 
 
+def test_bench_refuses_the_features_extract_wrote_of_another_sequence(small_simulated, tmp_path, capsys):
+    """Simulated sequences share their frame names (frame-000-master, frame-001, ...), so `bench
+    --features x=F.npz` on one sequence read the F-<frame>.npz files that extract wrote of another and
+    scored them without a word. The record extract writes beside them (F.source.json) now tells."""
+    import shutil
+
+    import cv2
+
+    other = shutil.copytree(small_simulated, tmp_path / "data" / small_simulated.name)
+    ref = other / "frame-000-master-rgb.png"
+    cv2.imwrite(str(ref), cv2.flip(cv2.imread(str(ref)), 1))  # another sequence of the same name and frames
+    out = tmp_path / "feats" / "F.npz"
+    assert main(["extract", str(small_simulated), "--descriptor", "sift", "--keypoints", "64", "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["bench", str(other), "--descriptors", "sift", "--keypoints", "64", "--features", f"x={out}",
+                 "--out", str(tmp_path / "bench")]) == 2
+    err = capsys.readouterr().err
+    assert "F.source.json says the F-<frame>.npz files there are features of" in err and str(other) in err
+    assert not (tmp_path / "bench").exists()
+    copy = shutil.copytree(small_simulated, tmp_path / "copy" / small_simulated.name)  # the same sequence elsewhere
+    assert main(["bench", str(copy), "--descriptors", "sift", "--keypoints", "64", "--features", f"x={out}",
+                 "--out", str(tmp_path / "bench2")]) == 0
+
+
 def test_simulate_reruns_with_overwrite_over_its_own_contact_sheet_in_the_folder(tmp_path, capsys):
     """`simulate S --contact-sheet S/sheet.png` left the sheet out of the folder's manifest, so the same
     command with --overwrite refused S: "holds files geofeat did not write (sheet.png)"."""

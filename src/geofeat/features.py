@@ -386,6 +386,32 @@ def descriptors_n_by_d(descriptors: np.ndarray, n_keypoints: int, hloc_layout: b
     return d
 
 
+def features_source_record(path: Path) -> Path:
+    """The record that `geofeat extract --out DIR/NAME.npz` writes beside its one `NAME-<frame>.npz`
+    per frame: `DIR/NAME.source.json`, naming the sequence they are features of (its folder, its
+    reference frame's name and `io.frame_digest`) and listing the files."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}.source.json")
+
+
+def read_features_source(path: Path, what: str = "--out") -> dict | None:
+    """The source record of the `.npz` prefix `path` (`features_source_record`), None when there is
+    none; ValueError naming it (and the option `what`) when it is not one that `extract` wrote."""
+    import json
+
+    record = features_source_record(path)
+    if not (record.exists() or record.is_symlink()):
+        return None
+    try:
+        data = json.loads(record.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        data = None
+    if not (isinstance(data, dict) and data.get("generator") == "geofeat extract" and isinstance(data.get("files"), list)):
+        raise ValueError(f"{what}: {record} is not the record of the sequence that `geofeat extract` writes beside its "
+                         f"{Path(path).stem}-<frame>.npz files; move it away, or choose another path")
+    return data
+
+
 #: Float16 keypoint coordinates this far apart (pixels) or more are warned about (`warn_float16_keypoints`):
 #: from 512 px on, where the 3 px protocol starts to score the rounding.
 FLOAT16_WARN_STEP_PX = 0.5

@@ -76,6 +76,14 @@ def frame_digest(folder: str | Path, name: str) -> str:
     return digest.hexdigest()
 
 
+def reference_name(names: list[str]) -> str:
+    """The reference frame among a sequence's frame `names`: the first whose name holds `master` or
+    `ref` as a whole token (`inputs.is_reference_name`), else the first name (`read_sequence` refuses
+    several)."""
+    refs = [n for n in names if is_reference_name(n)]
+    return refs[0] if refs else names[0]
+
+
 def files_digest(paths) -> str:
     """SHA-1 (hex) of files: the name, size and contents of each, in name order (`sequence_digest`, and
     the TPS files of a sequence in `geofeat bench`'s resume check)."""
@@ -524,7 +532,7 @@ def read_sequence(folder: str | Path, depth_scale: float | None = None) -> Seque
     if len(refs) > 1:
         raise ValueError(f"folder: {folder} has several reference frames ({', '.join(refs[:5])}); "
                          "exactly one frame name may hold 'master' or 'ref'")
-    reference = refs[0] if refs else names[0]
+    reference = reference_name(names)
     names = [reference] + [n for n in names if n != reference]
     config = read_config(folder)
     if depth_scale is None:

@@ -35,9 +35,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..features import (Features, _h5_leaf_groups, _h5_read_group, _open_h5, descriptors_n_by_d, float16_step, read_npz,
-                        warn_float16_keypoints)
-from ..io import RGB_SUFFIX
+from ..features import (Features, _h5_leaf_groups, _h5_read_group, _open_h5, descriptors_n_by_d, float16_step,
+                        features_source_record, read_features_source, read_npz, warn_float16_keypoints)
+from ..io import RGB_SUFFIX, frame_digest, frame_names, reference_name
 from ..keypoints import as_keypoints
 from ..matching import METRICS, match, quantised_zero_share
 
@@ -323,3 +323,31 @@ def check_one_source_per_frame(features: list[ExternalFeatures], sequences: dict
                                  f"without the sequence, {named[0][0]} from {named[0][1]!r}: are the features of "
                                  f"{sequence}/{bare[0][0]} missing (the name without the sequence may hold another "
                                  "sequence's)? Name every frame of the sequence alike")
+
+
+def check_extract_sources(features: list[ExternalFeatures], folders: list[str | Path]) -> None:
+    """Refuse the `.npz` files of `geofeat extract --out DIR/NAME.npz` for a benched sequence when
+    the record extract wrote beside them (`features.features_source_record`) says they are features
+    of another sequence: its reference frame's content differs from the benched sequence's (a copy
+    of the same sequence elsewhere passes). Frame names alone cannot tell: every simulated sequence
+    has `frame-000-master` ... `frame-007`, so another sequence's features were scored without a word.
+    Files without a record (written by an older geofeat, or by hand) are read as before."""
+    for f in features:
+        if f.path.is_file() or f.path.is_dir() or not _npz_named(f.path):  # not extract's one file per frame
+            continue
+        for folder in folders:
+            names, sequence = frame_names(folder), Path(folder).name
+            keys = [f.source(sequence, n) for n in names] if names else []
+            for where in dict.fromkeys(Path(k).parent for k in keys if k is not None):
+                prefix = where / f.path.name
+                record = read_features_source(prefix, what=f"features {f.name}")
+                if record is None:
+                    continue
+                reference = reference_name(names)
+                if record.get("reference_digest") != frame_digest(folder, reference):
+                    raise ValueError(
+                        f"features {f.name}: {features_source_record(prefix)} says the {prefix.stem}-<frame>.npz files "
+                        f"there are features of {record.get('sequence')} (reference frame {record.get('reference')}), "
+                        f"not of {folder}, whose reference frame {reference} differs: they would score {sequence} "
+                        f"with another sequence's features; extract {sequence}'s, or put each sequence's files in "
+                        f"{f.path.parent}/<sequence>/")

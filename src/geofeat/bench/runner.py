@@ -40,7 +40,7 @@ from ..outputs import (add_to_manifest, append_line_durably, atomic_file, check_
 from ..keypoints import Keypoints, check_detector_name, detect, resolve_keypoint_set
 from ..matching import match
 from ..features import Features
-from .external import ExternalFeatures, check_one_source_per_frame, parse_features_option
+from .external import ExternalFeatures, check_extract_sources, check_one_source_per_frame, parse_features_option
 from .report import CURVES
 from ..descriptors.describer import Describer
 from ..groundtruth.simulator import GT_JSON
@@ -454,8 +454,9 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
         if "=" in name:
             make_descriptor(name)
     if config.features:  # before any work: a shared group would score a sequence with another's features
-        check_one_source_per_frame([ExternalFeatures(*parse_features_option(f)) for f in config.features],
-                                   {Path(f).name: frame_names(f) for f in folders})
+        external = [ExternalFeatures(*parse_features_option(f)) for f in config.features]
+        check_one_source_per_frame(external, {Path(f).name: frame_names(f) for f in folders})
+        check_extract_sources(external, folders)
     done = _open_results(out, config, overwrite, progress, folders)
     work = []
     for folder in folders:

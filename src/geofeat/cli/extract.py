@@ -114,12 +114,6 @@ def run(args: argparse.Namespace) -> int:
     return status
 
 
-def source_record(path: Path) -> Path:
-    """The record beside the one `<stem>-<frame>.npz` per frame of the .npz `path`:
-    `<stem>.source.json`, naming the sequence they are features of and listing them."""
-    return path.with_name(f"{path.stem}.source.json")
-
-
 def sequence_source(seq) -> dict[str, str]:
     """What identifies the sequence `seq` (an `io.Sequence`) in a source record: its folder (absolute)
     and its reference frame's name and `io.frame_digest` (a cheap fingerprint of its content)."""
@@ -129,32 +123,16 @@ def sequence_source(seq) -> dict[str, str]:
             "reference_digest": frame_digest(seq.folder, seq.reference)}
 
 
-def read_source(path: Path) -> dict | None:
-    """The source record of the .npz `path` (`source_record`), None when there is none; ValueError
-    naming it when it is not one that `extract` wrote."""
-    import json
-
-    record = source_record(path)
-    if not (record.exists() or record.is_symlink()):
-        return None
-    try:
-        data = json.loads(record.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        data = None
-    if not (isinstance(data, dict) and data.get("generator") == "geofeat extract" and isinstance(data.get("files"), list)):
-        raise ValueError(f"--out: {record} is not the record of the sequence that `geofeat extract` writes beside its "
-                         f"{path.stem}-<frame>.npz files; move it away, or choose another --out")
-    return data
-
-
 def check_same_source(path: Path, source: dict[str, str], overwrite: bool) -> dict | None:
     """Refuse, before any work, to add the features of the sequence `source` (`sequence_source`) to the
     files `<stem>-<frame>.npz` of the .npz `path` that an earlier run wrote of another sequence (another
     folder, or the same folder whose reference frame changed since), naming both: the prefix would hold
     two sequences' features, and `bench --features` read either for the frames of one. With
     `overwrite` the earlier files are replaced whole instead (removed when this run's are in place).
-    Returns the earlier record (`read_source`), None when there is none."""
-    earlier = read_source(path)
+    Returns the earlier record (`geofeat.features.read_features_source`), None when there is none."""
+    from ..features import features_source_record, read_features_source
+
+    earlier = read_features_source(path)
     if earlier is None or overwrite or not earlier_files(path, earlier):
         return earlier
     if earlier.get("sequence") != source["sequence"]:
@@ -164,13 +142,13 @@ def check_same_source(path: Path, source: dict[str, str], overwrite: bool) -> di
                f"{source['reference']} has changed since")
     else:
         return earlier
-    raise ValueError(f"--out: {path.parent} holds {path.stem}-<frame>.npz features {why} ({source_record(path).name}); "
+    raise ValueError(f"--out: {path.parent} holds {path.stem}-<frame>.npz features {why} ({features_source_record(path).name}); "
                      "this run's would mix with them under one name: pass --overwrite to replace them all, or choose "
                      "another --out")
 
 
 def earlier_files(path: Path, earlier: dict | None) -> list[Path]:
-    """The files of the earlier record `earlier` (`read_source`) of the .npz `path` that still exist:
+    """The files of the earlier record `earlier` (`geofeat.features.read_features_source`) of the .npz `path` that still exist:
     only `<stem>-<frame>.npz` names beside `path`, whatever the record says."""
     if earlier is None:
         return []
@@ -180,12 +158,13 @@ def earlier_files(path: Path, earlier: dict | None) -> list[Path]:
 
 
 def write_source(path: Path, source: dict[str, str], written: set[str], kept: list[Path]) -> None:
-    """Write the source record of the .npz `path` (`source_record`): the sequence `source` and the
+    """Write the source record of the .npz `path` (`geofeat.features.features_source_record`): the sequence `source` and the
     file names `written` by this run and `kept` from an earlier run of the same sequence."""
+    from ..features import features_source_record
     from ..outputs import atomic_file, json_text
 
     files = sorted(written | {f.name for f in kept})
-    with atomic_file(source_record(path)) as tmp:
+    with atomic_file(features_source_record(path)) as tmp:
         tmp.write_text(json_text({"generator": "geofeat extract", **source, "files": files}, indent=1), encoding="utf-8")
 
 
