@@ -277,3 +277,27 @@ def test_a_changed_preset_named_mild_is_refused_not_ignored(tmp_path):
     renamed = dataclasses.replace(quiet, name="quiet")
     assert ClothScene("deform", 2, np.random.default_rng(0), tex, size=(48, 64), preset=renamed).params.image_sigma == 0
     assert ClothScene("deform", 2, np.random.default_rng(0), tex, size=(48, 64), preset=PRESETS["mild"]).preset.name == "mild"
+
+
+@pytest.mark.parametrize("change, field", [
+    (dict(wind_gain=float("nan")), "wind_gain"),  # NaN particles: frames without cloth, unreadable afterwards
+    (dict(gravity_gain=float("inf")), "gravity_gain"),
+    (dict(fill=(0.5,)), "fill"),  # rng.uniform(0.5) drew from (0.5, 1.0)
+    (dict(fill=(0.5, 1.5)), "fill"),
+    (dict(scale_swing=(1.0, 1.0)), "scale_swing"),  # ZeroDivisionError mid-simulation
+    (dict(squeeze=1.0), "squeeze"),
+    (dict(image_sigma=(-2.0, 1.0)), "image_sigma"),
+    (dict(ambient=(0.4, 0.2)), "ambient"),
+    (dict(pin_amp=(0.1, 0.1)), "pin_amp"),
+    (dict(blur_px="3"), "blur_px"),
+])
+def test_a_preset_that_cannot_simulate_is_refused_by_field(change, field):
+    """A custom Preset with a NaN or infinite strength, a range of one number or with its ends swapped,
+    or equal scale-swing ends was accepted: NaN wind or gravity wrote a sequence whose frames show no
+    cloth (every later command refused it), a one-number fill was drawn from (fill, 1.0), and
+    scale_swing (1, 1) failed mid-simulation with a ZeroDivisionError. Refused when made, by field."""
+    from geofeat.sim import Preset
+
+    with pytest.raises(ValueError, match=f"preset: {field}:"):
+        Preset("custom", **change)
+    assert Preset("custom", fill=(0.5, 0.7), scale_swing=(0.8, 1.2), squeeze=0.5).fill == (0.5, 0.7)

@@ -80,6 +80,64 @@ class Preset:
     back_plain: bool = False
     blur_px: float = 0.0
 
+    def __post_init__(self) -> None:
+        """ValueError naming the first field that cannot simulate (`check_preset`)."""
+        check_preset(self)
+
+
+#: Fields of `Preset` that are one number >= 0, and (low, high) ranges of numbers >= 0.
+_PRESET_NUMBERS = ("orbit_deg", "tilt_rad", "gust_rate", "gust_gain", "wind_gain", "gravity_gain", "light_speed",
+                   "blur_px")
+_PRESET_RANGES = ("light_drift_m", "ambient", "specular", "image_sigma")
+
+
+def check_preset(preset: Preset) -> None:
+    """ValueError naming the first field of `preset` that cannot simulate: every number finite and
+    >= 0, `squeeze` below 1 (1 draws the pins onto one point), each range (low, high) of two such
+    numbers with low <= high (a 1-tuple was read as (low, 1.0)), `ambient` within 0..1, `fill` within
+    (0, 1] (a fraction of the image area), `scale_swing` positive with low < high (equal ends divided
+    by zero), `pin_amp` three numbers. A NaN wind or gravity gave NaN particles, written as frames
+    without cloth that no command could read."""
+    def number(v, what: str, shown) -> float:
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v) or v < 0:
+            expected = "a finite number" if shown is v else "finite numbers"
+            raise ValueError(f"preset: {what}: expected {expected} >= 0, got {shown!r}")
+        return float(v)
+
+    def numbers(value, what: str, count: int) -> tuple[float, ...]:
+        if isinstance(value, (str, bytes)) or np.ndim(value) != 1 or len(value) != count:
+            raise ValueError(f"preset: {what}: expected {count} numbers, got {value!r}")
+        return tuple(number(v, what, value) for v in value)
+
+    def span(value, what: str) -> tuple[float, float]:
+        lo, hi = numbers(value, what, 2)
+        if lo > hi:
+            raise ValueError(f"preset: {what}: expected (low, high) with low <= high, got {value!r}")
+        return lo, hi
+
+    if not isinstance(preset.name, str) or not preset.name:
+        raise ValueError(f"preset: name: expected a non-empty string, got {preset.name!r}")
+    for what in _PRESET_NUMBERS:
+        number(getattr(preset, what), what, getattr(preset, what))
+    if number(preset.squeeze, "squeeze", preset.squeeze) >= 1:
+        raise ValueError(f"preset: squeeze: expected a fraction below 1, got {preset.squeeze!r}")
+    numbers(preset.pin_amp, "pin_amp", 3)
+    for what in _PRESET_RANGES:
+        span(getattr(preset, what), what)
+    if span(preset.ambient, "ambient")[1] > 1:
+        raise ValueError(f"preset: ambient: expected light levels within 0..1, got {preset.ambient!r}")
+    if preset.fill is not None:
+        lo, hi = span(preset.fill, "fill")
+        if lo <= 0 or hi > 1:
+            raise ValueError(f"preset: fill: expected fractions of the image area within (0, 1], got {preset.fill!r}")
+    if preset.scale_swing is not None:
+        lo, hi = span(preset.scale_swing, "scale_swing")
+        if not 0 < lo < hi:
+            raise ValueError(f"preset: scale_swing: expected image scales 0 < low < high (None: a fixed camera), "
+                             f"got {preset.scale_swing!r}")
+    if not isinstance(preset.back_plain, (bool, np.bool_)):
+        raise ValueError(f"preset: back_plain: expected True or False, got {preset.back_plain!r}")
+
 
 PRESETS: dict[str, Preset] = {
     "mild": Preset("mild"),
