@@ -350,3 +350,74 @@ def test_training_patches_use_the_sequence_radius_as_every_command_does(tmp_path
     k_ref = dataset.detect(ref, 64, detector="sift")
     expected = polar_patches(ref, k_ref.xy, radius=0.05, depth_config=dataset._sequence_config(seq, None, ref))
     np.testing.assert_array_equal(pair.ref_patches, expected.values)
+
+
+@pytest.mark.parametrize("change, message", [
+    (dict(seed=-1), "seed: expected a whole number >= 0"),  # numpy's "expected non-negative integer"
+    (dict(seed=1.5), "seed: expected a whole number"),
+    (dict(radii=()), "radii: expected one or more"),  # "max() arg is an empty sequence", after training
+    (dict(radii=(float("nan"),)), "radii: expected a number >= 0"),
+    (dict(hidden=(2.5,)), "hidden: expected positive whole layer widths"),  # a torch TypeError
+    (dict(labels="found"), "labels: expected one of repeatable, matchable"),
+])
+def test_train_detector_options_are_checked_before_the_candidates_are_collected(change, message, tmp_path,
+                                                                                monkeypatch):
+    """A negative or fractional seed, no suppression radius, a fractional hidden width: train_detector
+    collected every candidate (and fitted both scorers) before failing with numpy's, Python's or torch's
+    words, which named no option."""
+    import geofeat.train.detector as detector
+
+    monkeypatch.setattr(detector, "collect", _stop)
+    monkeypatch.setattr(detector, "check_simulated", lambda paths, what: [tmp_path])
+    with pytest.raises(ValueError, match=message):
+        detector.train_detector([tmp_path], [tmp_path], tmp_path / "k.npz", n=16, steps=5, progress=False, **change)
+    assert not (tmp_path / "k.npz").exists()
+
+
+@pytest.mark.parametrize("positives", ["none", "all"])
+def test_train_detector_refuses_training_labels_all_of_one_kind(positives, tmp_path, monkeypatch):
+    """When no candidate of --data was found again in another frame (or every one was), both scorers were
+    fitted to one label, learned no ranking, and were written as trained weights without a word."""
+    import numpy as np
+
+    import geofeat.train.detector as detector
+    from geofeat.detectors.cues import CUE_NAMES
+
+    x = np.random.default_rng(0).normal(size=(200, len(CUE_NAMES))).astype(np.float32)
+    y = np.full(200, 0.0 if positives == "none" else 1.0, np.float32)
+    monkeypatch.setattr(detector, "check_simulated", lambda paths, what: [tmp_path / what])
+    monkeypatch.setattr(detector, "warn_if_not_held_out", lambda *args: None)
+    monkeypatch.setattr(detector, "collect", lambda *args, **kwargs: (x, y))
+    monkeypatch.setattr(detector, "fit", _stop)
+    which = "none" if positives == "none" else "every one"
+    with pytest.raises(ValueError, match=f"--data: {which} of the 200 candidates is repeatable"):
+        detector.train_detector([tmp_path], [tmp_path], tmp_path / "k.npz", n=16, steps=5, progress=False,
+                                names=("--data", "--val"))
+    assert not (tmp_path / "k.npz").exists()
+
+
+def test_train_detector_says_when_validation_could_not_choose(tmp_path, monkeypatch):
+    """Validation sequences on which no scorer and radius got a single correct match (MS 0 for every
+    entry) left the choice to `max`'s first entry, written and reported as chosen by validation."""
+    import numpy as np
+
+    import geofeat.train.detector as detector
+    from geofeat.detectors.cues import CUE_NAMES
+
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(200, len(CUE_NAMES))).astype(np.float32)
+    y = (x[:, 0] > 0).astype(np.float32)
+    zero = {"repeatability": 0.0, "ms": 0.0, "mma": 0.0, "hits": 0.0, "pairs": 0.0, "n_ref": 0.0}
+    monkeypatch.setattr(detector, "check_simulated", lambda paths, what: [tmp_path / what])
+    monkeypatch.setattr(detector, "warn_if_not_held_out", lambda *args: None)
+    monkeypatch.setattr(detector, "collect", lambda *args, **kwargs: (x, y))
+    monkeypatch.setattr(detector, "validation_scores", lambda *args, **kwargs: dict(zero))
+    with pytest.warns(UserWarning, match=r"--val: no scorer and radius got a correct GeoPatch match .*arbitrary"):
+        detector.train_detector([tmp_path], [tmp_path], tmp_path / "k.npz", n=16, steps=5, progress=False,
+                                radii=(2.0, 3.0), names=("--data", "--val"))
+    good = dict(zero, ms=0.5)
+    monkeypatch.setattr(detector, "validation_scores", lambda *args, **kwargs: dict(good))
+    with warnings.catch_warnings():  # a validation that scores: no warning
+        warnings.filterwarnings("error", message=".*arbitrary")
+        detector.train_detector([tmp_path], [tmp_path], tmp_path / "k2.npz", n=16, steps=5, progress=False,
+                                radii=(2.0, 3.0), names=("--data", "--val"))

@@ -302,6 +302,7 @@ def choose_model(models: dict[str, GeoKeyModel], folders: list[Path], counts: tu
     second stage and ", threshold <t>" for the third, and the chosen (label, radius).
     """
     counts = check_counts(counts)
+    radii = check_radii(radii)
     results: dict = {}
     candidates_by_key: dict = {}
     models = {name: replace(m, threshold=-np.inf, min_fraction=0.0) for name, m in models.items()}  # no rule yet
@@ -344,6 +345,16 @@ def choose_model(models: dict[str, GeoKeyModel], folders: list[Path], counts: tu
         if chosen != admissible[0]:
             best = replace(candidates_by_key[chosen], min_fraction=keep_fraction)
     return best, results, chosen
+
+
+def check_radii(radii) -> tuple[float, ...]:
+    """Suppression radii to try, pixels, as a tuple: one or more finite numbers >= 0; ValueError
+    naming `radii` otherwise (none to try failed as "max() arg is an empty sequence" after training)."""
+    if isinstance(radii, numbers.Real):
+        radii = (radii,)
+    if isinstance(radii, (str, bytes)) or not len(radii):
+        raise ValueError(f"radii: expected one or more suppression radii in pixels, got {radii!r}")
+    return tuple(check_non_negative(r, "radii") for r in radii)
 
 
 def check_counts(counts: int | tuple[int, ...]) -> tuple[int, ...]:
@@ -402,9 +413,15 @@ def train_detector(data, val, out: str | Path, n: int | tuple[int, ...] = VALIDA
     out = check_out_file(out, overwrite)
     n = check_counts(n)
     check_whole(steps, "steps", 1)  # Adam steps
+    check_whole(seed, "seed", 0)  # numpy's "expected non-negative integer", after the candidates were collected
     denoise = check_non_negative(denoise, "denoise")
-    if hidden is not None and (not hidden or any(int(h) < 1 for h in hidden)):
-        raise ValueError(f"hidden: expected positive layer widths, got {hidden!r}")
+    if labels not in LABELS:
+        raise ValueError(f"labels: expected one of {', '.join(LABELS)}, got {labels!r}")
+    radii = check_radii(radii)
+    if hidden is not None and (isinstance(hidden, (str, bytes)) or not hidden
+                               or any(isinstance(h, bool) or not isinstance(h, numbers.Integral) or h < 1
+                                      for h in hidden)):  # 2.5 failed in torch after the candidates were collected
+        raise ValueError(f"hidden: expected positive whole layer widths, got {hidden!r}")
     data_name, val_name = names
     train_folders = check_simulated(data, data_name)  # ground truth in every one, before training
     val_folders = check_simulated(val, val_name)
@@ -414,6 +431,7 @@ def train_detector(data, val, out: str | Path, n: int | tuple[int, ...] = VALIDA
         raise ValueError(f"{val_name}: no sequences under {val}")
     warn_if_not_held_out(train_folders, val_folders, val_name, data_name)
     x, y = collect(train_folders, labels, progress=progress, denoise=denoise)
+    check_labels(y, labels, data_name)
     if progress:
         tqdm.write(f"train-detector: {plural(len(x), 'candidate')} from {plural(len(train_folders), 'sequence')}, "
                    f"{y.mean():.3f} positive ({labels})")
@@ -421,5 +439,27 @@ def train_detector(data, val, out: str | Path, n: int | tuple[int, ...] = VALIDA
               "image + depth cues": fit(x, y, hidden=hidden, steps=steps, seed=seed, progress=progress)}
     models = {name: replace(m, denoise=denoise) for name, m in models.items()}
     model, results, chosen = choose_model(models, val_folders, n, radii, progress=progress)
+    if not any(mean_ms(per_count) > 0 for key, per_count in results.items() if key != SIFT_KEY):
+        import warnings
+
+        # every entry tied at 0, and `max` kept the first: the weights were written as if validation had chosen them
+        warnings.warn(f"{val_name}: no scorer and radius got a correct GeoPatch match on any validation pair (MS 0 "
+                      f"throughout), so the choice ({chosen[0]}, NMS {chosen[1]:g} px) is arbitrary, not chosen by "
+                      f"validation; larger or more textured {val_name} sequences give pairs", UserWarning, stacklevel=2)
     model.save(out)  # whole or not at all
     return model, results, chosen
+
+
+def check_labels(y: np.ndarray, labels: str, data_name: str = "data") -> None:
+    """ValueError naming `data_name` when the (M,) training labels `y` cannot train a scorer: no
+    candidate at all, or candidates all of one label (none found again, or every one), from which
+    the cross-entropy learns no ranking (it was fitted anyway, and the weights written as if trained)."""
+    if not len(y):
+        raise ValueError(f"{data_name}: no candidate corners in these sequences (frames without texture?); "
+                         "larger or more textured sequences give some")
+    positives = int(np.count_nonzero(y))
+    if positives in (0, len(y)):
+        which = "none" if positives == 0 else "every one"
+        raise ValueError(f"{data_name}: {which} of the {plural(len(y), 'candidate')} is {labels} in another frame of "
+                         f"its sequence, so the scorer has nothing to tell apart; simulate sequences whose frames show "
+                         "more of one cloth (larger images, fewer --steps-per-frame)")
