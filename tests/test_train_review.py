@@ -421,3 +421,32 @@ def test_train_detector_says_when_validation_could_not_choose(tmp_path, monkeypa
         warnings.filterwarnings("error", message=".*arbitrary")
         detector.train_detector([tmp_path], [tmp_path], tmp_path / "k2.npz", n=16, steps=5, progress=False,
                                 radii=(2.0, 3.0), names=("--data", "--val"))
+
+
+def test_validation_textured_with_a_training_image_is_not_held_out(tmp_path, monkeypatch):
+    """`geofeat simulate` draws its default texture from the packaged photographs: a --val sequence of
+    its own seed could show the very picture a --data sequence was trained on, and train and
+    train-detector took it as held out without a word (only copies of the frames were warned of)."""
+    import geofeat.train.dataset as dataset
+    import geofeat.train.detector as detector
+    from geofeat.sim.textures import packaged_texture_dir
+
+    photos = packaged_texture_dir()
+    shape = ["--frames", "2", "--width", "64", "--height", "48", "--no-progress"]
+    for name, seed, texture in (("data/a", 1, "kodak_kodim23.jpg"), ("val/b", 2, "kodak_kodim23.jpg"),
+                                ("val/c", 3, "scipy_ascent.jpg")):
+        assert main(["simulate", str(tmp_path / name), *shape, "--seed", str(seed),
+                     "--texture", str(photos / texture)]) == 0
+    monkeypatch.setattr(dataset, "build_patch_set", _stop)
+    monkeypatch.setattr(detector, "collect", _stop)
+    for command, out in (("train", "w.pt"), ("train-detector", "k.npz")):
+        with pytest.warns(UserWarning) as caught, pytest.raises(_Stop):
+            main([command, "--data", str(tmp_path / "data"), "--val", str(tmp_path / "val"),
+                  "--out", str(tmp_path / out)])
+        text = " | ".join(str(w.message) for w in caught)
+        assert "--val: " in text and "b (kodak_kodim23.jpg, as " in text and "not held out in texture" in text, text
+        assert "val/c" not in text, text  # a picture training never saw: held out
+    with pytest.raises(_Stop), warnings.catch_warnings():
+        warnings.filterwarnings("error", message=".*held out")
+        main(["train", "--data", str(tmp_path / "data"), "--val", str(tmp_path / "val" / "c"),
+              "--out", str(tmp_path / "w2.pt")])

@@ -157,9 +157,10 @@ def warn_if_not_held_out(data_folders: list[Path], val_folders: list[Path], what
     """A UserWarning when validation sequences are also training sequences (the same folder given
     twice, inside a folder of sequences given as data, or a copy of one: the same frames, such as two
     simulations with the same --seed): validation is then not held out, and its scores flatter what
-    was trained (train-detector also chooses its settings on them). Another when two training
-    sequences are one: its points are trained twice, and `train` draws one point's two copies as
-    each other's negatives."""
+    was trained (train-detector also chooses its settings on them). Another when a validation
+    sequence is textured with an image file that textures a training sequence (`recorded_photo`).
+    Another when two training sequences are one: its points are trained twice, and `train` draws one
+    point's two copies as each other's negatives."""
     import warnings
 
     digests = {}  # `sequence_digest`: equal for two copies, or two simulations with the same seed and settings
@@ -172,12 +173,15 @@ def warn_if_not_held_out(data_folders: list[Path], val_folders: list[Path], what
                       "settings), so their points are trained twice as if they were different points; simulate "
                       "each sequence with its own --seed", UserWarning, stacklevel=2)
     trained = {Path(f).resolve() for f in data_folders}
-    shared, same = [], []
+    shared, same, reported = [], [], set()
     for f in val_folders:
         if Path(f).resolve() in trained:
             shared.append(str(f))
         elif (twin := digests.get(sequence_digest(f))) is not None:
             same.append(f"{f} (= {twin[0]})")
+        else:
+            continue
+        reported.add(str(f))
     if shared:
         warnings.warn(f"{what}: {', '.join(shared[:3])}{', ...' if len(shared) > 3 else ''} is also under {data_what}, "
                       "so validation is not held out and its scores flatter the training", UserWarning, stacklevel=2)
@@ -186,6 +190,33 @@ def warn_if_not_held_out(data_folders: list[Path], val_folders: list[Path], what
                       f"sequence under {data_what} (a copy, or simulated with the same --seed and settings), so "
                       "validation is not held out and its scores flatter the training; simulate the validation "
                       "sequences with seeds of their own", UserWarning, stacklevel=2)
+    # other frames, but an image that textures a training sequence too (`simulate`'s default draws from the
+    # packaged photographs): the validation score then measures pictures the network was trained on
+    trained_on = {}  # image file name -> the first training sequence it textures
+    for f in data_folders:
+        if (photo := recorded_photo(f)) is not None:
+            trained_on.setdefault(photo, Path(f))
+    seen = [f"{f} ({photo}, as {trained_on[photo]})" for f in val_folders
+            if str(f) not in reported and (photo := recorded_photo(f)) in trained_on]
+    if seen:
+        warnings.warn(f"{what}: {', '.join(seen[:3])}{', ...' if len(seen) > 3 else ''} is textured with an image "
+                      f"that also textures a sequence under {data_what}, so validation is not held out in texture "
+                      "and its scores flatter the training; simulate the validation sequences with images of "
+                      "their own (--texture, --texture-dir)", UserWarning, stacklevel=2)
+
+
+def recorded_photo(folder: str | Path) -> str | None:
+    """The file name of the image a simulated sequence was textured with (its groundtruth.json
+    `texture`), or None for a generated texture ("procedural", "fabric", "fabric:KIND", drawn anew from
+    each seed), an array, or a folder that records none."""
+    from ..groundtruth.simulator import GT_JSON, read_metadata
+
+    if not (Path(folder) / GT_JSON).is_file():
+        return None
+    texture = read_metadata(folder).get("texture")
+    if not isinstance(texture, str) or texture in ("procedural", "fabric", "array") or texture.startswith("fabric:"):
+        return None
+    return texture
 
 
 #: SIFT keypoints asked for per frame of the validation pairs (`validation_pairs`) that score each
