@@ -450,3 +450,26 @@ def test_validation_textured_with_a_training_image_is_not_held_out(tmp_path, mon
         warnings.filterwarnings("error", message=".*held out")
         main(["train", "--data", str(tmp_path / "data"), "--val", str(tmp_path / "val" / "c"),
               "--out", str(tmp_path / "w2.pt")])
+
+
+def test_resuming_another_networks_checkpoint_is_refused_before_the_patches(tmp_path, monkeypatch, capsys):
+    """A GeoPatch run resumed with --net tfeat (or the reverse) has the same training settings, so when
+    its patch cache was gone the checkpoint passed every check and was refused only by `train`, after
+    the patches of every --data sequence had been built (minutes to hours)."""
+    import geofeat.train.dataset as dataset
+    import geofeat.train.imagepatches as imagepatches
+    from geofeat.descriptors.geopatch import GeoPatchConfig
+    from geofeat.train.loop import TrainConfig, train
+
+    config = TrainConfig(epochs=1, steps_per_epoch=1, batch_size=8, net=GeoPatchConfig(channels=(16, 32, 64)))
+    train(_patches(), tmp_path / "w.pt", config, progress=False, device="cpu")  # as `train --steps 1 --batch-size 8`
+    monkeypatch.setattr(dataset, "build_patch_set", _stop)
+    monkeypatch.setattr(imagepatches, "build_image_patch_set", _stop)
+    run = ["train", "--data", str(tmp_path / "data"), "--out", str(tmp_path / "w.pt"), "--epochs", "1",
+           "--steps", "1", "--batch-size", "8", "--resume"]
+    assert main([*run, "--net", "tfeat"]) == 2
+    err = capsys.readouterr().err
+    assert "--resume: " in err and "w.pt.ckpt holds the weights of another network than --net tfeat" in err, err
+    assert main(run) == 2  # its own network: on to the data checks, which find no --data folder
+    err = capsys.readouterr().err
+    assert "--data" in err and "--resume" not in err, err

@@ -96,7 +96,8 @@ def run(args: argparse.Namespace) -> int:
     check_train_out(args.out, args.overwrite, args.resume, also=(".patches.npz",))
     checkpoint = Path(str(args.out) + ".ckpt")
     if args.resume and checkpoint.is_file():
-        load_resume_state(checkpoint, config)  # a corrupt or other run's checkpoint, before the patches
+        state = load_resume_state(checkpoint, config)  # a corrupt or other run's checkpoint, before the patches
+        _check_resumed_network(state, checkpoint, args.net, config)
     if args.init is not None:
         if args.net != "geopatch":
             raise ValueError(f"--init: fine-tuning starts from GeoPatch weights; not with --net {args.net}")
@@ -209,6 +210,24 @@ def _check_cached_source(cache: Path, cached: dict | None, wanted: dict) -> None
         return
     raise ValueError(f"--resume: {cache} holds the patches of a run with other options ({'; '.join(changed)}); "
                      "resume with that run's options, or pass --overwrite (without --resume) to start anew")
+
+
+def _check_resumed_network(state: dict, checkpoint: Path, net_name: str, config) -> None:
+    """ValueError when the weights in a --resume checkpoint are not those of the --net this run
+    trains (a GeoPatch run resumed with --net tfeat, or the reverse): their settings are the same
+    (`TrainConfig` holds no network name), so without a patch cache that names --net the weights
+    were refused by `train` only after the patches of every --data sequence had been built."""
+    from ..descriptors.geopatch import GeoPatchNet
+    from ..descriptors.image_patch_nets import ImagePatchNet, default_config
+    from ..inputs import error_summary
+
+    net = GeoPatchNet(config.net) if net_name == "geopatch" else ImagePatchNet(default_config(net_name))
+    try:
+        net.load_state_dict(state["state_dict"])
+    except Exception as error:  # noqa: BLE001 - missing or misshapen weights: one user error
+        raise ValueError(f"--resume: {checkpoint} holds the weights of another network than --net {net_name} "
+                         f"({error_summary(error)}); resume with the --net of the run that wrote it, or pass "
+                         "--overwrite (without --resume) to start anew") from None
 
 
 def _check_init_survives(init: str, out: str) -> None:
