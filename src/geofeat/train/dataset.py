@@ -158,7 +158,8 @@ def warn_if_not_held_out(data_folders: list[Path], val_folders: list[Path], what
     twice, inside a folder of sequences given as data, or a copy of one: the same frames, such as two
     simulations with the same --seed): validation is then not held out, and its scores flatter what
     was trained (train-detector also chooses its settings on them). Another when a validation
-    sequence is textured with an image file that textures a training sequence (`recorded_photo`).
+    sequence is textured with an image file that textures a training sequence (`recorded_photo`;
+    compared by file name, all groundtruth.json records).
     Another when two training sequences are one: its points are trained twice, and `train` draws one
     point's two copies as each other's negatives."""
     import warnings
