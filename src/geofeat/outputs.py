@@ -279,9 +279,15 @@ def _input_clash(folder: Path, inputs: Iterable[str | Path | None], replaced: bo
         if source == here:
             return f"{folder} is the input folder {given}", "writing the result there would replace it"
         # a new folder beside the sequences of a folder of sequences is fine (as COLMAP keeps sparse/
-        # beside images/): the commands look for sequences in sub-folders holding frames only
-        if source in here.parents and _holds_data_files(source):
-            return f"{folder} lies inside the input folder {given}", "the results would be written among its files"
+        # beside images/): the commands look for sequences in sub-folders holding frames only; inside one
+        # of those sub-folders (a sequence of the folder given) it is not
+        if source in here.parents:
+            inner = source / here.relative_to(source).parts[0]
+            for holder, name in ((source, given), (inner, inner)):
+                if holder != here and _holds_data_files(holder):
+                    return f"{folder} lies inside the input folder {name}", "the results would be written among its files"
+            if inner == here and here.is_dir() and _holds_data_files(here):
+                return f"{folder} is the input folder {inner}", "writing the result there would replace it"
     listed = [(folder / rel).resolve() for rel in read_manifest(folder)] if replaced and folder.is_dir() else []
     for given, source in sources:
         if any(source in f.parents for f in listed):
