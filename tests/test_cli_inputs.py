@@ -212,3 +212,18 @@ def test_extract_reruns_the_same_sequence_into_its_npz_prefix(tmp_path, capsys):
     assert "f-frame-000-master.npz exists; pass --overwrite" in capsys.readouterr().err
     record = json.loads((out.parent / "f.source.json").read_text())
     assert record["sequence"] == str(seq.resolve()) and len(record["files"]) == 3
+
+
+def test_simulate_refuses_a_contact_sheet_inside_its_texture_folder_and_names_a_texture_folder(tmp_path, capsys):
+    """`simulate --texture-dir T --contact-sheet T/sheet.png` wrote the sheet among the textures, where the
+    next simulation could draw it as a cloth; `--texture FOLDER` said "file not found" for a folder that exists."""
+    tex = tmp_path / "tex"
+    tex.mkdir()
+    cv2.imwrite(str(tex / "cloth.png"), np.full((32, 32, 3), 128, np.uint8))
+    small = ["--frames", "1", "--width", "64", "--height", "48", "--no-progress"]
+    assert main(["simulate", str(tmp_path / "s"), "--texture-dir", str(tex), "--contact-sheet", str(tex / "sheet.png"),
+                 *small]) == 2
+    assert f"--contact-sheet: {tex / 'sheet.png'} lies inside the input folder {tex}" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tex"] and sorted(p.name for p in tex.iterdir()) == ["cloth.png"]
+    assert main(["simulate", str(tmp_path / "s"), "--texture", str(tex), *small]) == 2
+    assert f"texture: {tex} is a folder, not an image file" in capsys.readouterr().err

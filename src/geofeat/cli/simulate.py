@@ -66,6 +66,10 @@ def run(args: argparse.Namespace) -> int:
         from ..outputs import check_out_file
 
         check_out_file(args.contact_sheet, args.overwrite, "--contact-sheet")
+        if args.texture_dir is not None:  # the next simulation would draw the sheet as a cloth texture
+            from ..outputs import refuse_input_folder
+
+            refuse_input_folder(args.contact_sheet, [args.texture_dir], "--contact-sheet")
         if not cv2.haveImageWriter(str(args.contact_sheet)):
             raise ValueError(f"--contact-sheet: cannot write an image named {args.contact_sheet}; name a .png file")
     folder = simulate_sequence(

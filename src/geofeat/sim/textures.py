@@ -36,6 +36,8 @@ def read_texture(path: str | Path) -> np.ndarray:
     from ..io import read_image
 
     path = Path(path)
+    if path.is_dir():  # "file not found" for a folder that exists misled
+        raise ValueError(f"texture: {path} is a folder, not an image file; pass a folder of images as --texture-dir")
     if not path.is_file():
         raise ValueError(f"texture: file not found: {path}")
     image = read_image(path, "texture")  # ValueError "texture: cannot decode image ..." for a foreign file
