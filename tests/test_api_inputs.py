@@ -78,6 +78,36 @@ def test_a_frame_keeps_its_own_colour_image():
     np.testing.assert_array_equal(frame.rotated90(4).image, before)
 
 
+def test_a_frame_is_immutable_its_arrays_its_own_read_only_copies():
+    """frame.image or frame.depth edited in place after the frame was made went unnoticed by what is
+    cached on the frame (the depth profile "auto" picked, the mesh prefetch) and by the descriptors,
+    which then described old and new data mixed. A frame's arrays are now its own read-only copies: an
+    edit in place raises numpy's error, an edit of the caller's arrays does not reach the frame, and a
+    frame made from it (`with_image`, `rotated90`, `roll_camera`) is read-only too."""
+    from geofeat.frame import roll_camera
+
+    colour, gray, depth, K_given = _colour(), _colour()[:, :, 0].astype(np.float32) / 255, _depth(), K.copy()
+    for image in (colour, gray):
+        frame = RGBDFrame(image, depth, K_given)
+        for name in ("image", "depth", "K", "color"):
+            array = getattr(frame, name)
+            if array is None:  # a gray frame has no colour image
+                continue
+            assert not array.flags.writeable, name
+            with pytest.raises(ValueError, match="read-only"):
+                array[0, 0] += 1
+        before = frame.image.copy(), frame.depth.copy()
+        image[:] = 0  # the caller reuses its arrays: the frame keeps its own
+        depth[:] = 2.0
+        K_given[0, 0] = 300.0
+        np.testing.assert_array_equal(frame.image, before[0])
+        np.testing.assert_array_equal(frame.depth, before[1])
+        assert frame.K[0, 0] == K[0, 0]
+        depth[:], K_given[:] = _depth(), K
+        for made in (frame.with_image(frame.image * 0.5), frame.rotated90(1), roll_camera(frame, 10.0)[0]):
+            assert not (made.image.flags.writeable or made.depth.flags.writeable or made.K.flags.writeable)
+
+
 # ---------------------------------------------------------------- arrays where paths are expected
 def test_read_frame_names_an_array_given_for_a_path(tmp_path):
     """read_frame(rgb, depth, K) with the camera matrix (an array) for intrinsics_path was a bare

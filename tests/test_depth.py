@@ -187,6 +187,24 @@ def test_the_gpu_pyramid_equals_the_cpu_one_on_a_frame_it_does_not_cover():
     assert np.abs(gpu - cpu).max() < 1e-6
 
 
+@pytest.mark.parametrize("shape", [(1, 1), (1, 640), (640, 1), (2, 2)])
+def test_a_depth_map_one_pixel_high_or_wide_smooths_to_no_depth_on_the_cpu_and_the_gpu(shape):
+    """The smallest mesh grid (2 x 2) stretched one row of depth into a cell: a surface that is not
+    there, on which polar patches were walked. Such a map now gives no depth (no face), on the CPU and
+    in the GPU's pyramid alike; a 2 x 2 map keeps its depth."""
+    torch = pytest.importorskip("torch")
+    from geofeat.depth import smooth
+    from geofeat.gpu import smooth_depth_torch
+
+    depth = np.full(shape, 1.0, np.float32)
+    for levels, scale in ((2, 0.5), (0, 1.0)):
+        cpu = smooth(depth, levels, scale)
+        gpu = smooth_depth_torch(torch.from_numpy(depth), levels, scale).numpy()
+        assert cpu.shape == gpu.shape and min(cpu.shape) >= 2
+        assert np.array_equal(cpu, gpu)
+        assert (cpu > 0).all() if min(shape) >= 2 else not cpu.any()
+
+
 @pytest.mark.parametrize("kwargs", [dict(power=float("nan")), dict(power=-1.0), dict(power=0.0),
                                     dict(max_perimeter=-1), dict(max_perimeter=2.5)])
 def test_fill_holes_refuses_meaningless_parameters(kwargs):

@@ -203,6 +203,7 @@ small = frame(48, 56)
 net = GeoPatch(device="cpu", backend="torch", depth_config="quantised")
 graph = FrameGraph(net, small, n=2)
 edited = frame(48, 56)
+edited.depth.flags.writeable = True  # a frame is read-only: edited in place only after turning that off
 edited.depth[:] *= 1000.0
 try:
     graph.compute(edited, [[20.0, 20.0]])

@@ -278,7 +278,8 @@ def test_mesh_cached_on_frame_per_depth_config():
     other = frame_mesh(frame, clean)
     assert other is not first and other.points.shape[0] == 2 * first.points.shape[0]
     assert frame_mesh(frame) is first and frame_mesh(frame, clean) is other
-    # editing the depth in place invalidates the cache
+    # editing the depth in place (a frame is read-only: only after turning that off) invalidates the cache
+    frame.depth.flags.writeable = True
     frame.depth[200:260, 300:360] *= 1.1
     edited = frame_mesh(frame)
     assert edited is not first
@@ -459,6 +460,7 @@ def test_depth_edited_in_place_is_checked_again_before_a_mesh_is_built(edit, mat
     frame = plane_frame()
     kp = np.array([[320.0, 240.0]])
     assert geofeat.polar_patches(frame, kp, depth_config=CLEAN).valid.all()
+    frame.depth.flags.writeable = True  # a frame is read-only: edited in place only after turning that off
     if edit == "mm":
         frame.depth[:] *= 1000.0  # was silently a surface 1000 times too large: the rays left it
     else:
@@ -509,3 +511,96 @@ def test_a_keypoint_on_the_last_pixel_column_or_row_keeps_half_its_patch_as_on_t
     p = geofeat.polar_patches(frame, kps, depth_config="clean", radius=0.01)  # mesh at full resolution
     reaching = (p.rings_reached >= 1).sum(axis=1)
     assert p.valid.all() and reaching[0] == reaching[1] and reaching[2] == reaching[3] and reaching[0] >= 16
+
+
+# ---------------------------------------------------------------- patches whose rays did not walk
+@pytest.mark.parametrize("shape", [(1, 1), (1, 640), (640, 1)])
+def test_a_frame_one_pixel_high_or_wide_has_no_surface_and_no_valid_patch(shape):
+    """The depth smoothing's smallest mesh (2 x 2 vertices, one cell) stretched a single row of depth
+    into a surface: on a 1 x 1 frame every ray walked all 32 rings on it and GeoBit called the patch
+    valid; on a 1 x 640 frame with a short focal length the rays crossed the made-up strip to the first
+    ring. One row or column of depth holds no surface: its mesh has no face, and no patch is valid,
+    whatever the focal length, for the walk, the heat method and both geodesic descriptors."""
+    from geofeat.geodesic.mesh import build_mesh
+
+    H, W = shape
+    xy = np.array([[(W - 1) / 2, (H - 1) / 2], [0.0, 0.0]])
+    for focal in (0.1, 0.9, 20.0):  # times the longer side: the plausible range (`check_focal_lengths`)
+        f = focal * max(H, W)
+        K = np.array([[f, 0, (W - 1) / 2], [0, f, (H - 1) / 2], [0, 0, 1]])
+        frame = geofeat.RGBDFrame(np.full(shape, 0.5, np.float32), np.ones(shape, np.float32), K)
+        for config in ("kinect", "clean"):
+            assert not build_mesh(frame, config).face_ok.any()
+            patches = geofeat.polar_patches(frame, xy, depth_config=config)
+            assert not patches.valid.any() and not patches.rings_reached.any()
+            assert not geofeat.heat_polar_patches(frame, xy, depth_config=config).valid.any()
+        with pytest.warns(UserWarning, match="pixels high or wide"):
+            assert not geofeat.GeoBit().compute(frame, xy).valid.any()
+
+
+@pytest.mark.parametrize("name", ["geobit", "geopatch"])
+def test_descriptors_refuse_patches_marked_valid_whose_rays_did_not_walk(name):
+    """A descriptor took `patches.valid` as it came: patches marked valid whose rays reached no ring
+    (no surface under them, or leaving it at once) were described. Validity is `patch_validity` of the
+    rings reached, and a patch marked valid against it is refused, naming it."""
+    frame = plane_frame((120, 160))
+    xy = np.array([[60.0, 50.0], [80.0, 60.0]])
+    describer = geofeat.make_descriptor(name, radius=0.02, depth_config=CLEAN)
+    patches = geofeat.polar_patches(frame, xy, radius=0.02, depth_config=CLEAN)
+    assert describer.compute(frame, xy, patches=patches).valid.all()
+    patches.rings_reached[1, :20] = 0  # 20 of 32 directions leave the surface at once
+    with pytest.raises(ValueError, match=r"patches: 1 marked valid \(e.g. #1\) whose rays reach the first ring"):
+        describer.compute(frame, xy, patches=patches)
+    patches.valid[1] = False  # marked invalid, as `patch_validity` says: described as invalid
+    assert describer.compute(frame, xy, patches=patches).valid.tolist() == [True, False]
+
+
+# ---------------------------------------------------------------- patches of other settings
+@pytest.mark.parametrize("name", ["geobit", "geopatch"])
+def test_descriptors_refuse_patches_of_another_blur_or_depth_config(name):
+    """`PolarPatches` recorded their frame and radius, not the sampling blur or the depth config of the
+    mesh their rays walked on: patches sampled with blur_px=2, or walked on a "kinect" mesh, were
+    described by a descriptor set to blur 1 px on a "clean" mesh without a word (and so was a mesh of
+    another depth config given as `mesh=`). Both settings are recorded and a mismatch is refused,
+    naming both; the same settings however given (a profile name, an equal DepthConfig, "auto" and
+    the profile it picks on the frame, a float32 blur) pass."""
+    from geofeat.geodesic.mesh import build_mesh
+
+    frame = plane_frame((120, 160))
+    xy = np.array([[60.0, 50.0], [80.0, 60.0]])
+    describer = geofeat.make_descriptor(name, radius=0.02, depth_config="clean")
+    blurred = geofeat.polar_patches(frame, xy, radius=0.02, depth_config="clean", blur_px=2.0)
+    assert blurred.blur_px == 2.0 and blurred.depth_config == geofeat.depth.PROFILES["clean"]
+    with pytest.raises(ValueError, match="patches: sampled with blur_px=2, but the descriptor's blur_px is 1"):
+        describer.compute(frame, xy, patches=blurred)
+    with pytest.raises(ValueError, match="patches: walked on a mesh built with depth config 'kinect', but the "
+                                         "descriptor's depth_config is 'clean'"):
+        describer.compute(frame, xy, patches=geofeat.polar_patches(frame, xy, radius=0.02, depth_config="kinect"))
+    with pytest.raises(ValueError, match="mesh: built with depth config 'kinect', but the descriptor's depth_config "
+                                         "is 'clean'"):
+        describer.compute(frame, xy, mesh=build_mesh(frame, "kinect"))
+    same = geofeat.polar_patches(frame, xy, radius=0.02, depth_config=DepthConfig(smooth_levels=0, mesh_scale=1.0),
+                                 blur_px=np.float32(1.0))
+    assert describer.compute(frame, xy, patches=same) == describer.compute(frame, xy)
+    assert describer.compute(frame, xy, mesh=build_mesh(frame, "clean")) == describer.compute(frame, xy)
+    auto = geofeat.make_descriptor(name, radius=0.02)  # depth_config "auto": the profile it picks on the frame
+    picked = geofeat.depth_profile(frame)
+    own = geofeat.polar_patches(frame, xy, radius=0.02, depth_config=picked)
+    assert auto.compute(frame, xy, patches=own) == auto.compute(frame, xy)
+    other = "clean" if picked != "clean" else "kinect"
+    with pytest.raises(ValueError, match=rf"depth_config is 'auto' \('{picked}' on this frame\)"):
+        auto.compute(frame, xy, patches=geofeat.polar_patches(frame, xy, radius=0.02, depth_config=other))
+
+
+def test_the_describer_shares_one_set_of_patches_of_its_own_settings():
+    """`Describer` builds one set of polar patches for every geodesic descriptor; they are of the
+    descriptors' own blur and depth config, so the check passes and the results equal each
+    descriptor's own."""
+    from geofeat.descriptors.describer import Describer
+
+    frame = plane_frame((120, 160))
+    keypoints = geofeat.as_keypoints(np.array([[60.0, 50.0], [80.0, 60.0]]))
+    shared = Describer(("geobit", "geopatch", "orb"), 0.02, "clean")(frame, keypoints)
+    for name in ("geobit", "geopatch"):
+        own = geofeat.make_descriptor(name, radius=0.02, depth_config="clean").compute(frame, keypoints)
+        assert shared[name][0] == own

@@ -4,6 +4,7 @@ warns, naming the argument."""
 
 from __future__ import annotations
 
+import functools
 import warnings
 
 import numpy as np
@@ -301,3 +302,43 @@ def test_extract_refuses_a_radius_for_a_descriptor_without_one():
     assert len(geofeat.extract(frame, 10, descriptor="ORB", depth_config="auto")) == 10  # the defaults pass
     assert len(geofeat.extract(frame, 10, descriptor="orb", radius=None, depth_config=None)) == 10
     assert geofeat.extract(frame, 10, descriptor="geobit", radius=0.05, depth_config="kinect").descriptors.shape == (10, 16, 64)
+
+
+# ---------------------------------------------------------------- frames 1 pixel high or wide
+@functools.lru_cache(maxsize=None)
+def _descriptor(name: str):
+    return geofeat.make_descriptor(name, **({"progress": False} if name == "dali" else {}))
+
+
+def _tiny_frame(H: int, W: int) -> RGBDFrame:
+    """A textured (H, W) frame on a plane 1 m away, with a focal length of 0.9 times its longer side."""
+    colour = (np.random.default_rng(H * 1000 + W).random((H, W, 3)) * 255).astype(np.uint8)
+    f = 0.9 * max(H, W)
+    K = np.array([[f, 0, (W - 1) / 2], [0, f, (H - 1) / 2], [0, 0, 1]])
+    return RGBDFrame(colour, np.ones((H, W), np.float32), K)
+
+
+@pytest.mark.parametrize("name", geofeat.descriptors.available_descriptors())
+def test_every_descriptor_marks_the_keypoints_of_a_frame_one_pixel_high_or_wide_invalid_with_a_warning(name):
+    """ORB on a 1 x 640, 640 x 1 or 1 x 1 frame failed with a raw OpenCV assertion ("inv_scale_x > 0" in
+    its pyramid); SIFT, DAISY, DaLI and the image-patch nets called descriptors of the border pixels
+    replicated across the frame valid, GeoBit and GeoPatch patches walked on a surface made up from one
+    row of depth. Every descriptor now gives a well-formed result with every keypoint invalid (zero
+    rows) and a warning, as for a frame without texture; `extract` refuses the frame as it refuses one
+    without texture (the detectors warn and find nothing). A 2 x 2 frame is described as before."""
+    descriptor = _descriptor(name)
+    for H, W in ((1, 640), (640, 1), (1, 1)):
+        frame = _tiny_frame(H, W)
+        xy = np.array([[(W - 1) / 2, (H - 1) / 2], [0.0, 0.0]])
+        with pytest.warns(UserWarning, match=rf"^{name}: the {W}x{H} frame is under 2 pixels high or wide"):
+            features = descriptor.compute(frame, xy)
+        assert features.keypoints.shape == (2, 2) and features.descriptors.shape[0] == 2
+        assert features.valid.dtype == bool and not features.valid.any()
+        assert not np.asarray(features.descriptors).any()
+    with pytest.warns(UserWarning, match="no keypoint|no candidate"), \
+            pytest.raises(ValueError, match="frame: no keypoints detected"):
+        geofeat.extract(_tiny_frame(1, 640), 10, descriptor=name)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message=".*pixels high or wide")
+        features = descriptor.compute(_tiny_frame(2, 2), np.array([[0.5, 0.5]]))
+    assert features.descriptors.shape[0] == 1 and features.valid.shape == (1,)

@@ -199,6 +199,7 @@ def test_a_bad_frame_in_the_stream_leaves_the_next_ones_unchanged(demo):
     why; the good frames before and after give the same features, and no thread is left."""
     want = geofeat.extract(fresh(demo), n=N)
     broken = fresh(demo)
+    broken.depth.flags.writeable = True  # a frame is read-only: edited in place only after turning that off
     broken.depth[::3, ::3] = np.nan
     with pytest.raises(ValueError, match="depth: contains NaN"):
         geofeat.extract(broken, n=N)

@@ -203,6 +203,7 @@ try:
     raise AssertionError("a DeviceMesh of another frame was accepted")
 except ValueError as exc:
     assert "another frame" in str(exc)
+frame.depth.flags.writeable = True  # a frame is read-only: edited in place only after turning that off
 frame.depth[10, 10] += 0.01
 assert frame_mesh(frame, "kinect", device="cuda") is not m  # an edited depth is noticed
 print("ok")

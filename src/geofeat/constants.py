@@ -30,3 +30,7 @@ DEPTH_PROFILE_NAMES = ("auto", "kinect", "quantised", "clean")
 MAX_PLAUSIBLE_DEPTH_M = 50.0
 #: Gaussian blur applied to the gray image before sampling polar patches, full-resolution pixels.
 SAMPLING_BLUR_PX = 1.0
+#: The fewest pixels a frame needs across each axis for a keypoint on it to be described: a single
+#: row or column holds no neighbourhood across it (no image gradient; no surface: the mesh of its
+#: depth has no face), so every descriptor marks its keypoints invalid, with a warning.
+MIN_FRAME_SIDE_PX = 2

@@ -14,7 +14,8 @@ import cv2
 import numpy as np
 from numba import njit
 
-from .constants import DEPTH_PROFILE_NAMES, HOLE_MAX_PERIMETER_PX, IDW_POWER, MESH_SCALE, SMOOTH_LEVELS, SMOOTH_WINDOW_PX
+from .constants import (DEPTH_PROFILE_NAMES, HOLE_MAX_PERIMETER_PX, IDW_POWER, MESH_SCALE, MIN_FRAME_SIDE_PX,
+                        SMOOTH_LEVELS, SMOOTH_WINDOW_PX)
 from .frame import check_intrinsics
 from .inputs import check_positive, check_whole, unmask_depth
 
@@ -272,6 +273,12 @@ def resolve_depth_config(depth_config, frame=None) -> DepthConfig:
     return PROFILES[name]
 
 
+def depth_config_name(config: DepthConfig) -> str:
+    """A DepthConfig as errors name it: its profile's name ("'kinect'") when it is one, else itself."""
+    name = next((n for n, c in PROFILES.items() if c == config), None)
+    return repr(name) if name is not None else repr(config)
+
+
 def _check_depth_map(depth, what: str = "depth", finite: bool = True) -> np.ndarray:
     """An (H, W) numeric depth map as an array (ValueError / TypeError naming `what` otherwise; with
     `finite`, NaN or infinite values are refused too: missing depth is 0 here, and so are the masked
@@ -462,7 +469,8 @@ def smooth(
         depth: (H, W) metres, 0 = missing.
     Returns:
         (max(2, round(H * out_scale)), max(2, round(W * out_scale))) float32 metres, 0 = missing (at least
-        2 x 2: a mesh needs one cell).
+        2 x 2: a mesh needs one cell). All 0 for a map under `MIN_FRAME_SIDE_PX` (2) pixels high or
+        wide (`too_thin_for_surface`).
     """
     depth = _check_depth_map(depth)
     check_whole(levels, "levels", 0)
@@ -470,6 +478,8 @@ def smooth(
     check_positive(out_scale, "out_scale")
     H, W = depth.shape
     size = (max(2, int(round(W * out_scale))), max(2, int(round(H * out_scale))))
+    if too_thin_for_surface(depth.shape):
+        return np.zeros(size[::-1], np.float32)
     d = np.asarray(depth, dtype=np.float32)
     halvings = 0
     for _ in range(levels):
@@ -484,6 +494,15 @@ def smooth(
     valid = (d > 0).astype(np.float64)
     num, den = Ry @ (d * valid) @ Rx.T, Ry @ valid @ Rx.T
     return np.where(den >= RESIZE_MIN_WEIGHT, num / np.maximum(den, 1e-12), 0.0).astype(np.float32)
+
+
+def too_thin_for_surface(shape: tuple[int, ...]) -> bool:
+    """Whether an (H, W) depth map is under `MIN_FRAME_SIDE_PX` pixels high or wide: one row (or
+    column) of depth samples holds no surface across it. Stretched into the mesh's smallest grid (2 x 2
+    vertices, one cell) it made one: faces of a made-up flat strip, on which the rays of a 1 x 1 or
+    1 x 640 frame's keypoints walked and their patches were valid. `smooth` (and the GPU's
+    `smooth_depth_torch`) give such a map no depth at all, so its mesh has no face."""
+    return min(int(shape[0]), int(shape[1])) < MIN_FRAME_SIDE_PX
 
 
 def _axis_interpolation(n_in: int, n_out: int, step: float) -> np.ndarray:

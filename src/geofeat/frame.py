@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .constants import MAX_PLAUSIBLE_DEPTH_M
+from .constants import MAX_PLAUSIBLE_DEPTH_M, MIN_FRAME_SIDE_PX
 from .inputs import (PLAUSIBLE_MEDIAN_DEPTH_M, DepthUnitsWarning, as_points, check_focal_lengths, check_principal_point,
                      unmask_depth)
 
@@ -180,6 +180,12 @@ class RGBDFrame:
         color: optional (H, W, 3) uint8 BGR image (a copy of the one given), kept for display.
 
     `image` may also be a PIL image: its RGB is turned into BGR (`from_pil`).
+
+    A frame is immutable: its arrays are its own read-only copies (`read_only`), so an edit in place
+    (`frame.depth[...] = ...`) raises numpy's "assignment destination is read-only" and an edit of the
+    caller's arrays does not reach the frame; what is cached on the frame (its mesh, `frame_mesh`; the
+    depth profile "auto" picks) stays the frame's. `with_image` makes a frame with another image,
+    `RGBDFrame(image, new_depth, frame.K)` one with another depth.
     """
 
     image: np.ndarray
@@ -195,13 +201,13 @@ class RGBDFrame:
         # the frame's own copy, as for the depth and K: the caller may draw on its array afterwards
         # (H, W, 3) only: an (H, W, 1) image is gray, shown (`geofeat.viz.to_bgr`) from `image` as an (H, W) one
         color = image.copy() if (image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.uint8) else None
-        object.__setattr__(self, "image", gray)
-        object.__setattr__(self, "depth", check_depth(depth, gray.shape, warn_near=True))
+        # `to_gray` and `check_depth` return new arrays: the frame's own, as the copies of K and the colour
+        depth = check_depth(depth, gray.shape, warn_near=True)
         K = check_intrinsics(K).copy()  # the frame's own copy, as for the depth: not the caller's array
         check_focal_lengths(K, gray.shape, "K")
         check_principal_point(K, gray.shape, "K", strict=False)
-        object.__setattr__(self, "K", K)
-        object.__setattr__(self, "color", color)
+        for name, value in (("image", gray), ("depth", depth), ("K", K), ("color", color)):
+            object.__setattr__(self, name, read_only(value))
 
     def __eq__(self, other) -> bool:
         """Frames with equal gray images, depth and intrinsics (the colour image, kept for display, is
@@ -241,7 +247,7 @@ class RGBDFrame:
         # as the constructor reads it: a uint8 image was kept as floats 0-255 (read as [0, 1] by every
         # stage: SIFT found nothing on it), NaN and 0-255 floats were taken, the caller's array was shared;
         # no dark-image warning here: the frame's constructor gave it for its own image
-        image = to_gray(image, warn_dark=False)
+        image = read_only(to_gray(image, warn_dark=False))  # a new array, the frame's own
         frame = object.__new__(RGBDFrame)
         for name, value in (("image", image), ("depth", self.depth), ("K", self.K), ("color", self.color)):
             object.__setattr__(frame, name, value)
@@ -276,12 +282,35 @@ class RGBDFrame:
                          Kn).with_image(np.rot90(self.image, k).copy())
 
 
+def read_only(array: np.ndarray | None) -> np.ndarray | None:
+    """`array` (a frame's own copy, never the caller's) made read-only, in place: no copy (None
+    passes). Numpy then refuses an edit in place ("assignment destination is read-only")."""
+    if array is not None:
+        array.flags.writeable = False
+    return array
+
+
 def check_frame(frame, what: str = "frame") -> RGBDFrame:
     """`frame` when it is an RGBDFrame, else TypeError naming `what` (arguments swapped,
     compute(keypoints, frame), or a bare image were an AttributeError from deep inside)."""
     if not isinstance(frame, RGBDFrame):
         raise TypeError(f"{what}: expected an RGBDFrame, got {type(frame).__name__}")
     return frame
+
+
+def too_thin_to_describe(frame: RGBDFrame, descriptor: str) -> bool:
+    """Whether `frame` is under `MIN_FRAME_SIDE_PX` (2) pixels high or wide, warned of (naming the
+    `descriptor`): one row or column of pixels has no neighbourhood across it, so every descriptor
+    marks the frame's keypoints invalid, as for a frame without texture or depth (ORB failed with
+    an OpenCV assertion on such a frame; SIFT, DAISY and the image-patch nets described the border
+    pixels replicated across, GeoBit and GeoPatch a surface made up from one row of depth)."""
+    H, W = check_frame(frame).shape
+    if min(H, W) >= MIN_FRAME_SIDE_PX:
+        return False
+    warnings.warn(f"{descriptor}: the {W}x{H} frame is under {MIN_FRAME_SIDE_PX} pixels high or wide: a single row "
+                  "or column of pixels has nothing around a keypoint to describe; every keypoint is invalid",
+                  UserWarning, stacklevel=3)
+    return True
 
 
 def roll_camera(frame: RGBDFrame, angle_deg: float) -> tuple[RGBDFrame, np.ndarray]:

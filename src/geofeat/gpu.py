@@ -162,7 +162,8 @@ def smooth_depth_torch(depth, levels: int, out_scale: float, window: int = SMOOT
     Kinect frame with the shipped profiles: tested). A resize by a factor that is not a power of two
     differs a little more (measured: up to 5.7e-6 m at a factor of 0.37 on that frame).
 
-    Returns (max(2, round(H * out_scale)), max(2, round(W * out_scale))) float32 metres, 0 = missing."""
+    Returns (max(2, round(H * out_scale)), max(2, round(W * out_scale))) float32 metres, 0 = missing
+    (all 0 for a map under 2 pixels high or wide, as the CPU's: `depth.too_thin_for_surface`)."""
     import torch
     import torch.nn.functional as F
 
@@ -170,6 +171,8 @@ def smooth_depth_torch(depth, levels: int, out_scale: float, window: int = SMOOT
 
     H, W = depth.shape
     size = (max(2, int(round(H * out_scale))), max(2, int(round(W * out_scale))))
+    if host.too_thin_for_surface((H, W)):
+        return torch.zeros(size, dtype=torch.float32, device=depth.device)
     d = depth.float()
     area = float(window * window)
     halvings = 0
@@ -248,6 +251,8 @@ class DeviceMesh:
         image_shape: (H, W) of the frame. device: the torch device.
         source: `mesh.frame_fingerprint` of that frame (None when unknown), as `GridMesh.source`:
             `polar_patches_cuda` refuses the mesh for another frame, as the CPU path does.
+        config: the `DepthConfig` its depth was preprocessed with (None when unknown), as
+            `GridMesh.config`.
     """
 
     tensors: tuple
@@ -257,6 +262,7 @@ class DeviceMesh:
     image_shape: tuple[int, int]
     device: object
     source: tuple | None = None
+    config: DepthConfig | None = None
 
     def image_to_mesh(self, xy: np.ndarray) -> np.ndarray:
         """(N, 2) image pixel coordinates -> (N, 2) mesh pixel coordinates."""
@@ -270,7 +276,7 @@ class DeviceMesh:
         """The `GridMesh` (walk tables included) on the host."""
         points, face_ok, normals, local, edges = (t.cpu().numpy() for t in self.tensors)
         mesh = GridMesh(points=points, face_ok=face_ok, normals=normals, K=self.K, scale=self.scale,
-                        image_shape=self.image_shape, source=self.source)
+                        image_shape=self.image_shape, source=self.source, config=self.config)
         mesh.__dict__["walk_tables"] = (local, edges)
         return mesh
 
@@ -332,14 +338,15 @@ def mesh_from_depth(depth, config: DepthConfig, K: np.ndarray, max_edge_stretch:
         tensors = (points, face_ok, normals, local, edges)
         with _numba_on(dev):
             tables = tuple(_as_numba(t) for t in tensors)
-        out = DeviceMesh(tensors, tables, K_mesh, scale, (H, W), dev, source)
+        out = DeviceMesh(tensors, tables, K_mesh, scale, (H, W), dev, source, config)
     else:
         if tuple(out.tensors[0].shape[:2]) != (Hm, Wm):
             raise ValueError(f"out: a {tuple(out.tensors[0].shape[:2])} mesh, not {(Hm, Wm)}")
         out.tensors[0].copy_(backproject_torch(smoothed, K_mesh))
         for t in out.tensors[1:]:
             t.zero_()
-        out.K, out.scale, out.image_shape, out.source = K_mesh, scale, (H, W), source  # this frame's
+        # this frame's
+        out.K, out.scale, out.image_shape, out.source, out.config = K_mesh, scale, (H, W), source, config
     with _numba_on(dev):
         tables = out.tables
         mesh_faces_cuda(tables[0], mean_focal(K_mesh), float(max_edge_stretch), out=tables[1:],
@@ -480,8 +487,8 @@ def sample_bilinear_torch(image, coords, steps: int | None | str = "opencv"):
 
 @dataclass
 class DevicePatches:
-    """`geodesic.polar.PolarPatches` with its arrays as torch tensors on the GPU (keypoints and
-    radius on the host)."""
+    """`geodesic.polar.PolarPatches` with its arrays as torch tensors on the GPU (keypoints, radius,
+    sampling blur and depth config on the host, as `PolarPatches` records them)."""
 
     keypoints: np.ndarray
     values: object
@@ -490,6 +497,8 @@ class DevicePatches:
     rings_reached: object
     points: object
     radius: float
+    blur_px: float | None = None
+    depth_config: DepthConfig | None = None
 
     def __len__(self) -> int:
         return len(self.keypoints)
@@ -504,7 +513,7 @@ class DevicePatches:
 
         return PolarPatches(self.keypoints, self.values.cpu().numpy(), self.coords.cpu().numpy(),
                             self.valid.cpu().numpy(), self.rings_reached.cpu().numpy(), self.points.cpu().numpy(),
-                            self.radius)
+                            self.radius, blur_px=self.blur_px, depth_config=self.depth_config)
 
 
 def polar_patches_cuda(frame: RGBDFrame, keypoints, radius: float = DEFAULT_RADIUS_M, n_angles: int = N_ANGLES,
@@ -529,11 +538,12 @@ def polar_patches_cuda(frame: RGBDFrame, keypoints, radius: float = DEFAULT_RADI
     upload = host.to(dev, non_blocking=False)
     starts_t, K_t = upload[:starts.size].view(-1, 2), upload[starts.size:].view(3, 3)
     if image is None:
-        image = gaussian_blur_torch(torch.from_numpy(np.ascontiguousarray(frame.image, np.float32)).to(dev),
-                                    float(blur_px))
+        # a copy: torch warns of the frame's read-only array ("not writable"); it is uploaded next anyway
+        image = gaussian_blur_torch(torch.from_numpy(np.array(frame.image, np.float32)).to(dev), float(blur_px))
     walk = WalkBuffers(len(kp), n_rings, n_angles, dev)
     values, valid = walk_and_sample(device_mesh_tables(mesh, dev), starts_t, K_t, image, radius, walk)
-    return DevicePatches(kp, values, walk.coords, valid, walk.reached, walk.samples, float(radius))
+    return DevicePatches(kp, values, walk.coords, valid, walk.reached, walk.samples, float(radius),
+                         blur_px=float(blur_px), depth_config=getattr(mesh, "config", None))
 
 
 class WalkBuffers:
@@ -623,11 +633,15 @@ def compute_cuda(descriptor, frame: RGBDFrame, keypoints, mesh: GridMesh | Devic
     """GeoPatch features of `keypoints` on the GPU: `GeoPatch.compute` with the walk, the sampling
     and the CNN on `descriptor.device` (a GeoPatch with the torch backend on CUDA). `half`: the CNN
     under float16 autocast (`GeoPatch.describe_tensor`)."""
-    from .frame import check_frame
+    from .frame import check_frame, too_thin_to_describe
+    from .geodesic.polar import check_depth_config
     from .keypoints import as_keypoints
 
     check_gpu_descriptor(descriptor)
     kps = as_keypoints(keypoints, check_frame(frame).shape)  # TypeError naming `frame`, as `GeoPatch.compute`
+    too_thin_to_describe(frame, descriptor.name)  # a warning, as `GeoPatch.compute`: the mesh has no face
+    if mesh is not None:  # of the descriptor's depth config, as `GeoPatch.compute` checks it
+        check_depth_config(getattr(mesh, "config", None), descriptor.depth_config, frame, "mesh")
     patches = polar_patches_cuda(frame, kps, radius=descriptor.radius, depth_config=descriptor.depth_config,
                                  mesh=mesh, blur_px=descriptor.blur_px, device=descriptor.device)
     desc = descriptor.describe_tensor(patches.values, patches.valid, half=half)

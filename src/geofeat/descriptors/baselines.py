@@ -47,7 +47,7 @@ import cv2
 import numpy as np
 
 from ..features import Features
-from ..frame import RGBDFrame, check_frame
+from ..frame import RGBDFrame, check_frame, too_thin_to_describe
 from ..keypoints import as_keypoints, to_uint8
 
 #: SIFT diameter -> descriptor size factors (see module docstring).
@@ -135,9 +135,11 @@ class OpenCVDescriptor:
     def compute(self, frame: RGBDFrame, keypoints) -> Features:
         """Describe `keypoints` (see `geofeat.keypoints.as_keypoints`) on `frame.image`; a keypoint
         without a size (an (N, 2) array) gets `DEFAULT_SIZE_PX`, without an angle 0. Returns Features
-        with (N, D) descriptors (uint8 for the binary ones, float32 for SIFT and DAISY)."""
+        with (N, D) descriptors (uint8 for the binary ones, float32 for SIFT and DAISY); on a frame
+        1 pixel high or wide every keypoint is invalid, with a warning (`too_thin_to_describe`)."""
         kps = as_keypoints(keypoints, check_frame(frame).shape)
         n = len(kps)
+        thin = too_thin_to_describe(frame, self.name)
         if self.use_angle and self.name in USES_GIVEN_ANGLE and n > 1 and not np.any(kps.angles):
             warnings.warn(f"{self.name}: every keypoint has angle 0 (GeoKey's keypoints and (N, 2) arrays carry "
                           f"no orientation), so the descriptor is not rotation-invariant; detect with "
@@ -161,7 +163,7 @@ class OpenCVDescriptor:
             cv2.KeyPoint(float(x), float(y), float(s), float(a), 0.0, int(o), i)
             for i, ((x, y), s, a, o) in enumerate(zip(kps.xy, sizes, angles, octaves))
             # DAISY asserts x, y >= 0 (an OpenCV error); the first pixel row and column reach -0.5
-            if self.name != "daisy" or (x >= 0 and y >= 0)
+            if not thin and (self.name != "daisy" or (x >= 0 and y >= 0))
         ]
         if self.name == "sift" and cv_kps:
             # OpenCV's SIFT builds its pyramid from octave min(0, lowest octave given): one keypoint of
@@ -169,7 +171,8 @@ class OpenCVDescriptor:
             # so a keypoint's descriptor does not depend on the other keypoints of the call
             H, W = frame.shape
             cv_kps.append(cv2.KeyPoint(W / 2.0, H / 2.0, 2.0, 0.0, 0.0, 255 | 1 << 8, -1))
-        kept, desc = self._extractor.compute(to_uint8(frame.image), cv_kps)
+        # none to describe: no call (ORB's pyramid asserts on a frame 1 pixel high or wide, whatever the keypoints)
+        kept, desc = self._extractor.compute(to_uint8(frame.image), cv_kps) if cv_kps else ((), None)
         dim = self._extractor.descriptorSize()
         dtype = np.uint8 if self._extractor.descriptorType() == cv2.CV_8U else np.float32
         out = np.zeros((n, dim), dtype)

@@ -40,7 +40,7 @@ import numpy as np
 from ..constants import DEFAULT_RADIUS_M
 from ..depth import backproject
 from ..features import Features
-from ..frame import RGBDFrame
+from ..frame import RGBDFrame, too_thin_to_describe
 from ..keypoints import as_keypoints
 from .patches import keypoint_arrays
 from .settings import merge_settings
@@ -136,7 +136,8 @@ class BRAND:
         xi = np.clip(np.rint(xy[:, 0]).astype(int), 0, W - 1)
         yi = np.clip(np.rint(xy[:, 1]).astype(int), 0, H - 1)
         z = depth[yi, xi]
-        valid = (z > 0) & np.isfinite(normals[yi, xi]).all(axis=1)
+        # a frame 1 pixel high or wide: no keypoint is described, with a warning (`too_thin_to_describe`)
+        valid = (z > 0) & np.isfinite(normals[yi, xi]).all(axis=1) & (not too_thin_to_describe(frame, self.name))
         # the patch's metric side in pixels along each image axis, fx E / z across and fy E / z down: with
         # fx alone for both, non-square pixels (an image resized from 16:9 to 4:3) covered fx / fy times
         # the extent down the image, and a quarter roll (fx and fy swap) changed a third of the bits

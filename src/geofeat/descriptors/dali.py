@@ -54,7 +54,7 @@ from scipy.sparse.linalg import eigsh
 from tqdm import tqdm
 
 from ..features import Features
-from ..frame import RGBDFrame
+from ..frame import RGBDFrame, too_thin_to_describe
 from ..keypoints import as_keypoints
 from .patches import cartesian_grid, keypoint_arrays, sample_patches
 from .settings import merge_settings
@@ -78,6 +78,8 @@ N_RADII = 8
 N_ANGLES = 64
 #: Angular frequencies kept (0 .. N_FREQ - 1) of the |FFT| over angle.
 N_FREQ = 9
+#: Descriptor length: N_FREQ |FFT| values per radius and diffusion time.
+DIM = N_RADII * N_FREQ * len(TIMES)
 
 
 @dataclass(frozen=True)
@@ -215,8 +217,7 @@ class DaLI:
         mesh = _mesh()
         v = patches.reshape(len(patches), -1)[:, mesh.keep]
         z = (v - v.mean(axis=1, keepdims=True)) / (v.std(axis=1, keepdims=True) + 1e-6)
-        dim = N_RADII * N_FREQ * len(TIMES)
-        out = np.zeros((len(patches), dim), np.float32)
+        out = np.zeros((len(patches), DIM), np.float32)
         bar = tqdm(total=len(patches), desc="dali", unit="kp", disable=not self.progress, leave=False)
         chunk = 64
         with ThreadPoolExecutor(self.workers) as pool:
@@ -231,11 +232,15 @@ class DaLI:
 
     def compute(self, frame: RGBDFrame, keypoints) -> Features:
         """DaLI features of `keypoints` (Keypoints / cv2.KeyPoint list: SIFT size sets the support;
-        bare (N, 2) pixels: 8 px diameter)."""
+        bare (N, 2) pixels: 8 px diameter); all invalid, with a warning, on a frame 1 pixel high or
+        wide (`too_thin_to_describe`)."""
         if not hasattr(frame, "image"):
             raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
         kps = as_keypoints(keypoints, frame.image.shape[:2])
         xy, angles, sizes = keypoint_arrays(kps, "dali", frame.image.shape[:2])
+        if too_thin_to_describe(frame, self.name):
+            return Features(xy, np.zeros((len(xy), DIM), np.float32), np.zeros(len(xy), bool), angles=angles,
+                            sizes=kps.sizes, scores=kps.scores)
         grid = cartesian_grid(GRID) * (GRID / (GRID - 1))  # vertex spacing = support radius / ((GRID-1)/2)
         patches = sample_patches(frame.image, xy, angles, RADIUS_FACTOR * sizes, grid)
         return Features(xy, self.describe_patches(patches), np.ones(len(xy), bool), angles=angles,

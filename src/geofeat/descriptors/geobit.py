@@ -66,10 +66,10 @@ from numba import njit, prange
 
 from ..constants import N_ANGLES, N_RINGS
 from ..features import Features
-from ..frame import RGBDFrame, check_frame
+from ..frame import RGBDFrame, check_frame, too_thin_to_describe
 from ..keypoints import as_keypoints
 from ..geodesic.mesh import GridMesh
-from ..geodesic.polar import PolarPatches, check_patches, polar_patches
+from ..geodesic.polar import PolarPatches, check_depth_config, check_patches, polar_patches
 from .settings import PatchSettings, merge_settings
 from ..inputs import check_positive, check_whole
 
@@ -278,14 +278,19 @@ class GeoBit:
             frame: the RGB-D frame.
             keypoints: (N, 2) pixel coordinates (x, y), a list of cv2.KeyPoint, or a
                 `geofeat.keypoints.Keypoints` (its angles and sizes are kept in the result).
-            patches: precomputed `polar_patches(frame, keypoints, ...)` (must match the keypoints).
-            mesh: prebuilt mesh of the frame, reused when the patches are computed here.
+            patches: precomputed `polar_patches(frame, keypoints, ...)`: of these keypoints, this
+                frame, and the descriptor's radius, `blur_px` and `depth_config` (ValueError otherwise).
+            mesh: prebuilt mesh of the frame (of the descriptor's `depth_config`), reused when the
+                patches are computed here.
 
         Returns:
             `Features` with descriptors (N, n_rotations, n_bits // 8) uint8 and valid from the patches.
         """
         kps = as_keypoints(keypoints, check_frame(frame).shape)
+        too_thin_to_describe(frame, self.name)  # a warning; the patches are invalid (the mesh has no face)
         if patches is None:
+            if mesh is not None:
+                check_depth_config(getattr(mesh, "config", None), self.depth_config, frame, "mesh")
             patches = polar_patches(
                 frame,
                 kps,
@@ -297,7 +302,7 @@ class GeoBit:
                 blur_px=self.blur_px,
             )
         else:
-            check_patches(patches, kps.xy, self.radius, frame)
+            check_patches(patches, kps.xy, self.radius, frame, self.blur_px, self.depth_config)
         desc = self.describe(patches.values, patches.valid)
         return Features(
             keypoints=patches.keypoints,

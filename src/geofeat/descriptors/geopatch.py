@@ -47,10 +47,10 @@ import numpy as np
 
 from ..constants import N_ANGLES, N_RINGS
 from ..features import Features
-from ..frame import RGBDFrame, check_frame
+from ..frame import RGBDFrame, check_frame, too_thin_to_describe
 from ..keypoints import as_keypoints
 from ..geodesic.mesh import GridMesh
-from ..geodesic.polar import PolarPatches, check_patches, polar_patches
+from ..geodesic.polar import PolarPatches, check_depth_config, check_patches, polar_patches
 from .settings import PatchSettings, merge_settings
 from ..inputs import check_whole
 
@@ -378,13 +378,19 @@ class GeoPatch:
 
     def compute(self, frame: RGBDFrame, keypoints, patches: PolarPatches | None = None,
                 mesh: GridMesh | None = None) -> Features:
-        """GeoPatch features of `keypoints` ((N, 2) pixels, cv2.KeyPoint list or `Keypoints`)."""
+        """GeoPatch features of `keypoints` ((N, 2) pixels, cv2.KeyPoint list or `Keypoints`). `patches`:
+        precomputed `polar_patches` of these keypoints on this frame with the descriptor's radius,
+        `blur_px` and `depth_config`; `mesh`: a prebuilt mesh of the frame of its `depth_config`
+        (ValueError otherwise)."""
         kps = as_keypoints(keypoints, check_frame(frame).shape)
+        too_thin_to_describe(frame, self.name)  # a warning; the patches are invalid (the mesh has no face)
         if patches is None:  # of the size the network takes (the checkpoint's n_rings x n_angles)
+            if mesh is not None:
+                check_depth_config(getattr(mesh, "config", None), self.depth_config, frame, "mesh")
             patches = polar_patches(frame, kps, radius=self.radius, n_angles=self.config.n_angles,
                                     n_rings=self.config.n_rings, depth_config=self.depth_config, mesh=mesh,
                                     blur_px=self.blur_px)
         else:
-            check_patches(patches, kps.xy, self.radius, frame)
+            check_patches(patches, kps.xy, self.radius, frame, self.blur_px, self.depth_config)
         return Features(patches.keypoints, self.describe(patches.values, patches.valid), patches.valid,
                         angles=kps.angles, sizes=kps.sizes, scores=kps.scores)

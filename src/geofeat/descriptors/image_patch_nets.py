@@ -42,7 +42,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from ..features import Features
-from ..frame import RGBDFrame
+from ..frame import RGBDFrame, too_thin_to_describe
 from ..keypoints import Keypoints, as_keypoints
 from .patches import cartesian_grid, keypoint_arrays, logpolar_grid, sample_patches
 from .settings import merge_settings
@@ -203,11 +203,15 @@ class ImagePatchDescriptor:
         return torch.cat(out).numpy() if out else np.zeros((0, self.net.config.dim), np.float32)
 
     def compute(self, frame: RGBDFrame, keypoints) -> Features:
-        """Features of `keypoints` (Keypoints, cv2.KeyPoint list, or (N, 2) pixels: angle 0, size 8 px)."""
+        """Features of `keypoints` (Keypoints, cv2.KeyPoint list, or (N, 2) pixels: angle 0, size 8 px);
+        all invalid, with a warning, on a frame 1 pixel high or wide (`too_thin_to_describe`)."""
         if not hasattr(frame, "image"):
             raise TypeError(f"frame: expected an RGBDFrame, got {type(frame).__name__}")
         kps = as_keypoints(keypoints, frame.image.shape[:2])
         xy, angles, sizes = keypoint_arrays(kps, self.name, frame.image.shape[:2])
+        if too_thin_to_describe(frame, self.name):
+            return Features(xy, np.zeros((len(xy), self.net.config.dim), np.float32), np.zeros(len(xy), bool),
+                            angles=angles, sizes=kps.sizes, scores=kps.scores)
         patches = image_patches(frame.image, Keypoints(xy, angles, sizes, np.zeros(len(xy))), self.arch)
         return Features(xy, self.describe(patches), np.ones(len(xy), bool), angles=angles, sizes=kps.sizes,
                         scores=kps.scores)

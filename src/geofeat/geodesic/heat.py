@@ -508,4 +508,6 @@ def heat_polar_patches(
         points=pts.astype(np.float32),
         radius=float(radius),
         source=patch_source(frame, source),
+        blur_px=float(blur_px),
+        depth_config=getattr(mesh, "config", None),
     )

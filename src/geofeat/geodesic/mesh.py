@@ -41,6 +41,8 @@ class GridMesh:
         image_shape: (H, W) of the frame the mesh was built from.
         source: `frame_fingerprint` of that frame (depth and intrinsics), None when unknown; a mesh
             given to `polar_patches` must come from the frame it describes.
+        config: the `DepthConfig` its depth was preprocessed with (a profile name resolved on the
+            frame), None when unknown; polar patches walked on it record it (`PolarPatches.depth_config`).
     """
 
     points: np.ndarray
@@ -50,6 +52,7 @@ class GridMesh:
     scale: tuple[float, float]
     image_shape: tuple[int, int]
     source: tuple | None = field(default=None, repr=False, compare=False)
+    config: DepthConfig | None = field(default=None, repr=False, compare=False)
 
     @cached_property
     def walk_tables(self) -> tuple[np.ndarray, np.ndarray]:
@@ -142,22 +145,23 @@ def _faces(points, fx, max_edge_stretch):
 
 def mesh_from_points(
     points: np.ndarray, K: np.ndarray, scale: tuple[float, float], image_shape: tuple[int, int],
-    max_edge_stretch: float = MAX_EDGE_STRETCH, source: tuple | None = None,
+    max_edge_stretch: float = MAX_EDGE_STRETCH, source: tuple | None = None, config: DepthConfig | None = None,
 ) -> GridMesh:
     """Build the GridMesh of an (Hm, Wm, 3) grid of camera-frame points (NaN = missing); `source`: the
-    `frame_fingerprint` of the frame they come from, when known."""
+    `frame_fingerprint` of the frame they come from, `config`: the DepthConfig that made the points'
+    depth, when known."""
     # NaN kept every face across depth steps, a negative value acted as its absolute value, 0 cut all
     max_edge_stretch = check_positive(max_edge_stretch, "max_edge_stretch")
     points = np.ascontiguousarray(points, dtype=np.float64)
     face_ok, normals = _faces(points, mean_focal(K), max_edge_stretch)
     return GridMesh(points=points, face_ok=face_ok, normals=normals, K=K, scale=scale, image_shape=image_shape,
-                    source=source)
+                    source=source, config=config)
 
 
 def check_frame_arrays(frame: RGBDFrame) -> None:
-    """The frame's depth and intrinsics are checked when the frame is made, but both are plain
-    arrays that can be edited in place afterwards (`frame_mesh` notices such edits): check them
-    again before a mesh is built from them (NaN, negative or millimetre depth: ValueError)."""
+    """The frame's depth and intrinsics are checked when the frame is made, and are read-only after
+    it; a caller who turns that off can still edit them in place (`frame_mesh` notices such edits):
+    check them again before a mesh is built from them (NaN, negative or millimetre depth: ValueError)."""
     check_frame(frame)
     check_depth(frame.depth, frame.shape)
     check_intrinsics(frame.K)
@@ -169,13 +173,14 @@ def build_mesh(frame: RGBDFrame, config: DepthConfig | str = "auto",
     "clean"; see `geofeat.depth.depth_profile`) and build its GridMesh. `fingerprint`: the frame's
     `frame_fingerprint`, when the caller has just computed it (a CRC of the depth: 0.3 ms per 640 x 480)."""
     check_frame_arrays(frame)
-    depth = preprocess_depth(frame.depth, resolve_depth_config(config, frame))
+    config = resolve_depth_config(config, frame)
+    depth = preprocess_depth(frame.depth, config)
     H, W = frame.shape
     Hm, Wm = depth.shape
     scale = (Wm / W, Hm / H)
     K = scale_intrinsics(frame.K, *scale)
     source = fingerprint if fingerprint is not None else frame_fingerprint(frame)
-    return mesh_from_points(backproject(depth, K), K, scale, (H, W), max_edge_stretch, source)
+    return mesh_from_points(backproject(depth, K), K, scale, (H, W), max_edge_stretch, source, config)
 
 
 #: Attribute of an RGBDFrame under which `frame_mesh` keeps its meshes.
@@ -188,6 +193,22 @@ def frame_fingerprint(frame: RGBDFrame) -> tuple:
     keep their frame's (`source`), so that one of another frame is refused rather than used."""
     depth = np.ascontiguousarray(frame.depth)
     return depth.shape, zlib.crc32(depth), frame.K.tobytes()
+
+
+def frame_depth_config(frame: RGBDFrame, config: DepthConfig | str, fingerprint: tuple | None = None) -> DepthConfig:
+    """`resolve_depth_config(config, frame)`, a profile name's DepthConfig cached on the frame with
+    its meshes (`frame_mesh`): "auto" measures the frame's depth once (a few ms), not on every call.
+    `fingerprint`: the frame's `frame_fingerprint`, when already computed."""
+    if not isinstance(config, str):
+        return resolve_depth_config(config, frame)
+    cache = frame.__dict__.setdefault(_CACHE_ATTR, {})
+    fingerprint = fingerprint if fingerprint is not None else frame_fingerprint(frame)
+    hit = cache.get(("profile", config))
+    if hit is not None and hit[0] == fingerprint:
+        return hit[1]
+    resolved = resolve_depth_config(config, frame)
+    cache[("profile", config)] = (fingerprint, resolved)
+    return resolved
 
 
 def frame_mesh(frame: RGBDFrame, config: DepthConfig | str = "auto",
@@ -206,14 +227,7 @@ def frame_mesh(frame: RGBDFrame, config: DepthConfig | str = "auto",
         raise ValueError(f"device: expected None, 'cpu' or 'cuda[:N]', got {device!r}")
     cache = frame.__dict__.setdefault(_CACHE_ATTR, {})
     fingerprint = frame_fingerprint(frame)
-    if isinstance(config, str):  # the profile "auto" picks is cached with the mesh
-        hit = cache.get(("profile", config))
-        if hit is not None and hit[0] == fingerprint:
-            config = hit[1]
-        else:
-            resolved = resolve_depth_config(config, frame)
-            cache[("profile", config)] = (fingerprint, resolved)
-            config = resolved
+    config = frame_depth_config(frame, config, fingerprint)
     key = (config, float(max_edge_stretch)) + ((str(device),) if on_gpu else ())
     hit = cache.get(key)
     if hit is not None and hit[0] == fingerprint:

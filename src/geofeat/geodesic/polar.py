@@ -17,11 +17,11 @@ import cv2
 import numpy as np
 
 from ..constants import DEFAULT_RADIUS_M, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX
-from ..depth import DepthConfig
+from ..depth import DepthConfig, depth_config_name
 from ..frame import RGBDFrame
 from ..inputs import check_radius, check_whole
 from ..keypoints import as_keypoints
-from .mesh import GridMesh, frame_fingerprint, frame_mesh
+from .mesh import GridMesh, frame_depth_config, frame_fingerprint, frame_mesh
 from .walk import MAX_CROSSINGS, walk_polar
 
 
@@ -44,6 +44,12 @@ class PolarPatches:
         radius: geodesic radius of the outer ring, metres.
         source: `patch_source` of the frame they were computed on (its depth, intrinsics and gray
             image), None when unknown; a descriptor given them with another frame refuses them.
+        blur_px: the Gaussian blur of the image they were sampled from, pixels (`sampling_image`).
+        depth_config: the `DepthConfig` of the mesh their rays walked on (a profile name resolved on
+            the frame: "auto" is the profile it picked).
+            A descriptor given patches of another blur or depth config than its own refuses them
+            (`check_patches`); None (unknown, e.g. patches made by hand or walked on a mesh of
+            `mesh_from_points`) is not checked.
     """
 
     keypoints: np.ndarray
@@ -54,6 +60,8 @@ class PolarPatches:
     points: np.ndarray
     radius: float
     source: tuple | None = field(default=None, repr=False, compare=False)
+    blur_px: float | None = field(default=None, repr=False, compare=False)
+    depth_config: DepthConfig | None = field(default=None, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.keypoints)
@@ -89,12 +97,32 @@ def patch_source(frame: RGBDFrame, fingerprint: tuple | None = None) -> tuple:
     return fingerprint + (zlib.crc32(np.ascontiguousarray(frame.image)),)
 
 
-def check_patches(patches, xy: np.ndarray, radius: float | None = None, frame: RGBDFrame | None = None
-                  ) -> PolarPatches:
+def check_depth_config(recorded: DepthConfig | None, depth_config, frame: RGBDFrame, what: str) -> None:
+    """A mesh, or patches walked on one (`what` names them), made with the DepthConfig `recorded` must
+    be made with the descriptor's `depth_config` (a DepthConfig or a profile name, resolved on
+    `frame`: "auto" is the profile it picks there, so patches of that profile pass); ValueError naming
+    both otherwise. Unknown (None) on either side passes."""
+    if recorded is None or depth_config is None:
+        return
+    wanted = frame_depth_config(frame, depth_config)
+    if wanted == recorded:
+        return
+    given = repr(depth_config) if isinstance(depth_config, str) else depth_config_name(depth_config)
+    on_frame = f" ({depth_config_name(wanted)} on this frame)" if depth_config == "auto" else ""
+    made = "built" if what == "mesh" else "walked on a mesh built"
+    raise ValueError(f"{what}: {made} with depth config {depth_config_name(recorded)}, but the descriptor's "
+                     f"depth_config is {given}{on_frame}; build them with the descriptor's depth_config, or the "
+                     f"descriptor with depth_config={depth_config_name(recorded)}")
+
+
+def check_patches(patches, xy: np.ndarray, radius: float | None = None, frame: RGBDFrame | None = None,
+                  blur_px: float | None = None, depth_config=None) -> PolarPatches:
     """Precomputed patches given to a descriptor with its (N, 2) keypoints `xy` must be the
     `PolarPatches` of those keypoints, in that order, of the descriptor's geodesic `radius`
-    (metres; None: any), and of `frame` (None: any; patches whose `source` is unknown pass)
-    (TypeError / ValueError naming `patches`)."""
+    (metres; None: any), of `frame` (None: any; patches whose `source` is unknown pass), sampled
+    with its `blur_px` (pixels; None: any) on a mesh of its `depth_config` (`check_depth_config`;
+    needs `frame`), and valid only where `patch_validity` allows (a patch whose rays did not walk
+    cannot be described) (TypeError / ValueError naming `patches`)."""
     if not isinstance(patches, PolarPatches):
         raise TypeError(f"patches: expected PolarPatches, got {type(patches).__name__}")
     if len(patches) != len(xy):
@@ -108,6 +136,20 @@ def check_patches(patches, xy: np.ndarray, radius: float | None = None, frame: R
     if frame is not None and patches.source is not None and patches.source != patch_source(frame):
         raise ValueError("patches: computed on another frame (its depth, intrinsics or image differ from this "
                          "frame's); compute them on this frame, or leave patches out")
+    recorded = getattr(patches, "blur_px", None)
+    if blur_px is not None and recorded is not None and not np.isclose(recorded, blur_px, rtol=1e-6, atol=1e-9):
+        raise ValueError(f"patches: sampled with blur_px={recorded:g}, but the descriptor's blur_px is {blur_px:g}; "
+                         f"compute them with blur_px={blur_px:g}, or build the descriptor with blur_px={recorded:g}")
+    if frame is not None:
+        check_depth_config(getattr(patches, "depth_config", None), depth_config, frame, "patches")
+    reached = np.asarray(patches.rings_reached)
+    if reached.ndim != 2 or reached.shape[0] != len(patches):
+        raise ValueError(f"patches: rings_reached must be (N, A) with N = {len(patches)}, got shape {reached.shape}")
+    unwalked = np.flatnonzero(np.asarray(patches.valid, bool) & ~patch_validity(reached))
+    if len(unwalked):
+        raise ValueError(f"patches: {len(unwalked)} marked valid (e.g. #{unwalked[0]}) whose rays reach the first "
+                         f"ring in fewer than {MIN_DIRECTION_SHARE:.0%} of their directions (no surface under them, "
+                         "or they leave it at once); mark them invalid (patch_validity)")
     return patches
 
 
@@ -257,4 +299,6 @@ def polar_patches(
         points=samples,
         radius=float(radius),
         source=patch_source(frame, source),
+        blur_px=float(blur_px),
+        depth_config=mesh.config,
     )
