@@ -253,6 +253,15 @@ def test_a_rerun_refuses_another_sequence_of_a_finished_ones_name(datasets, tmp_
     assert [(r["sequence"], r["target"]) for r in read_rows(csv_path)] == [("a-deform", "frame-001")]
 
 
+def _benched_copy(datasets, tmp_path, config):
+    """A copy of the sequence a-deform in tmp_path/seqs, benched into tmp_path/out: (its folder, the
+    run's results.csv, its rows)."""
+    seq = tmp_path / "seqs" / "a-deform"
+    shutil.copytree(datasets / "seqs" / "a-deform", seq)
+    csv_path, _ = run_benchmark(seq, tmp_path / "out", config, progress=False)
+    return seq, csv_path, read_rows(csv_path)
+
+
 def test_a_rerun_refuses_a_finished_sequence_whose_frames_were_replaced(datasets, tmp_path):
     """Before, a rerun checked settings, weights and the folder's path, not its files: a sequence
     re-simulated or re-annotated in place kept its old rows, mixed with new sequences' ones. Now the
@@ -260,11 +269,8 @@ def test_a_rerun_refuses_a_finished_sequence_whose_frames_were_replaced(datasets
     import os
 
     config = BenchConfig(descriptors=("orb",), n_keypoints=200)
-    seq = tmp_path / "seqs" / "a-deform"
-    shutil.copytree(datasets / "seqs" / "a-deform", seq)
+    seq, csv_path, rows = _benched_copy(datasets, tmp_path, config)
     out = tmp_path / "out"
-    csv_path, _ = run_benchmark(seq, out, config, progress=False)
-    rows = read_rows(csv_path)
     for f in seq.iterdir():  # same contents, new times: resumed, nothing recomputed
         os.utime(f, ns=(f.stat().st_atime_ns, f.stat().st_mtime_ns + 10**9))
     run_benchmark(seq, out, config, progress=False)
@@ -282,10 +288,7 @@ def test_a_rerun_refuses_a_finished_sequence_whose_groundtruth_json_changed(data
     in the sequence's digest: with it edited in place, a rerun into the same --out kept the rows scored
     against the old ground truth without a word. Now refused by name."""
     config = BenchConfig(descriptors=("orb",), n_keypoints=200)
-    seq = tmp_path / "seqs" / "a-deform"
-    shutil.copytree(datasets / "seqs" / "a-deform", seq)
-    csv_path, _ = run_benchmark(seq, tmp_path / "out", config, progress=False)
-    rows = read_rows(csv_path)
+    seq, csv_path, rows = _benched_copy(datasets, tmp_path, config)
     meta = json.loads((seq / "groundtruth.json").read_text())
     (seq / "groundtruth.json").write_text(json.dumps(dict(meta, spacing_m=meta["spacing_m"] * 1.1)))
     with pytest.raises(ValueError, match="holds results of a-deform, whose files changed since.*groundtruth.json"):
@@ -302,11 +305,8 @@ def test_a_rerun_of_a_run_whose_digests_left_out_groundtruth_json_resumes_and_sa
     from geofeat.io import sequence_digest
 
     config = BenchConfig(descriptors=("orb",), n_keypoints=200)
-    seq = tmp_path / "seqs" / "a-deform"
-    shutil.copytree(datasets / "seqs" / "a-deform", seq)
+    seq, csv_path, rows = _benched_copy(datasets, tmp_path, config)
     out = tmp_path / "out"
-    csv_path, _ = run_benchmark(seq, out, config, progress=False)
-    rows = read_rows(csv_path)
     settings = json.loads((out / "config.json").read_text())
     older = dict(settings, sequence_digests={"a-deform": sequence_digest(seq)})  # the older rule's digest
     (out / "config.json").write_text(json.dumps(older))

@@ -20,23 +20,30 @@ def _stop(*args, **kwargs):
     raise _Stop
 
 
+def _warnings_of_both_trainers(monkeypatch, tmp_path, data, val) -> list[str]:
+    """The warnings `train` and `train-detector` give, each as one text, for `--data data --val val`,
+    stopped before any patch or candidate is made."""
+    import geofeat.train.dataset as dataset
+    import geofeat.train.detector as detector
+
+    monkeypatch.setattr(dataset, "build_patch_set", _stop)
+    monkeypatch.setattr(detector, "collect", _stop)
+    texts = []
+    for command, out in (("train", "w.pt"), ("train-detector", "k.npz")):
+        with pytest.warns(UserWarning) as caught, pytest.raises(_Stop):
+            main([command, "--data", str(data), "--val", str(val), "--out", str(tmp_path / out)])
+        texts.append(" | ".join(str(w.message) for w in caught))
+    return texts
+
+
 def test_sequences_simulated_with_the_same_seed_are_not_held_out(tmp_path, monkeypatch):
     """`geofeat simulate` without --seed uses seed 0 every time: three runs into train/a, train/b and
     val/c write the same frames three times. Validation on c then scored the training data (no warning:
     the folders differ), and `train` drew a's and b's copies of one point as each other's negatives."""
-    import geofeat.train.dataset as dataset
-    import geofeat.train.detector as detector
-
     for name in ("train/a", "train/b", "val/c", "val/d"):
         seed = ["--seed", "5"] if name == "val/d" else []
         assert main(["simulate", str(tmp_path / name), *TINY, *seed]) == 0
-    monkeypatch.setattr(dataset, "build_patch_set", _stop)
-    monkeypatch.setattr(detector, "collect", _stop)
-    for command, out in (("train", "w.pt"), ("train-detector", "k.npz")):
-        with pytest.warns(UserWarning) as caught, pytest.raises(_Stop):
-            main([command, "--data", str(tmp_path / "train"), "--val", str(tmp_path / "val"),
-                  "--out", str(tmp_path / out)])
-        text = " | ".join(str(w.message) for w in caught)
+    for text in _warnings_of_both_trainers(monkeypatch, tmp_path, tmp_path / "train", tmp_path / "val"):
         assert "--data: " in text and "hold the same frames" in text and "--seed" in text, text
         assert "--val: " in text and "c (= " in text and "not held out" in text, text
         assert "val/d" not in text, text  # its own seed: held out
@@ -427,8 +434,6 @@ def test_validation_textured_with_a_training_image_is_not_held_out(tmp_path, mon
     """`geofeat simulate` draws its default texture from the packaged photographs: a --val sequence of
     its own seed could show the very picture a --data sequence was trained on, and train and
     train-detector took it as held out without a word (only copies of the frames were warned of)."""
-    import geofeat.train.dataset as dataset
-    import geofeat.train.detector as detector
     from geofeat.sim.textures import packaged_texture_dir
 
     photos = packaged_texture_dir()
@@ -437,13 +442,7 @@ def test_validation_textured_with_a_training_image_is_not_held_out(tmp_path, mon
                                 ("val/c", 3, "scipy_ascent.jpg")):
         assert main(["simulate", str(tmp_path / name), *shape, "--seed", str(seed),
                      "--texture", str(photos / texture)]) == 0
-    monkeypatch.setattr(dataset, "build_patch_set", _stop)
-    monkeypatch.setattr(detector, "collect", _stop)
-    for command, out in (("train", "w.pt"), ("train-detector", "k.npz")):
-        with pytest.warns(UserWarning) as caught, pytest.raises(_Stop):
-            main([command, "--data", str(tmp_path / "data"), "--val", str(tmp_path / "val"),
-                  "--out", str(tmp_path / out)])
-        text = " | ".join(str(w.message) for w in caught)
+    for text in _warnings_of_both_trainers(monkeypatch, tmp_path, tmp_path / "data", tmp_path / "val"):
         assert "--val: " in text and "b (kodak_kodim23.jpg, as " in text and "not held out in texture" in text, text
         assert "val/c" not in text, text  # a picture training never saw: held out
     with pytest.raises(_Stop), warnings.catch_warnings():
