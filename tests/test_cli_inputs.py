@@ -114,6 +114,27 @@ def test_a_results_folder_beside_the_sequences_of_a_dataset_folder_is_fine(tmp_p
         check_out_dir(seq, overwrite=True, inputs=[data])
 
 
+def test_a_results_folder_in_a_dataset_folder_is_written_again_though_it_holds_its_plots(tmp_path, capsys):
+    """A results folder beside the sequences holds the images geofeat wrote there (bench's
+    ms_vs_<scenario>.png plots) but no frames: no command reads it as a sequence. Its images made it
+    an "input folder", so the rerun (resumed, or with --overwrite) of the same command was refused:
+    "--out: data/bench is the input folder data/bench"; a folder below it as well."""
+    from geofeat.outputs import add_to_manifest
+
+    data = tmp_path / "data"
+    seq = make_sequence(data / "seq")
+    bench = ["bench", str(data), "--descriptors", "orb", "--keypoints", "64", "--workers", "1", "--out"]
+    assert main([*bench, str(data / "bench")]) == 0
+    cv2.imwrite(str(data / "bench" / "ms_vs_rotate.png"), np.zeros((8, 8), np.uint8))  # as bench plots it
+    add_to_manifest(data / "bench", ["ms_vs_rotate.png"])
+    capsys.readouterr()
+    assert main([*bench, str(data / "bench")]) == 0, capsys.readouterr().err  # resumed
+    assert main([*bench, str(data / "bench"), "--overwrite"]) == 0, capsys.readouterr().err
+    assert check_out_dir(data / "bench" / "sub", inputs=[data, seq]) == data / "bench" / "sub"
+    with pytest.raises(ValueError, match=f"is the input folder {seq}"):  # a sequence still is one
+        check_out_dir(seq, overwrite=True, inputs=[data])
+
+
 # ---------------------------------------------------------------- retrieval: one sequence under two names
 @pytest.mark.parametrize("own", [False, True], ids=["", "include-own-sequence"])
 def test_retrieval_refuses_a_sequence_copied_under_another_folder_name(tmp_path, capsys, monkeypatch, own):

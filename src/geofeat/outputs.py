@@ -265,14 +265,25 @@ def _holds_data_files(folder: Path) -> bool:
     return any(next(folder.glob(pattern), None) is not None for pattern in _DATA_FILES)
 
 
+def _read_as_sequence(folder: Path) -> bool:
+    """Whether the commands read `folder`, a sub-folder of an input folder, as an input of its own:
+    it holds a sequence's frames (`io.frame_names`) or TPS files (`groundtruth.sources`). Other
+    images do not make it one: a results folder beside the sequences holds the plots geofeat wrote."""
+    from .groundtruth.sources import _has_tps_files
+    from .io import frame_names
+
+    return folder.is_dir() and (bool(frame_names(folder)) or _has_tps_files(folder))
+
+
 def _input_clash(folder: Path, inputs: Iterable[str | Path | None], replaced: bool = True) -> tuple[str, str] | None:
     """Why writing the result folder (or file) `folder` would put results among, or replace, the
     folders `inputs` the command reads (None entries, options left out, are passed over), and the
     harm, as (why, harm): `folder` is one of them or lies inside one that holds images itself (a
     sequence's frames, a texture folder: through any link; results among the user's files, where a
-    later run may read them as inputs), or (when the result
-    `replaced` the folder's earlier files, as `replace_folder` does) its manifest lists a file inside
-    one; None when none of these."""
+    later run may read them as inputs) or is, or lies inside, a sub-folder of one that is read as a
+    sequence (`_read_as_sequence`; other sub-folders, a results folder with its plots, are not), or
+    (when the result `replaced` the folder's earlier files, as `replace_folder` does) its manifest
+    lists a file inside one; None when none of these."""
     here = folder.resolve()
     sources = [(given, Path(given).resolve()) for given in inputs if given is not None]
     for given, source in sources:
@@ -282,12 +293,14 @@ def _input_clash(folder: Path, inputs: Iterable[str | Path | None], replaced: bo
         # beside images/): the commands look for sequences in sub-folders holding frames only; inside one
         # of those sub-folders (a sequence of the folder given) it is not
         if source in here.parents:
+            among = "the results would be written among its files"
+            if _holds_data_files(source):
+                return f"{folder} lies inside the input folder {given}", among
             inner = source / here.relative_to(source).parts[0]
-            for holder, name in ((source, given), (inner, inner)):
-                if holder != here and _holds_data_files(holder):
-                    return f"{folder} lies inside the input folder {name}", "the results would be written among its files"
-            if inner == here and here.is_dir() and _holds_data_files(here):
-                return f"{folder} is the input folder {inner}", "writing the result there would replace it"
+            if _read_as_sequence(inner):
+                if inner == here:
+                    return f"{folder} is the input folder {inner}", "writing the result there would replace it"
+                return f"{folder} lies inside the input folder {inner}", among
     listed = [(folder / rel).resolve() for rel in read_manifest(folder)] if replaced and folder.is_dir() else []
     for given, source in sources:
         if any(source in f.parents for f in listed):
