@@ -233,6 +233,9 @@ def test_extract_reruns_the_same_sequence_into_its_npz_prefix(tmp_path, capsys):
     assert "f-frame-000-master.npz exists; pass --overwrite" in capsys.readouterr().err
     record = json.loads((out.parent / "f.source.json").read_text())
     assert record["sequence"] == str(seq.resolve()) and len(record["files"]) == 3
+    moved = seq.rename(tmp_path / "moved")  # the same sequence under another folder: its files, not another's
+    assert _extract(moved, out) == 2
+    assert "f-frame-000-master.npz exists; pass --overwrite" in capsys.readouterr().err
 
 
 def test_simulate_refuses_a_contact_sheet_inside_its_texture_folder_and_names_a_texture_folder(tmp_path, capsys):

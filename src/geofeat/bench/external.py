@@ -156,13 +156,13 @@ class ExternalFeatures:
         `shape` (H, W), every keypoint must lie on the image.
 
         Float16 keypoints (hloc's `as_half`) are read as stored, with a warning naming the file when their
-        rounding reaches 0.5 px (`features.warn_float16_keypoints`; again only for a larger step).
+        rounding reaches 0.5 px (`features.warn_float16_keypoints`; once per feature set, again only for a larger step).
 
         Raises:
             ValueError naming the method, the frame and the file when they are missing or malformed.
         """
         arrays, source = self._read(sequence, frame)
-        if float16_step(arrays.get("keypoints")) > self._float16_warned:  # once per file and step, not per frame
+        if float16_step(arrays.get("keypoints")) > self._float16_warned:  # once per feature set and step, not per frame
             self._float16_warned = max(self._float16_warned, warn_float16_keypoints(
                 arrays["keypoints"], f"features {self.name}: {sequence}/{frame} ({source})"))
         try:

@@ -125,8 +125,9 @@ def sequence_source(seq) -> dict[str, str]:
 
 def check_same_source(path: Path, source: dict[str, str], overwrite: bool) -> dict | None:
     """Refuse, before any work, to add the features of the sequence `source` (`sequence_source`) to the
-    files `<stem>-<frame>.npz` of the .npz `path` that an earlier run wrote of another sequence (another
-    folder, or the same folder whose reference frame changed since), naming both: the prefix would hold
+    files `<stem>-<frame>.npz` of the .npz `path` that an earlier run wrote of another sequence (told by
+    its reference frame's content, as `bench --features` tells it: a sequence moved or renamed since is
+    the same one; the same folder whose reference frame changed is not), naming both: the prefix would hold
     two sequences' features, and `bench --features` read either for the frames of one. With
     `overwrite` the earlier files are replaced whole instead (removed when this run's are in place).
     Returns the earlier record (`geofeat.features.read_features_source`), None when there is none."""
@@ -135,13 +136,13 @@ def check_same_source(path: Path, source: dict[str, str], overwrite: bool) -> di
     earlier = read_features_source(path)
     if earlier is None or overwrite or not earlier_files(path, earlier):
         return earlier
+    if earlier.get("reference_digest") == source["reference_digest"]:
+        return earlier
     if earlier.get("sequence") != source["sequence"]:
         why = f"of {earlier.get('sequence')}, not of {source['sequence']}"
-    elif earlier.get("reference_digest") != source["reference_digest"]:
+    else:
         why = (f"of {source['sequence']} as it was when they were written: its reference frame "
                f"{source['reference']} has changed since")
-    else:
-        return earlier
     raise ValueError(f"--out: {path.parent} holds {path.stem}-<frame>.npz features {why} ({features_source_record(path).name}); "
                      "this run's would mix with them under one name: pass --overwrite to replace them all, or choose "
                      "another --out")
