@@ -107,6 +107,8 @@ def test_a_results_folder_beside_the_sequences_of_a_dataset_folder_is_fine(tmp_p
     data = tmp_path / "data"
     seq = make_sequence(data / "seq")
     assert check_out_dir(data / "results", inputs=[data, seq]) == data / "results"
+    cv2.imwrite(str(data / "sheet.png"), np.zeros((8, 8), np.uint8))  # a contact sheet beside the sequences
+    assert check_out_dir(data / "results", inputs=[data, seq]) == data / "results"
     for inputs in ([data, seq], [data]):  # a sequence of the folder given is an input folder too
         with pytest.raises(ValueError, match=f"lies inside the input folder {seq}"):
             check_out_dir(data / "seq" / "results", inputs=inputs)

@@ -275,6 +275,13 @@ def _read_as_sequence(folder: Path) -> bool:
     return folder.is_dir() and (bool(frame_names(folder)) or _has_tps_files(folder))
 
 
+def _holds_sequences(folder: Path) -> bool:
+    """Whether `folder` is a folder of sequences: a sub-folder of it is read as a sequence. An image
+    beside them (a contact sheet) then does not make the folder one read image by image, as a
+    texture folder is."""
+    return any(_read_as_sequence(child) for child in folder.iterdir() if child.is_dir())
+
+
 def _input_clash(folder: Path, inputs: Iterable[str | Path | None], replaced: bool = True) -> tuple[str, str] | None:
     """Why writing the result folder (or file) `folder` would put results among, or replace, the
     folders `inputs` the command reads (None entries, options left out, are passed over), and the
@@ -294,7 +301,7 @@ def _input_clash(folder: Path, inputs: Iterable[str | Path | None], replaced: bo
         # of those sub-folders (a sequence of the folder given) it is not
         if source in here.parents:
             among = "the results would be written among its files"
-            if _holds_data_files(source):
+            if _read_as_sequence(source) or (_holds_data_files(source) and not _holds_sequences(source)):
                 return f"{folder} lies inside the input folder {given}", among
             inner = source / here.relative_to(source).parts[0]
             if _read_as_sequence(inner):
