@@ -32,6 +32,33 @@ def test_demo_writes_pictures_and_reports(tmp_path, capsys):
     assert (mine / "polar_patches.png").read_bytes() == b"my own picture"
 
 
+def test_demo_says_first_that_a_first_run_compiles_the_kernels(tmp_path, capsys, monkeypatch):
+    """A first `geofeat demo` after installing printed nothing for two minutes while numba compiled its
+    kernels (the line saying so came after them): it now says so before any work, and only then."""
+    from geofeat.cli import demo
+    from geofeat.geodesic.polar import polar_patches
+    from geofeat.geodesic.walk import walk_polar
+    from geofeat.io import read_demo_frame
+
+    polar_patches(read_demo_frame(), [[320.0, 240.0]])  # the walk compiled and cached, if no test did it before
+    assert demo.kernels_compiled()
+    monkeypatch.setattr(walk_polar._cache, "_cache_path", str(tmp_path / "empty"))  # numba's cache, as if empty
+    assert not demo.kernels_compiled()
+    monkeypatch.setattr(demo, "_demo_patches", lambda *a: print("patches"))
+    monkeypatch.setattr(demo, "_demo_rolled_pair", lambda *a: None)
+    monkeypatch.setattr(demo, "_demo_deformed_pair", lambda *a: None)
+    assert main(["demo", "--out", str(tmp_path / "out")]) == 0
+    assert capsys.readouterr().out.splitlines()[:2] == [
+        "first run: compiling geofeat's numba kernels (one to two minutes on a 2-core CPU; they are cached for "
+        "later runs)", "patches"]
+    monkeypatch.undo()
+    monkeypatch.setattr(demo, "_demo_patches", lambda *a: print("patches"))
+    monkeypatch.setattr(demo, "_demo_rolled_pair", lambda *a: None)
+    monkeypatch.setattr(demo, "_demo_deformed_pair", lambda *a: None)
+    assert main(["demo", "--out", str(tmp_path / "out")]) == 0
+    assert "first run" not in capsys.readouterr().out
+
+
 def test_demo_match_lines_count_in_words(tmp_path, capsys, monkeypatch):
     """The demo's per-descriptor lines said "1 correct matches ... of 1 keypoints"."""
     from types import SimpleNamespace

@@ -158,12 +158,31 @@ def _check_demo_folder(out: Path) -> None:
     check_out_dir(out / "simulated_cloth", overwrite=True, strict=True)
 
 
+def kernels_compiled() -> bool:
+    """Whether numba's cache already holds the geodesic walk (`walk_polar`), the kernel every first run
+    compiles: False on a first run after installing (or with another numba cache folder), when the
+    kernels take one to two minutes to compile on a 2-core CPU; True when unknown (numba's cache
+    layout is not public), so that nothing is announced wrongly."""
+    import os
+
+    from ..geodesic.walk import walk_polar
+
+    try:
+        cache = walk_polar._cache
+        return os.path.exists(os.path.join(cache._cache_path, cache._cache_file._index_name))
+    except Exception:  # noqa: BLE001 - another numba's internals: say nothing
+        return True
+
+
 def run(args: argparse.Namespace) -> int:
     """`geofeat demo`: geodesic patches of the shipped Kinect frame, a rolled pair and a simulated cloth pair."""
     from ..outputs import add_to_manifest
 
     out = Path(args.out)
     _check_demo_folder(out)
+    if not kernels_compiled():  # a first run is silent for minutes while numba compiles: say so first
+        print("first run: compiling geofeat's numba kernels (one to two minutes on a 2-core CPU; they are cached "
+              "for later runs)", flush=True)
     out.mkdir(parents=True, exist_ok=True)
     add_to_manifest(out, DEMO_PICTURES)  # before writing, so that an interrupted demo can be rerun
     _demo_patches(out, args.radius, args.depth_profile)
