@@ -320,10 +320,10 @@ def refuse_input_folder(folder: str | Path, inputs: Iterable[str | Path | None],
                         harm: str | None = None) -> None:
     """ValueError when the output folder (or file) `folder` is one of the folders `inputs` a command
     reads (sequences, folders of sequences, --tps-dir; None entries are passed over), lies inside
-    one that holds images itself (a sequence, a texture folder: `_input_clash`; a folder beside the
-    sequences of a folder of sequences is fine), or holds one among files geofeat wrote (`_input_clash`), whatever `--overwrite` says. Every
-    command that reads folders checks its output with it before any work (`check_out_dir`, through
-    its `inputs`). `harm`: what a command that adds its files to the folder (bench, extract) would do
+    one that holds images itself (a sequence, a texture folder) or inside a sequence of a folder of
+    sequences (a folder beside those sequences is fine), or holds one among files geofeat wrote
+    (`_input_clash`), whatever `--overwrite` says. Every command that reads folders checks its
+    output with it before any work (`check_out_dir`, through its `inputs`). `harm`: what a command that adds its files to the folder (bench, extract) would do
     there, for the message; None: the harm `_input_clash` names (replacing the input, or writing
     among its files)."""
     clash = _input_clash(Path(folder), inputs, replaced=harm is None)
