@@ -97,14 +97,16 @@ def patch_source(frame: RGBDFrame, fingerprint: tuple | None = None) -> tuple:
     return fingerprint + (zlib.crc32(np.ascontiguousarray(frame.image)),)
 
 
-def check_depth_config(recorded: DepthConfig | None, depth_config, frame: RGBDFrame, what: str) -> None:
+def check_depth_config(recorded: DepthConfig | None, depth_config, frame: RGBDFrame, what: str,
+                       fingerprint: tuple | None = None) -> None:
     """A mesh, or patches walked on one (`what` names them), made with the DepthConfig `recorded` must
     be made with the descriptor's `depth_config` (a DepthConfig or a profile name, resolved on
     `frame`: "auto" is the profile it picks there, so patches of that profile pass); ValueError naming
-    both otherwise. Unknown (None) on either side passes."""
+    both otherwise. Unknown (None) on either side passes. `fingerprint`: the frame's
+    `frame_fingerprint`, when the caller has computed it."""
     if recorded is None or depth_config is None:
         return
-    wanted = frame_depth_config(frame, depth_config)
+    wanted = frame_depth_config(frame, depth_config, fingerprint)
     if wanted == recorded:
         return
     given = repr(depth_config) if isinstance(depth_config, str) else depth_config_name(depth_config)
@@ -133,7 +135,8 @@ def check_patches(patches, xy: np.ndarray, radius: float | None = None, frame: R
         raise ValueError(f"patches: computed with radius {patches.radius:g} m, but the descriptor's radius is "
                          f"{radius:g} m; compute them with radius={radius:g} or build the descriptor with "
                          f"radius={patches.radius:g}")
-    if frame is not None and patches.source is not None and patches.source != patch_source(frame):
+    fingerprint = frame_fingerprint(frame) if frame is not None else None  # one CRC of the depth for both checks
+    if frame is not None and patches.source is not None and patches.source != patch_source(frame, fingerprint):
         raise ValueError("patches: computed on another frame (its depth, intrinsics or image differ from this "
                          "frame's); compute them on this frame, or leave patches out")
     recorded = getattr(patches, "blur_px", None)
@@ -141,7 +144,7 @@ def check_patches(patches, xy: np.ndarray, radius: float | None = None, frame: R
         raise ValueError(f"patches: sampled with blur_px={recorded:g}, but the descriptor's blur_px is {blur_px:g}; "
                          f"compute them with blur_px={blur_px:g}, or build the descriptor with blur_px={recorded:g}")
     if frame is not None:
-        check_depth_config(getattr(patches, "depth_config", None), depth_config, frame, "patches")
+        check_depth_config(getattr(patches, "depth_config", None), depth_config, frame, "patches", fingerprint)
     reached = np.asarray(patches.rings_reached)
     if reached.ndim != 2 or reached.shape[0] != len(patches):
         raise ValueError(f"patches: rings_reached must be (N, A) with N = {len(patches)}, got shape {reached.shape}")
