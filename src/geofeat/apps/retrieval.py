@@ -364,11 +364,11 @@ def refuse_copied_sequences(folders: list[Path]) -> None:
     own sequence is left out of its results by name only, so the copy would be found as the query's
     own frame and counted as a correct result, raising Acc@K unsaid; the copy also weighs twice in
     the vocabulary, the idf and the other queries' results, so it is refused rather than left out."""
-    from ..io import frame_digest, read_sequence
+    from ..io import frame_digest, frame_names, reference_name
 
     seen: dict[str, Path] = {}
     for folder in folders:
-        reference = read_sequence(folder).reference
+        reference = reference_name(frame_names(folder))  # the name only: no frame is decoded here
         first = seen.setdefault(frame_digest(folder, reference), Path(folder))
         if first != Path(folder):
             raise ValueError(f"datasets: {first} and {folder} hold the same reference frame ({reference}, byte for "
