@@ -25,6 +25,7 @@ from typing import Iterator
 
 import numpy as np
 
+from ..inputs import check_non_negative
 from .cloth import Cloth, ClothConfig
 from .noise import finish_image, kinect_depth_noise, motion_blur
 from .render import RenderOutput, render
@@ -98,16 +99,13 @@ def check_preset(preset: Preset) -> None:
     (0, 1] (a fraction of the image area), `scale_swing` positive with low < high (equal ends divided
     by zero), `pin_amp` three numbers. A NaN wind or gravity gave NaN particles, written as frames
     without cloth that no command could read."""
-    def number(v, what: str, shown) -> float:
-        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v) or v < 0:
-            expected = "a finite number" if shown is v else "finite numbers"
-            raise ValueError(f"preset: {what}: expected {expected} >= 0, got {shown!r}")
-        return float(v)
+    def number(v, what: str) -> float:
+        return check_non_negative(v, f"preset: {what}")
 
     def numbers(value, what: str, count: int) -> tuple[float, ...]:
         if isinstance(value, (str, bytes)) or np.ndim(value) != 1 or len(value) != count:
             raise ValueError(f"preset: {what}: expected {count} numbers, got {value!r}")
-        return tuple(number(v, what, value) for v in value)
+        return tuple(number(v, what) for v in value)
 
     def span(value, what: str) -> tuple[float, float]:
         lo, hi = numbers(value, what, 2)
@@ -118,8 +116,8 @@ def check_preset(preset: Preset) -> None:
     if not isinstance(preset.name, str) or not preset.name:
         raise ValueError(f"preset: name: expected a non-empty string, got {preset.name!r}")
     for what in _PRESET_NUMBERS:
-        number(getattr(preset, what), what, getattr(preset, what))
-    if number(preset.squeeze, "squeeze", preset.squeeze) >= 1:
+        number(getattr(preset, what), what)
+    if number(preset.squeeze, "squeeze") >= 1:
         raise ValueError(f"preset: squeeze: expected a fraction below 1, got {preset.squeeze!r}")
     numbers(preset.pin_amp, "pin_amp", 3)
     for what in _PRESET_RANGES:
