@@ -5,6 +5,7 @@ import csv
 import json
 import os
 import shutil
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -930,3 +931,17 @@ def test_tps_files_without_some_ssim_maps_are_refused_and_without_any_said(datas
     assert len(read_rows(tmp_path / "none" / "results.csv")) == 2
     for report in ("table.md", "details.md"):
         assert "SSIM filter (protocol step 3) skipped for a-deform" in (tmp_path / "none" / report).read_text()
+
+
+def test_first_run_benchmark_runs_the_readme_example_as_written(tmp_path):
+    """benchmarks/bench_first_run.py --job readme times the README's Python example: the script it
+    writes must be that example (the block under "In Python"), with only the .h5 file it saves moved
+    into the benchmark's own folder, so that timing it writes nothing into the working directory."""
+    from benchmark_scripts import import_benchmarks
+
+    bench_first_run = import_benchmarks("bench_first_run")[0]
+    script = bench_first_run.readme_example(tmp_path).read_text()
+    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+    assert script.replace(repr(str(tmp_path / "frame.h5")), '"frame.h5"') in readme
+    assert "geofeat.extract(" in script and repr(str(tmp_path / "frame.h5")) in script
+    compile(script, "readme_example.py", "exec")

@@ -49,7 +49,7 @@ def test_demo_says_first_that_a_first_run_compiles_the_kernels(tmp_path, capsys,
     monkeypatch.setattr(demo, "_demo_deformed_pair", lambda *a: None)
     assert main(["demo", "--out", str(tmp_path / "out")]) == 0
     assert capsys.readouterr().out.splitlines()[:2] == [
-        "first run: compiling geofeat's numba kernels (one to two minutes on a 2-core CPU; they are cached for "
+        "first run: compiling geofeat's numba kernels (about a minute on a 2-core CPU; they are cached for "
         "later runs)", "patches"]
     monkeypatch.undo()
     monkeypatch.setattr(demo, "_demo_patches", lambda *a: print("patches"))

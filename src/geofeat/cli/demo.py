@@ -161,7 +161,7 @@ def _check_demo_folder(out: Path) -> None:
 def kernels_compiled() -> bool:
     """Whether numba's cache already holds the geodesic walk (`walk_polar`), the kernel every first run
     compiles: False on a first run after installing (or with another numba cache folder), when the
-    kernels take one to two minutes to compile on a 2-core CPU; True when unknown (numba's cache
+    kernels take about a minute to compile on a 2-core CPU; True when unknown (numba's cache
     layout is not public), so that nothing is announced wrongly."""
     import os
 
@@ -181,7 +181,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     _check_demo_folder(out)
     if not kernels_compiled():  # a first run is silent for minutes while numba compiles: say so first
-        print("first run: compiling geofeat's numba kernels (one to two minutes on a 2-core CPU; they are cached "
+        print("first run: compiling geofeat's numba kernels (about a minute on a 2-core CPU; they are cached "
               "for later runs)", flush=True)
     out.mkdir(parents=True, exist_ok=True)
     add_to_manifest(out, DEMO_PICTURES)  # before writing, so that an interrupted demo can be rerun

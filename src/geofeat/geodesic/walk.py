@@ -369,7 +369,11 @@ def _tangent_frame_one(points, face_ok, normals, sx, sy, faces, centre, frames, 
     faces[k, 0], faces[k, 1], faces[k, 2] = x, y, t
 
 
-@_shared()
+# Not inlined into `walk_polar_in_order`: numba's parallel pass then works on a small loop body
+# that calls one compiled function, which cut the walk's first compile from 56 s to 17 s on the
+# development machine (the helpers are still inlined into `_ray_one`; same results bit for bit,
+# same walk time: BENCHMARKS.md, "The walk's first compile").
+@_shared(inline=False)
 def _ray_one(points, face_ok, normals, local, edges, faces, centre, frames, K, ring_step, n_angles, n_rings,
              max_crossings, samples, coords, k, a):
     """The ray of keypoint k at direction a (`walk_polar`, one job): returns the rings reached, -1
