@@ -177,8 +177,8 @@ def test_resume_keeps_the_sequences_an_interrupted_run_finished(tmp_path, capsys
     assert "kept 1 sequence finished by an earlier run: a" in capsys.readouterr().out
     assert (out / "a" / "report.json").stat().st_mtime_ns == kept and (out / "b" / "report.json").is_file()
     # what --resume cannot keep is refused by name, before any work
-    assert main(args + ["--resume", "--spacing", "12"]) == 2
-    assert "other settings (spacing)" in capsys.readouterr().err
+    assert main(args + ["--resume", "--margin", "12"]) == 2
+    assert "other settings (margin_px)" in capsys.readouterr().err
     cv2.imwrite(str(tmp_path / "seqs" / "a" / "frame-001-rgb.png"), np.zeros((H, W, 3), np.uint8))
     assert main(args + ["--resume"]) == 2
     assert "frames or landmarks changed since" in capsys.readouterr().err
@@ -588,3 +588,48 @@ def test_resume_keeps_a_sequence_finished_under_another_spelling_of_its_folder(t
                  "--no-progress", "--resume"]) == 0
     assert "kept 1 sequence finished by an earlier run: seq" in capsys.readouterr().out
     assert (tmp_path / "out" / "seq" / "report.json").stat().st_mtime_ns == kept
+
+
+def test_a_larger_target_frame_fails_alone_not_the_run(tmp_path, capsys):
+    """A target at twice the reference's size, its landmarks on its own pixels: they lie off the
+    reference's image, and the whole run stopped, saying they were off a 160x120 image; it is a
+    failed frame naming both sizes, as a smaller one is, and the other targets are written."""
+    lms = _grid_landmarks(3)
+    folder = _write_pair(tmp_path / "seq", lms)
+    for suffix in ("-rgb.png", "-depth.png", ".csv"):
+        shutil.copy(folder / f"frame-001{suffix}", folder / f"frame-002{suffix}")
+    big = cv2.resize(cv2.imread(str(folder / "frame-001-rgb.png")), (2 * W, 2 * H))
+    write_frame(folder, "frame-001", big, np.full((2 * H, 2 * W), 1.0))
+    write_landmarks(folder / "frame-001.csv", np.arange(len(lms)), 2 * _forward(lms), np.ones(len(lms), bool))
+    assert main(["groundtruth", str(folder), "--out", str(tmp_path / "out"), "--no-refine", "--no-progress"]) == 1
+    printed = capsys.readouterr().out
+    assert "FAILED frame frame-001" in printed and "320x240 differs in size from the reference" in printed
+    assert (tmp_path / "out" / "seq" / "frame-002_theta.npy").is_file()
+    assert not (tmp_path / "out" / "seq" / "frame-001_theta.npy").exists()
+
+
+def test_spacing_without_refinement_is_refused(tmp_path, capsys):
+    """--spacing sets the refinement's grid: with --no-refine it was accepted and did nothing (and a
+    --resume with another --spacing was refused as "other settings")."""
+    folder = _write_pair(tmp_path / "seq", _grid_landmarks(3))
+    args = ["groundtruth", str(folder), "--out", str(tmp_path / "out"), "--no-refine", "--no-progress"]
+    assert main([*args, "--spacing", "8"]) == 2
+    assert "--spacing: 8 is the control-point spacing of the photometric refinement" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+    assert main(args) == 0
+
+
+def test_a_frame_whose_landmark_ids_are_shuffled_fails(tmp_path, capsys):
+    """Target landmarks whose ids name other points than the reference's: no landmark stands out, so
+    none was rejected, and the landmark-only spline (folding over the frame) was written as "ok"."""
+    lms = _grid_landmarks(5)
+    shuffled = _forward(lms)[np.random.default_rng(0).permutation(len(lms))]
+    folder = _write_pair(tmp_path / "seq", lms, shuffled)
+    assert main(["groundtruth", str(folder), "--out", str(tmp_path / "out"), "--no-refine", "--no-progress"]) == 1
+    assert "FAILED frame frame-001: the landmarks disagree" in capsys.readouterr().out
+    assert not (tmp_path / "out" / "seq" / "frame-001_theta.npy").exists()
+    report = json.loads((tmp_path / "out" / "seq" / "report.json").read_text())["frames"][0]
+    assert report["status"] == "failed" and report["loo_median_px"] > 25
+    # the analytic warp's own landmarks pass
+    folder = _write_pair(tmp_path / "good", lms)
+    assert main(["groundtruth", str(folder), "--out", str(tmp_path / "out2"), "--no-refine", "--no-progress"]) == 0

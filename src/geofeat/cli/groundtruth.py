@@ -25,8 +25,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("sequences", nargs="+", type=Path, help="sequence folders, or folders of sequences")
     p.add_argument("--out", required=True, type=Path, help="output folder (one sub-folder per sequence)")
     p.add_argument("--no-refine", action="store_true", help="landmark-only spline, no photometric refinement")
-    p.add_argument("--spacing", type=number_at_least(2), default=DEFAULT_SPACING_PX,
-                   help=f"control-point spacing in reference pixels (default {DEFAULT_SPACING_PX:g})")
+    p.add_argument("--spacing", type=number_at_least(2), default=None,
+                   help=f"control-point spacing of the refinement in reference pixels (default {DEFAULT_SPACING_PX:g}; "
+                        "not with --no-refine)")
     p.add_argument("--margin", type=number_at_least(0), default=DEFAULT_MARGIN_PX,
                    help=f"object mask: pixels beyond the landmarks' convex hull (default {DEFAULT_MARGIN_PX:g})")
     p.add_argument("--depth-margin", type=number_at_least(0), default=DEFAULT_DEPTH_MARGIN_M,
@@ -49,7 +50,13 @@ def run(args: argparse.Namespace) -> int:
     from ..groundtruth.pipeline import (GroundTruthConfig, check_config, check_sequence, finished_result,
                                        generate_ground_truth, result_files)
 
-    config = GroundTruthConfig(refine=not args.no_refine, spacing=args.spacing, margin_px=args.margin,
+    from ..groundtruth.defaults import DEFAULT_SPACING_PX
+
+    if args.no_refine and args.spacing is not None:  # it was accepted and ignored (and then refused --resume)
+        raise ValueError(f"--spacing: {args.spacing:g} is the control-point spacing of the photometric refinement, "
+                         "which --no-refine leaves out; drop one of them")
+    spacing = DEFAULT_SPACING_PX if args.spacing is None else args.spacing
+    config = GroundTruthConfig(refine=not args.no_refine, spacing=spacing, margin_px=args.margin,
                                depth_margin_m=args.depth_margin)
     check_config(config)
     folders = find_sequences(args.sequences, unique_names=True)

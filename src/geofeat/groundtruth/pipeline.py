@@ -12,8 +12,8 @@ Output folder (one per sequence, read by `geofeat bench --tps-dir`):
                             checkerboard of frame k and the warped reference,
     `report.csv`, `report.json`  per frame: status, landmarks (used, rejected, residuals), SSIM before and
                             after refinement, photometric cost, control points, seconds.
-A frame that fails (too few landmarks, unreadable, another size than the reference, refinement
-diverged) gets no TPS files and status `failed` with
+A frame that fails (too few landmarks, landmarks that disagree, unreadable, another size than the
+reference, refinement diverged) gets no TPS files and status `failed` with
 the reason; the others are written.
 """
 
@@ -31,7 +31,7 @@ import numpy as np
 from ..frame import RGBDFrame
 from ..imagequality import ssim_map
 from ..inputs import check_landmarks
-from ..io import Sequence, read_sequence, sequence_digest
+from ..io import RGB_SUFFIX, Sequence, read_image, read_landmarks, read_sequence, sequence_digest
 from ..outputs import check_out_dir, json_text, output_folder, read_manifest, write_picture
 from .defaults import DEFAULT_DEPTH_MARGIN_M, DEFAULT_MARGIN_PX, DEFAULT_SPACING_PX
 from .photometric import RefineConfig, check_refine_config, refine
@@ -45,6 +45,10 @@ MAX_COST_RISE = 0.02
 MAX_SSIM_DROP = 0.02
 MAX_FOLDED_FRACTION = 0.05
 MAX_LANDMARK_MEDIAN_PX = 3.0
+#: A frame fails when the spline through the other landmarks misses its median landmark by more than
+#: this many pixels: most of its landmarks disagree with one another (ids that name other points than in
+#: the reference). Simulated frames stay below 5 px; a frame with its ids shuffled was written as "ok".
+MAX_LOO_MEDIAN_PX = 25.0
 
 
 @dataclass
@@ -88,17 +92,33 @@ class FrameReport:
     seconds: float = 0.0
 
 
+def _frame_shape(seq: Sequence, name: str) -> tuple[int, int] | None:
+    """(H, W) of frame `name`'s colour image; None when it cannot be read (`_frame` then fails it)."""
+    try:
+        return read_image(seq.folder / f"{name}{RGB_SUFFIX}").shape[:2]
+    except ValueError:
+        return None
+
+
 def _valid_landmarks(seq: Sequence, shape: tuple[int, int]) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Every frame's (ids, xy, visible), checked: csv present, ids unique, visible rows on the image,
-    target ids known in the reference."""
-    H, W = shape
+    """Every frame's (ids, xy, visible), checked: csv present, ids unique, visible rows on the image
+    (the reference's (H, W) `shape`, or a target's own size when it differs: `_frame` fails that
+    frame, naming both sizes), target ids known in the reference."""
     out = {}
     for name in seq.names:
         if not (seq.folder / f"{name}.csv").is_file():
             raise ValueError(f"sequence {seq.name}: frame {name} has no landmark csv ({name}.csv); "
                              "ground truth needs landmarks in every frame")
-        ids, xy, vis = seq.landmarks(name)
-        check_landmarks(ids, xy, vis, (H, W), f"{name}.csv")  # the one landmark validator
+        ids, xy, vis = read_landmarks(seq.folder / f"{name}.csv")
+        try:
+            check_landmarks(ids, xy, vis, shape, f"{name}.csv")  # the one landmark validator
+        except ValueError:
+            # a larger target's landmarks lie off the reference's image: this stopped the whole run,
+            # saying they were off a "640x480 image" the frame is not
+            own = None if name == seq.reference else _frame_shape(seq, name)
+            if own is None or own == tuple(shape):
+                raise
+            check_landmarks(ids, xy, vis, own, f"{name}.csv")
         out[name] = (ids, xy, vis)
     ref_ids = out[seq.reference][0]
     for name in seq.targets:
@@ -289,6 +309,13 @@ def _frame(seq: Sequence, name: str, ref: RGBDFrame, ref_mask: np.ndarray, lms: 
     rep.inliers = int(inl.sum())
     rep.rejected_ids = common[~inl].tolist()
     rep.loo_median_px = float(np.nanmedian(fit.loo_px))
+    if rep.loo_median_px > MAX_LOO_MEDIAN_PX:  # before the refinement, which failed such a frame as "diverged"
+        rep.status, rep.reason = "failed", (
+            f"the landmarks disagree: the spline through the others misses the median landmark by "
+            f"{rep.loo_median_px:.1f} px (leave-one-out, > {MAX_LOO_MEDIAN_PX:g} px); do the ids of {name}.csv "
+            f"name the same points as those of {seq.reference}.csv?")
+        rep.seconds = time.perf_counter() - t0
+        return rep
     before = _evaluate(lm_inv, ref, ref_mask, tgt, zrange)
     tps_inv, lines, ev = lm_inv, None, before
     if config.refine:
