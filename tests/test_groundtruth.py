@@ -633,3 +633,26 @@ def test_a_frame_whose_landmark_ids_are_shuffled_fails(tmp_path, capsys):
     # the analytic warp's own landmarks pass
     folder = _write_pair(tmp_path / "good", lms)
     assert main(["groundtruth", str(folder), "--out", str(tmp_path / "out2"), "--no-refine", "--no-progress"]) == 0
+
+
+def test_simulator_truth_of_another_size_than_the_frames_is_refused(tmp_path, simulated):
+    """Frames halved after simulation, their `<frame>-gt.npz` kept: the uv maps were read at the small
+    frames' pixels, every point looked up at another place of the cloth, and the bench said the ground
+    truth "covers no pixel of the reference frame (no object there)"."""
+    from geofeat.io import read_intrinsics
+
+    seq = read_sequence(shutil.copytree(simulated[0].folder, tmp_path / "half"))
+    for name in seq.names:
+        frame = seq.frame(name)
+        h, w = frame.shape[0] // 2, frame.shape[1] // 2
+        write_frame(seq.folder, name, cv2.resize(cv2.imread(str(seq.folder / f"{name}-rgb.png")), (w, h)),
+                    cv2.resize(frame.depth, (w, h), interpolation=cv2.INTER_NEAREST), seq.depth_scale)
+    K = read_intrinsics(seq.folder / "intrinsics.xml")
+    K[:2] /= 2
+    write_intrinsics(seq.folder / "intrinsics.xml", K)
+    half = read_sequence(seq.folder)
+    with pytest.raises(ValueError, match=r"frame-001-gt.npz: the simulator's ground truth is 320x240, the "
+                                         r"frames of .* 160x120"):
+        half.correspondences(half.targets[0], half.reference, np.array([[80.0, 60.0]]))
+    assert simulated[0].correspondences(simulated[0].targets[0], simulated[0].reference,
+                                        np.array([[160.0, 120.0]]))[0].shape == (1, 2)

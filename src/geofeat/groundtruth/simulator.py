@@ -298,6 +298,20 @@ def read_frame_truth(folder: str | Path, name: str | int) -> FrameTruth:
                          f"{type(error).__name__}: {error}") from None
 
 
+def _check_truth_size(seq, name: str, truth: FrameTruth) -> None:
+    """ValueError when frame `name`'s uv map is not of the sequence's (H, W) image size (`seq.shape`,
+    unchecked when None): frames resized or cropped after simulation, their `<frame>-gt.npz` kept. The
+    uv map is read at the frame's pixels, so every point was looked up at another place of the cloth
+    and no pair was found visible, without a word."""
+    shape = getattr(seq, "shape", None)
+    if shape is not None and truth.uv.shape[:2] != tuple(shape):
+        h, w = truth.uv.shape[:2]
+        raise ValueError(f"{Path(seq.folder) / f'{name}{GT_SUFFIX}'}: the simulator's ground truth is {w}x{h}, the "
+                         f"frames of {seq.folder} {shape[1]}x{shape[0]} (resized or cropped after `geofeat simulate`?); "
+                         f"it maps pixels of the size it was simulated at: simulate the sequence again at this size, "
+                         f"or remove every <frame>{GT_SUFFIX} to score it with its csv landmarks")
+
+
 def correspondences(seq, i, j, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Map pixels of frame i to frame j of a simulated `geofeat.io.Sequence`.
 
@@ -319,6 +333,8 @@ def correspondences(seq, i, j, points: np.ndarray) -> tuple[np.ndarray, np.ndarr
     meta = read_metadata(seq.folder)
     ti = read_frame_truth(seq.folder, seq.frame_name(i))
     tj = read_frame_truth(seq.folder, seq.frame_name(j))
+    for name, truth in ((seq.frame_name(i), ti), (seq.frame_name(j), tj)):
+        _check_truth_size(seq, name, truth)
     try:
         spacing = float(meta["spacing_m"])
     except (KeyError, TypeError, ValueError):
