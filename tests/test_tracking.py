@@ -689,6 +689,30 @@ def test_frames_per_second_leave_out_the_template_set_up(sequence, tmp_path, mon
     assert (tracked, rate, setup) == (0.5, 4.0, 3.0)
 
 
+def test_a_slow_runs_frames_per_second_keeps_its_significant_figures(sequence, tmp_path, monkeypatch):
+    """tracking.md printed frames/s with two decimals: a CPU run with refinement and three
+    descriptors (hundreds of seconds per frame) read "0.00 frames/s", and 0.014 read "0.01"."""
+    import re
+    import types
+
+    from geofeat.apps import tracking
+
+    clock = _FakeClock()
+    monkeypatch.setattr(tracking, "time", types.SimpleNamespace(perf_counter=clock.perf_counter))
+    match_and_fit = tracking._match_and_fit
+
+    def slow_fit(*args):
+        clock.now += 250.0  # each target frame 250 s
+        return match_and_fit(*args)
+
+    monkeypatch.setattr(tracking, "_match_and_fit", slow_fit)
+    write_tracking([sequence], tmp_path, ("sift",), n_keypoints=300, refine="none", progress=False)
+    md = (tmp_path / "tracking.md").read_text()
+    found = re.search(r"2 target frames tracked in ([\d.]+) s: ([\d.]+) frames/s", md)
+    assert found, md
+    assert float(found.group(1)) == 500.0 and float(found.group(2)) == 0.004, md
+
+
 def test_a_template_roi_without_depth_says_so(sequence, tmp_path):
     """The reference frame without depth in the ROI: the error said only that the ROI "holds 0
     keypoints", as if the template had no texture; keypoints are dropped where there is no depth."""

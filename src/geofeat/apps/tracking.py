@@ -1087,6 +1087,14 @@ def _median(values) -> float:
     return float(np.median(v)) if len(v) else float("nan")
 
 
+def _frame_rate(n_frames: int, seconds: float) -> str:
+    """Frames per second as printed in tracking.md: three significant figures, never in exponent form
+    ("0.00943", "4", "12.3"). Two decimals printed a CPU run with refinement (0.003-0.03 frames/s) as
+    "0.00" or "0.01", a rate off by up to half of itself or zero."""
+    return np.format_float_positional(n_frames / max(seconds, 1e-9), precision=3, unique=False,
+                                      fractional=False, trim="-")
+
+
 def _result_folder(descriptor: str) -> str:
     """The folder of a descriptor's results under OUT/<sequence>/ ("geopatch=w.pt" -> "geopatch_w.pt")."""
     return descriptor.replace("=", "_").replace("/", "_")
@@ -1191,7 +1199,7 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
         # the templates' set-up is timed apart: with few target frames it dominated the rate
         tracked = max(seconds - setup, 0.0)
         notes.append(f"detector: {detectors}; refine: {refine}; {plural(n_frames, 'target frame')} tracked in {tracked:.1f} s: "
-                     f"{n_frames / max(tracked, 1e-9):.2f} frames/s (reading, detection, description and every "
+                     f"{_frame_rate(n_frames, tracked)} frames/s (reading, detection, description and every "
                      f"descriptor; the templates' set-up, {setup:.1f} s, not counted"
                      + (f"; {plural(n_skipped, 'skipped frame')} not counted" if n_skipped else "") + "); "
                      f"per frame, matching + RANSAC{' + refinement' if refine != 'none' else ''} + SSIM/NCC: {per}")
