@@ -41,6 +41,34 @@ def test_tps_ransac_recovers_a_smooth_warp_with_half_outliers(seed):
     assert np.median(err) < 0.5 and np.percentile(err, 95) < 1.0
 
 
+def test_repeated_matches_count_once_in_the_robust_fits():
+    """fit_tps_ransac and refit_on_inliers counted each copy of a repeated match (the same template and
+    frame pixels, as SIFT's copies of one keypoint with another orientation give) as an inlier: five
+    matches repeated three times passed min_inliers=10, a spline through five points reported as a
+    successful fit, and a repeated wrong cluster outvoted the right matches. The local fit already
+    counted them once."""
+    from geofeat.apps.tracking import refit_on_inliers
+
+    rng = np.random.default_rng(0)
+    five = rng.uniform([40, 40], [600, 440], (5, 2))
+    outliers = rng.uniform([0, 0], [640, 480], (30, 2))
+    src = np.vstack([np.repeat(five, 3, axis=0), rng.uniform([0, 0], [640, 480], (30, 2))])
+    dst = np.vstack([np.repeat(smooth_warp(five), 3, axis=0), outliers])
+    fit = fit_tps_ransac(src, dst)
+    assert not fit.ok and not fit.inliers.any()
+    refit = refit_on_inliers(src, dst, np.arange(len(src)) < 15)
+    assert not refit.ok and not refit.inliers.any()
+    # each copy gets its distinct match's verdict: the fit is the one without the copies
+    src = rng.uniform([40, 40], [600, 440], (60, 2))
+    dst = smooth_warp(src)
+    dst[40:] = rng.uniform([0, 0], [640, 480], (20, 2))
+    alone = fit_tps_ransac(src, dst)
+    copies = fit_tps_ransac(np.vstack([src, src[::3]]), np.vstack([dst, dst[::3]]))
+    assert alone.ok and copies.ok
+    np.testing.assert_array_equal(copies.inliers, np.concatenate([alone.inliers, alone.inliers[::3]]))
+    np.testing.assert_allclose(copies.warp(src), alone.warp(src))
+
+
 def crumple_warp(p: np.ndarray) -> np.ndarray:
     """A cloth shrunk to 0.55x and rippled (14 px waves, 250 px long) in both directions: smooth, but
     no thin-plate spline through 4 matches explains more than a small part of it."""
@@ -233,9 +261,14 @@ def test_refit_without_smoothing_on_a_repeated_point_fails_cleanly():
     src = rng.uniform(0, 200, (60, 2))
     src = np.vstack([src, src[:5]])
     dst = 1.1 * src + 3
+    dst[60:] += 0.5  # matched to a second frame point half a pixel away: no interpolating spline
     assert not refit_on_inliers(src, dst, np.ones(65, bool), regularisation=0.0).ok
     assert not fit_tps_ransac(src, dst, regularisation=0.0).ok
     assert fit_tps_ransac(src, dst).ok  # the default smoothing fits it
+    # an exact copy of a match (the same frame point too) counts once, and the spline through the others fits
+    same = 1.1 * src + 3
+    assert refit_on_inliers(src, same, np.ones(65, bool), regularisation=0.0).ok
+    assert fit_tps_ransac(src, same, regularisation=0.0).ok
 
 
 def test_roi_helpers():

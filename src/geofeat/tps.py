@@ -32,7 +32,7 @@ from .inputs import check_non_negative
 __all__ = [
     "ThinPlateSpline", "fit_tps", "authors_tps", "hartley_transform", "size_transform", "normalise_points",
     "check_pairs", "check_regularisation", "kernel", "system_matrix", "solve_batch", "evaluate_batch", "AUTHORS_EPS",
-    "MIN_POINTS", "spans_plane",
+    "MIN_POINTS", "spans_plane", "distinct_pairs",
 ]
 
 #: Kernel offset of the authors' splines: U(r) = r^2 log (r + 1e-6)^2 (the files hold weights of r^2 log(r + 1e-6)).
@@ -240,6 +240,22 @@ def check_pairs(src, dst, minimum: int) -> tuple[np.ndarray, np.ndarray]:
     if len(src) < minimum:
         raise ValueError(f"src, dst: a thin-plate spline needs >= {minimum} control points, got {len(src)}")
     return src, dst
+
+
+def distinct_pairs(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The distinct (src, dst) pairs of (N, 2), (N, 2) pixel matches: (src (M, 2), dst (M, 2), copy_of),
+    copy_of (N,) int64 the distinct pair of each match (so a verdict per distinct pair reads back as
+    verdict[copy_of]), in the order of their first occurrence; src and dst themselves and copy_of None
+    when no pair repeats. A repeated match (the same template and frame pixels, as SIFT's copies of
+    one keypoint with another orientation give) is no more evidence than one, so the robust fits
+    count it once."""
+    _, first, inverse = np.unique(np.hstack([src, dst]), axis=0, return_index=True, return_inverse=True)
+    if len(first) == len(src):
+        return src, dst, None
+    order = np.argsort(first)  # the distinct pairs in the order the matches first give them
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return src[first[order]], dst[first[order]], rank[inverse.reshape(-1)]
 
 
 def check_regularisation(regularisation: float) -> float:

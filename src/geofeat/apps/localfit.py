@@ -17,7 +17,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..inputs import check_positive, check_whole
-from ..tps import check_pairs
+from ..tps import check_pairs, distinct_pairs
 
 __all__ = ["locally_consistent", "NEIGHBOURS", "TRIALS", "LOCAL_TOLERANCE_PX"]
 
@@ -63,10 +63,9 @@ def locally_consistent(
     check_whole(neighbours, "neighbours", 3)  # an affine map needs 3 of them
     check_whole(trials, "trials", 1)
     check_positive(tolerance_px, "tolerance_px")
-    distinct, copy_of = np.unique(np.hstack([src, dst]), axis=0, return_inverse=True)
-    if len(distinct) < len(src):  # repeated matches: judge each distinct one once
-        return _locally_consistent(distinct[:, :2], distinct[:, 2:], neighbours, trials, tolerance_px,
-                                   seed)[copy_of.reshape(-1)]
+    src_d, dst_d, copy_of = distinct_pairs(src, dst)
+    if copy_of is not None:  # repeated matches: judge each distinct one once
+        return _locally_consistent(src_d, dst_d, neighbours, trials, tolerance_px, seed)[copy_of]
     return _locally_consistent(src, dst, neighbours, trials, tolerance_px, seed)
 
 

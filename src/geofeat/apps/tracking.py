@@ -52,7 +52,8 @@ from ..constants import N_KEYPOINTS
 from ..inputs import as_points, check_positive, check_whole
 from ..io import Sequence, frame_names, read_sequence, skipped_frame_line
 from ..outputs import plural
-from ..tps import ThinPlateSpline, check_pairs, check_regularisation, evaluate_batch, normalise_points, solve_batch
+from ..tps import (ThinPlateSpline, check_pairs, check_regularisation, distinct_pairs, evaluate_batch, normalise_points,
+                   solve_batch)
 
 if TYPE_CHECKING:
     from ..descriptors.describer import Describer
@@ -169,9 +170,12 @@ def fit_tps_ransac(
 
     Args:
         src, dst: (N, 2) matched pixels, template and frame.
+    Repeated matches (the same template and frame pixels) count once: as inliers, and towards
+    `min_inliers` (`geofeat.tps.distinct_pairs`); each copy gets its pair's verdict.
+
     Returns:
-        `RansacResult`; warp is None (fit failed) when fewer than `min_inliers` inliers remain or
-        N < max(sample_size, min_inliers).
+        `RansacResult`; warp is None (fit failed) when fewer than `min_inliers` distinct inliers remain or
+        fewer than max(sample_size, min_inliers) distinct matches are given.
     """
     src, dst = check_pairs(src, dst, 0)
     for name, value in (("sample_size", sample_size), ("iterations", iterations)):
@@ -183,6 +187,11 @@ def fit_tps_ransac(
     check_positive(threshold_px, "threshold_px")
     check_regularisation(regularisation)
     _check_refit_counts(min_inliers, refinements, max_centres)
+    src_d, dst_d, copy_of = distinct_pairs(src, dst)
+    if copy_of is not None:  # each copy counted as an inlier: 5 matches repeated 3 times passed min_inliers=10
+        fit = fit_tps_ransac(src_d, dst_d, threshold_px, sample_size, iterations, regularisation, min_inliers,
+                             refinements, max_centres, seed)
+        return RansacResult(fit.warp, fit.inliers[copy_of])
     n = len(src)
     failed = RansacResult(None, np.zeros(n, bool))
     if n < max(sample_size, min_inliers, 3):
@@ -222,7 +231,8 @@ def refit_on_inliers(
         src, dst: (N, 2) matched pixels, template and frame.
         start: (N,) bool first inliers (RANSAC's best hypothesis, or `locally_consistent`'s matches).
     Returns:
-        `RansacResult`; warp None when fewer than `min_inliers` inliers remain.
+        `RansacResult`; warp None when fewer than `min_inliers` distinct inliers remain (repeated
+        matches count once, as in `fit_tps_ransac`).
     """
     src, dst = check_pairs(src, dst, 0)
     check_positive(threshold_px, "threshold_px")
@@ -231,6 +241,12 @@ def refit_on_inliers(
     best = np.asarray(start, bool)
     if best.shape != (len(src),):
         raise ValueError(f"start: expected ({len(src)},) bool flags, one per match, got shape {best.shape}")
+    src_d, dst_d, copy_of = distinct_pairs(src, dst)
+    if copy_of is not None:  # a distinct match starts as an inlier when any of its copies does
+        first = np.zeros(len(src_d), bool)
+        np.logical_or.at(first, copy_of, best)
+        fit = refit_on_inliers(src_d, dst_d, first, threshold_px, regularisation, min_inliers, refinements, max_centres)
+        return RansacResult(fit.warp, fit.inliers[copy_of])
     if best.sum() < max(min_inliers, 3):
         return failed
     Ts, sn = normalise_points(src)
