@@ -746,6 +746,33 @@ def test_a_slow_runs_frames_per_second_keeps_its_significant_figures(sequence, t
     assert float(found.group(1)) == 500.0 and float(found.group(2)) == 0.004, md
 
 
+def test_every_sequences_template_roi_is_checked_before_any_tracking(sequence, tmp_path, monkeypatch):
+    """One --roi for two sequences, the second of smaller frames: its ROI was checked only when its
+    turn came, after the first sequence had been tracked, and the error threw those results away."""
+    import cv2
+
+    from geofeat.apps import tracking
+    from geofeat.io import read_intrinsics, write_intrinsics
+
+    first = _public_copy(sequence, tmp_path / "a", "frame-001")
+    small = _public_copy(sequence, tmp_path / "b", "frame-001")
+    for f in small.glob("*.csv"):
+        f.unlink()
+    for f in small.glob("*-rgb.png"):
+        cv2.imwrite(str(f), cv2.resize(cv2.imread(str(f)), (160, 120), interpolation=cv2.INTER_AREA))
+    for f in small.glob("*-depth.png"):
+        depth = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(f), cv2.resize(depth, (160, 120), interpolation=cv2.INTER_NEAREST))
+    K = read_intrinsics(small / "intrinsics.xml")
+    K[:2] /= 2
+    write_intrinsics(small / "intrinsics.xml", K)
+    tracked = []
+    monkeypatch.setattr(tracking, "track_sequence", lambda folder, *a, **k: tracked.append(folder))
+    with pytest.raises(ValueError, match=r"roi: \(60, 50, 260, 190\) is not a box inside the 160 x 120 image .*sequence b"):
+        write_tracking([first, small], tmp_path / "out", ("sift",), roi=(60, 50, 260, 190), progress=False)
+    assert tracked == [] and not (tmp_path / "out").exists()
+
+
 def test_a_template_roi_without_depth_says_so(sequence, tmp_path):
     """The reference frame without depth in the ROI: the error said only that the ROI "holds 0
     keypoints", as if the template had no texture; keypoints are dropped where there is no depth."""

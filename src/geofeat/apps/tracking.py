@@ -632,6 +632,26 @@ def track_sequence(
     return results
 
 
+def _template_roi(seq: Sequence, roi, tps_dir: str | None = None
+                 ) -> tuple["RGBDFrame", tuple[int, int, int, int], np.ndarray, str]:
+    """The template of `seq`: its reference frame, the checked (x0, y0, x1, y1) ROI (`roi`, or None for
+    `default_roi` of the object mask), the (H, W) bool object mask and its source (`object_mask`).
+    ValueError naming the sequence when the reference frame cannot be read, its object mask is empty
+    (no ROI given) or the ROI is not a box inside it."""
+    from .objectmask import object_mask
+
+    try:
+        ref = seq.frame(seq.reference)
+    except ValueError as error:  # named: a run over several sequences stops at this one
+        raise ValueError(f"sequence {seq.name}: the reference frame {seq.reference} cannot be used "
+                         f"({str(error).splitlines()[0]})") from None
+    mask, mask_source = object_mask(seq, seq.reference, tps_dir)
+    try:
+        return ref, check_roi(default_roi(mask) if roi is None else roi, ref.shape), mask, mask_source
+    except ValueError as error:  # one --roi for sequences of several sizes: say which one it misses
+        raise ValueError(f"{error} (sequence {seq.name}, reference frame {seq.reference})") from None
+
+
 @dataclass
 class _Template:
     """What stays fixed while one sequence is tracked.
@@ -673,18 +693,11 @@ class _Template:
         from ..descriptors.describer import Describer
         from ..groundtruth.sources import GroundTruth
         from ..keypoints import detect
-        from .objectmask import object_mask
 
         seq = read_sequence(folder, depth_scale=depth_scale)
         if len(seq) < 2:
             raise ValueError(f"sequence {seq.name}: needs a reference frame and at least one other frame, got {len(seq)} frame(s)")
-        try:
-            ref = seq.frame(seq.reference)
-        except ValueError as error:  # named: a run over several sequences stops at this one
-            raise ValueError(f"sequence {seq.name}: the reference frame {seq.reference} cannot be used "
-                             f"({str(error).splitlines()[0]})") from None
-        mask, mask_source = object_mask(seq, seq.reference, tps_dir)
-        roi = check_roi(default_roi(mask) if roi is None else roi, ref.shape)
+        ref, roi, mask, mask_source = _template_roi(seq, roi, tps_dir)
         x0, y0, x1, y1 = roi
         keypoints = detect(ref, n_keypoints, detector=detector)
         inside = ((keypoints.xy[:, 0] >= x0) & (keypoints.xy[:, 0] <= x1)
@@ -1166,6 +1179,10 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
             raise ValueError(f"tps-dir: no TPS files (<frame>_theta.npy, <frame>_objmask.png) for sequence "
                              f"{Path(folder).name} in {Path(tps_dir) / Path(folder).name} or "
                              f"{Path(tps_dir)}/*/{Path(folder).name}")
+        # the reference frame and the ROI of every sequence, before any work: a --roi outside a later
+        # sequence's smaller frames, or its unreadable reference, ended the run after the earlier
+        # sequences were tracked, and their results were thrown away
+        _template_roi(read_sequence(folder, depth_scale=depth_scale), roi, tps_dir)
     rows: list[dict] = []
     notes = []
     seconds = setup = 0.0
