@@ -146,6 +146,22 @@ def test_mismatched_descriptors_raise():
         match(np.zeros((2, 8), np.uint8), np.zeros((2, 8), np.uint8), ratio=1.5)
 
 
+def test_descriptors_without_values_are_refused():
+    """(N, 0) descriptors (a slice past the end, an empty dataset) had every distance 0: each keypoint
+    matched the first one of the other image, at distance 0, without a word."""
+    from geofeat.matching import distance_matrix
+
+    for dtype in (np.float32, np.uint8):
+        empty = np.zeros((5, 0), dtype)
+        with pytest.raises(ValueError, match=r"shape \(5, 0\) holds no values per keypoint"):
+            match(empty, np.zeros((4, 0), dtype))
+        with pytest.raises(ValueError, match="holds no values per keypoint"):
+            distance_matrix(empty, np.zeros((4, 0), dtype))
+    with pytest.raises(ValueError, match="holds no values per keypoint"):
+        match(np.zeros((3, 16, 0), np.uint8), np.zeros((2, 16, 0), np.uint8))
+    assert match(np.zeros((0, 0), np.float32), np.zeros((0, 0), np.float32)).matches0.shape == (0,)  # nothing to match
+
+
 def test_nan_descriptors_at_valid_keypoints_raise_but_invalid_ones_are_ignored():
     d = np.random.default_rng(0).normal(size=(4, 8)).astype(np.float32)
     bad = d.copy()

@@ -948,6 +948,15 @@ def check_finite_descriptors(descriptors: np.ndarray, valid: np.ndarray | None =
                          f"{bad[:5].tolist()}{' ...' if len(bad) > 5 else ''}; mark them invalid or drop them")
 
 
+def check_descriptor_length(shape: tuple[int, ...]) -> None:
+    """ValueError unless descriptors of shape (N, ...) hold at least one value per keypoint: with none
+    (an (N, 0) array, a slice past the end) every distance was 0, so each keypoint matched the first
+    one of the other image, without a word."""
+    if int(np.prod(shape[1:])) == 0:
+        raise ValueError(f"descriptors: shape {tuple(shape)} holds no values per keypoint; expected descriptors "
+                         "such as (N, 128) float or (N, 32) uint8")
+
+
 def _unpack(x, which: str) -> tuple[np.ndarray, np.ndarray]:
     if isinstance(x, Features):
         desc, valid = np.asarray(x.descriptors), np.asarray(x.valid, dtype=bool)
@@ -1031,6 +1040,8 @@ def match(
         raise ValueError(
             f"descriptors: trailing shapes differ: features0 {d0.shape} vs features1 {d1.shape}"
         )
+    if len(d0) or len(d1):  # two empty sets match nothing, whatever their width
+        check_descriptor_length(d0.shape)
     if metric is None:
         metric = metric_of_pair(d0, d1, valid=(valid0, valid1))
     if metric not in METRICS:
@@ -1140,6 +1151,8 @@ def distance_matrix(descriptors0: np.ndarray, descriptors1: np.ndarray, metric: 
     d0, d1 = np.asarray(descriptors0), np.asarray(descriptors1)
     if d0.ndim < 2 or d1.ndim < 2 or d0.shape[1:] != d1.shape[1:]:
         raise ValueError(f"descriptors: expected (N, ...) arrays of the same trailing shape, got {d0.shape} and {d1.shape}")
+    if len(d0) or len(d1):
+        check_descriptor_length(d0.shape)
     if metric is None:
         metric = metric_of_pair(d0, d1, ("descriptors0", "descriptors1"))
     if metric not in METRICS:
