@@ -773,6 +773,25 @@ def test_every_sequences_template_roi_is_checked_before_any_tracking(sequence, t
     assert tracked == [] and not (tmp_path / "out").exists()
 
 
+def test_a_descriptor_that_describes_too_few_template_keypoints_is_warned_of(tmp_path):
+    """A ROI along the image border on the shipped Kinect frame: FREAK drops every keypoint there, so
+    all its frames failed, even one identical to the template, and the tables said only "lost"."""
+    import shutil
+
+    from geofeat.io import demo_data_dir
+
+    folder = tmp_path / "kinect"
+    folder.mkdir()
+    shutil.copy(demo_data_dir() / "intrinsics.xml", folder)
+    for name in ("frame-000-master", "frame-001"):
+        for suffix in ("rgb", "depth"):
+            shutil.copy(demo_data_dir() / f"cloud_1-{suffix}.png", folder / f"{name}-{suffix}.png")
+    with pytest.warns(UserWarning, match=r"sequence kinect: freak describes 0 of the \d+ template keypoints") as seen:
+        results = track_sequence(folder, ("freak", "sift"), roi=(0, 20, 25, 460), refine="none", progress=False)
+    assert not [w for w in seen if "sift describes" in str(w.message)]
+    assert results["freak"].rows[0]["failed"] and not results["sift"].rows[0]["failed"]
+
+
 def test_a_template_roi_without_depth_says_so(sequence, tmp_path):
     """The reference frame without depth in the ROI: the error said only that the ROI "holds 0
     keypoints", as if the template had no texture; keypoints are dropped where there is no depth."""

@@ -40,6 +40,7 @@ from __future__ import annotations
 import csv
 import numbers
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -652,6 +653,18 @@ def _template_roi(seq: Sequence, roi, tps_dir: str | None = None
         raise ValueError(f"{error} (sequence {seq.name}, reference frame {seq.reference})") from None
 
 
+def _warn_if_undescribed(sequence: str, descriptor: str, described: int, total: int,
+                         roi: tuple[int, int, int, int]) -> None:
+    """Warn when `descriptor` described fewer of the `total` template keypoints than a fit keeps
+    (`MIN_INLIERS`): every frame then fails for it, which the tables showed as lost frames without a
+    reason (FREAK drops the keypoints near the image border, so a ROI along it left none)."""
+    if described < MIN_INLIERS:
+        warnings.warn(f"sequence {sequence}: {descriptor} describes {described} of the {total} template keypoints "
+                      f"in the ROI {roi} (it drops keypoints too near the image border, or without what it needs "
+                      f"there); a fit keeps at least {MIN_INLIERS} matches, so every frame will fail for "
+                      f"{descriptor}: move the ROI inward or choose another descriptor", UserWarning, stacklevel=2)
+
+
 @dataclass
 class _Template:
     """What stays fixed while one sequence is tracked.
@@ -718,6 +731,8 @@ class _Template:
         profile = sequence_depth_profile(seq, None, ref)
         describe = Describer(names, sequence_radius(seq, radius), profile)
         features = {name: f for name, (f, _) in describe(ref, keypoints).items()}
+        for name, f in features.items():
+            _warn_if_undescribed(seq.name, name, int(np.count_nonzero(f.valid)), len(keypoints), roi)
         roi_mask = np.zeros(ref.shape, bool)
         roi_mask[y0 : y1 + 1, x0 : x1 + 1] = True
         if (roi_mask & mask).sum() >= 0.25 * roi_mask.sum():  # the object's pixels, unless the mask misses the ROI
