@@ -167,13 +167,12 @@ def fit_tps_ransac(
     scored in one batch by `geofeat.tps.solve_batch` / `evaluate_batch`); the one with most inliers (destination residual below
     `threshold_px` pixels) is refitted to its inliers with smoothing `regularisation` (through at
     most `max_centres` of them, spread over the template: one per cell of a grid), and inliers
-    recomputed, up to `refinements` times or until they stop changing.
+    recomputed, up to `refinements` times or until they stop changing. Repeated matches (the same
+    template and frame pixels) count once: as inliers, and towards `min_inliers`
+    (`geofeat.tps.distinct_pairs`); each copy gets its pair's verdict.
 
     Args:
         src, dst: (N, 2) matched pixels, template and frame.
-    Repeated matches (the same template and frame pixels) count once: as inliers, and towards
-    `min_inliers` (`geofeat.tps.distinct_pairs`); each copy gets its pair's verdict.
-
     Returns:
         `RansacResult`; warp is None (fit failed) when fewer than `min_inliers` distinct inliers remain or
         fewer than max(sample_size, min_inliers) distinct matches are given.
