@@ -2,6 +2,7 @@
 
 import re
 
+import numpy as np
 import pytest
 
 import geofeat
@@ -102,6 +103,13 @@ def test_extract_and_match_on_a_sequence(rolled_sequence, tmp_path, capsys):
     assert main(["match", str(rolled_sequence), "--out", str(tmp_path / "m"), "--keypoints", "300"]) == 0
     m = geofeat.load_matches(tmp_path / "m" / "matches-geobit.h5", name="cloud_ref/cloud_roll30")
     assert (m.matches0 >= 0).sum() > 100
+    # the keypoints the matches index are written beside them (hloc's features.h5 + matches.h5): the
+    # reference's are GeoKey's on that frame, and every match points at a target keypoint that exists
+    f_ref = geofeat.load_features(tmp_path / "m" / "features-geobit.h5", name="cloud_ref")
+    f_tgt = geofeat.load_features(tmp_path / "m" / "features-geobit.h5", name="cloud_roll30")
+    ref_frame = geofeat.read_sequence(rolled_sequence).frame("cloud_ref")
+    assert np.allclose(f_ref.keypoints, geofeat.detect(ref_frame, n=300).xy, atol=1e-4)
+    assert len(m.matches0) == len(f_ref) and m.matches0.max() < len(f_tgt)
     total = re.search(r"total: (\d+) matches, (\d+) correct", capsys.readouterr().out)
     assert total and int(total.group(2)) > 50  # ground truth from a thin-plate spline on the csv landmarks
     assert (tmp_path / "m" / "cloud_ref__cloud_roll30__geobit.png").exists()

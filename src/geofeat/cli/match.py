@@ -13,7 +13,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add `match` to an argparse subparsers object; returns its parser."""
     p = subparsers.add_parser("match", help="match the reference frame of a sequence to every other frame")
     frames_options(p)
-    p.add_argument("--out", required=True, help="output folder (matches .h5 + pictures)")
+    p.add_argument("--out", required=True,
+                   help="output folder (matches .h5, the features .h5 whose keypoints they index, pictures)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace what geofeat wrote in an existing non-empty OUT (other files stay)")
     p.set_defaults(func=run)
@@ -28,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
     from ..groundtruth.sources import GroundTruth, correct_matches, judged_matches
     from ..depth import PROFILES, sequence_depth_profile
     from ..descriptors import make_descriptor
-    from ..features import save_matches
+    from ..features import save_features, save_matches
     from ..inputs import resolve_radius
     from ..io import read_sequence
     from ..matching import match
@@ -66,13 +67,19 @@ def run(args: argparse.Namespace) -> int:
     skipped: list[str] = []
     with output_folder(out) as tmp:
         matches_path = tmp / f"matches-{label}.h5"
+        # the keypoints the matches index, hloc's way (features.h5 beside matches.h5): without them
+        # matches0 pointed into keypoints no file held
+        features_path = tmp / f"features-{label}.h5"
+        save_features(features_path, f_ref, name=seq.reference)
         for name in tqdm(seq.targets, desc=f"match {args.descriptor}", unit="pair"):
             try:
                 tgt, k_tgt = frame_and_keypoints(seq, name, args)
-                m = match(f_ref, descriptor.compute(tgt, k_tgt))
+                f_tgt = descriptor.compute(tgt, k_tgt)
+                m = match(f_ref, f_tgt)
             except ValueError as error:
                 skip_frame(skipped, name, error)
                 continue
+            save_features(features_path, f_tgt, name=name)
             save_matches(matches_path, m, name=f"{seq.reference}/{name}")
             n_matches = int((m.matches0 >= 0).sum())
             total_matches += n_matches
@@ -99,5 +106,6 @@ def run(args: argparse.Namespace) -> int:
     judged_total = (f", {total_correct} correct" + (f", {total_unjudged} not judged (no ground truth)" if total_unjudged else "")
                     if truth is not None else " (no ground truth)")
     print(f"total: {plural(total_matches, 'match', 'matches')}{judged_total}")
-    print(f"wrote {out / f'matches-{label}.h5'} and one match picture per pair in {out}")
+    print(f"wrote {out / f'matches-{label}.h5'}, the features they index ({out / f'features-{label}.h5'}) "
+          f"and one match picture per pair in {out}")
     return status
