@@ -269,6 +269,28 @@ def test_torch_devices_fail_clearly_without_gpu():
     assert match(d, d, device="cpu").matches0.tolist() == [0, 1, 2, 3]
 
 
+@pytest.mark.skipif(CUDA, reason="checks the error without a GPU")
+def test_a_falsy_device_is_not_read_as_the_cpu():
+    """GeoPatch(device=0) (torch's cuda:0) or device="" ran the network on the CPU without a word
+    (`device or "cpu"`); match(device=0) already refused it. Both now refuse it alike."""
+    d = np.ones((2, 4), np.float32)
+    for device in (0, ""):
+        for call in (partial(GeoPatch, device=device), partial(match, d, d, device=device)):
+            with pytest.raises(ValueError, match="device: expected"):
+                call()
+
+
+@pytest.mark.parametrize("device", ["meta", "mps", "xpu", torch.device("meta")])
+def test_a_device_type_geofeat_does_not_run_on_is_a_value_error(device):
+    """A torch device of another type than cpu or cuda passed `torch_device` and failed later in torch
+    ("Cannot copy out of meta tensor", "Torch not compiled with XPU enabled", an AssertionError, with
+    no word of `device`); now one ValueError naming it, from GeoPatch and from match alike."""
+    d = np.ones((2, 4), np.float32)
+    for call in (partial(GeoPatch, device=device, backend="torch"), partial(match, d, d, device=device)):
+        with pytest.raises(ValueError, match="device: expected .*CPU and CUDA"):
+            call()
+
+
 @pytest.mark.skipif(not CUDA, reason="no CUDA GPU")
 def test_gpu_mesh_equals_cpu_mesh(pair):
     """`build_mesh_cuda` on the GPU against the host mesh, on the Kinect pair (its "kinect" profile

@@ -66,13 +66,18 @@ def torch_device(device):
     """The torch.device for `device` ("cpu", "cuda", "cuda:N" or a torch.device) for work that needs torch
     only (the GeoPatch network, `match(..., device=...)`): ValueError for a name torch does not know
     or a GPU index it does not see, and `require_cuda`'s RuntimeError for a CUDA device without a CUDA GPU (torch's own is an
-    AssertionError). The GPU walk needs `require_cuda`."""
+    AssertionError). Another device type torch knows ("mps", "xpu", "meta") is a ValueError too: geofeat
+    runs on the CPU and CUDA only (torch failed later, with "Torch not compiled with XPU enabled" or "Cannot
+    copy out of meta tensor"). The GPU walk needs `require_cuda`."""
     import torch
 
     try:
         dev = torch.device(device)
     except (RuntimeError, TypeError):
         raise ValueError(f"device: expected None, 'cpu' or 'cuda[:N]', got {device!r}") from None
+    if dev.type not in ("cpu", "cuda"):
+        raise ValueError(f"device: expected None, 'cpu' or 'cuda[:N]', got {device!r} (geofeat runs on the CPU "
+                         "and CUDA GPUs only)")
     if dev.type == "cuda" and not torch.cuda.is_available():
         raise RuntimeError(f"device={str(device)!r}: no CUDA GPU is available to torch (torch {torch.__version__}, "
                            f"built for CUDA {torch.version.cuda}); use device='cpu' or None")

@@ -239,7 +239,8 @@ class GeoPatch:
 
             from ..gpu import torch_device
 
-            self.device = torch_device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+            # `is None`, not falsy: device=0 (torch's cuda:0) or "" ran on the CPU without a word
+            self.device = torch_device(device if device is not None else ("cuda" if torch.cuda.is_available() else "cpu"))
             self.net, self.checkpoint = _torch_network(weights, self.device)
             self.config = self.net.config
         else:
