@@ -99,6 +99,39 @@ def test_baselines_that_use_the_given_angle_warn_on_unoriented_keypoints():
         geofeat.make_descriptor("freak").compute(frame, geokey)  # FREAK estimates its own orientation
 
 
+@pytest.mark.parametrize("name", ["orb", "daisy", "sift"])
+def test_angles_in_radians_warn(name, pair):
+    """Keypoint angles in radians (scikit-image's ORB orientations, np.arctan2) were read as degrees:
+    each patch turned by a 57th of its angle, and the descriptor lost its rotation invariance without
+    a word. They warn now; SIFT's degrees, and BRISK (which estimates its own angle), stay quiet."""
+    import warnings
+
+    f0, _, k0, _ = pair
+    radians = Keypoints(k0.xy, np.radians(k0.angles), k0.sizes, k0.responses)
+    with pytest.warns(UserWarning, match="radians"):
+        OpenCVDescriptor(name).compute(f0, radians)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        OpenCVDescriptor(name).compute(f0, k0)
+        OpenCVDescriptor("brisk").compute(f0, radians)
+
+
+def test_image_patch_descriptors_warn_on_angles_in_radians(pair):
+    """The image-patch descriptors (BRAND, DaLI, the TFeat- and Log-Polar-style nets) read their
+    keypoints through `keypoint_arrays`, which warns of radians as the OpenCV baselines do."""
+    import warnings
+
+    from geofeat.descriptors.patches import keypoint_arrays
+
+    f0, _, k0, _ = pair
+    with pytest.warns(UserWarning, match="radians"):
+        keypoint_arrays(Keypoints(k0.xy, np.radians(k0.angles), k0.sizes, k0.responses), "dali", f0.shape)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        keypoint_arrays(k0, "dali", f0.shape)
+        keypoint_arrays(k0.xy, "dali", f0.shape)  # bare positions: angle 0
+
+
 @pytest.mark.parametrize("name", BASELINES)
 def test_nan_or_infinite_angles_are_refused_by_name(name):
     """A NaN or infinite keypoint angle crashed the process in ORB (segmentation fault), was an

@@ -108,6 +108,24 @@ def check_angles(angles: np.ndarray, name: str) -> None:
                          "describes at the given angle: give angles in degrees (0 for upright keypoints)")
 
 
+#: Keypoints with a non-zero angle, all within one turn in radians, that make `warn_if_radians` warn: OpenCV's
+#: degrees in [0, 360) fall there for 8 keypoints with probability (2 pi / 360) ** 8, about 1e-14.
+RADIAN_EVIDENCE = 8
+
+
+def warn_if_radians(angles: np.ndarray, name: str) -> None:
+    """Warn when keypoint angles (N,) look like radians: at least `RADIAN_EVIDENCE` of them non-zero and
+    every one within [-2 pi, 2 pi]. Angles are degrees (OpenCV's convention, `Keypoints.angles`); radians
+    (scikit-image's ORB orientations, `np.arctan2`) turned each patch by a 57th of its angle, a
+    descriptor no longer rotation-invariant, without a word."""
+    a = np.asarray(angles, np.float64)
+    a = a[np.isfinite(a)]
+    if np.count_nonzero(a) >= RADIAN_EVIDENCE and np.abs(a).max() <= 2 * np.pi + 1e-6:
+        warnings.warn(f"{name}: every keypoint angle lies within [-2 pi, 2 pi] ({len(a)} keypoints, largest "
+                      f"{np.abs(a).max():.3g}): radians? Keypoint angles are degrees (OpenCV's convention); pass "
+                      "np.degrees(angles)", UserWarning, stacklevel=3)
+
+
 @dataclass
 class OpenCVDescriptor:
     """An OpenCV descriptor on given keypoints.
@@ -148,6 +166,8 @@ class OpenCVDescriptor:
         angles = np.zeros(n)
         if self.use_angle:
             check_angles(kps.angles, self.name)
+            if self.name in USES_GIVEN_ANGLE:  # BRISK and FREAK estimate their own
+                warn_if_radians(kps.angles, self.name)
             # the same angle in [0, 360): DAISY asserts that range (cv2.KeyPoint's default angle is -1)
             angles = np.mod(kps.angles, 360.0).astype(np.float32)
             angles[angles >= 360.0] = 0.0  # -1e-9 % 360 rounds to 360 in float32
