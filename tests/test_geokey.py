@@ -183,6 +183,15 @@ def test_a_float_n_is_refused_as_not_whole(detector):
         geofeat.detect(geofeat.read_demo_frame(), 2048.0, detector=detector)
 
 
+@pytest.mark.parametrize("option", ["threshold", "min_fraction", "denoise"])
+def test_a_geokey_option_with_sift_says_it_is_geokeys(option):
+    """detect(frame, detector="sift", threshold=...) failed with "detect_sift() got an unexpected keyword
+    argument 'threshold'", naming a function the user did not call and not SIFT's own threshold; now
+    it says the option is GeoKey's, as GeoKey names SIFT's options."""
+    with pytest.raises(TypeError, match=f"{option}.*apply to 'geokey' only.*contrast_threshold"):
+        geofeat.detect(geofeat.read_demo_frame(), 10, detector="sift", **{option: 0.5})
+
+
 def test_a_sift_keypoint_set_with_geokey_is_an_error():
     """'protocol' picks among SIFT's duplicate keypoints; GeoKey's are unique, so only 'unique' is accepted."""
     frame = geofeat.read_demo_frame()

@@ -28,6 +28,8 @@ DETECTORS = ("sift", "geokey")
 #: retrieval` use it for the geodesic descriptors and SIFT for the others, which need SIFT's orientation
 #: (`detector_for`). The benchmark (`geofeat bench`) keeps SIFT, the published protocol's detector.
 DEFAULT_DETECTOR = "geokey"
+#: Options of `detect` that only GeoKey takes.
+GEOKEY_OPTIONS = ("threshold", "min_fraction", "denoise")
 
 
 @dataclass(eq=False)
@@ -278,6 +280,10 @@ def detect(frame: RGBDFrame, n: int | None = N_KEYPOINTS, detector: str = DEFAUL
     detector = check_detector_name(detector)
     name, _, weights = detector.partition("=")
     if name == "sift":
+        geokey_only = sorted(set(options) & set(GEOKEY_OPTIONS))
+        if geokey_only:  # was "detect_sift() got an unexpected keyword argument 'threshold'"
+            raise TypeError(f"detector: options {geokey_only} apply to 'geokey' only (SIFT's threshold is "
+                            "contrast_threshold)")
         return detect_sift(frame, n, **options)
     n = _check_n(n)
     from .detectors.geokey import detect_geokey, load_geokey
