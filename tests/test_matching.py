@@ -173,6 +173,31 @@ def test_nan_descriptors_at_valid_keypoints_raise_but_invalid_ones_are_ignored()
     assert m[[0, 1, 3]].tolist() == [0, 1, 3] and m[2] in (0, 1, 3)
 
 
+def test_distance_matrix_refuses_what_match_refuses():
+    """`distance_matrix` ("the same metrics as match") gave a row and a column of NaN for a NaN
+    descriptor, which np.argmin reads as the smallest distance (a NaN target was every query's
+    nearest), and failed inside numpy's einsum on (N, R, D) float descriptors; both are now the
+    ValueError that `match` gives."""
+    from geofeat.matching import distance_matrix
+
+    d = np.random.default_rng(0).normal(size=(4, 8)).astype(np.float32)
+    bad = d.copy()
+    bad[2, 3] = np.nan
+    with pytest.raises(ValueError, match=r"descriptors1 has NaN.*\[2\]"):
+        distance_matrix(d, bad)
+    with pytest.raises(ValueError, match=r"descriptors0 has NaN"):
+        distance_matrix(bad, d)
+    with pytest.raises(ValueError, match=r"metric 'l2' expects \(N, D\)"):
+        distance_matrix(d.reshape(4, 2, 4), d.reshape(4, 2, 4))
+    assert distance_matrix(d, d).argmin(axis=1).tolist() == [0, 1, 2, 3]
+    # a NaN row marked invalid is not looked at (its distances are the caller's to mask)
+    valid = np.array([True, True, False, True])
+    D = distance_matrix(d, bad, valid1=valid)
+    assert np.isnan(D[:, 2]).all() and np.isfinite(np.delete(D, 2, axis=1)).all()
+    with pytest.raises(ValueError, match="valid1: expected one flag per row"):
+        distance_matrix(d, bad, valid1=valid[:3])
+
+
 @pytest.mark.parametrize("mutual", [False, True])
 @pytest.mark.parametrize("ratio", [None, 0.9])
 @pytest.mark.parametrize("n_rot", [3, 16])

@@ -1136,7 +1136,8 @@ def _hamming_matrix(q, t, out):
             out[i, j] = np.float32(m)
 
 
-def distance_matrix(descriptors0: np.ndarray, descriptors1: np.ndarray, metric: str | None = None) -> np.ndarray:
+def distance_matrix(descriptors0: np.ndarray, descriptors1: np.ndarray, metric: str | None = None,
+                    valid0: np.ndarray | None = None, valid1: np.ndarray | None = None) -> np.ndarray:
     """All pairwise descriptor distances, with the same metrics as `match`.
 
     Args:
@@ -1144,9 +1145,15 @@ def distance_matrix(descriptors0: np.ndarray, descriptors1: np.ndarray, metric: 
         descriptors1: (N1, ...) descriptors of the same trailing shape.
         metric: "l2", "hamming" or "hamming-rot" (GeoBit: d(i, j) = min over rotations k of
             Hamming(descriptors0[i, 0], descriptors1[j, k])); None chooses from dtype and rank.
+        valid0, valid1: (N0,), (N1,) bool, the keypoints whose descriptors are used (None: all); the
+            distances of the others are returned as computed (NaN for a NaN descriptor), for the
+            caller to mask.
 
     Returns:
         (N0, N1) float32 distances (bits for the Hamming metrics, Euclidean units for L2).
+
+    Float descriptors must be (N, D) and finite at the valid keypoints, as for `match` (ValueError
+    otherwise).
     """
     d0, d1 = np.asarray(descriptors0), np.asarray(descriptors1)
     if d0.ndim < 2 or d1.ndim < 2 or d0.shape[1:] != d1.shape[1:]:
@@ -1158,6 +1165,14 @@ def distance_matrix(descriptors0: np.ndarray, descriptors1: np.ndarray, metric: 
     if metric not in METRICS:
         raise ValueError(f"metric: expected one of {METRICS} or None, got {metric!r}")
     if metric == "l2":
+        if d0.ndim != 2:  # as `match`; einsum failed with "operand has more dimensions than subscripts"
+            raise ValueError(f"descriptors: metric 'l2' expects (N, D) arrays, got shape {d0.shape}")
+        # as `match`: a NaN row gave NaN distances, which np.argmin reads as the smallest (every query's nearest)
+        for d, valid, name in ((d0, valid0, "descriptors0"), (d1, valid1, "descriptors1")):
+            if valid is not None and np.shape(valid) != d.shape[:1]:
+                raise ValueError(f"valid{name[-1]}: expected one flag per row of {name} ({len(d)},), got shape "
+                                 f"{np.shape(valid)}")
+            check_finite_descriptors(d, None if valid is None else np.asarray(valid, bool), name)
         a, b = d0.astype(np.float64), d1.astype(np.float64)
         dist2 = np.einsum("ij,ij->i", a, a)[:, None] + np.einsum("ij,ij->i", b, b)[None, :] - 2.0 * (a @ b.T)
         return np.sqrt(np.maximum(dist2, 0.0)).astype(np.float32)

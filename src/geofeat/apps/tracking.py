@@ -326,7 +326,8 @@ def guided_matches(features0, features1, predicted0: np.ndarray, radius: float =
         return out
     check_finite_descriptors(features0.descriptors, features0.valid, "features0")
     check_finite_descriptors(features1.descriptors, features1.valid, "features1")
-    dist = distance_matrix(features0.descriptors, features1.descriptors).astype(np.float64)
+    dist = distance_matrix(features0.descriptors, features1.descriptors, valid0=features0.valid,
+                           valid1=features1.valid).astype(np.float64)
     # (N0, N1) squared pixel distances; NaN predictions compare False, so they never match
     near = cdist(predicted0, np.asarray(features1.keypoints, float), "sqeuclidean") < radius**2
     allowed = near & features0.valid[:, None] & features1.valid[None, :]
