@@ -13,7 +13,7 @@ TFeat-like and shallow, as in the paper, with circular padding on the angle axis
 convolution and the paper's max-pool over angle before the fully connected layer (the authors'
 shipped network has neither the angle max-pool nor this size: it flattens into an 854k-parameter
 dense head). `GeoPatchConfig` defaults to half the paper's channels (16/32/64), the earlier
-speed-first choice; the shipped weights (v8) use the paper's 32/64/128 (at equal training they
+speed-first choice; the shipped weights (v9) use the paper's 32/64/128 (at equal training they
 scored 0.227 against 0.204 on the `hard` test sequences) and cost 1.6x the half-width net (0.22 s for 2048 patches on 2
 CPU threads); the checkpoint carries its own shape. See BENCHMARKS.md. `angle_pool=False` flattens
 instead (the ablation without rotation invariance).
