@@ -138,6 +138,24 @@ def test_the_device_is_checked_before_training(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_falsy_device_is_torchs_cuda_0_not_the_cpu(tmp_path, monkeypatch):
+    """device=0 is torch's cuda:0 and "" no device at all: both trainers read them as "not given"
+    (`device or ...`) and trained on the CPU without a word. Without a CUDA GPU both are now errors
+    naming the device, for GeoPatch's and GeoKey's trainers alike."""
+    from geofeat.train.detector import fit
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    config = TrainConfig(epochs=1, steps_per_epoch=1, batch_size=8, net=NET)
+    x, y = np.zeros((16, 9), np.float32), np.r_[np.zeros(8), np.ones(8)]
+    for run in (lambda device: train(_data(), tmp_path / "w.pt", config, progress=False, device=device),
+                lambda device: fit(x, y, steps=1, batch=8, device=device)):
+        with pytest.raises((RuntimeError, ValueError), match="no CUDA GPU|device: expected"):
+            run(0)  # a CPU build of torch has no accelerator for an index to name: not a device at all
+        with pytest.raises(ValueError, match="device: expected"):
+            run("")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_hardest_mining_never_takes_another_view_of_the_same_point_for_a_negative():
     """With fewer surface points than the batch, the sampler draws a point twice; hardest mining took
     the second pair for a negative of the first and pushed two views of one point apart."""

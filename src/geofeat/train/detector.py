@@ -179,7 +179,10 @@ def fit(x: np.ndarray, y: np.ndarray, hidden: tuple[int, ...] | None = (32, 32),
 
     if len(x) == 0:
         raise ValueError("data: no training candidates (are the sequences empty?)")
-    device = device or ("cuda" if torch.cuda.is_available() else "cpu")
+    from ..gpu import torch_device
+
+    # `is None`, not falsy: device=0 (torch's cuda:0) trained on the CPU without a word
+    device = torch_device(device if device is not None else ("cuda" if torch.cuda.is_available() else "cpu"))
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     mean = x.mean(axis=0).astype(np.float32)

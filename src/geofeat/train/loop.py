@@ -261,7 +261,8 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
     `check_train_out`: an existing `out`, or files beside it, only with `overwrite`, or when resuming
     its run); every file is written whole or not at all."""
     check_train_config(config)
-    device = torch_device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    # `is None`, not falsy: device=0 (torch's cuda:0) trained on the CPU without a word
+    device = torch_device(device if device is not None else ("cuda" if torch.cuda.is_available() else "cpu"))
     out = check_train_out(out, overwrite, resume)
     ckpt_path = out.with_suffix(out.suffix + ".ckpt")
     torch.manual_seed(config.seed)
