@@ -639,3 +639,21 @@ def test_an_empty_landmark_csv_is_refused_not_read_as_no_landmarks(tmp_path, tex
     path.write_text("id,x,y,valid\n")
     ids, xy, visible = read_landmarks(path)
     assert ids.shape == (0,) and xy.shape == (0, 2) and visible.shape == (0,)
+
+
+def test_a_depth_png_read_as_8_bits_is_not_taken_for_metres(tmp_path):
+    """`cv2.imread(depth_png, cv2.IMREAD_GRAYSCALE)` keeps the high byte of millimetres: the Kinect
+    frame's 0.7-1.1 m became 2-4, and RGBDFrame took that for metres without a word (write_frame wrote
+    it as 2-4 mm)."""
+    src = demo_data_dir()
+    image = cv2.imread(str(src / "cloud_1-rgb.png"))
+    depth8 = cv2.imread(str(src / "cloud_1-depth.png"), cv2.IMREAD_GRAYSCALE)
+    assert depth8.dtype == np.uint8 and 2 <= np.median(depth8[depth8 > 0]) <= 4  # plausible as metres
+    K = read_intrinsics(src / "intrinsics.xml")
+    with pytest.raises(ValueError, match=r"depth: 8-bit values \(uint8\) are no depth in metres.*read_depth"):
+        geofeat.RGBDFrame(image, depth8, K)
+    with pytest.raises(ValueError, match=r"depth: 8-bit values"):
+        write_frame(tmp_path, "f", image, depth8)
+    assert not list(tmp_path.iterdir())
+    frame = geofeat.RGBDFrame(image, read_depth(src / "cloud_1-depth.png"), K)  # the reader's metres
+    assert 0.6 < np.median(frame.depth[frame.depth > 0]) < 1.2

@@ -11,8 +11,8 @@ import cv2
 import numpy as np
 
 from .constants import MAX_PLAUSIBLE_DEPTH_M, MIN_FRAME_SIDE_PX
-from .inputs import (PLAUSIBLE_MEDIAN_DEPTH_M, DepthUnitsWarning, as_points, check_focal_lengths, check_principal_point,
-                     unmask_depth)
+from .inputs import (PLAUSIBLE_MEDIAN_DEPTH_M, DepthUnitsWarning, as_points, check_focal_lengths, check_not_8bit_depth,
+                     check_principal_point, unmask_depth)
 
 
 def to_gray(image: np.ndarray, warn_dark: bool = True) -> np.ndarray:
@@ -127,6 +127,7 @@ def check_depth(depth: np.ndarray, shape: tuple[int, int] | None = None, warn_ne
         raise ValueError(f"depth: shape {depth.shape} differs from the image shape {shape}")
     if depth.dtype.kind not in "fiu":
         raise TypeError(f"depth: expected a numeric array in metres, got dtype {depth.dtype}")
+    check_not_8bit_depth(depth)
     depth = depth.astype(np.float32)
     if not np.isfinite(depth).all():
         raise ValueError("depth: contains NaN or infinite values; use 0 for missing depth")

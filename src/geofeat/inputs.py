@@ -235,6 +235,16 @@ def unmask_depth(depth: Any) -> Any:
     return depth.filled(0) if isinstance(depth, np.ma.MaskedArray) else depth
 
 
+def check_not_8bit_depth(depth: np.ndarray, what: str = "depth") -> None:
+    """ValueError naming `what` for an 8-bit integer depth map: no depth in metres is stored in whole
+    metres, but a 16-bit depth PNG read as 8 bits (`cv2.imread(path, cv2.IMREAD_GRAYSCALE)`, PIL's
+    `convert("L")`) is: its high byte, 2-4 for a scene at 0.5-1.1 m, which passed as metres."""
+    if depth.dtype.kind in "iu" and depth.dtype.itemsize == 1:
+        raise ValueError(f"{what}: 8-bit values ({depth.dtype}) are no depth in metres; a 16-bit depth PNG read as 8 "
+                         "bits (cv2.IMREAD_GRAYSCALE, PIL's convert('L')) keeps only its high byte: read it with "
+                         "geofeat.read_depth(path, depth_scale), which gives metres")
+
+
 def as_points(xy: Any, what: str = "xy") -> np.ndarray:
     """An (N, 2) array of (x, y) pixels as float64 (an empty one as (0, 2)); NaN rows are kept for the
     caller to read as unknown. Any other shape is a ValueError naming `what`: reshaping a (2, N) array

@@ -25,7 +25,8 @@ import numpy as np
 from .constants import DEFAULT_RADIUS_M, DEPTH_SCALE_M
 from .frame import RGBDFrame, _warn_if_dark, check_depth
 from .inputs import (check_depth_plausible, check_depth_scale, check_intrinsics_for_image, check_landmarks,
-                     check_unique_names, is_reference_name, read_config, unmask_depth, warn_depth_units)
+                     check_not_8bit_depth, check_unique_names, is_reference_name, read_config, unmask_depth,
+                     warn_depth_units)
 
 RGB_SUFFIX = "-rgb.png"
 DEPTH_SUFFIX = "-depth.png"
@@ -276,6 +277,7 @@ def write_frame(folder: str | Path, name: str, color: np.ndarray, depth: np.ndar
     color, depth = np.asarray(color), np.asarray(unmask_depth(depth))  # masked pixels: missing depth (0)
     if depth.ndim != 2 or depth.dtype.kind not in "fiu":
         raise ValueError(f"depth: expected an (H, W) array of metres, got shape {depth.shape}, dtype {depth.dtype}")
+    check_not_8bit_depth(depth)  # written as 2-4 mm
     if color.shape[:2] != depth.shape or color.ndim not in (2, 3) or (color.ndim == 3 and color.shape[2] not in (1, 3, 4)):
         raise ValueError(f"color: expected shape (H, W, 3) or (H, W) with the depth's (H, W) = {depth.shape}, "
                          f"got {color.shape}")
