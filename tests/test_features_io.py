@@ -353,3 +353,26 @@ def test_float16_keypoints_far_enough_from_the_origin_to_be_rounded_are_read_wit
                                          r"\(1 of 20 keypoints have a coordinate >= 512 px"):
         f = load_features(path, "far")
     assert f.keypoints[3, 0] == 2100.0  # read as stored
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".h5"])
+def test_descriptors_that_are_not_numbers_are_refused_before_a_file_is_written(tmp_path, suffix):
+    """An object array (a pandas column of per-keypoint arrays) was taken: its .npz was written pickled
+    and then refused by load_features ("Object arrays cannot be loaded"), and its .h5 write raised
+    h5py's bare TypeError after the group's old datasets were deleted."""
+    rng = np.random.default_rng(0)
+    kept = make_features()
+    kept.keypoints = kept.keypoints.astype(np.float32).astype(np.float64)  # as an .h5 file stores them
+    path = tmp_path / f"f{suffix}"
+    save_features(path, kept, "img")
+    per_keypoint = np.empty(len(kept), dtype=object)
+    per_keypoint[:] = list(rng.random((len(kept), 8)).astype(np.float32))
+    for descriptors, message in ((per_keypoint, r"dtype object; .*np.stack\(descriptors\)"),
+                                 (np.full((len(kept), 4), "a"), "dtype <U1"),
+                                 (np.ones((len(kept), 4), complex), "dtype complex128")):
+        with pytest.raises(TypeError, match="descriptors: expected an .* array of numbers.*" + message):
+            save_features(path, Features(kept.keypoints, descriptors, None), "img")
+    assert load_features(path, "img") == kept  # the file as it was
+    stacked = Features(kept.keypoints, np.stack(per_keypoint), None)
+    save_features(path, stacked, "img")
+    assert load_features(path, "img") == stacked

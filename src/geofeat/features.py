@@ -61,7 +61,8 @@ class Features:
 
     Attributes:
         keypoints: (N, 2) float64 image pixel coordinates (x, y), OpenCV convention.
-        descriptors: (N, ...) array, e.g. (N, 16, 64) uint8 for GeoBit, (N, 128) float32 for GeoPatch.
+        descriptors: (N, ...) array of numbers, e.g. (N, 16, 64) uint8 for GeoBit, (N, 128) float32 for
+            GeoPatch; another dtype (object, str, complex) raises TypeError.
         valid: (N,) bool; False where no descriptor could be computed (such keypoints never match).
             Given as numbers, only 0 and 1 are flags: other values (scores) raise ValueError.
         angles: optional (N,) detector orientation, degrees as OpenCV reports it.
@@ -97,6 +98,13 @@ class Features:
                              "without a descriptor with valid=False instead)")
         n = kp.shape[0]
         desc = np.asarray(self.descriptors)
+        if desc.dtype.kind not in "biuf":
+            # an object array (a pandas column of arrays) was kept: its .npz was written pickled and then
+            # refused by load_features, and h5py's "no native HDF5 equivalent" came after the group's old
+            # datasets were deleted
+            hint = "; for an array of per-keypoint arrays: np.stack(descriptors)" if desc.dtype == object else ""
+            raise TypeError(f"descriptors: expected an (N, ...) array of numbers (float, or uint8 bits), got dtype "
+                            f"{desc.dtype}{hint}")
         if desc.ndim < 1 or desc.shape[0] != n:
             raise ValueError(f"descriptors: expected first axis N={n}, got shape {desc.shape}")
         valid = np.ones(n, bool) if self.valid is None else np.asarray(self.valid)
