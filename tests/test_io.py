@@ -657,3 +657,21 @@ def test_a_depth_png_read_as_8_bits_is_not_taken_for_metres(tmp_path):
     assert not list(tmp_path.iterdir())
     frame = geofeat.RGBDFrame(image, read_depth(src / "cloud_1-depth.png"), K)  # the reader's metres
     assert 0.6 < np.median(frame.depth[frame.depth > 0]) < 1.2
+
+
+@pytest.mark.parametrize("node, held", [
+    ('<intrinsics>525 0 319.5 0 525 239.5 0 0 1</intrinsics>', "a plain sequence of 9 values"),
+    ('<intrinsics type_id="opencv-matrix"><rows>3</rows><cols>3</cols><dt>d</dt><data>525 0 319.5 0 525 239.5 0 0'
+     '</data></intrinsics>', "an opencv-matrix whose data does not match its rows, cols and dt"),
+    ('<intrinsics type_id="opencv-matrix"><rows>3</rows><cols>4</cols><dt>d</dt><data>525 0 319.5 0 0 525 239.5 0 0 0 '
+     '1 0</data></intrinsics>', "a 3x4 matrix"),
+])
+def test_an_intrinsics_node_that_is_no_3x3_matrix_says_what_it_holds(tmp_path, node, held):
+    """A hand-written node 'intrinsics' (nine plain numbers, a value short, a 3x4 projection matrix) was
+    "no 3x3 matrix under the node 'intrinsics' (its nodes: intrinsics; rename the camera matrix's to
+    'intrinsics')": advice to rename the node to the name it has."""
+    (tmp_path / "intrinsics.xml").write_text(f'<?xml version="1.0"?>\n<opencv_storage>\n{node}\n</opencv_storage>\n')
+    with pytest.raises(ValueError, match=rf"intrinsics.xml: its node 'intrinsics' holds {held}.*, not a 3x3 "
+                                         r"opencv-matrix; .*write_intrinsics") as error:
+        read_intrinsics(tmp_path / "intrinsics.xml")
+    assert "rename" not in str(error.value)

@@ -158,7 +158,9 @@ def _existing(path: str | Path, what: str) -> Path:
 
 
 def read_intrinsics(path: str | Path) -> np.ndarray:
-    """Read the (3, 3) camera matrix from an OpenCV FileStorage `intrinsics.xml` (node `intrinsics`)."""
+    """Read the (3, 3) camera matrix from an OpenCV FileStorage `intrinsics.xml` (node `intrinsics`).
+    ValueError naming the file when the node is missing (naming the nodes it has) or holds no 3x3
+    opencv-matrix (saying what it holds: a 3x4 matrix, nine plain numbers, ...)."""
     if isinstance(path, (str, os.PathLike)) and not Path(path).is_file() and Path(path).parent.is_dir():
         # a K saved as text, NumPy or YAML beside the intrinsics.xml a sequence needs
         others = [p for p in Path(path).parent.iterdir()
@@ -174,17 +176,35 @@ def read_intrinsics(path: str | Path) -> np.ndarray:
         raise ValueError(f"intrinsics_path: cannot parse {path} as OpenCV FileStorage; {_INTRINSICS_HINT}")
     try:
         node = fs.getNode("intrinsics")
-        try:
-            K = None if node.empty() else node.mat()
-        except (cv2.error, SystemError):
-            K = None
-        nodes = [] if K is not None else list(fs.root().keys())
+        K, held = None, None
+        if not node.empty():
+            try:
+                K = node.mat()
+            except (cv2.error, SystemError):
+                K = None
+            held = _node_contents(node, K)
+        nodes = list(fs.root().keys())
     finally:
         fs.release()
-    if K is None or np.asarray(K).shape != (3, 3):
-        holds = f" (its nodes: {', '.join(nodes[:5])}; rename the camera matrix's to 'intrinsics')" if nodes else ""
-        raise ValueError(f"intrinsics_path: {path} has no 3x3 matrix under the node 'intrinsics'{holds}")
-    return np.asarray(K, dtype=np.float64)
+    if K is not None and np.asarray(K).shape == (3, 3):
+        return np.asarray(K, dtype=np.float64)
+    if held is not None:  # "rename the camera matrix's node to 'intrinsics'" was the advice for it too
+        raise ValueError(f"intrinsics_path: {path}: its node 'intrinsics' holds {held}, not a 3x3 opencv-matrix; "
+                         f"{_INTRINSICS_HINT}")
+    holds = f" (its nodes: {', '.join(nodes[:5])}; rename the camera matrix's to 'intrinsics')" if nodes else ""
+    raise ValueError(f"intrinsics_path: {path} has no 3x3 matrix under the node 'intrinsics'{holds}")
+
+
+def _node_contents(node, matrix: np.ndarray | None) -> str:
+    """What an OpenCV FileStorage `node` holds, in words, given its `matrix` (None where OpenCV could not
+    read it as one): "a 3x4 matrix", "a plain sequence of 9 values", ..."""
+    if matrix is not None:
+        return f"a {'x'.join(map(str, np.shape(matrix)))} matrix"
+    if node.isSeq():
+        return f"a plain sequence of {node.size()} values"
+    if node.isMap() and "data" in node.keys():
+        return "an opencv-matrix whose data does not match its rows, cols and dt (it needs rows x cols numbers)"
+    return "a single value" if node.isReal() or node.isInt() or node.isString() else "no matrix"
 
 
 def write_intrinsics(path: str | Path, K: np.ndarray) -> None:
