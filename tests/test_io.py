@@ -1,7 +1,9 @@
 """Readers of the public dataset layout, on the shipped real Kinect frame."""
 
 import json
+import re
 import shutil
+import warnings
 
 import cv2
 import numpy as np
@@ -675,3 +677,26 @@ def test_an_intrinsics_node_that_is_no_3x3_matrix_says_what_it_holds(tmp_path, n
                                          r"opencv-matrix; .*write_intrinsics") as error:
         read_intrinsics(tmp_path / "intrinsics.xml")
     assert "rename" not in str(error.value)
+
+
+def test_lens_distortion_beside_the_intrinsics_is_not_dropped_without_a_word(tmp_path):
+    """OpenCV's calibration output with its `camera_matrix` renamed to `intrinsics` (as the error for
+    that file advises) keeps `distortion_coefficients`: geofeat projects as a pinhole and ignored them
+    without a word (k1 = 0.2 moves a VGA corner by tens of pixels)."""
+    src = demo_data_dir()
+    K = read_intrinsics(src / "intrinsics.xml")
+    for name, coefficients, warned in (("distortion_coefficients", [[0.2, -0.5, 0.001, 0.0, 0.3]], True),
+                                       ("D", [[0.0, 0.0, 0.0, 0.0, 0.0]], False)):  # undistorted: nothing to say
+        fs = cv2.FileStorage(str(tmp_path / "intrinsics.xml"), cv2.FILE_STORAGE_WRITE)
+        fs.write("intrinsics", K)
+        fs.write(name, np.array(coefficients))
+        fs.release()
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            frame = geofeat.read_frame(src / "cloud_1-rgb.png", src / "cloud_1-depth.png", tmp_path / "intrinsics.xml")
+        np.testing.assert_array_equal(frame.K, K)
+        messages = [str(w.message) for w in caught if "distortion" in str(w.message)]
+        assert len(messages) == warned
+        if warned:
+            assert re.search(r"intrinsics.xml holds lens distortion coefficients \(node 'distortion_coefficients': "
+                             r"\[0.2, -0.5, 0.001, 0.0, 0.3\]\), which geofeat does not apply.*Undistort", messages[0])

@@ -15,6 +15,7 @@ from __future__ import annotations
 import hashlib
 import os
 import re
+import warnings
 from dataclasses import dataclass
 from decimal import Decimal
 from pathlib import Path
@@ -160,7 +161,9 @@ def _existing(path: str | Path, what: str) -> Path:
 def read_intrinsics(path: str | Path) -> np.ndarray:
     """Read the (3, 3) camera matrix from an OpenCV FileStorage `intrinsics.xml` (node `intrinsics`).
     ValueError naming the file when the node is missing (naming the nodes it has) or holds no 3x3
-    opencv-matrix (saying what it holds: a 3x4 matrix, nine plain numbers, ...)."""
+    opencv-matrix (saying what it holds: a 3x4 matrix, nine plain numbers, ...). Non-zero lens
+    distortion coefficients in the file (a node named `D` or `*dist*`) warn: geofeat projects as a
+    pinhole and does not apply them."""
     if isinstance(path, (str, os.PathLike)) and not Path(path).is_file() and Path(path).parent.is_dir():
         # a K saved as text, NumPy or YAML beside the intrinsics.xml a sequence needs
         others = [p for p in Path(path).parent.iterdir()
@@ -184,15 +187,36 @@ def read_intrinsics(path: str | Path) -> np.ndarray:
                 K = None
             held = _node_contents(node, K)
         nodes = list(fs.root().keys())
+        distortion = {name: values for name in nodes if name.lower() == "d" or "dist" in name.lower()
+                      for values in [_node_numbers(fs.getNode(name))] if values is not None and values.any()}
     finally:
         fs.release()
     if K is not None and np.asarray(K).shape == (3, 3):
+        if distortion:  # every projection in geofeat is a pinhole's: the coefficients were dropped without a word
+            name, values = next(iter(distortion.items()))
+            warnings.warn(f"intrinsics_path: {path} holds lens distortion coefficients (node '{name}': "
+                          f"{np.round(values, 4).tolist()}), which geofeat does not apply: it reads frames as pinhole "
+                          "images. Undistort the colour and depth first (cv2.undistort; nearest-neighbour for depth) "
+                          "and drop the node, or drop it if the frames are undistorted already", UserWarning,
+                          stacklevel=2)
         return np.asarray(K, dtype=np.float64)
     if held is not None:  # "rename the camera matrix's node to 'intrinsics'" was the advice for it too
         raise ValueError(f"intrinsics_path: {path}: its node 'intrinsics' holds {held}, not a 3x3 opencv-matrix; "
                          f"{_INTRINSICS_HINT}")
     holds = f" (its nodes: {', '.join(nodes[:5])}; rename the camera matrix's to 'intrinsics')" if nodes else ""
     raise ValueError(f"intrinsics_path: {path} has no 3x3 matrix under the node 'intrinsics'{holds}")
+
+
+def _node_numbers(node) -> np.ndarray | None:
+    """The numbers of an OpenCV FileStorage `node` that is a matrix or a sequence of numbers, flattened;
+    None for any other node (a single number, a string, a map)."""
+    try:
+        if node.isSeq():
+            return np.array([node.at(i).real() for i in range(node.size())], dtype=np.float64)
+        matrix = node.mat() if node.isMap() else None
+    except (cv2.error, SystemError):
+        return None
+    return None if matrix is None else np.asarray(matrix, dtype=np.float64).ravel()
 
 
 def _node_contents(node, matrix: np.ndarray | None) -> str:
