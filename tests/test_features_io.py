@@ -376,3 +376,24 @@ def test_descriptors_that_are_not_numbers_are_refused_before_a_file_is_written(t
     stacked = Features(kept.keypoints, np.stack(per_keypoint), None)
     save_features(path, stacked, "img")
     assert load_features(path, "img") == stacked
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".h5"])
+def test_a_record_changed_after_it_was_made_is_not_saved_unreadable(tmp_path, suffix):
+    """The records are mutable: keypoints filtered without their descriptors, or a NaN written in place,
+    were saved without a word, and load_features / load_matches then refused the file."""
+    path = tmp_path / f"f{suffix}"
+    features = make_features()
+    features.keypoints = features.keypoints[features.valid]  # the descriptors and flags left as they were
+    with pytest.raises(ValueError, match=r"features: descriptors: expected first axis N=\d, got shape \(7, 16, 64\) "
+                                         r"\(changed after the record was made\?"):
+        save_features(path, features, "img")
+    features = make_features()
+    features.keypoints[2] = np.nan
+    with pytest.raises(ValueError, match="features: keypoints: 1 not finite"):
+        save_features(path, features, "img")
+    matches = Matches(np.array([0, -1, 1]), np.array([1.0, np.inf, 2.0]))
+    matches.matches0 = np.array([0, 1])
+    with pytest.raises(ValueError, match=r"matches: distances0: expected shape \(2,\)"):
+        save_matches(tmp_path / f"m{suffix}", matches, "a/b")
+    assert not path.exists() and not (tmp_path / f"m{suffix}").exists()

@@ -351,12 +351,26 @@ def list_names(path: str | Path) -> list[str]:
         return _h5_leaf_groups(fd)
 
 
+def _checked_again(record, fields: tuple[str, ...]):
+    """A `Features` or `Matches` record built again from its `fields`, so checked as its constructor
+    checks one: the records are mutable, and one whose fields were replaced or edited after it was made
+    (keypoints filtered without their descriptors, a NaN written in place) was saved without a word and
+    then refused by the loader. Same error type, naming the record."""
+    try:
+        return type(record)(*(getattr(record, name) for name in fields))
+    except (TypeError, ValueError) as error:
+        raise type(error)(f"{type(record).__name__.lower()}: {error} (changed after the record was made? a file "
+                          "is written only when it can be read back)") from None
+
+
 def save_features(path: str | Path, features: Features, name: str | None = None) -> None:
     """Write `features` to an .npz file (one image per file; `name`, when given, is kept with it and
     checked by `load_features`) or into group `name` of an .h5 file (hloc features.h5 layout; other
-    groups of the file are kept, an existing `name` is replaced)."""
+    groups of the file are kept, an existing `name` is replaced). The record is checked again first (as
+    its constructor checks it): one edited after it was made so that it no longer loads is refused."""
     if not isinstance(features, Features):
         raise TypeError(f"features: expected a Features record, got {type(features).__name__}")
+    features = _checked_again(features, ("keypoints", "descriptors", "valid", "angles", "sizes", "scores"))
     arrays = {
         "keypoints": features.keypoints.astype(np.float32 if _suffix(path) == ".h5" else np.float64),
         "descriptors": features.descriptors,
@@ -494,6 +508,7 @@ def save_matches(path: str | Path, matches: Matches, name: str | None = None) ->
     hloc's names_to_pair would make) of an .h5 file."""
     if not isinstance(matches, Matches):
         raise TypeError(f"matches: expected a Matches record, got {type(matches).__name__}")
+    matches = _checked_again(matches, ("matches0", "distances0"))
     arrays = {"matches0": matches.matches0.astype(np.int64), "distances": matches.distances0}
     if _suffix(path) == ".npz":
         write_npz(path, _npz_with_name(arrays, name))
