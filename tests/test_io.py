@@ -667,13 +667,17 @@ def test_a_depth_png_read_as_8_bits_is_not_taken_for_metres(tmp_path):
      '</data></intrinsics>', "an opencv-matrix whose data does not match its rows, cols and dt"),
     ('<intrinsics type_id="opencv-matrix"><rows>3</rows><cols>4</cols><dt>d</dt><data>525 0 319.5 0 0 525 239.5 0 0 0 '
      '1 0</data></intrinsics>', "a 3x4 matrix"),
+    ("%YAML:1.0\n---\nintrinsics: [[525, 0, 319.5], [0, 525, 239.5], [0, 0, 1]]\n", "a plain sequence of 3 rows"),
+    ("%YAML:1.0\n---\nintrinsics:\n  rows: 3\n  cols: 3\n  data: [525, 0, 319.5, 0, 525, 239.5, 0, 0, 1]\n",
+     r"a map of rows, cols, data \(an opencv-matrix has rows, cols, dt and data\)"),  # ROS's camera_info
 ])
 def test_an_intrinsics_node_that_is_no_3x3_matrix_says_what_it_holds(tmp_path, node, held):
     """A hand-written node 'intrinsics' (nine plain numbers, a value short, a 3x4 projection matrix) was
     "no 3x3 matrix under the node 'intrinsics' (its nodes: intrinsics; rename the camera matrix's to
     'intrinsics')": advice to rename the node to the name it has."""
-    (tmp_path / "intrinsics.xml").write_text(f'<?xml version="1.0"?>\n<opencv_storage>\n{node}\n</opencv_storage>\n')
-    with pytest.raises(ValueError, match=rf"intrinsics.xml: its node 'intrinsics' holds {held}.*, not a 3x3 "
+    text = node if node.startswith("%YAML") else f'<?xml version="1.0"?>\n<opencv_storage>\n{node}\n</opencv_storage>\n'
+    (tmp_path / "intrinsics.xml").write_text(text)
+    with pytest.raises(ValueError, match=rf"intrinsics.xml: its node 'intrinsics' holds {held}.*not a 3x3 "
                                          r"opencv-matrix; .*write_intrinsics") as error:
         read_intrinsics(tmp_path / "intrinsics.xml")
     assert "rename" not in str(error.value)
@@ -700,3 +704,8 @@ def test_lens_distortion_beside_the_intrinsics_is_not_dropped_without_a_word(tmp
         if warned:
             assert re.search(r"intrinsics.xml holds lens distortion coefficients \(node 'distortion_coefficients': "
                              r"\[0.2, -0.5, 0.001, 0.0, 0.3\]\), which geofeat does not apply.*Undistort", messages[0])
+    text = "%YAML:1.0\n---\nintrinsics: !!opencv-matrix\n  rows: 3\n  cols: 3\n  dt: d\n  data: [525, 0, 319.5, 0, 525, " \
+           "239.5, 0, 0, 1]\ndist_coeffs: [[0.1, 0.0, 0.0, 0.0, 0.0]]\n"  # a hand-written YAML list of rows
+    (tmp_path / "intrinsics.xml").write_text(text)
+    with pytest.warns(UserWarning, match=r"distortion coefficients \(node 'dist_coeffs': \[0.1, 0.0, 0.0, 0.0, 0.0\]\)"):
+        read_intrinsics(tmp_path / "intrinsics.xml")

@@ -211,8 +211,10 @@ def _node_numbers(node) -> np.ndarray | None:
     """The numbers of an OpenCV FileStorage `node` that is a matrix or a sequence of numbers, flattened;
     None for any other node (a single number, a string, a map)."""
     try:
-        if node.isSeq():
-            return np.array([node.at(i).real() for i in range(node.size())], dtype=np.float64)
+        if node.isSeq():  # a YAML or JSON list, of numbers or of rows of numbers
+            items = [node.at(i) for i in range(node.size())]
+            parts = [_node_numbers(item) if item.isSeq() else np.array([item.real()]) for item in items]
+            return None if any(part is None for part in parts) else np.concatenate(parts + [np.zeros(0)])
         matrix = node.mat() if node.isMap() else None
     except (cv2.error, SystemError):
         return None
@@ -225,9 +227,13 @@ def _node_contents(node, matrix: np.ndarray | None) -> str:
     if matrix is not None:
         return f"a {'x'.join(map(str, np.shape(matrix)))} matrix"
     if node.isSeq():
-        return f"a plain sequence of {node.size()} values"
-    if node.isMap() and "data" in node.keys():
-        return "an opencv-matrix whose data does not match its rows, cols and dt (it needs rows x cols numbers)"
+        items = "rows" if node.size() and node.at(0).isSeq() else "values"
+        return f"a plain sequence of {node.size()} {items}"
+    if node.isMap():
+        keys = list(node.keys())
+        if {"rows", "cols", "dt", "data"} <= set(keys):
+            return "an opencv-matrix whose data does not match its rows, cols and dt (it needs rows x cols numbers)"
+        return f"a map of {', '.join(keys[:5])} (an opencv-matrix has rows, cols, dt and data)"
     return "a single value" if node.isReal() or node.isInt() or node.isString() else "no matrix"
 
 
