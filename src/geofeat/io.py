@@ -271,8 +271,16 @@ def read_image(path: str | Path, what: str = "rgb_path") -> np.ndarray:
     return image
 
 
+#: The largest 16-bit value: in a depth PNG a sensor's no-data code (or a saturated reading), never a
+#: depth (65.5 m in millimetres); `read_depth` reads it as missing.
+DEPTH_NO_DATA = 65535
+_warned_no_data: set[str] = set()
+
+
 def read_depth(path: str | Path, depth_scale: float = DEPTH_SCALE_M) -> np.ndarray:
-    """Read a 16-bit depth PNG as (H, W) float32 metres (value * depth_scale; 0 = missing)."""
+    """Read a 16-bit depth PNG as (H, W) float32 metres (value * depth_scale; 0 = missing). Pixels
+    holding 65535 (`DEPTH_NO_DATA`) are read as missing too, with a warning once per folder: read as
+    65.5 m they passed the median check and the smoothing mixed them into the surface beside them."""
     path = _existing(path, "depth_path")
     # ANYCOLOR keeps the channels: IMREAD_ANYDEPTH alone turns a 3-channel 16-bit PNG into its luminance;
     # the stored pixels, not turned by an EXIF orientation tag (`read_image`)
@@ -287,6 +295,15 @@ def read_depth(path: str | Path, depth_scale: float = DEPTH_SCALE_M) -> np.ndarr
     if raw.dtype == np.uint8:
         raise ValueError(f"depth_path: {path} is 8-bit; depth must be a 16-bit PNG")
     check_depth_scale(depth_scale, "depth_scale")
+    no_data = raw == DEPTH_NO_DATA if raw.dtype == np.uint16 else None
+    if no_data is not None and no_data.any():
+        raw = np.where(no_data, 0, raw)
+        if str(path.parent) not in _warned_no_data:
+            _warned_no_data.add(str(path.parent))
+            warnings.warn(f"depth_path: {path}: {int(no_data.sum())} pixels ({no_data.mean():.1%}) hold {DEPTH_NO_DATA}, the "
+                          "largest 16-bit value: a sensor's no-data code (or a saturated reading), not a depth of "
+                          f"{DEPTH_NO_DATA * depth_scale:.4g} m; read as missing, as 0 is (said once for the depth PNGs "
+                          f"of {path.parent})", UserWarning, stacklevel=2)
     return raw.astype(np.float32) * np.float32(depth_scale)
 
 
