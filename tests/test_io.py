@@ -730,3 +730,20 @@ def test_depth_pixels_at_the_16_bit_maximum_are_read_as_missing(tmp_path):
     np.testing.assert_array_equal(depth, read_depth(src / "cloud_1-depth.png"))
     frame = geofeat.read_frame(src / "cloud_1-rgb.png", folder / "a-depth.png", src / "intrinsics.xml")
     assert frame.depth.max() < 1.2
+
+
+def test_a_transposed_camera_matrix_is_named_as_such(tmp_path):
+    """MATLAB's IntrinsicMatrix is K transposed: the errors said only that the last row must be
+    [0, 0, 1], not that K.T is the camera matrix."""
+    src = demo_data_dir()
+    K = read_intrinsics(src / "intrinsics.xml")
+    image, depth = cv2.imread(str(src / "cloud_1-rgb.png")), read_depth(src / "cloud_1-depth.png")
+    with pytest.raises(ValueError, match=r"K: last row must be \[0, 0, 1\], got .*; it is a camera matrix transposed "
+                                         r"\(as MATLAB's IntrinsicMatrix is\): use K.T"):
+        geofeat.RGBDFrame(image, depth, K.T)
+    write_intrinsics(tmp_path / "intrinsics.xml", K.T)
+    with pytest.raises(ValueError, match=r"intrinsics.xml: expected \[\[fx, s, cx\].*got rows .*; it is a camera "
+                                         r"matrix transposed"):
+        geofeat.read_frame(src / "cloud_1-rgb.png", src / "cloud_1-depth.png", tmp_path / "intrinsics.xml")
+    with pytest.raises(ValueError, match=r"K: last row must be \[0, 0, 1\], got \[0.0, 0.0, 2.0\]$"):  # no such hint
+        geofeat.RGBDFrame(image, depth, K * [[1], [1], [2]])

@@ -12,7 +12,7 @@ import numpy as np
 
 from .constants import MAX_PLAUSIBLE_DEPTH_M, MIN_FRAME_SIDE_PX
 from .inputs import (PLAUSIBLE_MEDIAN_DEPTH_M, DepthUnitsWarning, as_points, check_focal_lengths, check_not_8bit_depth,
-                     check_principal_point, unmask_depth)
+                     check_principal_point, transposed_hint, unmask_depth)
 
 
 def to_gray(image: np.ndarray, warn_dark: bool = True) -> np.ndarray:
@@ -108,7 +108,7 @@ def check_intrinsics(K: np.ndarray) -> np.ndarray:
     if K[0, 0] <= 0 or K[1, 1] <= 0:
         raise ValueError(f"K: focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}")
     if abs(K[2, 2] - 1.0) > 1e-9 or abs(K[2, 0]) > 1e-9 or abs(K[2, 1]) > 1e-9:
-        raise ValueError(f"K: last row must be [0, 0, 1], got {K[2].tolist()}")
+        raise ValueError(f"K: last row must be [0, 0, 1], got {K[2].tolist()}{transposed_hint(K)}")
     if abs(K[1, 0]) > 1e-9:  # no projection in geofeat reads K[1, 0]: it would be ignored
         raise ValueError(f"K: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got K[1, 0] = {K[1, 0]:g}")
     return K

@@ -192,6 +192,15 @@ def check_focal_lengths(K: np.ndarray, shape: tuple[int, int], where: str) -> No
                          f"(expected {lo:g}-{hi:g} pixels; normalised intrinsics must be multiplied by the image size)")
 
 
+def transposed_hint(K: np.ndarray) -> str:
+    """"; transposed? ..." for a finite 3x3 `K` whose transpose is a camera matrix [[fx, s, cx], [0, fy,
+    cy], [0, 0, 1]] (MATLAB's `IntrinsicMatrix` is K transposed), else ""."""
+    T = np.asarray(K, dtype=np.float64).T
+    if T.shape == (3, 3) and np.allclose(T[2], (0.0, 0.0, 1.0), atol=1e-6) and abs(T[1, 0]) <= 1e-6 and T[0, 2] != 0:
+        return "; it is a camera matrix transposed (as MATLAB's IntrinsicMatrix is): use K.T"
+    return ""
+
+
 def check_intrinsics_for_image(K: np.ndarray, shape: tuple[int, int], where: str) -> np.ndarray:
     """A 3x3 pinhole matrix in pixels plausible for an (H, W) image: finite, last row [0, 0, 1],
     fx and fy between 0.1 and 20 times the larger side, principal point inside the image."""
@@ -200,7 +209,8 @@ def check_intrinsics_for_image(K: np.ndarray, shape: tuple[int, int], where: str
     if K.shape != (3, 3) or not np.isfinite(K).all():
         raise ValueError(f"{where}: expected a finite 3x3 camera matrix")
     if abs(K[2, 2] - 1.0) > 1e-6 or abs(K[2, 0]) > 1e-6 or abs(K[2, 1]) > 1e-6 or abs(K[1, 0]) > 1e-6:
-        raise ValueError(f"{where}: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got rows {K[1:].tolist()}")
+        raise ValueError(f"{where}: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got rows {K[1:].tolist()}"
+                         f"{transposed_hint(K)}")
     check_focal_lengths(K, shape, where)
     check_principal_point(K, shape, where)
     return K
