@@ -747,3 +747,44 @@ def test_a_transposed_camera_matrix_is_named_as_such(tmp_path):
         geofeat.read_frame(src / "cloud_1-rgb.png", src / "cloud_1-depth.png", tmp_path / "intrinsics.xml")
     with pytest.raises(ValueError, match=r"K: last row must be \[0, 0, 1\], got \[0.0, 0.0, 2.0\]$"):  # no such hint
         geofeat.RGBDFrame(image, depth, K * [[1], [1], [2]])
+
+
+def test_write_frame_at_another_depth_scale_is_read_back_in_metres(tmp_path):
+    """write_frame(..., depth_scale=0.0001) wrote 0.1 mm PNGs into a folder read as millimetres: the
+    frame came back 10x too far (a scene at 0.4 m as 4 m, without even the far-depth warning)."""
+    src = demo_data_dir()
+    image, depth = cv2.imread(str(src / "cloud_1-rgb.png")), read_depth(src / "cloud_1-depth.png")
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    write_intrinsics(seq / "intrinsics.xml", read_intrinsics(src / "intrinsics.xml"))
+    (seq / "geofeat.json").write_text(json.dumps({"radius": 0.05}))
+    write_frame(seq, "f-master", image, depth, depth_scale=0.0001)
+    assert json.loads((seq / "geofeat.json").read_text()) == {"radius": 0.05, "depth_scale": 0.0001}
+    write_frame(seq, "f-1", image, depth, depth_scale=0.0001)
+    frame = geofeat.read_sequence(seq).frame("f-1")
+    np.testing.assert_allclose(frame.depth, depth, atol=1e-4)
+    with pytest.raises(ValueError, match=r"depth_scale: 0.001 m per unit, but the depth PNGs of .*seq are read at "
+                                         r"0.0001 \(its geofeat.json's depth_scale\); a sequence folder has one"):
+        write_frame(seq, "f-2", image, depth)
+    mm = tmp_path / "mm"
+    mm.mkdir()
+    write_frame(mm, "a", image, depth)
+    assert not (mm / "geofeat.json").exists()  # the default needs none
+    with pytest.raises(ValueError, match=r"read at 0.001 \(millimetres, as its depth PNGs a-depth.png are read without"):
+        write_frame(mm, "b", image, depth, depth_scale=0.0001)
+    assert sorted(p.name for p in mm.iterdir()) == ["a-depth.png", "a-rgb.png"]
+    far = depth.copy()
+    far[0, 0] = 65.535
+    with pytest.raises(ValueError, match="depth: 65.5 m does not fit a 16-bit PNG"):  # 65535 would read as missing
+        write_frame(mm, "c", image, far)
+
+
+def test_write_frame_of_millimetres_says_it_takes_metres(tmp_path):
+    """The raw uint16 depth PNG given as metres was "1098.0 m does not fit a 16-bit PNG at 0.001 m per
+    unit", which sent one to a coarser depth_scale rather than to metres."""
+    src = demo_data_dir()
+    raw = cv2.imread(str(src / "cloud_1-depth.png"), cv2.IMREAD_UNCHANGED)
+    with pytest.raises(ValueError, match=r"depth: median 977 is not in metres \(at most 50 m expected\); write_frame "
+                                         r"takes metres: divide millimetres by 1000"):
+        write_frame(tmp_path, "f", cv2.imread(str(src / "cloud_1-rgb.png")), raw, depth_scale=0.1)
+    assert not list(tmp_path.iterdir())

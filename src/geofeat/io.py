@@ -13,6 +13,7 @@ Hidden files (`._frame-001-rgb.png`) are not frames. Every reader validates what
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import re
 import warnings
@@ -23,11 +24,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .constants import DEFAULT_RADIUS_M, DEPTH_SCALE_M
+from .constants import DEFAULT_RADIUS_M, DEPTH_SCALE_M, MAX_PLAUSIBLE_DEPTH_M
 from .frame import RGBDFrame, _warn_if_dark, check_depth
 from .inputs import (check_depth_plausible, check_depth_scale, check_intrinsics_for_image, check_landmarks,
                      check_not_8bit_depth, check_unique_names, is_reference_name, read_config, unmask_depth,
                      warn_depth_units)
+from .outputs import atomic_file
 
 RGB_SUFFIX = "-rgb.png"
 DEPTH_SUFFIX = "-depth.png"
@@ -337,10 +339,14 @@ def read_frame(
 def write_frame(folder: str | Path, name: str, color: np.ndarray, depth: np.ndarray,
                 depth_scale: float = DEPTH_SCALE_M) -> None:
     """Write one frame in the public layout: `<name>-rgb.png` (8-bit, (H, W, 3) BGR or (H, W)) and
-    `<name>-depth.png` (16-bit, depth in metres / depth_scale, rounded; 0 = missing). Everything is
-    checked before either file is written."""
+    `<name>-depth.png` (16-bit, depth in metres / depth_scale, rounded; 0 = missing; at most 65534
+    units, as 65535 reads as missing). A `depth_scale` other than the one the folder's depth PNGs are
+    read at (its geofeat.json's, else 0.001) is recorded in its geofeat.json, so that `read_sequence`
+    reads the frame back in metres; ValueError when other depth PNGs there are read at that other
+    scale. Everything is checked before any file is written."""
     folder = Path(folder)
     check_depth_scale(depth_scale, "depth_scale")
+    config = _depth_scale_config(folder, name, depth_scale)
     color, depth = np.asarray(color), np.asarray(unmask_depth(depth))  # masked pixels: missing depth (0)
     if depth.ndim != 2 or depth.dtype.kind not in "fiu":
         raise ValueError(f"depth: expected an (H, W) array of metres, got shape {depth.shape}, dtype {depth.dtype}")
@@ -356,12 +362,40 @@ def write_frame(folder: str | Path, name: str, color: np.ndarray, depth: np.ndar
     depth = depth.astype(np.float64)
     if not np.isfinite(depth).all() or (depth < 0).any():  # a negative depth would wrap to 65 m in uint16
         raise ValueError("depth: NaN, infinite or negative values; use 0 for missing depth")
+    median = float(np.median(depth[depth > 0])) if (depth > 0).any() else 0.0
+    if median > MAX_PLAUSIBLE_DEPTH_M:  # "1098.0 m does not fit a 16-bit PNG" sent one to a coarser depth_scale
+        raise ValueError(f"depth: median {median:.4g} is not in metres (at most {MAX_PLAUSIBLE_DEPTH_M:g} m expected); "
+                         "write_frame takes metres: divide millimetres by 1000")
     units = np.rint(depth / depth_scale)
-    if units.max(initial=0) > 65535:
+    if units.max(initial=0) >= DEPTH_NO_DATA:
         raise ValueError(f"depth: {units.max() * depth_scale:.1f} m does not fit a 16-bit PNG at {depth_scale} m per unit")
     for path, image in ((folder / f"{name}{RGB_SUFFIX}", color), (folder / f"{name}{DEPTH_SUFFIX}", units.astype(np.uint16))):
         if not cv2.imwrite(str(path), image):
             raise ValueError(f"folder: cannot write {path}")
+    if config is not None:
+        with atomic_file(folder / "geofeat.json") as tmp:
+            tmp.write_text(json.dumps(config, indent=1), encoding="utf-8")
+
+
+def _depth_scale_config(folder: Path, name: str, depth_scale: float) -> dict | None:
+    """The geofeat.json `write_frame` writes into `folder` so that frame `name`'s depth PNG, written at
+    `depth_scale`, is read back at it: None when the folder's depth PNGs are read at it already. Written
+    at 0.1 mm without one, a frame was read back in millimetres, 10x too far, without a word. ValueError
+    when the folder's geofeat.json, or its other depth PNGs (read as millimetres without one), say
+    another scale: a sequence folder has one."""
+    config = read_config(folder) if folder.is_dir() else {}
+    current = float(config.get("depth_scale", DEPTH_SCALE_M))
+    if depth_scale == current:
+        return None
+    others = [n for n in frame_names(folder, DEPTH_SUFFIX) if n != name] if folder.is_dir() else []
+    if "depth_scale" in config or others:
+        source = ("its geofeat.json's depth_scale" if "depth_scale" in config else
+                  f"millimetres, as its depth PNGs {_listing([folder / f'{n}{DEPTH_SUFFIX}' for n in others])} are "
+                  "read without a geofeat.json")
+        raise ValueError(f"depth_scale: {depth_scale:g} m per unit, but the depth PNGs of {folder} are read at "
+                         f"{current:g} ({source}); a sequence folder has one depth scale: write at {current:g}, or into "
+                         "another folder")
+    return {**config, "depth_scale": depth_scale}
 
 
 def _csv_fields(line: str) -> list[str]:

@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 
 from ..inputs import check_intrinsics_for_image, check_whole
-from ..io import write_intrinsics, write_landmarks
+from ..io import DEPTH_NO_DATA, write_intrinsics, write_landmarks
 from ..outputs import check_out_dir, replace_folder, temporary_folder
 from ..groundtruth.landmarks import MIN_LANDMARKS
 from ..groundtruth.simulator import GT_JSON, GT_SUFFIX, FrameTruth, map_points
@@ -95,7 +95,7 @@ class DepthOverflowError(ValueError):
 def encode_depth(depth: np.ndarray, unit: float = DEPTH_UNIT_M) -> np.ndarray:
     """(H, W) float metres -> uint16 depth in `unit` metres (0 stays 0); ValueError past 16 bits."""
     units = np.rint(np.asarray(depth, np.float64) / unit)
-    if units.max(initial=0) > 65535:
+    if units.max(initial=0) >= DEPTH_NO_DATA:  # 65535 reads as missing (`io.read_depth`)
         raise DepthOverflowError(f"depth: {units.max() * unit:.2f} m does not fit a 16-bit PNG at {unit} m per unit")
     return units.astype(np.uint16)
 
