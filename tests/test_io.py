@@ -614,10 +614,12 @@ def test_tenth_millimetre_depth_read_as_millimetres_is_warned_of(tmp_path):
 
     for metres in (0.48, 1.03):
         folder = tmp_path / f"sim-{metres}"
-        _flat_sequence(folder, 0.0)
+        folder.mkdir()
         frame = geofeat.read_demo_frame()
+        write_intrinsics(folder / "intrinsics.xml", frame.K)
         for name in ("a-ref", "b"):  # as `simulate` writes them, less its geofeat.json
             write_frame(folder, name, frame.color, np.where(frame.depth > 0, metres, 0.0), depth_scale=0.0001)
+        (folder / "geofeat.json").unlink()  # write_frame records the scale there
         with pytest.warns(DepthUnitsWarning, match=rf"median depth {metres * 10:.3g} m .*farther"):
             geofeat.read_sequence(folder)
         (folder / "geofeat.json").write_text(json.dumps({"depth_scale": 0.0001}))
