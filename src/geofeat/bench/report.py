@@ -124,7 +124,8 @@ def markdown_table(rows: list[dict], group_of=sequence_group) -> str:
     the scenario suffix of simulated sequence names) and overall; best of each row in bold (every cell
     that shows the best value as printed, so that equal numbers are marked alike). A cell
     whose descriptor has results on fewer of the row's sequences than the row counts says so
-    ("(1 of 2)"): its mean is over those only."""
+    ("(1 of 2)"): its mean is over those only, so it is never bold (a mean over the easier sequences
+    alone is no better descriptor); the best is of the cells over all the row's sequences."""
     groups = {}
     for r in rows:
         groups.setdefault(group_of(r["sequence"]), []).append(r)
@@ -134,15 +135,16 @@ def markdown_table(rows: list[dict], group_of=sequence_group) -> str:
     lines = ["| sequences | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
     for group, grows in groups.items():
         s = summary(grows, label_of)
-        best = max(float(f"{s[n]['ms']:.3f}") for n in names if n in s)  # as printed: 0.4144 and 0.4141 tie
         n_seq = len({r["sequence"] for r in grows})
+        complete = [float(f"{s[n]['ms']:.3f}") for n in names if n in s and s[n]["sequences"] == n_seq]
+        best = max(complete, default=None)  # as printed: 0.4144 and 0.4141 tie
         cells = []
         for n in names:
             if n not in s:
                 cells.append("-")
                 continue
             text = f"{s[n]['ms']:.3f}"
-            text = f"**{text}**" if float(text) == best else text
+            text = f"**{text}**" if float(text) == best and s[n]["sequences"] == n_seq else text
             cells.append(text + (f" ({s[n]['sequences']} of {n_seq})" if s[n]["sequences"] < n_seq else ""))
         lines.append(f"| {group} ({n_seq}) | " + " | ".join(cells) + " |")
     # protocol landmarks describes the annotated positions: no keypoint set applies (its rows still record one)
