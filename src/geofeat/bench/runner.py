@@ -141,18 +141,19 @@ def _empty_row_score(n_ref: int, n_tgt: int):
     return PairScore(ms=0.0, mma=0.0, hits=0, n_ref=n_ref, n_tgt=n_tgt, n_gt=0)
 
 
-#: Keypoints `_warm_up` describes and matches before anything is timed.
+#: Keypoints `_warm_up` describes before anything is timed.
 WARM_UP_KEYPOINTS = 8
 
 
 def _warm_up(describe: Describer, frame, kps: Keypoints) -> None:
-    """Describe the first `WARM_UP_KEYPOINTS` of `kps` on `frame` with every descriptor and match
-    them, untimed, so that one-time costs (numba's compilation or cache loading, a network's first
-    run) fall outside the timings. The reference's description time counts in every pair of its
-    sequence (`seconds_extract`), so without this the first sequence a process scores carried the
-    compilation (a minute for GeoBit) in each of its pairs, not in the first one only."""
-    for features, _ in describe(frame, kps[:WARM_UP_KEYPOINTS]).values():
-        match(features, features)
+    """Describe the first `WARM_UP_KEYPOINTS` of `kps` on `frame` with every descriptor, untimed, so
+    that one-time costs of describing (numba's compilation or cache loading, a network's first run)
+    fall outside `seconds_extract`. The reference's description time counts in every pair of its
+    sequence, so without this the first sequence a process scores carried the compilation (a minute
+    for GeoBit on a fresh install) in each of its pairs, not in the first one only. (Matching is not
+    warmed: which Hamming kernel runs depends on the descriptors, so a few keypoints compile another
+    one; its compilation stays in the seconds_match of the pair that first needs it.)"""
+    describe(frame, kps[:WARM_UP_KEYPOINTS])
 
 
 def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tuple[str, ...] | None = None) -> list[dict]:
