@@ -437,6 +437,20 @@ def test_curve_titles_name_the_keypoints_and_what_the_points_average():
     assert curve_title(rows, "rotate") == "MS on 2 rotate sequences, 6 pairs"
 
 
+def test_curve_titles_count_only_the_pairs_the_curve_draws():
+    """A pair without a camera roll (NaN: a real sequence named "rotate", no simulator pose) is not
+    drawn (`curve_series` keeps finite x only), but the title counted it: "2 rotate sequences, 4
+    pairs" over points that average 1 sequence and 2 pairs."""
+    from geofeat.bench.report import CURVES, curve_series, curve_title
+
+    rows = [{"sequence": seq, "reference": "r", "target": t, "descriptor": "orb", "detector": "sift",
+             "angle_deg": angle, "ms": 0.5} for seq, angle in (("sim-rotate", 30.0), ("real-rotate", float("nan")))
+            for t in ("a", "b")]
+    key, kind, _, bins = CURVES[0]
+    assert len(curve_series(rows, key, kind, bins)["orb"][0]) == 1  # both drawn pairs in one bin
+    assert curve_title(rows, kind, key=key) == "MS on 1 rotate sequence, 2 pairs (2 without a camera roll left out); keypoints: sift"
+
+
 def test_detail_table_gives_the_denominator_of_ms():
     """The protocol's denominator min(n_ref, n_tgt) must be readable from details.md: two detectors
     with the same hits differ in MS only through the target keypoints the protocol keeps."""

@@ -223,7 +223,7 @@ def plot_curves(rows: list[dict], path: str | Path, group_of=sequence_group) -> 
         ax.set_ylim(0, 1)
         ax.grid(alpha=0.3)
         ax.legend()
-        ax.set_title(curve_title(rows, kind, group_of), fontsize=10)
+        ax.set_title(curve_title(rows, kind, group_of, key), fontsize=10)
         fig.tight_layout()
         out = Path(path) / f"ms_vs_{kind}.png"
         with atomic_file(out) as tmp:  # whole or not at all
@@ -232,15 +232,23 @@ def plot_curves(rows: list[dict], path: str | Path, group_of=sequence_group) -> 
     return written
 
 
-def curve_title(rows: list[dict], kind: str, group_of=sequence_group) -> str:
+def curve_title(rows: list[dict], kind: str, group_of=sequence_group, key: str | None = None) -> str:
     """The title of `plot_curves`' plot of the `kind` sequences: how many sequences and pairs the
     points average, and the detector (its keypoints decide the MS as much as the descriptor does;
-    the legend names it only when there are several)."""
+    the legend names it only when there are several). With `key` (the x column), pairs without a
+    value there (NaN: no simulator pose, e.g. real data named "rotate") are not drawn
+    (`curve_series`), so they are not counted, and the title says how many were left out."""
+    def pairs(selected):
+        return dict.fromkeys((r["sequence"], r.get("reference"), r.get("target")) for r in selected)
+
     sel = [r for r in rows if group_of(r["sequence"]) == kind]
-    detectors = list(dict.fromkeys(r.get("detector") or "sift" for r in sel))
-    n_seq = len(dict.fromkeys(r["sequence"] for r in sel))
-    n_pairs = len(dict.fromkeys((r["sequence"], r.get("reference"), r.get("target")) for r in sel))
+    drawn = sel if key is None else [r for r in sel if np.isfinite(r[key])]
+    detectors = list(dict.fromkeys(r.get("detector") or "sift" for r in drawn))
+    n_seq = len(dict.fromkeys(r["sequence"] for r in drawn))
+    n_pairs, n_left = len(pairs(drawn)), len(pairs(sel)) - len(pairs(drawn))
     title = f"MS on {plural(n_seq, f'{kind} sequence')}, {plural(n_pairs, 'pair')}"
+    if n_left:
+        title += f" ({n_left} without a {'camera roll' if kind == 'rotate' else kind} left out)"
     if len(detectors) == 1:
         title += f"; keypoints: {detectors[0]}"
     return title
