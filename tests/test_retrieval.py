@@ -211,6 +211,8 @@ def test_retrieval_on_three_simulated_objects(three_objects, tmp_path):
     rows = list(csv.DictReader(open(tmp_path / "retrieval.csv")))
     assert [r["descriptor"] for r in rows] == ["sift", "sift", "orb", "orb"]
     assert {r["weighting"] for r in rows} == {DEFAULT_WEIGHTING} and {r["words"] for r in rows} == {"40"}
+    # the accuracy is after re-ranking (the default): the csv says by how many results, as the table does
+    assert res["sift"].rerank > 0 and {r["rerank"] for r in rows} == {str(res["sift"].rerank)}
     assert (tmp_path / "acc_at_k.png").is_file() and cv2.imread(str(tmp_path / "top6.png")) is not None
     assert "object masks: simulator, for all 3 sequences" in (tmp_path / "retrieval.md").read_text()
     # the profile the sequences were described with (the simulator's geofeat.json names it)
@@ -681,3 +683,20 @@ def test_intervals_and_the_validation_split_do_not_depend_on_the_order_the_folde
         if not one_class:  # a real interval (one class: every result is right, and the test queries matter)
             assert np.isfinite(forward[3]).all() and forward[3] != forward[4]
         assert results(seqs[::-1], one_class, words) == forward == results(shuffled, one_class, words)
+
+
+def test_acc_at_k_plot_says_when_its_curves_are_re_ranked(tmp_path, monkeypatch):
+    """acc_at_k.png draws the accuracies after `rerank` (the default re-ranks each query's best 80),
+    but its title said "bag of visual words" alone, as for the paper's words-only curves."""
+    import geofeat.viz
+    from geofeat.apps.retrieval import _plot
+
+    figures = []
+    real = geofeat.viz.plot_figure
+    monkeypatch.setattr(geofeat.viz, "plot_figure", lambda size: figures.append(real(size)) or figures[-1])
+    acc = {"orb": np.array([0.5, 0.6])}
+    _plot(acc, tmp_path / "words.png")
+    _plot(acc, tmp_path / "reranked.png", rerank=80)
+    words, reranked = (ax.get_title() for _, ax in figures)
+    assert "re-ranked" not in words
+    assert "best 80 re-ranked by verified matches" in reranked

@@ -609,7 +609,10 @@ def _top6_picture(db: RetrievalDatabase, results: dict[str, tuple[np.ndarray, np
         write_picture(path, np.concatenate([header] + rows, axis=0))
 
 
-def _plot(acc: dict[str, np.ndarray], path: Path) -> None:
+def _plot(acc: dict[str, np.ndarray], path: Path, rerank: int = 0) -> None:
+    """acc_at_k.png: Acc@K against K per descriptor ({name: (k,) Acc@1..k}); `rerank` > 0: the
+    accuracies are those after `rerank` of each query's best `rerank` frames, which the title says
+    (it said "bag of visual words" of the re-ranked curves too)."""
     from ..viz import plot_figure
 
     fig, ax = plot_figure((5.5, 4))
@@ -622,7 +625,10 @@ def _plot(acc: dict[str, np.ndarray], path: Path) -> None:
     ax.set_ylim(0, 1.02)
     ax.grid(alpha=0.3)
     ax.legend()
-    ax.set_title("Object retrieval, bag of visual words")
+    title = "Object retrieval, bag of visual words"
+    if rerank > 0:
+        title += f",\nbest {rerank} re-ranked by verified matches"
+    ax.set_title(title, fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 
@@ -800,7 +806,8 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
                   detector: str | None = None, weighting: str = DEFAULT_WEIGHTING, rerank_top: int = RERANK,
                   ) -> tuple[dict[str, DescriptorResult], RetrievalDatabase]:
     """The whole retrieval experiment; writes into `out`: `retrieval.csv` (descriptor, words, weighting,
-    k, accuracy, low, high: Acc@K and its 95 % bootstrap interval), `acc_at_k.png`, `top6.png` (two
+    k, accuracy, low, high: Acc@K and its 95 % bootstrap interval, rerank: the results per query
+    re-ranked before Acc@K, 0 for the words' order), `acc_at_k.png`, `top6.png` (two
     queries per descriptor) and `retrieval.md` (table, chosen K, skipped queries and frames, mask sources).
 
     The folder is built aside and moved into place at the end; an existing non-empty `out` needs
@@ -882,11 +889,12 @@ def _write_retrieval(out: Path, db: RetrievalDatabase, res: dict[str, Descriptor
     """The result files of `run_retrieval`, into `out` (query_classes: the classes of the eligible queries)."""
     with open(out / "retrieval.csv", "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
-        w.writerow(["descriptor", "words", "weighting", "k", "accuracy", "low", "high"])
+        w.writerow(["descriptor", "words", "weighting", "k", "accuracy", "low", "high", "rerank"])
         for name, r in res.items():
-            w.writerows([name, r.words, r.weighting, k + 1, f"{v:.4f}", f"{lo:.4f}", f"{hi:.4f}"]
+            w.writerows([name, r.words, r.weighting, k + 1, f"{v:.4f}", f"{lo:.4f}", f"{hi:.4f}", r.rerank]
                         for k, (v, lo, hi) in enumerate(zip(r.accuracy, r.low, r.high)))
-    _plot({n: r.accuracy for n, r in res.items()}, out / "acc_at_k.png")
+    _plot({n: r.accuracy for n, r in res.items()}, out / "acc_at_k.png",
+          max((r.rerank for r in res.values()), default=0))
     _top6_picture(db, {n: (r.queries, r.neighbours) for n, r in res.items()}, out / "top6.png")
     (out / "retrieval.md").write_text(_report(db, res, skipped, words, n_samples, include_own_sequence, trivial,
                                               query_classes),
