@@ -508,6 +508,28 @@ def test_a_target_without_ground_truth_is_skipped_not_scored_zero(datasets, tmp_
     assert "a-deform: the ground truth covers no pixel of frame-002; pair skipped" in capsys.readouterr().out
 
 
+def test_table_and_details_name_the_pairs_the_run_skipped(datasets, tmp_path, capsys):
+    """A skipped pair was said only in the run's scrolled output (not again when resumed): table.md
+    and details.md averaged a sequence's pairs with one fewer, unsaid."""
+    seq = tmp_path / "data" / "a-deform"
+    shutil.copytree(datasets / "seqs" / "a-deform", seq)
+    _without_ground_truth(seq / "frame-002-gt.npz")
+    assert main(["bench", str(tmp_path / "data"), "--descriptors", "orb", "--keypoints", "200",
+                 "--out", str(tmp_path / "out")]) == 0
+    note = "Not scored, so in no mean above: 1 pair (skipped by the run, which said why): a-deform/frame-002."
+    assert note in (tmp_path / "out" / "table.md").read_text()
+    assert note in (tmp_path / "out" / "details.md").read_text()
+
+
+def test_unscored_pairs_note_names_the_descriptors_a_pair_lacks():
+    from geofeat.bench.report import unscored_pairs_note
+
+    rows = [dict(sequence="s", target=t, descriptor=d) for t, d in (("f1", "orb"), ("f1", "ext"), ("f2", "orb"))]
+    assert unscored_pairs_note(rows, {"s": ["f1", "f2", "f3"], "other": ["f1"]}).strip() == (
+        "Not scored, so in no mean above: 2 pairs (skipped by the run, which said why): s/f2 (ext), s/f3.")
+    assert unscored_pairs_note(rows[:1], {"s": ["f1"]}) == ""
+
+
 def test_external_features_skip_a_target_without_ground_truth_too(datasets, tmp_path, capsys):
     """`--features` scores its pairs with the same rule: a target the ground truth does not cover is
     skipped by name, not scored 0."""

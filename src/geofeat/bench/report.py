@@ -167,6 +167,28 @@ def markdown_table(rows: list[dict], group_of=sequence_group) -> str:
     return "\n".join(lines) + "\n\n" + notes + "\n"
 
 
+def unscored_pairs_note(rows: list[dict], targets: dict[str, list[str]]) -> str:
+    """A note for table.md and details.md naming the pairs of the scored sequences that have no row
+    in `rows` (skipped by the run: no ground truth on the target, no landmark in common), so that a
+    mean over fewer pairs than the sequence has is said there, not only in the run's scrolled output
+    (a resumed run does not print it again). `targets`: {sequence: its target frame names}; a pair
+    missing for some descriptors only names them. Empty when every pair has its rows."""
+    scored: dict[str, dict[str, set[str]]] = {}
+    for r in rows:
+        scored.setdefault(r["sequence"], {}).setdefault(r["descriptor"], set()).add(r["target"])
+    missing = []
+    for seq, per_descriptor in scored.items():
+        for target in targets.get(seq, []):
+            without = [d for d, done in per_descriptor.items() if target not in done]
+            if without:
+                missing.append(f"{seq}/{target}" + ("" if len(without) == len(per_descriptor)
+                                                    else f" ({', '.join(without)})"))
+    if not missing:
+        return ""
+    return (f"\nNot scored, so in no mean above: {plural(len(missing), 'pair')} (skipped by the run, which said why): "
+            + ", ".join(missing) + ".\n")
+
+
 CURVES = (  # (row column, sequence kind, axis label, bin edges)
     ("angle_deg", "rotate", "camera roll (degrees)", np.arange(0, 200, 20)),
     ("scale", "scale", "scale (reference depth / target depth)", np.linspace(0.4, 1.05, 8)),

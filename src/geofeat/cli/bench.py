@@ -47,12 +47,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark and write results.csv, table.md, details.md, plots (timing.md with --timing)."""
-    from ..bench.report import detail_table, markdown_table, plot_curves, read_results, scenario_groups
+    from ..bench.report import (detail_table, markdown_table, plot_curves, read_results, scenario_groups,
+                                unscored_pairs_note)
     from ..bench.runner import BenchConfig, run_benchmark
     from ..bench.timing import timing_table
     from ..depth import sequence_depth_profile
     from ..inputs import resolve_radius
-    from ..io import find_sequences, read_sequence
+    from ..io import find_sequences, frame_names, read_sequence, reference_name
     from ..outputs import add_to_manifest, atomic_file, plural
 
     def write(path: Path, text: str) -> None:
@@ -90,6 +91,9 @@ def run(args: argparse.Namespace) -> int:
         if unfiltered:
             note = (f"\nSSIM filter (protocol step 3) skipped for {', '.join(unfiltered)}: no <k>_SSIM.png in "
                     "their TPS files, so the object masks alone decide which target keypoints are scored.\n")
+    frames_of = {f.name: frame_names(f) for f in find_sequences(args.datasets)}
+    note += unscored_pairs_note(rows, {seq: [n for n in frames if n != reference_name(frames)]
+                                       for seq, frames in frames_of.items() if frames})
     table = markdown_table(rows, group_of) + note
     write(out / "table.md", table)
     print(table)
