@@ -806,6 +806,14 @@ def test_a_template_roi_without_depth_says_so(sequence, tmp_path):
         track_sequence(folder, ("sift",), roi=(80, 60, 239, 179), refine="none", progress=False)
 
 
+def test_too_few_keypoints_per_frame_are_named_not_the_roi(sequence, tmp_path):
+    """`--keypoints 5`: the template could never hold the 10 keypoints it needs, whatever the ROI,
+    but the error blamed the ROI ("roi: ... holds 5 keypoints")."""
+    folder = _public_copy(sequence, tmp_path / "public", "frame-001")
+    with pytest.raises(ValueError, match=r"^keypoints: 5 per frame, fewer than the 10"):
+        track_sequence(folder, ("sift",), n_keypoints=5, refine="none", progress=False)
+
+
 def test_a_failed_fit_counts_in_the_seconds_per_frame(sequence, tmp_path, monkeypatch):
     """A frame whose fit failed had seconds = NaN in track.csv, so tracking.md's "per frame, matching +
     RANSAC" time was the mean over the fitted frames only ("nan s" when every fit failed), although the

@@ -719,6 +719,9 @@ class _Template:
         if len(keypoints) < MIN_ROI_KEYPOINTS:
             # keypoints need depth: say so when the ROI has little, not only that it holds no keypoints
             with_depth = float((ref.depth[y0 : y1 + 1, x0 : x1 + 1] > 0).mean())
+            if n_keypoints is not None and n_keypoints < MIN_ROI_KEYPOINTS:  # not the ROI's fault
+                raise ValueError(f"keypoints: {n_keypoints} per frame, fewer than the {MIN_ROI_KEYPOINTS} a template "
+                                 "needs in its ROI; ask for more (the frame's best are kept, then those in the ROI)")
             raise ValueError(f"roi: {roi} holds {len(keypoints)} keypoints of {seq.reference}; expected at least "
                              f"{MIN_ROI_KEYPOINTS}" + (f" (only {with_depth:.0%} of its pixels have depth, and a keypoint "
                                                        "needs depth)" if with_depth < 0.5 else ""))
