@@ -397,3 +397,14 @@ def test_a_record_changed_after_it_was_made_is_not_saved_unreadable(tmp_path, su
     with pytest.raises(ValueError, match=r"matches: distances0: expected shape \(2,\)"):
         save_matches(tmp_path / f"m{suffix}", matches, "a/b")
     assert not path.exists() and not (tmp_path / f"m{suffix}").exists()
+
+
+def test_a_features_path_that_is_a_folder_is_named_before_anything_is_written(tmp_path):
+    """`save_features("f.npz", ...)` where f.npz is a folder: the write went through and the last
+    step, replacing the path by the finished file, failed with IsADirectoryError naming the hidden
+    temporary file, not the path given."""
+    folder = tmp_path / "f.npz"
+    folder.mkdir()
+    with pytest.raises(IsADirectoryError, match=r"f\.npz is a folder; expected the path of a file"):
+        save_features(folder, make_features(), "img")
+    assert list(tmp_path.iterdir()) == [folder] and not any(folder.iterdir())

@@ -470,8 +470,12 @@ def signals_deferred() -> Iterator[None]:
 @contextmanager
 def atomic_file(path: str | Path) -> Iterator[Path]:
     """Yield a temporary sibling path to write; on success it replaces `path` (os.replace), on any
-    error (or interrupt) it is removed and `path` is left as it was."""
+    error (or interrupt) it is removed and `path` is left as it was. IsADirectoryError naming `path`
+    when it is a folder, before anything is written (the replace at the end failed, naming the
+    temporary file)."""
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(f"{path} is a folder; expected the path of a file to write")
     path.parent.mkdir(parents=True, exist_ok=True)
     clear_stale_partials(path)
     tmp = partial_name(path)
