@@ -5,8 +5,8 @@ import pytest
 
 import geofeat
 from geofeat.geodesic.polar import PolarPatches
-from geofeat.viz import (CORRECT, UNJUDGED, WRONG, draw_geodesic_support, draw_matches, match_key, patch_grid,
-                         ring_distances_mm)
+from geofeat.viz import (CORRECT, MAX_MATCHES_WIDTH, UNJUDGED, WRONG, draw_geodesic_support, draw_matches, match_key,
+                         patch_grid, ring_distances_mm)
 
 
 def _no_patches() -> PolarPatches:
@@ -35,7 +35,8 @@ def _flat_frame(bgr=(200, 60, 0), shape=(240, 320)) -> "geofeat.RGBDFrame":
     H, W = shape
     image = np.zeros((H, W, 3), np.uint8)
     image[:] = bgr
-    K = np.array([[300.0, 0, (W - 1) / 2], [0, 300.0, (H - 1) / 2], [0, 0, 1]])
+    f = max(300.0, 0.5 * max(H, W))  # a plausible focal length for large frames too
+    K = np.array([[f, 0, (W - 1) / 2], [0, f, (H - 1) / 2], [0, 0, 1]])
     return geofeat.RGBDFrame(image, np.ones(shape, np.float32), K)
 
 
@@ -157,3 +158,46 @@ def test_report_plots_leave_the_callers_matplotlib_backend_alone(tmp_path):
     for name in ("train.png", "acc.png", "ms_vs_rotate.png"):
         image = cv2.imread(str(tmp_path / name))
         assert image is not None and image.shape[0] > 100 and image.std() > 5
+
+
+def test_a_caption_wider_than_a_small_picture_is_wrapped_not_cut_off():
+    """On a pair of 160x120 frames the caption ran off the picture's right edge: "... 75 not" and the
+    key's counts were lost. Every word is now on the picture, on the label's dark box."""
+    from geofeat.viz import put_label
+
+    frame = _flat_frame((200, 60, 0), (120, 160))
+    title = "geopatch: 500 matches, 250 correct, 75 not judged (no ground truth)"
+    picture = draw_matches(frame, frame, np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64), title=title)
+    assert picture.shape == (120, 320, 3)
+    label = _label_pixels(picture, (200, 60, 0), slice(0, 120))
+    # the label's box ends before the right edge: the last column is the frame's own colour
+    assert not label[:, -1].any()
+    # the title's box spans more than one line's height (it was one ~22 px line, cut at x = 320)
+    rows = np.flatnonzero(label[:, :50].any(axis=1))
+    assert rows.max() - rows.min() > 30
+    x0, y0, x1, y1 = put_label(np.zeros((120, 320, 3), np.uint8), title, (4, 4), 0.55)
+    assert x1 <= 320 and y1 > 40
+    wide = put_label(np.zeros((40, 2000, 3), np.uint8), title, (4, 4), 0.55)
+    assert wide[3] < 30  # room for it: one line, as before
+
+
+def test_large_frames_are_shrunk_with_their_keypoints_to_a_viewable_picture():
+    """Two 4000x3000 frames made an 8000x3000 picture (35 MB of PNG) whose 1 px lines and 10 px
+    caption vanished when viewed whole. It is now at most `max_width` wide, the keypoints drawn where
+    the shrunk frames show them (pixel centres kept), in the legend's colours."""
+    big = _flat_frame((90, 90, 90), (3000, 4000))
+    small = _flat_frame((90, 90, 90), (1500, 2000))
+    k0 = np.array([[1000.0, 500.0], [3000.0, 2500.0]])
+    k1 = np.array([[1500.0, 1000.0], [999.5, 1299.5]])  # in the smaller right frame
+    picture = draw_matches(big, small, k0, k1, np.array([0, 1]), np.array([True, False]))
+    f = MAX_MATCHES_WIDTH / 6000
+    w0, h0, w1, h1 = (int(round(n * f)) for n in (4000, 3000, 2000, 1500))
+    assert picture.shape == (h0, w0 + w1, 3) and w0 + w1 <= MAX_MATCHES_WIDTH
+
+    def at(x, y, w, h, W, H, dx=0):  # the pixel that shows frame pixel (x, y) of a W x H frame shrunk to w x h
+        return tuple(picture[int(round((y + 0.5) * h / H - 0.5)), int(round((x + 0.5) * w / W - 0.5)) + dx])
+
+    assert at(1000, 500, w0, h0, 4000, 3000) == CORRECT and at(3000, 2500, w0, h0, 4000, 3000) == WRONG
+    assert at(1500, 1000, w1, h1, 2000, 1500, w0) == CORRECT and at(999.5, 1299.5, w1, h1, 2000, 1500, w0) == WRONG
+    # max_width=None: drawn at their own size
+    assert draw_matches(small, small, k1, k1, np.array([0, 1]), max_width=None).shape == (1500, 4000, 3)

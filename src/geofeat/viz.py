@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 
 from .frame import RGBDFrame
+from .geodesic.mesh import image_to_mesh
 from .geodesic.polar import PolarPatches
 from .inputs import check_whole
 
@@ -24,21 +25,51 @@ def plot_figure(figsize: tuple[float, float]):
     return fig, fig.subplots()
 
 
+def _wrap(text: str, font: int, scale: float, room: int) -> list[str]:
+    """`text` broken into lines at most `room` pixels wide at `scale` (between words where it can, inside
+    a word wider than `room` where it must); one line when it fits, or when `room` holds no character."""
+    def width(t: str) -> int:
+        return cv2.getTextSize(t, font, scale, 1)[0][0]
+
+    lines: list[str] = []
+    line = ""
+    for word in text.split(" "):
+        candidate = f"{line} {word}" if line else word
+        if width(candidate) <= room or not candidate.strip():
+            line = candidate
+            continue
+        if line:
+            lines.append(line)
+        line = word
+        while width(line) > room and len(line) > 1:  # a word wider than the room: cut it where it must
+            cut = next((k for k in range(len(line) - 1, 0, -1) if width(line[:k]) <= room), 1)
+            lines.append(line[:cut])
+            line = line[cut:]
+    lines.append(line)
+    return lines
+
+
 def put_label(canvas: np.ndarray, text: str, origin: tuple[int, int] = (6, 6), scale: float = 0.5,
               colour=(255, 255, 255)) -> tuple[int, int, int, int]:
-    """Write one line of `text` on `canvas` (an (H, W, 3) uint8 BGR image, changed in place) in `colour`
-    on a filled dark box whose top-left corner is `origin` (x, y pixels), so that it reads on any
-    background. The text is drawn once at thickness 1: an outline drawn at a larger thickness does not
-    line up with it in every OpenCV version (OpenCV 5 widens its glyphs with the thickness).
-    `scale`: OpenCV font scale (0.5 is about 10 px of capital height). Returns the box (x0, y0, x1, y1)."""
+    """Write `text` on `canvas` (an (H, W, 3) uint8 BGR image, changed in place) in `colour` on a
+    filled dark box whose top-left corner is `origin` (x, y pixels), so that it reads on any
+    background. Text wider than the canvas right of `origin` is wrapped onto further lines, each on
+    its own box below the last (it ran off the picture: a small frame's caption lost its counts).
+    The text is drawn once at thickness 1: an outline drawn at a larger thickness does not line up
+    with it in every OpenCV version (OpenCV 5 widens its glyphs with the thickness).
+    `scale`: OpenCV font scale (0.5 is about 10 px of capital height). Returns the box around all
+    its lines (x0, y0, x1, y1)."""
     font = cv2.FONT_HERSHEY_SIMPLEX
-    (w, h), base = cv2.getTextSize(text, font, scale, 1)
     pad = max(2, int(round(4 * scale)))
     x0, y0 = int(origin[0]), int(origin[1])
-    x1, y1 = x0 + w + 2 * pad, y0 + h + base + 2 * pad
-    cv2.rectangle(canvas, (x0, y0), (x1 - 1, y1 - 1), (30, 30, 30), -1)
-    cv2.putText(canvas, text, (x0 + pad, y0 + pad + h), font, scale, colour, 1, cv2.LINE_AA)
-    return x0, y0, x1, y1
+    x1, y = x0, y0
+    for line in _wrap(text, font, scale, canvas.shape[1] - x0 - 2 * pad):
+        (w, h), base = cv2.getTextSize(line, font, scale, 1)
+        right, bottom = x0 + w + 2 * pad, y + h + base + 2 * pad
+        cv2.rectangle(canvas, (x0, y), (right - 1, bottom - 1), (30, 30, 30), -1)
+        cv2.putText(canvas, line, (x0 + pad, y + pad + h), font, scale, colour, 1, cv2.LINE_AA)
+        x1, y = max(x1, right), bottom
+    return x0, y0, x1, y
 
 
 def to_bgr(frame: RGBDFrame) -> np.ndarray:
@@ -124,6 +155,23 @@ def side_by_side(left: np.ndarray, right: np.ndarray, gap: int = 8) -> np.ndarra
     return out
 
 
+#: `draw_matches`' widest picture by default, pixels: two 1280-pixel frames side by side.
+MAX_MATCHES_WIDTH = 2560
+
+
+def _shrunk(image: np.ndarray, factor: float) -> tuple[np.ndarray, tuple[float, float]]:
+    """(image resized by about `factor` < 1 (INTER_AREA), (sx, sy): its new pixels per old pixel)."""
+    H, W = image.shape[:2]
+    w, h = max(1, int(round(W * factor))), max(1, int(round(H * factor)))
+    return cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA), (w / W, h / H)
+
+
+def _shrunk_points(xy: np.ndarray, scale: tuple[float, float]) -> np.ndarray:
+    """Keypoints (N, 2+) pixels (x, y first) in the picture `_shrunk` made with `scale`, (N, 2)."""
+    xy = np.asarray(xy, float)
+    return image_to_mesh(xy[:, :2], scale) if xy.ndim == 2 else xy
+
+
 def match_key(n_matches: int, n_correct: int, n_drawn: int, judged: bool, n_unjudged: int = 0) -> str:
     """The key under `draw_matches`' title: the colours present ("green: correct, red: wrong", with
     "blue: U not judged (no ground truth)" for the `n_unjudged` of them whose keypoint has none; or
@@ -149,6 +197,7 @@ def draw_matches(
     max_lines: int = 400,
     title: str = "",
     judged: np.ndarray | None = None,
+    max_width: int | None = MAX_MATCHES_WIDTH,
 ) -> np.ndarray:
     """Two frames side by side, frame0 left, with a line per match: green (`CORRECT`) correct, red
     (`WRONG`) wrong, blue (`UNJUDGED`) not judged (correct is None, or `judged` False: no ground
@@ -159,7 +208,10 @@ def draw_matches(
     `title` then says how many of how many, and names the colours used (with the count not judged).
     The keypoints may also be `Keypoints` (as `geofeat.detect` returns them) or cv2.KeyPoints, and
     matches0 a `Matches` record (as `geofeat.match` returns it).
-    Returns an (H, W0 + W1, 3) uint8 BGR image, H = max(H0, H1)."""
+    Returns an (H, W0 + W1, 3) uint8 BGR image, H = max(H0, H1); when W0 + W1 exceeds `max_width`
+    pixels (None: never), both frames are shrunk by one factor to fit it, their keypoints with them
+    (pixel centres kept: `image_to_mesh`), so that a pair of large frames is no 35 MB picture whose
+    1 px lines and caption vanish when it is viewed whole."""
     from .features import Matches
     from .keypoints import as_keypoints
 
@@ -173,6 +225,13 @@ def draw_matches(
     if isinstance(matches0, Matches):
         matches0 = matches0.matches0
     left, right = to_bgr(frame0), to_bgr(frame1)
+    if max_width is not None:
+        check_whole(max_width, "max_width", 2)
+    shrink = 1.0 if max_width is None else min(1.0, max_width / (left.shape[1] + right.shape[1]))
+    if shrink < 1:
+        left, scale0 = _shrunk(left, shrink)
+        right, scale1 = _shrunk(right, shrink)
+        keypoints0, keypoints1 = _shrunk_points(keypoints0, scale0), _shrunk_points(keypoints1, scale1)
     canvas = side_by_side(left, right, gap=0)
     offset = left.shape[1]
     matches0 = np.asarray(matches0)
