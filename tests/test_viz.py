@@ -201,3 +201,23 @@ def test_large_frames_are_shrunk_with_their_keypoints_to_a_viewable_picture():
     assert at(1500, 1000, w1, h1, 2000, 1500, w0) == CORRECT and at(999.5, 1299.5, w1, h1, 2000, 1500, w0) == WRONG
     # max_width=None: drawn at their own size
     assert draw_matches(small, small, k1, k1, np.array([0, 1]), max_width=None).shape == (1500, 4000, 3)
+
+
+def test_invalid_keypoints_red_crosses_are_named_in_the_key():
+    """The key named red only as the angle-0 ray, while a keypoint without a patch is a red cross:
+    it read as a ray. The key now has a line for them when any is drawn (its dark box grows)."""
+    frame = _flat_frame((200, 60, 0))
+    n, R, A = 2, 32, 8
+    coords = np.full((n, R, A, 2), np.nan, np.float32)
+    radii = np.arange(1, R + 1, dtype=np.float32)[:, None]
+    angles = np.linspace(0, 2 * np.pi, A, endpoint=False)[None, :]
+    coords[0, ..., 0], coords[0, ..., 1] = 200 + radii * np.cos(angles), 150 + radii * np.sin(angles)
+
+    def key_height(valid) -> int:
+        patches = PolarPatches(np.array([[200.0, 150.0], [250.0, 200.0]]), np.zeros((n, R, A), np.float32), coords,
+                               np.asarray(valid), np.zeros((n, A), np.int32), np.zeros((n, R, A, 3), np.float32), 0.075)
+        picture = draw_geodesic_support(frame, patches)
+        dark = (picture[:, :12] < 40).all(-1).any(axis=1)  # rows of the key's dark boxes, at its left edge
+        return int(np.flatnonzero(dark).max())
+
+    assert key_height([True, False]) > key_height([True, True]) + 10

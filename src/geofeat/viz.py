@@ -90,8 +90,8 @@ def ring_distances_mm(patches: PolarPatches, rings=(7, 15, 31)) -> list[float]:
 def draw_geodesic_support(frame: RGBDFrame, patches: PolarPatches, rings=(7, 15, 31), max_keypoints: int = 64) -> np.ndarray:
     """The frame with each keypoint (white dot), a few of its geodesic rings (isocurves; patch rows
     `rings`) and its angle-0 ray (red), the first `max_keypoints` of them. A key in the top-left corner
-    gives each ring's colour and geodesic distance (`ring_distances_mm`) and, when keypoints were left
-    out, how many are drawn. Invalid keypoints are drawn as red crosses. Returns an (H, W, 3) uint8 BGR
+    gives each ring's colour and geodesic distance (`ring_distances_mm`), how many of those drawn are
+    invalid (drawn as red crosses) and, when keypoints were left out, how many are drawn. Returns an (H, W, 3) uint8 BGR
     image; with no keypoints, the bare frame."""
     canvas = to_bgr(frame)
     colours = [(255, 200, 0), (0, 200, 255), (0, 255, 0)]
@@ -113,6 +113,10 @@ def draw_geodesic_support(frame: RGBDFrame, patches: PolarPatches, rings=(7, 15,
         for (colour, ring), mm in zip(drawn, ring_distances_mm(patches, [r for _, r in drawn])):
             y = put_label(canvas, f"ring at {mm:.0f} mm", (4, y), 0.45, colour)[3]
         y = put_label(canvas, "angle-0 ray", (4, y), 0.45, (80, 80, 255))[3]
+        # the crosses are red as the rays are: named apart, or they read as rays of a keypoint
+        n_invalid = int(np.count_nonzero(~np.asarray(patches.valid[:max_keypoints], bool)))
+        if n_invalid:
+            y = put_label(canvas, f"red x: {n_invalid} without a patch (invalid)", (4, y), 0.45, (80, 80, 255))[3]
         if len(patches) > max_keypoints:
             put_label(canvas, f"first {max_keypoints} of {len(patches)} keypoints", (4, y), 0.45)
     return canvas
