@@ -221,3 +221,21 @@ def test_invalid_keypoints_red_crosses_are_named_in_the_key():
         return int(np.flatnonzero(dark).max())
 
     assert key_height([True, False]) > key_height([True, True]) + 10
+
+
+def test_the_contact_sheet_says_what_its_dots_mean(tmp_path):
+    """The contact sheet drew filled and hollow dots with no key: its only words were the frame names.
+    Its first tile now carries a key, a dark box below its name that the other tiles lack."""
+    from geofeat.sim import simulate_sequence
+    from geofeat.sim.contact_sheet import contact_sheet
+
+    folder = simulate_sequence(tmp_path / "s", scenario="rotate", n_frames=2, seed=5, width=64, height=48,
+                               progress=False, texture="procedural")
+    sheet = contact_sheet(folder, tmp_path / "sheet.png", n_tracks=0)
+    assert sheet.shape == (480, 320, 3)  # two 320 x 240 tiles, one above the other
+    first, second = sheet[:240], sheet[240:]
+
+    def label_rows(tile) -> int:  # rows of the dark (30, 30, 30) label boxes at their left padding
+        return int(np.count_nonzero((tile[:, 4:6] == 30).all(-1).all(axis=1)))
+
+    assert label_rows(first) > label_rows(second) + 10

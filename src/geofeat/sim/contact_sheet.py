@@ -16,7 +16,8 @@ from ..viz import put_label
 def contact_sheet(folder: str | Path, out_png: str | Path, n_frames: int = 6, n_tracks: int = 16,
                   tile_width: int = 320, seed: int = 0) -> np.ndarray:
     """Write a PNG of `n_frames` evenly spaced frames (two rows) with `n_tracks` random reference
-    pixels mapped by the exact ground truth (filled dot: visible; hollow: occluded / off-frame).
+    pixels mapped by the exact ground truth (filled dot: visible; hollow: occluded / off-frame; the
+    first tile says so).
     Returns the (H, W, 3) uint8 BGR sheet."""
     seq = read_sequence(folder)
     idx = np.unique(np.linspace(0, len(seq) - 1, min(n_frames, len(seq))).round().astype(int))
@@ -39,7 +40,9 @@ def contact_sheet(folder: str | Path, out_png: str | Path, n_frames: int = 6, n_
                 continue
             c = (int(round((x + 0.5) * scale - 0.5)), int(round((y + 0.5) * scale - 0.5)))
             cv2.circle(tile, c, 4, col, -1 if v else 1, cv2.LINE_AA)
-        put_label(tile, seq.names[i], (4, 4), 0.45)
+        y = put_label(tile, seq.names[i], (4, 4), 0.45)[3]
+        if not tiles:  # the key, once: the sheet was the dots alone, filled or hollow, and no word of what they mean
+            put_label(tile, "dots: true tracks; hollow: hidden or off frame", (4, y), 0.4)
         tiles.append(tile)
     while len(tiles) % 2 and len(tiles) > 1:
         tiles.append(np.zeros_like(tiles[0]))
