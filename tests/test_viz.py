@@ -239,3 +239,22 @@ def test_the_contact_sheet_says_what_its_dots_mean(tmp_path):
         return int(np.count_nonzero((tile[:, 4:6] == 30).all(-1).all(axis=1)))
 
     assert label_rows(first) > label_rows(second) + 10
+
+
+def test_retrieval_rows_name_their_whole_descriptor(tmp_path):
+    """top6.png labelled each row with the descriptor's first 12 characters: two trained models,
+    "geopatch=run1/x.pt" and "geopatch=run2/x.pt", gave rows with the same label."""
+    import cv2
+    from types import SimpleNamespace
+
+    from geofeat.apps.retrieval import TOP6_HEADER_PX, _top6_picture
+
+    cv2.imwrite(str(tmp_path / "f-rgb.png"), np.full((48, 64, 3), 128, np.uint8))
+    db = SimpleNamespace(folders=[tmp_path] * 2, frames=["f", "f"], classes=["a", "a"])
+    found = (np.array([0]), np.array([[1]]))
+    _top6_picture(db, {"geopatch=run1/x.pt": found, "geopatch=run2/x.pt": found, "tfeat-sim": found},
+                  tmp_path / "top6.png", queries_per=1)
+    picture = cv2.imread(str(tmp_path / "top6.png"))
+    labels = [picture[TOP6_HEADER_PX + 120 * k: TOP6_HEADER_PX + 120 * (k + 1), :110] for k in range(3)]
+    assert not np.array_equal(labels[0], labels[1])
+    assert (labels[2] < 128).any()  # a short name is still written

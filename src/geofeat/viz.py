@@ -25,7 +25,7 @@ def plot_figure(figsize: tuple[float, float]):
     return fig, fig.subplots()
 
 
-def _wrap(text: str, font: int, scale: float, room: int) -> list[str]:
+def wrap_text(text: str, font: int, scale: float, room: int) -> list[str]:
     """`text` broken into lines at most `room` pixels wide at `scale` (between words where it can, inside
     a word wider than `room` where it must); one line when it fits, or when `room` holds no character."""
     def width(t: str) -> int:
@@ -63,7 +63,7 @@ def put_label(canvas: np.ndarray, text: str, origin: tuple[int, int] = (6, 6), s
     pad = max(2, int(round(4 * scale)))
     x0, y0 = int(origin[0]), int(origin[1])
     x1, y = x0, y0
-    for line in _wrap(text, font, scale, canvas.shape[1] - x0 - 2 * pad):
+    for line in wrap_text(text, font, scale, canvas.shape[1] - x0 - 2 * pad):
         (w, h), base = cv2.getTextSize(line, font, scale, 1)
         right, bottom = x0 + w + 2 * pad, y + h + base + 2 * pad
         cv2.rectangle(canvas, (x0, y), (right - 1, bottom - 1), (30, 30, 30), -1)

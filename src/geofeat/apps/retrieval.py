@@ -582,6 +582,8 @@ def _top6_picture(db: RetrievalDatabase, results: dict[str, tuple[np.ndarray, np
     results: {descriptor: (query database indices (Q,), neighbours (Q, k))}."""
     import cv2
 
+    from ..viz import wrap_text
+
     size = (160, 120)
     rows = []
     for name, (q_idx, neighbours) in results.items():
@@ -596,7 +598,15 @@ def _top6_picture(db: RetrievalDatabase, results: dict[str, tuple[np.ndarray, np
             while len(tiles) < 7:
                 tiles.append(np.zeros((size[1], size[0], 3), np.uint8))
             label = np.full((size[1], 110, 3), 255, np.uint8)
-            cv2.putText(label, name[:12], (4, size[1] // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+            # the whole name, wrapped: cut to 12 characters, "geopatch=run1/x.pt" and "geopatch=run2/x.pt" read alike
+            # (a path too long for the column keeps its start and its end, the file's name)
+            lines = wrap_text(name, cv2.FONT_HERSHEY_SIMPLEX, 0.5, 110 - 8)
+            fit = size[1] // 18
+            if len(lines) > fit:
+                lines = lines[:1] + ["..."] + lines[len(lines) - fit + 2:]
+            for k, line in enumerate(lines):
+                y = (size[1] - 18 * len(lines)) // 2 + 14 + 18 * k  # the lines' baselines, centred
+                cv2.putText(label, line, (4, y), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
             rows.append(np.concatenate([label] + tiles, axis=1))
     if rows:
         # a header names the columns: the query, then its results in rank order, and the colours
