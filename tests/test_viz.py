@@ -258,3 +258,19 @@ def test_retrieval_rows_name_their_whole_descriptor(tmp_path):
     labels = [picture[TOP6_HEADER_PX + 120 * k: TOP6_HEADER_PX + 120 * (k + 1), :110] for k in range(3)]
     assert not np.array_equal(labels[0], labels[1])
     assert (labels[2] < 128).any()  # a short name is still written
+
+
+@pytest.mark.parametrize("dtype", ["uint16", "float32", ">u2"])
+def test_a_16_bit_or_float_colour_frame_is_drawn_in_colour(dtype):
+    """RGBDFrame kept a colour copy for display of uint8 images only: a 16-bit or float BGR image was
+    drawn grey by every picture (match, demo, track), though its colours were given."""
+    from geofeat.viz import to_bgr
+
+    bgr = np.zeros((240, 320, 3), np.uint8)
+    bgr[:] = (200, 60, 0)
+    image = (bgr.astype(np.uint16) * 257).astype(dtype) if dtype != "float32" else bgr.astype(np.float32) / 255
+    K = np.array([[300.0, 0, 159.5], [0, 300.0, 119.5], [0, 0, 1]])
+    frame = geofeat.RGBDFrame(image, np.ones((240, 320), np.float32), K)
+    np.testing.assert_array_equal(to_bgr(frame), bgr)
+    # its gray image is read from the given image, as before
+    np.testing.assert_allclose(frame.image, geofeat.RGBDFrame(bgr, frame.depth, K).image, atol=1 / 255)

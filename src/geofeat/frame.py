@@ -178,7 +178,8 @@ class RGBDFrame:
             top-left pixel is (0, 0)), for this image's resolution: focal lengths implausible for
             the image size raise ValueError, a principal point far from the image centre (or off
             it: intrinsics of another resolution?) warns.
-        color: optional (H, W, 3) uint8 BGR image (a copy of the one given), kept for display.
+        color: optional (H, W, 3) uint8 BGR image, kept for display: a copy of the one given, or of a
+            uint16 one's high bytes, or of a float one times 255 (`display_colour`); None for gray.
 
     `image` may also be a PIL image: its RGB is turned into BGR (`from_pil`).
 
@@ -201,7 +202,7 @@ class RGBDFrame:
         gray = to_gray(image)
         # the frame's own copy, as for the depth and K: the caller may draw on its array afterwards
         # (H, W, 3) only: an (H, W, 1) image is gray, shown (`geofeat.viz.to_bgr`) from `image` as an (H, W) one
-        color = image.copy() if (image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.uint8) else None
+        color = display_colour(image)
         # `to_gray` and `check_depth` return new arrays: the frame's own, as the copies of K and the colour
         depth = check_depth(depth, gray.shape, warn_near=True)
         K = check_intrinsics(K).copy()  # the frame's own copy, as for the depth: not the caller's array
@@ -281,6 +282,21 @@ class RGBDFrame:
         # this frame's own gray image, turned: after `with_image` it is not its colour image's gray
         return RGBDFrame(np.ascontiguousarray(np.rot90(image, k)), np.ascontiguousarray(np.rot90(self.depth, k)),
                          Kn).with_image(np.rot90(self.image, k).copy())
+
+
+def display_colour(image: np.ndarray) -> np.ndarray | None:
+    """An (H, W, 3) uint8 BGR copy of an (H, W, 3) colour `image` as `to_gray` reads it (uint8 as it
+    is, uint16 by its high byte, float in [0, 1] times 255, rounded), for display; None for any other
+    shape (gray). A uint16 or float colour image was kept as no colour at all: its pictures were gray."""
+    if image.ndim != 3 or image.shape[2] != 3:
+        return None
+    if not image.dtype.isnative:
+        image = image.astype(image.dtype.newbyteorder("="))
+    if image.dtype == np.uint8:
+        return image.copy()
+    if image.dtype == np.uint16:
+        return (image >> 8).astype(np.uint8)
+    return np.clip(np.rint(image.astype(np.float32) * 255), 0, 255).astype(np.uint8)
 
 
 def read_only(array: np.ndarray | None) -> np.ndarray | None:
