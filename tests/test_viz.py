@@ -274,3 +274,26 @@ def test_a_16_bit_or_float_colour_frame_is_drawn_in_colour(dtype):
     np.testing.assert_array_equal(to_bgr(frame), bgr)
     # its gray image is read from the given image, as before
     np.testing.assert_allclose(frame.image, geofeat.RGBDFrame(bgr, frame.depth, K).image, atol=1 / 255)
+
+
+def test_track_gif_frames_of_large_frames_are_at_most_max_gif_width():
+    """track.gif's frames were the frames halved whatever their size: 4000x3000 frames made a GIF of
+    2000x1500 frames. They are now at most `MAX_GIF_WIDTH` wide, the grid shrunk with the frame."""
+    from geofeat.apps.tracking import GRID_SIDE, TrackResult, grid_frames
+
+    MAX_GIF_WIDTH = 960  # geofeat.apps.tracking.MAX_GIF_WIDTH
+    frame = _flat_frame((90, 90, 90), (3000, 4000))
+
+    class Seq:
+        def frame(self, name):
+            return frame
+
+    g = np.stack(np.meshgrid(np.linspace(1000, 3000, GRID_SIDE), np.linspace(500, 2500, GRID_SIDE)), -1).reshape(-1, 2)
+    result = TrackResult("s", "geopatch", (1000, 500, 3000, 2500), ["a", "b"], g, np.stack([g, g]), skipped=["c"])
+    result.frames.append("c")
+    pictures = grid_frames(Seq(), result)
+    f = MAX_GIF_WIDTH / 4000
+    assert [p.shape for p in pictures] == [(int(round(3000 * f)), MAX_GIF_WIDTH, 3)] * 3
+    green = pictures[1][..., 1].astype(int) - pictures[1][..., 0] > 40  # RGB: the tracked grid's green
+    ys, xs = np.nonzero(green[40:])  # below the label
+    assert abs(xs.min() - 1000 * f) < 3 and abs(xs.max() - 3000 * f) < 3 and abs(ys.min() + 40 - 500 * f) < 3

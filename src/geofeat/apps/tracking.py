@@ -974,10 +974,16 @@ def _draw_grid(image: np.ndarray, pts: np.ndarray, side: int, colour) -> tuple[n
     return out, True
 
 
-def grid_frames(seq: Sequence, result: TrackResult, scale: float = 0.5) -> list[np.ndarray]:
+#: `track.gif`'s widest frame, pixels (`grid_frames`).
+MAX_GIF_WIDTH = 960
+
+
+def grid_frames(seq: Sequence, result: TrackResult, scale: float = 0.5,
+                max_width: int | None = MAX_GIF_WIDTH) -> list[np.ndarray]:
     """(h, w, 3) uint8 RGB pictures of every frame with the tracked grid drawn (the template's in
-    blue, the others in green), resized by `scale`, each labelled with the descriptor and the frame
-    name at a legible size whatever `scale`. A frame in `result.skipped` (it could not be read or
+    blue, the others in green), resized by `scale`, or by less where that leaves them wider than
+    `max_width` pixels (None: no limit; 4000-pixel frames made a GIF of 2000-pixel frames), each
+    labelled with the descriptor and the frame name at a legible size whatever `scale`. A frame in `result.skipped` (it could not be read or
     described) gets a dark placeholder that says so, so that the animation keeps every frame's place."""
     from ..viz import put_label, to_bgr
 
@@ -989,6 +995,8 @@ def grid_frames(seq: Sequence, result: TrackResult, scale: float = 0.5) -> list[
             continue
         bgr = to_bgr(seq.frame(name))
         shape = bgr.shape[:2]
+        if max_width is not None:
+            scale = min(scale, max_width / shape[1])
         pic, drawn = _draw_grid(bgr, result.points[k], GRID_SIDE, (0, 255, 0) if k else (255, 200, 0))
         if scale != 1:
             pic = cv2.resize(pic, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
