@@ -18,6 +18,21 @@ from numba import njit, prange
 NEAR_M = 0.05
 
 
+def clipped_in_view(verts_cam: np.ndarray, K: np.ndarray, size: tuple[int, int]) -> bool:
+    """Whether the renderer leaves out cloth that the camera would see: a vertex (N, 3) camera
+    coordinates, metres, in front of the camera but closer than NEAR_M to its image plane, that
+    projects into the (H, W) image (K (3, 3), pixels). Its triangles are not drawn, so the frame shows
+    what lies behind them (a hole in the cloth, or its back side when the cloth reaches the camera)."""
+    verts = np.asarray(verts_cam, dtype=np.float64).reshape(-1, 3)
+    near = verts[(verts[:, 2] > 0) & (verts[:, 2] < NEAR_M)]
+    if not len(near):
+        return False
+    x = K[0, 0] * near[:, 0] / near[:, 2] + K[0, 2]
+    y = K[1, 1] * near[:, 1] / near[:, 2] + K[1, 2]
+    H, W = size
+    return bool(((x > -0.5) & (x < W - 0.5) & (y > -0.5) & (y < H - 0.5)).any())
+
+
 @dataclass
 class RenderOutput:
     """One rendered view.

@@ -33,6 +33,7 @@ from ..io import DEPTH_NO_DATA, write_intrinsics, write_landmarks
 from ..outputs import check_out_dir, replace_folder, temporary_folder
 from ..groundtruth.landmarks import MIN_LANDMARKS
 from ..groundtruth.simulator import GT_JSON, GT_SUFFIX, FrameTruth, map_points
+from .render import NEAR_M, clipped_in_view
 from .scenes import SCENARIOS, ClothScene, SimFrame, default_intrinsics, get_preset
 from .textures import choose_texture
 
@@ -262,9 +263,12 @@ def _write(folder: Path, scene: ClothScene, progress: bool, meta: dict, shown: P
         frames = tqdm(frames, total=scene.n_frames, desc=f"simulate {meta['scenario']}", unit="frame")
     ref_truth: FrameTruth | None = None
     landmarks = np.zeros((0, 2))
+    clipped: list[str] = []  # frames where the cloth in view comes closer than the renderer draws
     for frame in frames:
         name = names[frame.index]
         truth = write_frame(folder, name, frame, depth_unit)
+        if clipped_in_view(frame.vertices, scene.K, scene.size):
+            clipped.append(name)
         if frame.index == 0:
             ref_truth = truth
             landmarks = harris_landmarks(frame.image, frame.render.mask)
@@ -277,9 +281,19 @@ def _write(folder: Path, scene: ClothScene, progress: bool, meta: dict, shown: P
         xy, visible = map_points(ref_truth, truth, scene.K, cfg.spacing_m, landmarks)
         xy = np.where(np.isfinite(xy), xy, -1.0)
         write_landmarks(folder / f"{name}.csv", np.arange(len(landmarks)), xy, visible)
+    if clipped:
+        # a wide --fov puts the paper and hard presets' cloth a few tenths of a metre away, and their pins and
+        # camera swing can bring it onto the lens: those frames showed holes or the inside of the cloth unannounced
+        shown_names = ", ".join(clipped[:5]) + (", ..." if len(clipped) > 5 else "")
+        warnings.warn(f"{shown or folder}: in {len(clipped)} of {scene.n_frames} frames ({shown_names}) the cloth in view "
+                      f"comes closer than {NEAR_M * 100:g} cm to the camera, which the renderer does not draw: those "
+                      "frames show holes in the cloth or its inside, as no camera would (their ground truth matches what "
+                      "they show; groundtruth.json lists them as near_frames). A narrower --fov, a milder preset or "
+                      "another seed keeps the cloth away.", stacklevel=2)
     meta = {
         **meta,
         "n_frames": scene.n_frames,
+        "near_frames": clipped,
         "image_size": [scene.size[1], scene.size[0]],
         "grid": [cfg.rows, cfg.cols],
         "spacing_m": cfg.spacing_m,
