@@ -253,3 +253,26 @@ def test_simulate_refuses_a_contact_sheet_inside_its_texture_folder_and_names_a_
     assert sorted(p.name for p in tmp_path.iterdir()) == ["tex"] and sorted(p.name for p in tex.iterdir()) == ["cloth.png"]
     assert main(["simulate", str(tmp_path / "s"), "--texture", str(tex), *small]) == 2
     assert f"texture: {tex} is a folder, not an image file" in capsys.readouterr().err
+
+
+def test_simulate_texture_folder_passes_over_macos_dot_files_and_names_a_bad_file_as_the_folders(tmp_path, capsys):
+    """A texture folder copied from a Mac holds a `._cloth.png` beside each photo (AppleDouble metadata, no
+    image): every seed that drew one failed with "texture: cannot decode image", naming --texture, which was
+    not given. Hidden files are no textures; a file of the folder that cannot be read is named as the folder's."""
+    from geofeat.sim.textures import choose_texture, list_textures
+
+    tex = tmp_path / "tex"
+    tex.mkdir()
+    cv2.imwrite(str(tex / "cloth.png"), np.full((32, 32, 3), 128, np.uint8))
+    (tex / "._cloth.png").write_bytes(b"\x00\x05\x16\x07 AppleDouble")
+    assert list_textures(tex) == [tex / "cloth.png"]
+    for seed in range(8):  # every seed draws the photo
+        image, name = choose_texture(np.random.default_rng(seed), texture_dir=tex)
+        assert name == "cloth.png" and image.shape == (32, 32, 3)
+    (tex / "notes.png").write_text("not an image")
+    small = ["--frames", "1", "--width", "64", "--height", "48", "--no-progress"]
+    seed = next(s for s in range(20) if list_textures(tex)[int(np.random.default_rng(s).integers(2))].name == "notes.png")
+    assert main(["simulate", str(tmp_path / "s"), "--texture-dir", str(tex), "--seed", str(seed), *small]) == 2
+    err = capsys.readouterr().err
+    assert f"texture_dir: notes.png, the file this seed draws from {tex}, is no usable texture" in err
+    assert "remove it from the folder" in err and not (tmp_path / "s").exists()

@@ -20,11 +20,13 @@ def packaged_texture_dir() -> Path:
 
 
 def list_textures(folder: str | Path) -> list[Path]:
-    """Image files of a folder (sorted, non-recursive)."""
+    """Image files of a folder (sorted, non-recursive; hidden files left out: the `._photo.jpg` that macOS
+    writes beside each photo on a foreign disk is no image, and drawn for a seed it failed that seed)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise ValueError(f"texture_dir: not a directory: {folder}")
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
+    files = sorted(p for p in folder.iterdir()
+                   if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith(".") and p.is_file())
     if not files:
         raise ValueError(f"texture_dir: no image files ({', '.join(IMAGE_SUFFIXES)}) in {folder}")
     return files
@@ -128,7 +130,11 @@ def choose_texture(
     if texture_dir is not None:
         files = list_textures(texture_dir)
         path = files[int(rng.integers(len(files)))]
-        return read_texture(path), path.name
+        try:
+            return read_texture(path), path.name
+        except ValueError as error:  # it named --texture, which was not given, and only some seeds hit it
+            raise ValueError(f"texture_dir: {path.name}, the file this seed draws from {texture_dir}, is no usable "
+                             f"texture ({error}); remove it from the folder") from None
     if rng.random() < procedural_fraction:
         if rng.random() < 0.5:
             return procedural_texture(rng), "procedural"
