@@ -525,3 +525,24 @@ def test_recorded_difference_tells_a_fabric_family_from_a_random_fabric(tmp_path
     assert recorded_difference(tmp_path / "plaid", texture="fabric:plaid", **asked) is None
     found = recorded_difference(tmp_path / "plaid", texture="fabric", **asked)
     assert found is not None and "texture 'fabric:plaid' (wanted 'fabric')" in found
+
+
+def test_a_texture_with_transparent_pixels_is_warned_of(tmp_path):
+    """The alpha channel of an RGBA texture was dropped without a word: a logo on a transparent background
+    (stored as transparent black, as most tools write it) became a logo on a black cloth."""
+    import warnings
+
+    rgba = np.zeros((64, 64, 4), np.uint8)
+    rgba[16:48, 16:48] = (0, 0, 255, 255)
+    cv2.imwrite(str(tmp_path / "logo.png"), rgba)
+    with pytest.warns(UserWarning, match=r"logo.png has transparent pixels \(75%\)"):
+        image = read_texture(tmp_path / "logo.png")
+    assert (image[0, 0] == 0).all() and (image[32, 32] == (0, 0, 255)).all()  # what the cloth shows
+    rgba[..., 3] = 255  # opaque RGBA, grey and 16-bit files: no warning
+    cv2.imwrite(str(tmp_path / "opaque.png"), rgba)
+    cv2.imwrite(str(tmp_path / "grey.png"), np.full((16, 16), 90, np.uint8))
+    cv2.imwrite(str(tmp_path / "deep.png"), np.full((16, 16, 4), 65535, np.uint16))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for name in ("opaque.png", "grey.png", "deep.png"):
+            read_texture(tmp_path / name)

@@ -45,7 +45,23 @@ def read_texture(path: str | Path) -> np.ndarray:
     image = read_image(path, "texture")  # ValueError "texture: cannot decode image ..." for a foreign file
     if min(image.shape[:2]) < 8:
         raise ValueError(f"texture: image {path} is too small ({image.shape[1]}x{image.shape[0]} px)")
+    _warn_if_transparent(path)
     return image
+
+
+def _warn_if_transparent(path: Path) -> None:
+    """Warn when the image file has an alpha channel with transparent pixels: the cloth shows the colour
+    stored under them (black, in most files: a logo on a transparent background became a logo on black)."""
+    import warnings
+
+    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION)
+    if raw is None or raw.ndim != 3 or raw.shape[2] != 4:
+        return
+    alpha = raw[..., 3]
+    if alpha.min() < np.iinfo(alpha.dtype).max:
+        warnings.warn(f"texture: {path} has transparent pixels ({(alpha < np.iinfo(alpha.dtype).max).mean():.0%}); "
+                      "the cloth shows the colour stored under them, not what the image shows over a background: "
+                      "flatten the image onto a background first", stacklevel=3)
 
 
 def prepare_texture(image: np.ndarray, aspect: float, max_width: int) -> np.ndarray:
