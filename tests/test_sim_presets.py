@@ -320,3 +320,19 @@ def test_frames_whose_cloth_reaches_the_camera_are_warned_of_and_listed(tmp_path
     vertices = read_frame_truth(folder, "frame-001").vertices.reshape(-1, 3)
     assert 0 < vertices[:, 2].min() < NEAR_M
     assert read_metadata(hard.folder)["near_frames"] == []  # hard at --fov 90, seed 3: the cloth stays away
+
+
+def test_help_says_the_deform_camera_of_paper_and_hard_moves(tmp_path, capsys):
+    """--help said "deform: fixed camera" for every preset, but the paper and hard presets swing the deform
+    camera closer and farther (image scale 0.5x-1.3x) and orbit it about the cloth."""
+    from geofeat.groundtruth.simulator import GT_SUFFIX
+
+    with pytest.raises(SystemExit):
+        main(["simulate", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "deform: fixed camera;" not in text
+    assert "with --preset paper or hard it swings closer and farther and orbits the cloth" in text
+    folder = simulate_sequence(tmp_path / "s", "deform", n_frames=2, width=32, height=32, preset="paper",
+                               texture="procedural", progress=False)
+    with np.load(folder / f"frame-001{GT_SUFFIX}") as pose:
+        assert np.abs(pose["R"] - np.eye(3)).max() > 1e-3 and np.abs(pose["t"]).max() > 1e-3

@@ -23,8 +23,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument("out_dir", type=Path, help="sequence folder to create")
     p.add_argument("--scenario", choices=SCENARIOS, default="deform",
-                   help="deform: fixed camera; rotate: camera roll 0..180 deg; scale: camera moves back to twice its distance "
-                   "(default deform)")
+                   help="deform: the cloth moves, the camera stays put (with --preset paper or hard it swings closer and "
+                   "farther and orbits the cloth); rotate: camera roll 0..180 deg; scale: camera moves back to twice "
+                   "its distance (default deform)")
     p.add_argument("--preset", choices=tuple(PRESETS), default="mild",
                    help="mild: the original gentle scenes; paper: the paper's simulation section (scale swings "
                    "0.5x-1.3x, bends, gusts); hard: strong folds, foreshortening up to ~70 deg, self-occlusion, "

@@ -135,8 +135,9 @@ def simulate_sequence(
 
     Args:
         out_dir: sequence folder to create (must not exist or be empty, unless `overwrite`).
-        scenario: `deform` (fixed camera), `rotate` (camera roll 0..180 degrees) or `scale`
-            (camera moving back to twice the distance).
+        scenario: `deform` (a fixed camera; with the paper and hard presets it swings closer and farther
+            and orbits the cloth), `rotate` (camera roll 0..180 degrees) or `scale` (camera moving back to
+            twice the distance).
         n_frames: number of frames, the reference included (>= 1).
         seed: a whole number >= 0; everything random (texture choice, cloth, wind, pins, lights, noise) follows it.
         texture: image file, `"procedural"`, `"fabric"` or `"fabric:KIND"` (a generated fabric,
