@@ -311,6 +311,22 @@ def test_texture_loading():
     assert proc.shape == (48, 64, 3) and proc.std() > 10
 
 
+def test_a_texture_word_that_is_no_file_names_the_generated_choices(tmp_path, monkeypatch):
+    """`--texture Procedural` (or "fabrics") said only "file not found: Procedural": the choices it
+    almost named were not mentioned. A path with a folder or a suffix is a file that is missing."""
+    from geofeat.sim.textures import choose_texture
+
+    monkeypatch.chdir(tmp_path)
+    rng = np.random.default_rng(0)
+    for word in ("Procedural", "fabrics"):
+        with pytest.raises(ValueError, match=rf"file not found: {word}; the generated textures are 'procedural', "
+                                             r"'fabric' or 'fabric:KIND' \(lower case\)"):
+            choose_texture(rng, texture=word)
+    for path in ("cloth.jpg", str(tmp_path / "photos" / "cloth")):
+        with pytest.raises(ValueError, match=r"file not found: [^;]*$"):
+            choose_texture(rng, texture=path)
+
+
 def test_a_16_bit_texture_keeps_its_contrast_or_is_warned_of(tmp_path):
     """OpenCV's plain colour read scaled a 16-bit file by 1/256: a texture of 8-bit values stored in 16
     bits came back black without a word (it would be rendered as a black cloth)."""

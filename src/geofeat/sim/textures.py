@@ -41,7 +41,10 @@ def read_texture(path: str | Path) -> np.ndarray:
     if path.is_dir():  # "file not found" for a folder that exists misled
         raise ValueError(f"texture: {path} is a folder, not an image file; pass a folder of images as --texture-dir")
     if not path.is_file():
-        raise ValueError(f"texture: file not found: {path}")
+        # a bare word that is no file ("Procedural", "fabrics") is likelier a misspelt choice than a lost file
+        choices = "" if path.suffix or len(path.parts) > 1 else (
+            "; the generated textures are 'procedural', 'fabric' or 'fabric:KIND' (lower case)")
+        raise ValueError(f"texture: file not found: {path}{choices}")
     image = read_image(path, "texture")  # ValueError "texture: cannot decode image ..." for a foreign file
     if min(image.shape[:2]) < 8:
         raise ValueError(f"texture: image {path} is too small ({image.shape[1]}x{image.shape[0]} px)")
