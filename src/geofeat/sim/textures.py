@@ -12,6 +12,8 @@ import cv2
 import numpy as np
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
+#: The formats of `IMAGE_SUFFIXES` that can hold an alpha channel (`_warn_if_transparent`).
+ALPHA_SUFFIXES = (".png", ".bmp", ".tif", ".tiff", ".webp")
 
 
 def packaged_texture_dir() -> Path:
@@ -54,9 +56,13 @@ def read_texture(path: str | Path) -> np.ndarray:
 
 def _warn_if_transparent(path: Path) -> None:
     """Warn when the image file has an alpha channel with transparent pixels: the cloth shows the colour
-    stored under them (black, in most files: a logo on a transparent background became a logo on black)."""
+    stored under them (black, in most files: a logo on a transparent background became a logo on black).
+    The file is decoded a second time (`read_image` drops the alpha), so only in formats that can hold
+    one: the packaged JPEG photographs, and every seed that draws one, are not read twice."""
     import warnings
 
+    if path.suffix.lower() not in ALPHA_SUFFIXES:
+        return
     raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION)
     if raw is None or raw.ndim != 3 or raw.shape[2] != 4:
         return
