@@ -6,6 +6,7 @@ import hashlib
 import json
 import warnings
 
+import cv2
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -13,7 +14,8 @@ from scipy.spatial import cKDTree
 import geofeat
 from geofeat.bench.report import read_results
 from geofeat.bench.runner import BenchConfig, run_benchmark
-from geofeat.detectors.geokey import SHIPPED_WEIGHTS, GeoKeyModel, candidates, detect_geokey, load_geokey, suppress
+from geofeat.detectors.geokey import (SHIPPED_WEIGHTS, GeoKeyModel, candidates, detect_geokey, load_geokey,
+                                      local_cornerness, noise_corner_share, suppress)
 from geofeat.sim import simulate_sequence
 from geofeat.train.detector import (SIFT_KEY, admissible_threshold, choose_model, fit, mean_ms, sequence_samples,
                                     with_level_bias)
@@ -166,6 +168,45 @@ def test_a_blank_frame_with_faint_noise_warns_that_no_candidate_reaches_the_thre
         warnings.simplefilter("error")
         assert len(geofeat.detect(frame, 100, detector="geokey")) == 100
         detect_geokey(blank, 100, threshold=np.inf, min_fraction=1.0)  # the floor alone, asked for: no warning
+
+
+def test_local_cornerness_is_opencvs_smaller_eigenvalue_at_the_strongest_of_nine_pixels():
+    """The noise check's corner strength is the structure tensor's smaller eigenvalue (Shi-Tomasi,
+    what GeoKey's candidates maximise), up to OpenCV's constant scale, taken at the strongest of the
+    3 x 3 pixels around each position."""
+    frame = geofeat.read_demo_frame()
+    image = frame.image.astype(np.float32)
+    rng = np.random.default_rng(0)
+    xy = np.stack([rng.uniform(10, 629, 400), rng.uniform(10, 469, 400)], 1)
+    ours = local_cornerness(image, xy)
+    opencv = cv2.dilate(cv2.cornerMinEigenVal(image, 3, 3), np.ones((3, 3), np.uint8))
+    theirs = opencv[np.rint(xy[:, 1]).astype(int), np.rint(xy[:, 0]).astype(int)]
+    strong = theirs > 1e-7
+    assert strong.mean() > 0.9
+    ratio = ours[strong] / theirs[strong]
+    assert ratio.std() < 1e-4 * ratio.mean()
+    np.testing.assert_array_equal(ours[~strong] < 1e-6, True)
+
+
+@pytest.mark.parametrize("grey_levels", [2.5, 5.0, 10.0])
+def test_a_textureless_noisy_frame_warns_that_its_keypoints_are_noise(grey_levels):
+    """A uniform surface with sensor noise of a few grey levels: candidates reach GeoKey's threshold
+    (at 5 and 10 levels), so the floor's warning is silent, and it returned about 1900 keypoints on pure
+    noise without a word. A warning now says that few of them are stronger corners than the noise.
+    The Kinect frame, as it is and with 5 grey levels of noise added, does not warn."""
+    frame = geofeat.read_demo_frame()
+    noise = np.random.default_rng(1).normal(0.5, grey_levels / 255, frame.shape).clip(0, 1).astype(np.float32)
+    blank = geofeat.RGBDFrame(noise, frame.depth, frame.K)
+    said = "stronger corners than its image noise" if grey_levels >= 5 else r"only the floor"  # none reaches it at 2.5
+    with pytest.warns(UserWarning, match=f"geokey: .*{said}"):
+        assert len(geofeat.detect(blank, 2048, detector="geokey")) > 1000
+    assert noise_corner_share(blank.image, geofeat.detect(blank, 2048, detector="geokey").xy) < 0.15
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        kps = geofeat.detect(frame, 2048, detector="geokey")
+        assert noise_corner_share(frame.image, kps.xy) > 0.9
+        noisy = np.clip(frame.image + np.random.default_rng(2).normal(0, 5 / 255, frame.shape), 0, 1)
+        geofeat.detect(geofeat.RGBDFrame(noisy.astype(np.float32), frame.depth, frame.K), 2048, detector="geokey")
 
 
 @pytest.mark.parametrize("n", [0, -5, 2.5])

@@ -252,15 +252,79 @@ class Candidates:
         return 8.0 * 2.0 ** self.level
 
 
-def noise_level(image: np.ndarray) -> float:
+def noise_level(image: np.ndarray, stride: int = 1) -> float:
     """Robust standard deviation of the noise of a (H, W) gray image, in its own units: the median
     absolute response to `NOISE_MASK` (Immerkaer's mask; the median instead of the mean, so that
-    texture and edges weigh less), / 0.6745 / 6. 0 for images smaller than 3 x 3."""
+    texture and edges weigh less), / 0.6745 / 6. 0 for images smaller than 3 x 3. `stride` > 1
+    takes the median over every stride-th response in each direction (a quicker estimate)."""
     g = np.asarray(image, np.float32)
     if min(g.shape) < 3:
         return 0.0
-    response = cv2.filter2D(g, -1, NOISE_MASK)[1:-1, 1:-1]
+    response = cv2.filter2D(g, -1, NOISE_MASK)[1:-1:stride, 1:-1:stride]
     return float(np.median(np.abs(response))) / (0.6745 * 6.0)
+
+
+#: The corner strength that white noise reaches: the 99th percentile of `local_cornerness` on white
+#: noise of unit standard deviation (a fixed 256 x 256 draw; the strength scales with the variance).
+NOISE_CORNERNESS_PERCENTILE = 99.0
+#: GeoKey warns when fewer than this share of a frame's keypoints are stronger corners than its
+#: noise reaches (`noise_corner_share`): 0.07-0.09 on frames of pure noise of 1-10 grey levels,
+#: 0.33-1.00 on the Kinect frame and the first and last frames of the 18 validation sequences.
+NOISE_KEYPOINT_SHARE = 0.2
+#: Keypoints looked at by `noise_corner_share` (evenly spaced in the list): enough for a share
+#: within a few per cent, a fraction of a millisecond.
+NOISE_CHECK_KEYPOINTS = 256
+#: ... and the noise level it compares them with is the median over every third pixel in each
+#: direction (`noise_level`'s stride; within 2 % of the full median on the Kinect frame and on pure noise).
+NOISE_CHECK_STRIDE = 3
+
+
+def local_cornerness(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """(N,) corner strength of a (H, W) float gray image at (N, 2) pixel positions (x, y): the
+    structure tensor's smaller eigenvalue (3 x 3 Sobel gradients summed over a 3 x 3 window, in
+    squared image units) at the nearest pixel and its 8 neighbours, the largest of the nine.
+    Positions within 4 px of the border are clamped inside."""
+    g = np.asarray(image, np.float32)
+    H, W = g.shape
+    cx = np.clip(np.rint(xy[:, 0]).astype(np.int64), 4, W - 5)
+    cy = np.clip(np.rint(xy[:, 1]).astype(np.int64), 4, H - 5)
+    off = np.arange(-4, 5)
+    patch = g[cy[:, None, None] + off[None, :, None], cx[:, None, None] + off[None, None, :]]  # (N, 9, 9)
+    smooth_y = patch[:, :-2] + 2 * patch[:, 1:-1] + patch[:, 2:]  # (N, 7, 9)
+    smooth_x = patch[:, :, :-2] + 2 * patch[:, :, 1:-1] + patch[:, :, 2:]  # (N, 9, 7)
+    gx = (smooth_y[:, :, 2:] - smooth_y[:, :, :-2]) / 8.0  # (N, 7, 7)
+    gy = (smooth_x[:, 2:] - smooth_x[:, :-2]) / 8.0
+
+    def box3(a: np.ndarray) -> np.ndarray:  # (N, 7, 7) -> (N, 5, 5) sums over 3 x 3 windows
+        rows = a[:, :-2] + a[:, 1:-1] + a[:, 2:]
+        return rows[:, :, :-2] + rows[:, :, 1:-1] + rows[:, :, 2:]
+
+    a, b, c = box3(gx * gx), box3(gx * gy), box3(gy * gy)
+    smaller = 0.5 * (a + c) - np.sqrt(0.25 * (a - c) ** 2 + b * b)  # (N, 5, 5)
+    return smaller[:, 1:-1, 1:-1].reshape(len(xy), -1).max(axis=1)
+
+
+@lru_cache(maxsize=1)
+def _unit_noise_cornerness() -> float:
+    """The NOISE_CORNERNESS_PERCENTILE-th percentile of `local_cornerness` on unit white noise."""
+    noise = np.random.default_rng(0).standard_normal((256, 256)).astype(np.float32)
+    yy, xx = np.mgrid[8:248, 8:248]
+    return float(np.percentile(local_cornerness(noise, np.stack([xx.ravel(), yy.ravel()], 1)),
+                               NOISE_CORNERNESS_PERCENTILE))
+
+
+def noise_corner_share(image: np.ndarray, xy: np.ndarray) -> float:
+    """Share of the keypoints at (N, 2) pixel positions (x, y) of a (H, W) gray image whose corner
+    strength (`local_cornerness`) exceeds what the image's own noise (`noise_level`, as white noise)
+    reaches at its 99th percentile; at most NOISE_CHECK_KEYPOINTS of them, evenly spaced, are looked
+    at. 1.0 for an image without noise or without keypoints. Keypoints on a textureless surface are
+    corners of its noise, which no other view repeats."""
+    sigma = noise_level(image, stride=NOISE_CHECK_STRIDE)
+    if len(xy) == 0 or sigma <= 0.0 or min(np.shape(image)) < 9:
+        return 1.0
+    pick = np.unique(np.linspace(0, len(xy) - 1, min(len(xy), NOISE_CHECK_KEYPOINTS)).astype(np.int64))
+    strength = local_cornerness(image, np.asarray(xy, np.float64)[pick])
+    return float(np.mean(strength > _unit_noise_cornerness() * sigma * sigma))
 
 
 def detection_image(frame: RGBDFrame, denoise: float) -> RGBDFrame:
@@ -395,6 +459,7 @@ def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
         model.nms_radius if nms_radius is None else nms_radius, model.threshold if threshold is None else threshold,
         model.min_fraction if min_fraction is None else min_fraction, model.denoise if denoise is None else denoise)
     mask = None if mask is None else check_mask(mask, frame.shape)  # before any work
+    raw_image = frame.image
     frame = detection_image(frame, denoise)
     cands = candidates(frame)
     if mask is not None:
@@ -420,6 +485,12 @@ def detect_geokey(frame: RGBDFrame, n: int, model: GeoKeyModel | None = None,
     if n:
         order = order[:n]
     m = len(order)
+    if reached.any():  # (the floor's own warning above covers a frame where none reached the threshold)
+        share = noise_corner_share(raw_image, cands.xy[order])
+        if share < NOISE_KEYPOINT_SHARE:
+            warnings.warn(f"geokey: only {100 * share:.0f} % of this frame's keypoints are stronger corners than "
+                          f"its image noise (noise level {noise_level(raw_image, NOISE_CHECK_STRIDE):.3g} of the image's range): little "
+                          "texture; keypoints on noise are not found again in other views", stacklevel=2)
     return Keypoints(cands.xy[order], np.zeros(m), cands.size[order], score[order].astype(np.float64))
 
 
