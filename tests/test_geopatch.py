@@ -171,6 +171,25 @@ def test_threads_and_batch_size_must_be_whole_numbers(option, value):
     assert GeoPatch(device="cpu", backend="torch", threads=np.int64(1), batch_size=np.int32(8)).threads == 1
 
 
+def test_an_absurd_thread_count_is_refused_not_started():
+    """GeoPatch(threads=100000) asked torch (at describe) or ONNX Runtime (at once) for 100000 threads,
+    which killed the process; DaLI's workers and the runtimes' own threads= likewise."""
+    import os
+
+    from geofeat.descriptors.dali import DaLI
+    from geofeat.descriptors.geopatch_onnx import OnnxGeoPatch
+
+    most = 64 * (os.cpu_count() or 1)
+    for backend in ("torch", "onnx"):
+        with pytest.raises(ValueError, match=rf"^threads: 100000 threads is far more than .*expected 1 to {most}"):
+            GeoPatch(device="cpu", backend=backend, threads=100000)
+    assert GeoPatch(device="cpu", backend="torch", threads=most).threads == most  # the largest allowed
+    with pytest.raises(ValueError, match=r"^threads: 100000 threads"):
+        OnnxGeoPatch(b"", threads=100000)  # refused before the model is read
+    with pytest.raises(ValueError, match=r"^workers: 100000 threads"):
+        DaLI(workers=100000, progress=False)
+
+
 def test_describe_names_a_valid_mask_of_another_length():
     g = GeoPatch(device="cpu", backend="torch")
     with pytest.raises(ValueError, match=r"^valid: expected shape \(2,\)"):  # was numpy's "cannot reshape"

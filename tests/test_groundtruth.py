@@ -656,3 +656,13 @@ def test_simulator_truth_of_another_size_than_the_frames_is_refused(tmp_path, si
         half.correspondences(half.targets[0], half.reference, np.array([[80.0, 60.0]]))
     assert simulated[0].correspondences(simulated[0].targets[0], simulated[0].reference,
                                         np.array([[160.0, 120.0]]))[0].shape == (1, 2)
+
+
+@pytest.mark.parametrize("stride", [0, -4])
+def test_mapping_errors_refuses_a_stride_below_one(tmp_path, stride):
+    """stride=0 raised numpy's bare ZeroDivisionError from np.arange; a negative one compared no pixel."""
+    from geofeat.io import demo_data_dir
+
+    seq = read_sequence(demo_data_dir())
+    with pytest.raises(ValueError, match=rf"stride: expected a whole number >= 1, got {stride}"):
+        mapping_errors(seq, tmp_path, seq.reference, stride=stride)

@@ -790,3 +790,89 @@ def test_write_frame_of_millimetres_says_it_takes_metres(tmp_path):
                                          r"takes metres: divide millimetres by 1000"):
         write_frame(tmp_path, "f", cv2.imread(str(src / "cloud_1-rgb.png")), raw, depth_scale=0.1)
     assert not list(tmp_path.iterdir())
+
+
+# ---------------------------------------------------------------- review-io: calibration files, float depth
+_KINECT_K = "525 0 319.5 0 525 239.5 0 0 1"
+
+
+def _opencv_xml(dt: str = "d", data: str = _KINECT_K, extra: str = "") -> str:
+    return (f'<?xml version="1.0"?>\n<opencv_storage>\n<intrinsics type_id="opencv-matrix"><rows>3</rows><cols>3</cols>'
+            f"<dt>{dt}</dt><data>{data}</data></intrinsics>\n{extra}</opencv_storage>\n")
+
+
+@pytest.mark.parametrize("text, size", [
+    (_opencv_xml(extra="<image_width>1280</image_width>\n<image_height>960</image_height>\n"),
+     r"1280x960 \(image_width, image_height\)"),  # what OpenCV's calibration sample writes
+    (f"%YAML:1.0\n---\nintrinsics: !!opencv-matrix\n  rows: 3\n  cols: 3\n  dt: d\n  data: [{_KINECT_K.replace(' ', ', ')}]\n"
+     "image_size: [1280, 960]\n", r"1280x960 \(image_size\)"),
+])
+def test_intrinsics_recording_another_image_size_are_refused(tmp_path, text, size):
+    """A calibration of 1280x960 frames recording its image size was read for 640x480 frames without a
+    word (its principal point (319.5, 239.5) lies on the smaller image too), and every geodesic patch
+    was sized with focal lengths twice too long."""
+    src = demo_data_dir()
+    (tmp_path / "intrinsics.xml").write_text(text)
+    np.testing.assert_allclose(read_intrinsics(tmp_path / "intrinsics.xml")[0], [525, 0, 319.5])  # no frames: no check
+    with pytest.raises(ValueError, match=rf"intrinsics_path: .*intrinsics.xml records an image size of {size}, but the "
+                                         r"frames are 640x480.*fx and cx by 640/1280, fy and cy by 480/960"):
+        geofeat.read_frame(src / "cloud_1-rgb.png", src / "cloud_1-depth.png", tmp_path / "intrinsics.xml")
+    for name in ("cloud_1-rgb.png", "cloud_1-depth.png"):
+        shutil.copy(src / name, tmp_path / name)
+    with pytest.raises(ValueError, match=rf"intrinsics.xml records an image size of {size}, but the frames are 640x480"):
+        geofeat.read_sequence(tmp_path)
+    (tmp_path / "intrinsics.xml").write_text(text.replace("1280", "640").replace("960", "480"))
+    assert geofeat.read_sequence(tmp_path).frame(0).K[0, 0] == 525.0  # the frames' own size: read as before
+
+
+@pytest.mark.parametrize("dt, data, read", [
+    ("u", _KINECT_K, r"uint8 \(dt 'u'\), which clips the camera matrix: read as \[255, 0, 255, 0, 255, 240"),
+    ("c", _KINECT_K, r"int8 \(dt 'c'\), which clips"),
+    ("i", _KINECT_K, r"int32 \(dt 'i'\), which rounds the camera matrix: read as \[525, 0, 320, 0, 525, 240, 0, 0, 1\] "
+                     r"\(the file has \[525.0, 0.0, 319.5"),
+])
+def test_a_camera_matrix_in_an_integer_type_that_changes_it_is_refused(tmp_path, dt, data, read):
+    """OpenCV casts an opencv-matrix to its dt: `<dt>u</dt>` (8 bits) saturates fx = 525 to 255 and
+    `<dt>i</dt>` rounds cx = 319.5 to 320, and read_intrinsics returned the result without a word."""
+    path = tmp_path / "intrinsics.xml"
+    path.write_text(_opencv_xml(dt, data))
+    with pytest.raises(ValueError, match=rf"intrinsics_path: .*intrinsics.xml: its node 'intrinsics' is stored as {read}.*"
+                                         r"<dt>d</dt>"):
+        read_intrinsics(path)
+    path.write_text(_opencv_xml("i", "525 0 320 0 525 240 0 0 1"))  # whole numbers an int32 holds: nothing lost
+    np.testing.assert_array_equal(read_intrinsics(path), [[525, 0, 320], [0, 525, 240], [0, 0, 1]])
+
+
+def test_a_float_depth_image_in_metres_names_the_python_argument_too(tmp_path):
+    """A float TIFF of metres read at the default 0.001 m per unit was refused with "set --depth-scale
+    (or depth_scale in geofeat.json)": no help to a read_frame caller, who needs depth_scale=1."""
+    src = demo_data_dir()
+    cv2.imwrite(str(tmp_path / "depth.tiff"), read_depth(src / "cloud_1-depth.png").astype(np.float32))
+    args = (src / "cloud_1-rgb.png", tmp_path / "depth.tiff", src / "intrinsics.xml")
+    with pytest.raises(ValueError, match=r"median depth 0.000977 m .*implausible.*--depth-scale on the command line, "
+                                         r"depth_scale= in Python.*a float depth image in metres: 1"):
+        geofeat.read_frame(*args)
+    frame = geofeat.read_frame(*args, depth_scale=1)  # what the message asks for
+    assert 0.6 < np.median(frame.depth[frame.depth > 0]) < 1.2
+
+
+def test_a_depth_png_in_centimetres_read_as_millimetres_is_warned_of_as_centimetres(tmp_path):
+    """A depth PNG written in centimetres (the Kinect frame's 0.7-1.1 m as 70-110) read at the default
+    millimetres puts the scene at 7-11 cm: inside the plausible range, so only the readers' once-a-file
+    DepthUnitsWarning catches it, and it named millimetres alone; it now names the reading that fits."""
+    from geofeat.inputs import DepthUnitsWarning
+
+    src = demo_data_dir()
+    metres = read_depth(src / "cloud_1-depth.png")
+    cv2.imwrite(str(tmp_path / "cloud_1-depth.png"), np.rint(metres * 100).astype(np.uint16))
+    for name in ("cloud_1-rgb.png", "intrinsics.xml"):
+        shutil.copy(src / name, tmp_path / name)
+    reading = r"median depth 0.098 m at depth scale 0.001 m per unit is nearer than usual.*read as centimetres 0.98 m " \
+              r"\(depth_scale=0.01\)"
+    with pytest.warns(DepthUnitsWarning, match=rf"depth_path: .*cloud_1-depth.png: {reading}"):
+        geofeat.read_frame(tmp_path / "cloud_1-rgb.png", tmp_path / "cloud_1-depth.png", tmp_path / "intrinsics.xml")
+    with pytest.warns(DepthUnitsWarning, match=rf"sequence .*: {reading}"):
+        geofeat.read_sequence(tmp_path)
+    frame = geofeat.read_frame(tmp_path / "cloud_1-rgb.png", tmp_path / "cloud_1-depth.png", tmp_path / "intrinsics.xml",
+                               depth_scale=0.01)  # what it says
+    assert 0.6 < np.median(frame.depth[frame.depth > 0]) < 1.2

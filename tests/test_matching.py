@@ -648,3 +648,30 @@ def test_hamming_degenerate_inputs_equal_brute_force(n0, n1, shape, data, mutual
         want, dist = brute_force(hamming_matrix(f0.descriptors, f1.descriptors, f0.valid, f1.valid), mutual, ratio)
     assert np.array_equal(got.matches0, want)
     assert np.array_equal(got.distances0, dist)
+
+
+def test_l2_descriptors_whose_squared_distances_overflow_are_refused():
+    """Finite float32 descriptors of size 1e20 gave inf - inf = NaN squared distances (numpy's
+    RuntimeWarning only): every keypoint came back unmatched, and float64 ones of 1e160 likewise; in
+    distance_matrix they were NaN. Invalid rows are not looked at; float64 matches what float32 cannot."""
+    from geofeat.matching import distance_matrix
+
+    rng = np.random.default_rng(0)
+    d0 = (rng.normal(size=(20, 32)) * 1e20).astype(np.float32)
+    d1 = (d0 + rng.normal(size=(20, 32)).astype(np.float32) * 1e18).astype(np.float32)
+    with pytest.raises(ValueError, match=r"features0 has a row of squared norm \d.*e\+41: its squared L2 distances .*"
+                                         r"overflow float32 .*divide them by their largest norm\), or pass them as float64"):
+        match(d0, d1)
+    with pytest.raises(ValueError, match=r"features1 .*overflow float64"):
+        match(d0.astype(np.float64), d1.astype(np.float64) * 1e140)
+    with pytest.raises(ValueError, match=r"descriptors0 .*overflow the float32 distance matrix"):
+        distance_matrix(d0.astype(np.float64) * 1e140, d1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no RuntimeWarning on the way
+        assert (match(d0.astype(np.float64), d1).matches0 == np.arange(20)).all()  # float64 holds them
+        assert (distance_matrix(d0, d1).argmin(axis=1) == np.arange(20)).all()  # squared in float64
+        valid = np.ones(20, bool)
+        valid[3] = False
+        huge = d0.astype(np.float64) / 1e20
+        huge[3] = 1e200  # finite, on an invalid keypoint: not looked at
+        assert match(Features(np.zeros((20, 2)), huge, valid), d0.astype(np.float64) / 1e20).matches0[3] == -1

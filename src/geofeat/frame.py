@@ -12,7 +12,7 @@ import numpy as np
 
 from .constants import MAX_PLAUSIBLE_DEPTH_M, MIN_FRAME_SIDE_PX
 from .inputs import (PLAUSIBLE_MEDIAN_DEPTH_M, DepthUnitsWarning, as_points, check_focal_lengths, check_not_8bit_depth,
-                     check_principal_point, transposed_hint, unmask_depth)
+                     check_principal_point, transposed_hint, unit_readings, unmask_depth)
 
 
 def to_gray(image: np.ndarray, warn_dark: bool = True) -> np.ndarray:
@@ -142,8 +142,9 @@ def check_depth(depth: np.ndarray, shape: tuple[int, int] | None = None, warn_ne
     sample = sample[sample > 0]
     median = float(np.median(sample if sample.size >= 1000 else depth[depth > 0]))
     if median > MAX_PLAUSIBLE_DEPTH_M:
+        readings = unit_readings(median) or "no common unit makes it a plausible depth"
         raise ValueError(f"depth: median {median:.1f} is not in metres (at most {MAX_PLAUSIBLE_DEPTH_M:g} m expected); "
-                         f"{_unit_readings(median)}: convert it to metres (or read it with read_frame(..., "
+                         f"{readings}: convert it to metres (or read it with read_frame(..., "
                          "depth_scale=<metres per unit>))")
     nearest = PLAUSIBLE_MEDIAN_DEPTH_M[0]
     if warn_near and median < nearest:
@@ -152,17 +153,6 @@ def check_depth(depth: np.ndarray, shape: tuple[int, int] | None = None, warn_ne
                       "of a few centimetres would leave the surface, and no keypoint would be described",
                       DepthUnitsWarning, stacklevel=3)
     return np.ascontiguousarray(depth)
-
-
-def _unit_readings(median: float) -> str:
-    """What a median depth above the plausible range reads as in the units depth maps come in, the
-    plausible readings only ("as millimetres 0.80 m, as centimetres 8.00 m"): 80 cm was taken for
-    millimetres, and dividing it by 1000 would give 8 cm."""
-    lo, hi = PLAUSIBLE_MEDIAN_DEPTH_M
-    readings = [f"as {unit} {median * scale:.2f} m (depth_scale={scale:g})"
-                for unit, scale in (("millimetres", 0.001), ("centimetres", 0.01), ("tenths of a millimetre", 0.0001))
-                if lo <= median * scale <= hi]
-    return "read " + ", or ".join(readings) if readings else "no common unit makes it a plausible depth"
 
 
 @dataclass(frozen=True, eq=False)

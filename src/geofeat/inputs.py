@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 import numbers
+import os
 import re
 import warnings
 from pathlib import Path
@@ -37,6 +38,9 @@ MAX_DEPTH_SCALE_M = 10.0
 #: Whole name tokens (split on _ - . and spaces) that mark the reference frame, optionally with digits.
 REFERENCE_TOKEN = re.compile(r"^(master|ref|reference)\d*$")
 CONFIG_KEYS = ("depth_scale", "depth_profile", "radius")
+#: Where a depth scale is set, for the messages that ask to set it: the command line, Python, the folder.
+DEPTH_SCALE_OPTIONS = ("--depth-scale on the command line, depth_scale= in Python (read_frame, read_sequence), "
+                       "or depth_scale in geofeat.json")
 
 
 def _positive_number(value: Any, what: str) -> float:
@@ -125,6 +129,22 @@ def check_whole(value: Any, what: str, minimum: int = 1) -> int:
     return int(value)
 
 
+#: A thread count above this multiple of the machine's CPUs is refused (`check_threads`).
+MAX_THREADS_PER_CPU = 64
+
+
+def check_threads(value: Any, what: str = "threads") -> int:
+    """A thread count: a whole number from 1 to `MAX_THREADS_PER_CPU` times `os.cpu_count()`;
+    ValueError naming `what` otherwise. `GeoPatch(threads=100000)` asked torch, ONNX Runtime or
+    OpenVINO for 100000 threads, which killed the process rather than raising an error."""
+    count = check_whole(value, what, 1)
+    most = MAX_THREADS_PER_CPU * (os.cpu_count() or 1)
+    if count > most:
+        raise ValueError(f"{what}: {count} threads is far more than this machine's {os.cpu_count() or 1} CPUs can run "
+                         f"(expected 1 to {most}, at most {MAX_THREADS_PER_CPU} per CPU; None: the default)")
+    return count
+
+
 def error_summary(error: BaseException, limit: int = 200) -> str:
     """"TypeName: first line of the message" (at most `limit` characters of it), for a ValueError
     that wraps an error from a library (unpickling, ONNX Runtime) in words naming the user's file."""
@@ -137,6 +157,22 @@ def _median_depth(depth_m: np.ndarray) -> float | None:
     depth_m = np.asarray(depth_m)
     valid = depth_m[np.isfinite(depth_m) & (depth_m > 0)]
     return float(np.median(valid)) if valid.size else None
+
+
+#: The units depth maps come in, with their depth scales (metres per unit), for `unit_readings`.
+DEPTH_UNITS = (("millimetres", 0.001), ("centimetres", 0.01), ("tenths of a millimetre", 0.0001))
+
+
+def unit_readings(raw_median: float, bounds: tuple[float, float] = PLAUSIBLE_MEDIAN_DEPTH_M,
+                  skip: float | None = None) -> str:
+    """What a depth map's median `raw_median` (in its own units) reads as in the units of `DEPTH_UNITS`
+    (but the depth scale `skip`), the readings within `bounds` (metres) only: "read as millimetres
+    0.80 m (depth_scale=0.001), or as centimetres 8.00 m (depth_scale=0.01)"; "" when none is. 80 cm
+    was taken for millimetres, and dividing it by 1000 would give 8 cm."""
+    lo, hi = bounds
+    readings = [f"as {unit} {raw_median * scale:.2f} m (depth_scale={scale:g})" for unit, scale in DEPTH_UNITS
+                if scale != skip and lo <= raw_median * scale <= hi]
+    return "read " + ", or ".join(readings) if readings else ""
 
 
 class DepthUnitsWarning(UserWarning):
@@ -161,11 +197,12 @@ def warn_depth_units(depth_m: np.ndarray, depth_scale: float, where: str, key: s
     if seen in _warned_depth_units:
         return
     _warned_depth_units.add(seen)
+    readings = unit_readings(median / depth_scale, USUAL_MEDIAN_DEPTH_M, skip=depth_scale)  # cm read as mm: as cm
     warnings.warn(f"{where}: median depth {median:.3g} m at depth scale {depth_scale:g} m per unit is "
                   f"{'nearer' if median < lo else 'farther'} than usual ({lo:g}-{hi:g} m); unless the scene really is that "
                   f"{'near' if median < lo else 'far'}, "
-                  "check --depth-scale (or depth_scale in geofeat.json) against the units of "
-                  "the depth PNGs (millimetres: 0.001)", DepthUnitsWarning, stacklevel=2)
+                  f"check the depth scale ({DEPTH_SCALE_OPTIONS}) against the units of the depth PNGs "
+                  f"(millimetres: 0.001){f'; {readings}' if readings else ''}", DepthUnitsWarning, stacklevel=2)
 
 
 def check_depth_plausible(depth_m: np.ndarray, depth_scale: float, where: str) -> None:
@@ -177,8 +214,8 @@ def check_depth_plausible(depth_m: np.ndarray, depth_scale: float, where: str) -
     lo, hi = PLAUSIBLE_MEDIAN_DEPTH_M
     if not lo <= median <= hi:
         raise ValueError(f"{where}: median depth {median:.4g} m at depth scale {depth_scale:g} m per unit is "
-                         f"implausible (expected {lo:g}-{hi:g} m); set --depth-scale (or depth_scale in "
-                         "geofeat.json) to the metres per unit of the depth PNGs")
+                         f"implausible (expected {lo:g}-{hi:g} m); set the metres per unit of the depth file with "
+                         f"{DEPTH_SCALE_OPTIONS} (a float depth image in metres: 1)")
 
 
 def check_focal_lengths(K: np.ndarray, shape: tuple[int, int], where: str) -> None:

@@ -160,12 +160,18 @@ def _existing(path: str | Path, what: str) -> Path:
     return path
 
 
-def read_intrinsics(path: str | Path) -> np.ndarray:
+def read_intrinsics(path: str | Path, shape: tuple[int, int] | None = None) -> np.ndarray:
     """Read the (3, 3) camera matrix from an OpenCV FileStorage `intrinsics.xml` (node `intrinsics`).
     ValueError naming the file when the node is missing (naming the nodes it has) or holds no 3x3
-    opencv-matrix (saying what it holds: a 3x4 matrix, nine plain numbers, ...). Non-zero lens
-    distortion coefficients in the file (a node named `D` or `*dist*`) warn: geofeat projects as a
-    pinhole and does not apply them."""
+    opencv-matrix (saying what it holds: a 3x4 matrix, nine plain numbers, ...), or one stored in an
+    integer type (`dt` u, c, s, w, i) that changed the file's numbers (8 bits clip fx = 525 to 255).
+    Non-zero lens distortion coefficients in the file (a node named `D` or `*dist*`) warn: geofeat
+    projects as a pinhole and does not apply them.
+
+    `shape`: (H, W) pixels of the frames the matrix is for (`read_frame` and `read_sequence` pass it);
+    an image size the file records (`image_width` / `image_height`, as OpenCV's calibration writes, or
+    `width` / `height`, `image_cols` / `image_rows`, `image_size` / `resolution` as [W, H]) that differs
+    is a ValueError: a K of 1280x960 frames on 640x480 ones sizes every geodesic patch wrongly."""
     if isinstance(path, (str, os.PathLike)) and not Path(path).is_file() and Path(path).parent.is_dir():
         # a K saved as text, NumPy or YAML beside the intrinsics.xml a sequence needs
         others = [p for p in Path(path).parent.iterdir()
@@ -181,19 +187,25 @@ def read_intrinsics(path: str | Path) -> np.ndarray:
         raise ValueError(f"intrinsics_path: cannot parse {path} as OpenCV FileStorage; {_INTRINSICS_HINT}")
     try:
         node = fs.getNode("intrinsics")
-        K, held = None, None
+        K, held, written, dt = None, None, None, ""
         if not node.empty():
             try:
                 K = node.mat()
             except (cv2.error, SystemError):
                 K = None
             held = _node_contents(node, K)
+            if node.isMap():  # the numbers as the file writes them, before OpenCV casts them to its dt
+                written, dt = _node_numbers(node.getNode("data")), node.getNode("dt").string()
         nodes = list(fs.root().keys())
         distortion = {name: values for name in nodes if name.lower() == "d" or "dist" in name.lower()
                       for values in [_node_numbers(fs.getNode(name))] if values is not None and values.any()}
+        recorded = _recorded_size(fs, nodes)
     finally:
         fs.release()
     if K is not None and np.asarray(K).shape == (3, 3):
+        _check_stored_exactly(np.asarray(K), written, dt, path)
+        if shape is not None and recorded is not None:
+            _check_recorded_size(recorded, shape, path)
         if distortion:  # every projection in geofeat is a pinhole's: the coefficients were dropped without a word
             name, values = next(iter(distortion.items()))
             warnings.warn(f"intrinsics_path: {path} holds lens distortion coefficients (node '{name}': "
@@ -207,6 +219,64 @@ def read_intrinsics(path: str | Path) -> np.ndarray:
                          f"{_INTRINSICS_HINT}")
     holds = f" (its nodes: {', '.join(nodes[:5])}; rename the camera matrix's to 'intrinsics')" if nodes else ""
     raise ValueError(f"intrinsics_path: {path} has no 3x3 matrix under the node 'intrinsics'{holds}")
+
+
+def _check_stored_exactly(K: np.ndarray, written: np.ndarray | None, dt: str, path: Path) -> None:
+    """ValueError naming `path` when the camera matrix `K`, as OpenCV read it, is of an integer type
+    (its `dt`: u, c, s, w, i) and differs from the numbers `written` in the file (its `data`,
+    flattened; None when unreadable: then an 8-bit type is refused alone). OpenCV saturates to the
+    type's range and rounds: with `<dt>u</dt>` fx = 525 reads as 255, with `<dt>i</dt>` cx = 319.5
+    as 320, and nothing said so."""
+    if K.dtype.kind not in "iu":
+        return
+    readable = written is not None and written.shape == (K.size,)
+    if (np.array_equal(written, K.ravel()) if readable else K.dtype.itemsize > 1):
+        return  # whole numbers within the type's range (or nothing to compare with, in 16 bits or more)
+    limits = np.iinfo(K.dtype)
+    clips = not readable or ((written < limits.min) | (written > limits.max)).any()
+    shown = f" (the file has {np.round(written, 4).tolist()})" if readable else ""
+    raise ValueError(f"intrinsics_path: {path}: its node 'intrinsics' is stored as {K.dtype} (dt '{dt}'), which "
+                     f"{'clips' if clips else 'rounds'} the camera matrix: read as {K.ravel().tolist()}{shown}; "
+                     "write it with <dt>d</dt> (64-bit float), as geofeat.write_intrinsics does")
+
+
+#: Names (lower case, without '_') of the top-level nodes a calibration file records its image size
+#: under: pairs of (width, height) nodes, and single nodes holding [width, height] (a cv::Size).
+_SIZE_PAIRS = (("imagewidth", "imageheight"), ("width", "height"), ("imagecols", "imagerows"), ("cols", "rows"))
+_SIZE_NODES = ("imagesize", "resolution", "imageresolution")
+
+
+def _recorded_size(fs, nodes: list[str]) -> tuple[int, int, str] | None:
+    """(W, H, the node names) of the image size an open OpenCV FileStorage `fs` records in its
+    top-level `nodes` (`_SIZE_PAIRS`, `_SIZE_NODES`); None when it records none as whole numbers > 0."""
+    named = {name.lower().replace("_", ""): name for name in nodes}
+
+    def whole(values) -> bool:
+        return values is not None and all(v > 0 and v == int(v) for v in values)
+
+    for w, h in _SIZE_PAIRS:
+        if w in named and h in named:
+            values = [fs.getNode(named[k]) for k in (w, h)]
+            if all(v.isInt() or v.isReal() for v in values) and whole([v.real() for v in values]):
+                return int(values[0].real()), int(values[1].real()), f"{named[w]}, {named[h]}"
+    for key in _SIZE_NODES:
+        if key in named:
+            values = _node_numbers(fs.getNode(named[key]))
+            if values is not None and values.shape == (2,) and whole(values):
+                return int(values[0]), int(values[1]), named[key]
+    return None
+
+
+def _check_recorded_size(recorded: tuple[int, int, str], shape: tuple[int, int], path: Path) -> None:
+    """ValueError naming `path` and both sizes when the image size (W, H, node names) an intrinsics
+    file records differs from the (H, W) of the frames it is read with."""
+    W, H, where = recorded
+    height, width = shape
+    if (W, H) != (width, height):
+        raise ValueError(f"intrinsics_path: {path} records an image size of {W}x{H} ({where}), but the frames are "
+                         f"{width}x{height}: the intrinsics are for another resolution. Scale K to the frames (fx and cx "
+                         f"by {width}/{W}, fy and cy by {height}/{H}: geofeat.depth.scale_intrinsics) and write it with "
+                         f"geofeat.write_intrinsics, or use a calibration made at {width}x{height}")
 
 
 def _node_numbers(node) -> np.ndarray | None:
@@ -318,7 +388,8 @@ def read_frame(
     """Read one frame of the public layout. `depth_scale` is metres per depth-PNG unit (None: the
     `geofeat.json` beside the depth PNG, as `read_sequence` reads it, else 0.001, millimetres). The
     frame is checked as `read_sequence` checks one: colour and depth of one size, a plausible median
-    depth, intrinsics plausible for the image size."""
+    depth, intrinsics plausible for the image size and made for it where the file records a size
+    (`read_intrinsics`)."""
     image = read_image(rgb_path)
     if depth_scale is None:  # the simulator's 0.1 mm PNGs were read in millimetres: depth 10x too far, no word
         depth_scale = float(read_config(_existing(depth_path, "depth_path").parent).get("depth_scale", DEPTH_SCALE_M))
@@ -332,7 +403,8 @@ def read_frame(
         raise ValueError(f"depth_path: {depth_path}: {error}") from None
     check_depth_plausible(depth, depth_scale, f"depth_path: {depth_path}")
     warn_depth_units(depth, depth_scale, f"depth_path: {depth_path}", key=str(Path(depth_path).resolve()))
-    K = check_intrinsics_for_image(read_intrinsics(intrinsics_path), image.shape[:2], f"intrinsics_path: {intrinsics_path}")
+    K = check_intrinsics_for_image(read_intrinsics(intrinsics_path, image.shape[:2]), image.shape[:2],
+                                   f"intrinsics_path: {intrinsics_path}")
     return RGBDFrame(image, depth, K)
 
 
@@ -642,10 +714,10 @@ def read_sequence(folder: str | Path, depth_scale: float | None = None) -> Seque
         depth_scale = float(config.get("depth_scale", DEPTH_SCALE_M))
     check_depth_scale(depth_scale)
     profile = config.get("depth_profile", "auto")
-    K = read_intrinsics(folder / "intrinsics.xml")
     radius = float(config.get("radius", DEFAULT_RADIUS_M))
     image = read_image(folder / f"{reference}{RGB_SUFFIX}")
     shape = (int(image.shape[0]), int(image.shape[1]))
+    K = read_intrinsics(folder / "intrinsics.xml", shape)
     K = check_intrinsics_for_image(K, shape, f"intrinsics_path: {folder / 'intrinsics.xml'}")
     seq = Sequence(folder=folder, names=names, K=K, depth_scale=depth_scale, depth_profile=profile.strip().lower(),
                    radius=radius, shape=shape)

@@ -948,6 +948,26 @@ def check_finite_descriptors(descriptors: np.ndarray, valid: np.ndarray | None =
                          f"{bad[:5].tolist()}{' ...' if len(bad) > 5 else ''}; mark them invalid or drop them")
 
 
+def check_l2_range(pairs, largest: float, what: str, hint: str = "") -> None:
+    """ValueError unless the squared L2 distances of float (N, D) descriptors stay below `largest`.
+    `pairs`: (descriptors, valid (N,) bool or None for all rows, name) for each side; `what` names
+    what overflows and `hint` ends the message. |a - b|^2 and the terms |a|^2 + |b|^2 - 2 a.b it is
+    computed from, of the descriptors less their mean, stay below 16 times the largest squared norm
+    of a valid row; past the float type's range they were inf and NaN, with only numpy's
+    RuntimeWarning, and no keypoint was matched (or any was)."""
+    norms = []
+    for d, valid, name in pairs:
+        rows = np.asarray(d)[slice(None) if valid is None else np.asarray(valid, bool)].astype(np.float64)
+        if rows.size:
+            with np.errstate(over="ignore"):  # a square past float64's range is inf: refused below
+                norms.append((float(np.einsum("ij,ij->i", rows, rows).max()), name))
+    norm, name = max(norms, key=lambda pair: pair[0], default=(0.0, ""))
+    if not 16.0 * norm < largest:
+        raise ValueError(f"descriptors: {name} has a row of squared norm {norm:.3g}: its squared L2 distances (up to "
+                         f"16 times that) overflow {what}; scale the descriptors down (divide them by their largest "
+                         f"norm){hint}")
+
+
 def check_descriptor_length(shape: tuple[int, ...]) -> None:
     """ValueError unless descriptors of shape (N, ...) hold at least one value per keypoint: with none
     (an (N, 0) array, a slice past the end) every distance was 0, so each keypoint matched the first
@@ -1072,6 +1092,12 @@ def match(
         dev = torch_device(device)
     if n0 == 0 or n1 == 0:
         return Matches(np.full(n0, -1, np.int64), np.full(n0, np.inf))
+    if metric == "l2":  # in the dtype of the squared distances (`_l2_search`, `_l2_search_torch`)
+        dtype = np.float64 if np.float64 in (d0.dtype, d1.dtype) else np.float32
+        largest = float(np.finfo(dtype).max)
+        check_l2_range(((d0, valid0, "features0"), (d1, valid1, "features1")), largest,
+                       f"{np.dtype(dtype).name} (largest {largest:.3g})",
+                       ", or pass them as float64" if dtype == np.float32 else "")
 
     if metric == "l2" and device is not None:
         import torch
@@ -1173,6 +1199,10 @@ def distance_matrix(descriptors0: np.ndarray, descriptors1: np.ndarray, metric: 
                 raise ValueError(f"valid{name[-1]}: expected one flag per row of {name} ({len(d)},), got shape "
                                  f"{np.shape(valid)}")
             check_finite_descriptors(d, None if valid is None else np.asarray(valid, bool), name)
+        # squared in float64, returned in float32: the distances must fit float32
+        largest = float(np.finfo(np.float32).max)
+        check_l2_range(((d0, valid0, "descriptors0"), (d1, valid1, "descriptors1")), largest ** 2,
+                       f"the float32 distance matrix (distances up to {largest:.3g})")
         a, b = d0.astype(np.float64), d1.astype(np.float64)
         dist2 = np.einsum("ij,ij->i", a, a)[:, None] + np.einsum("ij,ij->i", b, b)[None, :] - 2.0 * (a @ b.T)
         return np.sqrt(np.maximum(dist2, 0.0)).astype(np.float32)

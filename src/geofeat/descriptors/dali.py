@@ -58,7 +58,7 @@ from ..frame import RGBDFrame, too_thin_to_describe
 from ..keypoints import as_keypoints
 from .patches import cartesian_grid, keypoint_arrays, sample_patches
 from .settings import merge_settings
-from ..inputs import check_whole
+from ..inputs import check_threads
 
 #: Patch grid side (vertices); the mesh is the disc of radius (GRID - 1) / 2 grid units.
 GRID = 25
@@ -204,9 +204,8 @@ class DaLI:
 
     def __init__(self, settings: DaLISettings | Mapping[str, Any] | None = None, **kwargs: Any) -> None:
         self.settings = s = merge_settings(DaLISettings, settings, kwargs)
-        if s.workers is not None:  # 0 meant all CPUs, -1 failed in the thread pool
-            check_whole(s.workers, "workers", 1)
-        self.workers = int(s.workers or os.cpu_count() or 1)
+        # 0 meant all CPUs, -1 failed in the thread pool, 100000 started threads until the process died
+        self.workers = check_threads(s.workers, "workers") if s.workers is not None else os.cpu_count() or 1
         self.progress = s.progress
 
     def describe_patches(self, patches: np.ndarray) -> np.ndarray:

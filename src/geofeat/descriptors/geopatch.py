@@ -52,7 +52,7 @@ from ..keypoints import as_keypoints
 from ..geodesic.mesh import GridMesh
 from ..geodesic.polar import PolarPatches, check_depth_config, check_patches, polar_patches
 from .settings import PatchSettings, merge_settings
-from ..inputs import check_whole
+from ..inputs import check_threads, check_whole
 
 #: File name of the shipped weights inside geofeat/data.
 WEIGHTS_NAME = "geopatch.pt"
@@ -161,9 +161,9 @@ class GeoPatchSettings(PatchSettings):
         device: "cpu", "cuda", ... (default: CUDA when available, through torch).
         batch_size: patches per forward pass on CPU (None: `DEFAULT_BATCH` of the backend; on CUDA
             at least 4096 patches go in one pass).
-        threads: CPU threads for `describe`: torch threads (set for the call, then restored; None
-            keeps torch's setting) or ONNX Runtime intra-op threads (None: the usable cores, at
-            most 4). On a machine shared with other busy processes 1 thread can be several times
+        threads: CPU threads for `describe` (1 to 64 per CPU): torch threads (set for the call, then
+            restored; None keeps torch's setting) or ONNX Runtime intra-op threads (None: the usable
+            cores, at most 4). On a machine shared with other busy processes 1 thread can be several times
             faster than 2 with torch (its OpenMP threads wait on each other; see BENCHMARKS.md).
         backend: "torch", "onnx" (ONNX Runtime, fp32: the torch descriptors within 1e-4),
             "onnx-int8" (ONNX Runtime, static int8 quantisation: close to torch's, the same
@@ -227,10 +227,9 @@ class GeoPatch:
         self.settings = s = merge_settings(GeoPatchSettings, settings, kwargs)
         weights, device, batch_size, threads = s.weights, s.device, s.batch_size, s.threads
         # whole numbers only: 2.5 threads or "2" were truncated or converted without a word
-        for name, value in (("threads", threads), ("batch_size", batch_size)):
-            if value is not None:
-                check_whole(value, name, 1)
-        self.threads = None if threads is None else int(threads)
+        if batch_size is not None:
+            check_whole(batch_size, "batch_size", 1)
+        self.threads = None if threads is None else check_threads(threads)  # 100000 killed the process
         self.backend = resolve_backend(s.backend, weights, device)
         self.net = self.session = None
         self.checkpoint: dict = {}

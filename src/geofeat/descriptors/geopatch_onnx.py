@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..inputs import check_threads
+
 #: Backends of `GeoPatch(backend=...)`.
 BACKENDS = ("torch", "onnx", "onnx-int8", "openvino-int8", "openvino-bf16")
 #: Environment variable that overrides the default backend.
@@ -264,7 +266,7 @@ class OnnxGeoPatch:
         import onnxruntime as ort
 
         opts = ort.SessionOptions()
-        opts.intra_op_num_threads = default_threads() if threads is None else int(threads)
+        opts.intra_op_num_threads = default_threads() if threads is None else check_threads(threads)
         opts.inter_op_num_threads = 1
         opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL

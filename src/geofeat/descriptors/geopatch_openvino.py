@@ -36,6 +36,7 @@ import numpy as np
 
 from numba import njit, prange
 
+from ..inputs import check_threads
 from .geopatch_onnx import default_threads, run_in_batches
 
 
@@ -130,7 +131,7 @@ class OpenVinoGeoPatch:
 
     def __init__(self, model: str | Path, threads: int | None = None, bf16: bool = False) -> None:
         self.bf16 = bool(bf16)
-        self.threads = default_threads() if threads is None else int(threads)
+        self.threads = default_threads() if threads is None else check_threads(threads)
         path = Path(model).resolve()
         stat = path.stat()
         self.compiled, metadata = _compile(str(path), stat.st_mtime_ns, stat.st_size, self.threads, self.bf16,

@@ -15,6 +15,7 @@ import numpy as np
 
 from .landmarks import inside_hull
 from .sources import load_authors_spline
+from ..inputs import check_whole
 from ..io import Sequence, read_sequence, write_landmarks
 from ..outputs import check_out_dir
 
@@ -51,7 +52,8 @@ class MappingErrors:
 def mapping_errors(seq: Sequence, tps_folder: str | Path, target: str, stride: int = 4) -> MappingErrors:
     """Compare `<target>_theta.npy` / `_ctrlpts.npy` in `tps_folder` with the exact ground truth of a
     simulated `seq` on a pixel grid of `stride` pixels over the target frame (points on the object in
-    the target and visible in the reference)."""
+    the target and visible in the reference). ValueError for a `stride` that is no whole number >= 1."""
+    stride = check_whole(stride, "stride")  # 0 divided by zero in np.arange, a negative one compared no pixel
     tps_folder = Path(tps_folder)
     frame = seq.frame(target)
     H, W = frame.shape
