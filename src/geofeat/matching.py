@@ -957,7 +957,13 @@ def check_l2_range(pairs, largest: float, what: str, hint: str = "") -> None:
     RuntimeWarning, and no keypoint was matched (or any was)."""
     norms = []
     for d, valid, name in pairs:
-        rows = np.asarray(d)[slice(None) if valid is None else np.asarray(valid, bool)].astype(np.float64)
+        d = np.asarray(d)
+        if d.size and d.ndim == 2:  # quick bound first (no copy): D x the largest square bounds every row's norm
+            with np.errstate(over="ignore"):
+                peak = float(np.abs(d).max())
+            if 16.0 * d.shape[1] * peak * peak < largest:
+                continue
+        rows = d[slice(None) if valid is None else np.asarray(valid, bool)].astype(np.float64)
         if rows.size:
             with np.errstate(over="ignore"):  # a square past float64's range is inf: refused below
                 norms.append((float(np.einsum("ij,ij->i", rows, rows).max()), name))
