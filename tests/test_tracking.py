@@ -1058,3 +1058,43 @@ def test_a_users_file_at_a_result_path_is_refused_before_any_tracking(sequence, 
         write_tracking([sequence], tmp_path / "mine", ("orb",), n_keypoints=300, refine="none", progress=False,
                        overwrite=True)
     assert (mine / "grid.npz").read_bytes() == b"my own grid"
+
+
+def _failing_fits(monkeypatch, frames):
+    """Make the fit of the target frames named in `frames` fail (`_match_and_fit` keeps no warp)."""
+    from geofeat.apps import tracking
+
+    match_and_fit = tracking._match_and_fit
+
+    def failing(template, target, name, *args):
+        fit = match_and_fit(template, target, name, *args)
+        if target.name in frames:
+            fit = tracking._Fit(fit.i0, fit.i1, tracking.RansacResult(None, np.zeros(len(fit.i0), bool)))
+        return fit
+
+    monkeypatch.setattr(tracking, "_match_and_fit", failing)
+
+
+def test_track_command_that_tracked_no_frame_fails(sequence, tmp_path, capsys, monkeypatch):
+    """`geofeat track` exited 0 when the fit failed in every target frame: a run that tracked nothing
+    read as a success. It now exits 1 and says that no frame was tracked."""
+    from geofeat.cli import main
+
+    _failing_fits(monkeypatch, ("frame-001", "frame-002"))
+    args = ["track", str(sequence), "--descriptors", "sift", "--keypoints", "300", "--refine", "none"]
+    assert main([*args, "--out", str(tmp_path / "none")]) == 1
+    assert "no frame was tracked" in capsys.readouterr().err
+    rows = list(csv.DictReader(open(tmp_path / "none" / "track.csv")))
+    assert [r["failed"] for r in rows] == ["True", "True"]  # the failed rows are still written
+
+
+def test_track_command_that_tracked_some_frames_succeeds_and_counts_the_failures(sequence, tmp_path, capsys,
+                                                                                 monkeypatch):
+    from geofeat.cli import main
+
+    _failing_fits(monkeypatch, ("frame-002",))
+    args = ["track", str(sequence), "--descriptors", "sift", "--keypoints", "300", "--refine", "none"]
+    assert main([*args, "--out", str(tmp_path / "some")]) == 0
+    captured = capsys.readouterr()
+    assert "no frame was tracked" not in captured.err
+    assert "| 1/2 |" in captured.out  # the table's failed frames

@@ -1030,6 +1030,15 @@ def _failed(row: dict) -> bool:
     return str(row["failed"]) in ("True", "1")
 
 
+def failed_rows(csv_path: str | Path) -> tuple[int, int]:
+    """(failed, total) rows of a `track.csv` (one row per sequence, descriptor and target frame):
+    those whose frame was not tracked (its fit failed, or the frame could not be read or described),
+    and all of them."""
+    with open(csv_path, newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    return sum(_failed(r) for r in rows), len(rows)
+
+
 def _lost_median(rows: list[dict], key: str, measured: bool = True) -> float:
     """Median of column `key` over `rows` (one sequence and descriptor), a failed frame counted as
     lost (an infinite error, so that failing never scores better than a poor fit); NaN when the

@@ -30,7 +30,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Track the template ROI through every sequence; writes track.csv, tracking.md, grids and GIFs."""
-    from ..apps.tracking import write_tracking
+    from ..apps.tracking import failed_rows, write_tracking
 
     roi = None
     if args.roi is not None:
@@ -52,4 +52,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {csv_path}, {Path(args.out) / 'tracking.md'} and per sequence/descriptor grid.npz + track.gif")
     if skipped:
         print(f"{plural(len(skipped), 'frame')} SKIPPED: {', '.join(skipped)}", file=sys.stderr)
+    # the table printed above counts each descriptor's failed frames; a run that tracked none is no success (it exited 0)
+    failed, total = failed_rows(csv_path)
+    if failed == total:
+        print(f"track: no frame was tracked: the fit failed (or the frame was skipped) for every target frame "
+              f"and descriptor ({failed} of {total}); track.csv and tracking.md hold the failed rows", file=sys.stderr)
+        return 1
     return 1 if skipped else 0
