@@ -260,6 +260,27 @@ def test_retrieval_rows_name_their_whole_descriptor(tmp_path):
     assert (labels[2] < 128).any()  # a short name is still written
 
 
+@pytest.mark.parametrize("shape", [(16, 64), (120, 40)])
+def test_retrieval_thumbnails_keep_their_frames_aspect_ratio(tmp_path, shape):
+    """top6.png squashed every frame to its 160 x 120 (4:3) cells: a 4:1 or a 1:3 frame was drawn
+    4:3. Each is now letterboxed into its cell, its aspect ratio kept."""
+    import cv2
+    from types import SimpleNamespace
+
+    from geofeat.apps.retrieval import TOP6_HEADER_PX, _top6_picture
+
+    cv2.imwrite(str(tmp_path / "f-rgb.png"), np.full((*shape, 3), (90, 200, 200), np.uint8))
+    db = SimpleNamespace(folders=[tmp_path] * 2, frames=["f", "f"], classes=["a", "a"])
+    _top6_picture(db, {"sift": (np.array([0]), np.array([[1]]))}, tmp_path / "top6.png", queries_per=1)
+    picture = cv2.imread(str(tmp_path / "top6.png"))
+    for x0 in (110, 270):  # the query's cell and its first result's
+        cell = picture[TOP6_HEADER_PX: TOP6_HEADER_PX + 120, x0: x0 + 160]
+        ys, xs = np.nonzero((np.abs(cell.astype(int) - (90, 200, 200)).max(-1) < 10))
+        width, height = xs.max() - xs.min() + 1, ys.max() - ys.min() + 1
+        # the frame's own pixels (the cell's coloured border covers a few along the edges of the cell)
+        assert width / height == pytest.approx(shape[1] / shape[0], rel=0.15), (x0, width, height)
+
+
 @pytest.mark.parametrize("dtype", ["uint16", "float32", ">u2"])
 def test_a_16_bit_or_float_colour_frame_is_drawn_in_colour(dtype):
     """RGBDFrame kept a colour copy for display of uint8 images only: a 16-bit or float BGR image was

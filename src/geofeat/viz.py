@@ -164,10 +164,24 @@ MAX_MATCHES_WIDTH = 2560
 
 
 def _shrunk(image: np.ndarray, factor: float) -> tuple[np.ndarray, tuple[float, float]]:
-    """(image resized by about `factor` < 1 (INTER_AREA), (sx, sy): its new pixels per old pixel)."""
+    """(image resized by about `factor` (INTER_AREA; meant for < 1), (sx, sy): its new pixels per old pixel)."""
     H, W = image.shape[:2]
     w, h = max(1, int(round(W * factor))), max(1, int(round(H * factor)))
     return cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA), (w / W, h / H)
+
+
+def letterbox(image: np.ndarray, size: tuple[int, int], fill=(255, 255, 255)) -> np.ndarray:
+    """`image` ((H, W, 3) uint8) resized by one factor to fit a cell of `size` (w, h) pixels and centred
+    in it on `fill` (BGR): its aspect ratio kept, where resizing to `size` squashed it. Returns (h, w, 3) uint8."""
+    w, h = size
+    H, W = image.shape[:2]
+    small, _ = _shrunk(image, min(w / W, h / H))
+    small = small[:h, :w]
+    cell = np.empty((h, w, 3), np.uint8)
+    cell[:] = fill
+    y0, x0 = (h - small.shape[0]) // 2, (w - small.shape[1]) // 2
+    cell[y0:y0 + small.shape[0], x0:x0 + small.shape[1]] = small
+    return cell
 
 
 def _shrunk_points(xy: np.ndarray, scale: tuple[float, float]) -> np.ndarray:

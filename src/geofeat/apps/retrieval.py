@@ -560,11 +560,14 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
 
 
 def _thumbnail(folder: Path, name: str, size: tuple[int, int], colour) -> np.ndarray:
+    """(h, w, 3) uint8 BGR: the colour image of frame `name` letterboxed into a cell of `size` (w, h)
+    pixels (its aspect ratio kept: it was squashed to 4:3), framed in `colour` (None: no frame)."""
     import cv2
 
     from ..io import RGB_SUFFIX, read_image
+    from ..viz import letterbox
 
-    img = cv2.resize(read_image(folder / f"{name}{RGB_SUFFIX}"), size, interpolation=cv2.INTER_AREA)
+    img = letterbox(read_image(folder / f"{name}{RGB_SUFFIX}"), size)
     if colour is not None:
         cv2.rectangle(img, (0, 0), (size[0] - 1, size[1] - 1), colour, 6)
     return img
