@@ -203,6 +203,46 @@ def test_large_frames_are_shrunk_with_their_keypoints_to_a_viewable_picture():
     assert draw_matches(small, small, k1, k1, np.array([0, 1]), max_width=None).shape == (1500, 4000, 3)
 
 
+def test_the_geodesic_support_of_a_huge_frame_is_shrunk_with_its_rings():
+    """The demo's patch picture (`draw_geodesic_support`) of a 4096x3072 frame was drawn at full size,
+    while match pictures cap their width at `MAX_MATCHES_WIDTH`. It is now shrunk to it too, each
+    ring drawn where the shrunk frame shows it."""
+    frame = _flat_frame((90, 90, 90), (3072, 4096))
+    n, R, A = 1, 32, 64
+    radii = 200 + 10 * np.arange(R, dtype=np.float32)[:, None]  # ring 31 at 510 frame pixels
+    angles = np.linspace(0, 2 * np.pi, A, endpoint=False)[None, :]
+    coords = np.stack([3000 + radii * np.cos(angles), 1500 + radii * np.sin(angles)], -1)[None].astype(np.float32)
+    patches = PolarPatches(np.array([[3000.0, 1500.0]]), np.zeros((n, R, A), np.float32), coords, np.ones(n, bool),
+                           np.full((n, A), R, np.int32), np.zeros((n, R, A, 3), np.float32), 0.075)
+    picture = draw_geodesic_support(frame, patches)
+    f = MAX_MATCHES_WIDTH / 4096
+    assert picture.shape == (round(3072 * f), MAX_MATCHES_WIDTH, 3)
+    outer = np.array([0, 255, 0])  # ring 31's colour, drawn around (3000, 1500) at 510 px, in the shrunk frame
+    ys, xs = np.nonzero((np.abs(picture[:, 600:].astype(int) - outer).max(-1) < 60))  # right of the key
+    xs = xs + 600
+    assert len(xs) and abs((xs.max() + xs.min()) / 2 - 3000 * f) < 3 and abs((ys.max() + ys.min()) / 2 - 1500 * f) < 3
+    assert (xs.max() - xs.min()) / 2 == pytest.approx(510 * f, abs=3)
+    # max_width=None: drawn at the frame's own size
+    assert draw_geodesic_support(frame, patches, max_width=None).shape == (3072, 4096, 3)
+
+
+def test_the_ground_truth_overlay_of_a_huge_frame_is_shrunk_with_its_landmarks():
+    """`geofeat groundtruth`'s <k>_overlay.png of 4096x3072 frames was 8192 pixels wide, while match
+    pictures cap their width at `MAX_MATCHES_WIDTH`. Both halves are now shrunk to fit it, the
+    landmarks drawn where the shrunk frame shows them."""
+    from geofeat.groundtruth.pipeline import _overlay, _Warped
+    frame = _flat_frame((90, 90, 90), (3072, 4096))
+    ev = _Warped(mask=np.ones((3072, 4096), bool), ssim=np.zeros((3072, 4096), np.float32),
+                 warped=np.full((3072, 4096), 0.5, np.float32))
+    picture = _overlay(frame, ev, None, np.array([[3000.0, 2000.0]]), np.zeros((0, 2)))
+    f = MAX_MATCHES_WIDTH / (2 * 4096)
+    assert picture.shape == (round(3072 * f), MAX_MATCHES_WIDTH, 3)
+    # the inlier's green circle (the key, in the same colour, is in the top-left corner)
+    ys, xs = np.nonzero((picture[200:, : MAX_MATCHES_WIDTH // 2] == (0, 220, 0)).all(-1))
+    ys = ys + 200
+    assert len(xs) and abs((xs.max() + xs.min()) / 2 - 3000 * f) < 2 and abs((ys.max() + ys.min()) / 2 - 2000 * f) < 2
+
+
 def test_invalid_keypoints_red_crosses_are_named_in_the_key():
     """The key named red only as the angle-0 ray, while a keypoint without a patch is a red cross:
     it read as a ray. The key now has a line for them when any is drawn (its dark box grows)."""

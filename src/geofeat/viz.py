@@ -80,6 +80,53 @@ def to_bgr(frame: RGBDFrame) -> np.ndarray:
     return cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
 
 
+#: The widest picture geofeat draws by default, pixels (two 1280-pixel frames side by side): wider
+#: ones are shrunk to it (`draw_matches`, `draw_geodesic_support`, the ground truth's overlays), so that
+#: a pair of large frames is no 35 MB picture whose 1 px lines and captions vanish when viewed whole.
+MAX_PICTURE_WIDTH = 2560
+#: `draw_matches`' widest picture by default, pixels (`MAX_PICTURE_WIDTH`).
+MAX_MATCHES_WIDTH = MAX_PICTURE_WIDTH
+
+
+def picture_scale(width: int, max_width: int | None = MAX_PICTURE_WIDTH) -> float:
+    """The factor (at most 1) by which a picture `width` pixels wide is shrunk to be at most
+    `max_width` pixels wide (None: 1, never shrunk); ValueError for a `max_width` below 2."""
+    if max_width is None:
+        return 1.0
+    check_whole(max_width, "max_width", 2)
+    return min(1.0, max_width / width)
+
+
+def shrink_image(image: np.ndarray, factor: float) -> tuple[np.ndarray, tuple[float, float]]:
+    """(image resized by about `factor` (INTER_AREA; meant for < 1), (sx, sy): its new pixels per old pixel)."""
+    H, W = image.shape[:2]
+    w, h = max(1, int(round(W * factor))), max(1, int(round(H * factor)))
+    return cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA), (w / W, h / H)
+
+
+def shrink_points(xy: np.ndarray, scale: tuple[float, float]) -> np.ndarray:
+    """Points (..., 2+) pixels (x, y first) in the picture `shrink_image` made with `scale`: (..., 2)
+    (pixel centres kept: `image_to_mesh`). An array of fewer than 2 dimensions is returned as it is."""
+    xy = np.asarray(xy, float)
+    if xy.ndim < 2:
+        return xy
+    return image_to_mesh(xy.reshape(-1, xy.shape[-1])[:, :2], scale).reshape(*xy.shape[:-1], 2)
+
+
+def letterbox(image: np.ndarray, size: tuple[int, int], fill=(255, 255, 255)) -> np.ndarray:
+    """`image` ((H, W, 3) uint8) resized by one factor to fit a cell of `size` (w, h) pixels and centred
+    in it on `fill` (BGR): its aspect ratio kept, where resizing to `size` squashed it. Returns (h, w, 3) uint8."""
+    w, h = size
+    H, W = image.shape[:2]
+    small, _ = shrink_image(image, min(w / W, h / H))
+    small = small[:h, :w]
+    cell = np.empty((h, w, 3), np.uint8)
+    cell[:] = fill
+    y0, x0 = (h - small.shape[0]) // 2, (w - small.shape[1]) // 2
+    cell[y0:y0 + small.shape[0], x0:x0 + small.shape[1]] = small
+    return cell
+
+
 def ring_distances_mm(patches: PolarPatches, rings=(7, 15, 31)) -> list[float]:
     """Geodesic distance of each of the patch rows `rings` from its keypoint, millimetres: row i is
     the ring at (i + 1) * radius / n_rings (`geofeat.geodesic.polar`). Rows the patches lack are left out."""
@@ -87,25 +134,35 @@ def ring_distances_mm(patches: PolarPatches, rings=(7, 15, 31)) -> list[float]:
     return [(ring + 1) * patches.radius / n_rings * 1000 for ring in rings if ring < n_rings]
 
 
-def draw_geodesic_support(frame: RGBDFrame, patches: PolarPatches, rings=(7, 15, 31), max_keypoints: int = 64) -> np.ndarray:
+def draw_geodesic_support(frame: RGBDFrame, patches: PolarPatches, rings=(7, 15, 31), max_keypoints: int = 64,
+                          max_width: int | None = MAX_PICTURE_WIDTH) -> np.ndarray:
     """The frame with each keypoint (white dot), a few of its geodesic rings (isocurves; patch rows
     `rings`) and its angle-0 ray (red), the first `max_keypoints` of them. A key in the top-left corner
     gives each ring's colour and geodesic distance (`ring_distances_mm`), how many of those drawn are
     invalid (drawn as red crosses) and, when keypoints were left out, how many are drawn. Returns an (H, W, 3) uint8 BGR
-    image; with no keypoints, the bare frame."""
+    image; with no keypoints, the bare frame. A frame wider than `max_width` pixels (None: never) is
+    shrunk to it first, the rings and rays with it, as in `draw_matches`."""
     canvas = to_bgr(frame)
+    shrink = picture_scale(canvas.shape[1], max_width)
+    scale = None  # (sx, sy) of a shrunk frame
+
+    def at(xy: np.ndarray) -> np.ndarray:  # frame pixels -> the picture's
+        return xy if scale is None else shrink_points(xy, scale)
+
+    if shrink < 1:
+        canvas, scale = shrink_image(canvas, shrink)
     colours = [(255, 200, 0), (0, 200, 255), (0, 255, 0)]
     drawn = [(colour, ring) for colour, ring in zip(colours, rings) if ring < patches.coords.shape[1]]
     for k in range(min(len(patches), max_keypoints)):
-        x, y = patches.keypoints[k]
+        x, y = at(np.asarray(patches.keypoints[k:k + 1], float))[0]
         centre = (int(round(x)), int(round(y)))
         if not patches.valid[k]:
             cv2.drawMarker(canvas, centre, (0, 0, 255), cv2.MARKER_TILTED_CROSS, 10, 2)
             continue
         for colour, ring in drawn:
-            pts = np.round(patches.coords[k, ring]).astype(np.int32).reshape(-1, 1, 2)
+            pts = np.round(at(patches.coords[k, ring])).astype(np.int32).reshape(-1, 1, 2)
             cv2.polylines(canvas, [pts], True, colour, 1, cv2.LINE_AA)
-        ray = np.round(patches.coords[k, :, 0]).astype(np.int32).reshape(-1, 1, 2)
+        ray = np.round(at(patches.coords[k, :, 0])).astype(np.int32).reshape(-1, 1, 2)
         cv2.polylines(canvas, [ray], False, (0, 0, 255), 1, cv2.LINE_AA)
         cv2.circle(canvas, centre, 2, (255, 255, 255), -1)
     if len(patches):
@@ -159,37 +216,6 @@ def side_by_side(left: np.ndarray, right: np.ndarray, gap: int = 8) -> np.ndarra
     return out
 
 
-#: `draw_matches`' widest picture by default, pixels: two 1280-pixel frames side by side.
-MAX_MATCHES_WIDTH = 2560
-
-
-def _shrunk(image: np.ndarray, factor: float) -> tuple[np.ndarray, tuple[float, float]]:
-    """(image resized by about `factor` (INTER_AREA; meant for < 1), (sx, sy): its new pixels per old pixel)."""
-    H, W = image.shape[:2]
-    w, h = max(1, int(round(W * factor))), max(1, int(round(H * factor)))
-    return cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA), (w / W, h / H)
-
-
-def letterbox(image: np.ndarray, size: tuple[int, int], fill=(255, 255, 255)) -> np.ndarray:
-    """`image` ((H, W, 3) uint8) resized by one factor to fit a cell of `size` (w, h) pixels and centred
-    in it on `fill` (BGR): its aspect ratio kept, where resizing to `size` squashed it. Returns (h, w, 3) uint8."""
-    w, h = size
-    H, W = image.shape[:2]
-    small, _ = _shrunk(image, min(w / W, h / H))
-    small = small[:h, :w]
-    cell = np.empty((h, w, 3), np.uint8)
-    cell[:] = fill
-    y0, x0 = (h - small.shape[0]) // 2, (w - small.shape[1]) // 2
-    cell[y0:y0 + small.shape[0], x0:x0 + small.shape[1]] = small
-    return cell
-
-
-def _shrunk_points(xy: np.ndarray, scale: tuple[float, float]) -> np.ndarray:
-    """Keypoints (N, 2+) pixels (x, y first) in the picture `_shrunk` made with `scale`, (N, 2)."""
-    xy = np.asarray(xy, float)
-    return image_to_mesh(xy[:, :2], scale) if xy.ndim == 2 else xy
-
-
 def match_key(n_matches: int, n_correct: int, n_drawn: int, judged: bool, n_unjudged: int = 0) -> str:
     """The key under `draw_matches`' title: the colours present ("green: correct, red: wrong", with
     "blue: U not judged (no ground truth)" for the `n_unjudged` of them whose keypoint has none; or
@@ -215,7 +241,7 @@ def draw_matches(
     max_lines: int = 400,
     title: str = "",
     judged: np.ndarray | None = None,
-    max_width: int | None = MAX_MATCHES_WIDTH,
+    max_width: int | None = MAX_PICTURE_WIDTH,
 ) -> np.ndarray:
     """Two frames side by side, frame0 left, with a line per match: green (`CORRECT`) correct, red
     (`WRONG`) wrong, blue (`UNJUDGED`) not judged (correct is None, or `judged` False: no ground
@@ -243,13 +269,11 @@ def draw_matches(
     if isinstance(matches0, Matches):
         matches0 = matches0.matches0
     left, right = to_bgr(frame0), to_bgr(frame1)
-    if max_width is not None:
-        check_whole(max_width, "max_width", 2)
-    shrink = 1.0 if max_width is None else min(1.0, max_width / (left.shape[1] + right.shape[1]))
+    shrink = picture_scale(left.shape[1] + right.shape[1], max_width)
     if shrink < 1:
-        left, scale0 = _shrunk(left, shrink)
-        right, scale1 = _shrunk(right, shrink)
-        keypoints0, keypoints1 = _shrunk_points(keypoints0, scale0), _shrunk_points(keypoints1, scale1)
+        left, scale0 = shrink_image(left, shrink)
+        right, scale1 = shrink_image(right, shrink)
+        keypoints0, keypoints1 = shrink_points(keypoints0, scale0), shrink_points(keypoints1, scale1)
     canvas = side_by_side(left, right, gap=0)
     offset = left.shape[1]
     matches0 = np.asarray(matches0)

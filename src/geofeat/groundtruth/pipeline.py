@@ -201,10 +201,21 @@ def _evaluate(tps_inv: ThinPlateSpline, ref: RGBDFrame, ref_mask: np.ndarray, tg
 def _overlay(tgt: RGBDFrame, ev: _Warped, lines: np.ndarray | None, lm_in: np.ndarray, lm_out: np.ndarray) -> np.ndarray:
     """Frame with the control-point grid (red) and landmarks (green inliers, red rejected), keyed in
     its top-left corner, next to a checkerboard of the frame and the warped reference (object only).
-    Returns an (H, 2 W, 3) uint8 BGR image."""
-    from ..viz import put_label
+    Returns an (h, 2 w, 3) uint8 BGR image: (H, 2 W) for frames of W pixels, or less when 2 W exceeds
+    `viz.MAX_PICTURE_WIDTH`: both halves are then shrunk to fit it, the grid and landmarks with them."""
+    from ..viz import picture_scale, put_label, shrink_image, shrink_points
 
     gray = (tgt.image * 255).astype(np.uint8)
+    H, W = gray.shape
+    shrink = picture_scale(2 * W)
+    yy, xx = np.mgrid[0:H, 0:W]
+    cell = max(1, round(24 / shrink))  # 24 pixels of the picture
+    checker = ((yy // cell + xx // cell) % 2 == 0) & ev.mask
+    right = np.where(checker, (ev.warped * 255).astype(np.uint8), gray)
+    if shrink < 1:  # a huge frame: the picture at most MAX_PICTURE_WIDTH wide, as the match pictures
+        (gray, scale), (right, _) = shrink_image(gray, shrink), shrink_image(right, shrink)
+        lines = None if lines is None else shrink_points(lines, scale)
+        lm_in, lm_out = shrink_points(lm_in, scale), shrink_points(lm_out, scale)
     left = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
     if lines is not None:
         for a, b in lines:
@@ -213,10 +224,6 @@ def _overlay(tgt: RGBDFrame, ev: _Warped, lines: np.ndarray | None, lm_in: np.nd
         cv2.circle(left, (int(round(x)), int(round(y))), 4, (0, 220, 0), 2, cv2.LINE_AA)
     for x, y in lm_out:
         cv2.drawMarker(left, (int(round(x)), int(round(y))), (0, 0, 255), cv2.MARKER_TILTED_CROSS, 12, 2)
-    H, W = gray.shape
-    yy, xx = np.mgrid[0:H, 0:W]
-    checker = ((yy // 24 + xx // 24) % 2 == 0) & ev.mask
-    right = np.where(checker, (ev.warped * 255).astype(np.uint8), gray)
     right = cv2.cvtColor(right, cv2.COLOR_GRAY2BGR)
     y = put_label(left, "red grid: control points", (4, 4), 0.45, (80, 80, 255))[3]
     y = put_label(left, f"landmarks: {len(lm_in)} inliers (green o)", (4, y), 0.45, (0, 220, 0))[3]
