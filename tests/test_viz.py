@@ -162,19 +162,15 @@ def test_report_plots_leave_the_callers_matplotlib_backend_alone(tmp_path):
 
 def test_a_caption_wider_than_a_small_picture_is_wrapped_not_cut_off():
     """On a pair of 160x120 frames the caption ran off the picture's right edge: "... 75 not" and the
-    key's counts were lost. Every word is now on the picture, on the label's dark box."""
+    key's counts were lost. Every word is now on the picture, on the label's dark box (in a band above
+    the frames, as small frames' captions are: `test_a_small_frames_caption_goes_above_the_picture_not_over_it`)."""
     from geofeat.viz import put_label
 
     frame = _flat_frame((200, 60, 0), (120, 160))
     title = "geopatch: 500 matches, 250 correct, 75 not judged (no ground truth)"
     picture = draw_matches(frame, frame, np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64), title=title)
-    assert picture.shape == (120, 320, 3)
-    label = _label_pixels(picture, (200, 60, 0), slice(0, 120))
-    # the label's box ends before the right edge: the last column is the frame's own colour
-    assert not label[:, -1].any()
-    # the title's box spans more than one line's height (it was one ~22 px line, cut at x = 320)
-    rows = np.flatnonzero(label[:, :50].any(axis=1))
-    assert rows.max() - rows.min() > 30
+    # the caption's band spans more than one line's height (it was one ~22 px line, cut at x = 320)
+    assert picture.shape[1:] == (320, 3) and picture.shape[0] - 120 > 30
     x0, y0, x1, y1 = put_label(np.zeros((120, 320, 3), np.uint8), title, (4, 4), 0.55)
     assert x1 <= 320 and y1 > 40
     wide = put_label(np.zeros((40, 2000, 3), np.uint8), title, (4, 4), 0.55)
@@ -358,3 +354,22 @@ def test_track_gif_frames_of_large_frames_are_at_most_max_gif_width():
     green = pictures[1][..., 1].astype(int) - pictures[1][..., 0] > 40  # RGB: the tracked grid's green
     ys, xs = np.nonzero(green[40:])  # below the label
     assert abs(xs.min() - 1000 * f) < 3 and abs(xs.max() - 3000 * f) < 3 and abs(ys.min() + 40 - 500 * f) < 3
+
+
+def test_a_small_frames_caption_goes_above_the_picture_not_over_it():
+    """On 160x120 frames the wrapped caption (title and key) covered most of the top of the match
+    picture. A caption that would cover more than `CAPTION_MAX_COVER` of it now sits in a band above
+    the frames, which show whole; a large frame's caption stays on the picture as it was."""
+    title = "geobit: 812 matches, 412 correct, 12 not judged (no ground truth)"
+    frame = _flat_frame((200, 60, 0), (120, 160))
+    picture = draw_matches(frame, frame, np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64), title=title)
+    band = picture.shape[0] - 120
+    assert picture.shape[1] == 320 and band > 0
+    assert (picture[band:] == (200, 60, 0)).all()  # every pixel of the frames shows
+    assert (picture[:band] == 30).all(-1).mean() > 0.5 and (picture[:band] > 128).any()  # the caption, above
+    # 640x480 frames: the caption on the frames, the picture their size, as before
+    large = _flat_frame((200, 60, 0), (480, 640))
+    picture = draw_matches(large, large, np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64), title=title)
+    assert picture.shape == (480, 1280, 3)
+    covered = np.flatnonzero((picture != (200, 60, 0)).any(-1).any(axis=1))
+    assert 0 < covered.max() <= 0.25 * 480  # geofeat.viz.CAPTION_MAX_COVER

@@ -49,6 +49,10 @@ def wrap_text(text: str, font: int, scale: float, room: int) -> list[str]:
     return lines
 
 
+#: BGR colour of the box under `put_label`'s text.
+LABEL_BOX = (30, 30, 30)
+
+
 def put_label(canvas: np.ndarray, text: str, origin: tuple[int, int] = (6, 6), scale: float = 0.5,
               colour=(255, 255, 255)) -> tuple[int, int, int, int]:
     """Write `text` on `canvas` (an (H, W, 3) uint8 BGR image, changed in place) in `colour` on a
@@ -66,10 +70,36 @@ def put_label(canvas: np.ndarray, text: str, origin: tuple[int, int] = (6, 6), s
     for line in wrap_text(text, font, scale, canvas.shape[1] - x0 - 2 * pad):
         (w, h), base = cv2.getTextSize(line, font, scale, 1)
         right, bottom = x0 + w + 2 * pad, y + h + base + 2 * pad
-        cv2.rectangle(canvas, (x0, y), (right - 1, bottom - 1), (30, 30, 30), -1)
+        cv2.rectangle(canvas, (x0, y), (right - 1, bottom - 1), LABEL_BOX, -1)
         cv2.putText(canvas, line, (x0 + pad, y + pad + h), font, scale, colour, 1, cv2.LINE_AA)
         x1, y = max(x1, right), bottom
     return x0, y0, x1, y
+
+
+#: The largest share of a picture's height that `put_caption` lets its caption cover.
+CAPTION_MAX_COVER = 0.25
+
+
+def put_caption(canvas: np.ndarray, lines: list[tuple[str, float]]) -> np.ndarray:
+    """`canvas` ((H, W, 3) uint8 BGR) captioned with `lines`, (text, OpenCV font scale) pairs written one
+    below the other from its top-left corner (`put_label`, each wrapped to the width). A caption that
+    would cover more than `CAPTION_MAX_COVER` of H (a small picture's, its lines wrapped: on 160 x 120
+    frames it hid most of them) is written instead into a band of `LABEL_BOX` above the picture, which
+    it then hides nothing of. Returns `canvas` written in place, or a new (H + band, W, 3) picture."""
+    def write(picture: np.ndarray) -> int:  # the caption's bottom row
+        y = 4
+        for text, scale in lines:
+            y = put_label(picture, text, (4, y), scale)[3]
+        return y
+
+    height = write(np.zeros((1, canvas.shape[1], 3), np.uint8))  # measured: only the width wraps the lines
+    if height <= CAPTION_MAX_COVER * canvas.shape[0]:
+        write(canvas)
+        return canvas
+    band = np.empty((height + 4, canvas.shape[1], 3), np.uint8)
+    band[:] = LABEL_BOX
+    write(band)
+    return np.concatenate([band, canvas], axis=0)
 
 
 def to_bgr(frame: RGBDFrame) -> np.ndarray:
@@ -255,7 +285,9 @@ def draw_matches(
     Returns an (H, W0 + W1, 3) uint8 BGR image, H = max(H0, H1); when W0 + W1 exceeds `max_width`
     pixels (None: never), both frames are shrunk by one factor to fit it, their keypoints with them
     (pixel centres kept: `image_to_mesh`), so that a pair of large frames is no 35 MB picture whose
-    1 px lines and caption vanish when it is viewed whole."""
+    1 px lines and caption vanish when it is viewed whole. A caption that would cover more than a
+    quarter of H (small frames) is written in a band above the frames instead (`put_caption`), which
+    adds the band's rows to H."""
     from .features import Matches
     from .keypoints import as_keypoints
 
@@ -299,7 +331,4 @@ def draw_matches(
     n_ok = 0 if correct is None else int(correct[matches0 >= 0].sum())
     key = match_key(total, n_ok, len(i0), correct is not None, int(unjudged[matches0 >= 0].sum()))
     lines = [t for t in (title, key) if t]
-    y = 4
-    for k, line in enumerate(lines):
-        y = put_label(canvas, line, (4, y), 0.55 if k == 0 else 0.45)[3]
-    return canvas
+    return put_caption(canvas, [(line, 0.55 if k == 0 else 0.45) for k, line in enumerate(lines)])
