@@ -137,6 +137,58 @@ def test_extract_on_the_gpu_is_refused_clearly_where_it_cannot_run(rolled_sequen
     assert not (tmp_path / "f.h5").exists()
 
 
+def test_match_on_the_gpu_is_refused_clearly_where_it_cannot_run(rolled_sequence, tmp_path, capsys):
+    """`match` had no --device (extract has): its checks are extract's, one-line usage errors naming the
+    flag before any frame is read, for a device that is neither the CPU nor CUDA, a descriptor the GPU
+    path does not compute and, on a machine without a CUDA GPU, CUDA itself."""
+    import torch
+
+    cases = [(["--device", "tpu"], "--device: expected cpu, cuda or cuda:N"),
+             (["--device", "cuda"], "GeoPatch with torch weights only"),
+             (["--device", "cuda", "--descriptor", "orb"], "not orb")]
+    if not torch.cuda.is_available():
+        cases.append((["--device", "cuda", "--descriptor", "geopatch"], "--device cuda: "))
+    for extra, message in cases:
+        assert main(["match", str(rolled_sequence), "--out", str(tmp_path / "m"), "--keypoints", "50", *extra]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("geofeat match: error: ") and message in err, (extra, err)
+    assert not (tmp_path / "m").exists()
+
+
+def test_match_device_reaches_the_description_and_the_matching(rolled_sequence, tmp_path, monkeypatch):
+    """`match --device cuda:0` describes GeoPatch on the GPU path (`compute_cuda`, torch backend on that
+    device) and matches there (`geofeat.match(..., device=)`), as `extract --device` describes; without
+    it, both stay on the CPU. (No GPU here: the GPU calls are stood in for by the CPU's.)"""
+    from types import SimpleNamespace
+
+    import geofeat.descriptors
+    import geofeat.gpu
+    import geofeat.matching
+
+    made, matched = [], []
+    make_descriptor, match = geofeat.descriptors.make_descriptor, geofeat.matching.match
+
+    def recording_make(name, **kwargs):
+        made.append({k: kwargs[k] for k in ("device", "backend") if k in kwargs})
+        cpu = make_descriptor(name, **{k: v for k, v in kwargs.items() if k not in ("device", "backend")})
+        cpu.compute_cuda = lambda frame, kps: SimpleNamespace(to_host=lambda: cpu.compute(frame, kps))
+        return cpu
+
+    def recording_match(f0, f1, *args, device=None, **kwargs):
+        matched.append(device)
+        return match(f0, f1, *args, **kwargs)
+
+    monkeypatch.setattr(geofeat.gpu, "require_cuda", lambda device="cuda": None)  # a usable GPU, as far as asked
+    monkeypatch.setattr(geofeat.descriptors, "make_descriptor", recording_make)
+    monkeypatch.setattr(geofeat.matching, "match", recording_match)
+    args = ["match", str(rolled_sequence), "--descriptor", "geopatch", "--keypoints", "50"]
+    assert main([*args, "--out", str(tmp_path / "gpu"), "--device", "cuda:0"]) == 0
+    assert made == [{"device": "cuda:0", "backend": "torch"}] and matched == ["cuda:0"]
+    made.clear(), matched.clear()
+    assert main([*args, "--out", str(tmp_path / "cpu")]) == 0
+    assert made == [{}] and matched == [None]
+
+
 @pytest.mark.skipif(not __import__("torch").cuda.is_available(), reason="no CUDA GPU")
 def test_extract_on_the_gpu_equals_the_torch_backend_on_the_cpu(rolled_sequence, tmp_path, monkeypatch):
     """`extract --device cuda` writes the GPU path's GeoPatch features: the same keypoints and valid

@@ -1,4 +1,5 @@
-"""Helpers shared by `extract` and `match`: file labels, skipped frames, a frame with its keypoints."""
+"""Helpers shared by `extract` and `match`: file labels, skipped frames, a frame with its keypoints, the
+GPU path of `--device`."""
 
 from __future__ import annotations
 
@@ -63,3 +64,42 @@ def frame_and_keypoints(seq, name: str, args: argparse.Namespace):
     if len(kps) == 0:
         raise ValueError("no keypoints detected")
     return frame, kps
+
+
+def check_device(device: str, descriptor: str) -> bool:
+    """Whether `--device` asks for the GPU path (ValueError naming the flag for a device that is
+    neither the CPU nor CUDA, for a descriptor the GPU path does not compute, or when no CUDA GPU
+    can be used: `gpu.require_cuda` says what is missing)."""
+    from ..gpu import is_cuda_device, require_cuda
+
+    if not is_cuda_device(device):
+        if device != "cpu":
+            raise ValueError(f"--device: expected cpu, cuda or cuda:N, got {device!r}")
+        return False
+    base, _, weights = descriptor.partition("=")
+    if base != "geopatch" or weights.lower().endswith(".onnx"):
+        raise ValueError(f"--device {device}: the GPU path computes GeoPatch with torch weights only (--descriptor "
+                         f"geopatch or geopatch=WEIGHTS.pt), not {descriptor}")
+    try:
+        require_cuda(device)
+    except RuntimeError as error:
+        raise ValueError(f"--device {device}: {error}") from None
+    return True
+
+
+def descriptor_for_device(args: argparse.Namespace, gpu: bool, **settings):
+    """`make_descriptor(args.descriptor, **settings)`, on `args.device` with the torch backend when
+    `gpu` (`check_device`'s answer); ValueError naming --device when torch cannot use that device."""
+    from ..descriptors import make_descriptor
+
+    options = {"device": args.device, "backend": "torch"} if gpu else {}
+    try:
+        return make_descriptor(args.descriptor, **settings, **options)
+    except RuntimeError as error:  # no CUDA GPU for torch (`gpu.torch_device`)
+        raise ValueError(f"--device {args.device}: {error}") from None
+
+
+def describe(descriptor, frame, kps, gpu: bool):
+    """`Features` of keypoints `kps` on `frame`: the GPU path's (`compute_cuda`, copied to the host)
+    when `gpu`, else `descriptor.compute`'s."""
+    return descriptor.compute_cuda(frame, kps).to_host() if gpu else descriptor.compute(frame, kps)

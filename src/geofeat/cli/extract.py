@@ -6,8 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from .common import features_path, file_label, finish_skipped, frame_and_keypoints, is_h5, skip_frame
-from .options import frames_options, resolve_detection
+from .common import (check_device, describe, descriptor_for_device, features_path, file_label, finish_skipped,
+                     frame_and_keypoints, is_h5, skip_frame)
+from .options import device_option, frames_options, resolve_detection
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -16,9 +17,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     frames_options(p)
     p.add_argument("--out", required=True, help="features file (.h5 or .npz) or folder")
     p.add_argument("--overwrite", action="store_true", help="replace an existing features file")
-    p.add_argument("--device", default="cpu",
-                   help="cpu (default), or cuda / cuda:N: GeoPatch's walk, sampling and CNN on the GPU "
-                        "(geofeat[cuda]; torch weights; descriptors within about 2e-4 of the CPU torch backend's)")
+    device_option(p)
     p.set_defaults(func=run)
     return p
 
@@ -32,7 +31,6 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from ..depth import PROFILES, sequence_depth_profile
-    from ..descriptors import make_descriptor
     from ..features import save_features
     from ..inputs import resolve_radius
     from ..io import read_sequence
@@ -57,11 +55,7 @@ def run(args: argparse.Namespace) -> int:
     if not is_h5(path):  # a killed run's half-written .npz files (the .h5's `atomic_file` clears its own)
         clear_stale_partials(*finals)
     profile = sequence_depth_profile(seq, args.depth_profile)
-    options = {"device": args.device, "backend": "torch"} if gpu else {}
-    try:
-        descriptor = make_descriptor(args.descriptor, radius=radius, depth_config=PROFILES[profile], **options)
-    except RuntimeError as error:  # no CUDA GPU for torch (`gpu.torch_device`)
-        raise ValueError(f"--device {args.device}: {error}") from None
+    descriptor = descriptor_for_device(args, gpu, radius=radius, depth_config=PROFILES[profile])
     print(f"{seq.name}: depth profile {profile}, {detection}, "
           f"radius {radius:g} m")
     skipped: list[str] = []
@@ -72,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
             for name in tqdm(seq.names, desc=f"extract {args.descriptor}", unit="frame"):
                 try:
                     frame, kps = frame_and_keypoints(seq, name, args)
-                    features = descriptor.compute_cuda(frame, kps).to_host() if gpu else descriptor.compute(frame, kps)
+                    features = describe(descriptor, frame, kps, gpu)
                 except ValueError as error:
                     skip_frame(skipped, name, error)
                     continue
@@ -167,24 +161,3 @@ def write_source(path: Path, source: dict[str, str], written: set[str], kept: li
     files = sorted(written | {f.name for f in kept})
     with atomic_file(features_source_record(path)) as tmp:
         tmp.write_text(json_text({"generator": "geofeat extract", **source, "files": files}, indent=1), encoding="utf-8")
-
-
-def check_device(device: str, descriptor: str) -> bool:
-    """Whether `--device` asks for the GPU path (ValueError naming the flag for a device that is
-    neither the CPU nor CUDA, for a descriptor the GPU path does not compute, or when no CUDA GPU
-    can be used: `gpu.require_cuda` says what is missing)."""
-    from ..gpu import is_cuda_device, require_cuda
-
-    if not is_cuda_device(device):
-        if device != "cpu":
-            raise ValueError(f"--device: expected cpu, cuda or cuda:N, got {device!r}")
-        return False
-    base, _, weights = descriptor.partition("=")
-    if base != "geopatch" or weights.lower().endswith(".onnx"):
-        raise ValueError(f"--device {device}: the GPU path computes GeoPatch with torch weights only (--descriptor "
-                         f"geopatch or geopatch=WEIGHTS.pt), not {descriptor}")
-    try:
-        require_cuda(device)
-    except RuntimeError as error:
-        raise ValueError(f"--device {device}: {error}") from None
-    return True

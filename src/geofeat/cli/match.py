@@ -5,8 +5,9 @@ from __future__ import annotations
 import argparse
 import warnings
 
-from .common import file_label, finish_skipped, frame_and_keypoints, skip_frame
-from .options import frames_options, resolve_detection
+from .common import (check_device, describe, descriptor_for_device, file_label, finish_skipped, frame_and_keypoints,
+                     skip_frame)
+from .options import device_option, frames_options, resolve_detection
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -17,6 +18,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="output folder (matches .h5, the features .h5 whose keypoints they index, pictures)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace what geofeat wrote in an existing non-empty OUT (other files stay)")
+    device_option(p, " and the matching")
     p.set_defaults(func=run)
     return p
 
@@ -24,11 +26,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Match the reference frame to every other frame, judged by the ground truth when there is one."""
     detection = resolve_detection(args)  # resolved once, for every frame
+    gpu = check_device(args.device, args.descriptor)
     from tqdm import tqdm
 
     from ..groundtruth.sources import GroundTruth, correct_matches, judged_matches
     from ..depth import PROFILES, sequence_depth_profile
-    from ..descriptors import make_descriptor
     from ..features import save_features, save_matches
     from ..inputs import resolve_radius
     from ..io import read_sequence
@@ -42,7 +44,8 @@ def run(args: argparse.Namespace) -> int:
     out = check_out_dir(args.out, args.overwrite, inputs=[seq.folder])
     radius = resolve_radius(args.radius, seq)
     profile = sequence_depth_profile(seq, args.depth_profile)
-    descriptor = make_descriptor(args.descriptor, radius=radius, depth_config=PROFILES[profile])
+    descriptor = descriptor_for_device(args, gpu, radius=radius, depth_config=PROFILES[profile])
+    device = args.device if gpu else None  # the matching's (`geofeat.match`), beside the description's
     label = file_label(args.descriptor)
     try:
         truth = GroundTruth(seq, None)
@@ -62,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         ref, k_ref = frame_and_keypoints(seq, seq.reference, args)
     except ValueError as error:
         raise ValueError(f"frame {seq.reference}: the reference frame cannot be used ({error}); nothing to match") from None
-    f_ref = descriptor.compute(ref, k_ref)
+    f_ref = describe(descriptor, ref, k_ref, gpu)
     total_matches, total_correct, total_unjudged = 0, 0, 0
     skipped: list[str] = []
     with output_folder(out) as tmp:
@@ -74,8 +77,8 @@ def run(args: argparse.Namespace) -> int:
         for name in tqdm(seq.targets, desc=f"match {args.descriptor}", unit="pair"):
             try:
                 tgt, k_tgt = frame_and_keypoints(seq, name, args)
-                f_tgt = descriptor.compute(tgt, k_tgt)
-                m = match(f_ref, f_tgt)
+                f_tgt = describe(descriptor, tgt, k_tgt, gpu)
+                m = match(f_ref, f_tgt, device=device)
             except ValueError as error:
                 skip_frame(skipped, name, error)
                 continue

@@ -194,6 +194,14 @@ def frames_options(p: argparse.ArgumentParser) -> None:
     depth_scale_option(p)
 
 
+def device_option(p: argparse.ArgumentParser, also: str = "") -> None:
+    """--device of `extract` and `match` (checked by `common.check_device`): cpu, or cuda / cuda:N for
+    GeoPatch on the GPU; `also` names what else runs there ("and the matching")."""
+    p.add_argument("--device", default="cpu",
+                   help=f"cpu (default), or cuda / cuda:N: GeoPatch's walk, sampling and CNN{also} on the GPU "
+                        "(geofeat[cuda]; torch weights; descriptors within about 2e-4 of the CPU torch backend's)")
+
+
 def app_options(p: argparse.ArgumentParser) -> None:
     """The options of `retrieval` and `track`: descriptors, output folder, detection (by default each
     descriptor on its own detector, `detector_for`), ground truth, depth."""
