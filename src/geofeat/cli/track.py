@@ -52,7 +52,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {csv_path}, {Path(args.out) / 'tracking.md'} and per sequence/descriptor grid.npz + track.gif")
     if skipped:
         print(f"{plural(len(skipped), 'frame')} SKIPPED: {', '.join(skipped)}", file=sys.stderr)
-    # the table printed above counts each descriptor's failed frames; a run that tracked none is no success (it exited 0)
+    # the table printed above counts each descriptor's failed frames; a run that tracked none is
+    # no success (it exited 0)
     failed, total = failed_rows(csv_path)
     if failed == total:
         print(f"track: no frame was tracked: the fit failed (or the frame was skipped) for every target frame "
