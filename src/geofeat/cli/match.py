@@ -18,7 +18,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="output folder (matches .h5, the features .h5 whose keypoints they index, pictures)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace what geofeat wrote in an existing non-empty OUT (other files stay)")
-    device_option(p, " and the matching")
+    device_option(p, ", and the matching,")
     p.set_defaults(func=run)
     return p
 

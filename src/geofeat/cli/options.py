@@ -196,7 +196,7 @@ def frames_options(p: argparse.ArgumentParser) -> None:
 
 def device_option(p: argparse.ArgumentParser, also: str = "") -> None:
     """--device of `extract` and `match` (checked by `common.check_device`): cpu, or cuda / cuda:N for
-    GeoPatch on the GPU; `also` names what else runs there ("and the matching")."""
+    GeoPatch on the GPU; `also` names what else runs there (", and the matching,")."""
     p.add_argument("--device", default="cpu",
                    help=f"cpu (default), or cuda / cuda:N: GeoPatch's walk, sampling and CNN{also} on the GPU "
                         "(geofeat[cuda]; torch weights; descriptors within about 2e-4 of the CPU torch backend's)")
