@@ -239,3 +239,24 @@ def test_geopatch_reads_a_weights_file_once_until_the_file_changes(tmp_path, mon
     c = GeoPatch(weights=str(path), device="cpu", backend="torch")
     assert len(reads) == 2 and not np.allclose(c.describe(patches), first)
     np.testing.assert_array_equal(a.describe(patches), first)  # the earlier object keeps its network
+
+
+def test_a_resume_checkpoint_or_a_bare_state_dict_given_as_weights_is_named_as_such(tmp_path):
+    """`geopatch=run.pt.ckpt` (the state an unfinished `train` resumes from) or a network saved with
+    `torch.save(net.state_dict(), ...)` said 'is a NumPy .npz archive (arrays archive/.data/...)':
+    a torch file is a zip archive, which NumPy opens too."""
+    from geofeat import make_descriptor
+
+    net = GeoPatchNet(GeoPatchConfig(channels=(4, 4, 4), dim=16))
+    state = {"state_dict": net.state_dict(), "optimizer": {}, "scheduler": {}, "history": {}, "epoch": 0}
+    torch.save(state, tmp_path / "run.pt.ckpt")
+    torch.save(net.state_dict(), tmp_path / "bare.pt")
+    for name in ("geopatch", "tfeat-sim"):
+        with pytest.raises(ValueError, match=r"run\.pt\.ckpt is the state `geofeat train --out .*run\.pt` saves after "
+                                             r"each epoch.*the weights are .*run\.pt, written when the run ends") as caught:
+            make_descriptor(f"{name}={tmp_path / 'run.pt.ckpt'}")
+        assert "NumPy" not in str(caught.value)
+        with pytest.raises(ValueError, match=r"bare\.pt holds a bare state dict .*without the network's config.*"
+                                             r"save_checkpoint") as caught:
+            make_descriptor(f"{name}={tmp_path / 'bare.pt'}")
+        assert "NumPy" not in str(caught.value)

@@ -114,7 +114,12 @@ def load_checkpoint(path: str | Path, build, what: str) -> tuple[nn.Module, dict
         if other is not None and other not in what.lower():
             raise ValueError(f"weights: {path} holds {other} weights (geofeat train --net), not {what}; name them "
                              f"{other}=PATH") from None
-        archive = _numpy_archive(path)  # torch's message named an array of it ("not in a subdirectory: mean.npy")
+        torch_file = _torch_file(ckpt, what, Path(path))  # torch read it: a zip archive, never a NumPy one
+        if torch_file is not None:
+            raise ValueError(f"weights: {path} {torch_file}") from None
+        # an archive torch could not read at all: torch's message named an array of it ("not in a subdirectory:
+        # mean.npy"); a file torch read is a torch zip, which NumPy opens too ("arrays archive/data.pkl, ...")
+        archive = _numpy_archive(path) if ckpt is None else None
         if archive is not None:
             what_it_is, hint = archive
             raise ValueError(f"weights: {path} {what_it_is}, not a {what} checkpoint of `geofeat train`{hint}") \
@@ -125,6 +130,26 @@ def load_checkpoint(path: str | Path, build, what: str) -> tuple[nn.Module, dict
         raise ValueError(f"weights: {path} holds NaN or infinite weights (its training diverged); train again with "
                          "a smaller --lr")
     return net, ckpt
+
+
+def _torch_file(ckpt, what: str, path: Path) -> str | None:
+    """What a file `path` that torch read (`ckpt`) but that holds no `what` checkpoint is, and what to give
+    instead, in words: the state `geofeat train` resumes from (OUT.ckpt), or a bare state dict (a
+    network saved with `torch.save(net.state_dict(), ...)`, without the config that gives its shape);
+    None for anything else. Such files are zip archives, which NumPy also opens: they were reported as
+    "a NumPy .npz archive (arrays archive/data.pkl, ...)"."""
+    if not isinstance(ckpt, dict):
+        return None
+    if {"state_dict", "optimizer", "history"} <= set(ckpt) and "config" not in ckpt:
+        out = path.with_name(path.name.removesuffix(".ckpt")) if path.name.endswith(".ckpt") else "OUT"
+        return (f"is the state `geofeat train --out {out}` saves after each epoch to resume from (OUT.ckpt), not "
+                f"weights; the weights are {out}, written when the run ends (rerun it with --resume to finish an "
+                "interrupted one)")
+    if ckpt and all(isinstance(k, str) and hasattr(v, "shape") for k, v in ckpt.items()):
+        return (f"holds a bare state dict (tensors {', '.join(list(ckpt)[:3])}, ...) without the network's config, "
+                f"not a {what} checkpoint of `geofeat train`; save the network with "
+                "geofeat.descriptors.geopatch_net.save_checkpoint(path, net), which records its shape")
+    return None
 
 
 def _numpy_archive(path: str | Path) -> tuple[str, str] | None:
