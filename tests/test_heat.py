@@ -271,3 +271,23 @@ def test_a_mesh_and_a_solver_of_another_mesh_are_refused_and_vertex_indices_are_
         with pytest.raises(ValueError, match="integer"):
             H.distance(bad)
     np.testing.assert_array_equal(H.distance(np.int64(3)), H.distance((3.0, 0.0)))
+
+
+def test_sources_of_another_shape_or_not_finite_are_refused():
+    """distances_vertices / distance_maps reshaped their sources to (-1, 2): two (x, y, z) points
+    became three sources of shuffled coordinates, a flat [x0, y0, x1, y1] two, without a word; a NaN
+    source failed as 'IndexError: index -9223372036854775808 is out of bounds'; no source at all as
+    'cannot reshape array of size 0'."""
+    from surfaces import plane_frame
+
+    mesh = geofeat.build_mesh(plane_frame((60, 80)), CLEAN)
+    H = HeatGeodesics(mesh)
+    for bad in (np.array([[10.0, 10.0, 1.0], [20.0, 12.0, 1.0]]), [10.0, 10.0, 20.0, 12.0]):
+        for solve in (H.distances_vertices, H.distance_maps):
+            with pytest.raises(ValueError, match=r"sources: expected shape \(N, 2\)"):
+                solve(bad)
+    with pytest.raises(ValueError, match=r"sources: NaN or infinite coordinates in rows \[1\]"):
+        H.distance_maps([[10.0, 10.0], [np.nan, 3.0]])
+    assert H.distances_vertices(np.zeros((0, 2))).shape == (len(H.V), 0)
+    assert H.distance_maps(np.zeros((0, 2))).shape == (0, *H.index.shape)
+    np.testing.assert_array_equal(H.distance_maps((10.5, 12.0))[0], H.distance((10.5, 12.0)))

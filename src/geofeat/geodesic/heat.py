@@ -35,6 +35,7 @@ from scipy.sparse.linalg import splu
 from ..constants import DEFAULT_RADIUS_M, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX
 from ..depth import DepthConfig
 from ..frame import RGBDFrame
+from ..inputs import as_points
 from .mesh import GridMesh, build_mesh, frame_fingerprint
 from .polar import (PolarPatches, check_mesh_shape, check_patch_request, patch_source, patch_validity, sample_bilinear,
                     sampling_image)
@@ -69,6 +70,19 @@ def _locate(xy: np.ndarray, face_ok: np.ndarray) -> tuple[np.ndarray, ...]:
     xc, yc = np.clip(x, 0, Wc - 1), np.clip(y, 0, Hc - 1)
     ok = inside & face_ok[yc, xc, t]
     return x, y, t, w, corners, ok
+
+
+def _check_sources(sources) -> np.ndarray:
+    """`HeatGeodesics.distances_vertices`'s sources as (B, 2) float64 mesh pixel coordinates: (B, 2) or
+    one (2,) point, finite; ValueError naming `sources` otherwise. (B, 3) points or a flat (2B,) list
+    were reshaped into other sources without a word, and a NaN failed as an IndexError."""
+    if np.shape(sources) == (2,):
+        sources = [sources]
+    xy = as_points(sources, "sources")
+    if not np.isfinite(xy).all():
+        bad = np.flatnonzero(~np.isfinite(xy).all(axis=1))
+        raise ValueError(f"sources: NaN or infinite coordinates in rows {bad[:10].tolist()}")
+    return xy
 
 
 #: `HeatGeodesics` warns when it is given a heat time `t` above this multiple of its default (mean edge
@@ -216,14 +230,17 @@ class HeatGeodesics:
         """Heat distances from B sources to every vertex of V.
 
         Args:
-            sources: (B, 2) float64 mesh pixel coordinates (x, y); a source inside a face
-                spreads its initial heat over the face's 3 vertices with barycentric weights.
+            sources: (B, 2) float64 mesh pixel coordinates (x, y), or one (2,) source; a source
+                inside a face spreads its initial heat over the face's 3 vertices with barycentric
+                weights. ValueError for another shape or a NaN or infinite coordinate.
         Returns:
             (n, B) float64 metres; NaN on components that do not hold the source, and for a source
-            that lies on no face.
+            that lies on no face ((n, 0) for no source).
         """
-        sources = np.asarray(sources, dtype=np.float64).reshape(-1, 2)
+        sources = _check_sources(sources)
         n, B = len(self.V), len(sources)
+        if B == 0:  # no source: no column (the solves below cannot take none)
+            return np.zeros((n, 0))
         rows, w, ok = self._source_weights(sources)
         delta = np.zeros((n, B))
         np.add.at(delta, (rows, np.broadcast_to(np.arange(B)[:, None], rows.shape)), w)
@@ -279,7 +296,8 @@ class HeatGeodesics:
 
     def distance_maps(self, sources: np.ndarray) -> np.ndarray:
         """Heat distances from B sources as grid maps: (B, Hm, Wm) float64 metres, NaN off the mesh
-        (and off the source's connected component). `sources`: (B, 2) mesh pixel coordinates."""
+        (and off the source's connected component). `sources`: (B, 2) mesh pixel coordinates (see
+        `distances_vertices`)."""
         d = self.distances_vertices(sources)
         Hm, Wm = self.index.shape
         out = np.full((d.shape[1], Hm * Wm), np.nan)
