@@ -472,3 +472,28 @@ def test_resuming_another_networks_checkpoint_is_refused_before_the_patches(tmp_
     assert main(run) == 2  # its own network: on to the data checks, which find no --data folder
     err = capsys.readouterr().err
     assert "--data" in err and "--resume" not in err, err
+
+
+def test_angle_shifts_are_refused_for_tfeats_cartesian_patches(tmp_path, capsys, monkeypatch):
+    """`train --net tfeat --augment-shift` rolled the columns of TFeat's Cartesian image patches (the
+    left edge wrapped around beside the right, a patch no keypoint gives) and trained on them without
+    a word; the shift is a rotation only for polar patches (GeoPatch, logpolar)."""
+    import geofeat.train.dataset as dataset
+    from geofeat.descriptors.image_patch_nets import ImagePatchNet, default_config
+    from geofeat.train.loop import TrainConfig, train
+
+    monkeypatch.setattr(dataset, "check_simulated", _stop)  # the first step after the options are checked
+    code = main(["train", "--data", str(tmp_path), "--out", str(tmp_path / "w.pt"), "--net", "tfeat",
+                 "--augment-shift"])
+    err = capsys.readouterr().err
+    assert code == 2 and "error: --augment-shift: rolls the angle columns of polar patches" in err, err
+    assert "tfeat's patches are Cartesian" in err and "(--net tfeat)" in err, err
+    config = TrainConfig(epochs=1, steps_per_epoch=1, batch_size=4, augment_shift=True)
+    with pytest.raises(ValueError, match="augment_shift: .*tfeat's patches are Cartesian"):
+        train(_patches(), tmp_path / "w.pt", config, net=ImagePatchNet(default_config("tfeat")), progress=False,
+              device="cpu")
+    assert not list(tmp_path.glob("w.pt*"))
+    for net in ("logpolar", "geopatch"):  # polar patches: the shift is a rotation, and the run goes on
+        with pytest.raises(_Stop):
+            main(["train", "--data", str(tmp_path), "--out", str(tmp_path / f"{net}.pt"), "--net", net,
+                  "--augment-shift"])

@@ -31,7 +31,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--lr", type=positive_number, default=0.1, help="SGD learning rate (default 0.1, the paper's)")
     p.add_argument("--mining", choices=("random", "hardest"), default="random",
                    help="negatives: random with anchor swap (the paper) or the hardest in the batch")
-    p.add_argument("--augment-shift", action="store_true", help="random circular shifts along the angle axis")
+    p.add_argument("--augment-shift", action="store_true", help="random circular shifts along the angle axis (GeoPatch and --net logpolar; "
+                        "refused with --net tfeat, whose Cartesian patches have none)")
     p.add_argument("--augment-photometric", action="store_true", help="random per-patch gamma and noise")
     p.add_argument("--init", default=None, help="start from these GeoPatch weights ('shipped': geofeat's own)")
     p.add_argument("--channels", type=whole_number(1), nargs=3, default=None, metavar=("C1", "C2", "C3"),
@@ -59,8 +60,8 @@ def run(args: argparse.Namespace) -> int:
     from ..io import sequence_digest
     from ..outputs import refuse_input_folder
     from ..train.dataset import PatchSet, build_patch_set, check_simulated, validation_pairs, warn_if_not_held_out
-    from ..train.loop import (TrainConfig, check_train_config, check_train_out, load_init, load_resume_state,
-                              remove_earlier_run, removed_line, train)
+    from ..train.loop import (TrainConfig, check_augmentation, check_train_config, check_train_out, load_init,
+                              load_resume_state, remove_earlier_run, removed_line, train)
 
     # the numbers are checked by their argparse types; one rule spans two options
     if args.mining == "hardest" and args.batch_size < 2:
@@ -84,6 +85,11 @@ def run(args: argparse.Namespace) -> int:
         net=GeoPatchConfig(channels=tuple(args.channels), angle_pool=not args.no_angle_pool),
     )
     check_train_config(config)
+    try:
+        check_augmentation(config, args.net)
+    except ValueError as error:  # before the patches, named by the flag
+        raise ValueError(f"--augment-shift: {str(error).removeprefix('augment_shift: ')}"
+                         f" (--net {args.net})") from None
     if args.device is not None:  # torch's own errors came after the patches were built, as tracebacks
         try:
             torch_device(args.device)

@@ -69,6 +69,22 @@ def check_train_config(config: TrainConfig) -> TrainConfig:
     return config
 
 
+#: Networks whose patches have no angle axis to roll (`TrainConfig.augment_shift`): TFeat's are Cartesian
+#: image patches (GeoPatch's polar patches and Log-Polar's have the angle along their columns).
+NO_ANGLE_AXIS = ("tfeat",)
+
+
+def check_augmentation(config: TrainConfig, arch: str | None) -> None:
+    """ValueError when `config.augment_shift` is asked for the network `arch` ("tfeat", "logpolar";
+    None or "geopatch": GeoPatchNet) whose (B, 32, 32) patches have no angle axis: rolling the
+    columns of a Cartesian image patch wraps its left edge around beside its right edge, a patch no
+    keypoint ever gives (it trained without a word)."""
+    if config.augment_shift and arch in NO_ANGLE_AXIS:
+        raise ValueError(f"augment_shift: rolls the angle columns of polar patches (a rotation about the keypoint); "
+                         f"{arch}'s patches are Cartesian image patches, whose columns it would wrap around (left "
+                         "edge beside right edge); leave it out for this network")
+
+
 def check_train_out(out: str | Path, overwrite: bool = False, resume: bool = False,
                     also: tuple[str, ...] = ()) -> Path:
     """The weights file `train` writes (`check_out_file`): an existing file is replaced only with
@@ -273,6 +289,7 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
             net.load_state_dict(load_init(init, config.net).state_dict())
     elif init is not None:
         raise ValueError("init: fine-tuning starts from GeoPatch weights; not with another network")
+    check_augmentation(config, getattr(getattr(net, "config", None), "arch", None))
     net = net.to(device)
     opt = torch.optim.SGD(net.parameters(), lr=config.lr, momentum=config.momentum, weight_decay=config.weight_decay)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=config.epochs * config.steps_per_epoch)
