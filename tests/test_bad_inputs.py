@@ -803,6 +803,15 @@ def train_resume_with_val_simulated_again(tmp):
     return _train(tmp, "--resume", "--val", _val_sim(tmp, seed=2, overwrite=True))
 
 
+def train_resume_with_data_simulated_again(tmp):
+    """--data was compared by folder only: a resumed run trained on the cached patches of the frames
+    its --data folder held before it was simulated again, the new frames ignored without a word."""
+    assert main(_train(tmp)) == 0
+    assert main(["simulate", str(tmp / "sim"), "--frames", "2", "--width", "64", "--height", "48", "--no-progress",
+                 "--texture", "procedural", "--seed", "3", "--overwrite"]) == 0
+    return _train(tmp, "--resume")
+
+
 def train_resume_with_val_left_out(tmp):
     assert main(_train(tmp, "--val", _val_sim(tmp))) == 0
     return _train(tmp, "--resume")
@@ -1098,6 +1107,9 @@ CASES = [
          None, _no_patches),
     Case("train-resume-with-val-simulated-again", train_resume_with_val_simulated_again, 2,
          r"\(--val val: other frames than that run's \(simulated again or edited since\)\)", None, _no_patches),
+    Case("train-resume-with-data-simulated-again", train_resume_with_data_simulated_again, 2,
+         r"holds the patches of a run with other options \(--data sim: other frames than that run's \(simulated "
+         r"again or edited since\)\)", None, _no_patches),
     Case("train-resume-with-val-left-out", train_resume_with_val_left_out, 2, r"\(--val val, not left out\)",
          None, _no_patches),
     Case("train-beside-user-patch-archive", train_beside_user_patch_archive, 2, "w.pt.patches.npz exists",

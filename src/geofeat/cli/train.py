@@ -134,10 +134,12 @@ def run(args: argparse.Namespace) -> int:
     val_folders = check_simulated(args.val, "--val") if args.val else []
     data_folders = check_simulated(args.data, "--data")
     warn_if_not_held_out(data_folders, val_folders, "--val", "--data")
-    # what the patches are built from, and the --val sequences that score every epoch (folders and their
-    # frames' `sequence_digest`): a resumed run takes the cached patches only when they match
+    # what the patches are built from (the --data folders and their frames' `sequence_digest`), and the --val
+    # sequences that score every epoch (folders and digests): a resumed run takes the cached patches only when
+    # they match
     source = {"data": [str(f.resolve()) for f in data_folders], "keypoints": args.keypoints,
               "depth_profile": args.depth_profile, "net": args.net,
+              "data_digests": [sequence_digest(f) for f in data_folders],
               "val": [[str(f.resolve()), sequence_digest(f)] for f in val_folders]}
     if args.resume and cache.is_file():
         data = PatchSet.load(cache)
@@ -186,15 +188,17 @@ def _check_triplets(data, keypoints: int) -> None:
 
 def _check_cached_source(cache: Path, cached: dict | None, wanted: dict) -> None:
     """--resume trains on the patches cached by the run it resumes: refuse them when they were built
-    from other --data, --keypoints, --depth-profile or --net than this run names (they were used
-    silently, and the new options ignored), or when the run scored its epochs on other --val
-    sequences, or on the same folders with other frames (its validation curve would join two
-    measures). A cache that records nothing (an older geofeat's) is used; one without --val (from
-    before it was recorded) is not checked for it."""
+    from other --data, --keypoints, --depth-profile or --net than this run names, or from the same
+    --data folders with other frames (simulated again since: they were used silently, and the new
+    options or frames ignored), or when the run scored its epochs on other --val sequences, or on the
+    same folders with other frames (its validation curve would join two measures). A cache that
+    records nothing (an older geofeat's) is used; one without --val or the --data digests (from
+    before they were recorded) is not checked for them."""
     if cached is None:
         return
     flags = {"data": "--data", "keypoints": "--keypoints", "depth_profile": "--depth-profile", "net": "--net",
-             "val": "--val"}
+             "data_digests": "--data", "val": "--val"}
+    optional = ("val", "data_digests")  # recorded since: checked where the cache has them
 
     def shown(key: str, value) -> str:
         if key == "val":  # [[folder, digest], ...]
@@ -205,13 +209,17 @@ def _check_cached_source(cache: Path, cached: dict | None, wanted: dict) -> None
 
     def change(key: str, flag: str) -> str:
         before, now = cached.get(key), wanted.get(key)
+        if key == "data_digests":  # the same folders (checked first), other frames
+            moved = [Path(p).name for p, d, e in zip(wanted["data"], before, now) if d != e]
+            return f"{flag} {' '.join(moved)}: other frames than that run's (simulated again or edited since)"
         if key == "val" and [p for p, _ in before] == [p for p, _ in now]:  # the same folders, other frames
             moved = [Path(p).name for (p, d), (_, e) in zip(before, now) if d != e]
             return f"{flag} {' '.join(moved)}: other frames than that run's (simulated again or edited since)"
         return f"{flag} {shown(key, before)}, not {shown(key, now)}"
 
     changed = [change(k, flag) for k, flag in flags.items()
-               if (k in cached or k != "val") and cached.get(k) != wanted.get(k)]
+               if (k in cached or k not in optional) and cached.get(k) != wanted.get(k)
+               and not (k == "data_digests" and cached.get("data") != wanted.get("data"))]
     if not changed:
         return
     raise ValueError(f"--resume: {cache} holds the patches of a run with other options ({'; '.join(changed)}); "
