@@ -296,3 +296,33 @@ def test_an_interrupted_run_resumes_to_the_weights_of_an_uninterrupted_one(tmp_p
     wb, _ = load_network(tmp_path / "b.pt")
     for (name, pa), (_, pb) in zip(wa.state_dict().items(), wb.state_dict().items()):
         torch.testing.assert_close(pa, pb, rtol=0, atol=0, msg=name)
+
+
+def test_cli_init_takes_the_init_weights_angle_pooling(tmp_path, capsys, monkeypatch):
+    """`train --init W` with weights trained with --no-angle-pool said 'init: the weights' network
+    GeoPatchConfig(..., angle_pool=False, ...) differs from the requested GeoPatchConfig(...)' (naming no
+    option), though the run takes the weights' widths by itself; `--init shipped --no-angle-pool` said
+    the same. The run now takes the weights' pooling, and refuses --no-angle-pool with pooling weights."""
+    import geofeat.train.dataset as dataset
+    from geofeat.cli import main
+    from geofeat.descriptors.geopatch import GeoPatchNet, save_checkpoint
+
+    flat = GeoPatchConfig(channels=(4, 8, 8), angle_pool=False)
+    save_checkpoint(tmp_path / "flat.pt", GeoPatchNet(flat))
+    sim = tmp_path / "sim"
+    assert main(["simulate", str(sim), "--frames", "2", "--width", "64", "--height", "48", "--no-progress",
+                 "--texture", "procedural"]) == 0
+    common = ["train", "--data", str(sim), "--epochs", "1", "--steps", "1", "--batch-size", "8", "--keypoints", "50",
+              "--device", "cpu"]
+    assert main([*common, "--init", str(tmp_path / "flat.pt"), "--out", str(tmp_path / "w.pt")]) == 0
+    assert load_network(tmp_path / "w.pt")[0].config == flat
+    capsys.readouterr()
+
+    def built(*args, **kwargs):
+        raise AssertionError("patches were built before the bad option was reported")
+
+    monkeypatch.setattr(dataset, "build_patch_set", built)
+    assert main([*common, "--init", "shipped", "--no-angle-pool", "--out", str(tmp_path / "x.pt")]) == 2
+    err = capsys.readouterr().err
+    assert "error: --no-angle-pool: the --init weights shipped max-pool over angle" in err, err
+    assert "leave --no-angle-pool out" in err, err

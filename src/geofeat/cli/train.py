@@ -38,7 +38,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--channels", type=whole_number(1), nargs=3, default=None, metavar=("C1", "C2", "C3"),
                    help="channels of the three convolutions (default 16 32 64, or with --init the weights' own; "
                         "the paper's and the shipped weights': 32 64 128)")
-    p.add_argument("--no-angle-pool", action="store_true", help="flatten instead of max-pooling over angle (ablation)")
+    p.add_argument("--no-angle-pool", action="store_true",
+                   help="flatten instead of max-pooling over angle (ablation; with --init: as the weights do)")
     p.add_argument("--keypoints", type=keypoint_count, default=512, help="SIFT keypoints per reference frame (default 512)")
     p.add_argument("--seed", type=whole_number(0, 2**64 - 1), default=0, help="random seed (default 0)")
     p.add_argument("--net", choices=("geopatch", "tfeat", "logpolar"), default="geopatch",
@@ -74,15 +75,21 @@ def run(args: argparse.Namespace) -> int:
         if unused:
             raise ValueError(f"{', '.join(unused)}: GeoPatch's options, which --net {args.net} (an image-patch "
                              "network of fixed widths on image patches) would ignore; leave them out")
-    if not channels_given:  # fine-tuning takes the widths of the weights it starts from
-        args.channels = (16, 32, 64)
-        if args.init is not None and args.net == "geopatch":
-            args.channels = _init_channels(args.init)
+    # fine-tuning takes the shape of the weights it starts from: their widths, unless --channels names others
+    # (refused by `load_init` below), and their angle pooling (weights that flatten cannot max-pool)
+    start = _init_config(args.init) if args.init is not None and args.net == "geopatch" else None
+    if not channels_given:
+        args.channels = (16, 32, 64) if start is None else start.channels
+    angle_pool = not args.no_angle_pool and (start is None or start.angle_pool)
+    if start is not None and args.no_angle_pool and start.angle_pool:  # it said "init: the weights' network
+        # GeoPatchConfig(..., angle_pool=True, ...) differs from the requested GeoPatchConfig(...)"
+        raise ValueError(f"--no-angle-pool: the --init weights {args.init} max-pool over angle, and a network that "
+                         "flattens instead has another shape; leave --no-angle-pool out to fine-tune them")
     config = TrainConfig(
         epochs=args.epochs, steps_per_epoch=args.steps, batch_size=args.batch_size, lr=args.lr,
         mining=args.mining, augment_shift=args.augment_shift, seed=args.seed,
         augment_photometric=args.augment_photometric,
-        net=GeoPatchConfig(channels=tuple(args.channels), angle_pool=not args.no_angle_pool),
+        net=GeoPatchConfig(channels=tuple(args.channels), angle_pool=angle_pool),
     )
     check_train_config(config)
     try:
@@ -264,13 +271,14 @@ def _check_init_survives(init: str, out: str) -> None:
                              "choose another --out")
 
 
-def _init_channels(init: str) -> tuple[int, int, int]:
-    """The channel widths of the --init weights ("shipped": geofeat's own), for a run that names none;
-    a missing or foreign file is reported by `load_init` with the run's other checks."""
+def _init_config(init: str):
+    """The `GeoPatchConfig` (network shape) of the --init weights ("shipped": geofeat's own), whose
+    widths and angle pooling a run takes where it names none; None for a missing or foreign file,
+    which `load_init` reports with the run's other checks."""
     from ..descriptors.geopatch import load_network
 
     try:
         start, _ = load_network(None if str(init) == "shipped" else init)
     except (ValueError, OSError):
-        return (16, 32, 64)
-    return tuple(start.config.channels)
+        return None
+    return start.config
