@@ -266,3 +266,26 @@ def test_openvino_refuses_a_file_that_is_not_a_model_like_onnxruntime(tmp_path):
     for backend in ("onnx", "openvino-int8", "openvino-bf16"):
         with pytest.raises(ValueError, match="weights: .*broken.onnx is not a GeoPatch ONNX model"):
             GeoPatch(weights=str(path), backend=backend)
+
+
+def test_a_backend_from_the_environment_variable_that_cannot_run_says_so(monkeypatch, tmp_path):
+    """With GEOFEAT_GEOPATCH_BACKEND=onnx-int8 set (as BENCHMARKS.md runs `bench`), `geopatch=mine.pt`
+    said 'backend: onnx-int8 needs a calibrated int8 model ... or use backend='onnx' or 'torch'', and
+    GeoPatch(device='cuda') 'the onnx-int8 backend runs on CPU only': a backend nobody had passed, with
+    advice for an argument a command line user cannot give."""
+    from geofeat import make_descriptor
+    from geofeat.descriptors.geopatch import GeoPatchConfig, GeoPatchNet, save_checkpoint
+
+    save_checkpoint(tmp_path / "mine.pt", GeoPatchNet(GeoPatchConfig(channels=(4, 4, 4))))
+    monkeypatch.setenv(BACKEND_ENV, "onnx-int8")
+    env = rf"chosen by the environment variable {BACKEND_ENV}=onnx-int8: set it to a backend that runs"
+    with pytest.raises(ValueError, match=r"backend: onnx-int8 needs a calibrated int8 model.*" + env):
+        make_descriptor(f"geopatch={tmp_path / 'mine.pt'}")
+    with pytest.raises(ValueError, match=r"runs on CPU only.*" + env):
+        GeoPatch(device="cuda")
+    with pytest.raises(ValueError) as caught:  # an argument names its own backend: no word of the variable
+        GeoPatch(weights=tmp_path / "mine.pt", backend="onnx-int8")
+    assert BACKEND_ENV not in str(caught.value)
+    with pytest.raises(ValueError) as caught:  # not the backend's fault
+        GeoPatch(weights=tmp_path / "missing.onnx")
+    assert "no GeoPatch ONNX model" in str(caught.value) and BACKEND_ENV not in str(caught.value)

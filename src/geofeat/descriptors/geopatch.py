@@ -230,9 +230,33 @@ class GeoPatch:
         if batch_size is not None:
             check_whole(batch_size, "batch_size", 1)
         self.threads = None if threads is None else check_threads(threads)  # 100000 killed the process
-        self.backend = resolve_backend(s.backend, weights, device)
         self.net = self.session = None
         self.checkpoint: dict = {}
+        from .geopatch_onnx import BACKEND_ENV
+
+        chosen_by_env = os.environ.get(BACKEND_ENV, "").strip() if s.backend is None else ""
+        try:
+            self._load(s.backend, weights, device)
+        except ValueError as error:
+            text = str(error)
+            if not chosen_by_env or BACKEND_ENV in text or not (text.startswith("backend:") or "CPU only" in text):
+                raise
+            # a backend that cannot run these weights or on this device: its advice (backend='torch', ...) is for
+            # a backend= argument, which was not given
+            raise ValueError(f"{error} (the backend was chosen by the environment variable {BACKEND_ENV}="
+                             f"{chosen_by_env}: set it to a backend that runs these weights on this device, or "
+                             "unset it)") from None
+        self.radius = s.radius
+        self.name = "geopatch" if weights is None else f"geopatch={weights}"
+        self.binary, self.metric, self.geodesic = False, "l2", True
+        self.depth_config = s.depth_config
+        self.blur_px = s.blur_px
+        self.batch_size = int(DEFAULT_BATCH[self.backend] if batch_size is None else batch_size)
+
+    def _load(self, backend: str | None, weights, device) -> None:
+        """Set `backend` (`resolve_backend`), `device`, `config` and the network (`net`, `checkpoint`) or
+        the runtime session (`session`) of the weights; ValueError naming what cannot run."""
+        self.backend = resolve_backend(backend, weights, device)
         if self.backend == "torch":
             import torch
 
@@ -242,21 +266,15 @@ class GeoPatch:
             self.device = torch_device(device if device is not None else ("cuda" if torch.cuda.is_available() else "cpu"))
             self.net, self.checkpoint = _torch_network(weights, self.device)
             self.config = self.net.config
-        else:
-            if device is not None and str(device).split(":")[0] != "cpu":
-                raise ValueError(f"device: the {self.backend} backend runs on CPU only, got device={device!r}; "
-                                 "use backend='torch' for a GPU")
-            self.device = "cpu"
-            self.session = self._onnx_session(weights)
-            cfg = dict(self.session.config)
-            cfg["channels"] = tuple(cfg["channels"])
-            self.config = GeoPatchConfig(**cfg)
-        self.radius = s.radius
-        self.name = "geopatch" if weights is None else f"geopatch={weights}"
-        self.binary, self.metric, self.geodesic = False, "l2", True
-        self.depth_config = s.depth_config
-        self.blur_px = s.blur_px
-        self.batch_size = int(DEFAULT_BATCH[self.backend] if batch_size is None else batch_size)
+            return
+        if device is not None and str(device).split(":")[0] != "cpu":
+            raise ValueError(f"device: the {self.backend} backend runs on CPU only, got device={device!r}; "
+                             "use backend='torch' for a GPU")
+        self.device = "cpu"
+        self.session = self._onnx_session(weights)
+        cfg = dict(self.session.config)
+        cfg["channels"] = tuple(cfg["channels"])
+        self.config = GeoPatchConfig(**cfg)
 
     def _onnx_session(self, weights):
         from .geopatch_onnx import (ONNX_INT8_NAME, ONNX_NAME, OnnxGeoPatch, data_path, export_checkpoint,
