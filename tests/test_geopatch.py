@@ -252,8 +252,9 @@ def test_a_resume_checkpoint_or_a_bare_state_dict_given_as_weights_is_named_as_s
     torch.save(state, tmp_path / "run.pt.ckpt")
     torch.save(net.state_dict(), tmp_path / "bare.pt")
     for name in ("geopatch", "tfeat-sim"):
-        with pytest.raises(ValueError, match=r"run\.pt\.ckpt is the state `geofeat train --out .*run\.pt` saves after "
-                                             r"each epoch.*the weights are .*run\.pt, written when the run ends") as caught:
+        resume_state = (r"run\.pt\.ckpt is the state `geofeat train --out .*run\.pt` saves after each epoch.*the "
+                        r"weights are .*run\.pt, written when the run ends")
+        with pytest.raises(ValueError, match=resume_state) as caught:
             make_descriptor(f"{name}={tmp_path / 'run.pt.ckpt'}")
         assert "NumPy" not in str(caught.value)
         with pytest.raises(ValueError, match=r"bare\.pt holds a bare state dict .*without the network's config.*"

@@ -31,8 +31,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--lr", type=positive_number, default=0.1, help="SGD learning rate (default 0.1, the paper's)")
     p.add_argument("--mining", choices=("random", "hardest"), default="random",
                    help="negatives: random with anchor swap (the paper) or the hardest in the batch")
-    p.add_argument("--augment-shift", action="store_true", help="random circular shifts along the angle axis (GeoPatch and --net logpolar; "
-                        "refused with --net tfeat, whose Cartesian patches have none)")
+    p.add_argument("--augment-shift", action="store_true",
+                   help="random circular shifts along the angle axis (GeoPatch and --net logpolar; refused with "
+                        "--net tfeat, whose Cartesian patches have none)")
     p.add_argument("--augment-photometric", action="store_true", help="random per-patch gamma and noise")
     p.add_argument("--init", default=None, help="start from these GeoPatch weights ('shipped': geofeat's own)")
     p.add_argument("--channels", type=whole_number(1), nargs=3, default=None, metavar=("C1", "C2", "C3"),
