@@ -1,6 +1,8 @@
 """Commands never write among their inputs nor mix them up: an --out inside an input folder is
 refused by every command, `retrieval` refuses a sequence copied under two folder names, and
-`extract` refuses to add one sequence's per-frame features to another's."""
+`extract` refuses to add one sequence's per-frame features to another's. Nor do they replace data
+or results that are not theirs: another sequence or ground truth, `match`'s features, a results.csv
+copied in, the --texture photograph; `bench` refuses to average an earlier run's other sequences in."""
 
 from __future__ import annotations
 
@@ -276,3 +278,140 @@ def test_simulate_texture_folder_passes_over_macos_dot_files_and_names_a_bad_fil
     err = capsys.readouterr().err
     assert f"texture_dir: notes.png, the file this seed draws from {tex}, is no usable texture" in err
     assert "remove it from the folder" in err and not (tmp_path / "s").exists()
+
+
+# ---------------------------------------------------------------- whose files an output may replace
+def _simulated_like(folder: Path, seed: int = 1) -> Path:
+    """A sequence whose files are all in its manifest, as `geofeat simulate` leaves one."""
+    from geofeat.outputs import write_manifest
+
+    make_sequence(folder, seed=seed)
+    write_manifest(folder, [p.name for p in folder.iterdir()])
+    return folder
+
+
+#: Each command with --overwrite and an output folder that is another sequence, no input of the run:
+#: {seq} the input sequence, {sim} a folder holding a sequence named like it (`groundtruth` writes
+#: {sim}/seq), {gt} a folder of TPS ground truth (`groundtruth`'s), all files in their manifests.
+REPLACED = {
+    "match": (["match", "{seq}", "--descriptor", "orb", "--keypoints", "64", "--out", "{sim}/seq"], "{sim}/seq",
+              "a sequence's frames"),
+    "track": (["track", "{seq}", "--descriptors", "orb", "--keypoints", "64", "--refine", "none", "--out", "{sim}/seq"],
+              "{sim}/seq", "a sequence's frames"),
+    "bench": (["bench", "{seq}", "--descriptors", "orb", "--keypoints", "64", "--out", "{sim}/seq"], "{sim}/seq",
+              "a sequence's frames"),
+    "groundtruth": (["groundtruth", "{seq}", "--no-refine", "--out", "{sim}"], "{sim}/seq", "a sequence's frames"),
+    "simulate": (["simulate", "{gt}", "--frames", "1", "--width", "64", "--height", "48", "--no-progress"], "{gt}",
+                 "ground truth (TPS files)"),
+}
+
+
+@pytest.mark.parametrize("case", list(REPLACED))
+def test_overwrite_never_replaces_a_sequence_or_ground_truth_with_another_commands_output(tmp_path, capsys, case):
+    """The input sequence was protected, another one was not: `match seq --out other_seq --overwrite` (as
+    the "exists and is not empty; pass --overwrite" error advised) deleted every frame of a simulated
+    sequence, whose files geofeat wrote, and left the matches; `simulate gt --overwrite` deleted
+    `groundtruth`'s TPS files. Now one line naming what the folder holds, and nothing changed."""
+    seq = make_sequence(tmp_path / "data" / "seq")
+    sim = tmp_path / "sim"
+    _simulated_like(sim / "seq")
+    gt = tmp_path / "gt"
+    gt.mkdir()
+    np.save(gt / "frame-001_theta.npy", np.zeros((3, 2)))
+    cv2.imwrite(str(gt / "frame-000-master_objmask.png"), np.full((8, 8), 255, np.uint8))
+    from geofeat.outputs import write_manifest
+
+    write_manifest(gt, ["frame-001_theta.npy", "frame-000-master_objmask.png"])
+    places = {"seq": seq, "sim": sim, "gt": gt}
+    before = _listing(tmp_path)
+    command, held, what = REPLACED[case]
+    assert main([a.format(**places) for a in command] + ["--overwrite"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert f"{held.format(**places)} holds {what}" in err
+    assert _listing(tmp_path) == before
+
+
+def test_track_refuses_results_inside_an_input_sequence_under_the_folder_above_it(tmp_path, capsys):
+    """`track data/seq --out data` writes OUT/<sequence>/<descriptor>/: data/seq/orb/track.gif, among the
+    input's frames (the folder above a sequence is no input, so it was not refused)."""
+    seq = make_sequence(tmp_path / "data" / "seq")
+    before = _listing(tmp_path)
+    argv = ["track", str(seq), "--descriptors", "orb", "--keypoints", "64", "--refine", "none", "--out",
+            str(tmp_path / "data"), "--overwrite"]
+    assert main(argv) == 2
+    assert f"{seq / 'orb'} lies inside the input folder {seq}" in capsys.readouterr().err
+    assert _listing(tmp_path) == before
+
+
+def test_bench_overwrite_never_replaces_a_results_csv_geofeat_did_not_write(tmp_path, capsys):
+    """A results.csv copied into a folder (bench's header, no manifest listing it) was refused on a rerun
+    ("other settings ... use --overwrite"), and --overwrite then replaced it with the new run's."""
+    from geofeat.bench.runner import COLUMNS
+
+    seq = make_sequence(tmp_path / "seq")
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "results.csv").write_text(",".join(COLUMNS) + "\n" + ",".join(["x"] * len(COLUMNS)) + "\n")
+    before = _listing(mine)
+    assert main(["bench", str(seq), "--descriptors", "orb", "--keypoints", "64", "--out", str(mine), "--overwrite"]) == 2
+    assert "holds results.csv, which geofeat did not write" in capsys.readouterr().err
+    assert _listing(mine) == before
+
+
+def test_bench_resume_refuses_results_of_sequences_not_given(tmp_path, capsys):
+    """`bench a --out b` then `bench other --out b` skipped nothing and wrote table.md over both: the earlier
+    run's sequence averaged in unsaid (its files unchecked, its scenario group lost)."""
+    seq = make_sequence(tmp_path / "a" / "seq")
+    other = make_sequence(tmp_path / "o" / "other", seed=1)
+    bench = ["bench", "--descriptors", "orb", "--keypoints", "64", "--out", str(tmp_path / "b")]
+    assert main([bench[0], str(seq), *bench[1:]]) == 0
+    before = _listing(tmp_path / "b")
+    capsys.readouterr()
+    assert main([bench[0], str(other), *bench[1:]]) == 2
+    err = capsys.readouterr().err
+    assert f"holds results of seq (from {seq.resolve()}), not among the datasets given" in err
+    assert _listing(tmp_path / "b") == before
+    assert main([bench[0], str(seq), str(other), *bench[1:]]) == 0  # both: seq resumed, other added
+
+
+def test_match_refuses_a_file_it_would_replace_before_any_pair_is_matched(tmp_path, capsys, monkeypatch):
+    """An `extract` features file in the --out folder (features-orb.h5, which match writes too) was found
+    only when the results were moved into place, after every pair was matched."""
+    import geofeat.matching
+
+    seq = make_sequence(tmp_path / "seq")
+    out = tmp_path / "out"
+    assert main(["extract", str(seq), "--descriptor", "orb", "--keypoints", "64", "--out", str(out)]) == 0
+    matched = []
+    monkeypatch.setattr(geofeat.matching, "match", lambda *a, **k: matched.append(a))
+    capsys.readouterr()
+    assert main(["match", str(seq), "--descriptor", "orb", "--keypoints", "64", "--out", str(out), "--overwrite"]) == 2
+    assert "holds features-orb.h5, which geofeat did not write" in capsys.readouterr().err
+    assert matched == []
+
+
+def test_extract_never_replaces_the_features_of_a_match_folder(tmp_path, capsys):
+    """`extract --out DIR` writes DIR/features-<descriptor>.h5, the name of the features `match` writes
+    beside the matches that index them: --overwrite replaced them with other keypoints unsaid."""
+    seq = make_sequence(tmp_path / "seq")
+    out = tmp_path / "out"
+    assert main(["match", str(seq), "--descriptor", "orb", "--keypoints", "64", "--out", str(out)]) == 0
+    before = _listing(out)
+    capsys.readouterr()
+    assert main(["extract", str(seq), "--descriptor", "orb", "--keypoints", "32", "--out", str(out), "--overwrite"]) == 2
+    assert f"{out / 'features-orb.h5'} belongs to the results in {out}" in capsys.readouterr().err
+    assert _listing(out) == before
+
+
+def test_simulate_refuses_a_contact_sheet_that_is_its_texture(tmp_path, capsys):
+    """`--contact-sheet` naming the --texture photograph was refused as "exists; pass --overwrite", and
+    with --overwrite the sheet replaced the user's photograph."""
+    photo = tmp_path / "photo.png"
+    cv2.imwrite(str(photo), np.random.default_rng(0).integers(0, 255, (64, 64, 3), dtype=np.uint8))
+    kept = photo.read_bytes()
+    argv = ["simulate", str(tmp_path / "s"), "--texture", str(photo), "--contact-sheet", str(tmp_path / "." / "photo.png"),
+            "--overwrite", "--frames", "1", "--width", "64", "--height", "48", "--no-progress"]
+    assert main(argv) == 2
+    assert "is the --texture image" in capsys.readouterr().err
+    assert photo.read_bytes() == kept and not (tmp_path / "s").exists()

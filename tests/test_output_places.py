@@ -205,7 +205,7 @@ def test_an_output_folder_that_is_a_dangling_link_is_refused_before_any_work(tmp
 HOLD_OUTPUT = """
 import sys
 from geofeat.outputs import check_out_dir
-check_out_dir(sys.argv[1], overwrite=True)
+check_out_dir(sys.argv[1], overwrite=True, writes="sequence")  # as `simulate` claims its OUT_DIR
 print("claimed", flush=True)
 sys.stdin.read()  # hold the claim until the test closes stdin or kills this process
 """

@@ -10,6 +10,8 @@
   geofeat did not write.
 - Text results (csv, md, json) are written and read back as UTF-8 whatever the locale, as
   `append_line_durably` appends them: sequence names are folder names, which may be any letters.
+- An output folder that holds a sequence's frames or TPS ground truth is refused by every command but
+  the one that makes such folders (`check_out_dir`'s `writes`: simulate, groundtruth), input or not.
 - One run at a time per output: `check_out_dir` and `check_out_file` claim the output for the run
   (`claim_output`, an exclusive lock), so a second run writing the same folder or file at the same
   time stops at once, naming the first, instead of replacing its files when it finishes.
@@ -332,16 +334,41 @@ def refuse_input_folder(folder: str | Path, inputs: Iterable[str | Path | None],
         raise ValueError(f"{what}: {why}; {harm or default}: choose another folder")
 
 
+#: The kinds of data folder a command may write (`check_out_dir`'s `writes`), as `_data_kind` names them.
+SEQUENCE, GROUND_TRUTH, RESULTS = "sequence", "ground truth", "results"
+
+
+def _data_kind(folder: Path) -> tuple[str, list[str]] | None:
+    """(kind, a few of its files) when `folder` holds a sequence's frames (`io.frame_names`: SEQUENCE)
+    or TPS ground truth (`groundtruth.sources`: GROUND_TRUTH), the data that `simulate` and
+    `groundtruth` write and the other commands read; None otherwise."""
+    from .groundtruth.sources import _has_tps_files
+    from .io import RGB_SUFFIX, frame_names
+
+    if not folder.is_dir():
+        return None
+    frames = frame_names(folder)
+    if frames:
+        return SEQUENCE, [f"{n}{RGB_SUFFIX}" for n in frames[:3]]
+    if _has_tps_files(folder):
+        return GROUND_TRUTH, sorted(p.name for p in (*folder.glob("*_theta.npy"), *folder.glob("*_objmask.png")))[:3]
+    return None
+
+
 def check_out_dir(path: str | Path, overwrite: bool = False, what: str = "--out", strict: bool = False,
-                  files: Iterable[str] = (), inputs: Iterable[str | Path | None] = ()) -> Path:
+                  files: Iterable[str] = (), inputs: Iterable[str | Path | None] = (), writes: str = RESULTS) -> Path:
     """Check an output folder before any work: it must not be a file, and an existing non-empty folder
     needs `overwrite`. With `strict`, a folder holding files geofeat did not write (not in its
     manifest) is refused even with `overwrite`, because leftovers would mix with the new output.
     `files`: the result files the command writes at fixed names (relative paths); with `overwrite`,
-    one of them that geofeat did not write is refused (`foreign_clashes`) rather than replaced.
-    `inputs`: the folders the command reads; an output folder that is one of them (a simulated
-    sequence, whose files geofeat wrote), or lies inside one, is refused, with or without `overwrite`
-    (`refuse_input_folder`)."""
+    one of them that geofeat did not write is refused (`foreign_clashes`) rather than replaced, and
+    one in a sub-folder (`track`'s OUT/<sequence>/...) that lies inside an input folder is refused
+    (`refuse_input_folder`). `inputs`: the folders the command reads; an output folder that is one of
+    them (a simulated sequence, whose files geofeat wrote), or lies inside one, is refused, with or
+    without `overwrite` (`refuse_input_folder`). `writes`: the kind of folder the command makes
+    (SEQUENCE: `simulate`; GROUND_TRUTH: `groundtruth`; RESULTS: the others); a folder holding another
+    kind (`_data_kind`: a simulated sequence, whose frames are in its manifest, is not an input of
+    `match --out` but was replaced by its results with `--overwrite`) is refused, with or without it."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise ValueError(f"{what}: {path} is a file, not a folder")
@@ -349,6 +376,16 @@ def check_out_dir(path: str | Path, overwrite: bool = False, what: str = "--out"
         raise ValueError(f"{what}: {path} is a symbolic link to {os.readlink(path)}, which does not exist: make that "
                          "folder, or choose another")
     refuse_input_folder(path, inputs, what)
+    files = list(files)
+    for sub in dict.fromkeys((path / rel).parent for rel in files if len(Path(rel).parts) > 1):
+        refuse_input_folder(sub, inputs, what)  # OUT/<sequence>/ with OUT the folder above an input sequence
+    held = _data_kind(path)
+    if held is not None and held[0] != writes:  # before the "pass --overwrite" advice, which would replace it
+        kind, some = held
+        data = {SEQUENCE: "a sequence's frames", GROUND_TRUTH: "ground truth (TPS files)"}[kind]
+        made = {SEQUENCE: "a simulated sequence", GROUND_TRUTH: "ground truth", RESULTS: "results"}[writes]
+        raise ValueError(f"{what}: {path} holds {data} ({', '.join(some)}, ...); writing {made} there would replace "
+                         "or mix with them, with or without --overwrite: choose another folder")
     for parent in path.parents:
         if parent.exists() and not parent.is_dir():
             raise ValueError(f"{what}: {parent} is a file, so the folder {path} cannot be created")

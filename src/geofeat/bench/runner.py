@@ -460,8 +460,10 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
         check_out_dir(out, overwrite, files=OUTPUT_FILES)
     elif out.exists() and not out.is_dir():
         raise ValueError(f"out: {out} is a file, not a folder")
-    else:  # a rerun (resumed or --overwrite) writes its reports again: never over a file of the user's there
-        check_out_dir(out, True, files=REPORTS)
+    else:  # a rerun (resumed or --overwrite) writes its reports again: never over a file of the user's there;
+        # --overwrite starts results.csv and config.json anew: never a copy the user put there (not in the
+        # manifest), which it replaced when its header was bench's, after advising "use --overwrite"
+        check_out_dir(out, True, files=OUTPUT_FILES if overwrite else REPORTS)
     short = [Path(f).name for f in folders if len(frame_names(f)) < 2]
     if short and len(short) == len(folders):  # nothing to evaluate: say so before writing config.json and results.csv
         raise ValueError(f"datasets: no sequence has a reference and a target frame ({plural(len(short), 'sequence')} "
@@ -555,6 +557,12 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
         if moved:
             raise ValueError(f"out: {out} holds results of another sequence of the same name ({'; '.join(moved)}); "
                              "use --overwrite or another --out")
+        absent = sorted(finished - {Path(f).name for f in folders})
+        if absent:  # the reports read results.csv: they averaged these, unchecked and ungrouped, with this run's
+            listed = ", ".join(f"{name} (from {read_from[name]})" if name in read_from else name for name in absent[:5])
+            raise ValueError(f"out: {out} holds results of {listed}{', ...' if len(absent) > 5 else ''}, not among the "
+                             "datasets given; the reports would average them with this run's: give their folders too, "
+                             "or use --overwrite or another --out")
         read_from = {**read_from, **_read_from(folders)}
         digests = _digests(folders, config.tps_dir)
         stored = before.get("sequence_digests") if isinstance(before.get("sequence_digests"), dict) else {}

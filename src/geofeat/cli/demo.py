@@ -147,7 +147,7 @@ DEMO_PICTURES = ("polar_patches.png", "rolled_pair_matches.png", "simulated_pair
 def _check_demo_folder(out: Path) -> None:
     """The demo reruns into its own folder freely, but never replaces a picture of the same name that
     geofeat did not write there (one not in the folder's manifest)."""
-    from ..outputs import check_out_dir, foreign_clashes
+    from ..outputs import SEQUENCE, check_out_dir, foreign_clashes
 
     check_out_dir(out, overwrite=True)  # not a file, not under a file
     theirs = foreign_clashes(out, DEMO_PICTURES)
@@ -155,7 +155,7 @@ def _check_demo_folder(out: Path) -> None:
         raise ValueError(f"--out: {out} already holds {', '.join(theirs)}, which geofeat did not write; "
                          "choose another folder")
     # the simulated sequence replaces only an earlier one: checked now, not after the first pictures
-    check_out_dir(out / "simulated_cloth", overwrite=True, strict=True)
+    check_out_dir(out / "simulated_cloth", overwrite=True, strict=True, writes=SEQUENCE)
 
 
 def kernels_compiled() -> bool:

@@ -45,6 +45,7 @@ def run(args: argparse.Namespace) -> int:
     refuse_input_folder(args.out, [seq.folder], "--out",
                         f"extract would write {path.name if is_h5(path) else f'{path.stem}-<frame>.npz'} among "
                         "its files")
+    refuse_result_file(finals)
     claim_output(path)  # one claim for the .h5, or for the prefix of the one file per frame
     source = earlier = None  # the .h5 is written whole, so it never mixes two runs' features
     if not is_h5(path):  # before "exists; pass --overwrite", which does not say whose features are there
@@ -106,6 +107,21 @@ def run(args: argparse.Namespace) -> int:
                                        + f" keypoints per frame of --keypoints {args.keypoints})")
     print(f"wrote {args.descriptor} features of {plural(len(seq) - len(skipped), 'frame')} of {seq.folder}{per_frame} to {where}")
     return status
+
+
+def refuse_result_file(finals: list[Path]) -> None:
+    """ValueError when one of the files `finals` that extract would write is listed in the manifest of
+    its folder (`geofeat.outputs.read_manifest`): a file of another command's result folder, such as
+    the features-<descriptor>.h5 that `geofeat match` writes beside the matches indexing its keypoints
+    (extract writes no manifest). Checked before "exists; pass --overwrite", which replaced it, and the
+    matches then pointed into another run's keypoints without a word."""
+    from ..outputs import MANIFEST, read_manifest
+
+    for final in finals:
+        if final.name in read_manifest(final.parent):
+            raise ValueError(f"--out: {final} belongs to the results in {final.parent} (its {MANIFEST} lists it: another "
+                             "geofeat command wrote it, as `geofeat match` writes the features its matches index); "
+                             "replacing it would mix two runs' results, with or without --overwrite: choose another --out")
 
 
 def sequence_source(seq) -> dict[str, str]:

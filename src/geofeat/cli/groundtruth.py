@@ -46,7 +46,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Run `groundtruth`; ValueError on bad input. Returns 0, or 1 when a frame failed."""
     from ..io import find_sequences, read_sequence
-    from ..outputs import check_out_dir, refuse_input_folder
+    from ..outputs import GROUND_TRUTH, check_out_dir, refuse_input_folder
     from ..groundtruth.pipeline import (GroundTruthConfig, check_config, check_sequence, finished_result,
                                        generate_ground_truth, result_files)
 
@@ -71,7 +71,8 @@ def run(args: argparse.Namespace) -> int:
             done.append(folder)
             continue
         try:
-            check_out_dir(args.out / folder.name, args.overwrite, files=result_files(seq), inputs=folders)
+            check_out_dir(args.out / folder.name, args.overwrite, files=result_files(seq), inputs=folders,
+                          writes=GROUND_TRUTH)
         except ValueError as error:  # a rerun after an interrupt: say how to keep what was finished
             if (args.out / folder.name / "report.json").is_file() and not args.resume:
                 raise ValueError(f"{error}; or pass --resume to keep the sequences an earlier run finished") from None

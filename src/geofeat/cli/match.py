@@ -23,6 +23,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
+def picture_name(reference: str, target: str, label: str) -> str:
+    """The file name of the picture of the matches of `reference` to `target` (`label`: `file_label`)."""
+    return f"{reference}__{target}__{label}.png"
+
+
 def run(args: argparse.Namespace) -> int:
     """Match the reference frame to every other frame, judged by the ground truth when there is one."""
     detection = resolve_detection(args)  # resolved once, for every frame
@@ -41,12 +46,15 @@ def run(args: argparse.Namespace) -> int:
     seq = read_sequence(args.folder, depth_scale=args.depth_scale)
     if len(seq) < 2:
         raise ValueError(f"folder: {seq.folder} has a single frame; matching needs a reference and a target")
-    out = check_out_dir(args.out, args.overwrite, inputs=[seq.folder])
+    label = file_label(args.descriptor)
+    # every file at a fixed name: a user's file there (an `extract` features .h5) was found only when the
+    # results were moved into place, after every pair was matched
+    files = [f"matches-{label}.h5", f"features-{label}.h5", *(picture_name(seq.reference, n, label) for n in seq.targets)]
+    out = check_out_dir(args.out, args.overwrite, files=files, inputs=[seq.folder])
     radius = resolve_radius(args.radius, seq)
     profile = sequence_depth_profile(seq, args.depth_profile)
     descriptor = descriptor_for_device(args, gpu, radius=radius, depth_config=PROFILES[profile])
     device = args.device if gpu else None  # the matching's (`geofeat.match`), beside the description's
-    label = file_label(args.descriptor)
     try:
         truth = GroundTruth(seq, None)
     except ValueError as error:
@@ -103,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
                 summary += f", {int(correct.sum())} correct" + (f", {unjudged} not judged (no ground truth)" if unjudged else "")
             picture = draw_matches(ref, tgt, k_ref.xy, k_tgt.xy, m.matches0, correct, title=f"{args.descriptor}: {summary}",
                                    judged=judged)
-            write_picture(tmp / f"{seq.reference}__{name}__{label}.png", picture)
+            write_picture(tmp / picture_name(seq.reference, name, label), picture)
             tqdm.write(f"{seq.reference} -> {name}: {summary}")
         status = finish_skipped(skipped, len(seq.targets), "match")
     judged_total = (f", {total_correct} correct" + (f", {total_unjudged} not judged (no ground truth)" if total_unjudged else "")

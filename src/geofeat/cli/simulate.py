@@ -66,6 +66,11 @@ def run(args: argparse.Namespace) -> int:
 
         from ..outputs import check_out_file
 
+        texture = Path(args.texture) if args.texture is not None else None
+        if texture is not None and texture.is_file() and texture.resolve() == args.contact_sheet.resolve():
+            # before "exists; pass --overwrite to replace it", which replaced the user's photograph with the sheet
+            raise ValueError(f"--contact-sheet: {args.contact_sheet} is the --texture image; the sheet would replace "
+                             "it, with or without --overwrite: choose another name")
         check_out_file(args.contact_sheet, args.overwrite, "--contact-sheet")
         if args.texture_dir is not None:  # the next simulation would draw the sheet as a cloth texture
             from ..outputs import refuse_input_folder

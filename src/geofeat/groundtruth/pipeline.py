@@ -32,7 +32,7 @@ from ..frame import RGBDFrame
 from ..imagequality import ssim_map
 from ..inputs import check_landmarks
 from ..io import RGB_SUFFIX, Sequence, read_image, read_landmarks, read_sequence, sequence_digest
-from ..outputs import check_out_dir, json_text, output_folder, read_manifest, write_picture
+from ..outputs import GROUND_TRUTH, check_out_dir, json_text, output_folder, read_manifest, write_picture
 from .defaults import DEFAULT_DEPTH_MARGIN_M, DEFAULT_MARGIN_PX, DEFAULT_SPACING_PX
 from .photometric import RefineConfig, check_refine_config, refine
 from ..tps import ThinPlateSpline, authors_tps, spans_plane
@@ -416,7 +416,7 @@ def generate_ground_truth(sequence: str | Path | Sequence, out: str | Path, conf
     check_config(config)
     seq = sequence if isinstance(sequence, Sequence) else read_sequence(sequence)
     ref, lms, ref_mask = check_sequence(seq, config)
-    out = check_out_dir(out, overwrite, files=result_files(seq), inputs=[seq.folder])
+    out = check_out_dir(out, overwrite, files=result_files(seq), inputs=[seq.folder], writes=GROUND_TRUTH)
     names = seq.targets
     if progress:
         from tqdm import tqdm

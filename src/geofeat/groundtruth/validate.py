@@ -17,7 +17,7 @@ from .landmarks import inside_hull
 from .sources import load_authors_spline
 from ..inputs import check_whole
 from ..io import Sequence, read_sequence, write_landmarks
-from ..outputs import check_out_dir
+from ..outputs import SEQUENCE, check_out_dir
 
 
 def keep_landmarks(sequence: str | Path, out: str | Path, n: int, seed: int = 0) -> Path:
@@ -28,7 +28,7 @@ def keep_landmarks(sequence: str | Path, out: str | Path, n: int, seed: int = 0)
     if n < 1 or n > vis.sum():
         raise ValueError(f"n: expected 1..{vis.sum()} (landmarks visible in the reference), got {n}")
     keep = np.random.default_rng(seed).choice(ids[vis], size=n, replace=False)
-    out = check_out_dir(out, what="out")  # never deletes an existing folder
+    out = check_out_dir(out, what="out", writes=SEQUENCE)  # never deletes an existing folder
     if out.exists():
         out.rmdir()  # empty
     shutil.copytree(seq.folder, out)

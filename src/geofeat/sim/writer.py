@@ -30,7 +30,7 @@ import numpy as np
 
 from ..inputs import check_intrinsics_for_image, check_whole
 from ..io import DEPTH_NO_DATA, write_intrinsics, write_landmarks
-from ..outputs import check_out_dir, replace_folder, temporary_folder
+from ..outputs import SEQUENCE, check_out_dir, replace_folder, temporary_folder
 from ..groundtruth.landmarks import MIN_LANDMARKS
 from ..groundtruth.simulator import GT_JSON, GT_SUFFIX, FrameTruth, map_points
 from .render import NEAR_M, clipped_in_view
@@ -174,7 +174,7 @@ def simulate_sequence(
                          "accepts; choose a less elongated size or another fov") from None
     out_dir = Path(out_dir)
     # overwrite replaces only what geofeat wrote there; a folder holding other files is refused
-    check_out_dir(out_dir, overwrite, what="out_dir", strict=True, inputs=[texture_dir])
+    check_out_dir(out_dir, overwrite, what="out_dir", strict=True, inputs=[texture_dir], writes=SEQUENCE)
     args = (out_dir, scenario, n_frames, seed, texture, texture_dir, width, height, K, kinect_noise, progress,
             steps_per_frame, preset_obj, fov, motion_blur)
     try:
