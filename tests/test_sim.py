@@ -466,12 +466,20 @@ def test_sizes_whose_intrinsics_read_sequence_refuses_are_refused_before_simulat
     assert read_sequence(tmp_path / "ok").shape == (320, 48)
 
 
-def test_a_scene_deeper_than_16_bits_of_tenth_millimetres_is_written_in_millimetres(tmp_path):
-    """paper, scale, --fov 20.5, 40 x 160: the camera backs off to 7.4 m, past the 6.55 m that 16 bits of
+FAR = dict(n_frames=5, seed=1, width=40, height=160, preset="paper", fov=20.5, texture="procedural", progress=False)
+
+
+def test_a_scene_deeper_than_16_bits_of_tenth_millimetres_is_written_in_millimetres(tmp_path, monkeypatch):
+    """paper, scale, --fov 20.5, 40 x 160: the camera backs off to 8.8 m, past the 6.55 m that 16 bits of
     0.1 mm hold; simulate failed with "does not fit a 16-bit PNG" after the whole simulation, and no
-    option could write that scene."""
-    out = simulate_sequence(tmp_path / "far", "scale", n_frames=5, seed=2, width=40, height=160, preset="paper",
-                            fov=20.5, texture="procedural", progress=False)
+    option could write that scene. Then it was simulated to the frame that passed 6.55 m, and all over
+    again in millimetres without a word: `ClothScene.depth_bound`, known before simulating, chooses the unit."""
+    runs = []
+    real_write = writer_mod._write
+    monkeypatch.setattr(writer_mod, "_write", lambda folder, *a, **kw: (runs.append(kw["depth_unit"]),
+                                                                        real_write(folder, *a, **kw)))
+    out = simulate_sequence(tmp_path / "far", "scale", **FAR)
+    assert runs == [writer_mod.FAR_DEPTH_UNIT_M]  # one run
     seq = read_sequence(out)
     assert seq.depth_scale == writer_mod.FAR_DEPTH_UNIT_M
     depth = seq.frame(len(seq) - 1).depth
@@ -479,6 +487,45 @@ def test_a_scene_deeper_than_16_bits_of_tenth_millimetres_is_written_in_millimet
     on = depth > 0
     assert depth.max() > 65535 * writer_mod.DEPTH_UNIT_M
     assert z.min() - 0.0006 <= depth[on].min() and depth[on].max() <= z.max() + 0.0006
+
+
+def test_the_depth_bound_holds_and_a_depth_past_it_is_simulated_again_with_a_warning(tmp_path, monkeypatch):
+    """`ClothScene.depth_bound` is above every depth of a scene, noise included, and keeps 0.1 mm for
+    scenes at a metre or two; a depth past it (noise beyond 6 sigma) still gives a sequence in millimetres,
+    simulated again with a warning."""
+    for preset, scenario in (("mild", "scale"), ("paper", "deform"), ("hard", "rotate"), ("hard", "scale")):
+        scene = ClothScene(scenario, 6, np.random.default_rng(7), procedural_texture(np.random.default_rng(0)),
+                           size=(48, 64), preset=preset, kinect_noise=True)
+        bound = scene.depth_bound()
+        assert bound < writer_mod.max_depth_m(writer_mod.DEPTH_UNIT_M)
+        assert all(f.vertices[..., 2].max() < bound and f.depth.max() < bound for f in scene.frames())
+    runs = []
+    real_write = writer_mod._write
+    monkeypatch.setattr(writer_mod, "_write", lambda folder, *a, **kw: (runs.append(kw["depth_unit"]),
+                                                                        real_write(folder, *a, **kw)))
+    monkeypatch.setattr(ClothScene, "depth_bound", lambda self: 1.0)
+    with pytest.warns(UserWarning, match=r"\d+\.\d\d m does not fit .* farther than the scene could reach \(1\.00 m\): "
+                                         "simulating it again in millimetres"):
+        out = simulate_sequence(tmp_path / "again", "scale", **FAR)
+    assert runs == [writer_mod.DEPTH_UNIT_M, writer_mod.FAR_DEPTH_UNIT_M]
+    assert read_sequence(out).depth_scale == writer_mod.FAR_DEPTH_UNIT_M
+
+
+def test_a_large_frame_gets_about_a_texel_per_pixel_of_the_cloth():
+    """Textures were capped at 1024 texels: on a 4096 px wide frame a texel of a large photograph covered
+    two pixels of the cloth (a blurred cloth). Now at least one texel per pixel of the cloth's closest view,
+    within `MAX_TEXELS`; up to 1008 px of cloth (every preset at 640 x 480) the width is the capped one's."""
+    from geofeat.sim.textures import MAX_TEXELS, texture_width
+
+    photo = np.random.default_rng(0).integers(0, 256, (3000, 4000, 3), dtype=np.uint8)
+    scene = ClothScene("deform", 1, np.random.default_rng(0), photo, size=(3072, 4096))
+    cloth_px = scene.K[0, 0] * scene.config.width_m / scene.params.distance  # mild: a fixed camera
+    assert cloth_px > 2000 and scene.texture.shape[1] >= cloth_px
+    for aspect in (0.5, 4 / 3, 4.0):
+        wide = texture_width(1e5, aspect)
+        assert wide * round(wide / aspect) <= 1.001 * MAX_TEXELS
+        for px in np.linspace(1, 1008, 50):
+            assert texture_width(px, aspect) == int(min(1024, 1.5 * px + 16))
 
 
 def test_kinect_noise_changes_only_the_depth_of_the_same_scene(tmp_path):

@@ -18,8 +18,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "simulate",
         help="simulate a deforming cloth and write an RGB-D sequence with exact ground truth",
         description="Simulate a textured cloth in wind and write an RGB-D sequence in the public layout "
-        "(<name>-rgb.png, 16-bit <name>-depth.png in 0.1 mm units, or 1 mm past 6.55 m, geofeat.json with that scale, "
-        "intrinsics.xml, <name>.csv landmarks) plus dense ground truth (<name>-gt.npz, groundtruth.json).",
+        "(<name>-rgb.png, 16-bit <name>-depth.png in 0.1 mm units, or 1 mm where the scene may pass 6.55 m, "
+        "geofeat.json with that scale, intrinsics.xml, <name>.csv landmarks) plus dense ground truth (<name>-gt.npz, "
+        "groundtruth.json).",
     )
     p.add_argument("out_dir", type=Path, help="sequence folder to create")
     p.add_argument("--scenario", choices=SCENARIOS, default="deform",

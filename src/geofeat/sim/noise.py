@@ -84,6 +84,11 @@ def motion_blur(color: np.ndarray, length_px: float, angle: float) -> np.ndarray
     return cv2.filter2D(np.ascontiguousarray(color, dtype=np.float32), -1, kernel, borderType=cv2.BORDER_REPLICATE)
 
 
+def depth_noise_sigma(z: np.ndarray | float) -> np.ndarray | float:
+    """Standard deviation (metres) of the axial depth noise at depth `z` metres (Nguyen et al. 2012)."""
+    return 0.0012 + 0.0019 * (z - 0.4) ** 2
+
+
 def kinect_depth_noise(
     depth: np.ndarray,
     cos_view: np.ndarray,
@@ -105,7 +110,7 @@ def kinect_depth_noise(
     """
     valid = depth > 0
     z = depth.astype(np.float32)
-    sigma = 0.0012 + 0.0019 * (z - 0.4) ** 2
+    sigma = depth_noise_sigma(z)
     noisy = z + rng.standard_normal(z.shape, dtype=np.float32) * sigma
     # discontinuities: background next to foreground, or a jump > 2 cm between neighbours
     big = np.where(valid, z, 1e3).astype(np.float32)

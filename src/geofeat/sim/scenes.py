@@ -27,9 +27,9 @@ import numpy as np
 
 from ..inputs import check_non_negative
 from .cloth import Cloth, ClothConfig
-from .noise import finish_image, kinect_depth_noise, motion_blur
+from .noise import depth_noise_sigma, finish_image, kinect_depth_noise, motion_blur
 from .render import RenderOutput, render
-from .textures import jitter_colours, prepare_texture
+from .textures import jitter_colours, prepare_texture, texture_width
 
 SCENARIOS = ("deform", "rotate", "scale")
 #: Simulation steps of a 30-frame sequence at the default 6 steps per frame. paper and hard compress their
@@ -45,8 +45,8 @@ class Preset:
 
     Attributes:
         name: preset name.
-        fill: fraction of the image area the flat reference cloth covers (sets the camera distance);
-            None = mild's distance draw (0.85-1.05 m).
+        fill: fraction of the image area the flat reference cloth covers, on a frame of any shape (sets the
+            camera distance, `fill_distance`); None = mild's distance draw (0.85-1.05 m).
         scale_swing: `deform` camera distance swings so that the image scale goes through this range
             (None = fixed camera).
         orbit_deg: the camera orbits the cloth centre by up to this yaw (and 0.6x this pitch).
@@ -169,6 +169,23 @@ def check_fov(fov_deg: float) -> None:
             or not lo < float(fov_deg) < hi:
         raise ValueError(f"fov: expected a vertical field of view in degrees strictly between {lo:g} and {hi:g}, "
                          f"got {fov_deg!r}")
+
+
+def fill_distance(fill: float, K: np.ndarray, size: tuple[int, int], cloth_size: tuple[float, float]) -> float:
+    """Distance (metres) at which a flat cloth of `cloth_size` (width, height) metres, facing the camera
+    K (3, 3) with its centre on the optical axis, covers the fraction `fill` of the (H, W) image's area.
+
+    Where the whole cloth would then be taller than the image (a wide, short frame) or wider (a tall, narrow
+    one), part of it is out of view (at 1280 x 320 a `fill` of 0.7 covered 0.48); there it comes closer,
+    until the part in view covers `fill`: it spans the image's height (width) and `fill` of its width (height)."""
+    H, W = size
+    w, h = cloth_size
+    d = float(np.sqrt(K[0, 0] * K[1, 1] * w * h / (fill * W * H)))  # the whole cloth in view
+    if K[1, 1] * h / d > H:
+        return float(K[0, 0] * w / (fill * W))
+    if K[0, 0] * w / d > W:
+        return float(K[1, 1] * h / (fill * H))
+    return d
 
 
 def get_preset(preset: str | Preset) -> Preset:
@@ -338,9 +355,10 @@ class ClothScene:
         self.pin_idx = top  # top row: index = c
         self.pin_rest = self.cloth.pos[self.pin_idx].copy()
         self.cloth.pin(self.pin_idx)
-        # texture at about 1.5 texels per pixel of the closest view
+        # the cloth's width in pixels at its closest view
         px_width = self.K[0, 0] * cfg.width_m / p.distance * (1.3 if self.preset.scale_swing else 1.0)
-        self.texture = prepare_texture(texture, cfg.width_m / cfg.height_m, int(min(1024, 1.5 * px_width + 16)))
+        aspect = cfg.width_m / cfg.height_m
+        self.texture = prepare_texture(texture, aspect, texture_width(px_width, aspect))
         self.step_count = 0
 
     def _draw_preset(self, texture: np.ndarray, cloth_config: ClothConfig) -> np.ndarray:
@@ -351,8 +369,7 @@ class ClothScene:
         # (a 20 x 80 grid filled a third of the `fill` asked for)
         cfg = ClothConfig(**{**cloth_config.__dict__, "width_m": p.cloth_width})
         if pr.fill is not None:
-            fill = rng.uniform(*pr.fill)
-            p.distance = float(np.sqrt(self.K[0, 0] * self.K[1, 1] * cfg.width_m * cfg.height_m / (fill * W * H)))
+            p.distance = fill_distance(rng.uniform(*pr.fill), self.K, self.size, (cfg.width_m, cfg.height_m))
         d = p.distance
         p.tilt = rng.uniform(-pr.tilt_rad, pr.tilt_rad, 2)
         steps = max(1, (self.n_frames - 1) * p.steps_per_frame)
@@ -449,6 +466,22 @@ class ClothScene:
         centre = np.array([0.0, 0.0, d])  # the cloth centre, on the reference optical axis
         R = _rot("z", roll) @ orbit
         return R, centre - R @ centre + np.array([0.0, 0.0, back])
+
+    def depth_bound(self) -> float:
+        """A depth (metres) that no frame of the sequence reaches, known before simulating (`simulate_sequence`
+        chooses the depth PNGs' unit by it).
+
+        Every frame's camera is known, and the cloth stays near its rest centre c: each pin within twice its
+        motion amplitude of its rest place (pins drawn together stay between them), each free particle within
+        its rest (u, v) distance of every pin (the tethers; 10 % added for what the last constraint sweep
+        moves). A point's depth is at most c's plus that reach, plus 6 sigma of the depth noise."""
+        cloth, p = self.cloth, self.params
+        centre = np.array([0.0, 0.0, p.distance])  # the rest cloth's centre (`__init__`)
+        pins = np.max(np.linalg.norm(self.pin_rest - centre, axis=1) + 2 * np.linalg.norm(p.pin_amp, axis=1))
+        to_pin = np.linalg.norm(cloth.uv[:, None] - cloth.uv[self.pin_idx][None], axis=2).min(axis=1).max()
+        reach = 1.1 * to_pin + pins
+        far = max((R @ centre + t)[2] for R, t in map(self._camera, range(self.n_frames))) + reach
+        return float(far + 6 * depth_noise_sigma(far)) if self.kinect_noise else float(far)
 
     def _lights(self, f: int) -> tuple[np.ndarray, np.ndarray]:
         p = self.params

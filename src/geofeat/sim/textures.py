@@ -73,6 +73,21 @@ def _warn_if_transparent(path: Path) -> None:
                       "flatten the image onto a background first", stacklevel=3)
 
 
+#: Most texels a prepared texture holds: 4096 x 4096, 192 MiB as float32 BGR.
+MAX_TEXELS = 4096 * 4096
+
+
+def texture_width(px_width: float, aspect: float) -> int:
+    """Texels across the texture of a cloth `px_width` pixels wide at its closest view (`aspect` = width /
+    height): 1.5 per pixel up to 1024 texels, and never under one per pixel, within MAX_TEXELS in all.
+
+    A flat cap of 1024 texels stretched a texel over four pixels of a 4096 px wide frame (a blurred cloth).
+    Where the cloth spans at most 1008 px (every preset at 640 x 480) the width is that cap's. The texture
+    gets this width only from an image at least as wide (`prepare_texture` never enlarges one)."""
+    texels = max(min(1.5 * px_width + 16, 1024), px_width + 16)
+    return int(min(texels, np.sqrt(MAX_TEXELS * aspect)))
+
+
 def prepare_texture(image: np.ndarray, aspect: float, max_width: int) -> np.ndarray:
     """Centre-crop a uint8 BGR image to `aspect` = width / height, resize to <= `max_width` texels
     wide (area filter), return (Ht, Wt, 3) float32 in [0, 1]."""

@@ -4,7 +4,8 @@ A sequence folder gets, per frame `<name>` (`frame-000-master` is the reference,
 `frame-001`, ...):
     `<name>-rgb.png`    8-bit BGR,
     `<name>-depth.png`  16-bit camera Z in 0.1 mm units (`depth_scale` 0.0001 in geofeat.json; millimetres,
-                        0.001, for a sequence whose depth passes 6.55 m), 0 = background / hole,
+                        0.001, for a sequence whose depth may pass 6.55 m, `ClothScene.depth_bound`),
+                        0 = background / hole,
     `<name>.csv`        the 100 best Harris corners of the reference tracked into this frame
                         (`id,x,y,valid`; pixels, OpenCV convention: the centre of the top-left
                         pixel is (0, 0); valid = 0 where occluded, off the cloth or off the image),
@@ -84,8 +85,8 @@ def harris_landmarks(image: np.ndarray, mask: np.ndarray, n: int = N_LANDMARKS) 
 #: full-resolution walk reads as noise: on `hard` scenes that cost the clean profile a fifth of its
 #: matching score (BENCHMARKS.md, "Depth units"). 16 bits of 0.1 mm reach 6.55 m.
 DEPTH_UNIT_M = 0.0001
-#: The unit of a sequence whose depth passes 6.55 m (a narrow --fov with the paper or hard preset's
-#: scale swing or the scale scenario): millimetres, up to 65.5 m.
+#: The unit of a sequence whose depth may pass 6.55 m (a narrow --fov with the paper or hard preset's
+#: scale swing or the scale scenario), chosen before simulating (`ClothScene.depth_bound`): millimetres, up to 65.5 m.
 FAR_DEPTH_UNIT_M = 0.001
 
 
@@ -93,8 +94,13 @@ class DepthOverflowError(ValueError):
     """A depth does not fit a 16-bit PNG at the unit asked for."""
 
 
+def max_depth_m(unit: float) -> float:
+    """The farthest depth (metres) a 16-bit PNG in `unit` metres holds (`encode_depth`)."""
+    return (DEPTH_NO_DATA - 1) * unit
+
+
 def encode_depth(depth: np.ndarray, unit: float = DEPTH_UNIT_M) -> np.ndarray:
-    """(H, W) float metres -> uint16 depth in `unit` metres (0 stays 0); ValueError past 16 bits."""
+    """(H, W) float metres -> uint16 depth in `unit` metres (0 stays 0); DepthOverflowError past `max_depth_m`."""
     units = np.rint(np.asarray(depth, np.float64) / unit)
     if units.max(initial=0) >= DEPTH_NO_DATA:  # 65535 reads as missing (`io.read_depth`)
         raise DepthOverflowError(f"depth: {units.max() * unit:.2f} m does not fit a 16-bit PNG at {unit} m per unit")
@@ -175,36 +181,41 @@ def simulate_sequence(
     out_dir = Path(out_dir)
     # overwrite replaces only what geofeat wrote there; a folder holding other files is refused
     check_out_dir(out_dir, overwrite, what="out_dir", strict=True, inputs=[texture_dir], writes=SEQUENCE)
-    args = (out_dir, scenario, n_frames, seed, texture, texture_dir, width, height, K, kinect_noise, progress,
-            steps_per_frame, preset_obj, fov, motion_blur)
+
+    def scene() -> tuple[ClothScene, str]:  # everything follows the seed: each call makes the same scene
+        rng = np.random.default_rng(seed)
+        tex_image, tex_name = choose_texture(rng, texture, texture_dir)
+        return ClothScene(scenario, int(n_frames), rng, tex_image, (height, width), K=K, kinect_noise=kinect_noise,
+                          steps_per_frame=steps_per_frame, preset=preset_obj, motion_blur=motion_blur), tex_name
+
+    meta = {"generator": "geofeat.sim", "format_version": FORMAT_VERSION, "simulator_revision": SIMULATOR_REVISION,
+            "scenario": scenario, "seed": int(seed), "texture": None, "kinect_noise": bool(kinect_noise),
+            "preset": preset_obj.name, "fov_deg": None if fov is None else float(fov), "motion_blur": bool(motion_blur)}
+    first, meta["texture"] = scene()
+    # the unit is chosen before simulating: a scene whose depth may pass what 16 bits of 0.1 mm hold was simulated
+    # to the frame that passed it, then all over again in millimetres, without a word
+    bound = first.depth_bound()
+    unit = DEPTH_UNIT_M if bound < max_depth_m(DEPTH_UNIT_M) else FAR_DEPTH_UNIT_M
     try:
-        return _simulate(*args, DEPTH_UNIT_M)
-    except DepthOverflowError:
-        # a scene whose depth passes 6.55 m failed at its end ("does not fit a 16-bit PNG"), after the whole
-        # simulation: it is simulated again (the same scene: everything follows the seed) in millimetres
-        return _simulate(*args, FAR_DEPTH_UNIT_M)
+        return _simulate(out_dir, first, meta, progress, unit)
+    except DepthOverflowError as error:
+        if unit != DEPTH_UNIT_M:
+            raise
+        # `ClothScene.depth_bound` holds but for depth noise past 6 sigma
+        warnings.warn(f"{out_dir}: {error.__cause__}, farther than the scene could reach ({bound:.2f} m): simulating "
+                      f"it again in millimetres (depth_scale {FAR_DEPTH_UNIT_M:g} in geofeat.json)", stacklevel=2)
+        return _simulate(out_dir, scene()[0], meta, progress, FAR_DEPTH_UNIT_M)
 
 
-def _simulate(out_dir: Path, scenario: str, n_frames: int, seed: int, texture, texture_dir, width: int, height: int,
-              K: np.ndarray, kinect_noise: bool, progress: bool, steps_per_frame: int, preset_obj, fov, motion_blur: bool,
-              depth_unit: float) -> Path:
-    rng = np.random.default_rng(seed)
-    tex_image, tex_name = choose_texture(rng, texture, texture_dir)
-    scene = ClothScene(scenario, int(n_frames), rng, tex_image, (height, width), K=K, steps_per_frame=steps_per_frame,
-                       preset=preset_obj, motion_blur=motion_blur)
-
+def _simulate(out_dir: Path, scene: ClothScene, meta: dict, progress: bool, depth_unit: float) -> Path:
+    """Simulate `scene` and write it to `out_dir` (depth PNGs in `depth_unit` metres), or nothing on an error."""
     # built in geofeat's temporary folder (`partial_name`), which `find_sequences` passes over and a
     # rerun removes when a kill left it: the ".<name>.partial-<pid>" folder of a killed run stayed
     # for good, and a folder of sequences read it as a sequence (without geofeat.json, so with
     # the wrong depth scale)
     tmp = temporary_folder(out_dir)
     try:
-        _write(tmp, scene, progress, shown=out_dir, meta={
-            "generator": "geofeat.sim", "format_version": FORMAT_VERSION,
-            "simulator_revision": SIMULATOR_REVISION, "scenario": scenario, "seed": int(seed),
-            "texture": tex_name, "kinect_noise": bool(kinect_noise), "preset": preset_obj.name,
-            "fov_deg": None if fov is None else float(fov), "motion_blur": bool(motion_blur),
-        }, depth_unit=depth_unit)
+        _write(tmp, scene, progress, shown=out_dir, meta=meta, depth_unit=depth_unit)
         replace_folder(tmp, out_dir)  # inside: a refusal or an interrupt here must not leave tmp behind
     except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
