@@ -20,7 +20,7 @@ import numpy as np
 from geofeat.sim.cloth import ClothConfig
 from geofeat.sim.scenes import ClothScene
 from geofeat.sim.textures import packaged_texture_dir, read_texture
-from geofeat.sim.writer import encode_depth_mm, save_npz, simulate_sequence
+from geofeat.sim.writer import encode_depth, save_npz, simulate_sequence
 
 
 def cpu_model() -> str:
@@ -67,7 +67,7 @@ def main() -> None:
     for fr in frames:
         t0 = time.perf_counter()
         cv2.imencode(".png", fr.image)
-        cv2.imencode(".png", encode_depth_mm(fr.depth))
+        cv2.imencode(".png", encode_depth(fr.depth))
         t1 = time.perf_counter()
         save_npz(io.BytesIO(), uv=fr.render.uv, vertices=fr.vertices, R=fr.R, t=fr.t)
         t2 = time.perf_counter()
