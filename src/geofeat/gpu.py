@@ -57,6 +57,44 @@ def is_cuda_device(device) -> bool:
     return device is not None and str(device).split(":")[0] == "cuda"
 
 
+def wants_gpu(device) -> bool:
+    """Whether `device`, as geofeat's functions take it, asks for the GPU path: True for "cuda",
+    "cuda:N" (or a CUDA torch.device), False for None and "cpu" (the CPU path); ValueError naming
+    `device` for anything else."""
+    if is_cuda_device(device):
+        return True
+    if device is not None and str(device) != "cpu":
+        raise ValueError(f"device: expected None, 'cpu' or 'cuda[:N]', got {device!r}")
+    return False
+
+
+def gpu_computes(name: str) -> bool:
+    """Whether the GPU path computes the descriptor of (checked, `check_descriptor_name`) name
+    `name`: GeoPatch with torch weights ("geopatch", "geopatch=WEIGHTS.pt"), not from an .onnx
+    model, nor another descriptor."""
+    base, _, weights = name.partition("=")
+    return base == "geopatch" and not weights.lower().endswith(".onnx")
+
+
+def gpu_descriptors(names, device) -> tuple[str, ...]:
+    """The descriptors of `names` (checked names) that a run of several descriptors (the bench,
+    tracking, retrieval) describes and matches on the GPU path when given `device`: for "cuda" /
+    "cuda:N" the GeoPatch ones with torch weights (`gpu_computes`), the others staying on the CPU;
+    none for None or "cpu". ValueError naming `device` for another value (`wants_gpu`), and for a
+    CUDA device when a GeoPatch of .onnx weights is named, or no GeoPatch at all: the device would
+    be ignored for it, or for every descriptor."""
+    if not wants_gpu(device):
+        return ()
+    onnx = [n for n in names if n.partition("=")[0] == "geopatch" and not gpu_computes(n)]
+    on_gpu = tuple(n for n in names if gpu_computes(n))
+    if onnx or not on_gpu:
+        raise ValueError(f"device: {str(device)!r} describes GeoPatch with torch weights (geopatch or "
+                         "geopatch=WEIGHTS.pt) on the GPU path and the other descriptors on the CPU; "
+                         + (f"{onnx[0]} is an ONNX model (torch weights only)" if onnx else
+                            f"none of {', '.join(names) or 'no descriptor'} is GeoPatch"))
+    return on_gpu
+
+
 def simulated() -> bool:
     """Whether numba's CUDA simulator is on (then torch tensors live on the CPU)."""
     return os.environ.get("NUMBA_ENABLE_CUDASIM", "0") not in ("", "0")

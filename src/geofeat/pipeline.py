@@ -56,9 +56,9 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
         raise ValueError(f"{given[0]}: {base} has no geodesic patch (only {' and '.join(GEODESIC_DESCRIPTORS)} have); "
                          f"leave {' and '.join(given)} out")
 
-    from .gpu import is_cuda_device  # a light module: torch and numba.cuda load only on use
+    from .gpu import wants_gpu  # a light module: torch and numba.cuda load only on use
 
-    if is_cuda_device(device):
+    if wants_gpu(device):  # ValueError for a device that is neither None, "cpu" nor CUDA
         from .descriptors import check_descriptor_name
         from .gpu import mesh_device, require_cuda
 
@@ -75,8 +75,6 @@ def extract(frame: RGBDFrame, n: int = N_KEYPOINTS, detector: str | None = None,
         with _mesh_prefetch(frame, net.depth_config, device=mesh_device(device)):
             keypoints = _detect(frame, n, detector_for(descriptor, detector))
         return net.compute_cuda(frame, keypoints).to_host()
-    if device is not None and str(device) != "cpu":
-        raise ValueError(f"device: expected None, 'cpu' or 'cuda[:N]', got {device!r}")
     describer = make_descriptor(descriptor, radius=radius, depth_config=depth_config)
     with _mesh_prefetch(frame, getattr(describer, "depth_config", None)):
         keypoints = _detect(frame, n, detector_for(descriptor, detector))

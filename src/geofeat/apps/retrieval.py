@@ -490,19 +490,24 @@ class RetrievalDatabase:
 def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int = N_KEYPOINTS,
                       classes: dict[str, str] | None = None, tps_dir: str | None = None,
                       radius: float | None = None, depth_scale: float | None = None,
-                      progress: bool = True, detector: str | None = None) -> RetrievalDatabase:
+                      progress: bool = True, detector: str | None = None,
+                      device: str | None = None) -> RetrievalDatabase:
     """Detect keypoints inside the object mask of every frame of every sequence and describe them.
     `detector` (as in `geofeat.detect`) for every descriptor, or None for each descriptor's own
     (`keypoints.detector_for`: GeoKey for GeoPatch and GeoBit, SIFT for the others); descriptors
-    with the same detector share its keypoints (and the geodesic ones one mesh and set of patches)."""
+    with the same detector share its keypoints (and the geodesic ones one mesh and set of patches).
+    `device` "cuda" / "cuda:N": GeoPatch described on that GPU, the others on the CPU (`Describer`;
+    `geofeat.gpu.gpu_descriptors` refuses a device that no descriptor would use)."""
     from ..descriptors.describer import Describer
     from ..depth import sequence_depth_profile
     from ..descriptors import check_descriptor_names
+    from ..gpu import gpu_descriptors
     from ..io import find_sequences, read_sequence, skipped_frame_line
     from ..keypoints import detect, group_by_detector
     from .objectmask import object_mask
 
     names = check_descriptor_names(descriptors)
+    gpu_descriptors(names, device)
     from ..inputs import check_tps_dir, resolve_radius
 
     folders = find_sequences(datasets, unique_names=True)
@@ -526,7 +531,7 @@ def describe_datasets(datasets, descriptors: tuple[str, ...], n_keypoints: int =
     for seq in seqs:
         # the bench's rules for the radius and the depth profile
         radius_m, profile = resolve_radius(radius, seq), sequence_depth_profile(seq)
-        describers = {det: Describer(group, radius_m, profile) for det, group in groups.items()}
+        describers = {det: Describer(group, radius_m, profile, device=device) for det, group in groups.items()}
         db.depth_profiles[seq.name] = profile
         sources = set()
         for name in seq.names:
@@ -646,30 +651,32 @@ def _plot(acc: dict[str, np.ndarray], path: Path, rerank: int = 0) -> None:
     fig.savefig(path, dpi=120)
 
 
-def match_counts(features0: Features, features1: Features, ratio: float | None = RERANK_RATIO) -> tuple[int, int]:
+def match_counts(features0: Features, features1: Features, ratio: float | None = RERANK_RATIO,
+                 device: str | None = None) -> tuple[int, int]:
     """(matches, verified): how many keypoints of frame 0 match frame 1 (mutual nearest neighbours
-    passing Lowe's ratio test `ratio`, None for none; `geofeat.match`), and how many of them the
-    local affine map of their neighbours confirms (`geofeat.apps.localfit.locally_consistent`, which
-    needs at least 8 matches; 0 below)."""
+    passing Lowe's ratio test `ratio`, None for none; `geofeat.match`, on `device`), and how many of
+    them the local affine map of their neighbours confirms (`geofeat.apps.localfit.locally_consistent`,
+    which needs at least 8 matches; 0 below)."""
     from ..matching import match
     from .localfit import locally_consistent
 
-    m = match(features0, features1, mutual=True, ratio=ratio).matches0
+    m = match(features0, features1, mutual=True, ratio=ratio, device=device).matches0
     i0 = np.flatnonzero(m >= 0)
     if len(i0) < 8:
         return len(i0), 0
     return len(i0), int(locally_consistent(features0.keypoints[i0], features1.keypoints[m[i0]]).sum())
 
 
-def verified_matches(features0: Features, features1: Features, ratio: float = RERANK_RATIO) -> int:
+def verified_matches(features0: Features, features1: Features, ratio: float = RERANK_RATIO,
+                     device: str | None = None) -> int:
     """How many keypoints of frame 0 match frame 1 where the local affine map of their neighbours
     agrees (`match_counts`' second count): a count of correspondences that a surface keeps when it
     bends."""
-    return match_counts(features0, features1, ratio)[1]
+    return match_counts(features0, features1, ratio, device)[1]
 
 
 def rerank(neighbours: np.ndarray, queries: np.ndarray, features: list[Features], top: int = RERANK,
-           ratio: float = RERANK_RATIO, progress: bool = False) -> np.ndarray:
+           ratio: float = RERANK_RATIO, progress: bool = False, device: str | None = None) -> np.ndarray:
     """Reorder each query's best `top` results by `verified_matches`, most first.
 
     Args:
@@ -677,6 +684,7 @@ def rerank(neighbours: np.ndarray, queries: np.ndarray, features: list[Features]
         queries: (Q,) database indices of the queries.
         features: one `Features` per database frame.
         top: results reordered per query (the first min(top, k)); 0 returns `neighbours` unchanged.
+        device: where the matches are searched (`geofeat.match`; None: the CPU).
     Returns:
         (Q, k) int64: the first `top` of each row sorted by verified matches (ties keep the order
         of `neighbours`), the rest unchanged.
@@ -693,7 +701,7 @@ def rerank(neighbours: np.ndarray, queries: np.ndarray, features: list[Features]
         return out
     for row in tqdm(range(len(queries)), desc="retrieval: re-rank", unit="query", disable=not progress):
         q = queries[row]
-        counts = np.array([verified_matches(features[q], features[j], ratio) for j in neighbours[row, :top]])
+        counts = np.array([verified_matches(features[q], features[j], ratio, device) for j in neighbours[row, :top]])
         out[row, :top] = neighbours[row, :top][np.argsort(-counts, kind="stable")]
     return out
 
@@ -731,7 +739,7 @@ def evaluate_descriptor(features: list[Features], db: RetrievalDatabase, queries
                         exclude: np.ndarray, words: int | None = None, n_samples: int = N_VOCABULARY_SAMPLES,
                         seed: int = 0, max_k: int = MAX_K, candidates: tuple[int, ...] = WORD_CANDIDATES,
                         weighting: str = DEFAULT_WEIGHTING, rerank_top: int = RERANK,
-                        progress: bool = False) -> DescriptorResult:
+                        progress: bool = False, device: str | None = None) -> DescriptorResult:
     """Vocabulary, word counts, weighted vectors, search and Acc@K of one descriptor.
 
     Args:
@@ -743,6 +751,8 @@ def evaluate_descriptor(features: list[Features], db: RetrievalDatabase, queries
         weighting: see `weight_histograms`; the idf comes from the N database frames.
         rerank_top: each test query's best `rerank_top` results by the words are reordered by
             `rerank` (K is chosen on the words' order); 0 keeps the words' order.
+        device: where `rerank` searches its matches (`geofeat.match`; None: the CPU); the vocabulary
+            and the word counts are computed on the CPU.
     """
     _check_weighting(weighting)
     # the sample drawn from the frames in sequence-name order (a stable sort keeps each sequence's frame
@@ -790,7 +800,7 @@ def evaluate_descriptor(features: list[Features], db: RetrievalDatabase, queries
     # the results `rerank` reorders: no more than the database leaves a query (retrieval.md names them)
     rerank_top = min(rerank_top, neighbours.shape[1]) if rerank_top >= 2 else 0
     if rerank_top > 0:
-        neighbours = rerank(neighbours, queries[test], features, rerank_top, progress=progress)
+        neighbours = rerank(neighbours, queries[test], features, rerank_top, progress=progress, device=device)
         acc = per_query_accuracy(neighbours[:, :max_k], db.classes, np.asarray(db.classes)[queries[test]])
     neighbours = neighbours[:, :max_k]
     low, high = bootstrap_interval(acc, seed=seed)
@@ -817,7 +827,7 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
                   radius: float | None = None, depth_scale: float | None = None, max_k: int = MAX_K,
                   include_own_sequence: bool = False, progress: bool = True, overwrite: bool = False,
                   detector: str | None = None, weighting: str = DEFAULT_WEIGHTING, rerank_top: int = RERANK,
-                  ) -> tuple[dict[str, DescriptorResult], RetrievalDatabase]:
+                  device: str | None = None) -> tuple[dict[str, DescriptorResult], RetrievalDatabase]:
     """The whole retrieval experiment; writes into `out`: `retrieval.csv` (descriptor, words, weighting,
     k, accuracy, low, high: Acc@K and its 95 % bootstrap interval, rerank: the results per query
     re-ranked before Acc@K, 0 for the words' order), `acc_at_k.png`, `top6.png` (two
@@ -834,6 +844,9 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
         weighting: the word weighting and distance (`weight_histograms`, WEIGHTINGS).
         rerank_top: results per query reordered by verified matches (`rerank`; 0: none).
         detector: the keypoints of every descriptor; None: each descriptor's own (`describe_datasets`).
+        device: None or "cpu": everything on the CPU; "cuda" / "cuda:N": GeoPatch described and its
+            `rerank` matches searched on that GPU, the other descriptors on the CPU (ValueError when
+            none of `descriptors` is GeoPatch: `geofeat.gpu.gpu_descriptors`).
     Returns ({descriptor: DescriptorResult}, the described database)."""
     from ..io import find_sequences, path_list
     from ..outputs import check_out_dir, output_folder
@@ -849,6 +862,13 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
     if words is not None:
         check_whole(words, "words", 2)
     check_samples(n_samples, words)
+    if device is not None:  # a device that is not one, or that no descriptor would use: before any work
+        from ..descriptors import check_descriptor_names
+        from ..gpu import gpu_descriptors
+
+        on_gpu = gpu_descriptors(check_descriptor_names(descriptors), device)
+    else:
+        on_gpu = ()
     classes = read_classes(classes_file) if classes_file else None
     if not include_own_sequence:  # the classes decide now, not after every frame is described, whether a query has an answer
         from ..descriptors import check_descriptor_names
@@ -862,7 +882,8 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
         if classes is None or all(n in classes for n in names):  # a sequence without a class: describe_datasets says so
             _check_class_mates(names, classes, classes_file)
     refuse_copied_sequences(folders)  # the last check before the frames are described
-    db = describe_datasets(datasets, descriptors, n_keypoints, classes, tps_dir, radius, depth_scale, progress, detector)
+    db = describe_datasets(datasets, descriptors, n_keypoints, classes, tps_dir, radius, depth_scale, progress, detector,
+                           device)
     if not db.frames:
         raise ValueError(f"datasets: every frame was skipped ({', '.join(db.skipped[:5])}"
                          f"{', ...' if len(db.skipped) > 5 else ''}; see the SKIPPED lines); nothing written")
@@ -878,7 +899,8 @@ def run_retrieval(datasets, out: str | Path, descriptors: tuple[str, ...] = ("ge
     for name, feats in db.features.items():
         try:
             res[name] = evaluate_descriptor(feats, db, q_idx, exclude, words, n_samples, seed, max_k,
-                                            weighting=weighting, rerank_top=rerank_top, progress=progress)
+                                            weighting=weighting, rerank_top=rerank_top, progress=progress,
+                                            device=device if name in on_gpu else None)
         except ValueError as e:
             raise ValueError(f"{e} (descriptor {name})") from None
     with output_folder(out) as tmp:

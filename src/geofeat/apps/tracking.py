@@ -575,6 +575,7 @@ def track_sequence(
     progress: bool = True,
     refine: str = DEFAULT_REFINE,
     detector: str = "sift",
+    device: str | None = None,
 ) -> dict[str, TrackResult]:
     """Track the template ROI of a sequence's reference frame through all its frames.
 
@@ -592,17 +593,23 @@ def track_sequence(
         radius: geodesic radius in metres (None: the sequence's geofeat.json or 0.075).
         threshold_px: RANSAC inlier threshold, pixels.
         refine: "none" (the RANSAC spline) or "photometric" (`refine_warp` on the ROI's object pixels).
+        device: None or "cpu": every descriptor on the CPU; "cuda" / "cuda:N": GeoPatch described on
+            that GPU (`Describer`) and its mutual matches searched there (`geofeat.match(..., device=)`;
+            the guided matches stay on the CPU), the other descriptors on the CPU
+            (`geofeat.gpu.gpu_descriptors`: ValueError when none of `descriptors` is GeoPatch).
     Returns:
         {descriptor: TrackResult}. Frames whose fit fails are recorded as failed; the run goes on.
     """
     from ..descriptors import check_descriptor_names
+    from ..gpu import gpu_descriptors
 
     names = check_descriptor_names(descriptors)  # unknown or repeated names fail before any work
+    gpu_descriptors(names, device)  # a device that is not one, or that no descriptor would use
     if refine not in REFINE_MODES:
         raise ValueError(f"refine: expected one of {', '.join(REFINE_MODES)}, got {refine!r}")
     check_positive(threshold_px, "threshold")  # NaN or inf would fail every frame, or pass every match
     t_setup = time.perf_counter()
-    template = _Template.build(folder, names, roi, n_keypoints, tps_dir, radius, depth_scale, detector)
+    template = _Template.build(folder, names, roi, n_keypoints, tps_dir, radius, depth_scale, detector, device)
     t_setup = time.perf_counter() - t_setup
     seq = template.seq
     results = {name: template.new_result(name) for name in names}
@@ -699,7 +706,7 @@ class _Template:
     @classmethod
     def build(cls, folder: str | Path, names: tuple[str, ...], roi: tuple[int, int, int, int] | None,
               n_keypoints: int, tps_dir: str | None, radius: float | None, depth_scale: float | None,
-              detector: str) -> "_Template":
+              detector: str, device: str | None = None) -> "_Template":
         """Read the sequence, choose and check the ROI, detect and describe the template keypoints
         inside it, and load the ground truth (arguments as `track_sequence`'s)."""
         from ..depth import sequence_depth_profile
@@ -732,7 +739,7 @@ class _Template:
                 raise                # word, even those of its simulator or landmark ground truth
             truth = None
         profile = sequence_depth_profile(seq, None, ref)
-        describe = Describer(names, sequence_radius(seq, radius), profile)
+        describe = Describer(names, sequence_radius(seq, radius), profile, device=device)
         features = {name: f for name, (f, _) in describe(ref, keypoints).items()}
         for name, f in features.items():
             _warn_if_undescribed(seq.name, name, int(np.count_nonzero(f.valid)), len(keypoints), roi)
@@ -832,7 +839,7 @@ def _match_and_fit(template: _Template, target: _Target, name: str, prior: Warp 
     from ..matching import match
 
     f0, f1 = template.features[name], target.features[name]
-    options = [match(f0, f1, mutual=True).matches0]
+    options = [match(f0, f1, mutual=True, device=template.describe.match_device(name)).matches0]
     if prior is not None:
         options.append(guided_matches(f0, f1, prior(template.keypoints.xy)))
     best = None
@@ -1168,7 +1175,8 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
                    tps_dir: str | None = None, radius: float | None = None, depth_scale: float | None = None,
                    threshold_px: float = RANSAC_THRESHOLD_PX, progress: bool = True,
                    overwrite: bool = False, skipped: list[str] | None = None,
-                   refine: str = DEFAULT_REFINE, detector: str | None = None) -> tuple[Path, str]:
+                   refine: str = DEFAULT_REFINE, detector: str | None = None,
+                   device: str | None = None) -> tuple[Path, str]:
     """Track every sequence with every descriptor and write into `out`:
     `track.csv` (one row per sequence, descriptor and target frame), per sequence and descriptor
     `<sequence>/<descriptor>/grid.npz` (reference_points (G, 2), points (F, G, 2), frames (F,),
@@ -1180,7 +1188,9 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
     `tracking.md` and appended as "sequence/frame" to `skipped` when a list is given. `detector`:
     the keypoints of every descriptor, or None for each descriptor's own (`keypoints.detector_for`:
     GeoKey for GeoPatch and GeoBit, SIFT for the others); descriptors with the same detector are
-    tracked together (`track_sequence`). Returns the csv path and the table."""
+    tracked together (`track_sequence`). `device`: "cuda" / "cuda:N" tracks GeoPatch on that GPU and
+    the other descriptors on the CPU (`track_sequence`), said in `tracking.md`. Returns the csv path and
+    the table."""
     import imageio.v2 as imageio
 
     from ..descriptors import check_descriptor_names
@@ -1188,9 +1198,11 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
     from ..inputs import check_tps_dir
     from ..io import find_sequences, path_list
     from ..keypoints import group_by_detector
+    from ..gpu import gpu_descriptors
     from ..outputs import check_out_dir, output_folder
 
     names = check_descriptor_names(descriptors)  # unknown or repeated names fail before any work
+    on_gpu = gpu_descriptors(names, device)  # before any work, as the names
     folders: dict[str, str] = {}
     for name in names:  # "geopatch=a/w.pt" and "geopatch=a_w.pt" wrote one folder, the second's results over the first's
         other = folders.setdefault(_result_folder(name), name)
@@ -1231,7 +1243,8 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
                 for det, group in groups.items():
                     part = track_sequence(folder, group, roi=roi, n_keypoints=n_keypoints, tps_dir=tps_dir,
                                           radius=radius, depth_scale=depth_scale, threshold_px=threshold_px,
-                                          progress=progress, refine=refine, detector=det)
+                                          progress=progress, refine=refine, detector=det,
+                                          device=device if set(group) & set(on_gpu) else None)
                     results.update(part)
                     setup += next(iter(part.values())).setup_seconds
                     skipped_here += [f for f in next(iter(part.values())).skipped if f not in skipped_here]
@@ -1270,7 +1283,8 @@ def write_tracking(sequences, out: str | Path, descriptors: tuple[str, ...], roi
                      f"{_frame_rate(n_frames, tracked)} frames/s (reading, detection, description and every "
                      f"descriptor; the templates' set-up, {setup:.1f} s, not counted"
                      + (f"; {plural(n_skipped, 'skipped frame')} not counted" if n_skipped else "") + "); "
-                     f"per frame, matching + RANSAC{' + refinement' if refine != 'none' else ''} + SSIM/NCC: {per}")
+                     f"per frame, matching + RANSAC{' + refinement' if refine != 'none' else ''} + SSIM/NCC: {per}"
+                     + (f"; {', '.join(on_gpu)} described and matched on {device}, the others on the CPU" if on_gpu else ""))
         paper = paper_table_iv(dict.fromkeys(r["descriptor"] for r in rows))
         per_sequence = sequence_error_table(rows)
         if per_sequence:

@@ -125,7 +125,9 @@ def markdown_table(rows: list[dict], group_of=sequence_group) -> str:
     that shows the best value as printed, so that equal numbers are marked alike). A cell
     whose descriptor has results on fewer of the row's sequences than the row counts says so
     ("(1 of 2)"): its mean is over those only, so it is never bold (a mean over the easier sequences
-    alone is no better descriptor); the best is of the cells over all the row's sequences."""
+    alone is no better descriptor); the best is of the cells over all the row's sequences. The notes
+    under the table name the detectors, keypoint sets and depth profiles, and the device of each
+    descriptor where any ran on a GPU (`geofeat bench --device`)."""
     groups = {}
     for r in rows:
         groups.setdefault(group_of(r["sequence"]), []).append(r)
@@ -164,6 +166,11 @@ def markdown_table(rows: list[dict], group_of=sequence_group) -> str:
     if kp_sets:
         notes += f" Keypoints: {', '.join(kp_sets)}."
     notes += " Depth profile: " + ", ".join(f"{p} ({plural(len(v), 'sequence')})" for p, v in sorted(profiles.items())) + "."
+    devices: dict[str, dict[str, None]] = {}  # device -> its descriptors, in order (an older results.csv has none)
+    for r in rows:
+        devices.setdefault(r.get("device") or "cpu", {})[r["descriptor"]] = None
+    if set(devices) != {"cpu"}:  # GPU rows (`geofeat bench --device`): their seconds are not the CPU's
+        notes += " Device: " + "; ".join(f"{d} ({', '.join(names)})" for d, names in sorted(devices.items())) + "."
     return "\n".join(lines) + "\n\n" + notes + "\n"
 
 

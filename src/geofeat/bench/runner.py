@@ -11,6 +11,10 @@ returns them, as the published protocol; "unique" = one keypoint per position, o
 sequence is described with one depth profile: the one asked for (`depth_profile`), else its
 geofeat.json's, else the one `geofeat.depth_profile` picks on its reference frame; results.csv
 records the keypoint set and the profile used.
+
+`device` "cuda" / "cuda:N" describes and matches GeoPatch on the GPU path, the other descriptors on
+the CPU (`geofeat.descriptors.describer.Describer`); results.csv records each row's device, and a
+rerun on another device is refused, so that one results.csv never mixes the two devices' timings.
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ from ..outputs import (add_to_manifest, append_line_durably, atomic_file, check_
 from ..keypoints import Keypoints, check_detector_name, detect, resolve_keypoint_set
 from ..matching import match
 from ..features import Features
+from ..gpu import gpu_descriptors, wants_gpu
 from .external import ExternalFeatures, check_extract_sources, check_one_source_per_frame, parse_features_option
 from .report import CURVES
 from ..descriptors.describer import Describer
@@ -48,14 +53,15 @@ from ..groundtruth.sources import GroundTruth, refuse_partial_simulator_truth
 from ..scoring import ground_truth_pairs, score_detect, score_landmarks
 
 COLUMNS = ["sequence", "reference", "target", "descriptor", "detector", "protocol", "keypoint_set", "depth_profile",
-           "ms", "mma", "repeatability", "hits", "n_gt", "n_ref", "n_tgt", "seconds_extract", "seconds_match",
+           "device", "ms", "mma", "repeatability", "hits", "n_gt", "n_ref", "n_tgt", "seconds_extract", "seconds_match",
            "angle_deg", "scale"]
 #: The files `geofeat bench` writes into its output folder (results.csv and config.json here, the
 #: reports in `geofeat.cli.bench` and `geofeat.bench.report.plot_curves`).
 REPORTS = ("table.md", "details.md", "timing.md") + tuple(f"ms_vs_{kind}.png" for _, kind, _, _ in CURVES)
 OUTPUT_FILES = ("results.csv", "config.json") + REPORTS
 #: Settings that must be equal for a rerun to reuse the results already in the output folder.
-REUSE_KEYS = ("protocol", "detector", "features", "keypoint_set", "depth_profile", "radius", "depth_scale", "n_keypoints", "tps_dir")
+REUSE_KEYS = ("protocol", "detector", "features", "keypoint_set", "depth_profile", "radius", "depth_scale", "n_keypoints", "tps_dir",
+              "device")
 
 
 @dataclass
@@ -75,6 +81,10 @@ class BenchConfig:
     detector: str = "sift"
     #: "NAME=PATH" feature sets computed elsewhere (`geofeat.bench.external`), scored beside the descriptors
     features: tuple[str, ...] = ()
+    #: None (or "cpu"): every descriptor on the CPU; "cuda" / "cuda:N": GeoPatch described and matched on
+    #: that GPU, the other descriptors on the CPU (`geofeat.gpu.gpu_descriptors`, which refuses a device
+    #: that no descriptor would use)
+    device: str | None = None
 
     def __post_init__(self) -> None:
         self.detector = check_detector_name(self.detector)
@@ -103,6 +113,8 @@ class BenchConfig:
         clash = set(external) & set(self.descriptors)
         if clash:
             raise ValueError(f"features: {sorted(clash)} is also a descriptor name; rename the feature set")
+        gpu_descriptors(self.descriptors, self.device)
+        self.device = str(self.device) if wants_gpu(self.device) else None  # "cpu" is the default's run
 
     @property
     def methods(self) -> tuple[str, ...]:
@@ -168,7 +180,7 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
         raise ValueError(f"sequence {seq.name}: needs a reference and at least one target frame")
     ref = seq.frame(seq.reference)
     profile = sequence_depth_profile(seq, config.depth_profile, ref) if names else ""
-    describe = Describer(names, resolve_radius(config.radius, seq), profile or "kinect")
+    describe = Describer(names, resolve_radius(config.radius, seq), profile or "kinect", device=config.device)
     rows = []
     if config.protocol == "landmarks":
         # annotated positions have no orientation: every descriptor describes them at angle 0 by
@@ -223,7 +235,7 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
             else:
                 (fr, tr), (ft, tt) = f_ref[name], f_tgt[name]
                 t = time.perf_counter()
-                m = match(fr, ft)
+                m = match(fr, ft, device=describe.match_device(name))
                 t_match, t_extract = time.perf_counter() - t, tr + tt
                 if config.protocol == "landmarks":
                     s = score_landmarks(m.matches0, ids_r[vis_r], ids_t[vis_t])
@@ -232,6 +244,7 @@ def evaluate_sequence(folder: str | Path, config: BenchConfig, descriptors: tupl
             rows.append(dict(sequence=seq.name, reference=seq.reference, target=target, descriptor=name,
                              detector=config.detector if config.protocol == "detect" else "landmarks",
                              protocol=config.protocol, keypoint_set=config.keypoint_set, depth_profile=profile,
+                             device=describe.match_device(name) or "cpu",
                              ms=s.ms, mma=s.mma, repeatability=s.n_gt / max(min(s.n_ref, s.n_tgt), 1),
                              hits=s.hits, n_gt=s.n_gt, n_ref=s.n_ref, n_tgt=s.n_tgt,
                              seconds_extract=t_extract, seconds_match=t_match, angle_deg=angle, scale=scale))
@@ -272,7 +285,7 @@ def evaluate_external(seq: Sequence, truth: GroundTruth, features: ExternalFeatu
             s = _empty_row_score(len(f_ref), len(f_tgt))
         angle, scale = _pose_change(seq, target)
         rows.append(dict(sequence=seq.name, reference=seq.reference, target=target, descriptor=features.name,
-                         detector="external", protocol="detect", keypoint_set="external", depth_profile="",
+                         detector="external", protocol="detect", keypoint_set="external", depth_profile="", device="cpu",
                          ms=s.ms, mma=s.mma, repeatability=s.n_gt / max(min(s.n_ref, s.n_tgt), 1), hits=s.hits,
                          n_gt=s.n_gt, n_ref=s.n_ref, n_tgt=s.n_tgt, seconds_extract=0.0,
                          seconds_match=time.perf_counter() - t, angle_deg=angle, scale=scale))
@@ -364,7 +377,8 @@ def _settings(config: BenchConfig) -> dict:
 
 #: How `settings_differences` shows an unset setting (None in BenchConfig, null in config.json).
 _UNSET = {"depth_profile": "the default (geofeat.json's, else auto)", "radius": "the default (geofeat.json's or 0.075)",
-          "depth_scale": "the default (geofeat.json's or 0.001)", "tps_dir": "none", "keypoint_set": "the default"}
+          "depth_scale": "the default (geofeat.json's or 0.001)", "tps_dir": "none", "keypoint_set": "the default",
+          "device": "the CPU"}
 
 
 def _shown(key: str, value) -> str:
@@ -469,6 +483,10 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
         raise ValueError(f"datasets: no sequence has a reference and a target frame ({plural(len(short), 'sequence')} "
                          f"of one frame or none: {', '.join(short[:5])}{', ...' if len(short) > 5 else ''})")
     check_tps_dir(config.tps_dir)
+    if config.device is not None and not scheduler:  # one error here, not one per sequence (a cluster's workers: theirs)
+        from ..gpu import require_cuda
+
+        require_cuda(config.device)
     for name in config.descriptors:  # weights that cannot be read: one error naming them, not one per sequence
         if "=" in name:
             make_descriptor(name)
@@ -685,8 +703,8 @@ def provenance(config: BenchConfig) -> dict:
     from ..descriptors.geopatch_onnx import file_sha256
 
     info: dict = {"geofeat": __version__}
-    if "geopatch" in config.descriptors:
-        info["geopatch_backend"] = resolve_backend(None, None, "cpu")
+    if "geopatch" in config.descriptors:  # on the GPU path: the torch backend (`Describer`)
+        info["geopatch_backend"] = "torch" if config.device else resolve_backend(None, None, "cpu")
     if config.protocol == "detect" and config.detector.startswith("geokey"):
         from ..detectors.geokey import SHIPPED_WEIGHTS
 

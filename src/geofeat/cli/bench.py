@@ -8,8 +8,9 @@ from pathlib import Path
 from ..constants import N_KEYPOINTS
 from ..descriptors import available_descriptors
 from ..keypoints import KEYPOINT_SETS
-from .options import (depth_profile_option, depth_scale_option, detector_option, keypoint_count, keypoint_set_for,
-                      names, radius_option, whole_number)
+from .common import check_devices
+from .options import (depth_profile_option, depth_scale_option, detector_option, device_option, keypoint_count,
+                      keypoint_set_for, names, radius_option, whole_number)
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -39,6 +40,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "kept (default, the published protocol); unique: one keypoint per position")
     depth_profile_option(p, None)
     p.add_argument("--overwrite", action="store_true", help="redo every result (default: a rerun skips finished ones)")
+    device_option(p, ", and its matching,", "; the other descriptors on the CPU. results.csv records each row's "
+                  "device, table.md names them, and --timing times GeoPatch there; resuming OUT on another device "
+                  "is refused")
     # None until run() resolves them, so that --keypoints 2048 or --detector sift given with
     # --protocol landmarks is reported as unused too, not only values other than the defaults
     p.set_defaults(func=run, keypoints=None, detector=None)
@@ -71,11 +75,12 @@ def run(args: argparse.Namespace) -> int:
             print(f"bench: --protocol landmarks describes the annotated landmarks themselves; {', '.join(unused)} "
                   "not used")
         args.keypoints, args.detector, args.keypoint_set = N_KEYPOINTS, "sift", None  # the same run whatever they say
+    device = check_devices(args.device, names(args.descriptors))
     config = BenchConfig(descriptors=names(args.descriptors), protocol=args.protocol,
                          radius=args.radius, depth_scale=args.depth_scale, n_keypoints=args.keypoints,
                          tps_dir=args.tps_dir, keypoint_set=keypoint_set_for(args.detector, args.keypoint_set, "protocol"),
                          depth_profile=args.depth_profile,
-                         detector=args.detector, features=tuple(args.features or ()))
+                         detector=args.detector, features=tuple(args.features or ()), device=device)
     out = Path(args.out)
     csv_path, failed = run_benchmark(args.datasets, out, config, workers=args.workers, scheduler=args.scheduler,
                                      overwrite=args.overwrite)
@@ -112,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
     if timed:
         seq = read_sequence(timed[0], depth_scale=args.depth_scale)
         timing = timing_table(seq.frame(seq.reference), config.descriptors, resolve_radius(args.radius, seq),
-                              depth_profile=sequence_depth_profile(seq, args.depth_profile))
+                              depth_profile=sequence_depth_profile(seq, args.depth_profile), device=config.device)
         write(out / "timing.md", timing)
         print(timing)
     print(f"wrote {csv_path} ({plural(len(rows), 'row')}) and {out / 'table.md'}"

@@ -1,5 +1,5 @@
 """Helpers shared by `extract` and `match`: file labels, skipped frames, a frame with its keypoints, the
-GPU path of `--device`."""
+GPU path of `--device` (its checks shared with `bench`, `track` and `retrieval`)."""
 
 from __future__ import annotations
 
@@ -66,25 +66,45 @@ def frame_and_keypoints(seq, name: str, args: argparse.Namespace):
     return frame, kps
 
 
-def check_device(device: str, descriptor: str) -> bool:
+def check_device(device: str, descriptor: str, flag: str = "--descriptor") -> bool:
     """Whether `--device` asks for the GPU path (ValueError naming the flag for a device that is
-    neither the CPU nor CUDA, for a descriptor the GPU path does not compute, or when no CUDA GPU
-    can be used: `gpu.require_cuda` says what is missing)."""
-    from ..gpu import is_cuda_device, require_cuda
+    neither the CPU nor CUDA, for a descriptor the GPU path does not compute, given by `flag`, or
+    when no CUDA GPU can be used: `gpu.require_cuda` says what is missing)."""
+    from ..gpu import gpu_computes, is_cuda_device, require_cuda
 
     if not is_cuda_device(device):
         if device != "cpu":
             raise ValueError(f"--device: expected cpu, cuda or cuda:N, got {device!r}")
         return False
-    base, _, weights = descriptor.partition("=")
-    if base != "geopatch" or weights.lower().endswith(".onnx"):
-        raise ValueError(f"--device {device}: the GPU path computes GeoPatch with torch weights only (--descriptor "
+    if not gpu_computes(descriptor):
+        raise ValueError(f"--device {device}: the GPU path computes GeoPatch with torch weights only ({flag} "
                          f"geopatch or geopatch=WEIGHTS.pt), not {descriptor}")
     try:
         require_cuda(device)
     except RuntimeError as error:
         raise ValueError(f"--device {device}: {error}") from None
     return True
+
+
+def check_devices(device: str, descriptors: tuple[str, ...]) -> str | None:
+    """`check_device` for the commands that run several descriptors (`bench`, `track`, `retrieval`):
+    the device to give their functions, None for the CPU. `--device cuda[:N]` puts the GeoPatch ones
+    of `--descriptors` on the GPU path and leaves the others on the CPU; refused, naming the flags, as
+    `check_device` refuses, when none of them is GeoPatch or one is GeoPatch from an .onnx file."""
+    from ..descriptors import check_descriptor_name
+    from ..gpu import is_cuda_device
+
+    if not is_cuda_device(device):
+        check_device(device, "")  # "cpu", or the error naming --device
+        return None
+    names = [check_descriptor_name(d) for d in descriptors]  # "GeoPatch" is geopatch; an unknown name is its error
+    geopatch = [d for d in names if d.partition("=")[0] == "geopatch"]
+    if not geopatch:
+        raise ValueError(f"--device {device}: the GPU path computes GeoPatch only, and --descriptors "
+                         f"{','.join(names) or '(none)'} names none; add geopatch, or leave --device out")
+    for name in geopatch:  # an .onnx GeoPatch refused by name; CUDA checked as extract checks it
+        check_device(device, name, "--descriptors")
+    return device
 
 
 def descriptor_for_device(args: argparse.Namespace, gpu: bool, **settings):

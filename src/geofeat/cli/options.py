@@ -194,12 +194,13 @@ def frames_options(p: argparse.ArgumentParser) -> None:
     depth_scale_option(p)
 
 
-def device_option(p: argparse.ArgumentParser, also: str = "") -> None:
-    """--device of `extract` and `match` (checked by `common.check_device`): cpu, or cuda / cuda:N for
-    GeoPatch on the GPU; `also` names what else runs there (", and the matching,")."""
+def device_option(p: argparse.ArgumentParser, also: str = "", then: str = "") -> None:
+    """--device (checked by `common.check_device`, or `common.check_devices` for several
+    descriptors): cpu, or cuda / cuda:N for GeoPatch on the GPU; `also` names what else runs there
+    (", and the matching,"), `then` is said after the rest ("; the other descriptors on the CPU")."""
     p.add_argument("--device", default="cpu",
                    help=f"cpu (default), or cuda / cuda:N: GeoPatch's walk, sampling and CNN{also} on the GPU "
-                        "(geofeat[cuda]; torch weights; descriptors within about 2e-4 of the CPU torch backend's)")
+                        f"(geofeat[cuda]; torch weights; descriptors within about 2e-4 of the CPU torch backend's){then}")
 
 
 def app_options(p: argparse.ArgumentParser) -> None:

@@ -8,7 +8,8 @@ from pathlib import Path
 
 from ..apps.retrieval import DEFAULT_WEIGHTING, RERANK, WEIGHTINGS, WORD_CANDIDATES
 from ..outputs import plural
-from .options import app_options, names, whole_number
+from .common import check_devices
+from .options import app_options, device_option, names, whole_number
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -37,6 +38,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--samples", type=whole_number(1), default=10000, help="descriptors sampled for the vocabulary (default 10000)")
     p.add_argument("--classes", default=None, help="CSV 'sequence,class' (default: class = sequence folder name)")
     p.add_argument("--seed", type=whole_number(0, 2**32 - 1), default=0, help="random seed (default 0)")
+    device_option(p, ", and its matching for --rerank,", "; the other descriptors, the vocabulary and the words on "
+                  "the CPU")
     p.set_defaults(func=run)
     return p
 
@@ -52,12 +55,13 @@ def run(args: argparse.Namespace) -> int:
     check_out_dir(args.out, args.overwrite, files=RESULT_FILES,
                   inputs=[*args.datasets, *find_sequences(args.datasets, unique_names=True), args.tps_dir])
     check_samples(args.samples, args.words, "--samples", "--words")
+    device = check_devices(args.device, names(args.descriptors))
     acc, db = run_retrieval(args.datasets, args.out, names(args.descriptors),
                             words=args.words, n_samples=args.samples, seed=args.seed, classes_file=args.classes,
                             n_keypoints=args.keypoints, tps_dir=args.tps_dir, radius=args.radius,
                             depth_scale=args.depth_scale, include_own_sequence=args.include_own_sequence,
                             overwrite=args.overwrite, detector=args.detector,
-                            weighting=args.weighting, rerank_top=args.rerank)
+                            weighting=args.weighting, rerank_top=args.rerank, device=device)
     out = Path(args.out)
     print((out / "retrieval.md").read_text(encoding="utf-8"))
     print(f"wrote {', '.join(str(out / name) for name in RESULT_FILES)}")

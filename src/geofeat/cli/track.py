@@ -9,7 +9,8 @@ from pathlib import Path
 
 from ..apps.tracking import DEFAULT_REFINE, RANSAC_THRESHOLD_PX, REFINE_MODES
 from ..outputs import plural
-from .options import app_options, names, positive_number
+from .common import check_devices
+from .options import app_options, device_option, names, positive_number
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -24,6 +25,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="after the robust TPS fit, refine the warp densely against the template: photometric (the "
                         f"refiner of 'geofeat groundtruth') or none (default {DEFAULT_REFINE})")
     p.add_argument("--lpips", action="store_true", help="LPIPS (needs local pretrained weights; not supported here)")
+    device_option(p, ", and its mutual matching,", "; the other descriptors on the CPU")
     p.set_defaults(func=run)
     return p
 
@@ -40,6 +42,7 @@ def run(args: argparse.Namespace) -> int:
     if args.lpips:
         raise ValueError("--lpips: LPIPS needs pretrained backbone weights that geofeat never downloads; "
                          "not supported in this build (SSIM and NCC are reported instead)")
+    device = check_devices(args.device, names(args.descriptors))
     skipped: list[str] = []
     # the folders as given: an --out inside a folder of sequences is refused too (`refuse_input_folder`)
     csv_path, table = write_tracking(args.sequences, args.out,
@@ -47,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
                                      n_keypoints=args.keypoints, tps_dir=args.tps_dir, radius=args.radius,
                                      depth_scale=args.depth_scale, threshold_px=args.threshold,
                                      overwrite=args.overwrite, skipped=skipped, refine=args.refine,
-                                     detector=args.detector)
+                                     detector=args.detector, device=device)
     print((Path(args.out) / "tracking.md").read_text(encoding="utf-8"))
     print(f"wrote {csv_path}, {Path(args.out) / 'tracking.md'} and per sequence/descriptor grid.npz + track.gif")
     if skipped:
