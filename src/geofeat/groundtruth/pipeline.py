@@ -22,6 +22,7 @@ from __future__ import annotations
 import csv
 import json
 import time
+import warnings
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -49,6 +50,11 @@ MAX_LANDMARK_MEDIAN_PX = 3.0
 #: this many pixels: most of its landmarks disagree with one another (ids that name other points than in
 #: the reference). Simulated frames stay below 5 px; a frame with its ids shuffled was written as "ok".
 MAX_LOO_MEDIAN_PX = 25.0
+#: A landmark is off the object when a gap of more than twice the depth margin and this many robust
+#: standard deviations of the landmarks' depths cuts its depth off from the object's
+#: (`off_object_landmarks`). Simulated deformations leave gaps of up to 0.22 m between the depths of
+#: neighbouring landmarks (val sequences, 10-25 landmarks kept), under the 0.3 m of the default margin.
+OFF_OBJECT_SIGMAS = 3.0
 
 
 @dataclass
@@ -150,18 +156,65 @@ def _depth_ok(frame: RGBDFrame, zmin: float, zmax: float) -> np.ndarray:
     return (frame.depth > 0) & (frame.depth >= zmin) & (frame.depth <= zmax)
 
 
-def _depth_range(frame: RGBDFrame, xy: np.ndarray, margin: float) -> tuple[float, float]:
+def _landmark_depths(frame: RGBDFrame, xy: np.ndarray) -> np.ndarray:
+    """(N,) depth in metres at the pixel nearest to each of the (N, 2) pixels `xy` (clipped to the
+    image); 0 where the depth is missing."""
     H, W = frame.shape
-    z = frame.depth[np.clip(np.rint(xy[:, 1]).astype(int), 0, H - 1), np.clip(np.rint(xy[:, 0]).astype(int), 0, W - 1)]
+    return frame.depth[np.clip(np.rint(xy[:, 1]).astype(int), 0, H - 1), np.clip(np.rint(xy[:, 0]).astype(int), 0, W - 1)]
+
+
+def _depth_range(frame: RGBDFrame, xy: np.ndarray, margin: float) -> tuple[float, float]:
+    z = _landmark_depths(frame, xy)
     z = z[z > 0]
     if len(z) == 0:  # no depth at the landmarks: depth does not restrict the mask
         return 0.0, np.inf
     return float(z.min() - margin), float(z.max() + margin)
 
 
+def off_object_landmarks(frame: RGBDFrame, xy: np.ndarray, depth_margin_m: float) -> np.ndarray:
+    """(N,) bool: which of the (N, 2) landmark pixels `xy` lie at a depth cut off from the object's, as a
+    click just off the cloth, on the wall behind it, does. Sorted, the landmarks' depths split into
+    runs wherever two neighbours differ by more than 2 `depth_margin_m` metres and `OFF_OBJECT_SIGMAS`
+    robust standard deviations of the depths (1.4826 x their median absolute deviation); the largest
+    run (the nearest of equally large ones) is the object, the other runs are off it. A click on a
+    table just below the cloth stays (its depth is the object's, within the margins). Landmarks without
+    depth, and all of them when fewer than 3 have depth, are not judged (False)."""
+    z = _landmark_depths(frame, xy)
+    has = z > 0
+    off = np.zeros(len(z), bool)
+    if has.sum() < 3:
+        return off
+    d = z[has]
+    sigma = 1.4826 * float(np.median(np.abs(d - np.median(d))))
+    order = np.argsort(d, kind="stable")
+    run = np.concatenate([[0], np.cumsum(np.diff(d[order]) > max(2 * depth_margin_m, OFF_OBJECT_SIGMAS * sigma))])
+    off_sorted = run != int(np.argmax(np.bincount(run)))  # argmax: the first, nearest, of equally large runs
+    off[np.flatnonzero(has)[order]] = off_sorted
+    return off
+
+
+def _warn_off_object(frame: RGBDFrame, name: str, ids: np.ndarray, xy: np.ndarray, depth_margin_m: float,
+                     known: np.ndarray | None = None) -> np.ndarray:
+    """`off_object_landmarks` of frame `name` (landmark ids (N,), pixels xy (N, 2)), with a warning
+    naming the frame and the ids it finds, those in `known` (already named for the reference) left out."""
+    off = off_object_landmarks(frame, xy, depth_margin_m)
+    new = off & ~np.isin(ids, [] if known is None else known)
+    if new.any():
+        z = _landmark_depths(frame, xy)
+        on = ~off & (z > 0)
+        warnings.warn(f"landmarks: {name}.csv ids {ids[new].tolist()} lie at depth "
+                      f"{', '.join(f'{v:.2f}' for v in z[new])} m, cut off from the other landmarks' "
+                      f"{z[on].min():.2f}-{z[on].max():.2f} m (clicks off the object, on the wall behind "
+                      "it?); they are left out of the object mask", stacklevel=3)
+    return off
+
+
 def reference_mask(frame: RGBDFrame, landmarks: np.ndarray, margin_px: float, depth_margin_m: float) -> np.ndarray:
     """(H, W) bool object mask of the reference: within `margin_px` of the landmarks' hull, with depth
-    inside the landmarks' depth range widened by `depth_margin_m` metres."""
+    inside the landmarks' depth range widened by `depth_margin_m` metres; landmarks at a depth cut off
+    from the object's (`off_object_landmarks`: a click on the background) are left out of both, which
+    they widened over the background."""
+    landmarks = landmarks[~off_object_landmarks(frame, landmarks, depth_margin_m)]
     mask = _hull_distance(landmarks, frame.shape) <= margin_px
     zmin, zmax = _depth_range(frame, landmarks, depth_margin_m)
     return mask & _depth_ok(frame, zmin, zmax) if np.isfinite(zmax) else mask
@@ -312,7 +365,9 @@ def _frame(seq: Sequence, name: str, ref: RGBDFrame, ref_mask: np.ndarray, lms: 
         return rep
     # the target's own depth range: the object moves in depth (a camera moving back, another renderer's
     # units and scene scale), so the reference's range would empty the target mask and make SSIM NaN
-    zrange = _depth_range(tgt, p_tgt[inl], config.depth_margin_m)
+    ref_off = ids_r[vis_r][off_object_landmarks(ref, xy_r[vis_r], config.depth_margin_m)]  # named by `check_sequence`
+    off = _warn_off_object(tgt, name, common[inl], p_tgt[inl], config.depth_margin_m, known=ref_off)
+    zrange = _depth_range(tgt, p_tgt[inl][~off], config.depth_margin_m)
     rep.inliers = int(inl.sum())
     rep.rejected_ids = common[~inl].tolist()
     rep.loo_median_px = float(np.nanmedian(fit.loo_px))
@@ -452,6 +507,7 @@ def check_sequence(seq: Sequence, config: GroundTruthConfig) -> tuple[RGBDFrame,
     check_config(config, ref.shape)
     lms = _valid_landmarks(seq, ref.shape)
     ids_r, xy_r, vis_r = lms[seq.reference]
+    _warn_off_object(ref, seq.reference, ids_r[vis_r], xy_r[vis_r], config.depth_margin_m)
     ref_mask = reference_mask(ref, xy_r[vis_r], config.margin_px, config.depth_margin_m)
     if not ref_mask.any():
         raise ValueError(f"sequence {seq.name}: the reference object mask is empty (landmarks without depth in "
