@@ -703,3 +703,32 @@ def test_a_landmark_clicked_on_the_background_does_not_widen_the_object_mask(tmp
     said = [str(w.message) for w in caught if "cut off from the other landmarks'" in str(w.message)]
     assert len(said) == 1 and re.match(rf"landmarks: {seq.reference}.csv ids \[{ids[0]}\] lie at depth 1.50 m, cut off "
                                        r"from the other landmarks' 0.9[0-9]-1.0[0-9] m", said[0]), said
+
+
+@pytest.mark.parametrize("slip, message", [
+    ("double size", "with its coordinates scaled by 0.5 (annotated on 320x240 frames?)"),
+    ("half size", "with its coordinates scaled by 2 (annotated on 80x60 frames?)"),
+    ("ids off by one", "with its id k taken for the reference's id k+1 (ids off by one?)"),
+])
+def test_a_frame_whose_landmarks_slipped_fails(tmp_path, capsys, slip, message):
+    """Landmarks consistent with one another but not with the image: annotated on frames of twice or
+    half the size (all still on the 160x120 image), or with the ids shifted by one along the grid's
+    rows. The leave-one-out check passed them and the spline, mapping the frame onto the wrong part of
+    the reference, was written as "ok"; the same landmarks annotated right pass."""
+    corner = np.stack(np.meshgrid(np.linspace(12, 68, 4), np.linspace(12, 50, 3)), -1).reshape(-1, 2)
+    lms = corner if slip == "double size" else _grid_landmarks(5)
+    right = _forward(lms)
+    ids = np.arange(len(lms))
+    folder = _write_pair(tmp_path / "right", lms)
+    assert main(["groundtruth", str(folder), "--out", str(tmp_path / "gt-right"), "--no-refine", "--no-progress"]) == 0
+    folder = _write_pair(tmp_path / "seq", lms)
+    if slip == "ids off by one":  # the target's id k is the reference's point k + 1
+        write_landmarks(folder / "frame-001.csv", ids[:-1], right[1:], np.ones(len(ids) - 1, bool))
+    else:
+        scale = 2.0 if slip == "double size" else 0.5
+        write_landmarks(folder / "frame-001.csv", ids, (right + 0.5) * scale - 0.5, np.ones(len(ids), bool))
+    assert main(["groundtruth", str(folder), "--out", str(tmp_path / "gt"), "--no-refine", "--no-progress"]) == 1
+    printed = capsys.readouterr().out
+    assert ("FAILED frame frame-001: frame-001.csv looks slipped: the image at the landmarks matches the reference "
+            f"{message}: median NCC") in printed, printed
+    assert not (tmp_path / "gt" / "seq" / "frame-001_theta.npy").exists()

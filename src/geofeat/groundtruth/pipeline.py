@@ -38,6 +38,7 @@ from .defaults import DEFAULT_DEPTH_MARGIN_M, DEFAULT_MARGIN_PX, DEFAULT_SPACING
 from .photometric import RefineConfig, check_refine_config, refine
 from ..tps import ThinPlateSpline, authors_tps, spans_plane
 from .landmarks import MIN_LANDMARKS, robust_landmark_tps
+from .slips import annotation_slip
 
 #: The bench keeps target keypoints where the SSIM map exceeds this.
 SSIM_KEEP = 0.25
@@ -376,6 +377,12 @@ def _frame(seq: Sequence, name: str, ref: RGBDFrame, ref_mask: np.ndarray, lms: 
             f"the landmarks disagree: the spline through the others misses the median landmark by "
             f"{rep.loo_median_px:.1f} px (leave-one-out, > {MAX_LOO_MEDIAN_PX:g} px); do the ids of {name}.csv "
             f"name the same points as those of {seq.reference}.csv?")
+        rep.seconds = time.perf_counter() - t0
+        return rep
+    # landmarks that agree with one another but not with the image: another resolution, ids off by one
+    slip = annotation_slip(ref.image, tgt.image, ids_r[vis_r], xy_r[vis_r], ids_t[vis_t], xy_t[vis_t])
+    if slip:
+        rep.status, rep.reason = "failed", f"{name}.csv looks slipped: {slip}"
         rep.seconds = time.perf_counter() - t0
         return rep
     before = _evaluate(lm_inv, ref, ref_mask, tgt, zrange)
