@@ -217,6 +217,28 @@ def test_arguments(texture):
         HeatGeodesics(mesh, t=10 * H.mean_edge**2)  # a deliberate, plausible choice: no warning
 
 
+@pytest.mark.parametrize("option, value, message", [
+    ("calibrate", "no", r"calibrate: expected True or False, got 'no'"),  # truthy: it calibrated
+    ("calibrate", 0, r"calibrate: expected True or False, got 0"),
+    ("boundary_mix", "0.5", r"boundary_mix: expected a number in \[0, 1\], got '0.5'"),  # a raw TypeError
+    ("boundary_mix", None, r"boundary_mix: expected a number in \[0, 1\], got None"),
+    ("boundary_mix", True, r"boundary_mix: expected a number in \[0, 1\], got True"),
+    ("boundary_mix", float("nan"), r"boundary_mix: expected a number in \[0, 1\], got nan"),
+    ("t", "1e-5", r"t \(heat time, m\^2\): expected a positive number, got '1e-5'"),  # read as a number
+    ("t", True, r"t \(heat time, m\^2\): expected a positive number, got True"),
+])
+def test_heat_options_of_the_wrong_kind_are_refused_by_name(option, value, message):
+    """HeatGeodesics(calibrate="no") calibrated (a non-empty string is truthy); boundary_mix="0.5" or
+    None failed with Python's TypeError, naming no argument."""
+    from surfaces import plane_frame
+
+    mesh = geofeat.build_mesh(plane_frame((48, 64)), CLEAN)
+    with pytest.raises(ValueError, match=message):
+        HeatGeodesics(mesh, **{option: value})
+    solver = HeatGeodesics(mesh, boundary_mix=np.float32(0.25), calibrate=np.bool_(False))  # numpy's kinds are fine
+    assert (solver.boundary_mix, solver.calibrate) == (0.25, False) and type(solver.calibrate) is bool
+
+
 def test_a_mesh_of_another_frame_size_is_refused():
     from surfaces import plane_frame
 

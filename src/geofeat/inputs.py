@@ -129,6 +129,22 @@ def check_whole(value: Any, what: str, minimum: int = 1) -> int:
     return int(value)
 
 
+def check_bool(value: Any, what: str) -> bool:
+    """True or False (Python's or numpy's bool); ValueError naming `what` otherwise: a truthy string
+    such as "no", or 1, was taken for True without a word."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{what}: expected True or False, got {value!r}")
+    return bool(value)
+
+
+def check_in_range(value: Any, what: str, lo: float, hi: float) -> float:
+    """A real number (Python or numpy, not bool) from `lo` to `hi`, both included; ValueError naming
+    `what` otherwise (NaN, a string such as "0.5", None too)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not lo <= value <= hi:
+        raise ValueError(f"{what}: expected a number in [{lo:g}, {hi:g}], got {value!r}")
+    return float(value)
+
+
 #: A thread count above this multiple of the machine's CPUs is refused (`check_threads`).
 MAX_THREADS_PER_CPU = 64
 

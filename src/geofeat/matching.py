@@ -37,6 +37,7 @@ import numpy as np
 from numba import njit, prange
 
 from .features import Features, Matches
+from .inputs import check_bool
 
 __all__ = ["match", "distance_matrix", "METRICS"]
 
@@ -1013,8 +1014,7 @@ def check_match_options(ratio, mutual) -> None:
     `geofeat.gpu.match_cuda`): ratio=True would run as 1.0, and a truthy mutual="no" as mutual."""
     if ratio is not None and (isinstance(ratio, bool) or not isinstance(ratio, numbers.Real) or not 0 < ratio <= 1):
         raise ValueError(f"ratio: expected a number in (0, 1] or None, got {ratio!r}")
-    if not isinstance(mutual, (bool, np.bool_)):
-        raise ValueError(f"mutual: expected True or False, got {mutual!r}")
+    check_bool(mutual, "mutual")
 
 
 def match(

@@ -35,7 +35,7 @@ from scipy.sparse.linalg import splu
 from ..constants import DEFAULT_RADIUS_M, N_ANGLES, N_RINGS, SAMPLING_BLUR_PX
 from ..depth import DepthConfig
 from ..frame import RGBDFrame
-from ..inputs import as_points
+from ..inputs import as_points, check_bool, check_in_range, check_positive
 from .mesh import GridMesh, build_mesh, frame_fingerprint
 from .polar import (PolarPatches, check_mesh_shape, check_patch_request, patch_source, patch_validity, sample_bilinear,
                     sampling_image)
@@ -124,8 +124,11 @@ class HeatGeodesics:
     def __init__(
         self, mesh: GridMesh, t: float | None = None, boundary_mix: float = 0.5, calibrate: bool = True
     ) -> None:
-        if not 0.0 <= boundary_mix <= 1.0:
-            raise ValueError(f"boundary_mix: must lie in [0, 1], got {boundary_mix}")
+        # a truthy calibrate="no" counted as True; boundary_mix="0.5" or None failed as a raw TypeError
+        boundary_mix = check_in_range(boundary_mix, "boundary_mix", 0.0, 1.0)
+        calibrate = check_bool(calibrate, "calibrate")
+        if t is not None:  # t="1" was read as a number, t=True as 1 m^2
+            t = check_positive(t, "t (heat time, m^2)")
         self.mesh = mesh
         V, F, index = mesh.vertices_faces()
         if len(F) == 0:
@@ -166,9 +169,9 @@ class HeatGeodesics:
         )
         self.M = np.bincount(F.ravel(), np.repeat(self.area / 3.0, 3), minlength=n)
         self.mean_edge = float(np.mean(np.concatenate(edge_len)))
-        self.t = float(t) if t is not None else self.mean_edge**2
-        if not (np.isfinite(self.t) and self.t > 0):
-            raise ValueError(f"t: must be a positive heat time in m^2, got {t}")
+        self.t = t if t is not None else self.mean_edge**2
+        if not (np.isfinite(self.t) and self.t > 0):  # a mesh whose edges all have length 0
+            raise ValueError(f"t: the default heat time (mean edge length)^2 is {self.t:g} m^2, not positive")
         if t is not None and self.t > HEAT_TIME_WARN_FACTOR * self.mean_edge**2:
             # potpourri3d's t_coef = 1.0 given as t = 1.0 m^2 is 10^5-10^6 times the default here
             warnings.warn(f"t: {self.t:g} m^2 is {self.t / self.mean_edge**2:.0f} times the default heat time, "
@@ -181,8 +184,8 @@ class HeatGeodesics:
                           "the source's faces, and the distances come out short (by about 7 % at 0.1 times the "
                           "default, 14 % at 0.01, on a plane); a smaller t is not more accurate on this mesh",
                           stacklevel=2)
-        self.boundary_mix = float(boundary_mix)
-        self.calibrate = bool(calibrate)
+        self.boundary_mix = boundary_mix
+        self.calibrate = calibrate
         # boundary vertices: ends of edges used by a single face
         edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
         key = edges[:, 0] * n + edges[:, 1]

@@ -25,7 +25,7 @@ from typing import Iterator
 
 import numpy as np
 
-from ..inputs import check_non_negative
+from ..inputs import check_bool, check_non_negative
 from .cloth import Cloth, ClothConfig
 from .noise import depth_noise_sigma, finish_image, kinect_depth_noise, motion_blur
 from .render import RenderOutput, render
@@ -133,8 +133,7 @@ def check_preset(preset: Preset) -> None:
         if not 0 < lo < hi:
             raise ValueError(f"preset: scale_swing: expected image scales 0 < low < high (None: a fixed camera), "
                              f"got {preset.scale_swing!r}")
-    if not isinstance(preset.back_plain, (bool, np.bool_)):
-        raise ValueError(f"preset: back_plain: expected True or False, got {preset.back_plain!r}")
+    check_bool(preset.back_plain, "preset: back_plain")
 
 
 PRESETS: dict[str, Preset] = {
