@@ -5,6 +5,8 @@ import pytest
 
 from geofeat.descriptors import GeoBit, GeoBitSettings, PatchSettings, make_descriptor
 from geofeat.descriptors.brand import BRAND
+from geofeat.descriptors.geopatch import GeoPatch
+from geofeat.descriptors.geopatch_net import load_network
 from geofeat.descriptors.settings import merge_settings, takes_patch_settings
 
 
@@ -77,3 +79,30 @@ def test_geobit_settings_are_checked_by_name(option, value):
     TypeError from numpy and n_angles=0 an error about n_bits."""
     with pytest.raises(ValueError, match=f"^{option}: "):
         GeoBit(**{option: value})
+
+
+@pytest.mark.parametrize("make", [
+    lambda: GeoPatch(weights=""),
+    lambda: GeoPatch(weights="  "),
+    lambda: make_descriptor("geopatch", weights=""),
+    lambda: make_descriptor("tfeat-sim", weights=""),
+    lambda: load_network(""),
+], ids=["GeoPatch", "GeoPatch-blank", "make_descriptor", "tfeat-sim", "load_network"])
+def test_an_empty_weights_path_is_refused_as_empty(make):
+    """GeoPatch(weights="") read "" as the current folder and said "no GeoPatch checkpoint at .";
+    None is what asks for the shipped weights, and the command line's geopatch= is refused alike."""
+    with pytest.raises(ValueError, match=r"^weights: an empty path; expected the path of a weights file "
+                                         r"\(None: the shipped weights\)$"):
+        make()
+
+
+def test_an_empty_weights_path_on_the_command_line_is_refused_as_empty(tmp_path, capsys):
+    from geofeat.cli import main
+    from geofeat.descriptors import check_descriptor_name
+
+    with pytest.raises(ValueError, match=r"^descriptor: 'geopatch=': an empty path; .*\(geopatch: the shipped weights\)"):
+        check_descriptor_name("geopatch=")
+    assert main(["train", "--data", str(tmp_path), "--out", str(tmp_path / "w.pt"), "--init", ""]) == 2
+    assert "--init: an empty path; expected the path of a weights file (--init shipped: the shipped weights)" \
+        in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []

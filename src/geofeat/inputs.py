@@ -145,6 +145,21 @@ def check_in_range(value: Any, what: str, lo: float, hi: float) -> float:
     return float(value)
 
 
+def check_weights_path(weights: Any, what: str = "weights", shipped: str = "None") -> Any:
+    """A weights file name: None (the shipped weights) or a path (str or os.PathLike) that is not
+    empty or blank; ValueError naming `what` otherwise. `shipped` says how the shipped weights are
+    asked for where `what` is given (None in Python, the bare name on the command line): "" was
+    read as the current folder ("no GeoPatch checkpoint at .")."""
+    if weights is None:
+        return None
+    if not isinstance(weights, (str, os.PathLike)):
+        raise ValueError(f"{what}: expected the path of a weights file ({shipped}: the shipped weights), "
+                         f"got {type(weights).__name__} {weights!r}")
+    if not str(weights).strip():
+        raise ValueError(f"{what}: an empty path; expected the path of a weights file ({shipped}: the shipped weights)")
+    return weights
+
+
 #: A thread count above this multiple of the machine's CPUs is refused (`check_threads`).
 MAX_THREADS_PER_CPU = 64
 

@@ -59,6 +59,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..descriptors.geopatch import GeoPatchConfig
     from ..gpu import torch_device
+    from ..inputs import check_weights_path
     from ..io import sequence_digest
     from ..outputs import refuse_input_folder
     from ..train.dataset import PatchSet, build_patch_set, check_simulated, validation_pairs, warn_if_not_held_out
@@ -70,6 +71,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--batch-size: --mining hardest takes its negatives from the batch's other pairs, so it "
                          f"needs at least 2 triplets per batch, got {args.batch_size}")
     channels_given = args.channels is not None
+    if args.init is not None:  # "" said "no GeoPatch checkpoint at ."
+        check_weights_path(args.init, "--init", "--init shipped")
     if args.net != "geopatch":  # the image-patch nets have their own fixed widths and read no depth
         unused = [flag for flag, given in (("--channels", channels_given), ("--no-angle-pool", args.no_angle_pool),
                                            ("--depth-profile", args.depth_profile is not None)) if given]

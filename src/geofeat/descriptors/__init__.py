@@ -15,6 +15,7 @@ from importlib import import_module
 from pathlib import Path
 from typing import Any
 
+from ..inputs import check_weights_path
 from .base import Descriptor
 from .baselines import BASELINES, OpenCVDescriptor
 from .geobit import GeoBit, GeoBitSettings, generate_pattern, load_pattern
@@ -42,6 +43,7 @@ def check_descriptor_name(name: str) -> str:
     base = key.split("=", 1)[0].lower()
     if "=" in key and base in TRAINED:
         path = key.split("=", 1)[1]
+        check_weights_path(path, f"descriptor: {key!r}", base)  # as GeoPatch(weights="")
         if not Path(path).is_file():
             raise ValueError(f"descriptor: {key!r}: no weights file at {path!r}")
         return f"{base}={path}"

@@ -52,7 +52,7 @@ from ..keypoints import as_keypoints
 from ..geodesic.mesh import GridMesh
 from ..geodesic.polar import PolarPatches, check_depth_config, check_patches, polar_patches
 from .settings import PatchSettings, merge_settings
-from ..inputs import check_threads, check_whole
+from ..inputs import check_threads, check_weights_path, check_whole
 
 #: File name of the shipped weights inside geofeat/data.
 WEIGHTS_NAME = "geopatch.pt"
@@ -184,6 +184,10 @@ class GeoPatchSettings(PatchSettings):
     batch_size: int | None = None
     threads: int | None = None
     backend: str | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_weights_path(self.weights)  # "" said "no GeoPatch checkpoint at ."
 
 
 def _torch_network(weights, device) -> tuple:

@@ -11,6 +11,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from ..inputs import check_weights_path
 from .geopatch import GeoPatchConfig, default_weights_path
 
 
@@ -180,7 +181,7 @@ def _trained_name(ckpt) -> str | None:
 
 def load_network(path: str | Path | None = None, device: str | torch.device | None = None) -> tuple[GeoPatchNet, dict]:
     """Load a GeoPatchNet (eval mode) from a checkpoint; None = the shipped weights. Offline only."""
-    path = default_weights_path() if path is None else Path(path)
+    path = default_weights_path() if check_weights_path(path) is None else Path(path)
     if not path.is_file():
         raise ValueError(f"weights: no GeoPatch checkpoint at {path}")
 

@@ -46,7 +46,7 @@ from ..frame import RGBDFrame, too_thin_to_describe
 from ..keypoints import Keypoints, as_keypoints
 from .patches import cartesian_grid, keypoint_arrays, logpolar_grid, sample_patches
 from .settings import merge_settings
-from ..inputs import check_whole
+from ..inputs import check_weights_path, check_whole
 
 #: Support radius of a TFeat patch = this x the keypoint diameter (pixels): a patch side of 6x
 #: SIFT's size, the factor at which BRISK/FREAK plateau under scale (BENCHMARKS.md).
@@ -158,6 +158,9 @@ class ImagePatchSettings:
 
     weights: str | Path | None = None
     batch_size: int = 256
+
+    def __post_init__(self) -> None:
+        check_weights_path(self.weights)  # "" said "no image-patch network checkpoint at ."
 
 
 class ImagePatchDescriptor:
