@@ -448,6 +448,57 @@ def test_train_detector_command_writes_weights_chosen_over_both_counts(tiny, tmp
     assert len(geofeat.detect(geofeat.read_sequence(tiny / "a-deform").frame(0), 50, detector=f"geokey={out}")) > 0
 
 
+def test_validation_tries_thresholds_without_the_detectors_warnings_about_frames(tiny):
+    """choose_model tries score thresholds that no candidate of a frame may reach, and `geofeat
+    train-detector` printed "geokey: no candidate reaches the score threshold" for every frame and
+    setting tried: noise that read as a problem with the validation data."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        _, results, chosen = choose_model({"shipped": load_geokey()}, [tiny / "a-deform"], counts=(100,),
+                                          radii=(3.0,), level_biases=(0.0,), thresholds=(99.0,), progress=False)
+    assert results[("shipped, threshold 99", 3.0)][100]["n_ref"] == 0  # tried, and no frame kept a keypoint
+    assert chosen == ("shipped", 3.0)
+    said = [str(w.message) for w in caught]
+    assert not [text for text in said if text.startswith(("geokey:", "sift:"))], said
+    with pytest.warns(UserWarning, match="geokey: no candidate reaches the score threshold 99"):  # elsewhere: said
+        detect_geokey(geofeat.read_sequence(tiny / "a-deform").frame(0), 100, threshold=99.0, min_fraction=0.0)
+
+
+def test_train_detector_reports_once_the_validation_frames_the_chosen_model_leaves_empty(tiny, tmp_path,
+                                                                                          monkeypatch):
+    """With the detectors' warnings left out of validation, a validation frame that truly has no
+    keypoint at the chosen setting is said once, naming the frames; a model that finds keypoints on
+    every frame says nothing."""
+    from dataclasses import replace
+
+    import geofeat.train.detector as detector
+    from geofeat.detectors.cues import CUE_NAMES
+
+    x = np.random.default_rng(0).normal(size=(200, len(CUE_NAMES))).astype(np.float32)
+    y = (x[:, 0] > 0).astype(np.float32)
+    monkeypatch.setattr(detector, "collect", lambda *args, **kwargs: (x, y))
+    monkeypatch.setattr(detector, "warn_if_not_held_out", lambda *args: None)
+    scores = {"repeatability": 0.5, "ms": 0.5, "mma": 0.5, "hits": 10.0, "pairs": 10.0, "n_ref": 100.0}
+    shipped = load_geokey()
+    blind = replace(shipped, threshold=np.inf, min_fraction=0.0)  # keeps no keypoint on any frame
+    for model, empty in ((blind, True), (shipped, False)):
+        monkeypatch.setattr(detector, "choose_model", lambda *args, m=model, **kwargs:
+                            (m, {("scorer", 3.0): {16: dict(scores)}}, ("scorer", 3.0)))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            detector.train_detector([tiny], [tiny], tmp_path / f"{empty}.npz", n=16, steps=5, progress=False,
+                                    names=("--data", "--val"))
+        said = [str(w.message) for w in caught]
+        assert not [text for text in said if text.startswith("geokey:")], said
+        reports = [text for text in said if "at the chosen setting" in text]
+        if empty:
+            assert len(reports) == 1, said
+            assert reports[0].startswith("--val: 3 of the 3 validation frames have no GeoKey keypoint at the chosen "
+                                         "setting (scorer, NMS 3 px): a-deform/"), reports
+        else:
+            assert reports == [], reports
+
+
 # ---------------------------------------------------------------- audit of detection inputs
 @pytest.mark.parametrize("n", [-1, 2.5, True])
 def test_detect_geokey_refuses_a_bad_n(n):

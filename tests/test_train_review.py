@@ -419,6 +419,7 @@ def test_train_detector_says_when_validation_could_not_choose(tmp_path, monkeypa
     monkeypatch.setattr(detector, "warn_if_not_held_out", lambda *args: None)
     monkeypatch.setattr(detector, "collect", lambda *args, **kwargs: (x, y))
     monkeypatch.setattr(detector, "validation_scores", lambda *args, **kwargs: dict(zero))
+    monkeypatch.setattr(detector, "frames_without_keypoints", lambda *args: ([], 1))  # no frames to read
     with pytest.warns(UserWarning, match=r"--val: no scorer and radius got a correct GeoPatch match .*arbitrary"):
         detector.train_detector([tmp_path], [tmp_path], tmp_path / "k.npz", n=16, steps=5, progress=False,
                                 radii=(2.0, 3.0), names=("--data", "--val"))

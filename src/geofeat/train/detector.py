@@ -19,6 +19,9 @@ each deformation, scale change and roll.
 from __future__ import annotations
 
 import numbers
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -65,6 +68,21 @@ MIN_KEYPOINTS = 1000
 #: GeoPatch matches at n = 2048, against SIFT's 1482. With the floor: 1938 / 1890 keypoints and 1425.
 #: It costs 0.006 of the mean validation MS (BENCHMARKS.md, "GeoKey v3.3").
 KEEP_FRACTION = 0.35
+
+
+#: The detectors' own warnings about a frame ("geokey: no candidate reaches the score threshold ...", "geokey:
+#: only 5 % of this frame's keypoints are stronger corners than its image noise", "sift: no keypoint ..."), left
+#: out while validation tries settings (`quiet_detectors`): a frame without keypoints at a threshold on trial
+#: says nothing about the data, yet read as a problem with it.
+DETECTOR_WARNINGS = r"(geokey|sift): "
+
+
+@contextmanager
+def quiet_detectors() -> Iterator[None]:
+    """Within it, the detectors' warnings about a frame (`DETECTOR_WARNINGS`) are not shown; others are."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=DETECTOR_WARNINGS, category=UserWarning)
+        yield
 
 
 #: Training labels: "repeatable" (found again) or "matchable" (found again and matched by GeoPatch).
@@ -300,6 +318,9 @@ def choose_model(models: dict[str, GeoKeyModel], folders: list[Path], counts: tu
     also keeps the best `keep_fraction` of each frame's candidates whatever their score
     (`GeoKeyModel.min_fraction`; see `KEEP_FRACTION`).
 
+    The detectors' warnings about single frames are left out while the settings are tried
+    (`quiet_detectors`); `frames_without_keypoints` reports, once, those that the chosen model leaves empty.
+
     Returns the chosen model (its `nms_radius`, bias, `threshold` and `min_fraction` set), {(label,
     radius): {count: validation_scores}}, label = the scorer's name, plus ", level 1 <bias>" for the
     second stage and ", threshold <t>" for the third, and the chosen (label, radius).
@@ -313,8 +334,9 @@ def choose_model(models: dict[str, GeoKeyModel], folders: list[Path], counts: tu
     def score(label: str, model: GeoKeyModel, radius: float) -> None:
         per_count = {}
         for n in counts:
-            per_count[int(n)] = validation_scores(
-                folders, lambda f, k, m=model, r=radius: detect_geokey(f, k, m, nms_radius=r), int(n))
+            with quiet_detectors():  # frames without keypoints at a setting on trial: `frames_without_keypoints`
+                per_count[int(n)] = validation_scores(
+                    folders, lambda f, k, m=model, r=radius: detect_geokey(f, k, m, nms_radius=r), int(n))
             if progress:
                 r = per_count[int(n)]
                 tqdm.write(f"validation {label}, NMS {radius:g} px, {n} keypoints: MS {r['ms']:.3f}, "
@@ -336,7 +358,8 @@ def choose_model(models: dict[str, GeoKeyModel], folders: list[Path], counts: tu
     if finite:
         from ..keypoints import detect_sift
 
-        sift = {int(n): validation_scores(folders, detect_sift, int(n)) for n in counts}
+        with quiet_detectors():
+            sift = {int(n): validation_scores(folders, detect_sift, int(n)) for n in counts}
         results[SIFT_KEY] = sift
         admissible = [chosen]
         for t in finite:
@@ -348,6 +371,22 @@ def choose_model(models: dict[str, GeoKeyModel], folders: list[Path], counts: tu
         if chosen != admissible[0]:
             best = replace(candidates_by_key[chosen], min_fraction=keep_fraction)
     return best, results, chosen
+
+
+def frames_without_keypoints(folders: list[Path], detector) -> tuple[list[str], int]:
+    """The frames of the sequences `folders` (reference and targets, as `validation_scores` reads them)
+    on which `detector` (callable (frame, n) -> Keypoints; n = 0: all) finds no keypoint, as
+    "sequence/frame" names, and the number of frames; the detectors' warnings are left out (this list
+    reports them once, `train_detector`)."""
+    empty, total = [], 0
+    with quiet_detectors():
+        for folder in folders:
+            seq = read_sequence(folder)
+            for name in (seq.reference, *seq.targets):
+                total += 1
+                if len(detector(seq.frame(name), 0)) == 0:
+                    empty.append(f"{Path(folder).name}/{name}")
+    return empty, total
 
 
 def check_radii(radii) -> tuple[float, ...]:
@@ -410,7 +449,9 @@ def train_detector(data, val, out: str | Path, n: int | tuple[int, ...] = VALIDA
     options are checked before any work; errors and warnings name `data` and `val` by `names` (the
     command line passes its flags). Returns the model, the validation figures per (scorer, radius)
     and count, and the chosen (scorer, radius) key. `denoise`: GeoKey's edge-preserving filter
-    (`GeoKeyModel.denoise`), applied to the training candidates and written with the weights."""
+    (`GeoKeyModel.denoise`), applied to the training candidates and written with the weights. The
+    validation frames on which the chosen model finds no keypoint are warned of once (the detectors'
+    own warnings are left out while validation tries settings)."""
     from ..outputs import check_out_file
 
     out = check_out_file(out, overwrite)
@@ -442,9 +483,13 @@ def train_detector(data, val, out: str | Path, n: int | tuple[int, ...] = VALIDA
               "image + depth cues": fit(x, y, hidden=hidden, steps=steps, seed=seed, progress=progress)}
     models = {name: replace(m, denoise=denoise) for name, m in models.items()}
     model, results, chosen = choose_model(models, val_folders, n, radii, progress=progress)
+    empty, total = frames_without_keypoints(val_folders, lambda frame, k: detect_geokey(frame, k, model))
+    if empty:  # said once here, not by a warning per frame and setting tried
+        warnings.warn(f"{val_name}: {len(empty)} of the {plural(total, 'validation frame')} "
+                      f"{'has' if len(empty) == 1 else 'have'} no GeoKey keypoint at the chosen setting ({chosen[0]}, "
+                      f"NMS {chosen[1]:g} px): {', '.join(empty[:5])}{', ...' if len(empty) > 5 else ''}; "
+                      "frames without texture or depth?", UserWarning, stacklevel=2)
     if not any(mean_ms(per_count) > 0 for key, per_count in results.items() if key != SIFT_KEY):
-        import warnings
-
         # every entry tied at 0, and `max` kept the first: the weights were written as if validation had chosen them
         warnings.warn(f"{val_name}: no scorer and radius got a correct GeoPatch match on any validation pair (MS 0 "
                       f"throughout), so the choice ({chosen[0]}, NMS {chosen[1]:g} px) is arbitrary, not chosen by "
