@@ -498,3 +498,38 @@ def test_angle_shifts_are_refused_for_tfeats_cartesian_patches(tmp_path, capsys,
         with pytest.raises(_Stop):
             main(["train", "--data", str(tmp_path), "--out", str(tmp_path / f"{net}.pt"), "--net", net,
                   "--augment-shift"])
+
+
+def test_resuming_without_the_patch_cache_checks_the_data_against_the_checkpoints_run(tmp_path, monkeypatch, capsys):
+    """With OUT.patches.npz gone but OUT.ckpt there, --resume rebuilt the patches from whatever --data
+    then held (here simulated again with another seed) and went on training the checkpoint's weights
+    on them without a word; the cache's check never ran. The checkpoint now records what its run was
+    trained on, and a mismatch is refused before any patch is built. A checkpoint that records nothing
+    (an older geofeat's) resumes with a warning that nothing could be checked."""
+    import torch
+
+    import geofeat.train.dataset as dataset
+
+    sim = ["simulate", str(tmp_path / "seq"), *TINY]
+    run = ["train", "--data", str(tmp_path / "seq"), "--out", str(tmp_path / "w.pt"), "--epochs", "1", "--steps", "1",
+           "--batch-size", "4", "--channels", "4", "4", "4", "--keypoints", "50", "--device", "cpu"]
+    cache, checkpoint = tmp_path / "w.pt.patches.npz", tmp_path / "w.pt.ckpt"
+    assert main(sim) == 0 and main(run) == 0
+    cache.unlink()
+    with warnings.catch_warnings():  # the same data: resumed, patches rebuilt, no warning about them
+        warnings.filterwarnings("error", message="--resume")
+        assert main([*run, "--resume"]) == 0
+    cache.unlink()
+    assert main([*sim, "--seed", "3", "--overwrite"]) == 0
+    capsys.readouterr()
+    monkeypatch.setattr(dataset, "build_patch_set", _stop)  # refused before any patch is built
+    assert main([*run, "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert "error: --resume: " in err and "w.pt.ckpt holds the state of a run with other options (--data seq: other " \
+        "frames than that run's (simulated again or edited since))" in err, err
+    state = torch.load(checkpoint, weights_only=False)
+    del state["source"]  # as an older geofeat wrote it
+    torch.save(state, checkpoint)
+    with pytest.warns(UserWarning, match=r"--resume: .*w.pt.ckpt does not record what its run was trained on"), \
+            pytest.raises(_Stop):
+        main([*run, "--resume"])

@@ -112,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
     refuse_input_folder(args.out, [*args.data, *(args.val or ())])  # the weights among the training sequences
     check_train_out(args.out, args.overwrite, args.resume, also=(".patches.npz",))
     checkpoint = Path(str(args.out) + ".ckpt")
+    state = None  # the state of the run --resume continues
     if args.resume and checkpoint.is_file():
         state = load_resume_state(checkpoint, config)  # a corrupt or other run's checkpoint, before the patches
         _check_resumed_network(state, checkpoint, args.net, config)
@@ -152,6 +153,8 @@ def run(args: argparse.Namespace) -> int:
               "depth_profile": args.depth_profile, "net": args.net,
               "data_digests": [sequence_digest(f) for f in data_folders],
               "val": [[str(f.resolve()), sequence_digest(f)] for f in val_folders]}
+    if state is not None:  # what the checkpoint's run was trained on (`train` records it), with or without a cache
+        _check_resumed_source(checkpoint, state.get("source"), source, cache.is_file())
     if args.resume and cache.is_file():
         data = PatchSet.load(cache)
         _check_cached_source(cache, data.source, source)
@@ -197,14 +200,32 @@ def _check_triplets(data, keypoints: int) -> None:
                          f"({keypoints} now)") from None
 
 
-def _check_cached_source(cache: Path, cached: dict | None, wanted: dict) -> None:
+def _check_resumed_source(checkpoint: Path, recorded: dict | None, wanted: dict, cached: bool) -> None:
+    """--resume continues the run of `checkpoint`: refuse it when that run was trained on patches of
+    other --data, --keypoints, --depth-profile or --net, or scored on other --val, than this run names
+    (`_check_cached_source`'s rules, on what `train` recorded in the checkpoint). Without a patch cache
+    the patches were rebuilt from whatever --data then held, unchecked. A checkpoint that records
+    nothing (an older geofeat's) is warned of when there is no cache to check either."""
+    if recorded is None:
+        if not cached:
+            import warnings
+
+            warnings.warn(f"--resume: {checkpoint} does not record what its run was trained on (written by an older "
+                          "geofeat), and its patch cache is gone: the patches are built anew from --data as it is "
+                          "now, which nothing can check against that run", UserWarning, stacklevel=2)
+        return
+    _check_cached_source(checkpoint, recorded, wanted, "the state")
+
+
+def _check_cached_source(cache: Path, cached: dict | None, wanted: dict, holds: str = "the patches") -> None:
     """--resume trains on the patches cached by the run it resumes: refuse them when they were built
     from other --data, --keypoints, --depth-profile or --net than this run names, or from the same
     --data folders with other frames (simulated again since: they were used silently, and the new
     options or frames ignored), or when the run scored its epochs on other --val sequences, or on the
     same folders with other frames (its validation curve would join two measures). A cache that
     records nothing (an older geofeat's) is used; one without --val or the --data digests (from
-    before they were recorded) is not checked for them."""
+    before they were recorded) is not checked for them. `holds`: what `cache` holds, for the message
+    (`_check_resumed_source` checks a checkpoint by these rules)."""
     if cached is None:
         return
     flags = {"data": "--data", "keypoints": "--keypoints", "depth_profile": "--depth-profile", "net": "--net",
@@ -233,7 +254,7 @@ def _check_cached_source(cache: Path, cached: dict | None, wanted: dict) -> None
                and not (k == "data_digests" and cached.get("data") != wanted.get("data"))]
     if not changed:
         return
-    raise ValueError(f"--resume: {cache} holds the patches of a run with other options ({'; '.join(changed)}); "
+    raise ValueError(f"--resume: {cache} holds {holds} of a run with other options ({'; '.join(changed)}); "
                      "resume with that run's options, or pass --overwrite (without --resume) to start anew")
 
 

@@ -269,7 +269,8 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
           init: str | Path | None = None, overwrite: bool = False) -> dict:
     """Train GeoPatchNet (or `net`, any module mapping (B, 1, H, W) patches to unit (B, dim)
     descriptors with a dataclass `config` holding `dim`, e.g. the image-patch baselines); writes
-    `out` (final weights), `out`.ckpt (resumable state after every epoch), `out`.json (history) and
+    `out` (final weights), `out`.ckpt (resumable state after every epoch, with `data.source`: what the
+    run trains on, which `geofeat train --resume` compares with its options), `out`.json (history) and
     `out`.png (loss / validation plot). Returns the history. With `overwrite` (and not `resume`), an
     earlier run's `out` and files beside it are removed before the first epoch (`remove_earlier_run`). `init`: start GeoPatchNet from these
     weights ("shipped" = geofeat's own) instead of at random (fine-tuning; the network shape must
@@ -354,7 +355,8 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
         with atomic_file(ckpt_path) as tmp, open(tmp, "wb") as fh:  # a file object: see `save_checkpoint`
             torch.save({"state_dict": net.state_dict(), "optimizer": opt.state_dict(),
                         "scheduler": sched.state_dict(), "rng": rng.bit_generator.state,
-                        "torch_rng": torch.get_rng_state(), "history": history, "epoch": epoch}, fh)
+                        "torch_rng": torch.get_rng_state(), "history": history, "epoch": epoch,
+                        "source": data.source}, fh)  # what the run trains on: `geofeat train --resume` compares it
     net.eval()
     with atomic_file(out) as tmp:
         save_checkpoint(tmp, net.cpu(), history=history)
