@@ -184,6 +184,37 @@ def test_training_with_hardest_mining_tells_the_loss_which_rows_are_one_point(tm
     assert len(seen) == 2 and all(ids is not None and len(ids) == 64 and len(set(ids.tolist())) < 64 for ids in seen)
 
 
+def test_hardest_mining_batches_always_hold_two_surface_points(tmp_path, monkeypatch):
+    """On 2 surface points with batches of 3, a quarter of the batches drew every row from one point:
+    hardest mining then found no negative, and the step's loss was 0, with no gradient, without a word.
+    Every batch now holds both points, and data with fewer points than a batch's rows is warned of."""
+    from geofeat.train import loop
+
+    seen = []
+
+    def spy(a, p, n, margin, mining, ids=None):
+        seen.append(ids.tolist())
+        return loop_loss(a, p, n, margin, mining, ids=ids)
+
+    loop_loss = loop.triplet_loss
+    monkeypatch.setattr(loop, "triplet_loss", spy)
+    patches = np.random.default_rng(0).integers(0, 256, (4, 32, 32)).astype(np.uint8)
+    data = PatchSet(patches, np.array([0, 0, 1, 1]))  # 2 surface points, 2 views each
+    config = TrainConfig(epochs=1, steps_per_epoch=20, batch_size=3, mining="hardest", net=NET)
+    with pytest.warns(UserWarning, match=r"mining: hardest .* has 2 surface points seen in 2 frames or more for "
+                                         r"batches of 3 triplets.*one of at most 1 others"):
+        train(data, tmp_path / "w.pt", config, progress=False, device="cpu")
+    assert len(seen) == 20 and all(set(ids) == {0, 1} for ids in seen), seen
+    import warnings
+
+    with warnings.catch_warnings():  # as many points as rows (drawn without replacement): no warning
+        warnings.filterwarnings("error", message="mining")
+        train(data, tmp_path / "w2.pt", TrainConfig(epochs=1, steps_per_epoch=2, batch_size=2, mining="hardest",
+                                                    net=NET), progress=False, device="cpu")
+        train(data, tmp_path / "w3.pt", TrainConfig(epochs=1, steps_per_epoch=2, batch_size=4, net=NET),
+              progress=False, device="cpu")  # random mining draws its negatives from all the data
+
+
 def test_train_detector_counts_take_a_numpy_whole_number_and_name_a_string_whole():
     """A numpy count was a TypeError ("not iterable"); "100" was iterated and refused as '1'."""
     from geofeat.train.detector import check_counts

@@ -18,7 +18,7 @@ from ..descriptors.geopatch import GeoPatchConfig, GeoPatchNet, save_checkpoint
 from ..gpu import torch_device
 from ..inputs import check_non_negative, check_positive, check_whole, error_summary
 from ..matching import match
-from ..outputs import atomic_file, check_out_file, json_text
+from ..outputs import atomic_file, check_out_file, json_text, plural
 from .dataset import PatchSet, ValidationPair
 
 
@@ -188,9 +188,15 @@ def triplet_loss(a: torch.Tensor, p: torch.Tensor, n: torch.Tensor | None, margi
 
 
 class TripletSampler:
-    """Draws (anchor, positive, negative) patch indices: anchor and positive share an id."""
+    """Draws (anchor, positive, negative) patch indices: anchor and positive share an id.
 
-    def __init__(self, ids: np.ndarray, rng: np.random.Generator) -> None:
+    `distinct` (hardest mining, whose negatives are the batch's other points): a batch of two rows or
+    more always holds two surface points at least. With fewer points than rows the points are drawn
+    with replacement, and a batch drawn from one point only (half the batches of 2 rows on 2 points)
+    has its last row moved to another point: hardest mining found no negative in it, and its step's loss
+    was 0, with no gradient, without a word."""
+
+    def __init__(self, ids: np.ndarray, rng: np.random.Generator, distinct: bool = False) -> None:
         order = np.argsort(ids, kind="stable")
         sorted_ids = ids[order]
         starts = np.flatnonzero(np.r_[True, sorted_ids[1:] != sorted_ids[:-1]])
@@ -201,10 +207,13 @@ class TripletSampler:
             raise ValueError("data: need at least 2 surface points seen in 2 frames to form triplets")
         self.ids = ids
         self.rng = rng
+        self.distinct = distinct
 
     def sample(self, batch: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         rng = self.rng
         groups = rng.choice(len(self.starts), size=batch, replace=len(self.starts) < batch)
+        if self.distinct and batch >= 2 and (groups == groups[0]).all():  # one point: no negative in the batch
+            groups[-1] = (groups[0] + rng.integers(1, len(self.starts))) % len(self.starts)
         first = rng.integers(0, self.counts[groups])
         second = (first + rng.integers(1, self.counts[groups])) % self.counts[groups]
         a = self.order[self.starts[groups] + first]
@@ -315,7 +324,14 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
         start_epoch = state["epoch"] + 1
     if measure is not None:  # what "val_ms" is, in <out>.json and on the plot
         history["val_measure"] = measure
-    sampler = TripletSampler(data.ids, rng)
+    sampler = TripletSampler(data.ids, rng, distinct=config.mining == "hardest")
+    points = len(sampler.starts)
+    if config.mining == "hardest" and points < config.batch_size:
+        warnings.warn(f"mining: hardest takes each row's negative from the batch's other surface points, but the data "
+                      f"has {plural(points, 'surface point')} seen in 2 frames or more for batches of "
+                      f"{config.batch_size} triplets: every batch draws points more than once, and a row's hardest "
+                      f"negative is one of at most {points - 1} others; give more data (or --keypoints), a "
+                      f"batch_size (--batch-size) of at most {points}, or random mining", UserWarning, stacklevel=2)
     if overwrite and not resume:  # before the first checkpoint of this run (the `train` command removed them sooner)
         removed = remove_earlier_run(out)
         if removed and progress:
