@@ -100,7 +100,8 @@ def test_an_empty_weights_path_on_the_command_line_is_refused_as_empty(tmp_path,
     from geofeat.cli import main
     from geofeat.descriptors import check_descriptor_name
 
-    with pytest.raises(ValueError, match=r"^descriptor: 'geopatch=': an empty path; .*\(geopatch: the shipped weights\)"):
+    with pytest.raises(ValueError, match=r"^descriptor: 'geopatch=': an empty path; .*"
+                                         r"\(geopatch: the shipped weights\)"):
         check_descriptor_name("geopatch=")
     assert main(["train", "--data", str(tmp_path), "--out", str(tmp_path / "w.pt"), "--init", ""]) == 2
     assert "--init: an empty path; expected the path of a weights file (--init shipped: the shipped weights)" \
