@@ -153,11 +153,13 @@ def run(args: argparse.Namespace) -> int:
               "depth_profile": args.depth_profile, "net": args.net,
               "data_digests": [sequence_digest(f) for f in data_folders],
               "val": [[str(f.resolve()), sequence_digest(f)] for f in val_folders]}
-    if state is not None:  # what the checkpoint's run was trained on (`train` records it), with or without a cache
-        _check_resumed_source(checkpoint, state.get("source"), source, cache.is_file())
-    if args.resume and cache.is_file():
+    cached = args.resume and cache.is_file()
+    if cached:
         data = PatchSet.load(cache)
         _check_cached_source(cache, data.source, source)
+    if state is not None:  # what the checkpoint's run was trained on (`train` records it), with or without a cache
+        _check_resumed_source(checkpoint, state.get("source"), source, cached)
+    if cached:
         print(f"training patches: {len(data)} from {cache}")
     else:
         data = build(args.data, n_keypoints=args.keypoints)
