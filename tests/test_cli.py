@@ -470,7 +470,8 @@ def test_bench_reads_the_features_extract_wrote_for_an_upper_case_npz_name(small
     looked for F-<frame>.NPZ and refused the path: "does not exist (nor any F-<frame>.npz beside it...)"."""
     out = tmp_path / "F.NPZ"
     assert main(["extract", str(small_simulated), "--descriptor", "sift", "--keypoints", "64", "--out", str(out)]) == 0
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["F-frame-000-master.npz", "F-frame-001.npz",
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".geofeat-manifest.json",  # extract's files, recorded
+                                                          "F-frame-000-master.npz", "F-frame-001.npz",
                                                           "F.source.json"]  # the sequence they are features of
     assert main(["bench", str(small_simulated), "--descriptors", "sift", "--keypoints", "64",
                  "--features", f"x={out}", "--out", str(tmp_path / "bench")]) == 0

@@ -377,7 +377,8 @@ def test_bench_resume_refuses_results_of_sequences_not_given(tmp_path, capsys):
 
 def test_match_refuses_a_file_it_would_replace_before_any_pair_is_matched(tmp_path, capsys, monkeypatch):
     """An `extract` features file in the --out folder (features-orb.h5, which match writes too) was found
-    only when the results were moved into place, after every pair was matched."""
+    only when the results were moved into place, after every pair was matched; and the error called it
+    a file "geofeat did not write" (extract recorded nothing): it names the command that wrote it."""
     import geofeat.matching
 
     seq = make_sequence(tmp_path / "seq")
@@ -387,7 +388,8 @@ def test_match_refuses_a_file_it_would_replace_before_any_pair_is_matched(tmp_pa
     monkeypatch.setattr(geofeat.matching, "match", lambda *a, **k: matched.append(a))
     capsys.readouterr()
     assert main(["match", str(seq), "--descriptor", "orb", "--keypoints", "64", "--out", str(out), "--overwrite"]) == 2
-    assert "holds features-orb.h5, which geofeat did not write" in capsys.readouterr().err
+    assert ("holds features-orb.h5 (written by `geofeat extract`), which is not among the results geofeat wrote "
+            "there; --overwrite never replaces those") in capsys.readouterr().err
     assert matched == []
 
 
@@ -415,3 +417,123 @@ def test_simulate_refuses_a_contact_sheet_that_is_its_texture(tmp_path, capsys):
     assert main(argv) == 2
     assert "is the --texture image" in capsys.readouterr().err
     assert photo.read_bytes() == kept and not (tmp_path / "s").exists()
+
+
+# ---------------------------------------------------------------- only what the command wrote, never two runs
+def test_train_overwrite_never_removes_a_file_beside_the_weights_that_train_did_not_write(tmp_path):
+    """`train --out model --overwrite` removed model.json and model.png beside the weights (the files an
+    earlier run writes there) without asking whether `train` wrote them: a user's own model.json went."""
+    from geofeat.descriptors.geopatch import GeoPatchConfig
+    from geofeat.train.dataset import PatchSet
+    from geofeat.train.loop import TrainConfig, train
+
+    rng = np.random.default_rng(0)
+    base = rng.integers(0, 256, (40, 32, 32)).astype(np.uint8)
+    data = PatchSet(np.concatenate([base, 255 - base]), np.concatenate([np.arange(40), np.arange(40)]))
+    config = TrainConfig(epochs=1, steps_per_epoch=1, batch_size=8, net=GeoPatchConfig(channels=(4, 8, 8), dim=16))
+    (tmp_path / "model.json").write_text('{"mine": true}')
+    with pytest.raises(ValueError, match=r"model\.json exists, and `geofeat train` did not write it"):
+        train(data, tmp_path / "model", config, progress=False, device="cpu", overwrite=True)
+    assert (tmp_path / "model.json").read_text() == '{"mine": true}'
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.json"]
+    train(data, tmp_path / "weights", config, progress=False, device="cpu")  # its own files it replaces
+    (tmp_path / "weights.png").write_bytes(b"an earlier run's plot")
+    train(data, tmp_path / "weights", config, progress=False, device="cpu", overwrite=True)
+    assert (tmp_path / "weights.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_an_interrupted_demo_rerun_leaves_the_earlier_pictures_unmixed(tmp_path, monkeypatch):
+    """`geofeat demo` wrote its pictures one by one into --out: a rerun with another --angle stopped
+    before its last picture left the new rolled pair beside the earlier run's other pictures."""
+    from geofeat.cli import demo
+
+    out = tmp_path / "demo"
+    monkeypatch.setattr(demo, "_demo_deformed_pair", lambda *a: None)  # the simulated pair: not needed here
+    assert main(["demo", "--out", str(out), "--keypoints", "100"]) == 0
+    before = _listing(out)
+    assert sorted(before) == [".geofeat-manifest.json", "polar_patches.png", "rolled_pair_matches.png"]
+
+    def interrupted(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(demo, "_demo_deformed_pair", interrupted)
+    assert main(["demo", "--out", str(out), "--keypoints", "100", "--angle", "30"]) == 130
+    assert _listing(out) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["demo"]  # no temporary folder left
+
+
+def test_bench_resume_never_leaves_a_timing_table_without_the_descriptors_of_its_results(tmp_path, capsys,
+                                                                                          monkeypatch):
+    """A resumed bench without --timing kept the earlier timing.md, which lacked the descriptors added
+    since; with --timing it timed only the descriptors named this time, not those results.csv holds."""
+    import geofeat.bench.timing
+
+    timed = []
+    monkeypatch.setattr(geofeat.bench.timing, "timing_table",
+                        lambda frame, descriptors, *a, **k: timed.append(descriptors) or f"timed {descriptors}\n")
+    seq, other = make_sequence(tmp_path / "seq"), make_sequence(tmp_path / "other", seed=1)
+    out = tmp_path / "b"
+    bench = ["bench", "--keypoints", "64", "--out", str(out)]
+    assert main([*bench, str(seq), "--descriptors", "orb", "--timing"]) == 0
+    assert (out / "timing.md").is_file()
+    assert main([*bench, str(seq), "--descriptors", "orb,sift"]) == 0  # sift's rows added
+    assert not (out / "timing.md").exists() and "timing.md" not in json.loads((out / ".geofeat-manifest.json")
+                                                                               .read_text())["files"]
+    assert main([*bench, str(seq), "--descriptors", "orb"]) == 0  # nothing added: nothing to remove or time
+    assert main([*bench, str(seq), str(other), "--descriptors", "orb", "--timing"]) == 0
+    assert timed[-1] == ("orb", "sift") and (out / "timing.md").read_text() == "timed ('orb', 'sift')\n"
+
+
+def test_bench_resume_never_appends_to_a_results_csv_geofeat_did_not_write(tmp_path, capsys):
+    """A results.csv and config.json copied into a folder (no manifest listing them) were resumed: the
+    new rows were appended to the copy, and the copy then listed as geofeat's."""
+    seq, other = make_sequence(tmp_path / "seq"), make_sequence(tmp_path / "other", seed=1)
+    bench = ["bench", "--descriptors", "orb", "--keypoints", "64", "--out"]
+    assert main([*bench, str(tmp_path / "b"), str(seq)]) == 0
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    for name in ("results.csv", "config.json"):
+        shutil.copy(tmp_path / "b" / name, mine / name)
+    before = _listing(mine)
+    capsys.readouterr()
+    assert main([*bench, str(mine), str(seq), str(other)]) == 2
+    assert "holds results.csv, config.json, which geofeat did not write" in capsys.readouterr().err
+    assert _listing(mine) == before
+
+
+def test_bench_never_appends_rows_through_a_symbolic_link(tmp_path, capsys, monkeypatch):
+    """`append_line_durably` followed a results.csv that is a symbolic link, appending the rows to the
+    file it points to; a resumed bench with such a results.csv (listed as its own) did so."""
+    import geofeat.bench.runner as runner
+    from geofeat.outputs import append_line_durably
+
+    elsewhere = tmp_path / "elsewhere.csv"
+    elsewhere.write_text("a user's table\n")
+    (tmp_path / "link.csv").symlink_to(elsewhere)
+    with pytest.raises(ValueError, match=r"link\.csv is a symbolic link .*elsewhere\.csv"):
+        append_line_durably(tmp_path / "link.csv", "x,y\n")
+    assert elsewhere.read_text() == "a user's table\n"
+
+    seq, other = make_sequence(tmp_path / "seq"), make_sequence(tmp_path / "other", seed=1)
+    out = tmp_path / "b"
+    bench = ["bench", "--descriptors", "orb", "--keypoints", "64", "--out", str(out)]
+    assert main([*bench, str(seq)]) == 0
+    shutil.move(out / "results.csv", elsewhere)
+    (out / "results.csv").symlink_to(elsewhere)
+    before = elsewhere.read_text()
+    monkeypatch.setattr(runner, "_run_all", lambda *a: pytest.fail("a sequence was evaluated"))
+    capsys.readouterr()
+    assert main([*bench, str(seq), str(other)]) == 2
+    assert f"--out: {out / 'results.csv'} is a symbolic link" in capsys.readouterr().err
+    assert elsewhere.read_text() == before
+
+
+@pytest.mark.parametrize("name", ["frame-000-master-rgb.png", "frame-009-depth.png", "sheet-RGB.png", "sub/x-rgb.png"])
+def test_simulate_refuses_a_contact_sheet_named_as_a_frame_in_its_sequence_folder(tmp_path, capsys, name):
+    """`simulate S --contact-sheet S/frame-000-master-rgb.png` replaced that frame with the sheet after
+    the simulation; a sheet named <name>-rgb.png in S was read as a frame of its own."""
+    argv = ["simulate", str(tmp_path / "s"), "--frames", "2", "--width", "64", "--height", "48", "--texture",
+            "procedural", "--no-progress", "--contact-sheet", str(tmp_path / "s" / name)]
+    assert main(argv) == 2
+    assert "lies in the sequence folder" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []

@@ -112,7 +112,7 @@ def test_a_corrupt_patch_cache_is_one_error(tmp_path):
 def test_an_unfinished_runs_checkpoint_is_kept_without_resume_or_overwrite(tmp_path):
     """A run stopped after some epochs leaves w.pt.ckpt (to --resume from) but no w.pt: running again
     without --resume started anew and replaced the checkpoint, and the epochs it held, silently; so
-    were a w.pt.json or w.pt.png of the user's."""
+    were a w.pt.json or w.pt.png of the user's (and --overwrite replaces only files `train` wrote)."""
     config = TrainConfig(epochs=1, steps_per_epoch=1, batch_size=8, net=NET)
     for name in ("w.pt.ckpt", "w.pt.json", "w.pt.png"):
         folder = tmp_path / name
@@ -122,6 +122,9 @@ def test_an_unfinished_runs_checkpoint_is_kept_without_resume_or_overwrite(tmp_p
             train(_data(), folder / "w.pt", config, progress=False, device="cpu")
         assert (folder / name).read_bytes() == b"hours of training"
         assert sorted(p.name for p in folder.iterdir()) == [name]
+    with pytest.raises(ValueError, match="w.pt.json exists, and `geofeat train` did not write it"):
+        train(_data(), tmp_path / "w.pt.json" / "w.pt", config, progress=False, device="cpu", overwrite=True)
+    (tmp_path / "w.pt.json" / "w.pt.json").unlink()
     train(_data(), tmp_path / "w.pt.json" / "w.pt", config, progress=False, device="cpu", overwrite=True)
     assert load_network(tmp_path / "w.pt.json" / "w.pt")[0].config == NET
 

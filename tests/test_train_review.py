@@ -235,7 +235,7 @@ def test_an_interrupted_overwrite_run_leaves_no_earlier_weights_beside_its_check
     assert main(run + ["--overwrite"]) == 130
     assert written == [tmp_path / "w.pt.ckpt"]
     left = sorted(p.name for p in tmp_path.iterdir() if p.name != "sim")
-    assert left == ["w.pt.ckpt", "w.pt.patches.npz"], left
+    assert left == [".geofeat-manifest.json", "w.pt.ckpt", "w.pt.patches.npz"], left  # the manifest: train's files
     out = capsys.readouterr().out
     assert "removed the earlier run's" in out and "w.pt.json" in out
     monkeypatch.setattr(loop, "atomic_file", write)

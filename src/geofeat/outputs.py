@@ -8,6 +8,9 @@
 - An existing non-empty output folder is refused unless the user passes `--overwrite`
   (`check_out_dir`); `--overwrite` then removes only the files the manifest lists, never a file
   geofeat did not write.
+- A command that writes single files beside the user's (`train`'s weights and the files beside them,
+  `extract`'s features) records them apart in that folder's manifest (`record_written`,
+  `written_by`): its own rerun may replace them, no other command's `--overwrite` does.
 - Text results (csv, md, json) are written and read back as UTF-8 whatever the locale, as
   `append_line_durably` appends them: sequence names are folder names, which may be any letters.
 - An output folder that holds a sequence's frames or TPS ground truth is refused by every command but
@@ -59,22 +62,67 @@ def json_text(value, **kwargs) -> str:
     return json.dumps(clean(value), allow_nan=False, **kwargs)
 
 
-def read_manifest(folder: str | Path) -> list[str]:
-    """Relative paths of the files geofeat wrote into `folder` (empty when it has no readable manifest)."""
-    path = Path(folder) / MANIFEST
+def _manifest_data(folder: str | Path) -> dict:
+    """The manifest of `folder` as read (empty when it has none, or none that is a JSON object)."""
     try:
-        data = json.loads(path.read_text())
+        data = json.loads((Path(folder) / MANIFEST).read_text())
     except (OSError, ValueError):
-        return []
-    files = data.get("files", []) if isinstance(data, dict) else []
-    return [f for f in files if isinstance(f, str) and f and not Path(f).is_absolute() and ".." not in Path(f).parts]
+        return {}
+    return data if isinstance(data, dict) else {}
 
 
-def write_manifest(folder: str | Path, files: Iterable[str]) -> None:
-    """Record (atomically) that geofeat wrote `files` (paths relative to `folder`)."""
+def _inside(rel) -> bool:
+    """Whether a manifest entry is a relative path that stays inside its folder."""
+    return isinstance(rel, str) and bool(rel) and not Path(rel).is_absolute() and ".." not in Path(rel).parts
+
+
+def read_manifest(folder: str | Path) -> list[str]:
+    """Relative paths of the files geofeat wrote into `folder` as its result (empty when it has no
+    readable manifest); not the single files of `written_by`."""
+    files = _manifest_data(folder).get("files", [])
+    return [f for f in files if _inside(f)] if isinstance(files, list) else []
+
+
+def written_by(folder: str | Path) -> dict[str, str]:
+    """{file name: command} of the single files a command recorded in the manifest of `folder`
+    (`record_written`: `train`'s weights and the files beside them, `extract`'s features). They are
+    geofeat's, so the command that wrote them may replace them, but no part of a result folder there:
+    another command's `--overwrite` never replaces or removes them (`replace_folder` reads `files`)."""
+    entries = _manifest_data(folder).get("written_by", {})
+    if not isinstance(entries, dict):
+        return {}
+    return {rel: command for rel, command in entries.items() if _inside(rel) and isinstance(command, str)}
+
+
+def write_manifest(folder: str | Path, files: Iterable[str], written: dict[str, str] | None = None) -> None:
+    """Record (atomically) that geofeat wrote `files` (paths relative to `folder`) as the folder's
+    result; the single files of `written_by` are kept (`written`: they instead)."""
     folder = Path(folder)
+    written = written_by(folder) if written is None else written
+    data = {"generator": "geofeat", "files": sorted(set(files))}
+    if written:
+        data["written_by"] = dict(sorted(written.items()))
     with atomic_file(folder / MANIFEST) as tmp:
-        tmp.write_text(json.dumps({"generator": "geofeat", "files": sorted(set(files))}, indent=1))
+        tmp.write_text(json.dumps(data, indent=1))
+
+
+def record_written(paths: Iterable[str | Path], command: str) -> None:
+    """Record in the manifest of each file's folder that `geofeat <command>` writes the file (before
+    it writes it, so that an interrupted run is its own to replace): a command that writes single
+    files beside the user's (`train`, `extract`), not a result folder. See `written_by`."""
+    by_folder: dict[Path, list[str]] = {}
+    for path in map(Path, paths):
+        path = Path(os.path.abspath(path))
+        by_folder.setdefault(path.parent, []).append(path.name)
+    for folder, names in by_folder.items():
+        folder.mkdir(parents=True, exist_ok=True)
+        write_manifest(folder, read_manifest(folder), {**written_by(folder), **dict.fromkeys(names, command)})
+
+
+def was_written_by(path: str | Path, command: str) -> bool:
+    """Whether the manifest of the folder of `path` records that `geofeat <command>` wrote it (`record_written`)."""
+    path = Path(os.path.abspath(path))
+    return written_by(path.parent).get(path.name) == command
 
 
 def add_to_manifest(folder: str | Path, files: Iterable[str | Path]) -> None:
@@ -251,10 +299,16 @@ def foreign_clashes(folder: str | Path, files: Iterable[str]) -> list[str]:
 
 
 def _refuse_clashes(folder: Path, clashes: list[str], what: str) -> None:
-    if clashes:
-        raise ValueError(f"{what}: {folder} holds {', '.join(clashes[:5])}{', ...' if len(clashes) > 5 else ''}, "
-                         "which geofeat did not write; --overwrite never replaces those: move them away or choose "
-                         "another folder")
+    """ValueError naming the `clashes` (`foreign_clashes`) a result would replace in `folder`, and the
+    command that wrote each single file of geofeat's among them (`written_by`: `extract`'s features)."""
+    if not clashes:
+        return
+    by = written_by(folder)
+    listed = ", ".join(f"{rel} (written by `geofeat {by[rel]}`)" if rel in by else rel for rel in clashes[:5])
+    whose = (f"{'is' if len(clashes) == 1 else 'are'} not among the results geofeat wrote there"
+             if any(rel in by for rel in clashes) else "geofeat did not write")
+    raise ValueError(f"{what}: {folder} holds {listed}{', ...' if len(clashes) > 5 else ''}, which {whose}; "
+                     "--overwrite never replaces those: move them away or choose another folder")
 
 
 #: Files whose presence at the top of an input folder make it a folder of data read file by file
@@ -569,7 +623,10 @@ def remove_written(folder: str | Path) -> None:
         if _removable(folder, rel):
             (folder / rel).unlink()
             _prune_empty_parents(folder, rel)
-    (folder / MANIFEST).unlink(missing_ok=True)
+    if written_by(folder):  # the single files another command wrote there stay, and so does their record
+        write_manifest(folder, [])
+    else:
+        (folder / MANIFEST).unlink(missing_ok=True)
 
 
 def replace_folder(tmp: str | Path, out: str | Path) -> Path:
@@ -630,10 +687,14 @@ def output_folder(out: str | Path) -> Iterator[Path]:
 
 def append_line_durably(path: str | Path, text: str) -> None:
     """Append complete csv lines (`text` ends with a newline) in one write, then flush and fsync, so a
-    kill leaves either all of them or a torn tail that the reader drops."""
+    kill leaves either all of them or a torn tail that the reader drops. ValueError when `path` is a
+    symbolic link: the lines would go into whatever file it points to, perhaps one of the user's."""
     if not text.endswith("\n"):
         raise ValueError("text: must end with a newline")
-    fd = os.open(str(path), os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    if os.path.islink(path):  # and O_NOFOLLOW where there is one: no link made in between is followed either
+        raise ValueError(f"{path} is a symbolic link (to {os.readlink(path)}); geofeat appends only to a file of its "
+                         "own there: remove the link, or choose another folder")
+    fd = os.open(str(path), os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
     try:
         data = text.encode()
         written = 0

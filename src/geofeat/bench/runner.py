@@ -23,6 +23,7 @@ import csv
 import io
 import json
 import multiprocessing
+import os
 import time
 import traceback
 import warnings
@@ -40,7 +41,7 @@ from ..descriptors import OpenCVDescriptor, check_descriptor_name, make_descript
 from ..inputs import check_depth_scale, check_radius, check_tps_dir, check_whole, resolve_radius
 from ..io import Sequence, files_digest, find_sequences, frame_names, path_list, read_sequence, sequence_digest
 from ..outputs import (add_to_manifest, append_line_durably, atomic_file, check_out_dir, plural, read_manifest,
-                       refuse_input_folder)
+                       refuse_input_folder, write_manifest)
 from ..keypoints import Keypoints, check_detector_name, detect, resolve_keypoint_set
 from ..matching import match
 from ..features import Features
@@ -475,9 +476,14 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
     elif out.exists() and not out.is_dir():
         raise ValueError(f"out: {out} is a file, not a folder")
     else:  # a rerun (resumed or --overwrite) writes its reports again: never over a file of the user's there;
-        # --overwrite starts results.csv and config.json anew: never a copy the user put there (not in the
-        # manifest), which it replaced when its header was bench's, after advising "use --overwrite"
-        check_out_dir(out, True, files=OUTPUT_FILES if overwrite else REPORTS)
+        # --overwrite starts results.csv and config.json anew, a resumed run appends to results.csv and
+        # rewrites config.json: never a copy the user put there (not in the manifest), which --overwrite
+        # replaced when its header was bench's, and a resumed run appended to (and listed as geofeat's)
+        check_out_dir(out, True, files=OUTPUT_FILES)
+        if csv_path.is_symlink() and not overwrite:  # the rows would be appended to the file it points to
+            raise ValueError(f"--out: {csv_path} is a symbolic link (to {os.readlink(csv_path)}); a resumed bench "
+                             "appends only to a results.csv of its own: remove the link, or use --overwrite or "
+                             "another --out")
     short = [Path(f).name for f in folders if len(frame_names(f)) < 2]
     if short and len(short) == len(folders):  # nothing to evaluate: say so before writing config.json and results.csv
         raise ValueError(f"datasets: no sequence has a reference and a target frame ({plural(len(short), 'sequence')} "
@@ -501,6 +507,8 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
         todo = tuple(d for d in config.methods if (name, d) not in done)
         if todo:
             work.append((folder, todo))
+    if work:  # rows are added: an earlier timing.md (`geofeat bench --timing`) would lack their descriptors
+        _remove_timing(out, progress)
     skipped = len(folders) - len(work)
     if skipped and progress:
         tqdm.write(f"bench: {plural(skipped, 'sequence')} already in {csv_path}, skipped (--overwrite to redo)")
@@ -628,6 +636,19 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
                                    "sequence_digests": digests, "feature_digests": feature_digests}, indent=1), encoding="utf-8")
     add_to_manifest(out, ["results.csv", "config.json"])
     return done
+
+
+def _remove_timing(out: Path, progress: bool) -> None:
+    """Remove the timing.md that geofeat wrote in `out` (its manifest lists it), before rows are added
+    to results.csv: it timed the descriptors of the results as they were, and a resumed run, which
+    may add descriptors, writes it again only with --timing (it stayed, without those descriptors)."""
+    timing, ours = out / "timing.md", read_manifest(out)
+    if "timing.md" in ours and (timing.is_file() or timing.is_symlink()):
+        timing.unlink()
+        write_manifest(out, [rel for rel in ours if rel != "timing.md"])  # a file of that name is no longer ours
+        if progress:
+            tqdm.write(f"bench: removed {timing}, which timed the results before this run's "
+                       "(--timing times them all again)")
 
 
 def _read_from(folders: list[str]) -> dict[str, str]:

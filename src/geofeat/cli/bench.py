@@ -116,7 +116,11 @@ def run(args: argparse.Namespace) -> int:
         print("timing: every sequence failed; timing.md not written")
     if timed:
         seq = read_sequence(timed[0], depth_scale=args.depth_scale)
-        timing = timing_table(seq.frame(seq.reference), config.descriptors, resolve_radius(args.radius, seq),
+        # every descriptor of results.csv, those an earlier run scored too (a resumed run may name fewer)
+        external = set(config.methods) - set(config.descriptors)
+        described = tuple(dict.fromkeys([*config.descriptors, *(r["descriptor"] for r in rows
+                                                                if r["descriptor"] not in external)]))
+        timing = timing_table(seq.frame(seq.reference), described, resolve_radius(args.radius, seq),
                               depth_profile=sequence_depth_profile(seq, args.depth_profile), device=config.device)
         write(out / "timing.md", timing)
         print(timing)

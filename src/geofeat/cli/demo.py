@@ -22,7 +22,9 @@ def _profile_of(profile: str, frame) -> str:
     return depth_profile(frame) if profile == "auto" else profile
 
 
-def _demo_patches(out: Path, radius: float, profile: str) -> None:
+def _demo_patches(out: Path, radius: float, profile: str, into: Path | None = None) -> None:
+    """Picture the shipped Kinect frame's geodesic rings and polar patches as `out`/polar_patches.png,
+    written into the folder `into` (default `out`; `run` gives the temporary folder it moves into `out`)."""
     from ..depth import SLOPE_NOISE_THRESHOLD, depth_noise
     from ..geodesic.mesh import build_mesh
     from ..geodesic.polar import polar_patches
@@ -50,18 +52,20 @@ def _demo_patches(out: Path, radius: float, profile: str) -> None:
     print(f"geodesic polar patches: {plural(len(patches), 'keypoint')}, {patches.valid.sum()} valid, "
           f"radius {radius * 1000:.0f} mm, {t2 - t1:.3f} s (the first run compiles the numba kernels)")
     picture = side_by_side(draw_geodesic_support(frame, patches), patch_grid(patches, columns=8))
-    write_picture(out / "polar_patches.png", picture)
+    write_picture((into or out) / "polar_patches.png", picture)
     rings = "/".join(f"{mm:.0f}" for mm in ring_distances_mm(patches))
     size = "x".join(str(n) for n in patches.values.shape[1:])
     print(f"wrote {out / 'polar_patches.png'} (geodesic rings at {rings} mm, and the {size} polar patches)")
 
 
 def _demo_match_pair(out: Path, picture_name: str, frame0, frame1, k0, k1, truth: np.ndarray,
-                     names: list[str], profile: str, radius: float = DEFAULT_RADIUS_M) -> None:
+                     names: list[str], profile: str, radius: float = DEFAULT_RADIUS_M,
+                     into: Path | None = None) -> None:
     """Match frame0 -> frame1 with each descriptor on the same keypoints, print how many matches
     land within 3 px of `truth` (the true positions in frame 1 of k0, NaN = not visible), and save
-    the correct matches of the first two descriptors, one above the other. `radius`: the geodesic
-    radius of the geodesic descriptors, metres (the demo's --radius)."""
+    the correct matches of the first two descriptors, one above the other, as `out`/`picture_name`
+    (written into `into`, default `out`). `radius`: the geodesic radius of the geodesic descriptors,
+    metres (the demo's --radius)."""
     from ..descriptors import make_descriptor
     from ..matching import match
     from ..viz import draw_matches
@@ -87,11 +91,12 @@ def _demo_match_pair(out: Path, picture_name: str, frame0, frame1, k0, k1, truth
                                          np.ones(len(k0), bool), max_lines=200,
                                          title=f"{name}: {correct.sum()} correct"))
     path = out / picture_name
-    write_picture(path, np.concatenate(pictures, axis=0))
+    write_picture((into or out) / picture_name, np.concatenate(pictures, axis=0))
     print(f"wrote {path} (correct matches of {names[0]}, top, and {names[1]}, bottom)")
 
 
-def _demo_rolled_pair(out: Path, angle: float, n: int, profile: str, radius: float = DEFAULT_RADIUS_M) -> None:
+def _demo_rolled_pair(out: Path, angle: float, n: int, profile: str, radius: float = DEFAULT_RADIUS_M,
+                      into: Path | None = None) -> None:
     from ..frame import roll_camera
     from ..io import read_demo_frame
     from ..keypoints import detect
@@ -106,10 +111,11 @@ def _demo_rolled_pair(out: Path, angle: float, n: int, profile: str, radius: flo
     print(f"\nrolled pair: the Kinect frame vs the camera rolled by {angle:g} deg; SIFT keypoints "
           f"detected independently: {len(k0)} and {len(k1)}")
     _demo_match_pair(out, "rolled_pair_matches.png", frame0, frame1, k0, k1, truth, ["geobit", "orb"], profile,
-                     radius)
+                     radius, into)
 
 
-def _demo_deformed_pair(out: Path, n: int, profile: str, radius: float = DEFAULT_RADIUS_M) -> None:
+def _demo_deformed_pair(out: Path, n: int, profile: str, radius: float = DEFAULT_RADIUS_M,
+                        into: Path | None = None) -> None:
     from ..io import read_sequence
     from ..keypoints import detect
     from ..sim import simulate_sequence
@@ -124,7 +130,8 @@ def _demo_deformed_pair(out: Path, n: int, profile: str, radius: float = DEFAULT
     print(f"\nsimulated cloth: {folder} ({len(seq)} frames, wind-blown cloth and a rolling camera); "
           f"{seq.reference} vs {target}, SIFT keypoints {len(k0)} and {len(k1)}")
     _demo_match_pair(out, "simulated_pair_matches.png", frame0, frame1, k0, k1,
-                     np.where(visible[:, None], truth, np.nan), ["geopatch", "geobit", "orb", "sift"], profile, radius)
+                     np.where(visible[:, None], truth, np.nan), ["geopatch", "geobit", "orb", "sift"], profile, radius,
+                     into)
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -176,18 +183,21 @@ def kernels_compiled() -> bool:
 
 def run(args: argparse.Namespace) -> int:
     """`geofeat demo`: geodesic patches of the shipped Kinect frame, a rolled pair and a simulated cloth pair."""
-    from ..outputs import add_to_manifest
+    from ..outputs import output_folder
 
     out = Path(args.out)
     _check_demo_folder(out)
     if not kernels_compiled():  # a first run is silent for minutes while numba compiles: say so first
         print("first run: compiling geofeat's numba kernels (about a minute on a 2-core CPU; they are cached "
               "for later runs)", flush=True)
-    out.mkdir(parents=True, exist_ok=True)
-    add_to_manifest(out, DEMO_PICTURES)  # before writing, so that an interrupted demo can be rerun
-    _demo_patches(out, args.radius, args.depth_profile)
-    # --radius for the pairs' geodesic descriptors too (it reached only the patches picture, and GeoBit and
-    # GeoPatch matched at 0.075 m whatever it said)
-    _demo_rolled_pair(out, args.angle, args.keypoints, args.depth_profile, args.radius)
-    _demo_deformed_pair(out, args.keypoints, args.depth_profile, args.radius)
+    # the pictures are made in a temporary folder and moved in together at the end: written one by one into
+    # `out`, an interrupted rerun with another --angle left old and new pictures side by side
+    with output_folder(out) as tmp:
+        _demo_patches(out, args.radius, args.depth_profile, tmp)
+        # --radius for the pairs' geodesic descriptors too (it reached only the patches picture, and GeoBit and
+        # GeoPatch matched at 0.075 m whatever it said)
+        _demo_rolled_pair(out, args.angle, args.keypoints, args.depth_profile, args.radius, tmp)
+        # its sequence, simulated_cloth/, goes straight into `out` (as a folder of its own, whole or not at
+        # all): the same sequence whatever the options
+        _demo_deformed_pair(out, args.keypoints, args.depth_profile, args.radius, tmp)
     return 0

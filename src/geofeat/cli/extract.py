@@ -31,11 +31,11 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from ..depth import PROFILES, sequence_depth_profile
-    from ..features import save_features
+    from ..features import features_source_record, save_features
     from ..inputs import resolve_radius
     from ..io import read_sequence
     from ..outputs import (atomic_file, check_out_file, claim_output, clear_stale_partials, partial_name, plural,
-                           refuse_input_folder, signals_deferred)
+                           record_written, refuse_input_folder, signals_deferred)
 
     seq = read_sequence(args.folder, depth_scale=args.depth_scale)
     radius = resolve_radius(args.radius, seq)
@@ -88,6 +88,9 @@ def run(args: argparse.Namespace) -> int:
                                             if f.exists() or f.is_symlink()]
             if args.overwrite:
                 stale += [f for f in earlier_files(path, earlier) if f.name not in new and f not in stale]
+            # geofeat's files, so that a folder command names them as extract's (not "geofeat did not write")
+            record_written([path] if is_h5(path) else [*(final for _, final in written),
+                                                       features_source_record(path)], "extract")
             with signals_deferred():  # all the frames' files, or none: never this run's beside an earlier one's
                 for tmp, final in written:
                     os.replace(tmp, final)
@@ -113,8 +116,9 @@ def refuse_result_file(finals: list[Path]) -> None:
     """ValueError when one of the files `finals` that extract would write is listed in the manifest of
     its folder (`geofeat.outputs.read_manifest`): a file of another command's result folder, such as
     the features-<descriptor>.h5 that `geofeat match` writes beside the matches indexing its keypoints
-    (extract writes no manifest). Checked before "exists; pass --overwrite", which replaced it, and the
-    matches then pointed into another run's keypoints without a word."""
+    (extract records its own files apart, `geofeat.outputs.written_by`, which this does not read).
+    Checked before "exists; pass --overwrite", which replaced it, and the matches then pointed into
+    another run's keypoints without a word."""
     from ..outputs import MANIFEST, read_manifest
 
     for final in finals:

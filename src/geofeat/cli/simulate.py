@@ -55,6 +55,20 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
+def _refuse_sheet_among_frames(sheet: Path, out_dir: Path) -> None:
+    """ValueError when the contact sheet lies in the sequence folder `out_dir` (or a folder in it) under
+    a frame's file name (`<name>-rgb.png`, `<name>-depth.png`, in any case): written after the
+    simulation, it replaced that frame's picture, or was read as a frame of its own by every command
+    (and made its folder a sequence). Another name there (`OUT_DIR/sheet.png`) is fine."""
+    from ..io import DEPTH_SUFFIX, RGB_SUFFIX
+
+    inside = out_dir.resolve() in sheet.resolve().parents
+    if inside and sheet.name.lower().endswith((RGB_SUFFIX, DEPTH_SUFFIX)):
+        raise ValueError(f"--contact-sheet: {sheet} lies in the sequence folder {out_dir} under a frame's file name "
+                         f"(<name>{RGB_SUFFIX}, <name>{DEPTH_SUFFIX}): it would replace that frame's picture, or be "
+                         "read as a frame: name it otherwise (sheet.png), or write it outside the folder")
+
+
 def run(args: argparse.Namespace) -> int:
     """Run `simulate`; ValueError on bad input. Returns the exit code."""
     from ..sim.writer import simulate_sequence
@@ -72,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
             # before "exists; pass --overwrite to replace it", which replaced the user's photograph with the sheet
             raise ValueError(f"--contact-sheet: {args.contact_sheet} is the --texture image; the sheet would replace "
                              "it, with or without --overwrite: choose another name")
+        _refuse_sheet_among_frames(args.contact_sheet, args.out_dir)
         check_out_file(args.contact_sheet, args.overwrite, "--contact-sheet")
         if args.texture_dir is not None:  # the next simulation would draw the sheet as a cloth texture
             from ..outputs import refuse_input_folder

@@ -20,10 +20,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "one-way nearest-neighbour matches, not the benchmark's figure)")
     p.add_argument("--out", required=True, help="weights file to write (e.g. geopatch.pt)")
     p.add_argument("--overwrite", action="store_true",
-                   help="start anew over an earlier run: replace an existing OUT file (and OUT.ckpt, OUT.json, "
-                        "OUT.png, OUT.patches.npz); the earlier OUT, OUT.ckpt, OUT.json and OUT.png are removed "
-                        "when this run writes its first file, so an interrupted run leaves no earlier weights "
-                        "beside its own checkpoint")
+                   help="start anew over an earlier run: replace an existing OUT file (and the OUT.ckpt, OUT.json, "
+                        "OUT.png, OUT.patches.npz that `train` wrote; another file of those names is refused); the "
+                        "earlier OUT, OUT.ckpt, OUT.json and OUT.png are removed when this run writes its first "
+                        "file, so an interrupted run leaves no earlier weights beside its own checkpoint")
     p.add_argument("--epochs", type=whole_number(1), default=10, help="passes of --steps batches (default 10)")
     p.add_argument("--steps", type=whole_number(1), default=200, help="batches per epoch (default 200)")
     p.add_argument("--batch-size", type=whole_number(1), default=1000,
@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     from ..outputs import refuse_input_folder
     from ..train.dataset import PatchSet, build_patch_set, check_simulated, validation_pairs, warn_if_not_held_out
     from ..train.loop import (TrainConfig, check_augmentation, check_train_config, check_train_out, load_init,
-                              load_resume_state, remove_earlier_run, removed_line, train)
+                              load_resume_state, record_run_files, remove_earlier_run, removed_line, train)
 
     # the numbers are checked by their argparse types; one rule spans two options
     if args.mining == "hardest" and args.batch_size < 2:
@@ -168,6 +168,7 @@ def run(args: argparse.Namespace) -> int:
             removed = remove_earlier_run(args.out)
             if removed:
                 print(removed_line(removed))
+        record_run_files(args.out, also=(".patches.npz",))
         data.source = source
         data.save(cache)
         print(f"training patches: {len(data)} of {plural(len(np.unique(data.ids)), 'surface point')} "

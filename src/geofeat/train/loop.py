@@ -18,7 +18,7 @@ from ..descriptors.geopatch import GeoPatchConfig, GeoPatchNet, save_checkpoint
 from ..gpu import torch_device
 from ..inputs import check_non_negative, check_positive, check_whole, error_summary
 from ..matching import match
-from ..outputs import atomic_file, check_out_file, json_text, plural
+from ..outputs import MANIFEST, atomic_file, check_out_file, json_text, plural, record_written, was_written_by
 from .dataset import PatchSet, ValidationPair
 
 
@@ -90,9 +90,13 @@ def check_train_out(out: str | Path, overwrite: bool = False, resume: bool = Fal
     """The weights file `train` writes (`check_out_file`): an existing file is replaced only with
     `overwrite`, or with `resume` when its checkpoint `out`.ckpt exists (the run that wrote it). So are
     the files written beside it (`out`.ckpt, `out`.json, `out`.png, and the suffixes `also` of other
-    files a caller writes there, such as the `train` command's `out`.patches.npz), replaced only with
-    `overwrite` or `resume`: a run stopped after some epochs leaves its checkpoint, which a new run
-    would restart over."""
+    files a caller writes there and, resuming, reads back, such as the `train` command's
+    `out`.patches.npz), replaced only with `overwrite` or `resume`: a run stopped after some epochs
+    leaves its checkpoint, which a new run would restart over. Even then, an existing file beside `out`
+    is replaced (or removed) only when the folder's manifest records that `train` wrote it
+    (`record_run_files`): a model.json of the user's beside `--out model` was deleted by --overwrite.
+    Resuming, the checkpoint and the `also` files are read back as the earlier run's, and refused
+    when they are not (`load_resume_state`; the caller's checks), recorded or not."""
     out = Path(out)
     if out.suffix.lower() == ".onnx":  # the weights were written, then read as an ONNX model and refused
         raise ValueError(f"--out: {out}: `train` writes PyTorch weights, and a .onnx name is read as an ONNX model "
@@ -100,9 +104,15 @@ def check_train_out(out: str | Path, overwrite: bool = False, resume: bool = Fal
     check_out_file(out, overwrite or (resume and out.with_suffix(out.suffix + ".ckpt").is_file()))
     for beside in (*BESIDE, *also):
         path = Path(str(out) + beside)  # as `train` names them
-        if not (overwrite or resume) and (path.exists() or path.is_symlink()):
+        exists = path.exists() or path.is_symlink()
+        if not (overwrite or resume) and exists:
             raise ValueError(f"--out: {path} exists (an earlier run's?); pass --resume to continue that run, "
                              "--overwrite to start anew over it, or choose another name")
+        read_back = resume and beside in (".ckpt", *also)  # checked by content: an older geofeat recorded none
+        if exists and not read_back and not was_written_by(path, "train"):
+            raise ValueError(f"--out: {path} exists, and `geofeat train` did not write it (its folder's "
+                             f"{MANIFEST} does not list it); {'--resume' if resume else '--overwrite'} would "
+                             "replace it: move it away, or choose another --out")
         check_out_file(path, True)  # not a folder, not under a file
     return out
 
@@ -111,13 +121,23 @@ def check_train_out(out: str | Path, overwrite: bool = False, resume: bool = Fal
 BESIDE = (".ckpt", ".json", ".png")
 
 
+def record_run_files(out: str | Path, also: tuple[str, ...] = ()) -> None:
+    """Record in the manifest of the folder of `out` that `train` writes `out` and the files beside it
+    (`BESIDE`, and the suffixes `also`), before it writes the first: a rerun with --overwrite or
+    --resume replaces only recorded files (`check_train_out`)."""
+    record_written([Path(str(out) + beside) for beside in ("", *BESIDE, *also)], "train")
+
+
 def remove_earlier_run(out: str | Path) -> list[Path]:
     """Remove the files of an earlier run at `out` (`out` itself, `out`.ckpt, `out`.json, `out`.png),
     which an `overwrite` run replaces anyway: called when the new run writes its first file, so that
     one interrupted before its end leaves no earlier weights beside its own checkpoint, to be taken
-    for its result. Returns the paths removed (a symbolic link is removed, not what it points to)."""
+    for its result. A file beside `out` that `train` did not write (`record_run_files`) stays.
+    Returns the paths removed (a symbolic link is removed, not what it points to)."""
     removed = []
     for path in (Path(out), *(Path(str(out) + beside) for beside in BESIDE)):
+        if path != Path(out) and not was_written_by(path, "train"):
+            continue
         if path.is_file() or path.is_symlink():
             path.unlink()
             removed.append(path)
@@ -336,6 +356,7 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
         removed = remove_earlier_run(out)
         if removed and progress:
             tqdm.write(removed_line(removed))
+    record_run_files(out)
     net.train()
     for epoch in range(start_epoch, config.epochs):
         losses = []
