@@ -15,7 +15,7 @@ from types import SimpleNamespace
 
 import pytest
 import torch
-from cuda_simulator import run_simulated
+from cuda_simulator import SMALL_FRAME, run_simulated
 
 import geofeat.bench.runner
 import geofeat.bench.timing
@@ -208,20 +208,12 @@ def test_app_functions_refuse_a_device_no_descriptor_uses(sequences, tmp_path):
     assert not (tmp_path / "t").exists() and not (tmp_path / "r").exists()
 
 
-SIMULATED_DESCRIBER = r'''
-import cv2, numpy as np
+SIMULATED_DESCRIBER = SMALL_FRAME + r'''
 import geofeat.descriptors.describer as describer
 from geofeat.descriptors.geopatch import GeoPatch
-from geofeat.frame import RGBDFrame
 from geofeat.gpu import simulated
 from geofeat.keypoints import Keypoints
 assert simulated()
-H, W = 40, 48
-K = np.array([[300.0, 0, 23.5], [0, 300.0, 19.5], [0, 0, 1]])
-v, u = np.mgrid[0:H, 0:W].astype(float)
-depth = (1.0 + 0.05 * np.sin(u / 5.0) * np.cos(v / 6.0) + 0.002 * u).astype(np.float32)
-img = cv2.GaussianBlur(np.random.default_rng(0).random((H, W)).astype(np.float32), (0, 0), 1.5)
-frame = RGBDFrame((img - img.min()) / (img.max() - img.min()), depth, K)
 kps = Keypoints(np.array([[24.2, 20.3], [20.7, 17.1], [27.4, 22.6], [2.5, 3.5]]), np.full(4, 30.0), np.full(4, 8.0),
                 np.zeros(4))
 make, made = describer.make_descriptor, []

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cuda_simulator import run_simulated
+from cuda_simulator import SMALL_FRAME, run_simulated
 
 #: Tolerances of GPU against CPU. In the simulator the device functions run as Python on the same
 #: float64 operations as the njit build (math.sqrt/cos/sin are the same libm calls), so the results
@@ -101,21 +101,13 @@ def test_gpu_walk_equals_cpu_walk_in_cuda_simulator(tmp_path):
         assert np.nanmax(np.abs(c.astype(np.float64) - g)) <= 1e-5
 
 
-E2E_SCRIPT = r'''
-import cv2, numpy as np
+E2E_SCRIPT = SMALL_FRAME + r'''
 import geofeat
-from geofeat.frame import RGBDFrame
 from geofeat.descriptors.geobit import GeoBit
 from geofeat.descriptors.geopatch import GeoPatch
 from geofeat.gpu import compute_cuda, match_cuda, polar_patches_cuda, simulated
 from geofeat.matching import match
 assert simulated()
-H, W = 40, 48
-K = np.array([[300.0, 0, 23.5], [0, 300.0, 19.5], [0, 0, 1]])
-v, u = np.mgrid[0:H, 0:W].astype(float)
-depth = (1.0 + 0.05 * np.sin(u / 5.0) * np.cos(v / 6.0) + 0.002 * u).astype(np.float32)
-img = cv2.GaussianBlur(np.random.default_rng(0).random((H, W)).astype(np.float32), (0, 0), 1.5)
-frame = RGBDFrame((img - img.min()) / (img.max() - img.min()), depth, K)
 kps = [np.array([[24.2, 20.3], [20.7, 17.1], [27.4, 22.6], [2.5, 3.5]]),
        np.array([[23.8, 19.9], [21.1, 17.4], [26.9, 23.1], [30.2, 12.7]])]
 net = GeoPatch(device="cpu", backend="torch", depth_config="clean")
