@@ -1030,3 +1030,17 @@ def test_a_one_time_cost_of_the_first_description_is_in_no_pairs_extraction_time
     rows = runner.evaluate_sequence(datasets / "seqs" / "b-rotate", BenchConfig(descriptors=("orb",), n_keypoints=100))
     assert len(rows) == 2
     assert all(r["seconds_extract"] < 100.0 for r in rows), [r["seconds_extract"] for r in rows]
+
+
+@pytest.mark.parametrize("workers", [100000, 0, 2.5])
+def test_run_benchmark_refuses_a_worker_count_before_any_process_or_file(tmp_path, capsys, workers):
+    """`run_benchmark(workers=100000)` spawned processes until the machine ran out of memory (the CLI's
+    --workers had a lower bound only, the Python argument none)."""
+    with pytest.raises(ValueError, match=r"^workers: "):
+        run_benchmark(tmp_path / "nowhere", tmp_path / "out", BenchConfig(descriptors=("orb",)), workers=workers,
+                      progress=False)
+    assert not (tmp_path / "out").exists()
+    code = main(["bench", str(tmp_path / "nowhere"), "--descriptors", "orb", "--out", str(tmp_path / "out"),
+                 "--workers", "100000"])
+    assert code == 2 and not (tmp_path / "out").exists()
+    assert "workers: 100000 worker processes is far more" in capsys.readouterr().err

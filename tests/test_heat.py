@@ -336,3 +336,11 @@ def test_a_heat_time_far_below_the_default_is_warned_of():
         default = HeatGeodesics(mesh, t=h2).distance(src)  # the default itself, given: no warning
         HeatGeodesics(mesh, t=0.2 * h2)
     assert np.median(default[far] / E[far]) > 0.98
+
+
+@pytest.mark.parametrize("step", ["1", None, 0.0, float("nan")])
+def test_heat_polar_patches_refuses_a_step_that_is_no_positive_number(step):
+    """step_px="1" failed inside np.isfinite with a bare TypeError."""
+    frame = geofeat.read_demo_frame()
+    with pytest.raises(ValueError, match=r"^step_px: "):
+        heat_polar_patches(frame, np.array([[320.0, 240.0]]), step_px=step)

@@ -164,15 +164,15 @@ def check_weights_path(weights: Any, what: str = "weights", shipped: str = "None
 MAX_THREADS_PER_CPU = 64
 
 
-def check_threads(value: Any, what: str = "threads") -> int:
-    """A thread count: a whole number from 1 to `MAX_THREADS_PER_CPU` times `os.cpu_count()`;
-    ValueError naming `what` otherwise. `GeoPatch(threads=100000)` asked torch, ONNX Runtime or
-    OpenVINO for 100000 threads, which killed the process rather than raising an error."""
+def check_threads(value: Any, what: str = "threads", unit: str = "threads") -> int:
+    """A thread (or process: `unit`) count: a whole number from 1 to `MAX_THREADS_PER_CPU` times
+    `os.cpu_count()`; ValueError naming `what` otherwise. `GeoPatch(threads=100000)` asked torch, ONNX
+    Runtime or OpenVINO for 100000 threads, which killed the process rather than raising an error."""
     count = check_whole(value, what, 1)
     most = MAX_THREADS_PER_CPU * (os.cpu_count() or 1)
     if count > most:
-        raise ValueError(f"{what}: {count} threads is far more than this machine's {os.cpu_count() or 1} CPUs can run "
-                         f"(expected 1 to {most}, at most {MAX_THREADS_PER_CPU} per CPU; None: the default)")
+        raise ValueError(f"{what}: {count} {unit} is far more than this machine's {os.cpu_count() or 1} CPUs can run "
+                         f"(expected 1 to {most}, at most {MAX_THREADS_PER_CPU} per CPU)")
     return count
 
 

@@ -38,7 +38,7 @@ from tqdm import tqdm
 from ..constants import N_KEYPOINTS
 from ..depth import check_profile, sequence_depth_profile
 from ..descriptors import OpenCVDescriptor, check_descriptor_name, make_descriptor, refuse_repeated
-from ..inputs import check_depth_scale, check_radius, check_tps_dir, check_whole, resolve_radius
+from ..inputs import check_depth_scale, check_radius, check_threads, check_tps_dir, check_whole, resolve_radius
 from ..io import Sequence, files_digest, find_sequences, frame_names, path_list, read_sequence, sequence_digest
 from ..outputs import (add_to_manifest, append_line_durably, atomic_file, check_out_dir, plural, read_manifest,
                        refuse_input_folder, write_manifest)
@@ -457,6 +457,8 @@ def run_benchmark(datasets, out: str | Path, config: BenchConfig, workers: int =
     `out` without results.csv needs `overwrite`; files geofeat did not write are never replaced. Sequence names must be unique (results are keyed by them). Ctrl-C stops the
     run (KeyboardInterrupt) and leaves the finished rows in place. Returns the csv path and the names of failed sequences (with
     reasons printed)."""
+    # local processes: 100000 were spawned until the machine ran out of memory
+    workers = check_threads(workers, "workers", unit="worker processes")
     if scheduler:  # before any folder is written: a missing optional package is bad input, not a traceback
         try:
             import dask.distributed  # noqa: F401

@@ -493,8 +493,7 @@ def heat_polar_patches(
         step_px: sampling step along a line, mesh pixels.
     """
     kp = check_patch_request(frame, keypoints, radius, n_angles, n_rings)
-    if not (np.isfinite(step_px) and step_px > 0):
-        raise ValueError(f"step_px: must be a positive number of mesh pixels, got {step_px}")
+    step_px = check_positive(step_px, "step_px")  # "1" failed in np.isfinite with a bare TypeError
     if solver is not None:
         if mesh is not None and mesh is not solver.mesh:  # the solver's mesh was used, `mesh` ignored
             raise ValueError("mesh: differs from solver.mesh; give one of them, or a solver built on this mesh")
