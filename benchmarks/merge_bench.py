@@ -38,15 +38,20 @@ def run_settings(results: Path) -> dict:
 def check_mergeable(results: list[Path]) -> None:
     """ValueError, naming the runs and their values, when runs of the protocol detect differ in their
     keypoint count (`--keypoints`), or runs on one detector in their keypoint set (`--keypoint-set`):
-    their rows would be averaged into one column. Runs of the landmarks protocol describe the
+    their rows would be averaged into one column; or when runs ran on different devices (`--device`:
+    their timings would be mixed). Runs of the landmarks protocol describe the
     annotated landmarks, whatever these were."""
-    detect = {str(r): run_settings(r) for r in results}
-    detect = {r: s for r, s in detect.items() if s.get("protocol", "detect") == "detect"}
+    settings = {str(r): run_settings(r) for r in results}
+    detect = {r: s for r, s in settings.items() if s.get("protocol", "detect") == "detect"}
     counts = {r: s["n_keypoints"] for r, s in detect.items()}
     if len(set(map(str, counts.values()))) > 1:
         raise ValueError("results: runs made at different --keypoints would be averaged into one column: "
                          + ", ".join(f"{r} {n} keypoints" for r, n in counts.items())
                          + "; merge the runs of one keypoint count")
+    devices = {r: s.get("device") or "cpu" for r, s in settings.items()}  # None or unrecorded: a CPU run
+    if len(set(devices.values())) > 1:  # one table would average CPU and GPU extraction and matching times
+        raise ValueError("results: runs on different devices would mix their timings in one table: "
+                         + ", ".join(f"{r} {d}" for r, d in devices.items()) + "; merge the runs of one device")
     for detector in dict.fromkeys(s.get("detector") for s in detect.values()):
         sets = {r: s["keypoint_set"] for r, s in detect.items()
                 if s.get("detector") == detector and s.get("keypoint_set") is not None}  # recorded: not by older runs

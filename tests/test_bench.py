@@ -968,6 +968,9 @@ def test_merge_bench_refuses_runs_of_other_keypoint_counts(tmp_path, capsys, mon
     table = (tmp_path / "merged" / "table.md").read_text()
     assert table.splitlines()[0] == "| sequences | sift + geopatch | landmarks + geopatch |"
     assert "| all (1) | **0.500** | 0.300 |" in table
+    on_gpu = run("on_gpu", 1024, 0.5, device="cuda:0")  # a run of `geofeat bench --device cuda:0`
+    with pytest.raises(ValueError, match=f"different devices .*{small} cpu, {on_gpu} cuda:0"):
+        merge_bench.check_mergeable([Path(small), Path(on_gpu)])
     (tmp_path / "other" / "config.json").unlink()
     with pytest.raises(ValueError, match="cannot read .*other/config.json.*keypoint count is unknown"):
         merge_bench.check_mergeable([Path(small), Path(other)])
