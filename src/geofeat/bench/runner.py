@@ -546,10 +546,8 @@ def _open_results(out: Path, config: BenchConfig, overwrite: bool, progress: boo
     if csv_path.is_file():
         with open(csv_path, newline="", encoding="utf-8") as fh:
             header = next(csv.reader(fh), None)
-    if overwrite and header is not None and header != COLUMNS and "results.csv" not in read_manifest(out):
-        raise ValueError(f"out: {csv_path} is not a geofeat bench result (other columns); --overwrite never "
-                         "replaces a file geofeat did not write: choose another --out")
-    if resume and header == COLUMNS and "results.csv" in read_manifest(out) and not _finished(csv_path):
+    # (a results.csv geofeat did not write was refused before: `run_benchmark`'s `check_out_dir`)
+    if resume and header == COLUMNS and not _finished(csv_path):
         # no result there (every sequence of the earlier run failed, or it was stopped before its first):
         # nothing to keep, so other settings are no reason to refuse the folder ("holds results made with
         # other settings", asking for --overwrite)
