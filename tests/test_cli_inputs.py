@@ -537,3 +537,21 @@ def test_simulate_refuses_a_contact_sheet_named_as_a_frame_in_its_sequence_folde
     assert main(argv) == 2
     assert "lies in the sequence folder" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv, named", [
+    (["simulate", "", "--frames", "2"], "a positional argument"),
+    (["simulate", "sim", "--texture", ""], "--texture"),
+    (["simulate", "sim", "--texture="], "--texture"),
+    (["extract", "", "--out", "x"], "a positional argument"),
+])
+def test_an_empty_argument_is_refused_not_read_as_the_current_folder(tmp_path, monkeypatch, capsys, argv, named):
+    """`geofeat simulate "$OUT"` with OUT unset passed "", which `Path` reads as ".": the sequence was
+    written into the current folder. Every command refuses an empty value, naming where it was given."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert f"{named}: an empty value" in err
+    assert list(tmp_path.iterdir()) == []

@@ -43,6 +43,21 @@ def is_interrupt(error: BaseException) -> bool:
     return False
 
 
+def empty_argument(argv: list[str]) -> str | None:
+    """The option (or "a positional argument") given an empty string in `argv`, or None.
+
+    `geofeat simulate "$OUT"` with OUT unset passes "", which `Path` reads as the current folder; no
+    option of geofeat takes an empty value, so such an argument is refused before it is parsed."""
+    for i, token in enumerate(argv):
+        if token.startswith("--") and token.endswith("=") and len(token) > 3:
+            return token[:-1]
+        if token.strip() == "":
+            before = argv[i - 1] if i else ""
+            takes_value = before.startswith("-") and "=" not in before and not before.lstrip("-").isdigit()
+            return before if takes_value else "a positional argument"
+    return None
+
+
 #: Exit status of a run stopped by Ctrl-C (128 + SIGINT, as shells report it).
 EXIT_INTERRUPTED = 130
 
@@ -51,7 +66,13 @@ def main(argv: list[str] | None = None) -> int:
     """Run the command line: 0 success, 1 something was skipped or failed (named in the output),
     2 bad input (one-line error), 130 interrupted (finished results are kept)."""
     parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
     args, unknown = parser.parse_known_args(argv)
+    empty = empty_argument(argv)
+    if empty is not None:
+        commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        commands.choices[args.command].error(
+            f"{empty}: an empty value (an unset shell variable?); give a value, or leave the option out")
     if unknown:  # argparse reports them with the top-level usage, which lists the commands, not the command's options
         commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
         commands.choices[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")
