@@ -275,7 +275,7 @@ NOISE_KEYPOINT_SHARE = 0.2
 #: Keypoints looked at by `noise_corner_share` (evenly spaced in the list): enough for a share
 #: within about 5 per cent, a fraction of a millisecond.
 NOISE_CHECK_KEYPOINTS = 128
-#: ... and the noise level it compares them with is the median over every third pixel in each
+#: ... and the noise level it compares them with is the median over every fourth pixel in each
 #: direction (`noise_level`'s stride; within 1 % of the full median on the Kinect frame, pure noise and six
 #: simulated frames).
 NOISE_CHECK_STRIDE = 4
