@@ -92,6 +92,23 @@ def test_resume_refuses_a_corrupt_checkpoint_or_other_settings(tmp_path):
                   progress=False, device="cpu")
 
 
+def test_resume_refuses_other_patches_than_its_run(tmp_path):
+    """`train(other_data, out, resume=True)` from Python continued the run on patches it was not trained
+    on without a word (the `train` command compares its --data; Python callers had no check)."""
+    config = TrainConfig(epochs=2, steps_per_epoch=1, batch_size=8, net=NET)
+    train(_data(), tmp_path / "w.pt", config, progress=False, device="cpu")
+    other = _data()
+    other.patches = 255 - other.patches
+    with pytest.raises(ValueError, match=r"resume: .*w.pt.ckpt continues a run trained on other patches"):
+        train(other, tmp_path / "w.pt", config, resume=True, progress=False, device="cpu")
+    shuffled = _data()
+    shuffled.ids = shuffled.ids[::-1].copy()  # the same patches, other surface points
+    with pytest.raises(ValueError, match="other patches"):
+        train(shuffled, tmp_path / "w.pt", config, resume=True, progress=False, device="cpu")
+    resumed = train(_data(), tmp_path / "w.pt", config, resume=True, progress=False, device="cpu")
+    assert len(resumed["loss"]) == 2
+
+
 def test_resume_without_a_checkpoint_says_it_starts_from_the_first_epoch(tmp_path):
     """--resume with nothing to resume trained from scratch without a word (a typo in --out, or a run
     that had already finished and removed its checkpoint)."""

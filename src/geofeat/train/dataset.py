@@ -65,6 +65,17 @@ class PatchSet:
     def __len__(self) -> int:
         return len(self.ids)
 
+    def digest(self) -> str:
+        """Hex digest of the patches and their ids (shapes, dtypes and bytes): what `train` records in
+        its checkpoint, so that resuming on other patches is refused."""
+        import hashlib
+
+        h = hashlib.blake2b(digest_size=16)
+        for array in (np.ascontiguousarray(self.patches), np.ascontiguousarray(self.ids)):
+            h.update(f"{array.dtype.str}{array.shape}".encode())
+            h.update(memoryview(array).cast("B"))
+        return h.hexdigest()
+
 
 def _to_uint8(values: np.ndarray) -> np.ndarray:
     return np.clip(np.rint(values * 255), 0, 255).astype(np.uint8)

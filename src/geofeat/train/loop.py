@@ -299,7 +299,8 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
     """Train GeoPatchNet (or `net`, any module mapping (B, 1, H, W) patches to unit (B, dim)
     descriptors with a dataclass `config` holding `dim`, e.g. the image-patch baselines); writes
     `out` (final weights), `out`.ckpt (resumable state after every epoch, with `data.source`: what the
-    run trains on, which `geofeat train --resume` compares with its options), `out`.json (history) and
+    run trains on, which `geofeat train --resume` compares with its options, and `data.digest()`: `resume` on
+    other patches is a ValueError), `out`.json (history) and
     `out`.png (loss / validation plot). Returns the history. With `overwrite` (and not `resume`), an
     earlier run's `out` and files beside it are removed before the first epoch (`remove_earlier_run`). `init`: start GeoPatchNet from these
     weights ("shipped" = geofeat's own) instead of at random (fine-tuning; the network shape must
@@ -329,6 +330,7 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
     if resume and not ckpt_path.is_file():  # it started from the first epoch without a word
         warnings.warn(f"resume: no {ckpt_path} to resume from (no earlier run stopped here); training from the "
                       "first epoch", UserWarning, stacklevel=2)
+    patches_digest = data.digest()
     if resume and ckpt_path.is_file():
         state = load_resume_state(ckpt_path, config)
         try:
@@ -340,6 +342,12 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
         except Exception as error:  # noqa: BLE001 - another network's state, a missing key: one user error
             raise ValueError(f"resume: {ckpt_path} is not a checkpoint of this network written by `geofeat train` "
                              f"({error_summary(error)})") from None
+        recorded = state.get("patches_digest")  # None in checkpoints of an older geofeat
+        if recorded is not None and recorded != patches_digest:
+            raise ValueError(f"resume: {ckpt_path} continues a run trained on other patches than `data` "
+                             f"({len(data)} patches of {len(np.unique(data.ids))} surface points now): resume with "
+                             "the patches of that run (the same sequences and options, or its .patches.npz), or "
+                             "train anew")
         history = state["history"]
         start_epoch = state["epoch"] + 1
     if measure is not None:  # what "val_ms" is, in <out>.json and on the plot
@@ -393,7 +401,8 @@ def train(data: PatchSet, out: str | Path, config: TrainConfig = TrainConfig(),
             torch.save({"state_dict": net.state_dict(), "optimizer": opt.state_dict(),
                         "scheduler": sched.state_dict(), "rng": rng.bit_generator.state,
                         "torch_rng": torch.get_rng_state(), "history": history, "epoch": epoch,
-                        "source": data.source}, fh)  # what the run trains on: `geofeat train --resume` compares it
+                        "source": data.source,  # what the run trains on: `geofeat train --resume` compares it
+                        "patches_digest": patches_digest}, fh)  # and the patches themselves: `resume` compares them
     net.eval()
     with atomic_file(out) as tmp:
         save_checkpoint(tmp, net.cpu(), history=history)
