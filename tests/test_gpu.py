@@ -419,6 +419,11 @@ def test_match_cuda_checks_its_features(monkeypatch):
     nan[2, 5] = np.nan
     with pytest.raises(ValueError, match="features1 has NaN"):
         match_cuda(f, Features(np.zeros((6, 2)), nan, np.ones(6, bool)), mutual=True)
+    huge = d * np.float32(1e19)  # squared distances past float32: inf, and no keypoint matched, without a word
+    with pytest.raises(ValueError, match="features1 has a row of squared norm .*overflow"):
+        match_cuda(f, Features(np.zeros((6, 2)), huge, np.ones(6, bool)))
+    large = Features(np.zeros((6, 2)), d * np.float32(1e15), np.ones(6, bool))  # within float32's range
+    assert match_cuda(large, large).matches0.tolist() == list(range(6))
     masked = Features(np.zeros((6, 2)), nan, np.arange(6) != 2)  # NaN at an invalid keypoint is fine
     got = match_cuda(f, masked).matches0
     assert 2 not in got.tolist() and got.tolist() == match(f, masked).matches0.tolist()

@@ -726,6 +726,18 @@ def valid_descriptors_finite(d, v):
     return (torch.isfinite(d).flatten(1).all(1) | ~v).all()
 
 
+def valid_squared_norm(d, v):
+    """The largest squared L2 norm of a valid float (N, D) descriptor of `d` (valid flags `v`), in
+    float64, as a 0-d tensor on the device (0 for integer descriptors or none valid; inf or NaN where a
+    value is not finite, which `valid_descriptors_finite` reports)."""
+    import torch
+
+    if not d.dtype.is_floating_point or d.ndim != 2 or d.shape[0] == 0:
+        return torch.zeros((), dtype=torch.float64, device=d.device)
+    rows = torch.where(v.bool()[:, None], d.double(), 0.0)
+    return (rows * rows).sum(1).max()
+
+
 def match_cuda(features0, features1, mutual: bool = False, ratio: float | None = None, device="cuda") -> Matches:
     """`geofeat.match` on the GPU for `DeviceFeatures` (or host `Features`, uploaded): L2 for float
     descriptors (GeoPatch), min-over-rotations Hamming for uint8 (N, R, B) ones (GeoBit), Hamming
@@ -738,14 +750,23 @@ def match_cuda(features0, features1, mutual: bool = False, ratio: float | None =
     unpack, finite = functools.partial(features_on, dev=dev), valid_descriptors_finite
 
     def check_finite():  # one read back for both features
-        for which, ok in zip(("features0", "features1"), finite_flags.tolist()):
+        flags = finite_flags.tolist()
+        for which, ok in zip(("features0", "features1"), flags[:2]):
             if not ok:
                 raise ValueError(f"descriptors: {which} has NaN or infinite values at valid keypoints; mark them "
                                  "invalid or drop them")
+        # `check_l2_range`'s bound: the squared distances overflowed the search's float type to inf (no match)
+        largest = float(torch.finfo(torch.float64 if torch.float64 in (d0.dtype, d1.dtype) else torch.float32).max)
+        norm, which = max(zip(flags[2:], ("features0", "features1")))
+        if not 16.0 * norm < largest:
+            raise ValueError(f"descriptors: {which} has a row of squared norm {norm:.3g}: its squared L2 distances "
+                             f"(up to 16 times that) overflow the GPU search's float type; scale the descriptors "
+                             "down (divide them by their largest norm)")
 
     d0, v0 = unpack(features0, "features0")
     d1, v1 = unpack(features1, "features1")
-    finite_flags = torch.stack([finite(d0, v0), finite(d1, v1)])  # on the device: read after the search, whose
+    finite_flags = torch.stack([finite(d0, v0).double(), finite(d1, v1).double(),  # on the device: read after
+                                valid_squared_norm(d0, v0), valid_squared_norm(d1, v1)])  # the search, whose
     # results come back anyway, so that the check adds no wait of its own
     check_match_options(ratio, mutual)  # as `geofeat.match` checks them
     if d0.shape[1:] != d1.shape[1:]:
