@@ -402,6 +402,25 @@ def test_a_sequence_folder_whose_frames_are_not_read_is_refused_not_left_out(tmp
     assert find_sequences(data) == [good]
 
 
+@pytest.mark.parametrize("colour, depth", [("frame-002-rgb.PNG", "frame-002-depth.PNG"),
+                                          ("frame-002-RGB.png", "frame-002-DEPTH.png"), ("frame-002-rgb.jpg", None)])
+def test_a_frame_of_a_read_sequence_saved_under_another_extension_is_refused_not_left_out(tmp_path, colour, depth):
+    """One frame of a sequence saved as `.PNG` (or `-RGB.png`; or as `.jpg` without its depth), beside
+    frames read: `read_sequence` read the others and left that frame out without a word, so `track`
+    jumped over it and `bench` scored one pair fewer."""
+    folder = _small_sequence(tmp_path / "seq")
+    image = cv2.imread(str(folder / "frame-001-rgb.png"))
+    cv2.imwrite(str(folder / colour), image)
+    if depth is not None:
+        shutil.copy(folder / "frame-001-depth.png", folder / depth)
+    with pytest.raises(ValueError, match=rf"folder: .*seq holds colour frames geofeat does not read \({colour}\) "
+                                         r"beside its '\*-rgb.png' frames"):
+        geofeat.read_sequence(folder)
+    (folder / colour).unlink()
+    cv2.imwrite(str(folder / "frame-001-rgb.jpg"), image)  # a copy of a frame read (a preview) leaves nothing out
+    assert geofeat.read_sequence(folder).names == ["frame-000-master", "frame-001"]
+
+
 @pytest.mark.parametrize("key", ["depthScale", "depth_unit", "scale", "depth-scale", "Radius_m"])
 def test_geofeat_json_key_misspelt_is_refused(tmp_path, key):
     """{"depthScale": 0.0001} was ignored: 0.1 mm depth read as millimetres, a scene at 1 m at 10 m,

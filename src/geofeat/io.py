@@ -127,6 +127,16 @@ def _near_misses(folder: Path, suffix: str) -> list[Path]:
             and p.stem.lower().endswith(stem)]
 
 
+def unread_frames(folder: Path, names: list[str]) -> list[Path]:
+    """The colour files of `folder` named like a frame but for the extension's case or kind
+    (`_near_misses`: `frame-003-rgb.PNG`, `frame-003-RGB.png`, `frame-003-rgb.jpg`) whose frame is not
+    among the frame `names` read: frames `read_sequence` would leave out. A copy of a read frame in
+    another format (`frame-001-rgb.jpg` beside `frame-001-rgb.png`) is not one."""
+    stem = len(RGB_SUFFIX.rsplit(".", 1)[0])  # '-rgb'
+    read = set(names)
+    return [p for p in _near_misses(folder, RGB_SUFFIX) if p.stem[:-stem] not in read]
+
+
 def layout_problem(folder: Path) -> str:
     """Why `folder` holds no `*-rgb.png` frame, from what it holds instead: colour files of another
     type (`-rgb.jpg`), images not named `<name>-rgb.png`, sub-folders (`rgb/`, `depth/`), or nothing;
@@ -703,6 +713,11 @@ def read_sequence(folder: str | Path, depth_scale: float | None = None) -> Seque
     colourless = sorted(set(frame_names(folder, DEPTH_SUFFIX)) - set(names), key=natural_key)
     if colourless:  # such a frame was left out without a word
         raise ValueError(f"folder: frames without '{RGB_SUFFIX}' in {folder}: {colourless[:5]}")
+    unread = unread_frames(folder, names)
+    if unread:  # `frame-003-rgb.PNG` beside `frame-002-rgb.png`: the sequence was read without it, no word said
+        raise ValueError(f"folder: {folder} holds colour frames geofeat does not read ({_listing(unread)}) beside "
+                         f"its '*{RGB_SUFFIX}' frames: colour frames must be PNG files named exactly <name>{RGB_SUFFIX}; "
+                         "rename them (and their depth PNGs), or move them out of the sequence folder")
     refs = [n for n in names if is_reference_name(n)]
     if len(refs) > 1:
         raise ValueError(f"folder: {folder} has several reference frames ({', '.join(refs[:5])}); "
