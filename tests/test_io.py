@@ -217,6 +217,9 @@ def test_write_intrinsics_refuses_what_read_intrinsics_cannot_read(tmp_path):
     ("x,y,id,valid\n10,20,0,1\n", "header .x,y,id,valid. names the columns in another order"),
     ("# X, Y, ID, valid\n10, 20, 0, 1\n", "names the columns in another order"),  # id 10 at (20, 0)
     ("id,row,col,valid\n0,20,10,1\n", "header 'id,row,col,valid' names the columns in another order"),  # (20, 10)
+    ("id,v,u,valid\n0,20,10,1\n", "header 'id,v,u,valid' names the columns in another order"),  # (20, 10)
+    ("id,y_px,x_px,valid\n0,20,10,1\n", "names the columns in another order"),  # a unit after the name
+    ("id, Pixel Row, Pixel Col, valid\n0,20,10,1\n", "names the columns in another order"),
     ("id,x,y,occluded\n0,10,20,0\n1,30,40,1\n", "names a flag that is 1 where the landmark is hidden"),  # inverted
     ("# id, x, y, Hidden\n0,10,20,0\n", "names a flag that is 1 where the landmark is hidden"),
 ])
@@ -228,7 +231,8 @@ def test_landmark_csv_that_was_read_as_something_else(tmp_path, text, message):
 
 def test_landmark_csv_layouts_still_read(tmp_path):
     for text in ("# id, x, y, valid\n0, 245, 202, 1\n\n1\t3.5\t-1\t0\n", "id,x,y,valid\r\n0,245,202,1,\r\n1,3.5,-1,0\r\n",
-                 "id, Column, Row, valid\n0,245,202,1\n1,3.5,-1,0\n"):
+                 "id, Column, Row, valid\n0,245,202,1\n1,3.5,-1,0\n", "id,u,v,valid\n0,245,202,1\n1,3.5,-1,0\n",
+                 "id, x (px), y (px), v\n0,245,202,1\n1,3.5,-1,0\n"):  # v, last: a visibility flag
         (tmp_path / "f.csv").write_text(text)
         ids, xy, visible = read_landmarks(tmp_path / "f.csv")
         assert ids.tolist() == [0, 1] and xy.tolist() == [[245, 202], [3.5, -1]] and visible.tolist() == [True, False]

@@ -489,8 +489,21 @@ def _csv_fields(line: str) -> list[str]:
     return line.split()
 
 
-#: Landmark csv header names that mean a coordinate: a row is y, a column x.
-_HEADER_SYNONYMS = {"row": "y", "rows": "y", "col": "x", "cols": "x", "column": "x", "columns": "x"}
+#: Landmark csv header names that mean a coordinate: a row is y, a column x; u, v are x, y (image
+#: coordinates as OpenCV and ROS name them), as px, py are.
+_HEADER_SYNONYMS = {"row": "y", "rows": "y", "r": "y", "col": "x", "cols": "x", "column": "x", "columns": "x",
+                    "c": "x", "u": "x", "v": "y", "px": "x", "py": "y"}
+
+
+def _column_name(field: str) -> str:
+    """What a landmark csv header `field` names, in geofeat's words (`id`, `x`, `y`, or the field in
+    lower case): quotes, a leading `#`, a unit (`x_px`, `x (pixels)`) and an image prefix (`pixel_x`,
+    `image_u`) left out, then `_HEADER_SYNONYMS` (`row` is y, `u` is x)."""
+    name = field.strip(" #\"'").lower()
+    if name not in _HEADER_SYNONYMS:
+        name = re.sub(r"[\s_-]*[(\[]?(px|pixels?)[)\]]?$", "", name)  # a unit after the name
+        name = re.sub(r"^(pixel|image|img)[\s_-]+", "", name)  # an image prefix before it
+    return _HEADER_SYNONYMS.get(name, name)
 
 
 #: Names of a last csv column that flags hidden landmarks, the opposite of `valid`.
@@ -523,8 +536,8 @@ def read_landmarks(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
         if first is not None and len(first) == 4:
             raise ValueError(f"landmarks: {path}: the first line {lines[0].strip()!r} is a landmark, not a header; "
                              "the csv needs a header line such as 'id,x,y,valid'")
-        # a header in rows and columns names y first: 'id,row,col,valid' is 'id,y,x,valid'
-        columns = [_HEADER_SYNONYMS.get(c, c) for c in (t.strip(" #\"'").lower() for t in _csv_fields(lines[0]))]
+        # a header in rows and columns names y first: 'id,row,col,valid' is 'id,y,x,valid'; 'id,v,u,valid' too
+        columns = [_column_name(t) for t in _csv_fields(lines[0])]
         if any(name in columns and columns.index(name) != i for i, name in enumerate(("id", "x", "y"))):
             # the header is not otherwise read: 'id,y,x,valid' swapped x and y without a word
             raise ValueError(f"landmarks: {path}: the header {lines[0].strip()!r} names the columns in another "
