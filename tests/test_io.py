@@ -736,6 +736,28 @@ def test_lens_distortion_beside_the_intrinsics_is_not_dropped_without_a_word(tmp
         read_intrinsics(tmp_path / "intrinsics.xml")
 
 
+@pytest.mark.parametrize("extra, node, values", [
+    ("<k1>0.2</k1><k2>-0.5</k2><p1>0.001</p1><p2>0.</p2>", "nodes 'k1, k2, p1, p2'", r"\[0.2, -0.5, 0.001, 0.0\]"),
+    ('<kc type_id="opencv-matrix"><rows>5</rows><cols>1</cols><dt>d</dt><data>0.2 -0.5 0 0 0</data></kc>', "node 'kc'",
+     r"\[0.2, -0.5, 0.0, 0.0, 0.0\]"),  # the MATLAB calibration toolbox's name
+])
+def test_lens_distortion_as_single_numbers_or_under_kc_is_not_dropped_without_a_word(tmp_path, extra, node, values):
+    """Coefficients written one number a node (`k1`, `k2`, `p1`, `p2`, as ORB-SLAM's and Kalibr's settings
+    hold them) or under `kc` beside the camera matrix were ignored without the warning a `D` node gets."""
+    matrix = ('<intrinsics type_id="opencv-matrix"><rows>3</rows><cols>3</cols><dt>d</dt><data>525 0 319.5 0 525 '
+              '239.5 0 0 1</data></intrinsics>')
+    path = tmp_path / "intrinsics.xml"
+    path.write_text(f'<?xml version="1.0"?>\n<opencv_storage>\n{matrix}\n{extra}\n</opencv_storage>\n')
+    with pytest.warns(UserWarning, match=rf"intrinsics.xml holds lens distortion coefficients \({node}: {values}\), "
+                                         "which geofeat does not apply"):
+        K = read_intrinsics(path)
+    assert K[0, 0] == 525.0
+    path.write_text(f'<?xml version="1.0"?>\n<opencv_storage>\n{matrix}\n<k1>0.</k1><k2>0</k2>\n</opencv_storage>\n')
+    with warnings.catch_warnings():  # zero coefficients: undistorted frames, nothing to say
+        warnings.simplefilter("error")
+        read_intrinsics(path)
+
+
 def test_depth_pixels_at_the_16_bit_maximum_are_read_as_missing(tmp_path):
     """A sensor's no-data code 65535 was read as 65.5 m: with most of the frame valid the median passed,
     and the smoothing mixed those pixels into the surface beside them (17 % of the Kinect frame's mesh

@@ -175,8 +175,9 @@ def read_intrinsics(path: str | Path, shape: tuple[int, int] | None = None) -> n
     ValueError naming the file when the node is missing (naming the nodes it has) or holds no 3x3
     opencv-matrix (saying what it holds: a 3x4 matrix, nine plain numbers, ...), or one stored in an
     integer type (`dt` u, c, s, w, i) that changed the file's numbers (8 bits clip fx = 525 to 255).
-    Non-zero lens distortion coefficients in the file (a node named `D` or `*dist*`) warn: geofeat
-    projects as a pinhole and does not apply them.
+    Non-zero lens distortion coefficients in the file (a node named `D`, `kc` or `*dist*`, or single
+    numbers `k1`..`k6`, `p1`, `p2`: `_distortion`) warn: geofeat projects as a pinhole and does not
+    apply them.
 
     `shape`: (H, W) pixels of the frames the matrix is for (`read_frame` and `read_sequence` pass it);
     an image size the file records (`image_width` / `image_height`, as OpenCV's calibration writes, or
@@ -207,8 +208,7 @@ def read_intrinsics(path: str | Path, shape: tuple[int, int] | None = None) -> n
             if node.isMap():  # the numbers as the file writes them, before OpenCV casts them to its dt
                 written, dt = _node_numbers(node.getNode("data")), node.getNode("dt").string()
         nodes = list(fs.root().keys())
-        distortion = {name: values for name in nodes if name.lower() == "d" or "dist" in name.lower()
-                      for values in [_node_numbers(fs.getNode(name))] if values is not None and values.any()}
+        distortion = _distortion(fs, nodes)
         recorded = _recorded_size(fs, nodes)
     finally:
         fs.release()
@@ -218,7 +218,7 @@ def read_intrinsics(path: str | Path, shape: tuple[int, int] | None = None) -> n
             _check_recorded_size(recorded, shape, path)
         if distortion:  # every projection in geofeat is a pinhole's: the coefficients were dropped without a word
             name, values = next(iter(distortion.items()))
-            warnings.warn(f"intrinsics_path: {path} holds lens distortion coefficients (node '{name}': "
+            warnings.warn(f"intrinsics_path: {path} holds lens distortion coefficients (node{'s' * (', ' in name)} '{name}': "
                           f"{np.round(values, 4).tolist()}), which geofeat does not apply: it reads frames as pinhole "
                           "images. Undistort the colour and depth first (cv2.undistort; nearest-neighbour for depth) "
                           "and drop the node, or drop it if the frames are undistorted already", UserWarning,
@@ -229,6 +229,31 @@ def read_intrinsics(path: str | Path, shape: tuple[int, int] | None = None) -> n
                          f"{_INTRINSICS_HINT}")
     holds = f" (its nodes: {', '.join(nodes[:5])}; rename the camera matrix's to 'intrinsics')" if nodes else ""
     raise ValueError(f"intrinsics_path: {path} has no 3x3 matrix under the node 'intrinsics'{holds}")
+
+
+#: The name of a top-level node holding one lens distortion coefficient (`k1`, `p2`; ORB-SLAM's `Camera.k1`).
+_COEFFICIENT_NODE = re.compile(r"(?:.*\.)?(?:k[1-6]|p[12])")
+
+
+def _distortion(fs, nodes: list[str]) -> dict[str, np.ndarray]:
+    """{node name(s): non-zero coefficients} of the lens distortion an open OpenCV FileStorage `fs`
+    records in its top-level `nodes`: a matrix or list named `D`, `kc` (the MATLAB calibration toolbox)
+    or `*dist*` (`distortion_coefficients`, `dist_coeffs`, `RadialDistortion`), and single numbers named
+    `k1`..`k6`, `p1`, `p2` (gathered under one key, `"k1, k2, p1"`). Zero ones (undistorted frames) are
+    left out."""
+    found = {}
+    for name in nodes:
+        key = name.lower()
+        if key in ("d", "kc") or "dist" in key:
+            values = _node_numbers(fs.getNode(name))
+            if values is not None and values.any():
+                found[name] = values
+    single = [n for n in nodes if _COEFFICIENT_NODE.fullmatch(n.lower())
+              and (fs.getNode(n).isReal() or fs.getNode(n).isInt())]
+    values = np.array([fs.getNode(n).real() for n in single])
+    if values.any():
+        found[", ".join(single)] = values
+    return found
 
 
 def _check_stored_exactly(K: np.ndarray, written: np.ndarray | None, dt: str, path: Path) -> None:
