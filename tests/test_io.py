@@ -654,6 +654,22 @@ def test_tenth_millimetre_depth_read_as_millimetres_is_warned_of(tmp_path):
         geofeat.read_sequence(_flat_sequence(tmp_path / "far-kinect", 3.5))
 
 
+def test_depth_in_the_tum_benchmarks_units_read_as_millimetres_is_told_its_own_reading(tmp_path):
+    """Depth PNGs of 5000 units a metre (TUM RGB-D, ICL-NUIM, ETH3D SLAM) read as millimetres put the
+    Kinect frame's cloth (median 0.98 m) at 4.89 m; the warning's only reading was tenths of a millimetre,
+    0.49 m, and with depth_scale=0.0001 the sequence was read at half its depth without another word."""
+    from geofeat.inputs import DepthUnitsWarning
+
+    src = demo_data_dir()
+    metres = read_depth(src / "cloud_1-depth.png")
+    cv2.imwrite(str(tmp_path / "cloud_1-depth.png"), np.rint(metres * 5000).astype(np.uint16))
+    for name in ("cloud_1-rgb.png", "intrinsics.xml"):
+        shutil.copy(src / name, tmp_path / name)
+    with pytest.warns(DepthUnitsWarning, match=r"median depth 4.89 m .*farther than usual.*as fifths of a millimetre "
+                                               r"\(5000 a metre, as TUM RGB-D stores depth\) 0.98 m \(depth_scale=0.0002\)"):
+        geofeat.read_sequence(tmp_path)
+
+
 @pytest.mark.parametrize("text", ["", "\n\n", " \t\n"])
 def test_an_empty_landmark_csv_is_refused_not_read_as_no_landmarks(tmp_path, text):
     """A csv cut to nothing (a failed copy) read as a frame with no landmarks: bench --protocol landmarks

@@ -190,8 +190,11 @@ def _median_depth(depth_m: np.ndarray) -> float | None:
     return float(np.median(valid)) if valid.size else None
 
 
-#: The units depth maps come in, with their depth scales (metres per unit), for `unit_readings`.
-DEPTH_UNITS = (("millimetres", 0.001), ("centimetres", 0.01), ("tenths of a millimetre", 0.0001))
+#: The units depth maps come in, with their depth scales (metres per unit), for `unit_readings`: 5000 a
+#: metre is the TUM RGB-D benchmark's (and ICL-NUIM's, ETH3D's); without it, such a scene at 1 m read as
+#: millimetres (5 m) was given the tenths of a millimetre's reading, 0.5 m, which no check then questioned.
+DEPTH_UNITS = (("millimetres", 0.001), ("centimetres", 0.01), ("tenths of a millimetre", 0.0001),
+               ("fifths of a millimetre (5000 a metre, as TUM RGB-D stores depth)", 0.0002))
 
 
 def unit_readings(raw_median: float, bounds: tuple[float, float] = PLAUSIBLE_MEDIAN_DEPTH_M,
