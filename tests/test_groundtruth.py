@@ -185,6 +185,35 @@ def test_resume_keeps_the_sequences_an_interrupted_run_finished(tmp_path, capsys
     assert "frames or landmarks changed since" in capsys.readouterr().err
 
 
+def test_groundtruth_reads_the_depth_at_the_depth_scale_it_is_given(tmp_path, capsys):
+    """`groundtruth` had no --depth-scale, though its depth-units warning advised one: 0.1 mm depth PNGs
+    without a geofeat.json were read as millimetres, 10x too far, and the object mask (depths within
+    --depth-margin metres of the landmarks') cut off the cloth's near and far edges. A --resume at
+    another depth scale is refused, as one with other settings is."""
+    from geofeat.inputs import DepthUnitsWarning
+
+    folder = _write_pair(tmp_path / "seq", _grid_landmarks(3))
+    ramp = np.broadcast_to(1.0 + 0.1 * np.arange(W) / W, (H, W))  # a cloth sloping away, 1.0-1.1 m
+    for name in ("frame-000-master", "frame-001"):
+        cv2.imwrite(str(folder / f"{name}-depth.png"), np.rint(ramp / 1e-4).astype(np.uint16))
+    args = ["groundtruth", str(folder), "--no-refine", "--no-progress", "--out"]
+    with pytest.warns(DepthUnitsWarning, match=r"median depth 10.\d m .*farther than usual"):
+        assert main(args + [str(tmp_path / "in-mm")]) == 0
+    mask = tmp_path / "in-mm" / "seq" / "frame-000-master_objmask.png"
+    assert not (cv2.imread(str(mask), cv2.IMREAD_GRAYSCALE) > 0).all()
+    out = tmp_path / "out"
+    args += [str(out)]
+    assert main(args + ["--depth-scale", "0.0001"]) == 0
+    mask = out / "seq" / "frame-000-master_objmask.png"  # the margins reach past every pixel: all of it is the object
+    assert (cv2.imread(str(mask), cv2.IMREAD_GRAYSCALE) > 0).all()
+    assert json.loads((out / "seq" / "report.json").read_text())["depth_scale"] == 0.0001
+    capsys.readouterr()
+    assert main(args + ["--depth-scale", "0.0002", "--resume"]) == 2
+    assert "another depth scale (0.0001 m per unit there, 0.0002 now)" in capsys.readouterr().err
+    assert main(args + ["--depth-scale", "0.0001", "--resume"]) == 0
+    assert "kept 1 sequence finished by an earlier run: seq" in capsys.readouterr().out
+
+
 def test_resume_does_not_keep_a_folder_whose_files_a_killed_run_had_not_all_moved_in(tmp_path, capsys):
     """`replace_folder` moves the files in one by one, in name order, and report.json sorts before the
     files of a frame named after "report" ("view-001_theta.npy"): a run killed (SIGKILL) in between left

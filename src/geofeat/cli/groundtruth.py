@@ -7,7 +7,7 @@ import math
 from pathlib import Path
 
 from ..outputs import plural
-from .options import number_at_least
+from .options import depth_scale_option, number_at_least
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -32,6 +32,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help=f"object mask: pixels beyond the landmarks' convex hull (default {DEFAULT_MARGIN_PX:g})")
     p.add_argument("--depth-margin", type=number_at_least(0), default=DEFAULT_DEPTH_MARGIN_M,
                    help=f"object mask: metres beyond the landmarks' depth range (default {DEFAULT_DEPTH_MARGIN_M:g})")
+    depth_scale_option(p)  # the depth-units warning advises it, and the object mask keeps depths by metres
     again = p.add_mutually_exclusive_group()
     again.add_argument("--overwrite", action="store_true",
                        help="replace what geofeat wrote in existing OUT/<sequence> folders (other files stay)")
@@ -64,8 +65,9 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--out: {args.out} is a file, not a folder")
     refuse_input_folder(args.out, [*args.sequences, *folders])  # resumed or not; each OUT/<sequence> below too
     done = []  # sequences an earlier run finished (--resume)
+    sequences = {}
     for folder in folders:  # every input and output is checked before the first frame is refined
-        seq = read_sequence(folder)
+        seq = sequences[folder] = read_sequence(folder, depth_scale=args.depth_scale)
         check_sequence(seq, config)
         if args.resume and finished_result(args.out / folder.name, seq, config):
             done.append(folder)
@@ -84,7 +86,8 @@ def run(args: argparse.Namespace) -> int:
         if folder in done:
             continue
         out = args.out / folder.name
-        reports = generate_ground_truth(folder, out, config, progress=not args.no_progress, overwrite=args.overwrite)
+        reports = generate_ground_truth(sequences[folder], out, config, progress=not args.no_progress,
+                                        overwrite=args.overwrite)
         ok = [r for r in reports if r.status == "ok"]
         bad = [r for r in reports if r.status != "ok"]
         if ok:

@@ -31,7 +31,8 @@ import numpy as np
 
 from ..frame import RGBDFrame
 from ..imagequality import ssim_map
-from ..inputs import check_landmarks
+from ..constants import DEPTH_SCALE_M
+from ..inputs import check_landmarks, read_config
 from ..io import RGB_SUFFIX, Sequence, read_image, read_landmarks, read_sequence, sequence_digest
 from ..outputs import GROUND_TRUTH, check_out_dir, json_text, output_folder, read_manifest, write_picture
 from .defaults import DEFAULT_DEPTH_MARGIN_M, DEFAULT_MARGIN_PX, DEFAULT_SPACING_PX
@@ -461,7 +462,8 @@ def generate_ground_truth(sequence: str | Path | Sequence, out: str | Path, conf
     """Dense ground truth of one annotated sequence, written to the folder `out` (see the module docstring).
 
     Args:
-        sequence: a sequence folder in the public layout with a landmark csv per frame, or a `Sequence`.
+        sequence: a sequence folder in the public layout with a landmark csv per frame, or a `Sequence`
+            (`read_sequence(folder, depth_scale=...)` for depth PNGs in other units than geofeat.json says).
         out: output folder (created; built aside and moved into place at the end; an existing non-empty
             folder needs `overwrite`, which replaces only what geofeat wrote there); the bench reads it as `--tps-dir` when it is named like the sequence
             or sits in a folder given as `--tps-dir`.
@@ -554,7 +556,8 @@ def _write_report(out: Path, seq: Sequence, config: GroundTruthConfig, reports: 
         # the folder in full: `finished_result` compares it with the folder a --resume run names (the
         # same sequence given as "seq" here and "/data/seq" there was refused as another sequence)
         {"sequence": str(Path(seq.folder).resolve()), "sequence_digest": sequence_digest(seq.folder), "reference": seq.reference,
-         "config": asdict(config), "frames": rows}, indent=1, default=float), encoding="utf-8")
+         "depth_scale": seq.depth_scale, "config": asdict(config), "frames": rows}, indent=1, default=float),
+        encoding="utf-8")
 
 
 def _same_folder(recorded, folder: Path) -> bool:
@@ -566,10 +569,12 @@ def _same_folder(recorded, folder: Path) -> bool:
 def finished_result(out: str | Path, seq: Sequence, config: GroundTruthConfig) -> bool:
     """Whether the folder `out` holds this sequence's finished ground truth made with `config` (its
     report.json, written last and listed in the folder's manifest, names the same sequence folder, the
-    same files (`io.sequence_digest`) and the same settings): `geofeat groundtruth --resume` skips it.
+    same files (`io.sequence_digest`), the same depth scale (`seq.depth_scale`) and the same settings):
+    `geofeat groundtruth --resume` skips it.
     False when `out` holds no finished result. ValueError, naming what differs, when it holds one made
-    from another sequence, from files changed since, or with other settings, or one whose files are not
-    all there (a run killed while moving them in left report.json without the frames' files)."""
+    from another sequence, from files changed since, at another depth scale or with other settings, or
+    one whose files are not all there (a run killed while moving them in left report.json without the
+    frames' files)."""
     out = Path(out)
     report = out / "report.json"
     listed = read_manifest(out)
@@ -590,6 +595,12 @@ def finished_result(out: str | Path, seq: Sequence, config: GroundTruthConfig) -
                            f"not {seq.folder}")
     elif made.get("sequence_digest") not in (None, sequence_digest(seq.folder)):
         differences.append("the sequence's frames or landmarks changed since")
+    # the object mask keeps depths within metres of the landmarks': a --depth-scale changes it; a report
+    # without one was made at the folder's own scale (its geofeat.json's, which the digest covers)
+    own = read_config(seq.folder).get("depth_scale", DEPTH_SCALE_M)
+    scale = made.get("depth_scale", own) if isinstance(made, dict) else None
+    if scale != seq.depth_scale and not differences:
+        differences.append(f"another depth scale ({scale} m per unit there, {seq.depth_scale:g} now)")
     there = made.get("config") if isinstance(made, dict) else None
     now = json.loads(json_text(asdict(config)))  # as report.json holds it: lists for tuples, null for NaN
     if there != now and not differences:
