@@ -384,10 +384,33 @@ DEPTH_NO_DATA = 65535
 _warned_no_data: set[str] = set()
 
 
+#: A uint16 depth map whose byte-swapped values step between neighbouring pixels this many times less
+#: than its own is byte-swapped (`read_depth`): a smooth surface's steps are a few units, and swapping
+#: the bytes makes each unit a step of 256.
+BYTE_SWAP_SMOOTHER = 10.0
+
+
+def _neighbour_steps(raw: np.ndarray) -> tuple[float, float] | None:
+    """(as stored, byte-swapped): the mean absolute difference, in depth-PNG units, between
+    horizontally neighbouring pixels that both hold a depth (not 0, not `DEPTH_NO_DATA`), on every
+    4th row of the (H, W) uint16 `raw`; None when fewer than 100 such pairs are there."""
+    rows = raw[::4].astype(np.int32)
+    known = (rows > 0) & (rows != DEPTH_NO_DATA)
+    pairs = known[:, 1:] & known[:, :-1]
+    if pairs.sum() < 100:
+        return None
+    swapped = raw[::4].byteswap().astype(np.int32)
+    # the mean, not the median: most neighbours of a quantised depth map are equal, swapped or not
+    return tuple(float(np.mean(np.abs(np.diff(a, axis=1))[pairs])) for a in (rows, swapped))
+
+
 def read_depth(path: str | Path, depth_scale: float = DEPTH_SCALE_M) -> np.ndarray:
     """Read a 16-bit depth PNG as (H, W) float32 metres (value * depth_scale; 0 = missing). Pixels
     holding 65535 (`DEPTH_NO_DATA`) are read as missing too, with a warning once per folder: read as
-    65.5 m they passed the median check and the smoothing mixed them into the surface beside them."""
+    65.5 m they passed the median check and the smoothing mixed them into the surface beside them.
+    A depth map whose two bytes are swapped (`_neighbour_steps`: far smoother swapped back) is a
+    ValueError: read as stored, its depths were noise with a plausible median (48.6 m for the Kinect
+    frame's 0.7-1.1 m), which only warned."""
     path = _existing(path, "depth_path")
     # ANYCOLOR keeps the channels: IMREAD_ANYDEPTH alone turns a 3-channel 16-bit PNG into its luminance;
     # the stored pixels, not turned by an EXIF orientation tag (`read_image`)
@@ -402,6 +425,14 @@ def read_depth(path: str | Path, depth_scale: float = DEPTH_SCALE_M) -> np.ndarr
     if raw.dtype == np.uint8:
         raise ValueError(f"depth_path: {path} is 8-bit; depth must be a 16-bit PNG")
     check_depth_scale(depth_scale, "depth_scale")
+    if raw.dtype == np.uint16:
+        steps = _neighbour_steps(raw)
+        if steps is not None and steps[1] * BYTE_SWAP_SMOOTHER < steps[0]:
+            raise ValueError(f"depth_path: {path}: its 16-bit values are a depth map only with their two bytes swapped "
+                             f"(neighbouring pixels differ by {steps[0]:.0f} units on average as stored, {steps[1]:.0f} "
+                             "swapped): written least significant byte first, where PNG stores the most significant "
+                             "first? Write it again from the native uint16 array (array.byteswap() of the one read) with "
+                             "cv2.imwrite, or with geofeat.write_frame from metres")
     no_data = raw == DEPTH_NO_DATA if raw.dtype == np.uint16 else None
     if no_data is not None and no_data.any():
         raw = np.where(no_data, 0, raw)
