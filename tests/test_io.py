@@ -604,6 +604,21 @@ def test_intrinsics_under_another_node_name_it(tmp_path):
         read_intrinsics(tmp_path / "intrinsics.xml")
 
 
+@pytest.mark.parametrize("text", [
+    '<?xml version="1.0"?>\n<opencv_storage>\n<fx>525.</fx><fy>524.5</fy><cx>319.5</cx><cy>239.5</cy>\n</opencv_storage>\n',
+    "%YAML:1.0\n---\nCamera.fx: 525.0\nCamera.fy: 524.5\nCamera.cx: 319.5\nCamera.cy: 239.5\nCamera.k1: 0.0\n",
+])
+def test_intrinsics_as_single_numbers_say_how_to_write_the_matrix(tmp_path, text):
+    """fx, fy, cx, cy as single nodes (as ORB-SLAM's settings hold them): the error advised renaming
+    "the camera matrix's" node to 'intrinsics', and the file holds no matrix to rename."""
+    (tmp_path / "intrinsics.xml").write_text(text)
+    with pytest.raises(ValueError, match=r"intrinsics.xml holds fx, fy, cx, cy as single numbers, not the 3x3 matrix "
+                                         r".*write_intrinsics\(path, \[\[525, 0, 319.5\], \[0, 524.5, 239.5\], "
+                                         r"\[0, 0, 1\]\]\)") as error:
+        read_intrinsics(tmp_path / "intrinsics.xml")
+    assert "rename" not in str(error.value)
+
+
 def test_an_exif_orientation_tag_does_not_turn_the_colour_away_from_its_depth(tmp_path):
     """OpenCV's imread turns a PNG by its EXIF orientation tag (an eXIf chunk, kept by photo tools and by
     PIL's save(exif=...)): the colour of a frame was read rotated 180 degrees against its depth, its

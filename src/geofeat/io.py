@@ -210,6 +210,7 @@ def read_intrinsics(path: str | Path, shape: tuple[int, int] | None = None) -> n
         nodes = list(fs.root().keys())
         distortion = _distortion(fs, nodes)
         recorded = _recorded_size(fs, nodes)
+        pinhole = _pinhole_numbers(fs, nodes)
     finally:
         fs.release()
     if K is not None and np.asarray(K).shape == (3, 3):
@@ -227,8 +228,23 @@ def read_intrinsics(path: str | Path, shape: tuple[int, int] | None = None) -> n
     if held is not None:  # "rename the camera matrix's node to 'intrinsics'" was the advice for it too
         raise ValueError(f"intrinsics_path: {path}: its node 'intrinsics' holds {held}, not a 3x3 opencv-matrix; "
                          f"{_INTRINSICS_HINT}")
+    if pinhole is not None:  # "rename the camera matrix's node" was the advice, and there is no matrix to rename
+        fx, fy, cx, cy = pinhole
+        raise ValueError(f"intrinsics_path: {path} holds fx, fy, cx, cy as single numbers, not the 3x3 matrix under the "
+                         "node 'intrinsics' that geofeat reads; write it with geofeat.write_intrinsics(path, "
+                         f"[[{fx:g}, 0, {cx:g}], [0, {fy:g}, {cy:g}], [0, 0, 1]])")
     holds = f" (its nodes: {', '.join(nodes[:5])}; rename the camera matrix's to 'intrinsics')" if nodes else ""
     raise ValueError(f"intrinsics_path: {path} has no 3x3 matrix under the node 'intrinsics'{holds}")
+
+
+def _pinhole_numbers(fs, nodes: list[str]) -> tuple[float, float, float, float] | None:
+    """(fx, fy, cx, cy) pixels where an open OpenCV FileStorage `fs` holds them as single numbers in its
+    top-level `nodes` (any case; ORB-SLAM's `Camera.fx` too), None otherwise."""
+    named = {name.lower().rsplit(".", 1)[-1]: fs.getNode(name) for name in nodes}
+    found = [named.get(key) for key in ("fx", "fy", "cx", "cy")]
+    if not all(node is not None and (node.isReal() or node.isInt()) for node in found):
+        return None
+    return tuple(float(node.real()) for node in found)
 
 
 #: The name of a top-level node holding one lens distortion coefficient (`k1`, `p2`; ORB-SLAM's `Camera.k1`).
