@@ -220,6 +220,7 @@ def test_write_intrinsics_refuses_what_read_intrinsics_cannot_read(tmp_path):
     ("id,v,u,valid\n0,20,10,1\n", "header 'id,v,u,valid' names the columns in another order"),  # (20, 10)
     ("id,y_px,x_px,valid\n0,20,10,1\n", "names the columns in another order"),  # a unit after the name
     ("id, Pixel Row, Pixel Col, valid\n0,20,10,1\n", "names the columns in another order"),
+    ("id,y_coord,x_coord,valid\n0,20,10,1\n", "names the columns in another order"),
     ("id,x,y,occluded\n0,10,20,0\n1,30,40,1\n", "names a flag that is 1 where the landmark is hidden"),  # inverted
     ("# id, x, y, Hidden\n0,10,20,0\n", "names a flag that is 1 where the landmark is hidden"),
 ])

@@ -567,14 +567,21 @@ _HEADER_SYNONYMS = {"row": "y", "rows": "y", "r": "y", "col": "x", "cols": "x", 
                     "c": "x", "u": "x", "v": "y", "px": "x", "py": "y"}
 
 
+#: A coordinate's name in a landmark csv header, after `_column_name` took off its decorations.
+_AXIS = r"(x|y|u|v|r|c|rows?|cols?|columns?)"
+
+
 def _column_name(field: str) -> str:
     """What a landmark csv header `field` names, in geofeat's words (`id`, `x`, `y`, or the field in
-    lower case): quotes, a leading `#`, a unit (`x_px`, `x (pixels)`) and an image prefix (`pixel_x`,
-    `image_u`) left out, then `_HEADER_SYNONYMS` (`row` is y, `u` is x)."""
+    lower case): quotes, a leading `#`, a unit (`x_px`, `x (pixels)`), a word before a coordinate's
+    name (`pixel_x`, `kp_row`) and one after it (`x_coord`, `y_pos`) left out, then `_HEADER_SYNONYMS`
+    (`row` is y, `u` is x)."""
     name = field.strip(" #\"'").lower()
-    if name not in _HEADER_SYNONYMS:
-        name = re.sub(r"[\s_-]*[(\[]?(px|pixels?)[)\]]?$", "", name)  # a unit after the name
-        name = re.sub(r"^(pixel|image|img)[\s_-]+", "", name)  # an image prefix before it
+    if name in _HEADER_SYNONYMS:  # 'px' is x, not a unit
+        return _HEADER_SYNONYMS[name]
+    name = re.sub(r"[\s_-]*[(\[]?(px|pixels?)[)\]]?$", "", name)  # a unit after the name
+    name = re.sub(rf"^[a-z]+[\s_-]+(?={_AXIS}$)", "", name)  # 'pixel_x', 'image u', 'kp-row'
+    name = re.sub(rf"^{_AXIS}[\s_-]*(coord(inate)?s?|pos(ition)?)$", r"\1", name)  # 'x_coord', 'y pos'
     return _HEADER_SYNONYMS.get(name, name)
 
 
