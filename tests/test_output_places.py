@@ -179,7 +179,7 @@ def test_json_reports_are_json_without_nan(tmp_path):
     history = _strict_json(tmp_path / "w ü.pt.json")
     assert history["val_ms"] == [None] and isinstance(history["loss"][0], float)
 
-    seq = SimpleNamespace(folder=tmp_path / "tücher 1", reference="frame-000-master")
+    seq = SimpleNamespace(folder=tmp_path / "tücher 1", reference="frame-000-master", depth_scale=0.001)
     seq.folder.mkdir()  # report.json records the digest of its files
     failed = FrameReport("frame-001", status="failed", reason="too few landmarks", ssim_before=np.float32("nan"))
     _write_report(tmp_path, seq, GroundTruthConfig(), [FrameReport("frame-002", ssim_before=0.5), failed])

@@ -127,7 +127,7 @@ def _near_misses(folder: Path, suffix: str) -> list[Path]:
             and p.stem.lower().endswith(stem)]
 
 
-def unread_frames(folder: Path, names: list[str]) -> list[Path]:
+def _unread_frames(folder: Path, names: list[str]) -> list[Path]:
     """The colour files of `folder` named like a frame but for the extension's case or kind
     (`_near_misses`: `frame-003-rgb.PNG`, `frame-003-RGB.png`, `frame-003-rgb.jpg`) whose frame is not
     among the frame `names` read: frames `read_sequence` would leave out. A copy of a read frame in
@@ -219,7 +219,8 @@ def read_intrinsics(path: str | Path, shape: tuple[int, int] | None = None) -> n
             _check_recorded_size(recorded, shape, path)
         if distortion:  # every projection in geofeat is a pinhole's: the coefficients were dropped without a word
             name, values = next(iter(distortion.items()))
-            warnings.warn(f"intrinsics_path: {path} holds lens distortion coefficients (node{'s' * (', ' in name)} '{name}': "
+            where = f"node{'s' if ', ' in name else ''} '{name}'"  # single numbers: "nodes 'k1, k2'"
+            warnings.warn(f"intrinsics_path: {path} holds lens distortion coefficients ({where}: "
                           f"{np.round(values, 4).tolist()}), which geofeat does not apply: it reads frames as pinhole "
                           "images. Undistort the colour and depth first (cv2.undistort; nearest-neighbour for depth) "
                           "and drop the node, or drop it if the frames are undistorted already", UserWarning,
@@ -805,7 +806,7 @@ def read_sequence(folder: str | Path, depth_scale: float | None = None) -> Seque
     colourless = sorted(set(frame_names(folder, DEPTH_SUFFIX)) - set(names), key=natural_key)
     if colourless:  # such a frame was left out without a word
         raise ValueError(f"folder: frames without '{RGB_SUFFIX}' in {folder}: {colourless[:5]}")
-    unread = unread_frames(folder, names)
+    unread = _unread_frames(folder, names)
     if unread:  # `frame-003-rgb.PNG` beside `frame-002-rgb.png`: the sequence was read without it, no word said
         raise ValueError(f"folder: {folder} holds colour frames geofeat does not read ({_listing(unread)}) beside "
                          f"its '*{RGB_SUFFIX}' frames: colour frames must be PNG files named exactly <name>{RGB_SUFFIX}; "
