@@ -408,7 +408,8 @@ def test_a_sequence_folder_whose_frames_are_not_read_is_refused_not_left_out(tmp
 
 
 @pytest.mark.parametrize("colour, depth", [("frame-002-rgb.PNG", "frame-002-depth.PNG"),
-                                          ("frame-002-RGB.png", "frame-002-DEPTH.png"), ("frame-002-rgb.jpg", None)])
+                                          ("frame-002-RGB.png", "frame-002-DEPTH.png"), ("frame-002-rgb.jpg", None),
+                                          ("frame-002_rgb.png", "frame-002_depth.png")])
 def test_a_frame_of_a_read_sequence_saved_under_another_extension_is_refused_not_left_out(tmp_path, colour, depth):
     """One frame of a sequence saved as `.PNG` (or `-RGB.png`; or as `.jpg` without its depth), beside
     frames read: `read_sequence` read the others and left that frame out without a word, so `track`

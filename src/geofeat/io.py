@@ -120,16 +120,17 @@ def _listing(paths: list[Path], limit: int = 3) -> str:
 
 
 def _near_misses(folder: Path, suffix: str) -> list[Path]:
-    """Non-hidden files of `folder` named like `<name><suffix>` but for the extension's case or kind
-    (`frame-0-rgb.jpg`, `frame-0-depth.tiff`, `frame-0-rgb.PNG`): a frame geofeat does not read."""
-    stem = suffix.rsplit(".", 1)[0].lower()  # '-rgb'
+    """Non-hidden files of `folder` named like `<name><suffix>` but for the extension's case or kind,
+    or an underscore for the hyphen (`frame-0-rgb.jpg`, `frame-0-depth.tiff`, `frame-0-rgb.PNG`,
+    `frame_0_rgb.png`): a frame geofeat does not read."""
+    word = suffix.rsplit(".", 1)[0].lower().lstrip("-")  # 'rgb'
     return [p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".") and not p.name.endswith(suffix)
-            and p.stem.lower().endswith(stem)]
+            and p.stem.lower().endswith((f"-{word}", f"_{word}"))]
 
 
 def _unread_frames(folder: Path, names: list[str]) -> list[Path]:
     """The colour files of `folder` named like a frame but for the extension's case or kind
-    (`_near_misses`: `frame-003-rgb.PNG`, `frame-003-RGB.png`, `frame-003-rgb.jpg`) whose frame is not
+    (`_near_misses`: `frame-003-rgb.PNG`, `frame-003-RGB.png`, `frame-003-rgb.jpg`, `frame_003_rgb.png`) whose frame is not
     among the frame `names` read: frames `read_sequence` would leave out. A copy of a read frame in
     another format (`frame-001-rgb.jpg` beside `frame-001-rgb.png`) is not one."""
     stem = len(RGB_SUFFIX.rsplit(".", 1)[0])  # '-rgb'
