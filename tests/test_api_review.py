@@ -151,3 +151,21 @@ def test_roll_camera_names_an_angle_that_is_not_a_finite_number():
         with pytest.raises(ValueError, match="angle_deg: expected a finite angle"):
             roll_camera(frame, angle)
     assert roll_camera(frame, np.float32(30.0))[0].shape == frame.shape
+
+
+# ---------------------------------------------------------------- keypoint sizes
+@pytest.mark.parametrize("name", ["sift", "orb", "brisk", "freak", "tfeat-sim", "dali"])
+@pytest.mark.parametrize("size", [-8.0, 0.0, np.inf])
+def test_descriptors_that_describe_at_the_keypoint_size_refuse_sizes_that_are_no_diameter(name, size):
+    """A negative or zero keypoint size (cv2.KeyPoint() leaves 0) was described by SIFT, ORB, BRISK
+    and FREAK at their smallest support (1 px) and an infinite one at the default 8 px, without a
+    word; the image-patch nets named a 'radius_px' the user never gave. NaN stays "unknown"."""
+    frame = _frame()
+    xy = np.array([[40.0, 30.0], [30.0, 25.0]])
+    descriptor = geofeat.make_descriptor(name)
+    with pytest.raises(ValueError, match=rf"^keypoints: 1 keypoint size\(s\) are not positive finite diameters "
+                                         rf"\(e.g. #1: {size:g}\); {name} describes at the keypoint's size"):
+        descriptor.compute(frame, geofeat.Keypoints(xy, np.zeros(2), [8.0, size], np.zeros(2)))
+    unknown = descriptor.compute(frame, geofeat.Keypoints(xy, np.zeros(2), [8.0, np.nan], np.zeros(2)))
+    given = descriptor.compute(frame, geofeat.Keypoints(xy, np.zeros(2), [8.0, 8.0], np.zeros(2)))
+    np.testing.assert_allclose(unknown.descriptors, given.descriptors, atol=1e-6)  # DaLI's threads: float sums

@@ -96,6 +96,8 @@ def _make_extractor(name: str):
 
 #: The baselines that describe at the given keypoint angle (BRISK and FREAK estimate their own).
 USES_GIVEN_ANGLE = ("orb", "daisy", "sift")
+#: The baselines whose support follows the keypoint size (DAISY's radius is fixed).
+USES_SIZE = ("orb", "brisk", "freak", "sift")
 
 
 def check_angles(angles: np.ndarray, name: str) -> None:
@@ -106,6 +108,22 @@ def check_angles(angles: np.ndarray, name: str) -> None:
         i = int(np.argmax(bad))
         raise ValueError(f"keypoints: {int(bad.sum())} keypoint angle(s) are NaN or infinite (e.g. #{i}); {name} "
                          "describes at the given angle: give angles in degrees (0 for upright keypoints)")
+
+
+def keypoint_sizes(sizes: np.ndarray, name: str) -> np.ndarray:
+    """(N,) float64 keypoint diameters, pixels, for descriptor `name`, which describes at the keypoint's
+    size: NaN (unknown, as for keypoints given as bare (N, 2) pixels) becomes `DEFAULT_SIZE_PX`. A size
+    that is not a positive finite diameter (0, negative, inf) is a ValueError naming `name`: SIFT, ORB,
+    BRISK and FREAK described it at 1 px (the smallest support they take) and inf at the default size,
+    without a word; a negative diameter is no keypoint size, and 0 is what cv2.KeyPoint() leaves unset."""
+    sizes = np.asarray(sizes, np.float64)
+    bad = ~np.isnan(sizes) & ~(np.isfinite(sizes) & (sizes > 0))
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise ValueError(f"keypoints: {int(bad.sum())} keypoint size(s) are not positive finite diameters (e.g. #{i}: "
+                         f"{sizes[i]:g}); {name} describes at the keypoint's size: give diameters in pixels, or NaN "
+                         f"where unknown ({DEFAULT_SIZE_PX:g} px is used)")
+    return np.where(np.isnan(sizes), DEFAULT_SIZE_PX, sizes)
 
 
 #: Keypoints with a non-zero angle, all within one turn in radians, that make `warn_if_radians` warn: OpenCV's
@@ -162,7 +180,9 @@ class OpenCVDescriptor:
             warnings.warn(f"{self.name}: every keypoint has angle 0 (GeoKey's keypoints and (N, 2) arrays carry "
                           f"no orientation), so the descriptor is not rotation-invariant; detect with "
                           f"detector='sift' to use SIFT's orientation", stacklevel=2)
-        sizes = np.where(np.isfinite(kps.sizes), kps.sizes, DEFAULT_SIZE_PX)
+        # DAISY's radius is fixed: its keypoints' sizes are not read
+        sizes = (keypoint_sizes(kps.sizes, self.name) if self.name in USES_SIZE
+                 else np.where(np.isfinite(kps.sizes), kps.sizes, DEFAULT_SIZE_PX))
         angles = np.zeros(n)
         if self.use_angle:
             check_angles(kps.angles, self.name)

@@ -19,10 +19,8 @@ import cv2
 import numpy as np
 
 from ..keypoints import as_keypoints
-from .baselines import check_angles, warn_if_radians
+from .baselines import DEFAULT_SIZE_PX, check_angles, keypoint_sizes, warn_if_radians  # noqa: F401 - DEFAULT_SIZE_PX: the bare positions' size
 
-#: Keypoint diameter (pixels) assumed when the caller gives bare (N, 2) positions.
-DEFAULT_SIZE_PX = 8.0
 #: Keypoints per cv2.remap call (remap maps must stay below 32767 rows).
 _CHUNK = 512
 
@@ -34,12 +32,12 @@ def keypoint_arrays(keypoints, what: str,
     (documented default of every image-patch descriptor); `what` names the descriptor in errors.
     With the image's (H, W) `shape`, keypoints off the image raise ValueError (as for every other
     descriptor), rather than being described from replicated border pixels; so do NaN or infinite
-    angles, which would give NaN patches. Angles that look like radians warn (`warn_if_radians`)."""
+    angles, which would give NaN patches, and sizes that are not positive finite diameters
+    (`keypoint_sizes`). Angles that look like radians warn (`warn_if_radians`)."""
     k = as_keypoints(keypoints, shape)
     check_angles(k.angles, what)
     warn_if_radians(k.angles, what)
-    sizes = np.where(np.isfinite(k.sizes), k.sizes, DEFAULT_SIZE_PX)
-    return k.xy.astype(np.float64), k.angles.astype(np.float64), sizes.astype(np.float64)
+    return k.xy.astype(np.float64), k.angles.astype(np.float64), keypoint_sizes(k.sizes, what)
 
 
 def cartesian_grid(size: int) -> np.ndarray:
