@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import cv2
 import numpy as np
 import pytest
@@ -169,3 +171,28 @@ def test_descriptors_that_describe_at_the_keypoint_size_refuse_sizes_that_are_no
     unknown = descriptor.compute(frame, geofeat.Keypoints(xy, np.zeros(2), [8.0, np.nan], np.zeros(2)))
     given = descriptor.compute(frame, geofeat.Keypoints(xy, np.zeros(2), [8.0, 8.0], np.zeros(2)))
     np.testing.assert_allclose(unknown.descriptors, given.descriptors, atol=1e-6)  # DaLI's threads: float sums
+
+
+# ---------------------------------------------------------------- float descriptors of two methods
+def test_l2_matching_of_descriptors_of_different_scales_is_warned_of():
+    """SIFT's (N, 128) float descriptors (norm about 512) matched against GeoPatch's or an image-patch
+    net's (N, 128, norm 1) passed every check (one dtype, one width): each SIFT keypoint's "nearest"
+    unit descriptor was simply the one most aligned with it, and each unit descriptor's nearest SIFT
+    one the one of smallest norm, without a word. Descriptors of one method, or one method at
+    another contrast (3 times), are not warned of; invalid rows are not looked at."""
+    from geofeat.matching import distance_matrix
+
+    sift = geofeat.make_descriptor("sift").compute(geofeat.read_demo_frame(), np.array(
+        [[x, y] for x in range(100, 540, 40) for y in range(100, 380, 40)], float))
+    assert sift.valid.all() and 400 < np.median(np.linalg.norm(sift.descriptors, axis=1)) < 600
+    unit = sift.descriptors / np.linalg.norm(sift.descriptors, axis=1, keepdims=True)  # as GeoPatch's are
+    for call in (lambda: geofeat.match(sift, unit, mutual=True), lambda: distance_matrix(unit, sift.descriptors)):
+        with pytest.warns(UserWarning, match=r"median norms of .* differ 5\d\d times: descriptors of two methods") as record:
+            call()
+        assert record[0].filename == __file__  # points at the caller
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        geofeat.match(sift, sift.descriptors * 3.0)
+        distance_matrix(unit[:50], unit[50:])
+        invalid = np.concatenate([unit, sift.descriptors])  # the SIFT rows marked invalid
+        geofeat.match(geofeat.Features(np.zeros((len(invalid), 2)), invalid, np.arange(len(invalid)) < len(unit)), unit)

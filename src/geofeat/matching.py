@@ -975,6 +975,34 @@ def check_l2_range(pairs, largest: float, what: str, hint: str = "") -> None:
                          f"norm){hint}")
 
 
+#: `warn_if_scales_differ` warns when the median norms of two float descriptor sets differ by more than this factor.
+MAX_NORM_RATIO = 10.0
+
+
+def warn_if_scales_differ(d0: np.ndarray, d1: np.ndarray, valid0: np.ndarray | None = None,
+                          valid1: np.ndarray | None = None, names: tuple[str, str] = ("features0", "features1")) -> None:
+    """Warn when the median L2 norms of the valid rows of float (N0, D) `d0` and (N1, D) `d1` (`valid0`,
+    `valid1` (N,) bool; None: all) differ by more than `MAX_NORM_RATIO`: descriptors of two methods of one
+    width (SIFT's norm is about 512, GeoPatch's and the image-patch nets' 1), or one set normalised and
+    the other not. Their L2 distances then mostly measure the norms: each target's nearest query is
+    the query of smallest norm, and the mutual matches are few and wrong, without a word."""
+    medians = []
+    for d, valid in ((d0, valid0), (d1, valid1)):
+        rows = np.asarray(d)[slice(None) if valid is None else np.asarray(valid, bool)]
+        if not rows.size:
+            return
+        medians.append(float(np.median(np.linalg.norm(rows.astype(np.float64), axis=1))))
+    small, large = sorted(medians)
+    if large > MAX_NORM_RATIO * small:
+        import warnings
+
+        warnings.warn(f"descriptors: the median norms of {names[0]} ({medians[0]:.3g}) and {names[1]} "
+                      f"({medians[1]:.3g}) differ {large / small if small else np.inf:.3g} times: descriptors of two "
+                      "methods (SIFT's norm is about 512, GeoPatch's 1), or one set normalised and the other not? "
+                      "Their L2 distances mostly measure the norms; match descriptors of one method, normalised "
+                      "alike", UserWarning, stacklevel=3)
+
+
 def check_descriptor_length(shape: tuple[int, ...]) -> None:
     """ValueError unless descriptors of shape (N, ...) hold at least one value per keypoint: with none
     (an (N, 0) array, a slice past the end) every distance was 0, so each keypoint matched the first
@@ -1052,6 +1080,9 @@ def match(
     in the last bit, so under ``mutual`` the later copy may win a column (computing each distinct
     descriptor once fixed that, and made L2 matching 2.5 times slower: not done).
 
+    Float descriptors whose valid rows' median norms differ more than `MAX_NORM_RATIO` (10) times
+    warn (`warn_if_scales_differ`): descriptors of two methods, or one set normalised and the other not.
+
     Returns:
         `Matches` with matches0 (N0,) int64 (-1 = no match) and distances0 (N0,) float64 (bits for
         Hamming metrics, Euclidean units for L2; inf where no match).
@@ -1081,6 +1112,7 @@ def match(
             raise TypeError(f"descriptors: metric 'l2' expects numeric arrays, got {d0.dtype} and {d1.dtype}")
         check_finite_descriptors(d0, valid0, "features0")
         check_finite_descriptors(d1, valid1, "features1")
+        warn_if_scales_differ(d0, d1, valid0, valid1)
     else:
         if d0.dtype != np.uint8 or d1.dtype != np.uint8:
             raise TypeError(
@@ -1205,6 +1237,7 @@ def distance_matrix(descriptors0: np.ndarray, descriptors1: np.ndarray, metric: 
                 raise ValueError(f"valid{name[-1]}: expected one flag per row of {name} ({len(d)},), got shape "
                                  f"{np.shape(valid)}")
             check_finite_descriptors(d, None if valid is None else np.asarray(valid, bool), name)
+        warn_if_scales_differ(d0, d1, valid0, valid1, ("descriptors0", "descriptors1"))
         # squared in float64, returned in float32: the distances must fit float32
         largest = float(np.finfo(np.float32).max)
         check_l2_range(((d0, valid0, "descriptors0"), (d1, valid1, "descriptors1")), largest ** 2,
