@@ -31,6 +31,9 @@ USUAL_MEDIAN_DEPTH_M = (0.15, 4.5)
 PLAUSIBLE_FOCAL_SIDES = (0.1, 20.0)
 #: A principal point farther than this fraction of the image size from its centre is warned of (RGBDFrame).
 MAX_CENTRE_OFFSET = 0.2
+#: ... and one at least this fraction from its centre but within `TRANSPOSED_CENTRE_OFFSET` of the centre of
+#: the image transposed (W x H), as a transposed frame of a 4:3 (or 5:4) camera puts it.
+MIN_TRANSPOSED_OFFSET, TRANSPOSED_CENTRE_OFFSET = 0.1, 0.05
 #: Geodesic radius (metres) must lie in this range.
 PLAUSIBLE_RADIUS_M = (0.001, 2.0)
 #: The largest depth scale accepted, metres per depth-PNG unit.
@@ -294,7 +297,10 @@ def check_principal_point(K: np.ndarray, shape: tuple[int, int], where: str, str
     `MAX_CENTRE_OFFSET` of the image size from its centre is warned of: the signature of intrinsics
     calibrated at another resolution (a 1280x960 K on a 640x480 frame puts it at the bottom-right
     corner, a 320x240 K at a quarter of the image), which sizes and shapes every geodesic patch
-    wrongly without a word."""
+    wrongly without a word. So is a point at the centre of the image transposed (`MIN_TRANSPOSED_OFFSET`,
+    `TRANSPOSED_CENTRE_OFFSET`): a 640x480 camera's image and depth given as (W, H) arrays put it 17 % of
+    the width from the centre, which the 20 % let through, and were described mirrored with a K that
+    does not fit them."""
     H, W = shape
     cx, cy = float(K[0, 2]), float(K[1, 2])
     if strict:
@@ -302,11 +308,24 @@ def check_principal_point(K: np.ndarray, shape: tuple[int, int], where: str, str
             raise ValueError(f"{where}: principal point ({cx:g}, {cy:g}) lies outside the {W}x{H} image; are the "
                              "intrinsics for another image size? (scale fx, fy, cx, cy with the image)")
         return
-    if abs(cx - (W - 1) / 2) > MAX_CENTRE_OFFSET * W or abs(cy - (H - 1) / 2) > MAX_CENTRE_OFFSET * H:
+    if (_centre_offset(cx, cy, (H, W)) >= MIN_TRANSPOSED_OFFSET
+            and _centre_offset(cx, cy, (W, H)) <= TRANSPOSED_CENTRE_OFFSET):
+        warnings.warn(f"{where}: principal point ({cx:g}, {cy:g}) lies at the centre of a {H}x{W} image, not of this "
+                      f"{W}x{H} one: are the image and depth transposed ((W, H) arrays, as a column-major reader "
+                      "gives)? Pass them as (H, W) (`frame.rotated90` turns a frame with its K)", UserWarning,
+                      stacklevel=3)
+    elif _centre_offset(cx, cy, (H, W)) > MAX_CENTRE_OFFSET:
         warnings.warn(f"{where}: principal point ({cx:g}, {cy:g}) lies far from the centre of the {W}x{H} image "
                       f"(expected within {MAX_CENTRE_OFFSET:.0%} of its size); are the intrinsics for another image "
                       "size? Scale fx, fy, cx, cy with the image (a crop's shifted K may be off-centre: then ignore "
                       "this)", UserWarning, stacklevel=3)
+
+
+def _centre_offset(cx: float, cy: float, shape: tuple[int, int]) -> float:
+    """How far the point (cx, cy), pixels, lies from the centre of an image of `shape` (H, W): the larger of
+    its x offset over W and its y offset over H."""
+    H, W = shape
+    return max(abs(cx - (W - 1) / 2) / W, abs(cy - (H - 1) / 2) / H)
 
 
 def unmask_depth(depth: Any) -> Any:
