@@ -212,3 +212,35 @@ def test_a_frame_of_transposed_arrays_is_warned_of():
         warnings.simplefilter("error")
         portrait = frame.rotated90(1)
         geofeat.RGBDFrame(portrait.color, portrait.depth, portrait.K)
+
+
+# ---------------------------------------------------------------- depth in centimetres or decimetres
+def test_a_frame_of_depth_farther_than_an_rgbd_camera_sees_is_warned_of(tmp_path):
+    """Depth in centimetres of a scene nearer than 50 cm (median 40 "m"), or in decimetres, passed the
+    50 m bound of millimetres and was described as a scene 10 or 100 times farther, every geodesic
+    patch a few pixels wide, without a word; the readers warned of it (once per sequence), the frame
+    did not. A sequence's frames are not warned of once more each."""
+    from geofeat.inputs import DepthUnitsWarning
+
+    demo = geofeat.read_demo_frame()
+    metres = np.where(demo.depth > 0, 0.4, 0.0).astype(np.float32)
+    with pytest.warns(DepthUnitsWarning, match=r"^depth: median 40 m is farther than an RGB-D camera sees .*; read as "
+                                               r"centimetres 0.40 m"):
+        geofeat.RGBDFrame(demo.color, metres * 100, demo.K)
+    with pytest.warns(DepthUnitsWarning, match=r"^depth: median 9.77 m is farther than an RGB-D camera sees"):
+        geofeat.RGBDFrame(demo.color, demo.depth * 10, demo.K)
+    folder = tmp_path / "far"
+    folder.mkdir()
+    geofeat.write_intrinsics(folder / "intrinsics.xml", demo.K)
+    for name in ("a-ref", "b"):
+        geofeat.write_frame(folder, name, demo.color, demo.depth * 6)
+    with pytest.warns(DepthUnitsWarning) as caught:
+        seq = geofeat.read_sequence(folder)
+        frames = [seq.frame("a-ref"), seq.frame("b"), geofeat.read_frame(
+            folder / "b-rgb.png", folder / "b-depth.png", folder / "intrinsics.xml")]
+    said = [str(w.message) for w in caught if w.category is DepthUnitsWarning]  # once by each reader
+    assert len(said) == 2 and said[0].startswith(f"sequence {folder} ") and said[1].startswith(f"depth_path: {folder}")
+    assert all(f.depth.max() == pytest.approx(6 * demo.depth.max(), rel=1e-3) for f in frames)  # a warning, no error
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        geofeat.RGBDFrame(demo.color, demo.depth * 4, demo.K)  # 3.9 m: an RGB-D camera's range

@@ -5,14 +5,15 @@ from __future__ import annotations
 import math
 import numbers
 import warnings
+from contextvars import ContextVar
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
 from .constants import MAX_PLAUSIBLE_DEPTH_M, MIN_FRAME_SIDE_PX
-from .inputs import (PLAUSIBLE_MEDIAN_DEPTH_M, DepthUnitsWarning, as_points, check_focal_lengths, check_not_8bit_depth,
-                     check_principal_point, transposed_hint, unit_readings, unmask_depth)
+from .inputs import (PLAUSIBLE_MEDIAN_DEPTH_M, USUAL_MEDIAN_DEPTH_M, DepthUnitsWarning, as_points, check_focal_lengths,
+                     check_not_8bit_depth, check_principal_point, transposed_hint, unit_readings, unmask_depth)
 
 
 def to_gray(image: np.ndarray, warn_dark: bool = True) -> np.ndarray:
@@ -114,12 +115,14 @@ def check_intrinsics(K: np.ndarray) -> np.ndarray:
     return K
 
 
-def check_depth(depth: np.ndarray, shape: tuple[int, int] | None = None, warn_near: bool = False) -> np.ndarray:
+def check_depth(depth: np.ndarray, shape: tuple[int, int] | None = None, warn_units: bool = False) -> np.ndarray:
     """Validate an (H, W) depth map in metres (0 = missing; so are the masked pixels of a masked
     array) and return it as float32. A median depth
-    above `MAX_PLAUSIBLE_DEPTH_M` (millimetres) is a ValueError; with `warn_near`, one below the
+    above `MAX_PLAUSIBLE_DEPTH_M` (millimetres) is a ValueError. With `warn_units`, one below the
     readers' smallest plausible median (`inputs.PLAUSIBLE_MEDIAN_DEPTH_M`, 5 cm) warns
-    (`DepthUnitsWarning`): metres divided by 1000 again make every geodesic patch leave the surface."""
+    (`DepthUnitsWarning`): metres divided by 1000 again make every geodesic patch leave the surface;
+    so does one beyond an RGB-D camera's range (`inputs.USUAL_MEDIAN_DEPTH_M`, 4.5 m): centimetres of
+    a scene nearer than 50 cm, or decimetres, shrank every geodesic patch 100 or 10 times."""
     depth = np.asarray(unmask_depth(depth))
     if depth.ndim != 2:
         raise ValueError(f"depth: expected shape (H, W), got {depth.shape}")
@@ -146,13 +149,23 @@ def check_depth(depth: np.ndarray, shape: tuple[int, int] | None = None, warn_ne
         raise ValueError(f"depth: median {median:.1f} is not in metres (at most {MAX_PLAUSIBLE_DEPTH_M:g} m expected); "
                          f"{readings}: convert it to metres (or read it with read_frame(..., "
                          "depth_scale=<metres per unit>))")
-    nearest = PLAUSIBLE_MEDIAN_DEPTH_M[0]
-    if warn_near and median < nearest:
+    nearest, farthest = PLAUSIBLE_MEDIAN_DEPTH_M[0], USUAL_MEDIAN_DEPTH_M[1]
+    if warn_units and median < nearest:
         warnings.warn(f"depth: median {median:.3g} m is nearer than an RGB-D camera sees (expected at least "
                       f"{nearest:g} m); is it in metres (not metres divided by 1000 again)? Geodesic patches "
                       "of a few centimetres would leave the surface, and no keypoint would be described",
                       DepthUnitsWarning, stacklevel=3)
+    elif warn_units and median > farthest:
+        readings = unit_readings(median, USUAL_MEDIAN_DEPTH_M, skip=1.0)
+        warnings.warn(f"depth: median {median:.3g} m is farther than an RGB-D camera sees (expected at most "
+                      f"{farthest:g} m); is it in metres (not centimetres or decimetres)? Geodesic patches of a few "
+                      f"centimetres would shrink to a few pixels{f'; {readings}' if readings else ''}: unless the "
+                      "scene really is that far, convert the depth to metres", DepthUnitsWarning, stacklevel=3)
     return np.ascontiguousarray(depth)
+
+
+#: True while a reader (`RGBDFrame._from_reader`) makes a frame: its depth units are warned of by the reader.
+_READER_CHECKED_UNITS: ContextVar[bool] = ContextVar("geofeat_reader_checked_units", default=False)
 
 
 @dataclass(frozen=True, eq=False)
@@ -163,7 +176,8 @@ class RGBDFrame:
         image: (H, W) float32 gray image in [0, 1].
         depth: (H, W) float32 depth in metres, 0 where missing (and where a masked array is masked):
             a median above 50 m (millimetres)
-            raises ValueError, one below 5 cm (metres divided by 1000 again?) warns.
+            raises ValueError, one below 5 cm (metres divided by 1000 again?) or above 4.5 m
+            (centimetres, decimetres?) warns.
         K: (3, 3) float64 pinhole intrinsics in pixels (OpenCV convention: the centre of the
             top-left pixel is (0, 0)), for this image's resolution: focal lengths implausible for
             the image size raise ValueError, a principal point far from the image centre (or off
@@ -194,12 +208,23 @@ class RGBDFrame:
         # (H, W, 3) only: an (H, W, 1) image is gray, shown (`geofeat.viz.to_bgr`) from `image` as an (H, W) one
         color = display_colour(image)
         # `to_gray` and `check_depth` return new arrays: the frame's own, as the copies of K and the colour
-        depth = check_depth(depth, gray.shape, warn_near=True)
+        depth = check_depth(depth, gray.shape, warn_units=not _READER_CHECKED_UNITS.get())
         K = check_intrinsics(K).copy()  # the frame's own copy, as for the depth: not the caller's array
         check_focal_lengths(K, gray.shape, "K")
         check_principal_point(K, gray.shape, "K", strict=False)
         for name, value in (("image", gray), ("depth", depth), ("K", K), ("color", color)):
             object.__setattr__(self, name, read_only(value))
+
+    @classmethod
+    def _from_reader(cls, image: np.ndarray, depth: np.ndarray, K: np.ndarray) -> "RGBDFrame":
+        """`RGBDFrame(image, depth, K)` without its depth-units warnings (`check_depth`): the readers
+        (`geofeat.io`) check the depth against their depth scale and warn of it once per sequence
+        (`inputs.warn_depth_units`), not once for each frame."""
+        token = _READER_CHECKED_UNITS.set(True)
+        try:
+            return cls(image, depth, K)
+        finally:
+            _READER_CHECKED_UNITS.reset(token)
 
     def __eq__(self, other) -> bool:
         """Frames with equal gray images, depth and intrinsics (the colour image, kept for display, is

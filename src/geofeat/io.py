@@ -489,7 +489,7 @@ def read_frame(
     warn_depth_units(depth, depth_scale, f"depth_path: {depth_path}", key=str(Path(depth_path).resolve()))
     K = check_intrinsics_for_image(read_intrinsics(intrinsics_path, image.shape[:2]), image.shape[:2],
                                    f"intrinsics_path: {intrinsics_path}")
-    return RGBDFrame(image, depth, K)
+    return RGBDFrame._from_reader(image, depth, K)  # the depth units were warned of above, once per file
 
 
 def write_frame(folder: str | Path, name: str, color: np.ndarray, depth: np.ndarray,
@@ -735,7 +735,7 @@ class Sequence:
                              f"{image.shape[1]}x{image.shape[0]} differ in size ({self.folder})")
         check_depth_plausible(depth, self.depth_scale, f"frame {name} of {self.folder}")
         try:  # RGBDFrame's own checks (an all-zero depth map) name no file
-            return RGBDFrame(image, depth, self.K)
+            return RGBDFrame._from_reader(image, depth, self.K)  # its depth units warned of once, by read_sequence
         except ValueError as error:
             raise ValueError(f"frame {name} of {self.folder}: {error}") from None
 
