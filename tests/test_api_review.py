@@ -244,3 +244,21 @@ def test_a_frame_of_depth_farther_than_an_rgbd_camera_sees_is_warned_of(tmp_path
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         geofeat.RGBDFrame(demo.color, demo.depth * 4, demo.K)  # 3.9 m: an RGB-D camera's range
+
+
+# ---------------------------------------------------------------- rotate_points90
+def test_rotate_points90_takes_integer_quarter_turns_only():
+    """rotate_points90(points, shape, 1.5) (or 0.5, 2.0) fell through every k == 0, 1, 2 test and turned
+    the points by three quarter turns without a word, while frame.rotated90(1.5) was a TypeError."""
+    from geofeat.frame import rotate_points90
+
+    frame = _frame()
+    xy = np.array([[10.0, 20.0], [79.0, 0.0]])
+    for k in (1.5, 0.5, 2.0, "1", True):
+        with pytest.raises(TypeError, match=r"^k: expected an integer number of quarter turns"):
+            rotate_points90(xy, frame.shape, k)
+    turned = frame.rotated90(1)
+    moved = rotate_points90(xy, frame.shape, np.int64(5))  # numpy's integers, any sign: as rotated90 takes them
+    np.testing.assert_array_equal(moved, rotate_points90(xy, frame.shape, -3))
+    np.testing.assert_array_equal(turned.image[moved[:, 1].astype(int), moved[:, 0].astype(int)],
+                                  frame.image[xy[:, 1].astype(int), xy[:, 0].astype(int)])

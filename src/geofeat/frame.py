@@ -277,9 +277,7 @@ class RGBDFrame:
         turned (also when it is not its colour image's gray, as after `with_image`); the colour
         image is turned with it. Keypoints move as `rotate_points90` says; an OpenCV angle
         (clockwise as displayed) becomes angle - 90 k degrees."""
-        if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
-            raise TypeError(f"k: expected an integer number of quarter turns, got {k!r}")
-        k = int(k) % 4
+        k = quarter_turns(k)
         H, W = self.shape
         K = self.K.copy()
         image = self.color if self.color is not None else self.image
@@ -373,9 +371,18 @@ def roll_camera(frame: RGBDFrame, angle_deg: float) -> tuple[RGBDFrame, np.ndarr
     return rolled, A
 
 
+def quarter_turns(k: int) -> int:
+    """`k` quarter turns (an integer of any sign, Python's or numpy's) as 0-3; TypeError naming `k` otherwise:
+    `rotate_points90(points, shape, 1.5)` (or 0.5) turned the points by three quarter turns, without a word."""
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
+        raise TypeError(f"k: expected an integer number of quarter turns, got {k!r}")
+    return int(k) % 4
+
+
 def rotate_points90(points: np.ndarray, shape: tuple[int, int], k: int = 1) -> np.ndarray:
-    """Map (N, 2) pixel coordinates of an (H, W) image into the image rotated by `np.rot90(., k)`."""
-    k %= 4
+    """Map (N, 2) pixel coordinates of an (H, W) image into the image rotated by `np.rot90(., k)`
+    (k: an integer number of quarter turns, any sign)."""
+    k = quarter_turns(k)
     H, W = shape
     p = as_points(points, "points")
     x, y = p[:, 0], p[:, 1]
