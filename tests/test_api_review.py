@@ -203,11 +203,16 @@ def test_a_frame_of_transposed_arrays_is_warned_of():
     """Image and depth given as (W, H) arrays with the camera's K (a column-major reader, a stray .T):
     the principal point of a 4:3 camera then lies 17 % of the width from the centre, which the 20 %
     bound let through, and the frame was described mirrored, with a K that does not fit it, without a
-    word. A portrait frame with its own K (`rotated90`) is no transposed one."""
+    word; so was a K with cx and cy swapped. A portrait frame with its own K (`rotated90`) is no
+    transposed one."""
     frame = geofeat.read_demo_frame()
     with pytest.warns(UserWarning, match=r"^K: principal point \(319.5, 239.5\) lies at the centre of a 640x480 image, "
                                          r"not of this 480x640 one: are the image and depth transposed"):
         geofeat.RGBDFrame(frame.color.transpose(1, 0, 2), frame.depth.T, frame.K)
+    swapped = frame.K.copy()
+    swapped[0, 2], swapped[1, 2] = frame.K[1, 2], frame.K[0, 2]  # cx and cy swapped: the same point, transposed
+    with pytest.warns(UserWarning, match=r"transposed .*, or cx and cy swapped in K\?"):
+        geofeat.RGBDFrame(frame.color, frame.depth, swapped)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         portrait = frame.rotated90(1)

@@ -300,7 +300,7 @@ def check_principal_point(K: np.ndarray, shape: tuple[int, int], where: str, str
     wrongly without a word. So is a point at the centre of the image transposed (`MIN_TRANSPOSED_OFFSET`,
     `TRANSPOSED_CENTRE_OFFSET`): a 640x480 camera's image and depth given as (W, H) arrays put it 17 % of
     the width from the centre, which the 20 % let through, and were described mirrored with a K that
-    does not fit them."""
+    does not fit them; so did a K with cx and cy swapped."""
     H, W = shape
     cx, cy = float(K[0, 2]), float(K[1, 2])
     if strict:
@@ -312,8 +312,8 @@ def check_principal_point(K: np.ndarray, shape: tuple[int, int], where: str, str
             and _centre_offset(cx, cy, (W, H)) <= TRANSPOSED_CENTRE_OFFSET):
         warnings.warn(f"{where}: principal point ({cx:g}, {cy:g}) lies at the centre of a {H}x{W} image, not of this "
                       f"{W}x{H} one: are the image and depth transposed ((W, H) arrays, as a column-major reader "
-                      "gives)? Pass them as (H, W) (`frame.rotated90` turns a frame with its K)", UserWarning,
-                      stacklevel=3)
+                      "gives), or cx and cy swapped in K? Pass the arrays as (H, W) (`frame.rotated90` turns a frame "
+                      "with its K), and K as [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]", UserWarning, stacklevel=3)
     elif _centre_offset(cx, cy, (H, W)) > MAX_CENTRE_OFFSET:
         warnings.warn(f"{where}: principal point ({cx:g}, {cy:g}) lies far from the centre of the {W}x{H} image "
                       f"(expected within {MAX_CENTRE_OFFSET:.0%} of its size); are the intrinsics for another image "
