@@ -267,3 +267,19 @@ def test_rotate_points90_takes_integer_quarter_turns_only():
     np.testing.assert_array_equal(moved, rotate_points90(xy, frame.shape, -3))
     np.testing.assert_array_equal(turned.image[moved[:, 1].astype(int), moved[:, 0].astype(int)],
                                   frame.image[xy[:, 1].astype(int), xy[:, 0].astype(int)])
+
+
+# ---------------------------------------------------------------- flags that are no bool
+@pytest.mark.parametrize("flag", ["false", "no", 0.0, 1, None])
+def test_flags_that_change_the_data_refuse_what_is_not_true_or_false(flag, tmp_path):
+    """DepthConfig(constant="false") (a string from a config file) replaced the surface by a plane, the
+    ablation, and simulate_sequence(kinect_noise="no") wrote noisy depth (recording kinect_noise: true),
+    motion_blur="no" blurred the targets and overwrite="no" replaced an earlier simulation, all because
+    the string reads as True in an `if`; 0.0, 1 and None were taken alike."""
+    with pytest.raises(ValueError, match=r"^constant: expected True or False"):
+        geofeat.DepthConfig(constant=flag)
+    for name in ("kinect_noise", "motion_blur", "overwrite"):
+        with pytest.raises(ValueError, match=rf"^{name}: expected True or False"):
+            geofeat.simulate_sequence(tmp_path / "seq", n_frames=2, progress=False, preset="paper", **{name: flag})
+        assert not (tmp_path / "seq").exists()
+    assert geofeat.DepthConfig(constant=np.True_).constant is True

@@ -17,7 +17,7 @@ from numba import njit
 from .constants import (DEPTH_PROFILE_NAMES, HOLE_MAX_PERIMETER_PX, IDW_POWER, MESH_SCALE, MIN_FRAME_SIDE_PX,
                         SMOOTH_LEVELS, SMOOTH_WINDOW_PX)
 from .frame import check_intrinsics
-from .inputs import check_positive, check_whole, unmask_depth
+from .inputs import check_bool, check_positive, check_whole, unmask_depth
 
 FILL_METHODS = ("idw", "simple", "none")
 
@@ -51,6 +51,9 @@ class DepthConfig:
         if isinstance(self.mesh_scale, bool) or not isinstance(self.mesh_scale, numbers.Real) \
                 or not 0 < self.mesh_scale <= 1:
             raise ValueError(f"mesh_scale: must be in (0, 1], got {self.mesh_scale!r}")
+        # constant="false" (a string from a config file) or 0.0 was taken as it reads in an `if`: "false"
+        # replaced the surface by a plane (the ablation) without a word
+        object.__setattr__(self, "constant", check_bool(self.constant, "constant"))
 
 
 #: Named depth profiles (see `depth_profile`): "kinect" is the paper's real-data setting (IDW hole

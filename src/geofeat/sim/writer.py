@@ -29,7 +29,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..inputs import check_intrinsics_for_image, check_whole
+from ..inputs import check_bool, check_intrinsics_for_image, check_whole
 from ..io import DEPTH_NO_DATA, write_intrinsics, write_landmarks
 from ..outputs import SEQUENCE, check_out_dir, replace_folder, temporary_folder
 from ..groundtruth.landmarks import MIN_LANDMARKS
@@ -166,6 +166,8 @@ def simulate_sequence(
             `paper` and `hard` only, `mild` has none).
     """
     _check_args(scenario, n_frames, width, height, seed, steps_per_frame)
+    for name, flag in (("kinect_noise", kinect_noise), ("motion_blur", motion_blur), ("overwrite", overwrite)):
+        check_bool(flag, name)  # "false" from a config file was True: noisy depth, blur, or an earlier run replaced
     preset_obj = get_preset(preset)
     if motion_blur and not preset_obj.blur_px > 0:  # it blurred nothing, and groundtruth.json said motion_blur true
         raise ValueError(f"motion_blur: the {preset_obj.name} preset has no motion blur; simulate with the paper or "
