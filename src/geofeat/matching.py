@@ -31,6 +31,7 @@ lowest target index wins; ``matches0 == -1`` means no match and its distance is 
 from __future__ import annotations
 
 import numbers
+import warnings
 
 import numba
 import numpy as np
@@ -926,8 +927,6 @@ def metric_of_pair(d0: np.ndarray, d1: np.ndarray, names: tuple[str, str] = ("fe
         rows = (d0, d1) if valid is None else (d0[np.asarray(valid[0], bool)], d1[np.asarray(valid[1], bool)])
         zeros = quantised_zero_share(np.concatenate(rows))
         if zeros is not None:
-            import warnings
-
             warnings.warn(f"descriptors: uint8 {names[0]} and {names[1]} have {zeros:.0%} zero bytes and mostly "
                           f"small values, as a quantised histogram (SIFT stored as uint8) has, not packed bits "
                           f"(about 0.4 % zero bytes), and are matched by Hamming distance; pass metric=\"l2\" to "
@@ -994,8 +993,6 @@ def warn_if_scales_differ(d0: np.ndarray, d1: np.ndarray, valid0: np.ndarray | N
         medians.append(float(np.median(np.linalg.norm(rows.astype(np.float64), axis=1))))
     small, large = sorted(medians)
     if large > MAX_NORM_RATIO * small:
-        import warnings
-
         warnings.warn(f"descriptors: the median norms of {names[0]} ({medians[0]:.3g}) and {names[1]} "
                       f"({medians[1]:.3g}) differ {large / small if small else np.inf:.3g} times: descriptors of two "
                       "methods (SIFT's norm is about 512, GeoPatch's 1), or one set normalised and the other not? "
@@ -1112,7 +1109,6 @@ def match(
             raise TypeError(f"descriptors: metric 'l2' expects numeric arrays, got {d0.dtype} and {d1.dtype}")
         check_finite_descriptors(d0, valid0, "features0")
         check_finite_descriptors(d1, valid1, "features1")
-        warn_if_scales_differ(d0, d1, valid0, valid1)
     else:
         if d0.dtype != np.uint8 or d1.dtype != np.uint8:
             raise TypeError(
@@ -1136,6 +1132,7 @@ def match(
         check_l2_range(((d0, valid0, "features0"), (d1, valid1, "features1")), largest,
                        f"{np.dtype(dtype).name} (largest {largest:.3g})",
                        ", or pass them as float64" if dtype == np.float32 else "")
+        warn_if_scales_differ(d0, d1, valid0, valid1)  # their norms are known to fit float64 now
 
     if metric == "l2" and device is not None:
         import torch
@@ -1237,11 +1234,11 @@ def distance_matrix(descriptors0: np.ndarray, descriptors1: np.ndarray, metric: 
                 raise ValueError(f"valid{name[-1]}: expected one flag per row of {name} ({len(d)},), got shape "
                                  f"{np.shape(valid)}")
             check_finite_descriptors(d, None if valid is None else np.asarray(valid, bool), name)
-        warn_if_scales_differ(d0, d1, valid0, valid1, ("descriptors0", "descriptors1"))
         # squared in float64, returned in float32: the distances must fit float32
         largest = float(np.finfo(np.float32).max)
         check_l2_range(((d0, valid0, "descriptors0"), (d1, valid1, "descriptors1")), largest ** 2,
                        f"the float32 distance matrix (distances up to {largest:.3g})")
+        warn_if_scales_differ(d0, d1, valid0, valid1, ("descriptors0", "descriptors1"))
         a, b = d0.astype(np.float64), d1.astype(np.float64)
         dist2 = np.einsum("ij,ij->i", a, a)[:, None] + np.einsum("ij,ij->i", b, b)[None, :] - 2.0 * (a @ b.T)
         return np.sqrt(np.maximum(dist2, 0.0)).astype(np.float32)
