@@ -22,7 +22,7 @@ Where ours departs, and why:
   about a second; the convolutions pad the angle axis circularly (the log-polar patch is periodic
   in angle) and the radius axis with zeros. Both nets z-score each patch first (HardNet does too).
 - Patches are oriented by the keypoint's angle and scaled by its size; bare (N, 2) positions get
-  angle 0 and size 8 px (`patches.DEFAULT_SIZE_PX`).
+  angle 0 and size 8 px (`baselines.DEFAULT_SIZE_PX`, as for the OpenCV baselines).
 
 Weights ship in geofeat/data (`tfeat_sim.pt`, `logpolar_sim.pt`); the training command and its
 figures are in BENCHMARKS.md.

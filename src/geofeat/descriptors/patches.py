@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from ..keypoints import as_keypoints
-from .baselines import DEFAULT_SIZE_PX, check_angles, keypoint_sizes, warn_if_radians  # noqa: F401 - DEFAULT_SIZE_PX: the bare positions' size
+from .baselines import check_angles, keypoint_sizes, warn_if_radians
 
 #: Keypoints per cv2.remap call (remap maps must stay below 32767 rows).
 _CHUNK = 512
@@ -28,7 +28,7 @@ _CHUNK = 512
 def keypoint_arrays(keypoints, what: str,
                     shape: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(xy (N, 2) pixels, angles (N,) degrees, sizes (N,) pixels) from `Keypoints`, a list of
-    cv2.KeyPoint or an (N, 2) array. Bare positions get angle 0 and size `DEFAULT_SIZE_PX`
+    cv2.KeyPoint or an (N, 2) array. Bare positions get angle 0 and size `baselines.DEFAULT_SIZE_PX`
     (documented default of every image-patch descriptor); `what` names the descriptor in errors.
     With the image's (H, W) `shape`, keypoints off the image raise ValueError (as for every other
     descriptor), rather than being described from replicated border pixels; so do NaN or infinite
