@@ -283,3 +283,14 @@ def test_flags_that_change_the_data_refuse_what_is_not_true_or_false(flag, tmp_p
             geofeat.simulate_sequence(tmp_path / "seq", n_frames=2, progress=False, preset="paper", **{name: flag})
         assert not (tmp_path / "seq").exists()
     assert geofeat.DepthConfig(constant=np.True_).constant is True
+
+
+def test_read_sequence_names_its_python_argument_for_a_bad_depth_scale(tmp_path):
+    """read_sequence(folder, depth_scale="0.001") said "--depth-scale: expected a positive number", an
+    option of the command line, to a Python caller, who has none."""
+    demo = geofeat.read_demo_frame()
+    geofeat.write_intrinsics(tmp_path / "intrinsics.xml", demo.K)
+    geofeat.write_frame(tmp_path, "a-ref", demo.color, demo.depth)
+    for bad in ("0.001", -0.001, 1000.0):
+        with pytest.raises(ValueError, match=r"^depth_scale: "):
+            geofeat.read_sequence(tmp_path, depth_scale=bad)

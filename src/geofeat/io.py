@@ -821,7 +821,7 @@ def read_sequence(folder: str | Path, depth_scale: float | None = None) -> Seque
     config = read_config(folder)
     if depth_scale is None:
         depth_scale = float(config.get("depth_scale", DEPTH_SCALE_M))
-    check_depth_scale(depth_scale)
+    check_depth_scale(depth_scale, "depth_scale")  # the Python argument: geofeat.json's is checked by read_config
     profile = config.get("depth_profile", "auto")
     radius = float(config.get("radius", DEFAULT_RADIUS_M))
     image = read_image(folder / f"{reference}{RGB_SUFFIX}")
