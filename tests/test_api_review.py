@@ -7,6 +7,8 @@ import warnings
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import geofeat
 from geofeat.frame import roll_camera
@@ -217,6 +219,30 @@ def test_a_frame_of_transposed_arrays_is_warned_of():
         warnings.simplefilter("error")
         portrait = frame.rotated90(1)
         geofeat.RGBDFrame(portrait.color, portrait.depth, portrait.K)
+
+
+@settings(max_examples=40, deadline=None)
+@given(short=st.integers(32, 300), ratio=st.floats(1.0, 2.5))
+def test_only_a_transposed_frame_is_warned_of_whatever_its_size(short, ratio):
+    """For a frame of any size with its centred K: the frame itself gives no warning, and its transposed
+    arrays are warned of as transposed when the sides differ by a quarter or more, and not when they differ
+    by under 15 % (the principal points of the two then nearly coincide, and the K fits either; the bound
+    lies at a fifth)."""
+    H, W = short, int(round(short * ratio))
+    f = float(max(H, W))
+    K_own = np.array([[f, 0.0, (W - 1) / 2], [0.0, f, (H - 1) / 2], [0.0, 0.0, 1.0]])
+    image = np.random.default_rng(short).integers(0, 256, (H, W), dtype=np.uint8)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        geofeat.RGBDFrame(image, np.ones((H, W), np.float32), K_own)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        geofeat.RGBDFrame(image.T, np.ones((W, H), np.float32), K_own)
+    transposed = [w for w in caught if "transposed" in str(w.message)]
+    if W >= 1.25 * H:
+        assert len(transposed) == 1
+    elif W <= 1.15 * H:
+        assert not transposed
 
 
 # ---------------------------------------------------------------- depth in centimetres or decimetres
