@@ -978,19 +978,26 @@ def check_l2_range(pairs, largest: float, what: str, hint: str = "") -> None:
 MAX_NORM_RATIO = 10.0
 
 
+#: Rows per side whose norms `warn_if_scales_differ` takes the median of (evenly spaced valid rows): every
+#: row's took about 4 ms per side pair for 2048 x 128 descriptors, as long as the L2 match itself.
+NORM_CHECK_ROWS = 256
+
+
 def warn_if_scales_differ(d0: np.ndarray, d1: np.ndarray, valid0: np.ndarray | None = None,
                           valid1: np.ndarray | None = None, names: tuple[str, str] = ("features0", "features1")) -> None:
-    """Warn when the median L2 norms of the valid rows of float (N0, D) `d0` and (N1, D) `d1` (`valid0`,
+    """Warn when the median L2 norms of the valid rows (`NORM_CHECK_ROWS` of them, evenly spaced) of float (N0, D) `d0` and (N1, D) `d1` (`valid0`,
     `valid1` (N,) bool; None: all) differ by more than `MAX_NORM_RATIO`: descriptors of two methods of one
     width (SIFT's norm is about 512, GeoPatch's and the image-patch nets' 1), or one set normalised and
     the other not. Their L2 distances then mostly measure the norms: each target's nearest query is
     the query of smallest norm, and the mutual matches are few and wrong, without a word."""
     medians = []
     for d, valid in ((d0, valid0), (d1, valid1)):
-        rows = np.asarray(d)[slice(None) if valid is None else np.asarray(valid, bool)]
-        if not rows.size:
+        d = np.asarray(d)
+        index = np.arange(len(d)) if valid is None else np.flatnonzero(np.asarray(valid, bool))
+        if not index.size or not d[:1].size:
             return
-        medians.append(float(np.median(np.linalg.norm(rows.astype(np.float64), axis=1))))
+        rows = d[index[::max(1, len(index) // NORM_CHECK_ROWS)]]  # evenly spaced: a median, not every norm (hot path)
+        medians.append(float(np.median(np.sqrt(np.einsum("ij,ij->i", rows, rows, dtype=np.float64)))))
     small, large = sorted(medians)
     if large > MAX_NORM_RATIO * small:
         warnings.warn(f"descriptors: the median norms of {names[0]} ({medians[0]:.3g}) and {names[1]} "
