@@ -10,8 +10,8 @@ from geofeat.features import Features
 from geofeat.matching import distance_matrix, match
 from geofeat.apps.retrieval import (
     DEFAULT_WEIGHTING, WEIGHTINGS, accuracy_at_k, bootstrap_interval, exclusion_mask, histogram,
-    inverse_document_frequency, per_query_accuracy, read_classes, rerank, run_retrieval, search, split_queries,
-    verified_matches, vocabulary, weight_histograms, word_counts,
+    inverse_document_frequency, nearest_words, per_query_accuracy, rank_distances, read_classes, rerank,
+    run_retrieval, search, split_queries, verified_matches, vocabulary, weight_histograms, word_counts,
 )
 
 
@@ -106,6 +106,15 @@ def test_search_distances_agree_with_brute_force():
     np.testing.assert_array_equal(np.take_along_axis(u @ w.T, nn, axis=1), -np.sort(-(u @ w.T), axis=1))
     with pytest.raises(ValueError, match="distance"):
         search(q, db, distance="cosine")
+    # the same ranking of a precomputed matrix (benchmarks/retrieval_asmk.py ranks minus ASMK's
+    # similarities), which it leaves as it was
+    brute = np.abs(q[:, None] - db[None]).sum(-1)
+    kept = brute.copy()
+    exclude = np.array([3, -1, 0, 5, 5, 5, 10])
+    np.testing.assert_array_equal(rank_distances(brute, 4, exclude)[0], search(q, db, 4, exclude, "l1")[0])
+    np.testing.assert_array_equal(brute, kept)
+    with pytest.raises(ValueError, match="d: expected a"):
+        rank_distances(brute[0], 4)
 
 
 def test_distance_matrix_agrees_with_match():
@@ -127,6 +136,7 @@ def test_histogram_ignores_invalid_and_vocabulary_bad_input():
     vocab = vocabulary(np.concatenate(images), words=9)
     f = Features(np.zeros((60, 2)), images[0], np.zeros(60, bool))
     assert histogram(f, vocab).sum() == 0
+    assert (nearest_words(f, vocab) == -1).all()  # no word for an invalid descriptor
     with pytest.raises(ValueError, match="too few"):
         vocabulary(images[0][:10], words=10)
     with pytest.raises(ValueError, match="words"):

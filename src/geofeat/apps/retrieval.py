@@ -59,6 +59,7 @@ __all__ = [
     "bootstrap_interval", "split_queries", "WORD_CANDIDATES", "DescriptorResult", "evaluate_descriptor",
     "sample_distances", "eligible_queries", "word_counts", "inverse_document_frequency", "weight_histograms", "WEIGHTINGS",
     "DEFAULT_WEIGHTING", "tie_keys", "rerank", "verified_matches", "match_counts", "RERANK", "RERANK_RATIO",
+    "nearest_words", "rank_distances",
 ]
 
 #: Database frames per query that `rerank` reorders (0: none, the paper's setting); chosen on the
@@ -162,14 +163,20 @@ def vocabulary(descriptors: np.ndarray, words: int = N_WORDS, metric: str | None
     return Vocabulary(descriptors[medoids].copy(), metric)
 
 
-def word_counts(features: Features | np.ndarray, vocab: Vocabulary) -> np.ndarray:
-    """(K,) int64 number of valid descriptors of `features` whose nearest visual word is each word."""
+def nearest_words(features: Features | np.ndarray, vocab: Vocabulary) -> np.ndarray:
+    """(n,) int64 nearest visual word of each of the n descriptors of `features` under the
+    vocabulary's metric (-1 for an invalid one)."""
     from ..matching import match, metric_of_pair
 
     descriptors = np.asarray(features.descriptors if isinstance(features, Features) else features)
     metric_of_pair(descriptors, vocab.medoids, ("features", "vocabulary"))  # bits against float words: no distance
-    m = match(features, vocab.medoids, metric=vocab.metric)
-    return np.bincount(m.matches0[m.matches0 >= 0], minlength=len(vocab)).astype(np.int64)
+    return np.asarray(match(features, vocab.medoids, metric=vocab.metric).matches0, np.int64)
+
+
+def word_counts(features: Features | np.ndarray, vocab: Vocabulary) -> np.ndarray:
+    """(K,) int64 number of valid descriptors of `features` whose nearest visual word is each word."""
+    words = nearest_words(features, vocab)
+    return np.bincount(words[words >= 0], minlength=len(vocab)).astype(np.int64)
 
 
 def histogram(features: Features | np.ndarray, vocab: Vocabulary) -> np.ndarray:
@@ -268,8 +275,18 @@ def search(queries: np.ndarray, database: np.ndarray, k: int = MAX_K, exclude: n
     database = np.atleast_2d(np.asarray(database, np.float64))
     if queries.shape[1] != database.shape[1]:
         raise ValueError(f"queries, database: histograms of different lengths {queries.shape} and {database.shape}")
-    d = _distances(queries, database, distance)
-    allowed = database.shape[0]
+    return rank_distances(_distances(queries, database, distance), k, exclude, order)
+
+
+def rank_distances(d: np.ndarray, k: int = MAX_K, exclude: np.ndarray | None = None,
+                   order: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The k nearest of each row of a (Q, N) distance matrix (smaller first): `search`'s ranking, for
+    any score (e.g. minus a similarity). `exclude`, `order` and the result as in `search`; `d` is
+    not changed."""
+    d = np.array(d, np.float64)  # a copy: excluded entries are set to inf
+    if d.ndim != 2:
+        raise ValueError(f"d: expected a (Q, N) distance matrix, got shape {d.shape}")
+    allowed = d.shape[1]
     if exclude is not None:
         exclude = np.asarray(exclude)
         if exclude.dtype == bool:
