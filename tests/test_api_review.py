@@ -320,3 +320,16 @@ def test_read_sequence_names_its_python_argument_for_a_bad_depth_scale(tmp_path)
     for bad in ("0.001", -0.001, 1000.0):
         with pytest.raises(ValueError, match=r"^depth_scale: "):
             geofeat.read_sequence(tmp_path, depth_scale=bad)
+
+
+def test_describer_refuses_a_single_name_string_and_an_unknown_profile():
+    """`Describer("geobit", ...)` iterated the string ("unknown name 'g'"), and `profile="auto"` was a bare
+    KeyError: both name their argument now."""
+    from geofeat.descriptors.describer import Describer
+
+    with pytest.raises(ValueError, match=r"names: expected a list of descriptor names such as \['geobit'\]"):
+        Describer("geobit", 0.05)
+    for profile in ("auto", "Kinect", "fast"):
+        with pytest.raises(ValueError, match=rf"profile: expected one of kinect, quantised, clean.*got '{profile}'"):
+            Describer(("geobit",), 0.05, profile)
+    assert Describer(("geobit",), 0.05, "quantised").descriptors["geobit"].depth_config.mesh_scale == 0.5

@@ -26,6 +26,16 @@ class Describer:
     `match_device` says where to match each one's features."""
 
     def __init__(self, names: tuple[str, ...], radius: float, profile: str = "kinect", device: str | None = None) -> None:
+        """`names`: descriptor names (`make_descriptor`'s); `radius`: geodesic radius, metres; `profile`:
+        a depth profile of `depth.PROFILES` ("kinect", "quantised", "clean"; "auto" is chosen per
+        sequence by the caller, `depth.sequence_depth_profile`). ValueError naming the argument for a
+        single string as `names` (its letters were taken as names: "unknown name 'g'") or another profile."""
+        if isinstance(names, str):
+            raise ValueError(f"names: expected a list of descriptor names such as [{names!r}], got the string {names!r}")
+        if profile not in PROFILES:  # a bare KeyError before, "auto" included
+            known = ", ".join(PROFILES)
+            raise ValueError(f"profile: expected one of {known} (a Describer describes with one profile; pick 'auto' "
+                             f"per sequence with geofeat.depth.sequence_depth_profile), got {profile!r}")
         self.radius = radius
         self.depth_config = PROFILES[profile]
         self.device = str(device) if wants_gpu(device) else None
