@@ -333,3 +333,19 @@ def test_describer_refuses_a_single_name_string_and_an_unknown_profile():
         with pytest.raises(ValueError, match=rf"profile: expected one of kinect, quantised, clean.*got '{profile}'"):
             Describer(("geobit",), 0.05, profile)
     assert Describer(("geobit",), 0.05, "quantised").descriptors["geobit"].depth_config.mesh_scale == 0.5
+
+
+def test_a_baselines_size_factor_and_a_bootstrap_level_in_percent_are_refused():
+    """`OpenCVDescriptor("sift", size_factor=-1)` described every keypoint at 1 px without a word, and
+    `bootstrap_interval(x, level=95)` failed inside numpy's quantile, naming no argument."""
+    from geofeat.apps.retrieval import bootstrap_interval
+    from geofeat.descriptors.baselines import OpenCVDescriptor
+
+    for factor in (-1.0, 0.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="sift: size_factor"):
+            OpenCVDescriptor("sift", size_factor=factor)
+    assert OpenCVDescriptor("sift", size_factor=2.0).size_factor == 2.0
+    with pytest.raises(ValueError, match=r"level \(a fraction, 0.95 for 95 %\)"):
+        bootstrap_interval(np.ones(10), level=95)
+    low, high = bootstrap_interval(np.arange(10.0), level=0.9)
+    assert low < 4.5 < high

@@ -50,7 +50,7 @@ from tqdm import tqdm
 
 from ..constants import N_KEYPOINTS
 from ..features import Features
-from ..inputs import check_whole
+from ..inputs import check_in_range, check_whole
 from ..outputs import plural, write_picture
 
 __all__ = [
@@ -351,6 +351,7 @@ def bootstrap_interval(per_query: np.ndarray, n: int = N_BOOTSTRAP, level: float
     Returns (low, high), each of shape per_query.shape[1:]: the (1 - level) / 2 and (1 + level) / 2
     quantiles of the means of `n` resamples of the Q queries with replacement; NaN when Q < 2 (every
     resample of one query is that query: a zero-width interval that looked like certainty)."""
+    level = check_in_range(level, "level (a fraction, 0.95 for 95 %)", 0.0, 1.0)  # 95 was numpy's quantile error
     per_query = np.asarray(per_query, np.float64)
     if len(per_query) < 2:
         nan = np.full(per_query.shape[1:], np.nan)

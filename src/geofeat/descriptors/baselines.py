@@ -48,6 +48,7 @@ import numpy as np
 
 from ..features import Features
 from ..frame import RGBDFrame, check_frame, too_thin_to_describe
+from ..inputs import check_positive
 from ..keypoints import as_keypoints, to_uint8
 
 #: SIFT diameter -> descriptor size factors (see module docstring).
@@ -167,6 +168,8 @@ class OpenCVDescriptor:
         self.metric = "hamming" if self.binary else "l2"
         if self.size_factor is None:
             self.size_factor = SIZE_FACTORS[self.name]
+        # a negative or NaN factor was described at 1 px (the smallest support), inf at DEFAULT_SIZE_PX
+        self.size_factor = check_positive(self.size_factor, f"{self.name}: size_factor")
 
     def compute(self, frame: RGBDFrame, keypoints) -> Features:
         """Describe `keypoints` (see `geofeat.keypoints.as_keypoints`) on `frame.image`; a keypoint
