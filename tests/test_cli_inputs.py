@@ -544,6 +544,7 @@ def test_simulate_refuses_a_contact_sheet_named_as_a_frame_in_its_sequence_folde
     (["simulate", "sim", "--texture", ""], "--texture"),
     (["simulate", "sim", "--texture="], "--texture"),
     (["extract", "", "--out", "x"], "a positional argument"),
+    (["simulate", "--overwrite", "", "--frames", "2"], "a positional argument"),  # after a flag taking no value
 ])
 def test_an_empty_argument_is_refused_not_read_as_the_current_folder(tmp_path, monkeypatch, capsys, argv, named):
     """`geofeat simulate "$OUT"` with OUT unset passed "", which `Path` reads as ".": the sequence was

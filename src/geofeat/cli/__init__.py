@@ -43,8 +43,9 @@ def is_interrupt(error: BaseException) -> bool:
     return False
 
 
-def empty_argument(argv: list[str]) -> str | None:
-    """The option (or "a positional argument") given an empty string in `argv`, or None.
+def empty_argument(argv: list[str], parser: argparse.ArgumentParser) -> str | None:
+    """The option (or "a positional argument") of the command `parser` given an empty string in `argv`,
+    or None.
 
     `geofeat simulate "$OUT"` with OUT unset passes "", which `Path` reads as the current folder; no
     option of geofeat takes an empty value, so such an argument is refused before it is parsed."""
@@ -52,9 +53,8 @@ def empty_argument(argv: list[str]) -> str | None:
         if token.startswith("--") and token.endswith("=") and len(token) > 3:
             return token[:-1]
         if token.strip() == "":
-            before = argv[i - 1] if i else ""
-            takes_value = before.startswith("-") and "=" not in before and not before.lstrip("-").isdigit()
-            return before if takes_value else "a positional argument"
+            option = parser._option_string_actions.get(argv[i - 1]) if i else None
+            return argv[i - 1] if option is not None and option.nargs != 0 else "a positional argument"
     return None
 
 
@@ -68,13 +68,12 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     argv = sys.argv[1:] if argv is None else list(argv)
     args, unknown = parser.parse_known_args(argv)
-    empty = empty_argument(argv)
+    commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    empty = empty_argument(argv, commands.choices[args.command])
     if empty is not None:
-        commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
         commands.choices[args.command].error(
             f"{empty}: an empty value (an unset shell variable?); give a value, or leave the option out")
     if unknown:  # argparse reports them with the top-level usage, which lists the commands, not the command's options
-        commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
         commands.choices[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")
     plain = warnings.formatwarning
     # a warning (the depth units, an upright descriptor) reads as one line of the command's, without
