@@ -349,3 +349,18 @@ def test_a_baselines_size_factor_and_a_bootstrap_level_in_percent_are_refused():
         bootstrap_interval(np.ones(10), level=95)
     low, high = bootstrap_interval(np.arange(10.0), level=0.9)
     assert low < 4.5 < high
+
+
+def test_retrieval_refuses_a_fractional_seed_and_no_neighbours():
+    """`vocabulary(..., seed=2.5)` drew the words of seed 2 without a word, and `search(..., k=0)` returned
+    no neighbours (every accuracy of them 0)."""
+    from geofeat.apps.retrieval import search, vocabulary
+
+    rng = np.random.default_rng(0)
+    descriptors = rng.standard_normal((40, 8)).astype(np.float32)
+    with pytest.raises(ValueError, match="seed: expected a whole number >= 0, got 2.5"):
+        vocabulary(descriptors, 4, seed=2.5)
+    assert len(vocabulary(descriptors, 4, seed=np.int64(2))) == 4
+    with pytest.raises(ValueError, match="k: expected a whole number >= 1, got 0"):
+        search(rng.random((3, 5)), rng.random((6, 5)), k=0)
+    assert search(rng.random((3, 5)), rng.random((6, 5)), k=2)[0].shape == (3, 2)

@@ -158,7 +158,8 @@ def vocabulary(descriptors: np.ndarray, words: int = N_WORDS, metric: str | None
     if D.shape != (len(descriptors),) * 2:  # another sample's matrix would pick medoids of the wrong rows
         raise ValueError(f"distances: expected the ({len(descriptors)}, {len(descriptors)}) matrix of these "
                          f"descriptors, got shape {D.shape}")
-    result = kmedoids.fasterpam(D, int(words), init="random", random_state=int(seed), n_cpu=1)
+    seed = check_whole(seed, "seed", 0)  # 2.5 was truncated to 2 without a word
+    result = kmedoids.fasterpam(D, int(words), init="random", random_state=seed, n_cpu=1)
     medoids = np.sort(np.asarray(result.medoids, np.int64))
     return Vocabulary(descriptors[medoids].copy(), metric)
 
@@ -283,6 +284,7 @@ def rank_distances(d: np.ndarray, k: int = MAX_K, exclude: np.ndarray | None = N
     """The k nearest of each row of a (Q, N) distance matrix (smaller first): `search`'s ranking, for
     any score (e.g. minus a similarity). `exclude`, `order` and the result as in `search`; `d` is
     not changed."""
+    k = check_whole(k, "k", 1)  # k=0 returned no neighbours, and every Acc@K of them was 0
     d = np.array(d, np.float64)  # a copy: excluded entries are set to inf
     if d.ndim != 2:
         raise ValueError(f"d: expected a (Q, N) distance matrix, got shape {d.shape}")
