@@ -364,3 +364,16 @@ def test_retrieval_refuses_a_fractional_seed_and_no_neighbours():
     with pytest.raises(ValueError, match="k: expected a whole number >= 1, got 0"):
         search(rng.random((3, 5)), rng.random((6, 5)), k=0)
     assert search(rng.random((3, 5)), rng.random((6, 5)), k=2)[0].shape == (3, 2)
+
+
+def test_keypoints_off_the_image_that_fit_as_row_column_pairs_say_so():
+    """Keypoints given as (row, column), as np.argwhere and scikit-image return them, were refused as
+    off the image with no word on why; when every one fits the image once swapped, the error says so."""
+    from geofeat.keypoints import as_keypoints
+
+    rows_cols = np.array([[10.0, 20.0], [100.0, 600.0], [470.0, 630.0]])  # (row, col) on a 640 x 480 image
+    with pytest.raises(ValueError, match=r"off the 640x480 image.*\(row, column\) pairs.*xy\[:, ::-1\]"):
+        as_keypoints(rows_cols, (480, 640))
+    assert len(as_keypoints(rows_cols[:, ::-1], (480, 640))) == 3
+    with pytest.raises(ValueError, match=r"off the 640x480 image, e.g. #0 at \(700.0, 10.0\)$"):
+        as_keypoints(np.array([[700.0, 10.0], [5.0, 600.0]]), (480, 640))  # off both ways: no hint

@@ -172,8 +172,11 @@ def as_keypoints(keypoints, shape: tuple[int, int] | None = None, allow_empty: b
         off = (xy[:, 0] < -0.5) | (xy[:, 0] > W - 0.5) | (xy[:, 1] < -0.5) | (xy[:, 1] > H - 0.5)
         if off.any():
             i = int(np.argmax(off))
+            swapped = not ((xy[:, 1] < -0.5) | (xy[:, 1] > W - 0.5) | (xy[:, 0] < -0.5) | (xy[:, 0] > H - 0.5)).any()
+            hint = ("; all of them lie on the image as (row, column) pairs, as np.argwhere and scikit-image give "
+                    "them: pass xy[:, ::-1] for (x, y)") if swapped else ""
             raise ValueError(f"{what}: {int(off.sum())} keypoint(s) off the {W}x{H} image, e.g. #{i} at "
-                             f"({xy[i, 0]:.1f}, {xy[i, 1]:.1f})")
+                             f"({xy[i, 0]:.1f}, {xy[i, 1]:.1f}){hint}")
     return kps
 
 
