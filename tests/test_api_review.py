@@ -377,3 +377,26 @@ def test_keypoints_off_the_image_that_fit_as_row_column_pairs_say_so():
     assert len(as_keypoints(rows_cols[:, ::-1], (480, 640))) == 3
     with pytest.raises(ValueError, match=r"off the 640x480 image, e.g. #0 at \(700.0, 10.0\)$"):
         as_keypoints(np.array([[700.0, 10.0], [5.0, 600.0]]), (480, 640))  # off both ways: no hint
+
+
+def test_features_of_two_descriptors_are_not_matched_and_files_keep_the_method(tmp_path):
+    """ORB's and BRAND's descriptors are both (N, 32) uint8 and were matched without a word (so were
+    SIFT's and GeoPatch's (N, 128) float32, warned of only by their norms). Features now record the
+    descriptor that computed them; files keep it; `match` refuses two methods."""
+    from geofeat.features import Features, load_features, save_features
+
+    frame = geofeat.read_demo_frame()
+    kps = geofeat.detect(frame, 64, detector="sift")
+    orb = geofeat.make_descriptor("orb").compute(frame, kps)
+    brand = geofeat.make_descriptor("brand").compute(frame, kps)
+    assert (orb.method, brand.method, geofeat.GeoBit().compute(frame, kps).method) == ("orb", "brand", "geobit")
+    with pytest.raises(ValueError, match=r"descriptors of two methods \(orb and brand\)"):
+        geofeat.match(orb, brand)
+    assert (geofeat.match(orb, orb).matches0[orb.valid] >= 0).all()
+    bare = Features(orb.keypoints, brand.descriptors, brand.valid)  # no method recorded: not checked
+    assert geofeat.match(orb, bare).matches0.shape == (len(orb),)
+    for name in ("f.npz", "f.h5"):
+        save_features(tmp_path / name, brand, name="cloud_1")
+        assert load_features(tmp_path / name, "cloud_1").method == "brand"
+    with pytest.raises(ValueError, match="method: expected a descriptor name or None"):
+        Features(orb.keypoints, orb.descriptors, orb.valid, method="")

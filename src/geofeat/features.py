@@ -69,6 +69,9 @@ class Features:
         sizes: optional (N,) detector keypoint diameter, pixels.
         scores: optional (N,) detector score (higher = better; `Keypoints.scores`), so that a set can be
             cut to its best n later (`geofeat bench --features` does).
+        method: optional name of the descriptor that computed them ("geopatch", "orb", "brand", ...; every
+            geofeat descriptor sets it, files keep it): `geofeat.match` refuses two sets of different
+            methods, which may share a shape and dtype (ORB's and BRAND's (N, 32) uint8). Not compared by `==`.
     """
 
     keypoints: np.ndarray
@@ -77,6 +80,7 @@ class Features:
     angles: np.ndarray | None = None
     sizes: np.ndarray | None = None
     scores: np.ndarray | None = None
+    method: str | None = None
 
     def __post_init__(self) -> None:
         try:
@@ -124,6 +128,11 @@ class Features:
                 if value.shape != (n,):
                     raise ValueError(f"{name}: expected shape ({n},), got {value.shape}")
                 setattr(self, name, value)
+        if self.method is not None:
+            if isinstance(self.method, bytes):  # as an .h5 file stores it
+                self.method = self.method.decode()
+            if not isinstance(self.method, str) or not self.method.strip():
+                raise ValueError(f"method: expected a descriptor name or None, got {self.method!r}")
 
     def __len__(self) -> int:
         return int(self.keypoints.shape[0])
@@ -139,7 +148,8 @@ class Features:
     def __repr__(self) -> str:  # the dataclass's printed every array in full
         d = self.descriptors
         extras = "".join(f", {name}" for name in ("angles", "sizes", "scores") if getattr(self, name) is not None)
-        return (f"Features({len(self)} keypoints, {int(self.valid.sum())} valid, descriptors {tuple(d.shape)} "
+        of = f" of {self.method}" if self.method else ""
+        return (f"Features({len(self)} keypoints{of}, {int(self.valid.sum())} valid, descriptors {tuple(d.shape)} "
                 f"{d.dtype}{extras})")
 
 
@@ -370,7 +380,7 @@ def save_features(path: str | Path, features: Features, name: str | None = None)
     its constructor checks it): one edited after it was made so that it no longer loads is refused."""
     if not isinstance(features, Features):
         raise TypeError(f"features: expected a Features record, got {type(features).__name__}")
-    features = _checked_again(features, ("keypoints", "descriptors", "valid", "angles", "sizes", "scores"))
+    features = _checked_again(features, ("keypoints", "descriptors", "valid", "angles", "sizes", "scores", "method"))
     arrays = {
         "keypoints": features.keypoints.astype(np.float32 if _suffix(path) == ".h5" else np.float64),
         "descriptors": features.descriptors,
@@ -382,6 +392,8 @@ def save_features(path: str | Path, features: Features, name: str | None = None)
         arrays["sizes"] = features.sizes
     if features.scores is not None:
         arrays["scores"] = features.scores
+    if features.method is not None:
+        arrays["method"] = np.bytes_(features.method.encode())  # bytes: h5py stores no numpy unicode
     if _suffix(path) == ".npz":
         write_npz(path, _npz_with_name(arrays, name))
     else:
@@ -481,7 +493,16 @@ def _features_from(arrays: dict[str, np.ndarray], path, hloc: bool = False) -> F
         angles=arrays.get("angles"),
         sizes=arrays.get("sizes"),
         scores=arrays.get("scores"),
+        method=_method_of(arrays.get("method")),
     )
+
+
+def _method_of(value) -> str | None:
+    """The `Features.method` a file stores (a 0-d bytes or str array), None when it stores none."""
+    if value is None:
+        return None
+    value = np.asarray(value).item() if np.ndim(value) == 0 else value
+    return value.decode() if isinstance(value, bytes) else str(value)
 
 
 def load_features(path: str | Path, name: str | None = None) -> Features:

@@ -744,8 +744,9 @@ def match_cuda(features0, features1, mutual: bool = False, ratio: float | None =
     for (N, B). Only the (N0,) matches and distances come back to the host."""
     import torch
 
-    from .matching import _finish_matches, _hamming_search_torch, _l2_search_torch
+    from .matching import _finish_matches, _hamming_search_torch, _l2_search_torch, check_same_method
 
+    check_same_method(features0, features1)  # host Features of two descriptors (ORB's and BRAND's)
     dev = require_cuda(device)
     unpack, finite = functools.partial(features_on, dev=dev), valid_descriptors_finite
 

@@ -983,6 +983,16 @@ MAX_NORM_RATIO = 10.0
 NORM_CHECK_ROWS = 256
 
 
+def check_same_method(features0, features1, names: tuple[str, str] = ("features0", "features1")) -> None:
+    """ValueError when two feature sets record different descriptors (`Features.method`): ORB's and
+    BRAND's descriptors are both (N, 32) uint8, GeoPatch's and SIFT's (N, 128) float32, and were matched
+    without a word. Sets that record none (bare arrays, features from other tools) are not checked."""
+    methods = [getattr(f, "method", None) for f in (features0, features1)]
+    if None not in methods and methods[0] != methods[1]:
+        raise ValueError(f"{names[0]}, {names[1]}: descriptors of two methods ({methods[0]} and {methods[1]}); their "
+                         "distances mean nothing: match features of one descriptor")
+
+
 def warn_if_scales_differ(d0: np.ndarray, d1: np.ndarray, valid0: np.ndarray | None = None,
                           valid1: np.ndarray | None = None, names: tuple[str, str] = ("features0", "features1")) -> None:
     """Warn when the median L2 norms of the valid rows (`NORM_CHECK_ROWS` of them, evenly spaced) of float (N0, D) `d0` and (N1, D) `d1` (`valid0`,
@@ -1087,10 +1097,14 @@ def match(
     Float descriptors whose valid rows' median norms differ more than `MAX_NORM_RATIO` (10) times
     warn (`warn_if_scales_differ`): descriptors of two methods, or one set normalised and the other not.
 
+    Two `Features` of different descriptors (`Features.method`, e.g. ORB's and BRAND's, both (N, 32)
+    uint8) are a ValueError: their distances mean nothing.
+
     Returns:
         `Matches` with matches0 (N0,) int64 (-1 = no match) and distances0 (N0,) float64 (bits for
         Hamming metrics, Euclidean units for L2; inf where no match).
     """
+    check_same_method(features0, features1)
     d0, valid0 = _unpack(features0, "features0")
     d1, valid1 = _unpack(features1, "features1")
     if d0.ndim < 2 or d1.ndim < 2:

@@ -225,7 +225,7 @@ class OpenCVDescriptor:
             mine = index >= 0  # not the octave -1 keypoint added for SIFT
             out[index[mine]] = desc[mine].astype(dtype)
             valid[index[mine]] = True
-        return Features(kps.xy, out, valid, angles=kps.angles, sizes=kps.sizes, scores=kps.scores)
+        return Features(kps.xy, out, valid, angles=kps.angles, sizes=kps.sizes, scores=kps.scores, method=self.name)
 
 
 BASELINES = tuple(SIZE_FACTORS)

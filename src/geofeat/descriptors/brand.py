@@ -150,7 +150,7 @@ class BRAND:
         Y = (xy[:, 1, None, None] + side_y[:, None, None] * (s * u + c * v)).reshape(n, 2 * nb).astype(np.float32)
         out = np.zeros((n, nb // 8), np.uint8)
         if n == 0:
-            return Features(xy, out, valid, angles=angles, sizes=sizes, scores=kps.scores)
+            return Features(xy, out, valid, angles=angles, sizes=sizes, scores=kps.scores, method=self.name)
         image = cv2.GaussianBlur(frame.image.astype(np.float32), (0, 0), IMAGE_SIGMA_PX)
         I = _remap(image, X, Y, cv2.INTER_LINEAR).reshape(n, nb, 2)
         N = np.stack([_remap(normals[..., k], X, Y, cv2.INTER_NEAREST) for k in range(3)], -1).reshape(n, nb, 2, 3)
@@ -161,4 +161,4 @@ class BRAND:
         tau_g = (cos_n < np.cos(np.radians(NORMAL_ANGLE_DEG))) & convex  # NaN (no depth) -> False
         out = np.packbits(tau_i | tau_g, axis=1)
         out[~valid] = 0
-        return Features(xy, out, valid, angles=angles, sizes=sizes, scores=kps.scores)
+        return Features(xy, out, valid, angles=angles, sizes=sizes, scores=kps.scores, method=self.name)

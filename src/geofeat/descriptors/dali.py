@@ -239,8 +239,8 @@ class DaLI:
         xy, angles, sizes = keypoint_arrays(kps, "dali", frame.image.shape[:2])
         if too_thin_to_describe(frame, self.name):
             return Features(xy, np.zeros((len(xy), DIM), np.float32), np.zeros(len(xy), bool), angles=angles,
-                            sizes=kps.sizes, scores=kps.scores)
+                            sizes=kps.sizes, scores=kps.scores, method=self.name)
         grid = cartesian_grid(GRID) * (GRID / (GRID - 1))  # vertex spacing = support radius / ((GRID-1)/2)
         patches = sample_patches(frame.image, xy, angles, RADIUS_FACTOR * sizes, grid)
         return Features(xy, self.describe_patches(patches), np.ones(len(xy), bool), angles=angles,
-                        sizes=kps.sizes, scores=kps.scores)
+                        sizes=kps.sizes, scores=kps.scores, method=self.name)

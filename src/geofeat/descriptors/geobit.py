@@ -311,4 +311,5 @@ class GeoBit:
             angles=kps.angles,
             sizes=kps.sizes,
             scores=kps.scores,
+            method=self.name,
         )

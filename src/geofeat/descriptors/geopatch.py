@@ -415,4 +415,4 @@ class GeoPatch:
         else:
             check_patches(patches, kps.xy, self.radius, frame, self.blur_px, self.depth_config)
         return Features(patches.keypoints, self.describe(patches.values, patches.valid), patches.valid,
-                        angles=kps.angles, sizes=kps.sizes, scores=kps.scores)
+                        angles=kps.angles, sizes=kps.sizes, scores=kps.scores, method=self.name.partition("=")[0])

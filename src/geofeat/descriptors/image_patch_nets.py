@@ -214,8 +214,8 @@ class ImagePatchDescriptor:
         xy, angles, sizes = keypoint_arrays(kps, self.name, frame.image.shape[:2])
         if too_thin_to_describe(frame, self.name):
             return Features(xy, np.zeros((len(xy), self.net.config.dim), np.float32), np.zeros(len(xy), bool),
-                            angles=angles, sizes=kps.sizes, scores=kps.scores)
+                            angles=angles, sizes=kps.sizes, scores=kps.scores, method=self.name)
         patches = image_patches(frame.image, Keypoints(xy, angles, sizes, np.zeros(len(xy))), self.arch)
         return Features(xy, self.describe(patches), np.ones(len(xy), bool), angles=angles, sizes=kps.sizes,
-                        scores=kps.scores)
+                        scores=kps.scores, method=self.name)
 
