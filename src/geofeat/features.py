@@ -129,7 +129,9 @@ class Features:
                     raise ValueError(f"{name}: expected shape ({n},), got {value.shape}")
                 setattr(self, name, value)
         if self.method is not None:
-            if isinstance(self.method, bytes):  # as an .h5 file stores it
+            if isinstance(self.method, np.ndarray) and self.method.ndim == 0:  # as a file stores it
+                self.method = self.method.item()
+            if isinstance(self.method, bytes):
                 self.method = self.method.decode()
             if not isinstance(self.method, str) or not self.method.strip():
                 raise ValueError(f"method: expected a descriptor name or None, got {self.method!r}")
@@ -493,16 +495,8 @@ def _features_from(arrays: dict[str, np.ndarray], path, hloc: bool = False) -> F
         angles=arrays.get("angles"),
         sizes=arrays.get("sizes"),
         scores=arrays.get("scores"),
-        method=_method_of(arrays.get("method")),
+        method=arrays.get("method"),  # a 0-d bytes array: `Features` reads it
     )
-
-
-def _method_of(value) -> str | None:
-    """The `Features.method` a file stores (a 0-d bytes or str array), None when it stores none."""
-    if value is None:
-        return None
-    value = np.asarray(value).item() if np.ndim(value) == 0 else value
-    return value.decode() if isinstance(value, bytes) else str(value)
 
 
 def load_features(path: str | Path, name: str | None = None) -> Features:
